@@ -1,0 +1,69 @@
+"""The ``evcbench`` command line: serve the API and run benchmarks (more verbs arrive with the service)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from service.settings import Settings
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.app import create_app
+
+    defaults = Settings()
+    settings = Settings(
+        data_dir=args.data_dir or defaults.data_dir,
+        bench=args.bench or defaults.bench,
+        seed=args.seed if args.seed is not None else defaults.seed,
+        host=args.host or defaults.host,
+        port=args.port or defaults.port,
+    )
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from service.benchmarks import get_benchmark
+
+    try:
+        result = get_benchmark(args.name)()
+    except KeyError as exc:
+        print(exc.args[0], file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for key, value in result.items():
+            print(f"{key:>32}: {value}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="evcbench", description="EVC Bench: piezo bench service and tools.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    serve = sub.add_parser("serve", help="start the REST service")
+    serve.add_argument("--host", help="bind address (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, help="TCP port (default 8000)")
+    serve.add_argument("--data-dir", type=__import__("pathlib").Path, help="store directory (default ./var)")
+    serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
+    serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")
+    serve.set_defaults(func=_cmd_serve)
+
+    bench = sub.add_parser("bench", help="run a benchmark and print its figures")
+    bench.add_argument("name", help="emulator | identification | …")
+    bench.add_argument("--json", action="store_true", help="print one JSON object")
+    bench.set_defaults(func=_cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

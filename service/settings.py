@@ -1,0 +1,25 @@
+"""Service settings, read from the environment (EVCBENCH_*) with safe defaults."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Where the service keeps its data and which bench it drives.
+
+    ``bench`` names a file in fixtures/benches/ (or a path to one); ``seed`` makes the
+    emulated bench reproducible. ``host`` defaults to loopback.
+    """
+
+    data_dir: Path = field(default_factory=lambda: Path(os.environ.get("EVCBENCH_DATA_DIR", "var")))
+    bench: str = field(default_factory=lambda: os.environ.get("EVCBENCH_BENCH", "default"))
+    seed: int | None = field(default_factory=lambda: _int_or_none(os.environ.get("EVCBENCH_SEED")))
+    host: str = field(default_factory=lambda: os.environ.get("EVCBENCH_HOST", "127.0.0.1"))
+    port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_PORT", "8000")))
+
+
+def _int_or_none(text: str | None) -> int | None:
+    return int(text) if text not in (None, "") else None
