@@ -1,0 +1,164 @@
+"""Emulated devices: thin driver-protocol views on one ``World``.
+
+EmulatedDaq (NI USB-6361 class, buffered and point-by-point), EmulatedAmplifier (one channel
+per axis) and EmulatedSensor (one capacitance gauge per axis). AI channels: 0 gauge Y,
+1 gauge Z, 2 amplifier monitor Y, 3 amplifier monitor Z.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from drivers.emulated import kernels as K
+from drivers.emulated.world import AXES, World
+from drivers.interfaces import AmplifierStatus, DaqCapabilities, DriverError, LimitError, SensorStatus
+
+
+class EmulatedDaq:
+    """Two AO, four AI, one hardware-timed clock derived from a 100 MHz timebase."""
+
+    def __init__(self, world: World):
+        self.world = world
+        daq = world.config["daq"]
+        self.timebase_hz = float(daq["timebase_hz"])
+        self.capabilities = DaqCapabilities(
+            buffered=True, point_by_point=True, ao_channels=2, ai_channels=4,
+            ao_range_v=(-world.range_v, world.range_v), ai_range_v=(-world.range_v, world.range_v),
+            resolution_bits=world.bits, timebase_hz=self.timebase_hz,
+            max_sample_rate_hz=float(daq["max_sample_rate_hz"]))
+        self._closed = False
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return self.world.sample_rate_hz
+
+    def coerce(self, sample_rate_hz: float) -> float:
+        """The rate the clock would actually run at: timebase / round(timebase / rate)."""
+        rate = float(sample_rate_hz)
+        if not np.isfinite(rate) or rate <= 0:
+            raise LimitError(f"sample rate {sample_rate_hz!r} Hz must be a positive number")
+        divisor = max(1, round(self.timebase_hz / rate))
+        actual = self.timebase_hz / divisor
+        if actual > self.capabilities.max_sample_rate_hz * (1 + 1e-12):
+            raise LimitError(f"sample rate {rate:g} Hz exceeds this DAQ's {self.capabilities.max_sample_rate_hz:g} Hz "
+                             f"for {self.capabilities.ai_channels} AI channels")
+        return actual
+
+    def configure(self, sample_rate_hz: float) -> float:
+        self._ensure_open()
+        actual = self.coerce(sample_rate_hz)
+        if actual != self.world.sample_rate_hz:
+            self.world.set_sample_rate(actual)
+        return actual
+
+    def _check_ao(self, ao: np.ndarray) -> None:
+        if not np.all(np.isfinite(ao)):
+            raise LimitError("AO data contains NaN or infinite values; nothing was written")
+        peak = float(np.max(np.abs(ao))) if ao.size else 0.0
+        if peak > self.world.range_v * (1 + 1e-9):
+            raise LimitError(f"AO data reaches {peak:.4f} V, outside the ±{self.world.range_v:g} V range; "
+                             "nothing was written")
+
+    def write_read(self, ao_daq_v: np.ndarray) -> np.ndarray:
+        """Buffered: write an (n, 2) block of DAQ volts, return the (n, 4) AI block."""
+        self._ensure_open()
+        ao = np.asarray(ao_daq_v, dtype=np.float64)
+        if ao.ndim != 2 or ao.shape[1] != 2:
+            raise ValueError(f"AO block must have shape (n, 2), got {ao.shape}")
+        self._check_ao(ao)
+        return self.world.run(ao)
+
+    def step(self, ao_daq_v: Sequence[float]) -> np.ndarray:
+        """Point-by-point: one AO sample in, one AI sample (4,) out, through the same kernel."""
+        self._ensure_open()
+        if len(ao_daq_v) != 2:
+            raise ValueError(f"AO sample must have 2 values, got {len(ao_daq_v)}")
+        a0, a1 = float(ao_daq_v[0]), float(ao_daq_v[1])
+        if not (abs(a0) <= self.world.range_v * (1 + 1e-9) and abs(a1) <= self.world.range_v * (1 + 1e-9)):
+            raise LimitError(f"AO sample ({a0}, {a1}) V is outside ±{self.world.range_v:g} V or not finite; "
+                             "nothing was written")
+        return self.world.step(a0, a1)
+
+    def write_idle(self) -> None:
+        """AO to 0 V, then let the world run idle until the amplifier outputs are below 10 mV."""
+        if self._closed:
+            return
+        self.world.idle()
+
+    def close(self) -> None:
+        if not self._closed:
+            self.world.idle()
+            self._closed = True
+
+    def _ensure_open(self) -> None:
+        if self._closed:
+            raise DriverError("the emulated DAQ is closed")
+
+
+class EmulatedAmplifier:
+    """One amplifier channel. Starts enabled; a latched fault drives the output to 0 V."""
+
+    def __init__(self, world: World, axis: str):
+        self.world = world
+        self.axis = axis
+        self._a = world.axis_index(axis)
+        amp = world.config["axes"][axis]["amplifier"]
+        self.gain_v_per_v = float(amp["gain_v_per_v"])
+        self.output_limits_v = (float(amp["output_min_v"]), float(amp["output_max_v"]))
+        self.slew_limit_v_per_s = float(amp["slew_limit_v_per_s"])
+        self.current_limit_a = float(amp["current_limit_a"])
+        self.load_capacitance_f = float(amp["load_capacitance_f"])
+
+    def enable(self) -> None:
+        self.world.sa[self._a, K.S_ENABLED] = 1.0
+
+    def disable(self) -> None:
+        self.world.sa[self._a, K.S_ENABLED] = 0.0
+
+    def clear_fault(self) -> None:
+        self.world.clear_amplifier_fault(self._a)
+
+    def status(self) -> AmplifierStatus:
+        sa = self.world.sa[self._a]
+        fault = bool(sa[K.S_FAULT] > 0.5)
+        reason = None
+        if fault:
+            reason = (f"over-current: {sa[K.S_FAULT_I] * 1e3:.0f} mA demanded (limit {self.current_limit_a * 1e3:.0f} mA) "
+                      f"for {sa[K.S_FAULT_T] * 1e3:.1f} ms")
+            if self.world.injected("amplifier_overcurrent", self.axis):
+                reason += " (injected)"
+        return AmplifierStatus(enabled=bool(sa[K.S_ENABLED] > 0.5), fault=fault, fault_reason=reason,
+                               output_v=float(sa[K.S_VP]), current_a=float(sa[K.S_IA]),
+                               current_limited=bool(sa[K.S_CLIM] > 0.5))
+
+
+class EmulatedSensor:
+    """A capacitance gauge: ±10 V over ±range, linear scale_um_per_v."""
+
+    def __init__(self, world: World, axis: str):
+        self.world = world
+        self.axis = axis
+        self._a = world.axis_index(axis)
+        self.scale_um_per_v = float(world.config["axes"][axis]["gauge"]["scale_um_per_v"])
+        span = world.range_v * self.scale_um_per_v
+        self.range_um = (-span, span)
+
+    def status(self) -> SensorStatus:
+        sa = self.world.sa[self._a]
+        if sa[K.S_DROP] > 0.5:
+            why = "injected" if self.world.injected("sensor_dropout", self.axis) else "signal lost"
+            return SensorStatus(ok=False, saturated=False, reason=f"gauge {self.axis}: dropout, output stuck at 0 V ({why})")
+        if sa[K.S_SAT] > 0.5 or sa[K.S_SATN] > 0:
+            v = sa[K.S_GV]
+            return SensorStatus(ok=False, saturated=True,
+                                reason=f"gauge {self.axis}: saturated ({int(sa[K.S_SATN])} samples at ±{self.world.range_v:g} V, "
+                                       f"last {v:+.2f} V): target outside ±{self.range_um[1]:g} µm")
+        return SensorStatus(ok=True, saturated=False, reason=None)
+
+
+def build_devices(world: World):
+    daq = EmulatedDaq(world)
+    amps = {ax: EmulatedAmplifier(world, ax) for ax in AXES}
+    sensors = {ax: EmulatedSensor(world, ax) for ax in AXES}
+    return daq, amps, sensors
