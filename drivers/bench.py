@@ -24,6 +24,9 @@ ACTUATOR_V_MAX = 120.0
 # A sampled waveform's finite-difference slope overshoots the analytic one by rounding
 # and quantisation; allow this relative margin before calling it a limit violation.
 _RATE_CHECK_MARGIN = 1.02
+# A non-resonant device works below its first resonance; a sine above this fraction of it
+# rings the flexure (and its harmonics sit on the mode), so it is refused.
+RESONANCE_FRACTION = 0.5
 
 
 class RunInterrupted(DriverError):
@@ -84,7 +87,8 @@ class Bench:
         return self.limits[self._axis(axis)].max_frequency_hz(vpp_v)
 
     def check_sine(self, axis: str, vpp_v: float, frequency_hz: float) -> None:
-        """Refuse a sine whose peak current or slew rate exceeds the amplifier's limits."""
+        """Refuse a sine whose peak current or slew rate exceeds the amplifier's limits, or whose
+        frequency comes within reach of the axis's first resonance."""
         lim = self.limits[self._axis(axis)]
         need_a = np.pi * frequency_hz * vpp_v * lim.capacitance_f
         if need_a > lim.current_limit_a:
@@ -97,6 +101,11 @@ class Bench:
             raise LimitError(
                 f"{vpp_v:g} Vpp at {frequency_hz:g} Hz slews at {slew / 1e3:.1f} V/ms; the amplifier's "
                 f"limit is {lim.slew_limit_v_per_s / 1e3:.1f} V/ms")
+        if np.isfinite(lim.first_resonance_hz) and frequency_hz > RESONANCE_FRACTION * lim.first_resonance_hz:
+            raise LimitError(
+                f"{frequency_hz:g} Hz is above {RESONANCE_FRACTION:g} × the {axis} axis's first resonance "
+                f"({lim.first_resonance_hz:g} Hz); a non-resonant drive must stay below "
+                f"{RESONANCE_FRACTION * lim.first_resonance_hz:.1f} Hz")
 
     def check_waveform(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float) -> None:
         """Refuse a planned waveform that would leave the limits. Raises LimitError saying why."""

@@ -232,3 +232,11 @@ def test_disabled_amplifier_outputs_zero():
     assert abs(rec.x_um["y"]).max() < 0.05 and not amp.status().enabled
     amp.enable()
     assert bench.run({"y": biased_sine(10, cycles=1)}, FS).x_um["y"].max() > 5.0
+
+
+def test_sine_near_the_first_resonance_is_refused_with_reason():
+    bench = open_bench("default", seed=0)
+    bench.check_sine("z", 120.0, 100.0)                       # the paper's 100 Hz is allowed
+    with pytest.raises(LimitError, match=r"160 Hz.*290\.7 Hz.*145\.3 Hz"):
+        bench.check_sine("z", 10.0, 160.0)                    # small enough for the amplifier, too close to the mode
+    bench.check_sine("y", 10.0, 160.0)                        # Y's mode is at 482.6 Hz
