@@ -1,0 +1,1 @@
+"""Identification machinery: bounded LS over design blocks, PSO, metrics, procedures."""

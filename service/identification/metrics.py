@@ -1,0 +1,19 @@
+"""Fit metrics between a measured and a predicted displacement record."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def fit_metrics(x_measured_um, x_predicted_um) -> dict:
+    """``rms_um``, ``max_abs_um`` and the MATLAB-style ``fit_percent`` = 100·(1 − ‖e‖/‖x − mean x‖)."""
+    x = np.asarray(x_measured_um, dtype=float)
+    p = np.asarray(x_predicted_um, dtype=float)
+    if x.shape != p.shape:
+        raise ValueError(f"measured has shape {x.shape} but predicted has {p.shape}")
+    e = x - p
+    spread = float(np.linalg.norm(x - x.mean()))
+    return {
+        "rms_um": float(np.sqrt(np.mean(e**2))),
+        "max_abs_um": float(np.max(np.abs(e))),
+        "fit_percent": float(100.0 * (1.0 - np.linalg.norm(e) / spread)) if spread > 0 else float("nan"),
+    }

@@ -1,0 +1,130 @@
+"""Commanded waveforms with analytic derivatives, turning points, and derivative estimates.
+
+Waveforms are generic in their unit (volts for a drive, micrometres for a reference);
+``value`` is in that unit, ``d1_per_s`` in unit/s and ``d2_per_s2`` in unit/s².
+Pure numpy/scipy: no model, no store, no HTTP.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.signal import find_peaks, savgol_filter
+
+#: A reversal counts as a turning point when it swings by this fraction of the range.
+TURNING_SWING_FRACTION = 0.1
+#: Savitzky–Golay window as a fraction of the dominant period.
+SAVGOL_PERIOD_FRACTION = 0.1
+SAVGOL_POLYORDER = 4
+
+
+@dataclass(frozen=True)
+class Waveform:
+    """A sampled waveform and its exact first and second time derivatives."""
+
+    t_s: np.ndarray
+    value: np.ndarray
+    d1_per_s: np.ndarray
+    d2_per_s2: np.ndarray
+    sample_rate_hz: float
+
+
+def time_axis(duration_s: float, sample_rate_hz: float) -> np.ndarray:
+    """Sample instants 0, 1/fs, ... covering ``duration_s`` (s)."""
+    if not sample_rate_hz > 0:
+        raise ValueError(f"sample_rate_hz must be positive, got {sample_rate_hz}")
+    if not duration_s > 0:
+        raise ValueError(f"duration_s must be positive, got {duration_s}")
+    return np.arange(int(round(duration_s * sample_rate_hz))) / sample_rate_hz
+
+
+def multi_sine(
+    frequencies_hz: Sequence[float],
+    amplitudes: Sequence[float],
+    sample_rate_hz: float,
+    duration_s: float,
+    low: float = 0.0,
+) -> Waveform:
+    """``low + Σ A_k (1 − cos 2π f_k t)``: starts at rest at ``low``, peaks at ``low + 2ΣA_k``.
+
+    A harmonic with ``A_k f_k`` larger than the fundamental's adds minor loops of
+    several amplitudes inside each major cycle.
+    """
+    f = np.asarray(frequencies_hz, dtype=float)[:, None]
+    a = np.asarray(amplitudes, dtype=float)[:, None]
+    if f.shape != a.shape:
+        raise ValueError("frequencies_hz and amplitudes must have the same length")
+    t = time_axis(duration_s, sample_rate_hz)
+    w = 2.0 * np.pi * f
+    phase = w * t[None, :]
+    value = low + np.sum(a * (1.0 - np.cos(phase)), axis=0)
+    d1 = np.sum(a * w * np.sin(phase), axis=0)
+    d2 = np.sum(a * w**2 * np.cos(phase), axis=0)
+    return Waveform(t, value, d1, d2, float(sample_rate_hz))
+
+
+def biased_sine(
+    frequency_hz: float,
+    cycles: float,
+    sample_rate_hz: float,
+    low: float = 0.0,
+    high: float = 120.0,
+) -> Waveform:
+    """The paper's drive: a sine between ``low`` and ``high`` starting at ``low`` (at rest)."""
+    if not frequency_hz > 0:
+        raise ValueError(f"frequency_hz must be positive, got {frequency_hz}")
+    return multi_sine([frequency_hz], [(high - low) / 2.0], sample_rate_hz, cycles / frequency_hz, low)
+
+
+def turning_points(y: np.ndarray, swing_fraction: float = TURNING_SWING_FRACTION) -> np.ndarray:
+    """Indices of interior extrema whose prominence exceeds ``swing_fraction`` of the range."""
+    y = np.asarray(y, dtype=float)
+    span = float(np.ptp(y)) if y.size else 0.0
+    if span == 0.0:
+        return np.empty(0, dtype=int)
+    prominence = swing_fraction * span
+    peaks, _ = find_peaks(y, prominence=prominence)
+    troughs, _ = find_peaks(-y, prominence=prominence)
+    return np.sort(np.concatenate([peaks, troughs]))
+
+
+def dominant_period_samples(y: np.ndarray) -> float:
+    """Dominant period (samples) from the mean spacing of turning points (two per cycle).
+
+    With fewer than two interior turning points the longest monotone stretch,
+    endpoints included, is taken as the half period.
+    """
+    y = np.asarray(y, dtype=float)
+    tp = turning_points(y)
+    if tp.size >= 2:
+        return 2.0 * float(tp[-1] - tp[0]) / (tp.size - 1)
+    marks = np.concatenate([[0], tp, [max(y.size - 1, 1)]])
+    return 2.0 * float(np.max(np.diff(marks)))
+
+
+def savgol_derivatives(
+    y: np.ndarray,
+    sample_rate_hz: float,
+    period_samples: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """First and second derivatives (unit/s, unit/s²) by Savitzky–Golay.
+
+    The window spans ``SAVGOL_PERIOD_FRACTION`` of the dominant period (odd, at least
+    polyorder + 3 samples, at most the record); short records fall back to ``np.gradient``.
+    """
+    y = np.asarray(y, dtype=float)
+    dt = 1.0 / float(sample_rate_hz)
+    if period_samples is None:
+        period_samples = dominant_period_samples(y)
+    window = int(round(SAVGOL_PERIOD_FRACTION * period_samples)) | 1
+    window = max(window, SAVGOL_POLYORDER + 3)
+    if window > y.size:
+        window = y.size if y.size % 2 else y.size - 1
+    if window <= SAVGOL_POLYORDER + 1:
+        d1 = np.gradient(y, dt) if y.size > 1 else np.zeros_like(y)
+        d2 = np.gradient(d1, dt) if y.size > 1 else np.zeros_like(y)
+        return d1, d2
+    d1 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=1, delta=dt, mode="interp")
+    d2 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=2, delta=dt, mode="interp")
+    return d1, d2
