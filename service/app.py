@@ -1,7 +1,9 @@
-"""The FastAPI application: opens the bench at start-up, mounts the routers, closes it at 0 V."""
+"""The FastAPI application: opens the store and the bench at start-up, mounts the routers, and at
+shut-down stops the jobs (a running sweep keeps its partial data) and closes the bench at 0 V."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from contextlib import asynccontextmanager
 from typing import Callable
 
@@ -10,8 +12,19 @@ from fastapi import FastAPI
 from drivers.bench import Bench
 from service import __version__
 from service.api import bench as bench_api
+from service.api import datasets as datasets_api
+from service.api import errors as errors_api
 from service.api import health as health_api
+from service.api import jobs as jobs_api
+from service.api import models as models_api
+from service.api import sweeps as sweeps_api
+from service.jobs import JobManager
 from service.settings import Settings
+from service.store import Store
+
+#: Routers mounted under /api, in the order they appear in the docs.
+ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
+           models_api.router)
 
 
 def open_configured_bench(settings: Settings) -> Bench:
@@ -28,17 +41,27 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         app.state.settings = settings
         app.state.started_at = time.time()
-        app.state.bench = factory(settings)
+        app.state.store = Store(settings.resolved_database_url, settings.data_dir)
         try:
-            yield
+            app.state.bench = factory(settings)
+            try:
+                app.state.jobs = JobManager(app.state.store, on_cancel_bench=app.state.bench.request_stop)
+                try:
+                    yield
+                finally:
+                    app.state.jobs.shutdown()
+            finally:
+                app.state.bench.close()
         finally:
-            app.state.bench.close()
+            app.state.store.close()
 
     app = FastAPI(title="EVC Bench", version=__version__, lifespan=lifespan,
-                  description="Characterise, model and control a two-axis piezo EVC bench.")
-    app.include_router(health_api.router, prefix="/api")
-    app.include_router(bench_api.router, prefix="/api")
+                  description="Characterise, model and control a two-axis piezo EVC bench. Units live in "
+                              "field names: _v volts at the actuator, _um micrometres, _hz, _s.")
+    errors_api.install(app)
+    for router in ROUTERS:
+        app.include_router(router, prefix="/api")
     return app

@@ -1,4 +1,5 @@
-"""The ``evcbench`` command line: serve the API and run benchmarks (more verbs arrive with the service)."""
+"""The ``evcbench`` command line: serve the API, run benchmarks, and drive a running service
+(sweep, import, identify, compare, jobs, datasets, models: see service/cli_remote.py)."""
 from __future__ import annotations
 
 import argparse
@@ -20,6 +21,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         seed=args.seed if args.seed is not None else defaults.seed,
         host=args.host or defaults.host,
         port=args.port or defaults.port,
+        database_url=args.database_url or defaults.database_url,
     )
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
     return 0
@@ -51,12 +53,18 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--data-dir", type=__import__("pathlib").Path, help="store directory (default ./var)")
     serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
     serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")
+    serve.add_argument("--database-url", help="SQLAlchemy URL of the metadata database "
+                       "(default: SQLite in the data dir; env EVCBENCH_DATABASE_URL)")
     serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
     bench.add_argument("name", help="emulator | identification | …")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
     bench.set_defaults(func=_cmd_bench)
+
+    from service.cli_remote import add_commands
+
+    add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
     return parser
 
 

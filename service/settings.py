@@ -11,7 +11,8 @@ class Settings:
     """Where the service keeps its data and which bench it drives.
 
     ``bench`` names a file in fixtures/benches/ (or a path to one); ``seed`` makes the
-    emulated bench reproducible. ``host`` defaults to loopback.
+    emulated bench reproducible. ``host`` defaults to loopback. ``database_url`` is an
+    SQLAlchemy URL (``postgresql+psycopg://…``); empty means SQLite in ``data_dir``.
     """
 
     data_dir: Path = field(default_factory=lambda: Path(os.environ.get("EVCBENCH_DATA_DIR", "var")))
@@ -19,6 +20,14 @@ class Settings:
     seed: int | None = field(default_factory=lambda: _int_or_none(os.environ.get("EVCBENCH_SEED")))
     host: str = field(default_factory=lambda: os.environ.get("EVCBENCH_HOST", "127.0.0.1"))
     port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_PORT", "8000")))
+    database_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_DATABASE_URL") or None)
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The metadata database: ``database_url`` if set, else SQLite at <data_dir>/evcbench.db."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{Path(self.data_dir).resolve() / 'evcbench.db'}"
 
 
 def _int_or_none(text: str | None) -> int | None:

@@ -15,4 +15,4 @@ def health(request: Request) -> dict:
     """Liveness plus the software version and the bench backend."""
     state = request.app.state
     return {"status": "ok", "version": __version__, "backend": state.bench.parts.backend,
-            "uptime_s": round(time.time() - state.started_at, 3)}
+            "store": state.store.backend, "uptime_s": round(time.time() - state.started_at, 3)}

@@ -1,0 +1,76 @@
+"""Running a planned sweep on the bench and storing what it measured as one dataset.
+
+A cancelled or interrupted run keeps the samples taken so far: they are stored as a dataset
+marked ``partial`` (with the reason), and the bench leaves its output at 0 V either way.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.bench import Bench, BenchRecord, RunInterrupted
+from service.datasets import units_for
+from service.jobs import JobContext, JobInterrupted
+from service.store import Store, utc_now
+from service.sweeps import PlannedSweep, trim_blocks
+
+
+def bench_snapshot(bench: Bench) -> dict:
+    """The full configuration of the bench: backend, every driver/emulator parameter, limits."""
+    return {"backend": bench.parts.backend, "parameters": bench.parts.config,
+            "limits": {axis: lim.as_dict() for axis, lim in bench.limits.items()},
+            "amplifier_gain_v_per_v": {a: amp.gain_v_per_v for a, amp in bench.parts.amplifiers.items()},
+            "sensor_scale_um_per_v": {a: s.scale_um_per_v for a, s in bench.parts.sensors.items()}}
+
+
+def record_arrays(record: BenchRecord) -> dict[str, np.ndarray]:
+    """A bench record as dataset arrays: t_s, then u_<axis>_v and x_<axis>_um, then temp_c."""
+    arrays = {"t_s": record.t_s}
+    for axis in sorted(record.x_um):
+        arrays[f"u_{axis}_v"] = np.asarray(record.u_cmd_v[axis], dtype=float)
+        arrays[f"x_{axis}_um"] = np.asarray(record.x_um[axis], dtype=float)
+    for name, values in record.extra.items():
+        if name == "temp_c" and len(values) == record.samples:
+            arrays["temp_c"] = np.asarray(values, dtype=float)
+    return arrays
+
+
+def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep, plan: dict,
+              name: str | None = None) -> dict:
+    """Stream ``planned`` through the bench, store the record, return ``{"dataset_id", …}``.
+
+    On a stop (cancel, fault) the partial record is stored and JobInterrupted carries its id.
+    """
+    duration = planned.duration_s
+
+    def on_block(_record: BenchRecord, fraction: float) -> None:
+        ctx.progress(0.98 * fraction, f"sweeping: {fraction * duration:.1f} of {duration:.1f} s")
+
+    ctx.progress(0.0, f"sweeping: 0 of {duration:.1f} s")
+    started_at = utc_now()
+    try:
+        record = bench.run(planned.u_v, planned.sample_rate_hz, on_block=on_block,
+                           should_stop=lambda: ctx.cancelled)
+        reason = None
+    except RunInterrupted as exc:
+        record, reason = exc.record, exc.reason
+    finished_at = utc_now()
+    if record.samples == 0:
+        raise JobInterrupted(f"{reason}; no samples were taken", None)
+    arrays = record_arrays(record)
+    blocks = trim_blocks(planned.blocks, record.samples, record.sample_rate_hz)
+    ctx.progress(0.99, "storing")
+    row = store.add_dataset(arrays, {
+        "name": name or _default_name(plan), "source": "sweep", "axes": sorted(record.x_um),
+        "sample_rate_hz": record.sample_rate_hz, "blocks": blocks, "plan": plan,
+        "config": bench_snapshot(bench), "units": units_for(arrays), "partial": reason is not None,
+        "partial_reason": reason, "job_id": ctx.job_id, "started_at": started_at, "finished_at": finished_at})
+    result = {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"]}
+    if reason is not None:
+        raise JobInterrupted(f"{reason}: {row['samples']} samples kept as partial dataset {row['id']}", result)
+    return result
+
+
+def _default_name(plan: dict) -> str:
+    freqs = plan.get("frequencies_hz")
+    detail = ",".join(f"{f:g}" for f in freqs) + " Hz" if freqs else plan.get("waveform", "")
+    return f"{plan.get('waveform', 'sweep')} {'+'.join(plan.get('axes', []))} {detail}".strip()

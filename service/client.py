@@ -1,0 +1,190 @@
+"""A small Python client of the EVC Bench REST API (used by the CLI and the tests).
+
+    from service.client import Client
+    api = Client("http://127.0.0.1:8000")
+    job = api.sweep(axes=["y"], frequencies_hz=[1, 10], cycles=5, wait=True)
+    model = api.identify("y", [job["result"]["dataset_id"]], model="static_pi")
+    print(api.compare(model["id"], job["result"]["dataset_id"])["metrics"])
+
+Every non-2xx answer raises ApiError with the server's ``detail`` and the ``field`` at fault.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import httpx
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+TERMINAL_STATES = ("succeeded", "failed", "cancelled")
+ProgressCallback = Callable[[dict], None]
+
+
+class ApiError(RuntimeError):
+    """The service refused a request: ``status_code``, ``detail`` (words) and ``field``."""
+
+    def __init__(self, status_code: int, detail: str, field: str | None = None):
+        super().__init__(f"{status_code}: {detail}")
+        self.status_code, self.detail, self.field = status_code, detail, field
+
+
+class Client:
+    """Talks to one service. ``http`` may be any httpx.Client (e.g. FastAPI's TestClient)."""
+
+    def __init__(self, base_url: str = DEFAULT_URL, timeout_s: float = 60.0, http: httpx.Client | None = None):
+        self.http = http or httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout_s)
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ bench
+    def health(self) -> dict:
+        return self._request("GET", "/api/health")
+
+    def bench(self) -> dict:
+        return self._request("GET", "/api/bench")
+
+    def stop_bench(self) -> dict:
+        """Emergency stop: 0 V now, and the running bench job is cancelled."""
+        return self._request("POST", "/api/bench/stop")
+
+    # ------------------------------------------------------------------ jobs
+    def job(self, job_id: str) -> dict:
+        return self._request("GET", f"/api/jobs/{job_id}")
+
+    def jobs(self, limit: int = 100) -> list[dict]:
+        return self._request("GET", "/api/jobs", params={"limit": limit})
+
+    def cancel(self, job_id: str) -> dict:
+        return self._request("DELETE", f"/api/jobs/{job_id}")
+
+    def events(self, job_id: str) -> Iterator[tuple[str, dict]]:
+        """The job's server-sent events as (event, job) pairs, ending with ("end", final job)."""
+        with self.http.stream("GET", f"/api/jobs/{job_id}/events", timeout=None) as response:
+            if response.status_code >= 400:
+                response.read()
+                self._raise(response)
+            event, data = "message", []
+            for line in response.iter_lines():
+                if line.startswith("event:"):
+                    event = line[6:].strip()
+                elif line.startswith("data:"):
+                    data.append(line[5:].strip())
+                elif not line and data:
+                    yield event, json.loads("\n".join(data))
+                    event, data = "message", []
+
+    def wait(self, job_id: str, on_progress: ProgressCallback | None = None, timeout_s: float | None = None) -> dict:
+        """Follow a job until it ends (SSE; polling if the stream breaks); returns the final job."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        try:
+            for _event, job in self.events(job_id):
+                if on_progress:
+                    on_progress(job)
+                if job["state"] in TERMINAL_STATES:
+                    return job
+                if deadline and time.monotonic() > deadline:
+                    break
+        except httpx.TransportError:
+            pass
+        while True:
+            job = self.job(job_id)
+            if on_progress:
+                on_progress(job)
+            if job["state"] in TERMINAL_STATES:
+                return job
+            if deadline and time.monotonic() > deadline:
+                raise TimeoutError(f"job {job_id} is still {job['state']} after {timeout_s} s")
+            time.sleep(0.2)
+
+    # ------------------------------------------------------------------ sweeps and datasets
+    def start_sweep(self, **plan) -> dict:
+        """Queue a sweep (fields as in POST /api/sweeps); returns ``{"job_id", …}``."""
+        return self._request("POST", "/api/sweeps", json=plan)
+
+    def sweep(self, wait: bool = True, on_progress: ProgressCallback | None = None, **plan) -> dict:
+        """Run a sweep; with ``wait`` return the finished job (its result has ``dataset_id``)."""
+        started = self.start_sweep(**plan)
+        return self.wait(started["job_id"], on_progress) if wait else self.job(started["job_id"])
+
+    def import_dataset(self, file: str | Path | bytes, *, filename: str | None = None, name: str | None = None,
+                       axis: str | None = None, columns: dict | str | None = None,
+                       sample_rate_hz: float | None = None, delimiter: str | None = None) -> dict:
+        """Upload a CSV/table (a path or bytes) as a dataset; returns its record."""
+        if isinstance(file, (str, Path)):
+            filename = filename or Path(file).name
+            content = Path(file).read_bytes()
+        else:
+            content = file
+        form = {"name": name, "axis": axis, "sample_rate_hz": sample_rate_hz, "delimiter": delimiter,
+                "columns": json.dumps(columns) if isinstance(columns, dict) else columns}
+        form = {k: str(v) for k, v in form.items() if v is not None}
+        return self._request("POST", "/api/datasets", data=form,
+                             files={"file": (filename or "upload.csv", content, "text/csv")})
+
+    def datasets(self) -> list[dict]:
+        return self._request("GET", "/api/datasets")
+
+    def dataset(self, dataset_id: str) -> dict:
+        return self._request("GET", f"/api/datasets/{dataset_id}")
+
+    def dataset_data(self, dataset_id: str, format: str = "json", max_points: int | None = None):
+        """JSON arrays (dict), or the CSV text / HDF5 bytes with ``format="csv"``/``"hdf5"``."""
+        params = {"format": format, **({"max_points": max_points} if max_points else {})}
+        response = self._send("GET", f"/api/datasets/{dataset_id}/data", params=params)
+        return response.json() if format == "json" else response.text if format == "csv" else response.content
+
+    # ------------------------------------------------------------------ models
+    def start_identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
+                       effects: Sequence[str] = ("hysteresis",), n_operators: int = 10) -> dict:
+        body = {"axis": axis, "datasets": list(datasets), "model": model, "effects": list(effects),
+                "n_operators": n_operators}
+        return self._request("POST", "/api/models", json=body)
+
+    def identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
+                 effects: Sequence[str] = ("hysteresis",), n_operators: int = 10,
+                 on_progress: ProgressCallback | None = None) -> dict:
+        """Identify and wait; returns the stored model. ApiError if the job did not succeed."""
+        started = self.start_identify(axis, datasets, model, effects, n_operators)
+        job = self.wait(started["job_id"], on_progress)
+        if job["state"] != "succeeded":
+            raise ApiError(500, f"identification job {job['id']} {job['state']}: {job['error'] or job['message']}")
+        return self.model(job["result"]["model_id"])
+
+    def model(self, model_id: str) -> dict:
+        return self._request("GET", f"/api/models/{model_id}")
+
+    def models(self) -> list[dict]:
+        return self._request("GET", "/api/models")
+
+    def compare(self, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:
+        """Measured, predicted and residual arrays (unless ``arrays`` is False) and the metrics."""
+        params = {"dataset": dataset_id, "arrays": arrays, **({"max_points": max_points} if max_points else {})}
+        return self._request("GET", f"/api/models/{model_id}/compare", params=params)
+
+    # ------------------------------------------------------------------ plumbing
+    def _request(self, method: str, path: str, **kwargs):
+        return self._send(method, path, **kwargs).json()
+
+    def _send(self, method: str, path: str, **kwargs) -> httpx.Response:
+        response = self.http.request(method, path, **kwargs)
+        if response.status_code >= 400:
+            self._raise(response)
+        return response
+
+    @staticmethod
+    def _raise(response: httpx.Response) -> None:
+        try:
+            body = response.json()
+            detail, field = body.get("detail", response.text), body.get("field")
+        except ValueError:
+            detail, field = response.text or response.reason_phrase, None
+        raise ApiError(response.status_code, str(detail), field)

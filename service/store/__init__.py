@@ -1,0 +1,220 @@
+"""The store: metadata in SQL (SQLite in WAL mode by default, PostgreSQL by URL), arrays in files.
+
+Nothing is updated in place except a job's state: datasets and models are written once. A
+dataset's arrays are written (atomically) before its row; if the row cannot be inserted the
+file is removed again, so a failed request leaves the store as it was.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import uuid
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlalchemy import create_engine, event, insert, select, update
+from sqlalchemy.engine import Engine
+
+from service import __version__
+from service.store import tables
+from service.store.files import IntegrityError, read_arrays, write_arrays
+
+__all__ = ["Store", "NotFoundError", "IntegrityError", "utc_now", "clean_json", "json_sha256"]
+
+TERMINAL_STATES = ("succeeded", "failed", "cancelled")
+
+
+class NotFoundError(KeyError):
+    """No record with that id. ``field`` names what was looked up (dataset, model, job)."""
+
+    def __init__(self, field: str, record_id: str):
+        super().__init__(f"no {field} with id {record_id!r}")
+        self.field, self.record_id = field, record_id
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+def utc_now() -> str:
+    """Now as an ISO-8601 UTC string with microseconds (sorts as text)."""
+    return datetime.now(timezone.utc).isoformat(timespec="microseconds").replace("+00:00", "Z")
+
+
+def clean_json(value: Any) -> Any:
+    """A JSON-safe copy: numpy scalars/arrays to Python, NaN and ±inf to None, tuples to lists."""
+    if isinstance(value, dict):
+        return {str(k): clean_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [clean_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return clean_json(value.tolist())
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer, int)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def json_sha256(value: Any) -> str:
+    """SHA-256 of the canonical JSON text of ``value`` (sorted keys, no spaces)."""
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def new_id(prefix: str) -> str:
+    return f"{prefix}_{uuid.uuid4().hex[:16]}"
+
+
+def make_engine(url: str) -> Engine:
+    """An engine for ``url``; SQLite gets WAL mode and foreign keys on every connection."""
+    if url.startswith("postgresql://") or url.startswith("postgres://"):
+        url = "postgresql+psycopg://" + url.split("://", 1)[1]  # psycopg 3 is the installed driver
+    if url.startswith("sqlite"):
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+
+        @event.listens_for(engine, "connect")
+        def _pragmas(dbapi_connection, _record):
+            cursor = dbapi_connection.cursor()
+            cursor.execute("PRAGMA journal_mode=WAL")
+            cursor.execute("PRAGMA synchronous=NORMAL")
+            cursor.execute("PRAGMA foreign_keys=ON")
+            cursor.close()
+
+        return engine
+    return create_engine(url, pool_pre_ping=True)
+
+
+class Store:
+    """Datasets, models and jobs of one service instance."""
+
+    def __init__(self, database_url: str, data_dir: Path):
+        self.data_dir = Path(data_dir)
+        self.arrays_dir = self.data_dir / "arrays"
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.engine = make_engine(database_url)
+        tables.metadata.create_all(self.engine)
+
+    @property
+    def backend(self) -> str:
+        return self.engine.dialect.name
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    # ------------------------------------------------------------------ datasets
+    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict) -> dict:
+        """Store a dataset: arrays to a checksummed file, then its row. Returns the record.
+
+        ``meta`` holds name, source, axes, sample_rate_hz, blocks and optionally plan, config,
+        units, partial, partial_reason, job_id, started_at and finished_at (of an acquisition).
+        """
+        dataset_id = new_id("ds")
+        samples = len(next(iter(arrays.values()))) if arrays else 0
+        row = {
+            "id": dataset_id, "name": meta.get("name") or dataset_id, "source": meta["source"],
+            "axes": list(meta["axes"]), "samples": samples, "sample_rate_hz": float(meta["sample_rate_hz"]),
+            "blocks": clean_json(meta.get("blocks", [])), "plan": clean_json(meta.get("plan")),
+            "config": clean_json(meta.get("config")), "units": clean_json(meta.get("units", {})),
+            "software_version": __version__, "partial": bool(meta.get("partial", False)),
+            "partial_reason": meta.get("partial_reason"), "job_id": meta.get("job_id"),
+            "started_at": meta.get("started_at"), "finished_at": meta.get("finished_at"), "created_at": utc_now(),
+        }
+        path, digest = write_arrays(self.arrays_dir, dataset_id, arrays)
+        row.update(file=str(path.relative_to(self.data_dir)), sha256=digest)
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(insert(tables.datasets).values(**row))
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+        return row
+
+    def get_dataset(self, dataset_id: str) -> dict:
+        return self._get(tables.datasets, dataset_id, "dataset")
+
+    def list_datasets(self) -> list[dict]:
+        return self._list(tables.datasets)
+
+    def load_arrays(self, dataset_id: str) -> dict[str, np.ndarray]:
+        """The dataset's arrays, verified against the stored checksum."""
+        record = self.get_dataset(dataset_id)
+        return read_arrays(self.data_dir / record["file"], record["sha256"])
+
+    # ------------------------------------------------------------------ models
+    def add_model(self, record: dict) -> dict:
+        """Store an identified model (axis, kind, effects, datasets, parameters, metrics, …)."""
+        parameters = clean_json(record["parameters"])
+        row = {
+            "id": new_id("md"), "axis": record["axis"], "kind": record["kind"],
+            "effects": list(record.get("effects", [])), "parent_id": record.get("parent_id"),
+            "datasets": list(record["datasets"]), "options": clean_json(record.get("options")),
+            "parameters": parameters, "parameters_sha256": json_sha256(parameters),
+            "metrics": clean_json(record.get("metrics", {})), "software_version": __version__,
+            "job_id": record.get("job_id"), "created_at": utc_now(),
+        }
+        with self.engine.begin() as conn:
+            conn.execute(insert(tables.models).values(**row))
+        return row
+
+    def get_model(self, model_id: str) -> dict:
+        """The model's record; IntegrityError if its parameters no longer match their checksum."""
+        row = self._get(tables.models, model_id, "model")
+        if json_sha256(row["parameters"]) != row["parameters_sha256"]:
+            raise IntegrityError(f"model {model_id}: parameters do not match their sha256")
+        return row
+
+    def list_models(self) -> list[dict]:
+        return self._list(tables.models)
+
+    # ------------------------------------------------------------------ jobs
+    def add_job(self, kind: str, params: dict | None, needs_bench: bool) -> dict:
+        row = {"id": new_id("job"), "kind": kind, "needs_bench": needs_bench, "state": "queued",
+               "progress": 0.0, "message": "queued", "params": clean_json(params), "result": None,
+               "error": None, "created_at": utc_now(), "started_at": None, "finished_at": None}
+        with self.engine.begin() as conn:
+            conn.execute(insert(tables.jobs).values(**row))
+        return row
+
+    def update_job(self, job_id: str, **fields: Any) -> None:
+        """Set some of state, progress, message, result, error, started_at, finished_at."""
+        if "result" in fields:
+            fields["result"] = clean_json(fields["result"])
+        with self.engine.begin() as conn:
+            conn.execute(update(tables.jobs).where(tables.jobs.c.id == job_id).values(**fields))
+
+    def get_job(self, job_id: str) -> dict:
+        return self._get(tables.jobs, job_id, "job")
+
+    def list_jobs(self, limit: int = 100) -> list[dict]:
+        return self._list(tables.jobs, limit=limit, newest_first=True)
+
+    def fail_unfinished_jobs(self, reason: str) -> int:
+        """Mark jobs left queued or running by a previous process as failed; returns how many."""
+        with self.engine.begin() as conn:
+            result = conn.execute(
+                update(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+                .values(state="failed", error=reason, message=reason, finished_at=utc_now()))
+            return result.rowcount or 0
+
+    # ------------------------------------------------------------------ helpers
+    def _get(self, table, record_id: str, field: str) -> dict:
+        with self.engine.connect() as conn:
+            row = conn.execute(select(table).where(table.c.id == record_id)).mappings().first()
+        if row is None:
+            raise NotFoundError(field, record_id)
+        return dict(row)
+
+    def _list(self, table, limit: int | None = None, newest_first: bool = False) -> list[dict]:
+        order = table.c.created_at.desc() if newest_first else table.c.created_at
+        query = select(table).order_by(order, table.c.id)
+        if limit is not None:
+            query = query.limit(limit)
+        with self.engine.connect() as conn:
+            return [dict(row) for row in conn.execute(query).mappings()]

@@ -1,0 +1,66 @@
+"""The metadata schema (SQLAlchemy Core): datasets, models and jobs.
+
+Timestamps are ISO-8601 UTC strings so that SQLite and PostgreSQL return identical values;
+structured fields are JSON. Sample arrays are not here: they live in checksummed files.
+"""
+from __future__ import annotations
+
+from sqlalchemy import JSON, Boolean, Column, Float, Integer, MetaData, String, Table, Text
+
+metadata = MetaData()
+
+datasets = Table(
+    "datasets", metadata,
+    Column("id", String(40), primary_key=True),
+    Column("name", Text, nullable=False),
+    Column("source", String(20), nullable=False),          # sweep | import
+    Column("axes", JSON, nullable=False),                  # ["y", "z"]
+    Column("samples", Integer, nullable=False),
+    Column("sample_rate_hz", Float, nullable=False),
+    Column("blocks", JSON, nullable=False),                # block table, see service.datasets
+    Column("plan", JSON, nullable=True),                   # the sweep plan (or import options)
+    Column("config", JSON, nullable=True),                 # bench configuration snapshot
+    Column("units", JSON, nullable=False),                 # column -> unit
+    Column("software_version", String(40), nullable=False),
+    Column("partial", Boolean, nullable=False, default=False),
+    Column("partial_reason", Text, nullable=True),
+    Column("job_id", String(40), nullable=True),
+    Column("file", Text, nullable=False),                  # path relative to the data dir
+    Column("sha256", String(64), nullable=False),
+    Column("started_at", String(40), nullable=True),       # acquisition start (sweeps)
+    Column("finished_at", String(40), nullable=True),      # acquisition end (sweeps)
+    Column("created_at", String(40), nullable=False),
+)
+
+models = Table(
+    "models", metadata,
+    Column("id", String(40), primary_key=True),
+    Column("axis", String(4), nullable=False),
+    Column("kind", String(40), nullable=False),            # static_pi | dynamic_pi | grpi
+    Column("effects", JSON, nullable=False),
+    Column("parent_id", String(40), nullable=True),
+    Column("datasets", JSON, nullable=False),
+    Column("options", JSON, nullable=True),                # n_operators, …
+    Column("parameters", JSON, nullable=False),            # model.to_dict()
+    Column("parameters_sha256", String(64), nullable=False),
+    Column("metrics", JSON, nullable=False),
+    Column("software_version", String(40), nullable=False),
+    Column("job_id", String(40), nullable=True),
+    Column("created_at", String(40), nullable=False),
+)
+
+jobs = Table(
+    "jobs", metadata,
+    Column("id", String(40), primary_key=True),
+    Column("kind", String(40), nullable=False),            # sweep | identify | …
+    Column("needs_bench", Boolean, nullable=False),
+    Column("state", String(20), nullable=False),           # queued|running|succeeded|failed|cancelled
+    Column("progress", Float, nullable=False, default=0.0),
+    Column("message", Text, nullable=True),
+    Column("params", JSON, nullable=True),
+    Column("result", JSON, nullable=True),
+    Column("error", Text, nullable=True),
+    Column("created_at", String(40), nullable=False),
+    Column("started_at", String(40), nullable=True),
+    Column("finished_at", String(40), nullable=True),
+)

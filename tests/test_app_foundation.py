@@ -1,0 +1,40 @@
+"""The service skeleton: /api/health and /api/bench on the emulated bench, and 0 V at shut-down."""
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.settings import Settings
+
+
+def test_health_and_bench_describe_the_emulated_bench(tmp_path):
+    app = create_app(Settings(data_dir=tmp_path, bench="default", seed=0))
+    with TestClient(app) as client:
+        health = client.get("/api/health")
+        assert health.status_code == 200
+        assert health.json()["status"] == "ok"
+        assert health.json()["backend"] == "emulated:default"
+
+        bench = client.get("/api/bench").json()
+        assert bench["axes"] == ["y", "z"]
+        for axis in ("y", "z"):
+            limits = bench["limits"][axis]
+            assert (limits["v_min_v"], limits["v_max_v"]) == (0.0, 120.0)
+            # I = C·π·f·Vpp: 120 Vpp into 1.8 µF at 200 mA allows about 295 Hz.
+            expected_hz = limits["current_limit_a"] / (3.141592653589793 * limits["capacitance_f"] * 120.0)
+            assert abs(limits["max_frequency_hz_at_full_range"] - min(
+                expected_hz, limits["slew_limit_v_per_s"] / (3.141592653589793 * 120.0))) < 1e-6
+        assert bench["limits"]["y"]["first_resonance_hz"] == 482.6
+        assert bench["limits"]["z"]["first_resonance_hz"] == 290.7
+        assert bench["modes"]["point_by_point"] is True
+        assert bench["daq"]["resolution_bits"] == 16
+        bench_object = app.state.bench
+    # Leaving the context runs the shut-down: the bench is closed with its output at 0 V.
+    assert all(abs(v) < 0.05 for v in bench_object.output_v().values())
+
+
+def test_docs_are_served(tmp_path):
+    with TestClient(create_app(Settings(data_dir=tmp_path, seed=0))) as client:
+        assert client.get("/docs").status_code == 200
+        spec = client.get("/openapi.json").json()
+        assert "/api/health" in spec["paths"] and "/api/bench" in spec["paths"]

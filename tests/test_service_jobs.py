@@ -1,0 +1,153 @@
+"""The job manager: states, progress, one bench owner at a time (FIFO), others beside it,
+cancellation, failures, SSE, and recovery after a restart. No bench or HTTP needed."""
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+import pytest
+
+from service.jobs import JobInterrupted, JobManager
+from service.store import Store
+
+
+@pytest.fixture
+def store(tmp_path):
+    s = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
+    yield s
+    s.close()
+
+
+def _wait(manager: JobManager, job_id: str, timeout_s: float = 10.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = manager.get(job_id)
+        if job["state"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.005)
+    raise AssertionError(f"job {job_id} still {job['state']}")
+
+
+def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
+    manager = JobManager(store)
+    active, peak, order, lock = [0], [0], [], threading.Lock()
+    bench_free = threading.Event()
+
+    def bench_job(name):
+        def run(ctx):
+            with lock:
+                active[0] += 1
+                peak[0] = max(peak[0], active[0])
+                order.append(name)
+            for k in range(5):
+                ctx.progress((k + 1) / 5, f"{name} {k}")
+                time.sleep(0.01)
+            bench_free.wait(5)
+            with lock:
+                active[0] -= 1
+            return {"name": name}
+        return run
+
+    try:
+        ids = [manager.submit("sweep", {"n": k}, bench_job(f"b{k}"), needs_bench=True)["id"] for k in range(3)]
+        side = manager.submit("identify", None, lambda ctx: {"beside": manager.running_bench_job}, needs_bench=False)
+        # the identification finishes while the first bench job still holds the bench
+        assert _wait(manager, side["id"])["result"] == {"beside": ids[0]}
+        assert [manager.get(i)["state"] for i in ids] == ["running", "queued", "queued"]
+        bench_free.set()
+        jobs = [_wait(manager, i) for i in ids]
+    finally:
+        manager.shutdown()
+    assert [j["state"] for j in jobs] == ["succeeded"] * 3 and order == ["b0", "b1", "b2"] and peak[0] == 1
+    assert jobs[0]["progress"] == 1.0 and jobs[0]["result"] == {"name": "b0"} and jobs[0]["finished_at"]
+
+
+def test_cancel_queued_and_running_jobs(store):
+    manager = JobManager(store)
+    started = threading.Event()
+
+    def cancellable(ctx):
+        ctx.progress(0.5, "working")
+        started.set()
+        while not ctx.cancelled:
+            time.sleep(0.005)
+        raise JobInterrupted("stopped on request: 12 samples kept", {"dataset_id": "ds_partial"})
+
+    try:
+        running = manager.submit("sweep", None, cancellable, needs_bench=True)
+        queued = manager.submit("sweep", None, lambda ctx: {"ran": True}, needs_bench=True)
+        assert started.wait(5)
+        assert manager.cancel(queued["id"])["state"] == "cancelled"  # at once
+        assert manager.cancel(running["id"])["message"] == "cancel requested"
+        job = _wait(manager, running["id"])
+        assert (job["state"], job["result"], job["error"]) == ("cancelled", {"dataset_id": "ds_partial"}, None)
+        assert "12 samples kept" in job["message"]
+        time.sleep(0.05)
+        assert manager.get(queued["id"])["started_at"] is None  # it never ran
+        assert manager.cancel(job["id"])["state"] == "cancelled"  # cancelling again changes nothing
+    finally:
+        manager.shutdown()
+
+
+def test_failures_are_recorded_and_the_worker_lives_on(store):
+    manager = JobManager(store)
+
+    def broken(ctx):
+        raise ValueError("u_y spans −3–130 V")
+
+    try:
+        failed = manager.submit("sweep", None, broken, needs_bench=True)
+        after = manager.submit("sweep", None, lambda ctx: {"ok": True}, needs_bench=True)
+        assert _wait(manager, failed["id"])["error"] == "u_y spans −3–130 V"
+        assert _wait(manager, after["id"])["state"] == "succeeded"
+    finally:
+        manager.shutdown()
+
+
+def test_sse_streams_progress_then_the_end(store):
+    manager = JobManager(store)
+    gate = threading.Event()
+
+    def job(ctx):
+        gate.wait(5)
+        for k in range(1, 4):
+            ctx.progress(k / 4, f"step {k}")
+            time.sleep(0.15)
+        return {"done": True}
+
+    async def collect(job_id):
+        events = []
+        async for text in manager.events(job_id):
+            events.append(text)
+            if len(events) == 1:
+                gate.set()
+        return events
+
+    try:
+        submitted = manager.submit("identify", None, job, needs_bench=False)
+        events = asyncio.run(collect(submitted["id"]))
+        assert events[-1].startswith("event: end\n") and '"state": "succeeded"' in events[-1]
+        assert sum(e.startswith("event: progress") for e in events) >= 3
+        # subscribing after the end gives the end at once
+        assert asyncio.run(collect(submitted["id"])) == [events[-1]]
+    finally:
+        manager.shutdown()
+
+
+def test_restart_marks_unfinished_jobs_failed_and_shutdown_cancels_queued(store):
+    store.add_job("sweep", None, needs_bench=True)  # left "queued" by a process that died
+    manager = JobManager(store)
+    gate = threading.Event()
+    try:
+        assert manager.list()[0]["state"] == "failed"
+        assert "stopped before this job finished" in manager.list()[0]["error"]
+        blocking = manager.submit("sweep", None, lambda ctx: {"gate": gate.wait(5)}, needs_bench=True)
+        waiting = manager.submit("sweep", None, lambda ctx: {"ran": True}, needs_bench=True)
+        threading.Timer(0.2, gate.set).start()
+    finally:
+        manager.shutdown()
+    assert store.get_job(waiting["id"])["state"] == "cancelled"
+    assert store.get_job(blocking["id"])["state"] in ("succeeded", "cancelled")
+    with pytest.raises(RuntimeError, match="shutting down"):
+        manager.submit("sweep", None, lambda ctx: {}, needs_bench=True)

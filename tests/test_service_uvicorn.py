@@ -1,0 +1,149 @@
+"""A real service process (``evcbench serve`` under uvicorn, on a free port): sweep → identify →
+compare through service/client.py and through the CLI, then SIGTERM during a sweep and a restart
+that finds every dataset and model unchanged (checksums)."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service.client import Client
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = Path(__file__).parents[2] / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class Server:
+    """``evcbench serve`` in a subprocess with its own data dir and port."""
+
+    def __init__(self, data_dir: Path, log: Path):
+        self.port = _free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.log = log
+        env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
+             "--data-dir", str(data_dir), "--bench", "default", "--seed", "1"],
+            cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"the service exited with {self.proc.returncode}:\n{log.read_text()}")
+            try:
+                if httpx.get(f"{self.url}/api/health", timeout=1).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.2)
+        self.proc.kill()
+        raise AssertionError(f"the service did not answer within 120 s:\n{log.read_text()}")
+
+    def stop(self) -> bool:
+        """SIGTERM, then True if the process ran its shut-down and exited cleanly. (Uvicorn
+        re-raises the signal after a graceful shut-down, so the exit status may be −SIGTERM.)"""
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            code = self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise AssertionError(f"the service ignored SIGTERM:\n{self.log.read_text()}")
+        text = self.log.read_text()
+        return code in (0, -signal.SIGTERM) and text.rstrip().endswith(
+            f"Finished server process [{self.proc.pid}]") and "Application shutdown complete." in text
+
+
+def _cli(url: str, *args: str) -> subprocess.CompletedProcess:
+    result = subprocess.run([sys.executable, "-m", "service.cli", *args, "--url", url], cwd=ROOT,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, f"evcbench {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
+    return result
+
+
+def _state(api: Client, data_dir: Path) -> dict:
+    datasets = [api.dataset(d["id"]) for d in api.datasets()]
+    files = {d["id"]: hashlib.sha256((data_dir / d["file"]).read_bytes()).hexdigest() for d in datasets}
+    assert files == {d["id"]: d["sha256"] for d in datasets}  # every file matches its stored checksum
+    return {"datasets": datasets, "models": api.models(), "files": files}
+
+
+@pytest.fixture
+def data_dir(tmp_path):
+    return tmp_path / "var"
+
+
+def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path):
+    log = tmp_path / "server.log"
+    server = Server(data_dir, log)
+    try:
+        with Client(server.url) as api:
+            # --- the Python client
+            events = []
+            job = api.sweep(axes=["y"], frequencies_hz=[10, 50, 100], cycles=3, on_progress=events.append)
+            assert job["state"] == "succeeded" and events[-1]["progress"] == 1.0
+            dataset_id = job["result"]["dataset_id"]
+            model = api.identify("y", [dataset_id], model="static_pi")
+            compared = api.compare(model["id"], dataset_id, max_points=500)
+            assert compared["metrics"]["overall"]["fit_pct"] > 90
+            assert len(compared["metrics"]["per_block"]) == 3 and len(compared["x_predicted_um"]) <= 500
+
+            # --- the CLI, as a user runs it
+            out = _cli(server.url, "sweep", "--axes", "y", "--frequencies", "20,80", "--cycles", "3", "--wait")
+            assert "100.0 %" in out.stderr and "[####" in out.stderr  # the progress bar
+            cli_dataset = out.stdout.split("dataset ")[1].split()[0]
+            assert api.dataset(cli_dataset)["blocks"][1]["frequency_hz"] == 80.0
+            out = _cli(server.url, "identify", "--axis", "y", "--datasets", f"{dataset_id},{cli_dataset}")
+            cli_model = out.stdout.split("model ")[1].split()[0]
+            assert sorted(api.model(cli_model)["datasets"]) == sorted([dataset_id, cli_dataset])
+            out = _cli(server.url, "compare", cli_model, "--dataset", cli_dataset)
+            assert "heldout_rms_um" in out.stdout and "overall: RMS" in out.stdout
+            metrics = json.loads(_cli(server.url, "compare", cli_model, "--dataset", cli_dataset, "--json").stdout)
+            assert [b["frequency_hz"] for b in metrics["per_block"]] == [20.0, 80.0]
+            assert cli_model in _cli(server.url, "models").stdout
+            assert "identify" in _cli(server.url, "jobs").stdout
+            if REAL.exists():
+                out = _cli(server.url, "import", str(REAL), "--columns", '{"u":0,"x":4}', "--sample-rate-hz",
+                           "200", "--axis", "y", "--delimiter", "whitespace")
+                assert "8027 samples at 200 Hz" in out.stdout
+
+            # --- SIGTERM while a sweep runs: the partial record is kept
+            long = api.start_sweep(axes=["y"], frequencies_hz=[0.5], cycles=100)
+            deadline = time.monotonic() + 60
+            while api.job(long["job_id"])["progress"] < 0.01 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            before = _state(api, data_dir)
+        assert server.stop()
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
+
+    server = Server(data_dir, log)
+    try:
+        with Client(server.url) as api:
+            after = _state(api, data_dir)
+            partial = [d for d in after["datasets"] if d["partial"]]
+            assert len(partial) == 1 and partial[0]["job_id"] == long["job_id"]
+            assert [d for d in after["datasets"] if not d["partial"]] == before["datasets"]
+            assert {k: v for k, v in after["files"].items() if k != partial[0]["id"]} == before["files"]
+            assert after["models"] == before["models"]
+            assert api.job(long["job_id"])["state"] == "cancelled"
+            again = api.compare(model["id"], dataset_id, max_points=500)
+            assert again["metrics"] == compared["metrics"] and again["x_predicted_um"] == compared["x_predicted_um"]
+        assert server.stop()
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
