@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 
+from service import signals
 from service.hysteresis.kernels import play_operators as play_outputs
 
 SAMPLE_RATE_HZ = 20000.0
@@ -50,9 +51,8 @@ def rms(e: np.ndarray) -> float:
 
 def biased_sine(frequency_hz: float, cycles: int = CYCLES, fs: float = SAMPLE_RATE_HZ,
                 v_max: float = 120.0) -> np.ndarray:
-    n = int(round(cycles * fs / frequency_hz))
-    t = np.arange(n) / fs
-    return 0.5 * v_max * (1.0 - np.cos(2 * np.pi * frequency_hz * t))
+    """The paper's 0 → ``v_max`` biased sine (V), ``cycles`` periods at ``fs``."""
+    return signals.biased_sine(frequency_hz, cycles, fs, 0.0, v_max).value
 
 
 def last_cycle(u: np.ndarray, x: np.ndarray, frequency_hz: float, fs: float = SAMPLE_RATE_HZ):

@@ -7,14 +7,14 @@ import pytest
 from drivers.bench import Bench, RunInterrupted
 from drivers.emulated import FAULT_KINDS, list_benches, load_config, open_bench
 from drivers.interfaces import Amplifier, Daq, DisplacementSensor, DriverError, LimitError
+from service import signals
 
 FS = 20000.0
 VARIANTS = ("creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence")
 
 
 def biased_sine(f: float, cycles: float = 5, v_max: float = 120.0) -> np.ndarray:
-    t = np.arange(int(round(cycles * FS / f))) / FS
-    return v_max / 2 * (1 - np.cos(2 * np.pi * f * t))
+    return signals.biased_sine(f, cycles, FS, 0.0, v_max).value
 
 
 # ---------------------------------------------------------------------------------- configs
