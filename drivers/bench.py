@@ -212,7 +212,16 @@ class Bench:
                         previous[axis] = float(block[-1])
                         chunks_u[axis].append(block)
                         ao[:, self.parts.ao_channel[axis]] = block / self.parts.amplifiers[axis].gain_v_per_v
-                    chunks_ai.append(daq.write_read(ao))
+                    try:
+                        chunks_ai.append(daq.write_read(ao))
+                    except RunInterrupted:
+                        raise
+                    except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far
+                        for axis in self.axes:
+                            chunks_u[axis].pop()
+                        record = self._record(chunks_u, chunks_ai, actual)
+                        record.partial, record.reason = True, f"daq: {exc}"
+                        raise RunInterrupted(record.reason, record) from exc
                     fault = self._fault_reason()
                     record = self._record(chunks_u, chunks_ai, actual)
                     if fault:

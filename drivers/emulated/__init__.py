@@ -30,6 +30,10 @@ def open_bench(name_or_path: str = "default", seed: int | None = None, overrides
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
     cfg["seed"] = seed
+    if "transport" in cfg:  # a per-part transport table: serial / CAN / NI-DAQmx parts (drivers.composed)
+        from drivers.composed import open_from_config
+
+        return open_from_config(cfg, seed)
     world = World(cfg, seed)
     daq, amps, sensors = build_devices(world)
     parts = BenchParts(daq=daq, amplifiers=amps, sensors=sensors,
