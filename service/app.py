@@ -18,13 +18,14 @@ from service.api import health as health_api
 from service.api import jobs as jobs_api
 from service.api import models as models_api
 from service.api import sweeps as sweeps_api
+from service.api import trajectories as trajectories_api
 from service.jobs import JobManager
 from service.settings import Settings
 from service.store import Store
 
 #: Routers mounted under /api, in the order they appear in the docs.
 ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
-           models_api.router)
+           models_api.router, trajectories_api.router)
 
 
 def open_configured_bench(settings: Settings) -> Bench:

@@ -80,6 +80,15 @@ class EmulatedDaq:
                              "nothing was written")
         return self.world.step(a0, a1)
 
+    def stepping_hook(self):
+        """Optional compiled point-by-point hook: ``(step_fn, args, take_noise)``. A compiled caller
+        steps the world with ``step_fn(*args, ao0, ao1, noise, kn, out, ko, diag)`` using rows of
+        ``take_noise(n) -> (noise, first_row)``; the same kernel as ``step``. None when closed."""
+        if self._closed or not self.capabilities.point_by_point:
+            return None
+        step_fn, args = self.world.kernel_state()
+        return step_fn, args, self.world.take_noise
+
     def write_idle(self) -> None:
         """AO to 0 V, then let the world run idle until the amplifier outputs are below 10 mV."""
         if self._closed:

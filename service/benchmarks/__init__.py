@@ -11,6 +11,7 @@ from typing import Callable
 BENCHMARKS: dict[str, str] = {
     "emulator": "drivers.emulated.benchmark:run_emulator_benchmark",
     "identification": "service.benchmarks.identification:run_identification_benchmark",
+    "control": "service.benchmarks.control:run_control_benchmark",
 }
 
 

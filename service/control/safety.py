@@ -1,0 +1,89 @@
+"""Safety checks before a trajectory runs: modes the backend can run, current, slew, resonance,
+voltage and sensor range. Each refusal is a ``ControlRefused`` naming the field and the reason."""
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.bench import Bench
+from drivers.interfaces import LimitError
+
+
+#: A hysteresis-only feedforward ignores the flexure's dynamic gain (+13 % at 100 Hz on Z), so a demand
+#: up to this factor beyond 0–120 V is clipped (feedback/ILC make up the rest); beyond it, refused.
+VOLTAGE_MARGIN = 1.2
+
+
+class ControlRefused(ValueError):
+    """The request cannot run on this bench; ``field`` names the request field at fault."""
+
+    def __init__(self, field: str, reason: str):
+        super().__init__(reason)
+        self.field, self.reason = field, reason
+
+
+def stepping_hook(bench: Bench):
+    """The DAQ's optional compiled stepping hook ``(step_fn, args, take_noise)``, or None."""
+    hook = getattr(bench.parts.daq, "stepping_hook", None)
+    return hook() if callable(hook) else None
+
+
+def available_modes(bench: Bench) -> dict[str, str | None]:
+    """Mode → None if offered, else the reason it is not."""
+    caps = bench.parts.daq.capabilities
+    pbp = None
+    if not caps.point_by_point:
+        pbp = caps.point_by_point_reason or "this DAQ has no point-by-point mode"
+    elif stepping_hook(bench) is None:
+        pbp = "this DAQ offers no compiled stepping hook, so a 20 kHz per-sample loop cannot run in real time"
+    return {"point_by_point": pbp,
+            "buffered": None if caps.buffered else "this DAQ has no buffered streaming mode"}
+
+
+def check_mode(bench: Bench, mode: str, pid: bool) -> None:
+    """Refuse a mode the backend cannot run, and per-sample PID in buffered streaming."""
+    modes = available_modes(bench)
+    if mode not in modes:
+        raise ControlRefused("mode", f"unknown mode {mode!r}; use point_by_point or buffered")
+    if modes[mode] is not None:
+        raise ControlRefused("mode", f"{mode} is not available on {bench.parts.backend}: {modes[mode]}")
+    if mode == "buffered" and pid:
+        raise ControlRefused("controller.pid", "per-sample PID needs point-by-point mode: buffered streaming "
+                             "returns each measurement a block (one period or more) after the command left, so "
+                             "feedback every sample is impossible; use ilc (it learns between periods)")
+
+
+def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | None, frequency_hz: float,
+                     v_max: float = 120.0, steady: slice = slice(None)) -> None:
+    """Refuse a reference outside the sensor range, a feedforward beyond 0–``v_max`` V, or a drive whose
+    current, slew or frequency the amplifier and flexure cannot take (Bench.check_sine, at the
+    feedforward's Vpp or, without one, the full range). Voltages are checked over ``steady`` samples
+    (the start ramp may ask for less than 0 V near 0 µm; the clamp holds it at 0 V)."""
+    for i, axis in enumerate(bench.axes):
+        field = f"{axis}_range_um"
+        lo, hi = bench.parts.sensors[axis].range_um
+        top = float(np.max(x_ref_um[:, i]))
+        if top > 0.95 * hi or float(np.min(x_ref_um[:, i])) < lo:
+            raise ControlRefused(field, f"{axis} reference reaches {top:.2f} µm; the gauge reads {lo:g}–{hi:g} µm")
+        vpp = bench.limits[axis].v_max_v - bench.limits[axis].v_min_v
+        if u_ff_v is not None:
+            u = u_ff_v[steady, i]
+            if np.max(u) > v_max * VOLTAGE_MARGIN or np.min(u) < -v_max * (VOLTAGE_MARGIN - 1):
+                raise ControlRefused(field, f"{axis} reference needs {np.min(u):.1f}–{np.max(u):.1f} V by the "
+                                     f"feedforward model; the actuator limit is 0–{v_max:g} V")
+            vpp = max(float(np.ptp(u)), 1.0)
+        try:
+            bench.check_sine(axis, vpp, frequency_hz)
+        except LimitError as exc:
+            raise ControlRefused("frequency_hz", f"axis {axis}: {exc}") from None
+
+
+def fault_reason(bench: Bench) -> str | None:
+    """The first amplifier fault or sensor loss, in words, or None."""
+    for axis in bench.axes:
+        amp = bench.parts.amplifiers[axis].status()
+        if amp.fault:
+            return f"amplifier {axis}: {amp.fault_reason or 'fault'}"
+        sensor = bench.parts.sensors[axis].status()
+        if not sensor.ok:
+            return f"sensor {axis}: {sensor.reason or 'not ok'}"
+    return None

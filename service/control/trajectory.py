@@ -1,0 +1,107 @@
+"""Elliptical references in the YOZ plane with smooth start and stop ramps.
+
+The ellipse's long axis makes ``inclination_deg`` with Z. Each axis is a sine at
+``frequency_hz`` whose span (µm) and minimum come from the range form ``y_range_um=(1, 6)``
+or the amplitude form (peak-to-peak ``amplitude_y_um`` above ``min_y_um``, default 1 µm).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Ellipse:
+    """Ranges in µm (min, max) per axis, inclination in degrees, frequency in Hz, steady cycles."""
+
+    y_range_um: tuple[float, float]
+    z_range_um: tuple[float, float]
+    inclination_deg: float = 0.0
+    frequency_hz: float = 100.0
+    cycles: int = 50
+
+    def semi_axes_um(self) -> tuple[float, float]:
+        """(long, short) semi-axes (µm) giving the per-axis amplitudes at this inclination."""
+        ay = 0.5 * (self.y_range_um[1] - self.y_range_um[0])
+        az = 0.5 * (self.z_range_um[1] - self.z_range_um[0])
+        th = np.radians(self.inclination_deg)
+        c2, s2 = np.cos(th) ** 2, np.sin(th) ** 2
+        det = c2 - s2
+        if abs(det) < 1e-9:
+            raise ValueError("inclination_deg: 45° leaves the semi-axes undetermined by the ranges")
+        a2 = (az * az * c2 - ay * ay * s2) / det
+        b2 = (ay * ay * c2 - az * az * s2) / det
+        if a2 < 0 or b2 < 0 or (a2 < b2):
+            raise ValueError(f"inclination_deg: no ellipse inclined {self.inclination_deg:g}° to Z has "
+                             f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm")
+        return float(np.sqrt(a2)), float(np.sqrt(b2))
+
+    @property
+    def peak_to_peak_um(self) -> dict[str, float]:
+        return {"y": self.y_range_um[1] - self.y_range_um[0], "z": self.z_range_um[1] - self.z_range_um[0]}
+
+
+def validate(e: Ellipse) -> None:
+    """ValueError naming the field when the request makes no sense."""
+    for name, (lo, hi) in (("y_range_um", e.y_range_um), ("z_range_um", e.z_range_um)):
+        if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo or lo < 0:
+            raise ValueError(f"{name}: needs 0 <= min < max, got [{lo}, {hi}]")
+    if not 0 < e.frequency_hz <= 1000:
+        raise ValueError(f"frequency_hz: must lie in (0, 1000] Hz, got {e.frequency_hz}")
+    if not 1 <= e.cycles <= 10_000:
+        raise ValueError(f"cycles: must lie in 1–10000, got {e.cycles}")
+    if not -90 <= e.inclination_deg <= 90:
+        raise ValueError(f"inclination_deg: must lie in −90–90°, got {e.inclination_deg}")
+    e.semi_axes_um()
+
+
+@dataclass
+class Reference:
+    """Sampled reference: ``x_um`` (n, 2) columns Y, Z; ``period`` samples per cycle; ramp and
+    steady segments in periods; ``envelope`` (n,) the ramp window (0 at rest, 1 in steady state)."""
+
+    x_um: np.ndarray
+    envelope: np.ndarray
+    sample_rate_hz: float
+    period: int
+    ramp_periods: int
+    cycles: int
+
+    @property
+    def periods(self) -> int:
+        return 2 * self.ramp_periods + self.cycles
+
+    def steady_period(self) -> np.ndarray:
+        """One steady-state period (period, 2) in µm."""
+        s = self.ramp_periods * self.period
+        return self.x_um[s:s + self.period]
+
+
+def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = 3) -> Reference:
+    """Sample the ellipse; the frequency must give a whole number of samples per period.
+
+    Ramps are raised-cosine windows over ``ramp_periods`` on the centre and the amplitude, so
+    the start and end are at 0 µm with zero slope."""
+    validate(e)
+    period = int(round(sample_rate_hz / e.frequency_hz))
+    if abs(period * e.frequency_hz - sample_rate_hz) > 1e-6 * sample_rate_hz:
+        raise ValueError(f"frequency_hz: {e.frequency_hz:g} Hz is not a whole number of samples at "
+                         f"{sample_rate_hz:g} Hz")
+    periods = 2 * ramp_periods + e.cycles
+    n = periods * period
+    phase = 2 * np.pi * np.arange(n) / period
+    a, b = e.semi_axes_um()
+    th = np.radians(e.inclination_deg)
+    y = a * np.sin(th) * np.cos(phase) + b * np.cos(th) * np.sin(phase)
+    z = a * np.cos(th) * np.cos(phase) - b * np.sin(th) * np.sin(phase)
+    cy, cz = np.mean(e.y_range_um), np.mean(e.z_range_um)
+    env = np.ones(n)
+    r = ramp_periods * period
+    if r:
+        w = 0.5 - 0.5 * np.cos(np.pi * np.arange(r) / r)
+        env[:r] = w
+        env[n - r:] = w[::-1]
+    x = np.stack([env * (cy + y), env * (cz + z)], axis=1)
+    return Reference(x_um=x, envelope=env, sample_rate_hz=float(sample_rate_hz), period=period,
+                     ramp_periods=ramp_periods, cycles=e.cycles)

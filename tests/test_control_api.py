@@ -1,0 +1,90 @@
+"""POST /api/trajectories end to end on the emulated bench: refusals name the field and the reason,
+a buffered ILC job reports the error per period and stores the traces as a dataset."""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.settings import Settings
+
+BASE = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclination_deg": 20,
+        "frequency_hz": 100, "cycles": 20}
+
+
+@pytest.fixture(scope="module")
+def http(tmp_path_factory):
+    app = create_app(Settings(data_dir=tmp_path_factory.mktemp("ctl"), bench="default", seed=4))
+    with TestClient(app) as client:
+        client.app_state = app.state
+        yield client
+
+
+def _wait(http, job_id, timeout_s=120.0):
+    deadline = time.monotonic() + timeout_s
+    seen = set()
+    while time.monotonic() < deadline:
+        job = http.get(f"/api/jobs/{job_id}").json()
+        if job.get("message"):
+            seen.add(job["message"])
+        if job["state"] in ("succeeded", "failed", "cancelled"):
+            return job, seen
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not finish")
+
+
+def test_refusals_name_the_field_and_reason(http):
+    r = http.post("/api/trajectories", json={**BASE, "frequency_hz": 400, "controller": {"pid": {"kp_y": 1, "kp_z": 1}}})
+    assert r.status_code == 422 and r.json()["field"] == "frequency_hz"
+    assert "needs 271 mA; the amplifier's limit is 200 mA" in r.json()["detail"]
+    r = http.post("/api/trajectories", json={**BASE, "mode": "buffered", "controller": {"pid": {"kp_y": 1, "kp_z": 1}}})
+    assert r.status_code == 422 and r.json()["field"] == "controller.pid"
+    assert "buffered" in r.json()["detail"]
+    r = http.post("/api/trajectories", json={**BASE, "controller": {"feedforward_model_y": "md_nope"}})
+    assert r.status_code == 422 and r.json()["field"] == "controller.feedforward_model_y"
+    r = http.post("/api/trajectories", json={"shape": "ellipse", "z_range_um": [1, 9]})
+    assert r.status_code == 422 and "y_range_um" in r.json()["detail"]
+    daq = http.app_state.bench.parts.daq                 # a USB DAQ: no point-by-point
+    original = daq.capabilities
+    daq.capabilities = dataclasses.replace(original, point_by_point=False,
+                                           point_by_point_reason="USB X Series: buffered streaming only")
+    try:
+        r = http.post("/api/trajectories", json={**BASE, "controller": {"ilc": True}})
+        assert r.status_code == 422 and r.json()["field"] == "mode"
+        assert "USB X Series: buffered streaming only" in r.json()["detail"]
+    finally:
+        daq.capabilities = original
+    assert http.get("/api/jobs").json() == [] or all(j["kind"] != "trajectory" for j in http.get("/api/jobs").json())
+
+
+def test_buffered_ilc_job_reports_error_per_period_and_stores_traces(http):
+    body = {"shape": "ellipse", "amplitude_y_um": 4, "amplitude_z_um": 8, "inclination_deg": 20,
+            "frequency_hz": 100, "cycles": 25, "mode": "buffered", "controller": {"ilc": True}}
+    r = http.post("/api/trajectories", json=body)
+    assert r.status_code == 202, r.text
+    job, messages = _wait(http, r.json()["job_id"])
+    assert job["state"] == "succeeded", job
+    res = job["result"]
+    err = res["error_per_period_um"]
+    assert len(err) == 25 and err[-1] < 0.3 * err[0]
+    for key in ("max_error_y_um", "max_error_z_um", "rms_error_um", "relative_error_pct"):
+        assert res[key] >= 0
+    assert any("error" in m and "nm RMS" in m for m in messages) or job["message"]
+    data = http.get(f"/api/datasets/{res['dataset_id']}/data").json()
+    text = str(data.keys()) if isinstance(data, dict) else str(data)
+    assert "ref_y_um" in text and "x_z_um" in text
+
+
+def test_point_by_point_pid_job(http):
+    body = {**BASE, "cycles": 5, "controller": {"pid": {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1,
+                                                       "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4}}}
+    r = http.post("/api/trajectories", json=body)
+    assert r.status_code == 202, r.text
+    job, _ = _wait(http, r.json()["job_id"])
+    assert job["state"] == "succeeded", job
+    res = job["result"]
+    assert res["mode"] == "point_by_point" and res["tripped"] is None
+    assert len(res["error_per_period_um"]) == 5 and res["error_per_period_um"][-1] < res["error_per_period_um"][0]

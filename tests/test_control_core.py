@@ -1,0 +1,126 @@
+"""Control building blocks without a long run: PID anti-windup and derivative filter, the ellipse
+reference, and the safety/mode refusals with their reasons (emulated default bench)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from drivers.emulated import open_bench
+from service.control import kernels as CK
+from service.control.loop import PIDGains
+from service.control.safety import ControlRefused, available_modes
+from service.control.session import TUNED_PID, Controller, plan
+from service.control.trajectory import Ellipse, reference
+
+DT = 1 / 20_000
+
+
+def _pid(kp=50.0, ki=300.0, kd=0.0, tf=1e-4):
+    return np.array([kp, ki, kd, tf, 1.0]), np.zeros(CK.NPS)
+
+
+def test_pid_integrator_does_not_wind_up_while_clamped_and_recovers_fast():
+    p, s = _pid()
+    u = 0.0
+    for _ in range(4000):                   # 0.2 s of +1 µm error with the output stuck at 120 V
+        u = CK.pid_step(p, s, 1.0, 115.0, u, 0.0, 120.0, 1e9, DT)
+    assert u == 120.0
+    naive = 300.0 * 1.0 * 4000 * DT         # 60 V an unprotected integrator would have gathered
+    assert s[CK.S_INT] < 0.1 * naive
+    for k in range(200):                    # the error reverses: the output must leave the clamp at once
+        u = CK.pid_step(p, s, -0.05, 115.0, u, 0.0, 120.0, 1e9, DT)
+        if u < 120.0:
+            break
+    assert k <= 1 and u < 120.0
+    # without anti-windup (same law, integral updated unconditionally) it would stay clamped for long
+    i_naive = naive
+    steps = int(np.ceil((115.0 + i_naive - 2.5 - 120.0) / (300.0 * 0.05 * DT)))
+    assert steps > 1000
+
+
+def test_pid_rate_clamp_and_filtered_derivative():
+    p, s = _pid(kp=0.0, ki=0.0, kd=0.06, tf=1e-3)
+    d0 = CK.pid_step(p, s, 1.0, 60.0, 60.0, 0.0, 120.0, 1e9, DT) - 60.0   # unit error step
+    assert d0 == pytest.approx(0.06 / (1e-3 + DT))                         # not kd/dt = 1200 V
+    d1 = CK.pid_step(p, s, 1.0, 60.0, 60.0, 0.0, 120.0, 1e9, DT) - 60.0
+    assert 0 < d1 < d0                                                     # decays with tf
+    assert CK.clamp_command(100.0, 50.0, 0.0, 120.0, 5.0) == 55.0
+    assert CK.clamp_command(-10.0, 1.0, 0.0, 120.0, 50.0) == 0.0
+
+
+def test_ellipse_ranges_inclination_and_ramps():
+    for e in (Ellipse((1, 6), (1, 11), 0, 100, 4), Ellipse((1, 5), (1, 9), 20, 100, 4)):
+        ref = reference(e, 20_000.0)
+        st = ref.x_um[ref.ramp_periods * ref.period:(ref.ramp_periods + e.cycles) * ref.period]
+        assert st[:, 0].min() == pytest.approx(e.y_range_um[0], abs=1e-3)
+        assert st[:, 0].max() == pytest.approx(e.y_range_um[1], abs=1e-3)
+        assert st[:, 1].max() == pytest.approx(e.z_range_um[1], abs=1e-3)
+        assert np.abs(ref.x_um[0]).max() == 0 and np.abs(ref.x_um[-1]).max() < 1e-3
+        a, b = e.semi_axes_um()
+        assert a >= b
+        # the long axis makes inclination_deg with Z: the largest-radius point's angle to Z
+        c = st - st.mean(axis=0)
+        far = c[np.argmax(np.hypot(c[:, 0], c[:, 1]))]
+        angle = np.degrees(np.arctan2(abs(far[0]), abs(far[1])))
+        assert angle == pytest.approx(e.inclination_deg, abs=1.0)
+    with pytest.raises(ValueError, match="frequency_hz"):
+        reference(Ellipse((1, 6), (1, 11), 0, 123.0, 4), 20_000.0)
+    with pytest.raises(ValueError, match="inclination_deg"):
+        Ellipse((1, 11), (1, 2), 10, 100, 4).semi_axes_um()
+
+
+@pytest.fixture(scope="module")
+def bench():
+    b = open_bench("default", seed=3)
+    yield b
+    b.close()
+
+
+class _Linear:
+    """A stand-in feedforward model (V = x / gain) for the voltage check."""
+
+    def __init__(self, um_per_v):
+        self.k = um_per_v
+
+    def inverse(self, x_ref_um, sample_rate_hz=None):
+        return np.asarray(x_ref_um) / self.k
+
+
+def test_safety_refusals_say_why(bench):
+    ctl = Controller(pid=TUNED_PID)
+    with pytest.raises(ControlRefused, match="needs 271 mA; the amplifier's limit is 200 mA") as exc:
+        plan(bench, Ellipse((1, 6), (1, 11), 0, 400.0, 4), ctl, "point_by_point")
+    assert exc.value.field == "frequency_hz"
+    with pytest.raises(ControlRefused, match="first resonance") as exc:
+        plan(bench, Ellipse((1, 6), (1, 11), 0, 200.0, 4), ctl, "point_by_point")
+    with pytest.raises(ControlRefused, match=r"needs .*V by the feedforward model; the actuator limit is 0–120 V") as exc:
+        plan(bench, Ellipse((1, 6), (1, 19), 0, 100.0, 4),
+             Controller(feedforward={"y": _Linear(0.09), "z": _Linear(0.09)}), "point_by_point")
+    assert exc.value.field == "z_range_um"
+    with pytest.raises(ControlRefused, match="the gauge reads") as exc:
+        plan(bench, Ellipse((2, 12), (1, 14), 0, 100.0, 4), ctl, "point_by_point")
+    assert exc.value.field == "y_range_um"
+    ref, u_ff = plan(bench, Ellipse((1, 6), (1, 11), 0, 100.0, 4), ctl, "point_by_point")
+    assert u_ff is None and ref.x_um.shape == (10 * 200, 2)
+
+
+def test_modes_follow_the_daq_capabilities(bench):
+    ellipse = Ellipse((1, 6), (1, 11), 0, 100.0, 4)
+    assert available_modes(bench) == {"point_by_point": None, "buffered": None}
+    with pytest.raises(ControlRefused, match="per-sample PID needs point-by-point") as exc:
+        plan(bench, ellipse, Controller(pid={"y": PIDGains(1, 1), "z": PIDGains(1, 1)}), "buffered")
+    assert exc.value.field == "controller.pid"
+    plan(bench, ellipse, Controller(ilc=True), "buffered")
+    daq = bench.parts.daq
+    original = daq.capabilities
+    daq.capabilities = dataclasses.replace(original, point_by_point=False,
+                                           point_by_point_reason="USB X Series: buffered streaming only")
+    try:
+        assert daq.stepping_hook() is None
+        with pytest.raises(ControlRefused, match="USB X Series: buffered streaming only") as exc:
+            plan(bench, ellipse, Controller(pid=TUNED_PID), "point_by_point")
+        assert exc.value.field == "mode"
+    finally:
+        daq.capabilities = original
