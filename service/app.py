@@ -15,6 +15,7 @@ from service.api import bench as bench_api
 from service.api import datasets as datasets_api
 from service.api import errors as errors_api
 from service.api import health as health_api
+from service.api import discovery as discovery_api
 from service.api import jobs as jobs_api
 from service.api import models as models_api
 from service.api import sweeps as sweeps_api
@@ -25,7 +26,7 @@ from service.store import Store
 
 #: Routers mounted under /api, in the order they appear in the docs.
 ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
-           models_api.router, trajectories_api.router)
+           models_api.router, discovery_api.router, trajectories_api.router)
 
 
 def open_configured_bench(settings: Settings) -> Bench:

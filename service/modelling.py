@@ -9,13 +9,15 @@ import numpy as np
 
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted
-from service.signals import savgol_derivatives
 from service.store import NotFoundError, Store
 from service.validation import evaluate_record, fit_on_training_rows, mean_of, split_blocks, training_mask
 from service.validation import metrics as sample_metrics
 
-#: Effect names the identification accepts now; the discovery issue adds the others of DESIGN §5.
-EFFECTS_AVAILABLE = ("hysteresis",)
+from service.discovery.records import drive_derivatives  # noqa: F401  (re-exported)
+from service.effects import EFFECT_NAMES
+
+#: Effect names the identification accepts (DESIGN §5, plus the ``operators`` capacity candidate).
+EFFECTS_AVAILABLE = EFFECT_NAMES
 
 
 def model_registry() -> dict:
@@ -27,13 +29,15 @@ def model_registry() -> dict:
 def check_identify_request(store: Store, axis: str, datasets: list[str], effects: list[str], model: str) -> None:
     """Raise FieldError naming the field at fault, or return if the identification can run."""
     registry = model_registry()
-    if model not in registry:
-        raise FieldError("model", f"unknown model {model!r}; use one of {', '.join(registry)}")
+    if model not in registry and model != "composite":
+        raise FieldError("model", f"unknown model {model!r}; use one of {', '.join(registry)}, composite")
     unknown = [e for e in effects if e not in EFFECTS_AVAILABLE]
     if unknown or "hysteresis" not in effects:
         raise FieldError("effects", f"{', '.join(map(repr, unknown)) or 'an empty list'} is not available: "
-                         f"only {', '.join(map(repr, EFFECTS_AVAILABLE))} can be identified until the "
-                         "effect-discovery issue adds more, and 'hysteresis' is required")
+                         f"use {', '.join(map(repr, EFFECTS_AVAILABLE))}, and 'hysteresis' is required")
+    if model not in ("static_pi", "composite") and len(set(effects)) > 1:
+        raise FieldError("effects", f"effects beyond 'hysteresis' build a composite model on a static PI; "
+                         f"model {model!r} takes effects ['hysteresis'] only")
     if not datasets:
         raise FieldError("datasets", "give at least one dataset id")
     training_samples = 0
@@ -57,6 +61,10 @@ def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effe
              model: str, n_operators: int, parent_id: str | None = None) -> dict:
     """Job body: fit on the training cycles of every dataset, validate on the held-out ones,
     store the model and return ``{"model_id", "train_rms_um", "validation_rms_um"}``."""
+    if len(set(effects)) > 1 or model == "composite":
+        from service.discovery_service import identify_composite
+
+        return identify_composite(ctx, store, axis, datasets, effects, n_operators, parent_id)
     ctx.progress(0.02, "loading datasets")
     loaded = [_load(store, dataset_id, axis) for dataset_id in datasets]
     ctx.progress(0.1, f"fitting {model} on {sum(int(m.sum()) for _, _, _, m in loaded)} training samples")
@@ -86,6 +94,11 @@ def load_model(row: dict):
     """The model object stored in a model record."""
     from service.hysteresis import model_from_dict
 
+    if row["parameters"].get("model") == "composite":
+        from service.discovery.composite import CompositeModel
+
+        return CompositeModel.from_dict(row["parameters"])
+
     return model_from_dict(row["parameters"])
 
 
@@ -105,7 +118,13 @@ def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None
     _, series, splits, _ = _load(store, dataset_id, axis, row=row, field="dataset")
     if not splits:
         raise FieldError("dataset", f"dataset {dataset_id} has no block that drives axis {axis}")
-    predicted = load_model(model_row).predict(series)
+    model = load_model(model_row)
+    if model_row["parameters"].get("model") == "composite":
+        from service.discovery_service import load_records
+
+        predicted = model.predict(load_records(store, [dataset_id], axis)[0])
+    else:
+        predicted = model.predict(series)
     used = dataset_id in model_row["datasets"]
     figures = evaluate_record(series.x_um, predicted, splits, trained=used)
     in_blocks = np.zeros(series.n_samples, dtype=bool)
@@ -124,22 +143,6 @@ def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None
                     "train_rms_um": figures["train_rms_um"], "validation_rms_um": figures["validation_rms_um"],
                     "per_block": figures["blocks"]},
     }
-
-
-def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float, blocks: list[dict]) -> tuple[np.ndarray, np.ndarray]:
-    """u̇ (V/s) and ü (V/s²) of a recorded drive: Savitzky–Golay within each periodic block over a
-    window set by that block's own period (so 1 Hz and 100 Hz blocks are each smoothed right),
-    central differences elsewhere."""
-    du = np.gradient(u_v, 1.0 / sample_rate_hz)
-    ddu = np.gradient(du, 1.0 / sample_rate_hz)
-    for block in blocks:
-        start, stop = int(block["start"]), min(int(block["stop"]), len(u_v))
-        f_hz = block.get("frequency_hz")
-        if stop - start < 8:
-            continue
-        period = sample_rate_hz / f_hz if f_hz else None
-        du[start:stop], ddu[start:stop] = savgol_derivatives(u_v[start:stop], sample_rate_hz, period)
-    return du, ddu
 
 
 def _load(store: Store, dataset_id: str, axis: str, row: dict | None = None, field: str = "datasets"):

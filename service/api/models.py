@@ -1,6 +1,6 @@
 """Models: POST /api/models (an identification job), GET one or all, and compare with a dataset.
 
-Diagnosis, refine and history routers attach under the same ``/models`` prefix later.
+Diagnosis, refine and history live in service.api.discovery under the same ``/models`` prefix.
 """
 from __future__ import annotations
 
@@ -25,7 +25,8 @@ class ModelRequest(BaseModel):
     axis: Literal["y", "z"]
     datasets: list[str] = Field(min_length=1, max_length=100)
     effects: list[str] = Field(default=["hysteresis"])
-    model: str = Field(default="static_pi", description="static_pi | dynamic_pi | grpi")
+    model: str = Field(default="static_pi", description="static_pi | dynamic_pi | grpi | composite "
+                                                        "(static PI + effects; implied by any effect beyond hysteresis)")
     n_operators: int = Field(default=10, ge=1, le=100)
 
 

@@ -12,6 +12,7 @@ BENCHMARKS: dict[str, str] = {
     "emulator": "drivers.emulated.benchmark:run_emulator_benchmark",
     "identification": "service.benchmarks.identification:run_identification_benchmark",
     "control": "service.benchmarks.control:run_control_benchmark",
+    "discovery": "service.benchmarks.discovery:run_discovery_benchmark",
 }
 
 

@@ -1,0 +1,163 @@
+"""Which effect is missing: every candidate not in the model is fitted with it (training
+cycles) and scored on the held-out cycles; the verdict, the ambiguity between close
+candidates, and the experiment (a ready-to-POST sweep body) that separates them.
+
+score = g · min(1, Δ/2σ) − 0.002·k, clipped to [0, 1], where g = (v₀² − v²)/(v₀² − σ²) is the
+validated fraction of the excess (above the noise floor σ) that the candidate removes, Δ = v₀ − v
+the held-out RMS drop (a drop smaller than 2σ counts proportionally less)
+and k its added parameters (Occam: the simpler of two equal explanations ranks first).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from service.discovery.breakdown import failures, signatures
+from service.discovery.composite import CompositeModel
+from service.discovery.noise import noise_floor
+from service.effects import EFFECTS
+
+#: a score above this claims the effect is missing
+HIGH_SCORE = 0.45
+PARAMETER_PENALTY = 0.002
+#: with several effects missing, one removes only part of the excess: a drop of ≥ 2σ that removes at
+#: least this share of the excess is significant too (``significant``), and the verdict counts it
+SIGNIFICANT_SHARE = 0.25
+#: a held-out drop smaller than this many noise floors counts proportionally less (2-sigma rule)
+CLEAR_DROP_NOISE = 2.0
+
+
+def _fmt_nm(v_um) -> str:
+    return f"{v_um * 1e3:.3g} nm"
+
+
+def _signature_words(name: str, sig: dict, floor: dict) -> str:
+    g = sig.get("rms_growth_exponent")
+    growth = f"the residual grows with frequency as f^{g:.2f}" if g is not None else "frequency growth unknown"
+    if name == "delay":
+        per = ", ".join(f"{k} Hz: {v:.3g}" for k, v in sig["lag_ms_by_frequency"].items())
+        return (f"the residual lags the drive by {sig['lag_ms']:.3g} ms (slope-weighted mean; per block {per} ms, spread "
+                f"{sig['lag_ms_spread']:.2g} ms): delay")
+    if name == "rate_dependence":
+        r = sig.get("rate_r")
+        return f"{growth}, and follows u̇·u (|r| = {r:.2f}): rate dependence" if r is not None else growth
+    if name == "dynamics":
+        return f"{growth}: a resonance above the drive band"
+    if name == "creep":
+        v = sig.get("cycle_mean_um_per_decade")
+        return ("the per-cycle mean residual moves " + (_fmt_nm(v) if v is not None else "?") +
+                " per decade of time within each block, logarithmic in time: creep")
+    if name == "drift":
+        v = sig.get("cycle_mean_trend_um_per_s")
+        return ("the per-cycle mean residual keeps moving at " + (f"{v * 1e3:.3g} nm/s" if v is not None else "?") +
+                " over the run: drift")
+    if name == "asymmetry":
+        v = sig.get("even_fraction")
+        return (f"a parabola in the drive carries {100 * v:.0f} % of the loop residual (even, not point-symmetric): "
+                "asymmetry" if v is not None else "asymmetry")
+    if name == "cross_coupling":
+        r = sig.get("coupling_r")
+        return (f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling" if r is not None
+                else "no block drives the other axis alone, so coupling cannot be seen directly")
+    if name == "operators":
+        rep, nf = floor.get("repeatable_rms_um"), floor.get("noise_floor_um")
+        return (f"the residual repeats cycle to cycle ({_fmt_nm(rep or 0)} repeatable vs {_fmt_nm(nf or 0)} noise): "
+                "the loop shape needs more hysteresis capacity (finer play operators) — not a physical effect")
+    return ""
+
+
+def score_candidate(v0: float, v: float, noise: float, added: int) -> float:
+    excess2 = max(v0**2 - noise**2, 1e-30)
+    gain = float(np.clip((v0**2 - v**2) / excess2, 0.0, 1.0))
+    clear = min(1.0, max(v0 - v, 0.0) / max(CLEAR_DROP_NOISE * noise, 1e-12))
+    return float(np.clip(gain * clear - PARAMETER_PENALTY * added, 0, 1))
+
+
+def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
+    """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
+    records = list(records)
+    model = model or CompositeModel(effects, n_operators).fit(records)
+    preds = [model.predict(r) for r in records]
+    res = [r.x_um - p for r, p in zip(records, preds)]
+    ev = model.evaluate(records)
+    v0 = ev["validation_rms_um"]
+    floor = noise_floor(records, res)
+    noise = floor["noise_floor_um"] or 0.0
+    sig = signatures(records, res, preds)
+    k0 = model.n_parameters()
+    candidates = []
+    for name, eff in EFFECTS.items():
+        if name in model.effects:
+            continue
+        trial = CompositeModel(model.effects + [name], model.n_operators).fit(records, fixed_theta=model.theta)
+        v = trial.evaluate(records)["validation_rms_um"]
+        score = score_candidate(v0, v, noise, trial.n_parameters() - k0)
+        removed = 100 * (v0**2 - v**2) / max(v0**2 - noise**2, 1e-30)
+        significant = bool(v0 - v >= CLEAR_DROP_NOISE * noise and removed >= 100 * SIGNIFICANT_SHARE)
+        fitted = trial.describe().get(name) or ""
+        evidence = (f"{_signature_words(name, sig, floor)}. With {name}, held-out RMS {v0:.4g} → {v:.4g} µm "
+                    f"({removed:.0f} % of the excess above the {noise:.3g} µm noise floor)"
+                    + (f"; fitted {fitted}" if fitted else "") + ".")
+        candidates.append({"effect": name, "kind": eff.kind, "score": round(score, 4), "expected_rms_um": v,
+                           "added_parameters": trial.n_parameters() - k0, "evidence": evidence,
+                           "significant": significant,
+                           "signature": eff.signature})
+    candidates.sort(key=lambda c: (-c["score"], c["expected_rms_um"]))
+    for c in candidates:
+        c["high"] = c["score"] >= HIGH_SCORE or c["significant"]
+    physical = [c for c in candidates if c["kind"] == "physical"]
+    missing = bool(physical) and (physical[0]["score"] >= HIGH_SCORE or physical[0]["significant"])
+    repeatable = floor["repeatable_rms_um"]
+    return {"effects": ["hysteresis"] + model.effects, "residual_rms_um": v0, "train_rms_um": ev["train_rms_um"],
+            "noise_floor_um": noise, "repeatable_rms_um": repeatable,
+            "verdict": "missing_effect" if missing else "complete",
+            "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable),
+            "candidates": candidates, "failures": failures(records, res), "signature": sig,
+            "ambiguity": ambiguity(physical, records), "noise": floor, "metrics": ev}
+
+
+def _verdict_text(missing, physical, candidates, v0, noise, repeatable) -> str:
+    if missing:
+        return (f"missing effect: {physical[0]['effect']} (score {physical[0]['score']:.2f}); held-out RMS "
+                f"{v0:.4g} µm against a noise floor of {noise:.3g} µm")
+    cap = [c for c in candidates if c["kind"] == "capacity" and c["score"] >= HIGH_SCORE]
+    text = (f"complete: no physical effect explains the remaining {v0:.4g} µm (noise floor {noise:.3g} µm, "
+            f"repeatable part {repeatable if repeatable is None else round(repeatable, 6)} µm)")
+    if cap:
+        text += "; more hysteresis capacity (operators) would still help — a model-capacity change, not physics"
+    return text
+
+
+#: pairs of effects that look alike on a sine sweep, and the experiment that separates them
+SEPARATING = {
+    frozenset(("creep", "drift")): ("a step-hold sweep: creep relaxes logarithmically after each step and "
+                                    "restarts at every step; drift keeps its pace regardless of the steps",
+                                    {"waveform": "step", "levels_v": [30.0, 60.0, 90.0, 120.0], "hold_s": 4.0}),
+    frozenset(("delay", "rate_dependence")): ("a higher-frequency sine sweep: a delay is the same time at every "
+                                              "frequency; rate dependence changes the loop shape with rate",
+                                              {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0],
+                                               "cycles": 10}),
+    frozenset(("delay", "dynamics")): ("a higher-frequency sine sweep: a resonance amplifies towards f_n, a "
+                                       "delay only shifts the phase", {"waveform": "sine", "frequencies_hz":
+                                                                        [100.0, 150.0, 200.0], "cycles": 10}),
+    frozenset(("rate_dependence", "dynamics")): ("a higher-frequency sine sweep: a resonance's gain rises as "
+                                                 "f², rate dependence widens the loop",
+                                                 {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0],
+                                                  "cycles": 10}),
+}
+
+
+def ambiguity(physical: list[dict], records) -> dict | None:
+    """Two leading candidates that explain the residual about equally well, and the experiment."""
+    if len(physical) < 2 or physical[1]["score"] < 0.3:
+        return None
+    a, b = physical[0], physical[1]
+    if a["score"] - b["score"] > 0.1:
+        return None
+    why, body = SEPARATING.get(frozenset((a["effect"], b["effect"])),
+                               ("a multi-frequency sine sweep with more cycles per frequency",
+                                {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0], "cycles": 10}))
+    axes = sorted({r.axis for r in records if r.axis}) or ["y"]
+    return {"effects": [a["effect"], b["effect"]],
+            "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
+                    f"(scores {a['score']:.2f} and {b['score']:.2f}); {why}",
+            "experiment": {"axes": axes, **body}}

@@ -1,0 +1,22 @@
+"""Drift: a slow output change unrelated to the drive (thermal or gauge offset drift):
+Legendre polynomials of degree 1..3 of time over each record (µm)."""
+from __future__ import annotations
+
+import numpy as np
+from numpy.polynomial import legendre
+
+from service.effects.base import Effect, RecordContext
+from service.identification.lsq import Block
+
+DEGREE = 3
+
+
+class Drift(Effect):
+    name = "drift"
+    signature = ("the per-cycle mean residual moves steadily with time over the whole record, "
+                 "independent of the drive level and of when the drive changed")
+
+    def blocks(self, ctx: RecordContext) -> list[Block]:
+        s = np.linspace(-1.0, 1.0, ctx.n)
+        cols = np.column_stack([legendre.legval(s, np.eye(DEGREE + 1)[k]) for k in range(1, DEGREE + 1)])
+        return [Block.make("drift_legendre_um", cols)]

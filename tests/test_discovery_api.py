@@ -1,0 +1,81 @@
+"""Discovery end to end over REST on an emulated variant bench: sweep → POST /api/models →
+GET diagnosis → POST refine → GET history, plus bad effect names (422 naming the field)."""
+from __future__ import annotations
+
+import time
+import warnings
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.settings import Settings
+
+
+def _wait(http, job_id, timeout_s=120.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = http.get(f"/api/jobs/{job_id}").json()
+        if job["state"] in ("succeeded", "failed", "cancelled"):
+            assert job["state"] == "succeeded", job
+            return job["result"]
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not finish")
+
+
+@pytest.fixture
+def http(tmp_path):
+    warnings.simplefilter("ignore")
+    with TestClient(create_app(Settings(data_dir=tmp_path, bench="creep", seed=0))) as client:
+        yield client
+
+
+def test_discovery_over_rest(http):
+    r = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5,
+                                       "together": False})
+    assert r.status_code == 202, r.text
+    dataset_id = _wait(http, r.json()["job_id"])["dataset_id"]
+
+    r = http.post("/api/models", json={"axis": "y", "datasets": [dataset_id], "effects": ["hysteresis", "warp"]})
+    assert r.status_code == 422 and r.json()["field"] == "effects"
+    r = http.post("/api/models", json={"axis": "y", "datasets": [dataset_id], "effects": ["hysteresis"]})
+    assert r.status_code == 202, r.text
+    base_id = _wait(http, r.json()["job_id"])["model_id"]
+
+    d = http.get(f"/api/models/{base_id}/diagnosis")
+    assert d.status_code == 200, d.text
+    d = d.json()
+    for key in ("residual_rms_um", "noise_floor_um", "verdict", "candidates", "failures", "ambiguity"):
+        assert key in d
+    assert d["verdict"] == "missing_effect"
+    assert d["candidates"][0]["effect"] == "creep"
+    assert {"effect", "score", "expected_rms_um", "evidence", "kind"} <= set(d["candidates"][0])
+
+    assert http.post(f"/api/models/{base_id}/refine", json={"add": "warp"}).status_code == 422
+    assert http.post(f"/api/models/{base_id}/refine", json={"remove": "creep"}).json()["field"] == "remove"
+    r = http.post(f"/api/models/{base_id}/refine", json={"add": "creep"})
+    assert r.status_code == 202, r.text
+    new_id = _wait(http, r.json()["job_id"])["model_id"]
+    model = http.get(f"/api/models/{new_id}").json()
+    assert model["parent_id"] == base_id and model["effects"] == ["hysteresis", "creep"]
+    assert model["kind"] == "composite"
+    by_freq = model["metrics"]["held_out_frequencies"]
+    assert [p["frequency_hz"] for p in by_freq["per_frequency"]] == [1.0, 10.0, 50.0, 100.0]
+    assert by_freq["validation_rms_um"] > 0
+    bad = http.get(f"/api/models/{new_id}/diagnosis", params={"extra_datasets": "ds_nope"})
+    assert bad.status_code == 422 and bad.json()["field"] == "extra_datasets"
+
+    cmp = http.get(f"/api/models/{new_id}/compare", params={"dataset": dataset_id, "arrays": False})
+    assert cmp.status_code == 200, cmp.text
+
+    h = http.get(f"/api/models/{new_id}/history").json()["steps"]
+    assert [s["model_id"] for s in h] == [base_id, new_id]
+    assert h[1]["change"] == "+creep"
+    assert h[1]["validation_rms_um"] <= 0.5 * h[0]["validation_rms_um"]
+
+    d2 = http.get(f"/api/models/{new_id}/diagnosis").json()
+    assert all(c["effect"] != "creep" for c in d2["candidates"])
+    assert d2["residual_rms_um"] == pytest.approx(model["metrics"]["validation_rms_um"], rel=1e-9)
+    r = http.post(f"/api/models/{new_id}/refine", json={"effects": ["hysteresis"]})
+    back = _wait(http, r.json()["job_id"])["model_id"]
+    assert http.get(f"/api/models/{back}").json()["effects"] == ["hysteresis"]
