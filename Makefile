@@ -5,10 +5,12 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+# The dashboard's charting library (uPlot, pinned in web/package-lock.json), served from web/node_modules.
+WEB_STAMP := web/node_modules/.package-lock.json
 # One BLAS thread: the least-squares solves are small and a 2-core lab PC thrashes with more.
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: run test install clean
+.PHONY: run test install clean browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,17 +18,27 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-install: $(STAMP)
+$(WEB_STAMP): web/package.json web/package-lock.json
+	@command -v npm >/dev/null || { echo "npm is missing: install Node.js (20+) with npm for the dashboard's charts" >&2; exit 1; }
+	cd web && npm ci --no-audit --no-fund --loglevel=error
+	touch $(WEB_STAMP)
+
+install: $(STAMP) $(WEB_STAMP)
+
+## Debian's chromium for the browser tests (Playwright drives it; its own browser download is never used).
+browser:
+	bash tests/setup/install_browser.sh
 
 ## Start the service on 127.0.0.1:8000 against the emulated bench, with its store in ./var.
-run: $(STAMP)
+run: $(STAMP) $(WEB_STAMP)
 	$(VENV)/bin/evcbench serve --host 127.0.0.1 --port 8000 --data-dir var
 
 ## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
-test: $(STAMP)
+test: $(STAMP) $(WEB_STAMP)
 	bash tests/setup/install_postgres.sh
+	bash tests/setup/install_browser.sh
 	$(PY) -m pytest -q
 
 clean:
-	rm -rf $(VENV) var .pytest_cache tests/artifacts
+	rm -rf $(VENV) var .pytest_cache tests/artifacts web/node_modules

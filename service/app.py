@@ -20,6 +20,7 @@ from service.api import jobs as jobs_api
 from service.api import models as models_api
 from service.api import sweeps as sweeps_api
 from service.api import trajectories as trajectories_api
+from service.api import web as web_api
 from service.jobs import JobManager
 from service.settings import Settings
 from service.store import Store
@@ -66,4 +67,5 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
     errors_api.install(app)
     for router in ROUTERS:
         app.include_router(router, prefix="/api")
+    web_api.mount(app)  # the dashboard's static files at /web, after the API routes
     return app

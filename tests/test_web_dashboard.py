@@ -1,0 +1,338 @@
+"""The web dashboard in a real browser: Debian's chromium, headless, driven by Playwright, against
+the real service (``evcbench serve`` under uvicorn, on a free port, a temp data dir and a small
+hidden-effect bench). Every page is screenshotted into tests/artifacts/ and must log no console
+error; the assertions read numbers off the page (text and data attributes) and check them against
+the API.
+
+Set-up: ``make test`` installs chromium (tests/setup/install_browser.sh), Playwright (the dev extra)
+and the charting library (npm ci in web/). Playwright's own browser download is never used.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTIFACTS = ROOT / "tests" / "artifacts"
+CHROMIUM = Path(os.environ.get("EVCBENCH_CHROMIUM", "/usr/bin/chromium"))
+REAL = ROOT.parent / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
+#: The hidden-effect bench the tests run on (fixtures/benches/<name>.toml); its effect is the name.
+HIDDEN = os.environ.get("EVCBENCH_WEB_TEST_BENCH", "creep")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[dev]')")
+pytestmark = [
+    pytest.mark.skipif(not CHROMIUM.exists(), reason=f"{CHROMIUM} missing: run tests/setup/install_browser.sh"),
+    pytest.mark.skipif(not (ROOT / "web" / "node_modules" / "uplot" / "dist" / "uPlot.esm.js").exists(),
+                       reason="web/node_modules missing: run `npm ci` in web/ (make test does)"),
+]
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """``evcbench serve`` on the hidden-effect bench, in a subprocess with its own data dir."""
+    tmp = tmp_path_factory.mktemp("web")
+    port = _free_port()
+    log = tmp / "server.log"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
+    env["OPENBLAS_NUM_THREADS"] = "1"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+         "--data-dir", str(tmp / "var"), "--bench", HIDDEN, "--seed", "1"],
+        cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 120
+    try:
+        while True:
+            if proc.poll() is not None:
+                raise AssertionError(f"the service exited with {proc.returncode}:\n{log.read_text()}")
+            try:
+                if httpx.get(f"{url}/api/health", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                raise AssertionError(f"the service did not answer within 120 s:\n{log.read_text()}")
+            time.sleep(0.2)
+        with httpx.Client(base_url=f"{url}/api", timeout=60) as api:
+            yield {"url": url, "api": api,
+                   "paths": set(httpx.get(f"{url}/openapi.json").json()["paths"])}
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser, server):
+    """A 1280×800 page on the dashboard that records console errors; the test fails on any."""
+    context = browser.new_context(viewport={"width": 1280, "height": 800}, accept_downloads=True)
+    pg = context.new_page()
+    pg.set_default_timeout(60_000)
+    errors: list[str] = []
+    pg.on("console", lambda m: errors.append(f"console.{m.type}: {m.text}") if m.type == "error" else None)
+    pg.on("pageerror", lambda e: errors.append(f"uncaught: {e}"))
+    pg.console_errors = errors
+    yield pg
+    context.close()
+    assert errors == [], f"console errors on the dashboard: {errors}"
+
+
+def goto(page, server, route: str) -> None:
+    page.goto(f"{server['url']}/web/#/{route}")
+    page.wait_for_selector("#page[data-ready='1']")
+    assert not page.is_visible("#banner.error"), page.inner_text("#banner")
+
+
+def shot(page, name: str) -> Path:
+    path = ARTIFACTS / f"web_{name}.png"
+    page.evaluate("window.scrollTo(0, 0)")  # the sticky top bar stays at the top of a full-page shot
+    page.screenshot(path=str(path), full_page=True)
+    assert path.stat().st_size > 10_000
+    return path
+
+
+def wait_job(server, job_id: str, timeout_s: float = 120) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        job = server["api"].get(f"/jobs/{job_id}").json()
+        if job["state"] in ("succeeded", "failed", "cancelled"):
+            return job
+        assert time.monotonic() < deadline, f"job {job_id} still {job['state']}"
+        time.sleep(0.1)
+
+
+def run_sweep_in_browser(page, server, frequencies: str = "10,50,100", cycles: int = 3, axes=("y",)) -> str:
+    """Fill the Sweeps form, start it, wait for the progress line to reach 'succeeded'; the dataset id."""
+    goto(page, server, "sweeps")
+    for axis in ("y", "z"):
+        page.set_checked(f"#sweep-form input[name=axis][value={axis}]", axis in axes)
+    page.fill("#sweep-form input[name=frequencies]", frequencies)
+    page.fill("#sweep-form input[name=cycles]", str(cycles))
+    page.click("#sweep-start")
+    page.wait_for_selector("#sweep-job .jobline[data-state='succeeded']", timeout=120_000)
+    assert page.inner_text("#sweep-job .jpct") == "100 %"
+    page.wait_for_selector("#sweep-dataset")
+    page.wait_for_selector("#sweep-chart canvas")
+    return page.get_attribute("#sweep-dataset", "data-dataset-id")
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def test_every_page_renders_with_units_and_no_console_errors(page, server):
+    dataset_id = run_sweep_in_browser(page, server)
+    ds = server["api"].get(f"/datasets/{dataset_id}").json()
+    assert ds["n_blocks"] == 3 and [b["frequency_hz"] for b in ds["blocks"]] == [10.0, 50.0, 100.0]
+    shot(page, "sweeps")
+
+    goto(page, server, "bench")
+    page.wait_for_selector("#live canvas")
+    page.wait_for_timeout(800)  # a few live samples
+    bench = server["api"].get("/bench").json()
+    assert page.locator("#limits tr").count() == 1 + len(bench["axes"])
+    assert abs(float(page.get_attribute("#state tr[data-axis=y] td[data-output-v]", "data-output-v"))) < 0.5
+    assert "amplifier output (V)" in page.inner_text("#live") or page.locator("#live canvas").count() > 0
+    shot(page, "bench")
+
+    goto(page, server, f"datasets/{dataset_id}")
+    page.wait_for_selector(".loop canvas")
+    loops = page.locator(".loop")
+    assert loops.count() == 3
+    assert [loops.nth(i).get_attribute("data-frequency-hz") for i in range(3)] == ["10", "50", "100"]
+    assert page.get_attribute("#export-csv", "href").endswith(f"/api/datasets/{dataset_id}/data?format=csv")
+    csv = httpx.get(server["url"] + page.get_attribute("#export-csv", "href")).text
+    assert csv.splitlines()[0].startswith("t,") and len(csv.splitlines()) == ds["samples"] + 1
+    assert httpx.get(server["url"] + page.get_attribute("#export-hdf5", "href")).content[:8] == b"\x89HDF\r\n\x1a\n"
+    shot(page, "dataset")
+
+    goto(page, server, "datasets")
+    assert page.locator(f"#dataset-list tr[data-dataset-id='{dataset_id}']").count() == 1
+    shot(page, "datasets")
+
+    # Identify from the form, then the Compare view: the per-frequency table shows the API's numbers.
+    goto(page, server, f"models?dataset={dataset_id}")
+    page.select_option("#identify-form select[name=axis]", "y")
+    page.select_option("#identify-datasets", [dataset_id])
+    page.click("#identify-start")
+    page.wait_for_selector("#model-id", timeout=120_000)
+    model_id = page.inner_text("#model-id")
+    page.wait_for_selector("#compare-loop canvas")
+    compared = server["api"].get(f"/models/{model_id}/compare", params={"dataset": dataset_id, "arrays": False}).json()
+    rows = page.locator("#table6 tr[data-frequency-hz]")
+    assert rows.count() == 3
+    for i, block in enumerate(compared["metrics"]["per_block"]):
+        assert float(rows.nth(i).get_attribute("data-frequency-hz")) == block["frequency_hz"]
+        assert math.isclose(float(rows.nth(i).get_attribute("data-rms")), block["validation"]["rms_um"], rel_tol=1e-9)
+        shown = float(rows.nth(i).locator("td.rms").inner_text())
+        assert math.isclose(shown, block["validation"]["rms_um"], rel_tol=1e-3)
+    model = server["api"].get(f"/models/{model_id}").json()
+    assert math.isclose(float(page.get_attribute("#model-validation-rms", "data-value")),
+                        model["metrics"]["validation_rms_um"], rel_tol=1e-9)
+    assert "µm" in page.inner_text("#compare-table") and "0.0586" in page.inner_text("#table6")  # paper column
+    shot(page, "models")
+
+    goto(page, server, "trajectories")
+    assert page.locator("#traj-errors").inner_text().count("0.308") == 1
+    assert "0.154" in page.inner_text("#traj-errors") and "< 6.2" in page.inner_text("#traj-errors")
+    shot(page, "trajectories")
+
+
+def test_import_headerless_file_with_column_mapping(page, server):
+    if not REAL.exists():
+        pytest.skip(f"{REAL} is missing")
+    goto(page, server, "datasets")
+    page.set_input_files("#import-file", str(REAL))
+    page.wait_for_selector("#preview-table")
+    # The preview parses the first lines here: 7 columns, no header, 10 rows.
+    assert page.locator("#preview-table .col-role").count() == 7
+    assert page.locator("#preview-table tr").count() == 11
+    first = REAL.read_text().split()[:7]
+    assert [float(page.locator("#preview-table tr").nth(1).locator("td").nth(i).inner_text()) for i in (0, 4)] == \
+        [float(first[0]), float(first[4])]
+    page.select_option("#import-delimiter", "whitespace")
+    page.wait_for_selector("#preview-delimiter:has-text('whitespace')")
+    page.select_option(".col-role[data-col='0']", "u")
+    page.select_option(".col-role[data-col='4']", "x")
+    page.select_option("#import-axis", "y")
+    page.fill("#import-rate", "200")
+    shot(page, "import_preview")
+    page.click("#import-submit")
+    page.wait_for_selector("#import-done")
+    dataset_id = page.get_attribute("#import-done", "data-dataset-id")
+    assert page.get_attribute("#import-done", "data-samples") == "8027"
+    ds = server["api"].get(f"/datasets/{dataset_id}").json()
+    assert ds["samples"] == 8027 and ds["sample_rate_hz"] == 200.0 and ds["axes"] == ["y"]
+    assert json.loads(ds["plan"]["import"]["columns"]) == {"u": 0, "x": 4}
+    assert ds["plan"]["import"]["delimiter"] == "whitespace"
+    data = server["api"].get(f"/datasets/{dataset_id}/data").json()
+    assert data["u_y_v"][0] == float(first[0]) and data["x_y_um"][0] == float(first[4])
+    assert "8027 samples at 200 Hz" in page.inner_text("#import-result")
+    page.click(f"#import-done a")
+    page.wait_for_selector(".loop canvas")
+    assert page.get_attribute("#dataset-summary", "data-samples") == "8027"
+    shot(page, "import_dataset")
+
+
+def test_emergency_stop_during_a_sweep(page, server):
+    goto(page, server, "sweeps")
+    page.fill("#sweep-form input[name=frequencies]", "0.5")
+    page.fill("#sweep-form input[name=cycles]", "100")
+    page.click("#sweep-start")
+    page.wait_for_function(
+        "() => { const j = document.querySelector('#sweep-job .jobline');"
+        " return j && j.dataset.state === 'running' && Number(j.dataset.progress) > 0; }", timeout=60_000)
+    job_id = page.get_attribute("#sweep-job .jobline", "data-job-id")
+    assert server["api"].get("/bench").json()["running_job_id"] == job_id
+    page.click("#estop")
+    page.wait_for_selector("#banner.info:has-text('Emergency stop')")
+    page.wait_for_selector("#sweep-job .jobline[data-state='cancelled']", timeout=60_000)
+    assert "cancelled" in page.inner_text("#sweep-job")
+    stopped = json.loads(page.get_attribute("#banner", "data-stopped"))
+    assert stopped["cancelled_job_id"] == job_id
+    bench = server["api"].get("/bench").json()
+    # 0 V, to the amplifier's output noise (the tolerance of tests/test_service_api.py)
+    assert all(abs(bench["amplifiers"][a]["output_v"]) < 0.05 for a in bench["axes"])
+    assert all(abs(v) < 0.05 for v in stopped["output_v"].values())
+    assert server["api"].get(f"/jobs/{job_id}").json()["state"] == "cancelled"
+    assert job_id in page.inner_text("#banner")
+    volts = dict(re.findall(r"\b([yz]) (-?[0-9.]+) V", page.inner_text("#banner")))
+    assert sorted(volts) == sorted(bench["axes"]) and all(abs(float(v)) < 0.05 for v in volts.values())
+    shot(page, "emergency_stop")
+    # The Bench page shows 0 V on every axis and no running job.
+    goto(page, server, "bench")
+    for axis in bench["axes"]:
+        assert abs(float(page.get_attribute(f"#state tr[data-axis={axis}] td[data-output-v]", "data-output-v"))) < 0.05
+    assert page.inner_text("#running") == "none"
+
+
+def test_discovery_story_in_the_browser(page, server):
+    dataset_id = run_sweep_in_browser(page, server)
+    goto(page, server, f"models?dataset={dataset_id}")
+    page.select_option("#identify-datasets", [dataset_id])
+    page.click("#identify-start")
+    page.wait_for_selector("#model-id", timeout=120_000)
+    model_id = page.inner_text("#model-id")
+    page.wait_for_selector("#candidates tr[data-effect]", timeout=120_000)
+    diagnosis = server["api"].get(f"/models/{model_id}/diagnosis").json()
+    shown = [page.locator("#candidates tr[data-effect]").nth(i).get_attribute("data-effect")
+             for i in range(page.locator("#candidates tr[data-effect]").count())]
+    assert shown == [c["effect"] for c in diagnosis["candidates"]]
+    assert shown[0] == HIDDEN, f"the diagnosis ranks {shown} on the {HIDDEN} bench"
+    assert page.get_attribute("#diagnosis-verdict", "data-verdict") == diagnosis["verdict"]
+    history = json.loads(page.get_attribute("#history-chart", "data-values"))
+    assert len(history) == 1
+    page.wait_for_selector("#compare-loop canvas")
+    shot(page, "diagnosis")
+
+    page.click(f"#candidates button.add-effect[data-effect='{HIDDEN}']")
+    page.wait_for_selector("#refine-job .jobline[data-state='succeeded']", timeout=150_000)
+    page.wait_for_selector("#refined")
+    child = page.get_attribute("#refined", "data-model-id")
+    page.wait_for_function("() => JSON.parse(document.querySelector('#history-chart').dataset.values).length === 2")
+    values = json.loads(page.get_attribute("#history-chart", "data-values"))
+    models = json.loads(page.get_attribute("#history-chart", "data-models"))
+    assert models == [model_id, child]
+    api_values = [server["api"].get(f"/models/{m}").json()["metrics"]["validation_rms_um"] for m in models]
+    assert values == pytest.approx(api_values, rel=1e-9)
+    assert values[1] < values[0], f"the error did not fall: {values}"
+    assert server["api"].get(f"/models/{child}").json()["parent_id"] == model_id
+    shot(page, "refine_history")
+
+
+def test_trajectory_with_ilc_error_falls_on_screen(page, server):
+    api = server["api"]
+    sweep = api.post("/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [10, 50, 100], "cycles": 3}).json()
+    dataset_id = wait_job(server, sweep["job_id"])["result"]["dataset_id"]
+    models = {}
+    for axis in ("y", "z"):
+        job = api.post("/models", json={"axis": axis, "datasets": [dataset_id], "model": "static_pi"}).json()
+        models[axis] = wait_job(server, job["job_id"])["result"]["model_id"]
+    goto(page, server, "trajectories")
+    page.select_option("#traj-preset", "case1")
+    page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
+    page.select_option("#traj-form select[name=feedforward_model_z]", models["z"])
+    page.fill("#traj-form input[name=cycles]", "30")
+    page.set_checked("#traj-form input[name=ilc]", True)
+    page.click("#traj-start")
+    page.wait_for_selector("#traj-job .jobline[data-state='succeeded']", timeout=150_000)
+    page.wait_for_function("() => Number(document.querySelector('#period-chart').dataset.points || 0) > 1")
+    values = json.loads(page.get_attribute("#period-chart", "data-values"))
+    assert values[-1] < values[0], f"the error per period did not fall: {values[:3]} … {values[-3:]}"
+    job_id = page.get_attribute("#traj-job .jobline", "data-job-id")
+    result = api.get(f"/jobs/{job_id}").json()["result"]
+    for key in ("max_error_y_um", "max_error_z_um", "rms_error_um", "relative_error_pct"):
+        cell = page.locator(f"#traj-errors tr[data-key={key}] td[data-value]")
+        assert math.isclose(float(cell.get_attribute("data-value")), result[key], rel_tol=1e-9)
+    page.wait_for_selector("#ellipse-chart canvas")
+    shot(page, "trajectory")

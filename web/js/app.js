@@ -1,0 +1,80 @@
+// The dashboard shell: hash routing between pages, the always-visible emergency stop, the bench
+// pill (which job owns the bench), and the API token in the settings corner.
+import { api, getToken, setToken } from './api.js';
+import { banner } from './ui.js';
+
+const PAGES = {
+  bench: () => import('./pages/bench.js'),
+  sweeps: () => import('./pages/sweeps.js'),
+  datasets: () => import('./pages/datasets.js'),
+  models: () => import('./pages/models.js'),
+  trajectories: () => import('./pages/trajectories.js'),
+};
+
+let current = null;
+
+async function route() {
+  const [path, search = ''] = location.hash.replace(/^#\/?/, '').split('?');
+  const [name = 'bench', ...rest] = path.split('/');
+  const query = Object.fromEntries(new URLSearchParams(search));
+  const page = PAGES[name] ? name : 'bench';
+  document.querySelectorAll('#nav a').forEach((a) => a.classList.toggle('active', a.dataset.page === page));
+  if (current && current.leave) current.leave();
+  const root = document.getElementById('page');
+  root.innerHTML = '';
+  root.dataset.page = page;
+  root.dataset.ready = '0';
+  banner(null);
+  try {
+    const module = await PAGES[page]();
+    current = module;
+    await module.enter(root, rest.filter(Boolean).map(decodeURIComponent), query);
+  } catch (err) {
+    if (err && err.name !== 'AbortError') banner(err.message || String(err));
+  } finally {
+    root.dataset.ready = '1';
+  }
+}
+
+async function emergencyStop() {
+  const button = document.getElementById('estop');
+  button.disabled = true;
+  try {
+    const r = await api('/bench/stop', { method: 'POST' });
+    const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${(Math.abs(v) < 0.005 ? 0 : Number(v)).toFixed(2)} V`).join(', ');
+    banner(`Emergency stop: outputs at ${volts || '0 V'}` +
+           (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled.` : '; no job was running.'), 'info');
+    document.getElementById('banner').dataset.stopped = JSON.stringify(r);
+  } catch (err) {
+    banner(`Emergency stop FAILED: ${err.message}`);
+  } finally {
+    button.disabled = false;
+  }
+}
+
+async function refreshPill() {
+  const pill = document.getElementById('bench-pill');
+  try {
+    const bench = await api('/bench');
+    pill.textContent = bench.running_job_id ? `bench busy: ${bench.running_job_id}` : `bench idle · ${bench.backend}`;
+    pill.dataset.runningJob = bench.running_job_id || '';
+  } catch (err) {
+    pill.textContent = `bench: ${err.message}`;
+  }
+}
+
+function setup() {
+  document.getElementById('estop').addEventListener('click', emergencyStop);
+  const token = document.getElementById('token');
+  token.value = getToken();
+  document.getElementById('token-save').addEventListener('click', () => {
+    setToken(token.value.trim());
+    banner('API token saved in this browser.', 'info');
+  });
+  window.addEventListener('hashchange', route);
+  refreshPill();
+  setInterval(refreshPill, 2000);
+  route();
+}
+
+setup();

@@ -1,0 +1,116 @@
+// Bench: devices and their state, the hard limits, recent jobs, and live signals (the amplifier
+// output voltage and current per axis, polled from GET /api/bench, scrolling).
+import { api, esc, fmt, followJob } from '../api.js';
+import { lineChart, scroll, destroyAll } from '../charts.js';
+import { h, jobLine } from '../ui.js';
+
+let timer = null;
+let controller = null;
+let following = null;
+const charts = [];
+
+export async function enter(root) {
+  controller = new AbortController();
+  following = null;
+  const bench = await api('/bench');
+  root.append(h(`<div>
+    <h1>Bench <span class="muted">${esc(bench.backend)}</span></h1>
+    <div class="grid">
+      <div class="card"><h2>State</h2><table id="state"></table></div>
+      <div class="card"><h2>Hard limits</h2><table id="limits"></table></div>
+    </div>
+    <div class="card"><h2>Live signals <span class="muted">(amplifier output per axis, 4 Hz)</span></h2>
+      <div id="live" class="chart"></div>
+      <div id="bench-job"></div>
+      <p class="muted">The API reports the amplifier output live; the gauges' displacement x (µm) is recorded with each job
+        and drawn below when the job ends.</p></div>
+    <div class="card"><h2>Last recording <span class="muted" id="last-recording-name"></span></h2><div id="last-recording"></div></div>
+    <div class="card"><h2>Recent jobs</h2><table id="jobs"></table></div>
+  </div>`));
+  renderState(root, bench);
+  const axes = bench.axes;
+  const lim = root.querySelector('#limits');
+  lim.innerHTML = `<tr><th>axis</th><th class="num">V min (V)</th><th class="num">V max (V)</th><th class="num">slew (V/s)</th>
+    <th class="num">current (A)</th><th class="num">C (µF)</th><th class="num">1st resonance (Hz)</th><th class="num">full-range f max (Hz)</th></tr>` +
+    axes.map((a) => { const l = bench.limits[a]; return `<tr><td>${a}</td><td class="num">${fmt(l.v_min_v)}</td><td class="num">${fmt(l.v_max_v)}</td>
+      <td class="num">${fmt(l.slew_limit_v_per_s)}</td><td class="num">${fmt(l.current_limit_a)}</td><td class="num">${fmt(l.capacitance_f * 1e6)}</td>
+      <td class="num">${fmt(l.first_resonance_hz)}</td><td class="num">${fmt(l.max_frequency_hz_at_full_range)}</td></tr>`; }).join('');
+  const t0 = performance.now();
+  const series = [];
+  for (const a of axes) series.push({ label: `u_${a} (V)`, values: [] });
+  for (const a of axes) series.push({ label: `I_${a} (mA)`, values: [], scale: 'y2' });
+  const live = await lineChart(root.querySelector('#live'), { xs: [], series, xLabel: 'time (s)',
+    yLabel: 'amplifier output (V)', y2Label: 'current (mA)', height: 240, yRange: [-5, 125] });
+  charts.push(live);
+  const poll = async () => {
+    try {
+      const b = await api('/bench');
+      const t = (performance.now() - t0) / 1000;
+      scroll(live, [t, ...axes.map((a) => b.amplifiers[a].output_v), ...axes.map((a) => 1000 * b.amplifiers[a].current_a)], 240);
+      renderState(root, b);
+      if (b.running_job_id && b.running_job_id !== following) follow(root, b.running_job_id);
+    } catch (_) { /* the pill shows connection errors */ }
+  };
+  timer = setInterval(poll, 250);
+  const jobs = await refreshJobs(root);
+  const last = jobs.find((j) => j.result && j.result.dataset_id);
+  if (last) await showRecording(root, last.result.dataset_id);
+  if (bench.running_job_id) follow(root, bench.running_job_id);
+}
+
+/** Progress of the job that owns the bench (SSE); when it ends, its recording (u and x per axis). */
+async function follow(root, jobId) {
+  following = jobId;
+  const line = jobLine('bench job');
+  root.querySelector('#bench-job').replaceChildren(line);
+  try {
+    const job = await followJob(jobId, (j) => line.update(j), { signal: controller.signal });
+    line.update(job);
+    await refreshJobs(root);
+    if (job.result && job.result.dataset_id) await showRecording(root, job.result.dataset_id);
+  } catch (_) { /* left the page */ }
+}
+
+async function showRecording(root, datasetId) {
+  const ds = await api(`/datasets/${encodeURIComponent(datasetId)}`, { signal: controller.signal });
+  const data = await api(`/datasets/${encodeURIComponent(datasetId)}/data?max_points=3000`, { signal: controller.signal });
+  const axes = ds.axes.filter((a) => data[`u_${a}_v`]);
+  const el = root.querySelector('#last-recording');
+  const old = charts.find((c) => c.root && el.contains(c.root));
+  if (old) { old.destroy(); charts.splice(charts.indexOf(old), 1); }
+  root.querySelector('#last-recording-name').innerHTML = `<a href="#/datasets/${esc(ds.id)}">${esc(ds.id)}</a> · ${esc(ds.name)}${ds.partial ? ' (partial)' : ''}`;
+  el.dataset.datasetId = ds.id;
+  charts.push(await lineChart(el, { xs: data.t_s, xLabel: 'time (s)', yLabel: 'drive u (V)', y2Label: 'displacement x (µm)', height: 220,
+    series: [...axes.map((a) => ({ label: `u_${a} (V)`, values: data[`u_${a}_v`] })),
+             ...axes.map((a) => ({ label: `x_${a} (µm)`, values: data[`x_${a}_um`], scale: 'y2' }))] }));
+}
+
+function renderState(root, b) {
+  const el = root.querySelector('#state');
+  if (!el) return;
+  el.innerHTML = `<tr><th>axis</th><th class="num">output (V)</th><th class="num">current (mA)</th><th>amplifier</th><th>sensor</th><th class="num">range (µm)</th></tr>` +
+    b.axes.map((a) => { const amp = b.amplifiers[a]; const s = b.sensors[a]; return `<tr data-axis="${a}">
+      <td>${a}</td><td class="num" data-output-v="${amp.output_v}">${(Math.abs(amp.output_v) < 0.005 ? 0 : Number(amp.output_v)).toFixed(2)}</td>
+      <td class="num">${(1000 * amp.current_a).toFixed(1)}</td>
+      <td class="${amp.fault ? 'bad' : 'ok'}">${amp.fault ? esc(amp.fault_reason || 'fault') : (amp.enabled ? 'enabled' : 'disabled')}${amp.current_limited ? ' · current-limited' : ''}</td>
+      <td class="${s.ok ? 'ok' : 'bad'}">${s.ok ? (s.saturated ? 'saturated' : 'ok') : esc(s.reason || 'not ok')}</td>
+      <td class="num">${s.range_um.map((v) => fmt(v)).join(' … ')}</td></tr>`; }).join('') +
+    `<tr><td colspan="6" class="muted">running job: <span id="running">${esc(b.running_job_id || 'none')}</span></td></tr>`;
+}
+
+async function refreshJobs(root) {
+  const jobs = await api('/jobs?limit=10', { signal: controller.signal });
+  const el = root.querySelector('#jobs');
+  el.innerHTML = `<tr><th>job</th><th>kind</th><th>state</th><th class="num">progress</th><th>result / error</th><th>created</th></tr>` +
+    jobs.map((j) => `<tr><td>${esc(j.id)}</td><td>${esc(j.kind)}</td><td class="state-${j.state}">${j.state}</td>
+      <td class="num">${Math.round(100 * j.progress)} %</td>
+      <td>${j.error ? `<span class="bad">${esc(j.error)}</span>` : esc(j.result ? Object.entries(j.result).filter(([, v]) => typeof v !== 'object').map(([k, v]) => `${k}: ${v}`).join(', ') : '')}</td>
+      <td>${esc(j.created_at)}</td></tr>`).join('');
+  return jobs;
+}
+
+export function leave() {
+  clearInterval(timer);
+  if (controller) controller.abort();
+  destroyAll(charts);
+}

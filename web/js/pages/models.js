@@ -1,0 +1,289 @@
+// Models — the discovery story: Identify (a form); Compare (measured vs model over time and as a
+// loop, the residual, a per-frequency table in the layout of the paper's Table 6); Diagnosis (where
+// it fails, shaded on the plots; ranked candidate effects with their evidence); Add effect (a refine
+// job; the error-history chart of validation RMS per model version); Separate (the experiment that
+// tells two candidates apart, where the diagnosis offers one).
+import { api, esc, fmt, has } from '../api.js';
+import { lineChart, xyChart, destroyAll } from '../charts.js';
+import { h, runJob, showError } from '../ui.js';
+
+const charts = [];
+let controller = null;
+
+// DESIGN §6, Table 6: RMS error in µm (dynamic PI / GRPI / static PI).
+const PAPER_TABLE6 = {
+  y: { 10: [0.0586, 0.0933, 0.0991], 100: [0.0812, 0.0985, 0.1075] },
+  z: { 10: [0.0901, 0.1449, 0.1406], 100: [0.1039, 0.1326, 0.1513] },
+};
+
+export async function enter(root, [modelId], query = {}) {
+  controller = new AbortController();
+  const signal = controller.signal;
+  const [models, datasets] = await Promise.all([api('/models', { signal }), api('/datasets', { signal })]);
+  root.append(h(`<div>
+    <h1>Models</h1>
+    <div class="grid">
+      <div class="card"><h2>Identify</h2>
+        <form id="identify-form" class="inline">
+          <label>axis <select name="axis"><option>y</option><option>z</option></select></label>
+          <label>model <select name="model"><option value="static_pi">static PI</option><option value="dynamic_pi">dynamic PI</option><option value="grpi">GRPI</option></select></label>
+          <label>operators <input name="n_operators" type="number" min="1" max="100" step="1" value="10"></label>
+          <label>datasets (Ctrl-click for several) <select name="datasets" id="identify-datasets" multiple size="4" style="min-width:320px">
+            ${datasets.slice().reverse().map((d, i) => `<option value="${esc(d.id)}"${(query.dataset ? d.id === query.dataset : i === 0) ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}</option>`).join('')}
+          </select></label>
+          <button class="primary" type="submit" id="identify-start">Identify</button>
+        </form>
+        <div id="identify-job"></div><div id="identify-error"></div>
+      </div>
+      <div class="card"><h2>Stored models</h2><div style="max-height:220px; overflow:auto"><table id="model-list"></table></div></div>
+    </div>
+    <div id="model-detail"></div>
+  </div>`));
+  root.querySelector('#model-list').innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
+    <th class="num">train RMS (µm)</th><th class="num">held-out RMS (µm)</th></tr>` + models.slice().reverse().map((m) => `
+    <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td><td>${m.axis}</td><td>${esc(m.kind)}</td>
+      <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
+      <td class="num">${fmt(m.metrics.train_rms_um)}</td><td class="num">${fmt(m.metrics.validation_rms_um)}</td></tr>`).join('');
+  root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
+  if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
+}
+
+async function identify(root) {
+  const form = root.querySelector('#identify-form');
+  const f = new FormData(form);
+  const err = root.querySelector('#identify-error');
+  err.textContent = '';
+  const body = { axis: f.get('axis'), model: f.get('model'), n_operators: Number(f.get('n_operators')),
+                 datasets: f.getAll('datasets'), effects: ['hysteresis'] };
+  const button = root.querySelector('#identify-start');
+  button.disabled = true;
+  try {
+    const job = await runJob(root.querySelector('#identify-job'), '/models', body, 'identify', { signal: controller.signal });
+    if (job.state === 'succeeded') location.hash = `#/models/${job.result.model_id}`;
+    else showError(err, new Error(job.error || `identification ${job.state}`));
+  } catch (e) {
+    showError(err, e);
+  } finally {
+    button.disabled = false;
+  }
+}
+
+async function showModel(el, modelId, query) {
+  const signal = controller.signal;
+  const model = await api(`/models/${encodeURIComponent(modelId)}`, { signal });
+  const datasetId = query.dataset && model.datasets.includes(query.dataset) ? query.dataset : (query.dataset || model.datasets[0]);
+  const [canDiagnose, canRefine, canHistory] = await Promise.all([
+    has('GET /api/models/{model_id}/diagnosis'), has('POST /api/models/{model_id}/refine'), has('GET /api/models/{model_id}/history')]);
+  el.append(h(`<div>
+    <div class="card"><h2>Model <span id="model-id">${esc(model.id)}</span> <span class="muted">axis ${model.axis} · ${esc(model.kind)} ·
+      ${model.effects.map(esc).join(' + ')}${model.parent_id ? ` · refined from <a href="#/models/${esc(model.parent_id)}">${esc(model.parent_id)}</a>` : ''}</span></h2>
+      <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmt(model.metrics.validation_rms_um)} µm</b>
+        · training RMS ${fmt(model.metrics.train_rms_um)} µm · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
+      <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label></div>
+    </div>
+    <div class="grid-1-2">
+      <div class="card"><h2>Error history <span class="muted">(held-out RMS per model version)</span></h2><div id="history-chart"></div><div id="history-table"></div></div>
+      <div class="card" id="diagnosis-card"><h2>Diagnosis</h2><div id="diagnosis"></div><div id="refine-job"></div><div id="separate-job"></div></div>
+    </div>
+    <div class="card"><h2>Compare: measured vs model</h2><div id="compare-table"></div>
+      <div id="compare-time"></div><div class="grid"><div id="compare-loop"></div><div id="compare-residual"></div></div></div>
+  </div>`));
+  const select = el.querySelector('#compare-dataset');
+  const all = await api('/datasets', { signal });
+  select.innerHTML = all.filter((d) => d.axes.includes(model.axis)).reverse().map((d) =>
+    `<option value="${esc(d.id)}"${d.id === datasetId ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}${model.datasets.includes(d.id) ? ' (fitted)' : ''}</option>`).join('');
+  select.addEventListener('change', () => { location.hash = `#/models/${model.id}?dataset=${select.value}`; });
+
+  // Diagnosis first (its failure ranges shade the compare plots), then history and compare.
+  let diagnosis = null;
+  if (canDiagnose) {
+    try {
+      diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
+      renderDiagnosis(el, model, diagnosis, canRefine);
+    } catch (e) { showError(el.querySelector('#diagnosis'), e, 'Diagnosis failed: '); }
+  } else {
+    el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
+  }
+  await renderHistory(el, model, canHistory);
+  if (datasetId) await renderCompare(el, model, datasetId, diagnosis);
+}
+
+/** Where the diagnosis says the model fails, as plot ranges: time ranges of the failing frequency
+ *  blocks (for the time plots) and drive ranges (for the loop), from the failure's fields or words. */
+function failureRanges(diagnosis, compared) {
+  const time = []; const drive = [];
+  if (!diagnosis || !Array.isArray(diagnosis.failures)) return { time, drive };
+  const rate = compared.sample_rate_hz;
+  const blocks = compared.metrics.per_block || [];
+  for (const f of diagnosis.failures) {
+    if (!f || typeof f !== 'object') continue;
+    if (f.dataset_id && f.dataset_id !== compared.dataset_id) continue;
+    const where = String(f.where || f.text || '');
+    const named = where.match(/\bds_[0-9a-f]+/);
+    if (named && named[0] !== compared.dataset_id) continue;   // a place in another dataset
+    const t0 = f.t_start_s ?? f.start_s; const t1 = f.t_stop_s ?? f.stop_s;
+    if (t0 !== undefined && t1 !== undefined) { time.push([t0, t1]); continue; }
+    const hz = f.frequency_hz ?? (where.match(/([0-9.]+) Hz block/) || [])[1];
+    if (hz !== undefined) {
+      const block = blocks.find((b) => Math.abs(b.frequency_hz - Number(hz)) < 1e-9);
+      if (block && block.start !== undefined) time.push([block.start / rate, block.stop / rate]);
+      continue;
+    }
+    const above = where.match(/u > ([0-9.]+) V/); const below = where.match(/u < ([0-9.]+) V/);
+    if (above) drive.push([Number(above[1]), Infinity]);
+    if (below) drive.push([-Infinity, Number(below[1])]);
+  }
+  return { time, drive };
+}
+
+function describe(value) {
+  if (value === null || value === undefined) return '';
+  if (typeof value === 'string') return esc(value);
+  if (Array.isArray(value)) return value.map(describe).join('; ');
+  if (typeof value === 'object') return Object.entries(value).map(([k, v]) => `${esc(k)}: ${typeof v === 'number' ? fmt(v) : describe(v)}`).join(', ');
+  return esc(typeof value === 'number' ? fmt(value) : String(value));
+}
+
+/** {a, b, text, body} when the diagnosis offers the experiment that separates two candidates. */
+function separatingExperiment(d) {
+  const amb = d.ambiguity;
+  if (amb && amb.experiment) return { a: amb.effects[0], b: amb.effects[1], text: amb.text, body: amb.experiment };
+  return null;
+}
+
+function renderDiagnosis(el, model, d, canRefine) {
+  const box = el.querySelector('#diagnosis');
+  const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
+  const candidates = d.candidates || [];
+  box.innerHTML = `<p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" class="${verdictClass}">
+      ${d.verdict === 'complete' ? 'The model explains the data down to the noise floor.' : 'Something is missing from the model.'}
+      Residual RMS <b data-value="${d.residual_rms_um}">${fmt(d.residual_rms_um)} µm</b> · noise floor ${fmt(d.noise_floor_um)} µm</p>
+    ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
+    ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
+    <h3>Candidate effects, best first</h3>
+    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after (µm)</th><th>evidence</th><th></th></tr>
+    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}"${i === 0 ? ' class="best"' : ''}>
+      <td>${i + 1}</td><td>${esc(c.effect)}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmt(c.expected_rms_um)}</td>
+      <td class="evidence">${describe(c.evidence)}</td>
+      <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
+    </table>
+    <div id="separate"></div>`;
+  box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => refine(el, model, b.dataset.effect)));
+  const experiment = separatingExperiment(d);
+  if (experiment) {
+    const sep = box.querySelector('#separate');
+    sep.innerHTML = `<h3>Separate</h3><p>${esc(experiment.text || '')}</p>
+      <button type="button" id="separate-run">Run the experiment that separates ${esc(experiment.a)} from ${esc(experiment.b)}</button>`;
+    sep.querySelector('#separate-run').addEventListener('click', () => separate(el, model, experiment));
+  }
+}
+
+async function refine(el, model, effect) {
+  const out = el.querySelector('#refine-job');
+  el.querySelectorAll('.add-effect').forEach((b) => { b.disabled = true; });
+  try {
+    const job = await runJob(out, `/models/${encodeURIComponent(model.id)}/refine`, { add: effect }, `add ${effect}`, { signal: controller.signal });
+    if (job.state === 'succeeded') {
+      const child = job.result.model_id;
+      out.append(h(`<p class="ok" id="refined" data-model-id="${esc(child)}">Added ${esc(effect)}: model <a href="#/models/${esc(child)}">${esc(child)}</a>.</p>`));
+      await renderHistory(el, await api(`/models/${encodeURIComponent(child)}`, { signal: controller.signal }), true);
+    } else {
+      showError(out.appendChild(document.createElement('p')), new Error(job.error || `refine ${job.state}`));
+    }
+  } catch (e) {
+    showError(out.appendChild(document.createElement('p')), e);
+  } finally {
+    el.querySelectorAll('.add-effect').forEach((b) => { b.disabled = false; });
+  }
+}
+
+async function separate(el, model, experiment) {
+  const out = el.querySelector('#separate-job');
+  try {
+    // The diagnosis gives a ready-to-POST sweep body.
+    const job = await runJob(out, '/sweeps', experiment.body, 'separating experiment', { signal: controller.signal });
+    if (job.state === 'succeeded' && job.result?.dataset_id) {
+      out.append(h(`<p>Dataset <a href="#/models/${esc(model.id)}?dataset=${esc(job.result.dataset_id)}">${esc(job.result.dataset_id)}</a> recorded: compare the model on it.</p>`));
+    }
+  } catch (e) {
+    showError(out.appendChild(document.createElement('p')), e);
+  }
+}
+
+async function lineage(model, canHistory) {
+  if (canHistory) {
+    const r = await api(`/models/${encodeURIComponent(model.id)}/history`, { signal: controller.signal });
+    const steps = Array.isArray(r) ? r : (r.history || r.lineage || r.steps || r.models || []);
+    return steps.map((s) => ({ id: s.model_id || s.id, effects: s.effects || [], change: s.change || null,
+      rms: s.validation_rms_um ?? s.metrics?.validation_rms_um }));
+  }
+  // Without the endpoint: walk parent_id.
+  const steps = [];
+  let m = model;
+  while (m) {
+    steps.unshift({ id: m.id, effects: m.effects, rms: m.metrics.validation_rms_um });
+    m = m.parent_id ? await api(`/models/${encodeURIComponent(m.parent_id)}`, { signal: controller.signal }) : null;
+  }
+  return steps;
+}
+
+async function renderHistory(el, model, canHistory) {
+  let steps;
+  try { steps = await lineage(model, canHistory); } catch (e) { showError(el.querySelector('#history-table'), e); return; }
+  const chartEl = el.querySelector('#history-chart');
+  chartEl.dataset.values = JSON.stringify(steps.map((s) => s.rms));
+  chartEl.dataset.models = JSON.stringify(steps.map((s) => s.id));
+  chartEl.dataset.points = String(steps.length);
+  const old = charts.find((c) => c.root && chartEl.contains(c.root));
+  if (old) { old.destroy(); charts.splice(charts.indexOf(old), 1); }
+  charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
+    yLabel: 'held-out RMS (µm)', series: [{ label: 'held-out RMS (µm)', values: steps.map((s) => s.rms), points: true, width: 2 }],
+    height: 220, points: true, integerX: true }));
+  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>version</th><th>model</th><th>change</th><th>effects</th><th class="num">held-out RMS (µm)</th></tr>
+    ${steps.map((s, i) => `<tr data-rms="${s.rms}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
+      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td>${(s.effects || []).map(esc).join(' + ')}</td><td class="num">${fmt(s.rms)}</td></tr>`).join('')}</table>`;
+}
+
+async function renderCompare(el, model, datasetId, diagnosis) {
+  const signal = controller.signal;
+  let c;
+  try {
+    c = await api(`/models/${encodeURIComponent(model.id)}/compare?dataset=${encodeURIComponent(datasetId)}&max_points=4000`, { signal });
+  } catch (e) { showError(el.querySelector('#compare-table'), e, 'Compare failed: '); return; }
+  const ds = await api(`/datasets/${encodeURIComponent(datasetId)}`, { signal });
+  // per_block rows carry no sample range: take it from the dataset's blocks (same index).
+  for (const b of c.metrics.per_block) {
+    const block = ds.blocks.find((x) => x.index === b.index);
+    if (block) { b.start = block.start; b.stop = block.stop; }
+  }
+  const ranges = failureRanges(diagnosis, c);
+  const axis = model.axis;
+  const paper = PAPER_TABLE6[axis] || {};
+  const o = c.metrics.overall;
+  el.querySelector('#compare-table').innerHTML = `<p>Dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a>
+    (${c.used_in_fit ? 'used in the fit: the held-out cycles are unseen' : 'not used in the fit: all of it is unseen'}) ·
+    overall RMS <b id="compare-overall-rms" data-value="${o.rms_um}">${fmt(o.rms_um)} µm</b> · max |e| ${fmt(o.max_abs_um)} µm · fit ${fmt(o.fit_pct, 4)} %</p>
+    <table id="table6"><tr><th rowspan="2">axis</th><th rowspan="2" class="num">frequency (Hz)</th>
+      <th colspan="4">this model (${esc(model.kind)}${model.effects.length > 1 ? ' + ' + model.effects.filter((e) => e !== 'hysteresis').map(esc).join(' + ') : ''})</th>
+      <th colspan="3">paper, Table 6: RMS (µm)</th></tr>
+      <tr><th class="num">held-out RMS (µm)</th><th class="num">training RMS (µm)</th><th class="num">max |e| (µm)</th><th class="num">fit (%)</th>
+      <th class="num">dynamic PI</th><th class="num">GRPI</th><th class="num">static PI</th></tr>
+      ${c.metrics.per_block.map((b) => { const p = paper[b.frequency_hz] || []; const held = b.validation || b.heldout || b.train; return `<tr data-frequency-hz="${b.frequency_hz}" data-rms="${held?.rms_um}">
+        <td>${axis.toUpperCase()}</td><td class="num">${fmt(b.frequency_hz)}</td>
+        <td class="num rms">${fmt(held?.rms_um)}</td><td class="num">${fmt(b.train?.rms_um)}</td><td class="num">${fmt(held?.max_abs_um)}</td><td class="num">${fmt(held?.fit_pct, 4)}</td>
+        <td class="num">${p[0] ?? '–'}</td><td class="num">${p[1] ?? '–'}</td><td class="num">${p[2] ?? '–'}</td></tr>`; }).join('')}
+    </table>${ranges.time.length + ranges.drive.length ? `<p class="warn" id="failure-shading" data-time-ranges="${ranges.time.length}" data-drive-ranges="${ranges.drive.length}">Shaded red: where the diagnosis says the model fails (${ranges.time.length} block${ranges.time.length === 1 ? '' : 's'} in time, ${ranges.drive.length} drive range${ranges.drive.length === 1 ? '' : 's'} on the loop).</p>` : ''}`;
+  charts.push(await lineChart(el.querySelector('#compare-time'), { title: 'Displacement over time', xs: c.t_s, xLabel: 'time (s)',
+    yLabel: `x_${axis} (µm)`, series: [{ label: 'measured (µm)', values: c.x_measured_um }, { label: 'model (µm)', values: c.x_predicted_um }],
+    shade: ranges.time, height: 260 }));
+  charts.push(await xyChart(el.querySelector('#compare-loop'), { title: 'Loop: displacement vs drive', xLabel: `u_${axis} (V)`, yLabel: `x_${axis} (µm)`,
+    curves: [{ label: 'measured', x: c.u_v, y: c.x_measured_um }, { label: 'model', x: c.u_v, y: c.x_predicted_um }], height: 280,
+    xShade: ranges.drive }));
+  charts.push(await lineChart(el.querySelector('#compare-residual'), { title: 'Residual (measured − model)', xs: c.t_s, xLabel: 'time (s)',
+    yLabel: 'residual (µm)', series: [{ label: 'residual (µm)', values: c.residual_um, color: '#c2255c' }], shade: ranges.time, height: 280 }));
+}
+
+export function leave() {
+  if (controller) controller.abort();
+  destroyAll(charts);
+}

@@ -1,0 +1,162 @@
+// Trajectories: an ellipse and a controller (inverse-model feedforward, PID, ILC); the live error
+// per period while ILC learns; the reference and actual ellipse; the errors beside the paper's.
+import { api, esc, fmt, has } from '../api.js';
+import { lineChart, xyChart, destroyAll } from '../charts.js';
+import { h, runJob, showError } from '../ui.js';
+
+const charts = [];
+let controller = null;
+
+// DESIGN §6: tracking at 100 Hz, PID gains, and the paper's errors.
+const PAPER = {
+  case1: { label: 'paper case 1 (0°, Y 1–6 µm, Z 1–11 µm)', max_error_y_um: 0.308, max_error_z_um: 0.369, relative_error_pct: 6.2,
+           form: { min_y_um: 1, amplitude_y_um: 5, min_z_um: 1, amplitude_z_um: 10, inclination_deg: 0 } },
+  case2: { label: 'paper case 2 (20°, Y 1–5 µm, Z 1–9 µm)', max_error_y_um: 0.154, max_error_z_um: 0.252, relative_error_pct: 6.2,
+           form: { min_y_um: 1, amplitude_y_um: 4, min_z_um: 1, amplitude_z_um: 8, inclination_deg: 20 } },
+};
+// PID gains per axis (kp V/µm, ki V/(µm·s), kd V·s/µm): the paper's, and ones that are stable on the
+// emulated bench (the paper's loop gain rings its 291 Hz flexure mode there).
+const PID = { paper: { kp_y: 50, ki_y: 300, kd_y: 0.06, kp_z: 70, ki_z: 450, kd_z: 0.08 },
+              tuned: { kp_y: 2, ki_y: 600, kd_y: 0, kp_z: 1.5, ki_z: 600, kd_z: 0 } };
+
+export async function enter(root) {
+  controller = new AbortController();
+  const signal = controller.signal;
+  const [available, models] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal })]);
+  const options = (axis) => `<option value="">none</option>` + models.filter((m) => m.axis === axis).reverse().map((m) =>
+    `<option value="${esc(m.id)}">${esc(m.id)} · ${esc(m.kind)} · ${m.effects.map(esc).join('+')} · ${fmt(m.metrics.validation_rms_um)} µm</option>`).join('');
+  root.append(h(`<div>
+    <h1>Trajectories</h1>
+    ${available ? '' : '<p class="card warn" id="no-trajectories">This service does not offer trajectory tracking yet (POST /api/trajectories).</p>'}
+    <div class="card"><h2>Ellipse and controller</h2>
+      <form id="traj-form" class="inline">
+        <label>preset <select id="traj-preset"><option value="">—</option><option value="case1">paper case 1</option><option value="case2">paper case 2</option></select></label>
+        <label>Y min (µm) <input name="min_y_um" type="number" step="any" min="0" value="1"></label>
+        <label>Y peak-to-peak (µm) <input name="amplitude_y_um" type="number" step="any" min="0" value="5"></label>
+        <label>Z min (µm) <input name="min_z_um" type="number" step="any" min="0" value="1"></label>
+        <label>Z peak-to-peak (µm) <input name="amplitude_z_um" type="number" step="any" min="0" value="10"></label>
+        <label>inclination (°) <input name="inclination_deg" type="number" step="any" value="0"></label>
+        <label>frequency (Hz) <input name="frequency_hz" type="number" step="any" min="0" value="100"></label>
+        <label>periods <input name="cycles" type="number" step="1" min="1" value="50"></label>
+        <label>feedforward model Y <select name="feedforward_model_y">${options('y')}</select></label>
+        <label>feedforward model Z <select name="feedforward_model_z">${options('z')}</select></label>
+        <label>PID <select name="pid"><option value="">none</option><option value="tuned">tuned for this bench</option>
+          <option value="paper">paper gains (Y 50/300/0.06, Z 70/450/0.08)</option></select></label>
+        <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
+        <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
+      </form>
+      <div id="traj-job"></div><div id="traj-error"></div>
+    </div>
+    <div class="grid">
+      <div class="card"><h2>Error per period</h2><div id="period-chart"></div></div>
+      <div class="card"><h2>Reference and actual ellipse</h2><div id="ellipse-chart"></div></div>
+    </div>
+    <div class="card"><h2>Errors beside the paper's</h2><table id="traj-errors"></table></div>
+  </div>`));
+  const form = root.querySelector('#traj-form');
+  root.querySelector('#traj-preset').addEventListener('change', (e) => {
+    const preset = PAPER[e.target.value];
+    if (preset) for (const [k, v] of Object.entries(preset.form)) form.elements[k].value = v;
+  });
+  form.addEventListener('submit', (e) => { e.preventDefault(); run(root); });
+  renderErrors(root, null);
+}
+
+/** The per-period errors of a job (in progress or done): the first array whose key names periods. */
+function perPeriod(job) {
+  for (const source of [job.result, job.live, job.data, job]) {
+    if (!source || typeof source !== 'object') continue;
+    for (const [k, v] of Object.entries(source)) {
+      if (/period/.test(k) && Array.isArray(v) && v.length && (typeof v[0] === 'number' || typeof v[0] === 'object')) {
+        return v.map((p) => (typeof p === 'number' ? p : p.rms_error_um ?? p.max_error_um ?? p.error_um ?? p.rms_um));
+      }
+    }
+  }
+  return null;
+}
+
+async function run(root) {
+  const form = root.querySelector('#traj-form');
+  const f = new FormData(form);
+  const err = root.querySelector('#traj-error');
+  err.textContent = '';
+  const ctl = { ilc: f.get('ilc') === 'on' };
+  if (f.get('feedforward_model_y')) ctl.feedforward_model_y = f.get('feedforward_model_y');
+  if (f.get('feedforward_model_z')) ctl.feedforward_model_z = f.get('feedforward_model_z');
+  if (f.get('pid')) ctl.pid = PID[f.get('pid')];
+  const body = { shape: 'ellipse', amplitude_y_um: Number(f.get('amplitude_y_um')), amplitude_z_um: Number(f.get('amplitude_z_um')),
+    min_y_um: Number(f.get('min_y_um')), min_z_um: Number(f.get('min_z_um')),
+    inclination_deg: Number(f.get('inclination_deg')), frequency_hz: Number(f.get('frequency_hz')), cycles: Number(f.get('cycles')), controller: ctl };
+  const button = root.querySelector('#traj-start');
+  button.disabled = true;
+  destroyAll(charts);
+  let shown = -1;
+  let periodChart = null;
+  const drawPeriods = async (values) => {
+    if (!values || values.length === shown) return;
+    shown = values.length;
+    const el = root.querySelector('#period-chart');
+    el.dataset.values = JSON.stringify(values);
+    el.dataset.points = String(values.length);
+    if (periodChart) { periodChart.setData([values.map((_, i) => i + 1), values]); return; }
+    periodChart = await lineChart(el, { xs: values.map((_, i) => i + 1), xLabel: 'period', yLabel: 'tracking error (µm)',
+      series: [{ label: 'error per period (µm)', values, points: true, width: 2 }], height: 240, integerX: true });
+    charts.push(periodChart);
+  };
+  const live = [];   // error per period from the progress messages ("period 7/56: error 312.4 nm RMS")
+  let lastMessage = '';
+  try {
+    const job = await runJob(root.querySelector('#traj-job'), '/trajectories', body, 'trajectory', {
+      signal: controller.signal, onUpdate: (j) => {
+        const m = /error ([0-9.eE+-]+) nm/.exec(j.message || '');
+        if (m && j.message !== lastMessage) { live.push(Number(m[1]) / 1000); drawPeriods(live.slice()); }
+        lastMessage = j.message || '';
+      } });
+    if (job.state === 'succeeded') {
+      const result = job.result;
+      await drawPeriods(perPeriod({ result }));
+      renderErrors(root, result, body);
+      await drawEllipse(root, result, body);
+    } else {
+      showError(err, new Error(job.error || `the trajectory run was ${job.state}`));
+    }
+  } catch (e) {
+    showError(err, e);
+  } finally {
+    button.disabled = false;
+  }
+}
+
+/** Reference and actual ellipse: the last two periods of the traces the run stored as a dataset. */
+async function drawEllipse(root, r, body) {
+  const el = root.querySelector('#ellipse-chart');
+  if (!r.dataset_id) { el.innerHTML = '<p class="muted">The run stored no traces.</p>'; return; }
+  const d = await api(`/datasets/${encodeURIComponent(r.dataset_id)}/data`, { signal: controller.signal });
+  const n = d.x_y_um.length;
+  const period = Math.round(d.sample_rate_hz / body.frequency_hz);
+  // The traces ramp in and out over a few periods: draw two steady periods before the ramp-out.
+  const end = n > 8 * period ? n - 4 * period : n;
+  const from = Math.max(0, end - 2 * period);
+  const tail = (k) => d[k].slice(from, end);
+  el.dataset.datasetId = r.dataset_id;
+  charts.push(await xyChart(el, { xLabel: 'Y (µm)', yLabel: 'Z (µm)', height: 300, square: true,
+    curves: [{ label: 'reference', x: tail('ref_y_um'), y: tail('ref_z_um'), color: '#2b8a3e', width: 2 },
+             { label: 'actual (2 steady periods)', x: tail('x_y_um'), y: tail('x_z_um'), color: '#d9480f' }] }));
+}
+
+function renderErrors(root, r, body) {
+  const row = (label, key, unit) => `<tr data-key="${key}"><td>${label} (${unit})</td>
+    <td class="num" data-value="${r ? r[key] ?? '' : ''}">${r ? fmt(r[key]) : '–'}</td>
+    <td class="num">${PAPER.case1[key] !== undefined ? (key === 'relative_error_pct' ? '< ' : '') + PAPER.case1[key] : '–'}</td>
+    <td class="num">${PAPER.case2[key] !== undefined ? (key === 'relative_error_pct' ? '< ' : '') + PAPER.case2[key] : '–'}</td></tr>`;
+  root.querySelector('#traj-errors').innerHTML = `<tr><th>error</th><th class="num">this run${body ? ` (${fmt(body.frequency_hz)} Hz, ${fmt(body.inclination_deg)}°)` : ''}</th>
+      <th class="num">${PAPER.case1.label}</th><th class="num">${PAPER.case2.label}</th></tr>` +
+    row('max error Y', 'max_error_y_um', 'µm') + row('max error Z', 'max_error_z_um', 'µm') +
+    row('RMS error', 'rms_error_um', 'µm') + row('relative error', 'relative_error_pct', '%') +
+    (r && r.error_per_period_um ? `<tr><td>error per period, first → last (µm)</td><td class="num">${fmt(r.error_per_period_um[0])} → ${fmt(r.error_per_period_um[r.error_per_period_um.length - 1])}</td><td></td><td></td></tr>` : '');
+}
+
+export function leave() {
+  if (controller) controller.abort();
+  destroyAll(charts);
+}
