@@ -31,12 +31,18 @@ HIDDEN = os.environ.get("EVCBENCH_WEB_TEST_BENCH", "creep")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[dev]')")
-pytestmark = [
-    pytest.mark.skipif(not CHROMIUM.exists(), reason=f"{CHROMIUM} missing: run tests/setup/install_browser.sh"),
-    pytest.mark.skipif(not (ROOT / "web" / "node_modules" / "uplot" / "dist" / "uPlot.esm.js").exists(),
-                       reason="web/node_modules missing: run `npm ci` in web/ (make test does)"),
-]
+if os.environ.get("EVCBENCH_SKIP_BROWSER") == "1":
+    pytest.skip("EVCBENCH_SKIP_BROWSER=1: browser tests skipped on request", allow_module_level=True)
+# Otherwise a missing browser, playwright or chart library is a broken set-up and must fail, not skip.
+from playwright import sync_api  # noqa: E402  (dev extra)
+
+UPLOT = ROOT / "web" / "node_modules" / "uplot" / "dist" / "uPlot.esm.js"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _browser_setup_is_complete():
+    assert CHROMIUM.exists(), f"{CHROMIUM} is missing: run tests/setup/install_browser.sh (make test does)"
+    assert UPLOT.exists(), "web/node_modules is missing: run `npm ci` in web/ (make test does)"
 
 
 def _free_port() -> int:
@@ -210,7 +216,7 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
 
 def test_import_headerless_file_with_column_mapping(page, server):
     if not REAL.exists():
-        pytest.skip(f"{REAL} is missing")
+        pytest.fail(f"{REAL} is missing: the real data must sit in ../shared beside the repo")
     goto(page, server, "datasets")
     page.set_input_files("#import-file", str(REAL))
     page.wait_for_selector("#preview-table")
