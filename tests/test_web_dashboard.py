@@ -244,7 +244,7 @@ def test_import_headerless_file_with_column_mapping(page, server):
     data = server["api"].get(f"/datasets/{dataset_id}/data").json()
     assert data["u_y_v"][0] == float(first[0]) and data["x_y_um"][0] == float(first[4])
     assert "8027 samples at 200 Hz" in page.inner_text("#import-result")
-    page.click(f"#import-done a")
+    page.click("#import-done a")
     page.wait_for_selector(".loop canvas")
     assert page.get_attribute("#dataset-summary", "data-samples") == "8027"
     shot(page, "import_dataset")
