@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from service.discovery.diagnosis import diagnose
 from service.discovery.records import Record, sweep_records
+from realdata import MODEL_VI_DO as REAL, requires_real_data
 
-REAL = Path(__file__).parents[2] / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
 
 
 @pytest.fixture(autouse=True)
@@ -32,7 +31,7 @@ def test_base_bench_claims_no_physical_effect(axis):
     assert d["noise_floor_um"] > 0 and d["failures"]
 
 
-@pytest.mark.skipif(not REAL.exists(), reason="real data not present")
+@requires_real_data
 def test_real_data_discovery_reaches_three_noise_floors():
     data = np.loadtxt(REAL)
     record = Record("Model_Vi_Do", data[:, 0], data[:, 4], 200.0)

@@ -1,6 +1,5 @@
 """Model contract: parameter recovery, JSON round trips, rate dependence, real data."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,10 +8,10 @@ from service.benchmarks.identification import lagged_pi_loops
 from service.hysteresis import GRPI, MODEL_REGISTRY, DynamicPI, Series, StaticPI, equal_thresholds, model_from_dict
 from service.identify import fit_metrics
 from service.signals import biased_sine, multi_sine
+from realdata import MODEL_VI_DO as REAL, requires_real_data
 
 FS = 20_000.0
 WEIGHTS = np.array([0.0135, 0.0279, 0.001, 0.004, 0.0077, 0.002, 0.001, 0.0005, 0.0003, 0.0001])
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
 
 
 def loops(frequencies=(1.0, 10.0, 50.0, 100.0), cycles=5, analytic=True):
@@ -136,7 +135,7 @@ def test_dynamic_beats_static_on_lagged_pi():
         assert ratio > 2.5, s.label
 
 
-@pytest.mark.skipif(not REAL.exists(), reason="shared real data not present")
+@requires_real_data
 def test_static_pi_on_real_micromanipulator_needs_the_offset():
     """yan9a Model_Vi_Do.dat (200 Hz, 1 Hz drive 0–3.6 V, sensor zero ≈ −120 µm).
 

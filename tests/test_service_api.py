@@ -15,8 +15,8 @@ from fastapi.testclient import TestClient
 from service.app import create_app
 from service.client import ApiError, Client
 from service.settings import Settings
+from realdata import MODEL_VI_DO as REAL, requires_real_data
 
-REAL = Path(__file__).parents[2] / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
 SHORT = {"axes": ["y"], "frequencies_hz": [10, 50, 100], "cycles": 3}
 LONG = {"axes": ["y"], "frequencies_hz": [0.5], "cycles": 100, "name": "long"}  # 200 s of plan
 
@@ -266,7 +266,7 @@ def test_identification_runs_beside_a_bench_job(service):
     _wait_state(api, sweep["job_id"], ("cancelled",))
 
 
-@pytest.mark.skipif(not REAL.exists(), reason=f"the real data file {REAL} is absent (../shared beside the repo)")
+@requires_real_data
 def test_real_data_imports_identifies_and_exports(service):
     _, api = service
     ds = api.import_dataset(REAL, columns={"u": 0, "x": 4}, axis="y", sample_rate_hz=200, delimiter="whitespace")

@@ -3,15 +3,14 @@ from __future__ import annotations
 
 import io
 import json
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
 from service.datasets import DataError, estimate_block, parse_table, periodic_period_s, to_csv, to_hdf5
+from realdata import MODEL_VI_DO as REAL, requires_real_data
 
-REAL = Path(__file__).parents[2] / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
 
 
 def _csv(n=200, fs=1000.0, header="t,u_y,x_y", extra=None):
@@ -23,7 +22,7 @@ def _csv(n=200, fs=1000.0, header="t,u_y,x_y", extra=None):
     return (header + "\n" + "\n".join(rows) + "\n").encode()
 
 
-@pytest.mark.skipif(not REAL.exists(), reason=f"the real data file {REAL} is absent (../shared beside the repo)")
+@requires_real_data
 def test_real_piezo_data_imports_with_a_column_mapping():
     table = parse_table(REAL.read_bytes(), columns={"u": 0, "x": 4}, axis="y", sample_rate_hz=200,
                         delimiter="whitespace")

@@ -17,9 +17,9 @@ import httpx
 import pytest
 
 from service.client import Client
+from realdata import MODEL_VI_DO as REAL
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = Path(__file__).parents[2] / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
 
 
 def _free_port() -> int:
@@ -115,7 +115,7 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
             assert [b["frequency_hz"] for b in metrics["per_block"]] == [20.0, 80.0]
             assert cli_model in _cli(server.url, "models").stdout
             assert "identify" in _cli(server.url, "jobs").stdout
-            if REAL.exists():
+            if os.environ.get("EVCBENCH_SKIP_REAL_DATA") != "1":
                 out = _cli(server.url, "import", str(REAL), "--columns", '{"u":0,"x":4}', "--sample-rate-hz",
                            "200", "--axis", "y", "--delimiter", "whitespace")
                 assert "8027 samples at 200 Hz" in out.stdout

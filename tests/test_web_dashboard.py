@@ -21,11 +21,11 @@ from pathlib import Path
 
 import httpx
 import pytest
+from realdata import MODEL_VI_DO as REAL, requires_real_data  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "tests" / "artifacts"
 CHROMIUM = Path(os.environ.get("EVCBENCH_CHROMIUM", "/usr/bin/chromium"))
-REAL = ROOT.parent / "shared" / "data" / "real" / "yan9a-dbo" / "Model_Vi_Do.dat"
 #: The hidden-effect bench the tests run on (fixtures/benches/<name>.toml); its effect is the name.
 HIDDEN = os.environ.get("EVCBENCH_WEB_TEST_BENCH", "creep")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -214,9 +214,8 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     shot(page, "trajectories")
 
 
+@requires_real_data
 def test_import_headerless_file_with_column_mapping(page, server):
-    if not REAL.exists():
-        pytest.fail(f"{REAL} is missing: the real data must sit in ../shared beside the repo")
     goto(page, server, "datasets")
     page.set_input_files("#import-file", str(REAL))
     page.wait_for_selector("#preview-table")
