@@ -222,7 +222,7 @@ class Bench:
                         record = self._record(chunks_u, chunks_ai, actual)
                         record.partial, record.reason = True, f"daq: {exc}"
                         raise RunInterrupted(record.reason, record) from exc
-                    fault = self._fault_reason()
+                    fault = self.fault_reason()
                     record = self._record(chunks_u, chunks_ai, actual)
                     if fault:
                         record.partial, record.reason = True, fault
@@ -305,7 +305,8 @@ class Bench:
         u = {a: np.concatenate(chunks_u[a]) if chunks_u[a] else np.zeros(0) for a in self.axes}
         return BenchRecord(sample_rate_hz=rate, u_cmd_v=u, x_um=x)
 
-    def _fault_reason(self) -> str | None:
+    def fault_reason(self) -> str | None:
+        """The first amplifier fault or sensor loss, in words, or None when every part is healthy."""
         for axis in self.axes:
             amp = self.parts.amplifiers[axis].status()
             if amp.fault:

@@ -16,7 +16,7 @@ import numpy as np
 from drivers.bench import Bench
 from service.control import kernels as CK
 from service.control.ilc import HarmonicILC
-from service.control.safety import fault_reason, stepping_hook
+from service.control.safety import stepping_hook
 from service.control.trajectory import Reference
 
 QUEUED_BLOCKS = 2   # buffered streaming: blocks in flight ahead of the one being measured
@@ -126,7 +126,7 @@ class Tracker:
         daq.write_read(np.zeros((int(settle_s * self.fs), daq.capabilities.ao_channels)))
 
     def _end_period(self, p, rec, on_period, should_stop) -> bool:
-        reason = fault_reason(self.bench)
+        reason = self.bench.fault_reason()
         if reason:
             rec.tripped = reason
             return True

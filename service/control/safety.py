@@ -75,15 +75,3 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
             bench.check_sine(axis, vpp, frequency_hz)
         except LimitError as exc:
             raise ControlRefused("frequency_hz", f"axis {axis}: {exc}") from None
-
-
-def fault_reason(bench: Bench) -> str | None:
-    """The first amplifier fault or sensor loss, in words, or None."""
-    for axis in bench.axes:
-        amp = bench.parts.amplifiers[axis].status()
-        if amp.fault:
-            return f"amplifier {axis}: {amp.fault_reason or 'fault'}"
-        sensor = bench.parts.sensors[axis].status()
-        if not sensor.ok:
-            return f"sensor {axis}: {sensor.reason or 'not ok'}"
-    return None
