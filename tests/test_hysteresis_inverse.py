@@ -4,13 +4,13 @@ import pytest
 from scipy.signal import lfilter
 
 from service.benchmarks.identification import lagged_pi_loops, static_truth
-from service.hysteresis import GRPI, DynamicPI, StaticPI, equal_thresholds
+from service.hysteresis import GRPI, DynamicPI, StaticPI
 from service.hysteresis.inverse import analytic_inverse_parameters, numerical_inverse
 from service.signals import biased_sine, multi_sine
+from pi_truths import FS, WEIGHTS
+from pi_truths import static_truth as static_truth_of_tests
 
-FS = 20_000.0
 NM = 1e-3  # µm
-WEIGHTS = np.array([0.0135, 0.0279, 0.001, 0.004, 0.0077, 0.002, 0.001, 0.0005, 0.0003, 0.0001])
 REFERENCES = {  # µm, inside the range a 0–120 V drive reaches (checked below)
     "biased-sine": biased_sine(10.0, 3, FS, 1.8, 6.5).value,
     "multi-amplitude": multi_sine([10.0, 40.0], [1.2, 0.35], FS, 0.3, 1.8).value,
@@ -19,9 +19,7 @@ REFERENCES = {  # µm, inside the range a 0–120 V drive reaches (checked below
 
 @pytest.fixture(scope="module")
 def static_model():
-    m = StaticPI(thresholds_v=equal_thresholds(120.0, 10))
-    m.weights_um_per_v, m.offset_um = WEIGHTS.copy(), 0.7
-    return m
+    return static_truth_of_tests()
 
 
 @pytest.fixture(scope="module")

@@ -5,14 +5,11 @@ import numpy as np
 import pytest
 
 from service.benchmarks.identification import lagged_pi_loops
-from service.hysteresis import GRPI, MODEL_REGISTRY, DynamicPI, Series, StaticPI, equal_thresholds, model_from_dict
+from service.hysteresis import GRPI, MODEL_REGISTRY, DynamicPI, Series, StaticPI, model_from_dict
 from service.identify import fit_metrics
 from service.signals import biased_sine, multi_sine
+from pi_truths import FS, WEIGHTS, dynamic_truth, grpi_truth, static_truth
 from realdata import MODEL_VI_DO as REAL, requires_real_data
-
-FS = 20_000.0
-WEIGHTS = np.array([0.0135, 0.0279, 0.001, 0.004, 0.0077, 0.002, 0.001, 0.0005, 0.0003, 0.0001])
-
 
 def loops(frequencies=(1.0, 10.0, 50.0, 100.0), cycles=5, analytic=True):
     out = []
@@ -21,27 +18,6 @@ def loops(frequencies=(1.0, 10.0, 50.0, 100.0), cycles=5, analytic=True):
         s = Series.from_waveform(w, label=f"{f:g} Hz") if analytic else Series(w.value, None, FS, label=f"{f:g} Hz")
         out.append(s)
     return out
-
-
-def static_truth():
-    m = StaticPI(thresholds_v=equal_thresholds(120.0, 10))
-    m.weights_um_per_v, m.offset_um = WEIGHTS.copy(), 0.7
-    return m
-
-
-def dynamic_truth():
-    m = DynamicPI(thresholds_v=equal_thresholds(120.0, 10))
-    m.weights_um_per_v, m.offset_um = WEIGHTS.copy(), -0.4
-    m.alpha_um_per_v2_s = np.array([3e-9, -2e-9, 4e-9, -1e-9])
-    m.beta_um_per_v2_s2 = np.array([2e-12, 4e-12, -3e-12, 1e-12])
-    return m
-
-
-def grpi_truth():
-    m = GRPI(thresholds_v=equal_thresholds(120.0, 10))
-    m.weights_um_per_v, m.offset_um = WEIGHTS.copy(), 0.2
-    m.a1, m.a2_s, m.b1, m.b2_s = 1.04, 1.5e-4, 0.97, -1.0e-4
-    return m
 
 
 def record(truth, drives):

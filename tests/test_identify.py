@@ -18,18 +18,7 @@ from service.identify import (
     stack_blocks,
 )
 from service.signals import biased_sine
-
-FS = 20_000.0
-WEIGHTS = np.array([0.0135, 0.0279, 0.001, 0.004, 0.0077, 0.002, 0.001, 0.0005, 0.0003, 0.0001])
-
-
-def dynamic_truth():
-    m = DynamicPI(thresholds_v=equal_thresholds(120.0, 10))
-    m.weights_um_per_v, m.offset_um = WEIGHTS.copy(), -0.4
-    m.alpha_um_per_v2_s = np.array([3e-9, -2e-9, 4e-9, -1e-9])
-    m.beta_um_per_v2_s2 = np.array([2e-12, 4e-12, -3e-12, 1e-12])
-    return m
-
+from pi_truths import FS, WEIGHTS, dynamic_truth
 
 @pytest.fixture(scope="module")
 def dynamic_data():
