@@ -13,15 +13,13 @@ import json
 import math
 import re
 import os
-import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import httpx
 import pytest
-from realdata import MODEL_VI_DO as REAL, requires_real_data  # noqa: E402
+from live_server import Server
+from realdata import MODEL_VI_DO as REAL, requires_real_data
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "tests" / "artifacts"
@@ -45,47 +43,16 @@ def _browser_setup_is_complete():
     assert UPLOT.exists(), "web/node_modules is missing: run `npm ci` in web/ (make test does)"
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """``evcbench serve`` on the hidden-effect bench, in a subprocess with its own data dir."""
     tmp = tmp_path_factory.mktemp("web")
-    port = _free_port()
-    log = tmp / "server.log"
-    env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
-    env["OPENBLAS_NUM_THREADS"] = "1"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--data-dir", str(tmp / "var"), "--bench", HIDDEN, "--seed", "1"],
-        cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
+    live = Server(tmp / "var", tmp / "server.log", bench=HIDDEN, seed=1)
     try:
-        while True:
-            if proc.poll() is not None:
-                raise AssertionError(f"the service exited with {proc.returncode}:\n{log.read_text()}")
-            try:
-                if httpx.get(f"{url}/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise AssertionError(f"the service did not answer within 120 s:\n{log.read_text()}")
-            time.sleep(0.2)
-        with httpx.Client(base_url=f"{url}/api", timeout=60) as api:
-            yield {"url": url, "api": api,
-                   "paths": set(httpx.get(f"{url}/openapi.json").json()["paths"])}
+        with httpx.Client(base_url=f"{live.url}/api", timeout=60) as api:
+            yield {"url": live.url, "api": api}
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        live.stop()
 
 
 @pytest.fixture(scope="module")
