@@ -4,6 +4,7 @@ effect first; refining with it must cut the held-out RMS by at least half and th
 must not propose it again."""
 from __future__ import annotations
 
+import re
 import warnings
 
 import pytest
@@ -12,6 +13,11 @@ from service.discovery.composite import CompositeModel
 from service.discovery.diagnosis import diagnose
 from service.discovery.records import sweep_records
 
+#: Known gap (issue 5): after `dynamics` is added on the dynamics bench, the resonance fit leaves
+#: ~14 nm (Y) / ~30 nm (Z) against a ~3 nm floor, and rate_dependence (0.82 Y, 0.61 Z) is still
+#: claimed. Strict: this turns red once the dynamics effect models the flexure completely.
+DYNAMICS_INCOMPLETE = pytest.mark.xfail(strict=True, reason="the dynamics effect leaves a repeatable residual "
+                                        "that rate_dependence still claims after the refine")
 VARIANTS = ["creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence"]
 
 
@@ -33,6 +39,12 @@ def test_hidden_effect_is_found_on_z(bench):
     _found_and_fixed(bench, sweep_records(bench, seed=0)["z"])
 
 
+@DYNAMICS_INCOMPLETE
+@pytest.mark.parametrize("axis", ["y", "z"])
+def test_nothing_physical_is_left_after_adding_dynamics(axis):
+    _found_and_fixed("dynamics", sweep_records("dynamics", seed=0)[axis], expect_complete=True)
+
+
 def test_ambiguity_names_a_runnable_experiment():
     from drivers.emulated import open_bench
     from service.api.sweeps import SweepRequest
@@ -46,17 +58,25 @@ def test_ambiguity_names_a_runnable_experiment():
     assert plan_for_bench(plan_from_dict(body), open_bench("drift", 0)).samples > 0
 
 
-def _found_and_fixed(bench, record):
+def _found_and_fixed(bench, record, expect_complete: bool | None = None):
+    """Ranked first, error halved by the refine, and (unless a known gap) nothing physical left."""
+    if expect_complete is None:
+        expect_complete = bench != "dynamics"
     first = diagnose([record])
     assert first["verdict"] == "missing_effect", first["verdict_text"]
     top = first["candidates"][0]
     assert top["effect"] == bench, [(c["effect"], c["score"]) for c in first["candidates"]]
     assert top["kind"] == "physical" and top["high"]
-    assert isinstance(top["evidence"], str) and len(top["evidence"]) > 40
+    # The evidence is in words built from measured numbers, and names the effect it argues for.
+    assert re.search(r"\d", top["evidence"]) and bench.replace("_", "-") in top["evidence"].replace("_", "-"), \
+        top["evidence"]
     before = first["residual_rms_um"]
     refined = CompositeModel([bench]).fit([record])
     after = refined.evaluate([record])["validation_rms_um"]
     assert after <= 0.5 * before, (before, after)
     second = diagnose([record], model=refined)
-    assert all(c["effect"] != bench for c in second["candidates"])
+    # With the one hidden effect in the model, nothing physical is left to claim.
+    claimed = [(c["effect"], round(c["score"], 2)) for c in second["candidates"] if c["kind"] == "physical" and c["high"]]
+    if expect_complete:
+        assert not claimed, claimed
     assert second["residual_rms_um"] == pytest.approx(after)
