@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from service.effects import EFFECTS, RecordContext, ordered
+from service.effects.harmonics import harmonic_data
 from service.effects.operators import OPERATOR_FACTOR
 from service.hysteresis.base import equal_thresholds
 from service.hysteresis.kernels import play_operators
@@ -116,11 +117,18 @@ class CompositeModel:
                 if EFFECTS[name].row_local:
                     cache: dict = {}
                     theta[name] = self._grid_refine(name, lambda th: solve({**theta, name: th}, exact=name).rms)
-                else:  # grid on the current prediction (one column), local refinement exact
-                    z = [self._transform(a_raw[k] @ sol.coef, r.fs_hz, theta, skip=name) for k, r in enumerate(records)]
-                    best = self._search(name, z, records, rows, target)
+                else:  # harmonics with every weight refitted (already fine), else a grid on the
+                    # current prediction refined with the exact cost
+                    best = self._harmonic_search(name, a_raw, records, theta)
                     exact_cost = lambda th: solve({**theta, name: th}).rms  # noqa: E731
-                    theta[name] = EFFECTS[name].refine(best, exact_cost) if last else best
+                    if best is None:
+                        z = [self._transform(a_raw[k] @ sol.coef, r.fs_hz, theta, skip=name)
+                             for k, r in enumerate(records)]
+                        best = self._search(name, z, records, rows, target)
+                        best = EFFECTS[name].refine(best, exact_cost) if last else best
+                    elif last:  # the harmonics ignore bounds and transients: a last exact polish
+                        best = EFFECTS[name].refine(best, exact_cost, fine=True)
+                    theta[name] = best
             sol = solve(theta)
         self.theta = theta
         splits = np.cumsum([0] + widths)
@@ -130,6 +138,16 @@ class CompositeModel:
 
     def _identity_theta(self, name: str) -> dict:
         return {"delay_s": 0.0} if name == "delay" else {"fn_hz": 1e12, "zeta": 1.0}
+
+    def _harmonic_search(self, name, a_raw, records, theta) -> dict | None:
+        """A transform's parameters from the periodic blocks' harmonics (None if it has no such
+        search or the data has too few periodic blocks)."""
+        eff = EFFECTS[name]
+        if not hasattr(eff, "harmonic_search"):
+            return None
+        columns = [self._transform(a, r.fs_hz, theta, skip=name) for a, r in zip(a_raw, records)]
+        return eff.harmonic_search(harmonic_data(records, columns), records[0].fs_hz,
+                                   1.0 / self.scales["min_period_s"])
 
     def _search(self, name, z, records, rows, target) -> dict:
         """Best parameters of one transform for the current prediction ``z`` (gain and offset free)."""

@@ -2,10 +2,10 @@
 
 Each block's residual is cut into whole cycles (resampled to an integer number of points per
 cycle when the period is fractional); the first cycle (start-up transient) is dropped when
-three or more remain. Each cycle's deviation from the mean cycle is detrended (its own mean
-and slope removed, so slow drift/creep is reported as ``slow_rms_um``, not as noise); what is
-left is the non-repeatable part. ``noise_um`` = its RMS with the degrees-of-freedom correction;
-``repeatable_um`` = RMS of the mean cycle with the noise's share (σ²/N) removed.
+three or more remain. ``noise_um`` comes from the differences of successive cycles, each with
+its own mean and slope removed (slow drift/creep is reported as ``slow_rms_um``, not as noise),
+as the median over cycle pairs; ``repeatable_um`` = RMS of the mean cycle with the noise's share
+(σ²/N) removed.
 """
 from __future__ import annotations
 
@@ -38,16 +38,27 @@ def repeatability(r: np.ndarray, period_samples: float) -> dict:
     mean_cycle = mat.mean(axis=0)
     dev = mat - mean_cycle
     s = np.linspace(-1.0, 1.0, m)
-    coef_a = dev.mean(axis=1, keepdims=True)
-    coef_b = (dev @ s)[:, None] / np.sum(s * s)
-    slow = coef_a + coef_b * s
-    rest = dev - slow
-    dof = (n - 1) * (m - 2)
-    var = float(np.sum(rest**2) / max(dof, 1))
+    slow = _mean_and_slope(dev, s)
+    var = _successive_cycle_variance(mat, s)
     rep2 = float(np.mean(mean_cycle**2)) - var / n
     return {"noise_um": float(np.sqrt(var)), "repeatable_um": float(np.sqrt(max(rep2, 0.0))),
             "slow_rms_um": float(np.sqrt(np.mean(slow**2))), "cycles": int(n),
             "method": "cycle-to-cycle repeatability"}
+
+
+def _mean_and_slope(rows: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Each row's own mean and slope over the cycle phase ``s`` ∈ [-1, 1]."""
+    return rows.mean(axis=1, keepdims=True) + (rows @ s)[:, None] / np.sum(s * s) * s
+
+
+def _successive_cycle_variance(mat: np.ndarray, s: np.ndarray) -> float:
+    """Noise variance (µm²) from the differences of successive cycles, each detrended: white noise
+    gives var(diff) = 2σ² per pair. The median over pairs ignores a pair that still carries a
+    start-up transient (ringing, settling), which is repeatable later and not noise."""
+    diff = np.diff(mat, axis=0)
+    rest = diff - _mean_and_slope(diff, s)
+    per_pair = np.sum(rest**2, axis=1) / max(mat.shape[1] - 2, 1) / 2.0
+    return float(np.median(per_pair))
 
 
 def noise_floor(records, residuals) -> dict:

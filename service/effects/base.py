@@ -76,7 +76,7 @@ class Effect:
     def apply_rows(self, columns: np.ndarray, fs_hz: float, theta: dict, rows: np.ndarray) -> np.ndarray:
         return self.apply(columns, fs_hz, theta)[rows]
 
-    def refine(self, theta: dict, cost) -> dict:
+    def refine(self, theta: dict, cost, fine: bool = False) -> dict:
         """Optional local refinement around the best grid value; ``cost(theta) -> float``."""
         return theta
 
