@@ -23,7 +23,8 @@ from service.api import sweeps as sweeps_api
 from service.api import tokens as tokens_api
 from service.api import trajectories as trajectories_api
 from service.api import web as web_api
-from service.auth import ensure_bootstrap_token, is_loopback
+from service.auth import ensure_bootstrap_token
+from service.binding import is_loopback
 from service.jobs import JobManager
 from service.settings import Settings
 from service.store import Store

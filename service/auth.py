@@ -1,4 +1,4 @@
-"""API tokens: issue, check and revoke; the bootstrap admin token; the bind-address rule.
+"""API tokens: issue, check and revoke; the bootstrap admin token.
 
 A token is ``evc_<43 url-safe characters>`` (32 random bytes). Only its SHA-256 is stored, with a
 name, one scope, an origin (bootstrap | cli | api), a creation time and a revoked flag. Scopes
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import ipaddress
 import os
 import secrets
 from pathlib import Path
@@ -127,29 +126,3 @@ def write_secret(path: Path, text: str) -> None:
 def remote_tokens(store: Store) -> list[dict]:
     """Active tokens made on purpose (cli or api), i.e. not the local bootstrap token."""
     return [t for t in store.tokens.list() if not t["revoked"] and t["origin"] != "bootstrap"]
-
-
-def is_loopback(host: str) -> bool:
-    """True for 127.0.0.0/8, ::1 and 'localhost'; False for 0.0.0.0, '', and any other name."""
-    host = (host or "").strip().strip("[]")
-    if host.lower() == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def bind_refusal(host: str, auth: str, remote_token_count: int) -> str | None:
-    """Why the service must not listen on ``host``, or None if it may. Loopback is always
-    allowed; any other address needs auth on and at least one non-bootstrap token."""
-    if is_loopback(host):
-        return None
-    if auth != "tokens":
-        return (f"refusing to listen on {host}: auth is {auth!r}, which is allowed only on loopback "
-                f"(127.0.0.1); use --auth tokens")
-    if remote_token_count == 0:
-        return (f"refusing to listen on {host}: it is not a loopback address and no API token exists "
-                f"besides the local bootstrap one; create one first with "
-                f"`evcbench token create --name NAME --scope operate` (same --data-dir)")
-    return None
