@@ -4,6 +4,7 @@ SSE stream, the token CLI (create → use → revoke), and the loopback-only bin
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import re
 import stat
@@ -18,6 +19,7 @@ from sqlalchemy import select
 
 from api_client import authed_client, bearer, issue_token
 from service import auth
+from service.api.auth import RedactQueryToken
 from service.app import create_app
 from service.binding import bind_refusal, is_loopback
 from service.cli_tokens import serve_refusal
@@ -283,3 +285,10 @@ def test_client_token_from_argument_environment_or_local_admin_file(tmp_path, mo
 def test_authed_client_helper_carries_an_admin_token(tmp_path):
     with authed_client(create_app(Settings(data_dir=tmp_path, seed=0))) as http:
         assert http.get("/api/admin/tokens").status_code == 200
+
+
+def test_access_log_never_shows_a_query_token():
+    record = logging.LogRecord("uvicorn.access", logging.INFO, __file__, 1, '%s - "%s %s HTTP/%s" %d',
+                               ("127.0.0.1:5", "GET", "/api/jobs/j/events?token=evc_secret&x=1", "1.1", 200), None)
+    assert RedactQueryToken().filter(record)
+    assert record.getMessage() == '127.0.0.1:5 - "GET /api/jobs/j/events?token=***&x=1 HTTP/1.1" 200'

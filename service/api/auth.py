@@ -4,9 +4,11 @@ GET/HEAD need the ``read`` scope, other methods ``operate``, anything under /api
 The token comes from ``Authorization: Bearer <token>``; ``?token=`` is accepted only on the job
 event stream (/api/jobs/{id}/events), because a browser's EventSource cannot send headers.
 Refusals are 401 (no, unknown or revoked token) or 403 (scope too low), in the API's error format.
+The access log shows such a query token as ``token=***``.
 """
 from __future__ import annotations
 
+import logging
 import re
 
 from fastapi import Depends, FastAPI, Request
@@ -15,6 +17,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.auth import AuthError, authenticate, authorize, required_scope
 
+#: A token in a query string, as written to the access log.
+QUERY_TOKEN = re.compile(r"(?<=[?&]token=)[^&\s]+")
 #: The only path that takes ``?token=`` (SSE: EventSource cannot set headers).
 QUERY_TOKEN_PATH = re.compile(r"^/api/jobs/[^/]+/events$")
 #: When auth is off every request acts with this record.
@@ -46,8 +50,24 @@ def require_token(request: Request, credentials: HTTPAuthorizationCredentials | 
 REQUIRE_TOKEN = [Depends(require_token)]
 
 
+class RedactQueryToken(logging.Filter):
+    """Replace ``token=<secret>`` in access-log arguments by ``token=***`` (the record is kept)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.args, tuple):
+            record.args = tuple(QUERY_TOKEN.sub("***", a) if isinstance(a, str) else a for a in record.args)
+        return True
+
+
+_REDACT = RedactQueryToken()
+
+
 def install(app: FastAPI) -> None:
-    """Turn AuthError into the API's error body ``{"detail", "field"}`` (+ WWW-Authenticate on 401)."""
+    """Turn AuthError into the API's error body ``{"detail", "field"}`` (+ WWW-Authenticate on 401),
+    and keep query tokens out of uvicorn's access log."""
+    access_log = logging.getLogger("uvicorn.access")
+    if _REDACT not in access_log.filters:
+        access_log.addFilter(_REDACT)
 
     @app.exception_handler(AuthError)
     async def _auth(_request: Request, exc: AuthError) -> JSONResponse:
