@@ -58,7 +58,11 @@ export async function api(path, { method = 'GET', body, form, signal } = {}) {
       }
       field = payload.field || null;
     } catch (_) { /* not JSON */ }
-    if (response.status === 401) window.dispatchEvent(new CustomEvent('evc:unauthorized', { detail }));
+    if (response.status === 401) {
+      detail = `${detail}. Paste an API token under Settings (top right); on the service's machine it is in ` +
+               '<data dir>/admin.token.';
+      window.dispatchEvent(new CustomEvent('evc:unauthorized', { detail }));
+    }
     throw new ApiError(response.status, detail, field);
   }
   if (response.status === 204) return null;

@@ -59,7 +59,7 @@ async function refreshPill() {
     pill.textContent = bench.running_job_id ? `bench busy: ${bench.running_job_id}` : `bench idle · ${bench.backend}`;
     pill.dataset.runningJob = bench.running_job_id || '';
   } catch (err) {
-    pill.textContent = `bench: ${err.message}`;
+    pill.textContent = err.status === 401 ? 'bench: API token needed' : `bench: ${err.message}`;
   }
 }
 
@@ -82,8 +82,7 @@ function askForToken(event) {
   askedForToken = true;
   document.getElementById('settings').open = true;
   document.getElementById('token').focus();
-  banner(`The API needs a token (${event.detail}). Paste one under Settings: on the service's machine it is in ` +
-         '<data dir>/admin.token, or make one with `evcbench token create --name NAME --scope operate`.');
+  banner(event.detail);
 }
 
 function setup() {
