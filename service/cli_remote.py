@@ -200,6 +200,9 @@ def _guarded(func, args) -> int:
     except ApiError as exc:
         field = f" [{exc.field}]" if exc.field else ""
         print(f"error {exc.status_code}{field}: {exc.detail}", file=sys.stderr)
+        if exc.status_code == 401:
+            print("hint: pass --token or set EVCBENCH_TOKEN; a local service's admin token is <data dir>/admin.token, "
+                  "found when EVCBENCH_DATA_DIR (default ./var) names that data dir", file=sys.stderr)
         return 2
     except httpx.TransportError as exc:
         print(f"error: cannot reach the service at {args.url}: {exc}", file=sys.stderr)

@@ -21,8 +21,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cli(server: Server, *args: str) -> subprocess.CompletedProcess:
-    result = subprocess.run([sys.executable, "-m", "service.cli", *args, "--url", server.url, "--token", server.token],
-                            cwd=ROOT,
+    """``evcbench`` as a lab user runs it next to the service: the token comes from <data dir>/admin.token."""
+    env = {**{k: v for k, v in os.environ.items() if k != "EVCBENCH_TOKEN"}, "EVCBENCH_DATA_DIR": str(server.data_dir)}
+    result = subprocess.run([sys.executable, "-m", "service.cli", *args, "--url", server.url], cwd=ROOT, env=env,
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, f"evcbench {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
     return result
@@ -69,6 +70,9 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
             assert [b["frequency_hz"] for b in metrics["per_block"]] == [20.0, 80.0]
             assert cli_model in _cli(server, "models").stdout
             assert "identify" in _cli(server, "jobs").stdout
+            refused = subprocess.run([sys.executable, "-m", "service.cli", "jobs", "--url", server.url, "--token",
+                                      "evc_wrong"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+            assert refused.returncode == 2 and "error 401 [authorization]: unknown API token" in refused.stderr
             if os.environ.get("EVCBENCH_SKIP_REAL_DATA") != "1":
                 out = _cli(server, "import", str(REAL), "--columns", '{"u":0,"x":4}', "--sample-rate-hz",
                            "200", "--axis", "y", "--delimiter", "whitespace")
