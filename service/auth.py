@@ -20,7 +20,6 @@ from service.store import Store, new_id, utc_now
 TOKEN_PREFIX = "evc_"
 SCOPES = ("read", "operate", "admin")
 ORIGINS = ("bootstrap", "cli", "api")
-AUTH_MODES = ("tokens", "off")
 BOOTSTRAP_FILE = "admin.token"
 
 
