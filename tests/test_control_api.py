@@ -6,8 +6,8 @@ import dataclasses
 import time
 
 import pytest
-from fastapi.testclient import TestClient
 
+from api_client import authed_client
 from service.app import create_app
 from service.settings import Settings
 
@@ -18,7 +18,7 @@ BASE = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclina
 @pytest.fixture(scope="module")
 def http(tmp_path_factory):
     app = create_app(Settings(data_dir=tmp_path_factory.mktemp("ctl"), bench="default", seed=4))
-    with TestClient(app) as client:
+    with authed_client(app) as client:
         client.app_state = app.state
         yield client
 

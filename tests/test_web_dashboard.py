@@ -49,8 +49,8 @@ def server(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("web")
     live = Server(tmp / "var", tmp / "server.log", bench=HIDDEN, seed=1)
     try:
-        with httpx.Client(base_url=f"{live.url}/api", timeout=60) as api:
-            yield {"url": live.url, "api": api}
+        with httpx.Client(base_url=f"{live.url}/api", timeout=60, headers=live.headers) as api:
+            yield {"url": live.url, "api": api, "live": live}
     finally:
         live.stop()
 
@@ -82,7 +82,7 @@ def page(browser, server):
 
 
 def goto(page, server, route: str) -> None:
-    page.goto(f"{server['url']}/web/#/{route}")
+    page.goto(server["live"].dashboard_url(route))
     page.wait_for_selector("#page[data-ready='1']")
     assert not page.is_visible("#banner.error"), page.inner_text("#banner")
 
@@ -144,9 +144,9 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     assert loops.count() == 3
     assert [loops.nth(i).get_attribute("data-frequency-hz") for i in range(3)] == ["10", "50", "100"]
     assert page.get_attribute("#export-csv", "href").endswith(f"/api/datasets/{dataset_id}/data?format=csv")
-    csv = httpx.get(server["url"] + page.get_attribute("#export-csv", "href")).text
+    csv = server["api"].get(server["url"] + page.get_attribute("#export-csv", "href")).text
     assert csv.splitlines()[0].startswith("t,") and len(csv.splitlines()) == ds["samples"] + 1
-    assert httpx.get(server["url"] + page.get_attribute("#export-hdf5", "href")).content[:8] == b"\x89HDF\r\n\x1a\n"
+    assert server["api"].get(server["url"] + page.get_attribute("#export-hdf5", "href")).content[:8] == b"\x89HDF\r\n\x1a\n"
     shot(page, "dataset")
 
     goto(page, server, "datasets")
