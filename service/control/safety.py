@@ -75,3 +75,41 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
             bench.check_sine(axis, vpp, frequency_hz)
         except LimitError as exc:
             raise ControlRefused("frequency_hz", f"axis {axis}: {exc}") from None
+
+
+#: a feedforward demand this far (V) beyond the actuator range is within the model's error; beyond it,
+#: the requested range is outside the stroke the axis can reach at this frequency
+STROKE_TOLERANCE_V = 1.0
+
+
+def model_stroke_um(model, frequency_hz: float, sample_rate_hz: float, v_max: float = 120.0) -> tuple[float, float]:
+    """(top at ``v_max`` quasi-statically, top of a full 0–``v_max`` sine at ``frequency_hz``) in µm, as
+    the feedforward model predicts them (the second includes its flexure dynamics, if it has any)."""
+    predict = getattr(model, "predict", None)
+    if predict is None:
+        return float("nan"), float("nan")
+    n_slow = int(sample_rate_hz / 2)                         # 0 → v_max in 0.5 s (1 Hz half cycle)
+    slow = 0.5 * v_max * (1 - np.cos(np.pi * np.arange(n_slow) / n_slow))
+    period = int(round(sample_rate_hz / frequency_hz))
+    fast = 0.5 * v_max * (1 - np.cos(2 * np.pi * np.arange(12 * period) / period))
+    top_slow = float(np.max(predict(slow, sample_rate_hz=sample_rate_hz)))
+    top_fast = float(np.max(predict(fast, sample_rate_hz=sample_rate_hz)[-4 * period:]))
+    return top_slow, top_fast
+
+
+def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, u_ff_v: np.ndarray, models: dict,
+                 sample_rate_hz: float, v_max: float = 120.0, steady: slice = slice(None)) -> list[str]:
+    """Reasons (one per axis) a requested range lies beyond what the axis can reach at 0–``v_max`` V,
+    judged by the feedforward model's demand over the ``steady`` samples; empty if reachable."""
+    out = []
+    for i, axis in enumerate(bench.axes):
+        u = u_ff_v[steady, i]
+        if models.get(axis) is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= -STROKE_TOLERANCE_V):
+            continue
+        lo, hi = ranges_um[axis]
+        slow, fast = model_stroke_um(models[axis], frequency_hz, sample_rate_hz, v_max)
+        out.append(f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {np.min(u):.1f}–{np.max(u):.1f} V "
+                   f"by the feedforward model; the axis reaches {slow:.2f} µm at {v_max:g} V (a full 0–{v_max:g} V "
+                   f"sine at {frequency_hz:g} Hz tops at {fast:.2f} µm, harmonics included): the range is beyond "
+                   f"the stroke")
+    return out
