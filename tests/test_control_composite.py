@@ -59,7 +59,8 @@ def test_range_beyond_the_stroke_is_refused_with_the_reason(bench):
         plan(bench, CASE1, Controller(feedforward=ff), "point_by_point")
     assert exc.value.field == "z_range_um" and "allow_saturation" in exc.value.reason
     reach = float(exc.value.reason.split("reaches ")[1].split(" µm")[0])
-    assert 9.0 < reach < 11.0
+    demand = float(exc.value.reason.split("must deliver ")[1].split(" µm")[0])
+    assert 9.0 < reach < demand < 11.0        # the flexure's gain at 100 Hz lowers the demand, not enough
     plan(bench, CASE2, Controller(feedforward=ff), "point_by_point")               # inside the stroke
     warnings: list[str] = []
     ref, u_ff = plan(bench, CASE1, Controller(feedforward=ff, allow_saturation=True), "point_by_point", warnings)

@@ -125,6 +125,11 @@ class CompositeFeedforward:
             raise ValueError("sample_rate_hz is needed to invert a composite model's dynamics")
         return composite_inverse(self.model, np.asarray(x_ref_um, dtype=float), float(sample_rate_hz))
 
+    def stack_demand_um(self, x_ref_um, sample_rate_hz: float) -> np.ndarray:
+        """What the stack (hysteresis and additive effects) must deliver before the model's linear
+        transforms for the output to follow ``x_ref_um`` (µm)."""
+        return invert_transforms(self.model, np.asarray(x_ref_um, dtype=float), float(sample_rate_hz))
+
     def predict(self, u_v, sample_rate_hz: float) -> np.ndarray:
         return predict_um(self.model, np.asarray(u_v, dtype=float), float(sample_rate_hz))
 

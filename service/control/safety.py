@@ -82,34 +82,37 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
 STROKE_TOLERANCE_V = 1.0
 
 
-def model_stroke_um(model, frequency_hz: float, sample_rate_hz: float, v_max: float = 120.0) -> tuple[float, float]:
-    """(top at ``v_max`` quasi-statically, top of a full 0–``v_max`` sine at ``frequency_hz``) in µm, as
-    the feedforward model predicts them (the second includes its flexure dynamics, if it has any)."""
+def model_stroke_um(model, sample_rate_hz: float, v_max: float = 120.0) -> float:
+    """The stack's displacement (µm) at ``v_max`` reached quasi-statically (0 → v_max in 0.5 s), as the
+    feedforward model predicts it (NaN for a model without ``predict``)."""
     predict = getattr(model, "predict", None)
     if predict is None:
-        return float("nan"), float("nan")
-    n_slow = int(sample_rate_hz / 2)                         # 0 → v_max in 0.5 s (1 Hz half cycle)
-    slow = 0.5 * v_max * (1 - np.cos(np.pi * np.arange(n_slow) / n_slow))
-    period = int(round(sample_rate_hz / frequency_hz))
-    fast = 0.5 * v_max * (1 - np.cos(2 * np.pi * np.arange(12 * period) / period))
-    top_slow = float(np.max(predict(slow, sample_rate_hz=sample_rate_hz)))
-    top_fast = float(np.max(predict(fast, sample_rate_hz=sample_rate_hz)[-4 * period:]))
-    return top_slow, top_fast
+        return float("nan")
+    n = int(sample_rate_hz / 2)
+    slow = 0.5 * v_max * (1 - np.cos(np.pi * np.arange(n) / n))
+    return float(np.max(predict(slow, sample_rate_hz=sample_rate_hz)))
 
 
-def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, u_ff_v: np.ndarray, models: dict,
-                 sample_rate_hz: float, v_max: float = 120.0, steady: slice = slice(None)) -> list[str]:
+def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: np.ndarray, u_ff_v: np.ndarray,
+                 models: dict, sample_rate_hz: float, v_max: float = 120.0, steady: slice = slice(None)) -> list[str]:
     """Reasons (one per axis) a requested range lies beyond what the axis can reach at 0–``v_max`` V,
-    judged by the feedforward model's demand over the ``steady`` samples; empty if reachable."""
+    judged by the feedforward model's demand over the ``steady`` samples; empty if reachable.
+
+    What the stack must deliver is the reference seen through the inverse of the model's linear
+    transforms (``stack_demand_um``: for a flexure mode above the drive frequency, the fundamental is
+    amplified, so less; its harmonics are not) — the reference itself for a hysteresis-only model."""
     out = []
     for i, axis in enumerate(bench.axes):
         u = u_ff_v[steady, i]
-        if models.get(axis) is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= -STROKE_TOLERANCE_V):
+        model = models.get(axis)
+        if model is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= -STROKE_TOLERANCE_V):
             continue
         lo, hi = ranges_um[axis]
-        slow, fast = model_stroke_um(models[axis], frequency_hz, sample_rate_hz, v_max)
-        out.append(f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {np.min(u):.1f}–{np.max(u):.1f} V "
-                   f"by the feedforward model; the axis reaches {slow:.2f} µm at {v_max:g} V (a full 0–{v_max:g} V "
-                   f"sine at {frequency_hz:g} Hz tops at {fast:.2f} µm, harmonics included): the range is beyond "
+        demand = getattr(model, "stack_demand_um", None)
+        need = float(np.max((demand(x_ref_um[:, i], sample_rate_hz) if demand else x_ref_um[:, i])[steady]))
+        via = f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)" if demand else ""
+        out.append(f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {hi:g} µm{via}: "
+                   f"{np.min(u):.1f}–{np.max(u):.1f} V by the feedforward model; the axis reaches "
+                   f"{model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at {v_max:g} V, so the range is beyond "
                    f"the stroke")
     return out

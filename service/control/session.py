@@ -95,7 +95,7 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
         steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
         check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady)
         reasons = check_stroke(bench, {"y": ellipse.y_range_um, "z": ellipse.z_range_um}, ellipse.frequency_hz,
-                               u_ff, controller.feedforward, SAMPLE_RATE_HZ, steady=steady)
+                               ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ, steady=steady)
         if reasons and not controller.allow_saturation:
             axis = reasons[0][0].lower()
             raise ControlRefused(f"{axis}_range_um", "; ".join(reasons) + " (set controller.allow_saturation "
