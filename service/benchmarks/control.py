@@ -4,7 +4,7 @@
 
 * ``controller_us_per_sample``: FF add + PID (eq. 19, filtered D, anti-windup) + clamp + divergence
   watch per sample in the compiled runner against a pass-through plant, plus the ILC update once
-  per period (amortised over the period's samples).
+  per period (the compiled harmonic learning step and its monitor, amortised over the period's samples).
 * ``margin`` = sample period at 20 kHz / controller time (goal ≥ 50).
 * ``closed_loop_realtime_factor``: simulated time / wall time of the point-by-point FF + PID + ILC loop
   (plant + controller + ILC updates + fault checks) on the emulated default bench, timed inside

@@ -251,6 +251,39 @@ NOTES = """
   command into 0–120 V, and a monitor that pauses learning when the error stops falling (resuming if it
   rises 1.25×) and reverts with half the gain on divergence.
 - `service/control/safety.py`: mode, current, slew, resonance, gauge-range and stroke refusals with reasons.
+- Over REST: `POST /api/sweeps` (with `v_min`/`v_max` to cover the span a trajectory needs), `POST /api/models`
+  with `"effects": ["hysteresis", "delay", "dynamics"]` per axis, then `POST /api/trajectories` with
+  `controller.feedforward_model_y/z` set to those model ids. A range beyond the stroke gets 422 on
+  `y_range_um`/`z_range_um` with the reason; `controller.allow_saturation: true` runs it clamped and
+  returns the reason in `result.warnings`.
+
+## Findings
+
+- **The paper's PID gains are unstable on this emulator** (rows c: kp 50/70 V/µm × ≈0.08–0.09 µm/V is a
+  loop gain of 4–6 against the lightly damped 290 Hz (Z) / 485 Hz (Y) flexure modes plus a one-sample
+  latency and the amplifier and gauge lags): the divergence watch trips within 15 ms and the output goes
+  to 0 V. The (c) target is judged on rows c', the same FF + PID with gains found by a short scan on the
+  emulator (kp 1 V/µm, ki 300 V/(µm·s), kd 0.01 V·s/µm, tf 0.2 ms; the derivative damps the Z mode).
+  Under ILC the PID is gentler (kp 0.5, ki 300, kd 0.005): it damps the modes and rejects drift while the
+  ILC does the tracking.
+- **The composite feedforward is what brings (c) under 3 % on case 2.** With the paper's static PI⁻¹
+  (row c'') FF + PID stays near 6.7 %: at 100 Hz the Z command's 3rd harmonic (300 Hz) sits on the 290 Hz
+  mode, and a loop stable against that mode has too little gain there. The composite model inverts the
+  mode per harmonic, and fitting it on the voltage span the ellipse uses captures the stack's minor loops
+  (Preisach memory), which a PI fitted on the 0–120 V loop mispredicts. Tried and dropped as feedforward
+  effects: asymmetry, creep and rate dependence (2.2 %, 4.2 %, 11.9 % on case 2 c' against 2.1 % without
+  them — fitted on sine sweeps, their columns extrapolate badly to the ellipse).
+- **Case 1 is beyond the Z stroke, a physical limit of the emulated bench, not a controller failure.**
+  The stack alone reaches ≈10.0 µm at 120 V (measured 1 Hz 0–120 V loop: 0.69–10.00 µm; the models say
+  10.03–10.12 µm). After the stack comes the flexure (290 Hz mode), which amplifies the 100 Hz fundamental
+  by ≈13 %: for the output to be exactly 1–11 µm the stack must deliver the reference through the inverse
+  of that mode, 10.41 µm at its peak — more than it has. (Measured: a full 0–120 V 100 Hz sine gives a mean
+  of 5.39 µm and a fundamental of 5.30 µm — 10.70 µm together, short of 11 µm — plus a 1.1 µm 3rd
+  harmonic from the mode.) So every controller leaves ≈0.6 µm at the top of Z (rows d, d': 6–8 %) and the
+  command sits at 120 V for several % of the samples. `plan` and the API refuse this range with the numbers
+  (quoted above) instead of running it and failing quietly; the emulator's physics were not changed.
+- Results vary by a few tenths of a percent with the seed and the bench's history (hysteresis memory,
+  creep); case 2 (d) sits near the 0.5 % line on some benches (spread table).
 """
 
 if __name__ == "__main__":
