@@ -122,11 +122,12 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
         g = measure_response(bench, ref.period, controller.ilc_harmonics, bias, steady.mean(axis=0), mode,
                              controller.pid, amplitude_v=10.0 if controller.pid is None else 4.0)
         ilc = HarmonicILC(g, ref.period, gain=controller.ilc_gain)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rec = Tracker(bench, ref, u_ff, mode=mode, pid=controller.pid, ilc=ilc).run(on_period, should_stop)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     result = {"mode": mode, "samples": rec.samples, "tripped": rec.tripped, "stopped": rec.stopped,
               "loop_wall_s": wall, "loop_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / wall,
+              "loop_cpu_s": cpu, "loop_cpu_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / max(cpu, 1e-9),
               "error_per_period_um": rec.error_per_period_um, "ilc_stop_reason": rec.ilc_stop_reason,
               "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings}
     if rec.tripped is None and not rec.stopped:
