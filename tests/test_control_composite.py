@@ -65,3 +65,8 @@ def test_range_beyond_the_stroke_is_refused_with_the_reason(bench):
     warnings: list[str] = []
     ref, u_ff = plan(bench, CASE1, Controller(feedforward=ff, allow_saturation=True), "point_by_point", warnings)
     assert len(warnings) == 1 and warnings[0].startswith("Z 1–11 µm") and u_ff.max() <= 120.0
+    # a hysteresis-only model ignores the flexure's gain at 100 Hz: its verdict is a warning, not a refusal
+    static = {ax: identify(bench, ax, "static_pi") for ax in bench.axes}
+    warnings = []
+    plan(bench, CASE1, Controller(feedforward=static), "point_by_point", warnings)
+    assert len(warnings) == 1 and "without flexure dynamics" in warnings[0] and "reaches" in warnings[0]

@@ -185,6 +185,8 @@ def write_markdown(path: Path, rows: dict, noise: float, args, bench_json: dict 
             note = r["tripped"] or (r.get("ilc_stop_reason") or "")
             if r.get("refused"):
                 note = "refused by default (beyond the stroke), run with allow_saturation. " + note
+            elif r.get("warnings"):
+                note = "warned: beyond the stroke by the hysteresis-only model. " + note
             if r.get("command_at_limit_pct"):
                 note = f"command at 0/120 V {r['command_at_limit_pct']:.1f} % of samples. " + note
             lines.append(f"| {case} | {name} | {_fmt(r, 'max_error_y_um')} | {_fmt(r, 'max_error_z_um')} | "

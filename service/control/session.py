@@ -81,8 +81,9 @@ def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
 def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
          warnings: list[str] | None = None) -> tuple[Reference, np.ndarray | None]:
     """Reference and feedforward (V), after every safety check (raises ControlRefused). A range beyond
-    the stroke (the feedforward needs more than 0–120 V) is refused unless ``controller.allow_saturation``,
-    when its reason is appended to ``warnings`` instead."""
+    the stroke (by a feedforward model with flexure dynamics) is refused unless
+    ``controller.allow_saturation``, when its reason is appended to ``warnings`` instead; a
+    hysteresis-only model's verdict is always a warning (see safety.check_stroke)."""
     check_mode(bench, mode, controller.pid is not None)
     ref = reference(ellipse, SAMPLE_RATE_HZ)
     u_ff = None
@@ -94,14 +95,15 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
                 u_ff[:, i] = feedforward_v(model, ref.x_um[:, i], SAMPLE_RATE_HZ, v_limits=(-np.inf, np.inf))
         steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
         check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady)
-        reasons = check_stroke(bench, {"y": ellipse.y_range_um, "z": ellipse.z_range_um}, ellipse.frequency_hz,
-                               ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ, steady=steady)
+        reasons, soft = check_stroke(bench, {"y": ellipse.y_range_um, "z": ellipse.z_range_um},
+                                     ellipse.frequency_hz, ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ,
+                                     steady=steady)
         if reasons and not controller.allow_saturation:
             axis = reasons[0][0].lower()
             raise ControlRefused(f"{axis}_range_um", "; ".join(reasons) + " (set controller.allow_saturation "
                                  "to run it with the command clamped at 0/120 V)")
         if warnings is not None:
-            warnings.extend(reasons)
+            warnings.extend(reasons + soft)
         u_ff = np.clip(u_ff, 0.0, 120.0)
     else:
         check_trajectory(bench, ref.x_um, None, ellipse.frequency_hz)
