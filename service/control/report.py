@@ -230,8 +230,11 @@ def write_markdown(path: Path, rows: dict, noise: float, args, bench_json: dict 
         lines += ["", "## Benchmark (`evcbench bench control --json`, same run)", "", "```json",
                   json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in bench_json.items()},
                              indent=1), "```", "",
-                  "The machine is shared: the real-time factor varies with load; the loop's floor is the "
-                  "emulator's own per-sample physics."]
+                  "The machine is shared (2 cores, several sessions): the wall-clock real-time factor varies "
+                  "with the neighbours' load (best of 3 runs is reported, all three listed); "
+                  "`closed_loop_cpu_realtime_factor` divides by the process's own CPU time instead. The "
+                  "loop's floor is the emulator's per-sample physics and noise generation (~0.6 µs/sample); "
+                  "the controller itself (PID + amortised compiled ILC step) is `controller_us_per_sample`."]
     path.write_text("\n".join(lines) + "\n" + NOTES)
 
 
