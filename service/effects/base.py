@@ -36,6 +36,9 @@ class RecordContext:
     max_frequency_hz: float
     u_scale_v: float
     cache: dict = field(default_factory=dict)
+    #: the longest record of the data set the model was fitted on (None: this record's length), so
+    #: effects whose column count depends on duration give every record the same columns
+    max_duration_s: float | None = None
 
     @property
     def n(self) -> int:
