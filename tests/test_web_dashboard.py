@@ -308,3 +308,99 @@ def test_trajectory_with_ilc_error_falls_on_screen(page, server):
         assert math.isclose(float(cell.get_attribute("data-value")), result[key], rel_tol=1e-9)
     page.wait_for_selector("#ellipse-chart canvas")
     shot(page, "trajectory")
+
+
+def test_live_chart_shows_points_during_a_job(page, server):
+    """The Bench page draws u and x per axis while a sweep streams (GET /api/bench/live)."""
+    goto(page, server, "bench")
+    page.wait_for_selector("#live-y canvas")
+    job = server["api"].post("/sweeps", json={"axes": ["y"], "frequencies_hz": [0.5], "cycles": 40}).json()
+    page.wait_for_function(
+        "id => { const l = document.querySelector('#live'); const y = document.querySelector('#live-y');"
+        " return l.dataset.job === id && Number(y.dataset.points) > 300; }", arg=job["job_id"], timeout=60_000)
+    y = page.locator("#live-y")
+    # The drive swings over most of 0–120 V within the first cycles and the stage follows in µm.
+    page.wait_for_function("() => Number(document.querySelector('#live-y').dataset.uMaxV) > 60", timeout=60_000)
+    assert float(y.get_attribute("data-u-max-v")) <= 120.5
+    assert float(y.get_attribute("data-x-max-um")) > 1.0
+    assert "Streaming: job " + job["job_id"] in page.inner_text("#live-status")
+    labels = page.inner_text("#live-y")
+    assert "u_y (V)" in labels and "x_y (µm)" in labels and "time in run (s)" in labels
+    shown = int(y.get_attribute("data-points"))
+    page.wait_for_function("n => Number(document.querySelector('#live-y').dataset.points) > n", arg=shown)
+    shot(page, "bench_live")
+    server["api"].delete(f"/jobs/{job['job_id']}")
+    assert wait_job(server, job["job_id"])["state"] == "cancelled"
+
+
+def test_errors_are_shown_in_words(page, server):
+    """A refused sweep and a refused import show the API's words next to the form."""
+    goto(page, server, "sweeps")
+    page.fill("#sweep-form input[name=frequencies]", "10,400")   # above half the Y resonance (482.6 Hz)
+    page.click("#sweep-start")
+    page.wait_for_selector("#sweep-error.error")
+    text = page.inner_text("#sweep-error")
+    assert text.startswith("frequencies_hz: ") and "400 Hz" in text and "mA" in text, text
+    goto(page, server, "datasets")
+    before = len(server["api"].get("/datasets").json())
+    page.set_input_files("#import-file", files=[{"name": "broken.csv", "mimeType": "text/csv",
+                                                 "buffer": b"t,u_y,x_y\n0,1,2\n0.001,abc,3\n"}])
+    page.wait_for_selector("#preview-table")
+    page.click("#import-submit")
+    page.wait_for_selector("#import-result.error")
+    text = page.inner_text("#import-result")
+    assert text.startswith("Import refused: ") and len(text) > 30 and not re.search(r"\b\d{3} [A-Z]", text), text
+    assert len(server["api"].get("/datasets").json()) == before
+    shot(page, "errors")
+    # The browser logs each refused request as a failed resource; nothing else may be logged.
+    refused = [e for e in page.console_errors if re.search(r"status of 4\d\d", e)]
+    assert len(refused) == 2, page.console_errors
+    page.console_errors[:] = [e for e in page.console_errors if e not in refused]
+
+
+@pytest.fixture(scope="module")
+def drift_server(tmp_path_factory):
+    """A second service on the drift bench, where drift and creep look alike on a sine sweep."""
+    tmp = tmp_path_factory.mktemp("web_drift")
+    live = Server(tmp / "var", tmp / "server.log", bench="drift", seed=1)
+    try:
+        with httpx.Client(base_url=f"{live.url}/api", timeout=120) as api:
+            yield {"url": live.url, "api": api}
+    finally:
+        live.stop()
+
+
+def test_separate_two_look_alike_effects(page, drift_server):
+    server = drift_server
+    dataset_id = run_sweep_in_browser(page, server, frequencies="1,10,50,100", cycles=5)
+    goto(page, server, f"models?dataset={dataset_id}")
+    page.select_option("#identify-datasets", [dataset_id])
+    page.click("#identify-start")
+    page.wait_for_selector("#separate-run", timeout=120_000)
+    button = page.locator("#separate-run")
+    a, b = button.get_attribute("data-a"), button.get_attribute("data-b")
+    assert {a, b} == {"drift", "creep"}
+    assert button.inner_text() == f"Run the experiment that separates {a} from {b}"
+    scores = {e: float(page.get_attribute(f"#candidates tr[data-effect={e}]", "data-score")) for e in (a, b)}
+    assert abs(scores[a] - scores[b]) <= 0.1, scores
+    shot(page, "separate_offered")
+    button.click()
+    page.wait_for_selector("#separate-job .jobline[data-state='succeeded']", timeout=120_000)
+    job_id = page.get_attribute("#separate-job .jobline", "data-job-id")
+    new_id = server["api"].get(f"/jobs/{job_id}").json()["result"]["dataset_id"]
+    ds = server["api"].get(f"/datasets/{new_id}").json()
+    assert ds["plan"]["waveform"] == "step" and ds["n_blocks"] >= 4
+    page.wait_for_selector("#separation", timeout=180_000)
+    sep = page.locator("#separation")
+    assert sep.get_attribute("data-dataset-id") == new_id
+    assert page.get_attribute("#diagnosis-verdict", "data-extra-datasets") == new_id
+    gap_before, gap_after = float(sep.get_attribute("data-gap-before")), float(sep.get_attribute("data-gap-after"))
+    assert gap_before == pytest.approx(abs(scores[a] - scores[b]), abs=1e-9)
+    assert gap_after > 0.1 and gap_after > 3 * gap_before, (gap_before, gap_after)
+    assert sep.get_attribute("data-separated") == "true"
+    leader = sep.get_attribute("data-leader")
+    assert page.get_attribute("#candidates tr.best", "data-effect") == leader
+    after = {e: float(page.get_attribute(f"#separation-table tr[data-effect={e}]", "data-after")) for e in (a, b)}
+    assert max(after, key=after.get) == leader
+    assert page.locator("#separate-run").count() == 0   # no ambiguity left to separate
+    shot(page, "separate_result")

@@ -6,6 +6,7 @@
 import { api, esc, fmt, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
+import { renderDiagnosis } from './diagnosis.js';
 
 const charts = [];
 let controller = null;
@@ -99,7 +100,8 @@ async function showModel(el, modelId, query) {
   if (canDiagnose) {
     try {
       diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
-      renderDiagnosis(el, model, diagnosis, canRefine);
+      renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, { canRefine, signal, jobBox: el.querySelector('#separate-job'),
+        onAdd: (effect, extra) => refine(el, model, effect, extra) });
     } catch (e) { showError(el.querySelector('#diagnosis'), e, 'Diagnosis failed: '); }
   } else {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
@@ -136,53 +138,12 @@ function failureRanges(diagnosis, compared) {
   return { time, drive };
 }
 
-function describe(value) {
-  if (value === null || value === undefined) return '';
-  if (typeof value === 'string') return esc(value);
-  if (Array.isArray(value)) return value.map(describe).join('; ');
-  if (typeof value === 'object') return Object.entries(value).map(([k, v]) => `${esc(k)}: ${typeof v === 'number' ? fmt(v) : describe(v)}`).join(', ');
-  return esc(typeof value === 'number' ? fmt(value) : String(value));
-}
-
-/** {a, b, text, body} when the diagnosis offers the experiment that separates two candidates. */
-function separatingExperiment(d) {
-  const amb = d.ambiguity;
-  if (amb && amb.experiment) return { a: amb.effects[0], b: amb.effects[1], text: amb.text, body: amb.experiment };
-  return null;
-}
-
-function renderDiagnosis(el, model, d, canRefine) {
-  const box = el.querySelector('#diagnosis');
-  const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
-  const candidates = d.candidates || [];
-  box.innerHTML = `<p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" class="${verdictClass}">
-      ${d.verdict === 'complete' ? 'The model explains the data down to the noise floor.' : 'Something is missing from the model.'}
-      Residual RMS <b data-value="${d.residual_rms_um}">${fmt(d.residual_rms_um)} µm</b> · noise floor ${fmt(d.noise_floor_um)} µm</p>
-    ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
-    ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
-    <h3>Candidate effects, best first</h3>
-    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after (µm)</th><th>evidence</th><th></th></tr>
-    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}"${i === 0 ? ' class="best"' : ''}>
-      <td>${i + 1}</td><td>${esc(c.effect)}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmt(c.expected_rms_um)}</td>
-      <td class="evidence">${describe(c.evidence)}</td>
-      <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
-    </table>
-    <div id="separate"></div>`;
-  box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => refine(el, model, b.dataset.effect)));
-  const experiment = separatingExperiment(d);
-  if (experiment) {
-    const sep = box.querySelector('#separate');
-    sep.innerHTML = `<h3>Separate</h3><p>${esc(experiment.text || '')}</p>
-      <button type="button" id="separate-run">Run the experiment that separates ${esc(experiment.a)} from ${esc(experiment.b)}</button>`;
-    sep.querySelector('#separate-run').addEventListener('click', () => separate(el, model, experiment));
-  }
-}
-
-async function refine(el, model, effect) {
+async function refine(el, model, effect, datasets = []) {
   const out = el.querySelector('#refine-job');
   el.querySelectorAll('.add-effect').forEach((b) => { b.disabled = true; });
   try {
-    const job = await runJob(out, `/models/${encodeURIComponent(model.id)}/refine`, { add: effect }, `add ${effect}`, { signal: controller.signal });
+    const job = await runJob(out, `/models/${encodeURIComponent(model.id)}/refine`,
+      datasets.length ? { add: effect, datasets } : { add: effect }, `add ${effect}`, { signal: controller.signal });
     if (job.state === 'succeeded') {
       const child = job.result.model_id;
       out.append(h(`<p class="ok" id="refined" data-model-id="${esc(child)}">Added ${esc(effect)}: model <a href="#/models/${esc(child)}">${esc(child)}</a>.</p>`));
@@ -194,19 +155,6 @@ async function refine(el, model, effect) {
     showError(out.appendChild(document.createElement('p')), e);
   } finally {
     el.querySelectorAll('.add-effect').forEach((b) => { b.disabled = false; });
-  }
-}
-
-async function separate(el, model, experiment) {
-  const out = el.querySelector('#separate-job');
-  try {
-    // The diagnosis gives a ready-to-POST sweep body.
-    const job = await runJob(out, '/sweeps', experiment.body, 'separating experiment', { signal: controller.signal });
-    if (job.state === 'succeeded' && job.result?.dataset_id) {
-      out.append(h(`<p>Dataset <a href="#/models/${esc(model.id)}?dataset=${esc(job.result.dataset_id)}">${esc(job.result.dataset_id)}</a> recorded: compare the model on it.</p>`));
-    }
-  } catch (e) {
-    showError(out.appendChild(document.createElement('p')), e);
   }
 }
 
