@@ -96,9 +96,18 @@ async function refreshJobs(root) {
   el.innerHTML = `<tr><th>job</th><th>kind</th><th>state</th><th class="num">progress</th><th>result / error</th><th>created</th></tr>` +
     jobs.map((j) => `<tr><td>${esc(j.id)}</td><td>${esc(j.kind)}</td><td class="state-${j.state}">${j.state}</td>
       <td class="num">${Math.round(100 * j.progress)} %</td>
-      <td>${j.error ? `<span class="bad">${esc(j.error)}</span>` : esc(j.result ? Object.entries(j.result).filter(([, v]) => typeof v !== 'object').map(([k, v]) => `${k}: ${v}`).join(', ') : '')}</td>
+      <td class="result">${j.error ? `<span class="bad">${esc(j.error)}</span>` : esc(summary(j.result))}</td>
       <td>${esc(j.created_at)}</td></tr>`).join('');
   return jobs;
+}
+
+/** A job result in a line: ids first, then up to four numbers (rounded). */
+function summary(result) {
+  if (!result) return '';
+  const entries = Object.entries(result).filter(([, v]) => v !== null && typeof v !== 'object');
+  const ids = entries.filter(([k]) => k.endsWith('_id'));
+  const numbers = entries.filter(([k, v]) => typeof v === 'number' && /_(um|pct|v|hz|s)$/.test(k)).slice(0, 4);
+  return [...ids, ...numbers].map(([k, v]) => `${k}: ${typeof v === 'number' ? fmt(v) : v}`).join(', ');
 }
 
 export function leave() {
