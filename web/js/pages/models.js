@@ -98,6 +98,7 @@ async function showModel(el, modelId, query) {
   // Diagnosis first (its failure ranges shade the compare plots), then history and compare.
   let diagnosis = null;
   if (canDiagnose) {
+    el.querySelector('#diagnosis').innerHTML = '<p class="muted" id="diagnosis-wait">Diagnosing: every candidate effect is fitted in turn on the held-out cycles…</p>';
     try {
       diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
       renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, { canRefine, signal, jobBox: el.querySelector('#separate-job'),
