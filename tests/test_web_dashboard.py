@@ -308,6 +308,12 @@ def test_trajectory_with_ilc_error_falls_on_screen(page, server):
         assert math.isclose(float(cell.get_attribute("data-value")), result[key], rel_tol=1e-9)
     page.wait_for_selector("#ellipse-chart canvas")
     shot(page, "trajectory")
+    # The tracking loop fed the live signals too: its last run spans the 36 periods at 100 Hz.
+    live = api.get("/bench/live", params={"max_points": 20_000}).json()
+    run = [k for k, r in enumerate(live["runs"]) if r == live["run"]]
+    assert live["label"] == "tracking" and len(run) > 200
+    assert live["t_s"][run[-1]] == pytest.approx(36 / 100.0, abs=0.02)
+    assert 5.0 < max(live["x_z_um"][k] for k in run) < 12.5
 
 
 def test_live_chart_shows_points_during_a_job(page, server):
