@@ -188,9 +188,9 @@ async function renderHistory(el, model, canHistory) {
   charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
     yLabel: 'held-out RMS (µm)', series: [{ label: 'held-out RMS (µm)', values: steps.map((s) => s.rms), points: true, width: 2 }],
     height: 220, points: true, integerX: true }));
-  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>version</th><th>model</th><th>change</th><th>effects</th><th class="num">held-out RMS (µm)</th></tr>
-    ${steps.map((s, i) => `<tr data-rms="${s.rms}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
-      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td>${(s.effects || []).map(esc).join(' + ')}</td><td class="num">${fmt(s.rms)}</td></tr>`).join('')}</table>`;
+  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS (µm)</th></tr>
+    ${steps.map((s, i) => `<tr data-rms="${s.rms}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
+      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmt(s.rms)}</td></tr>`).join('')}</table>`;
 }
 
 async function renderCompare(el, model, datasetId, diagnosis) {
