@@ -303,7 +303,7 @@ def test_trajectory_with_ilc_error_falls_on_screen(page, server):
     page.wait_for_selector("#traj-job .jobline[data-state='succeeded']", timeout=150_000)
     page.wait_for_function("() => Number(document.querySelector('#period-chart').dataset.points || 0) > 1")
     values = json.loads(page.get_attribute("#period-chart", "data-values"))
-    assert values[-1] < values[0], f"the error per period did not fall: {values[:3]} … {values[-3:]}"
+    assert values[-1] < values[0] / 3, f"the error per period did not fall: {values[:3]} … {values[-3:]}"
     job_id = page.get_attribute("#traj-job .jobline", "data-job-id")
     result = api.get(f"/jobs/{job_id}").json()["result"]
     for key in ("max_error_y_um", "max_error_z_um", "rms_error_um", "relative_error_pct"):
