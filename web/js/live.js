@@ -43,8 +43,14 @@ export function liveSignals(container, axes) {
   }
   reset();
 
+  let inflight = false;
+  let again = false;   // asked to look again while a request was in flight
   async function poll() {
     if (stopped) return;
+    if (inflight) { again = true; return; }
+    inflight = true;
+    again = false;
+    clearTimeout(timer);
     let busy = false;
     try {
       const r = await api(`/bench/live?max_points=5000${cursor === null ? '' : `&since=${cursor}`}`);
@@ -72,11 +78,17 @@ export function liveSignals(container, axes) {
     } catch (err) {
       status.textContent = `Live signals unavailable: ${err.message}`;
     }
-    if (!stopped) timer = setTimeout(poll, busy ? FAST_MS : SLOW_MS);
+    inflight = false;
+    if (!stopped) timer = setTimeout(poll, again ? 0 : (busy ? FAST_MS : SLOW_MS));
   }
+  // A job started or ended from this page (ui.runJob): look now rather than at the next slow poll.
+  const now = () => setTimeout(poll, 50);
+  window.addEventListener('evc:job', now);
   poll();
   return {
-    charts: () => Object.values(charts),
-    stop() { stopped = true; clearTimeout(timer); for (const c of Object.values(charts)) c.destroy(); },
+    stop() {
+      stopped = true; clearTimeout(timer); window.removeEventListener('evc:job', now);
+      for (const c of Object.values(charts)) c.destroy();
+    },
   };
 }
