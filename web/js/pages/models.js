@@ -163,8 +163,12 @@ async function lineage(model, canHistory) {
   if (canHistory) {
     const r = await api(`/models/${encodeURIComponent(model.id)}/history`, { signal: controller.signal });
     const steps = Array.isArray(r) ? r : (r.history || r.lineage || r.steps || r.models || []);
-    return steps.map((s) => ({ id: s.model_id || s.id, effects: s.effects || [], change: s.change || null,
-      rms: s.validation_rms_um ?? s.metrics?.validation_rms_um }));
+    return steps.map((s, i) => {
+      // A refit on more data (e.g. after a separating experiment) is measured on other held-out cycles.
+      const added = i && s.datasets ? s.datasets.filter((d) => !(steps[i - 1].datasets || []).includes(d)).length : 0;
+      return { id: s.model_id || s.id, effects: s.effects || [], rms: s.validation_rms_um ?? s.metrics?.validation_rms_um,
+        change: [s.change, added ? `+${added} dataset${added > 1 ? 's' : ''} (RMS over more data)` : ''].filter(Boolean).join(', ') || null };
+    });
   }
   // Without the endpoint: walk parent_id.
   const steps = [];
