@@ -282,6 +282,7 @@ def test_discovery_story_in_the_browser(page, server):
     # The refit lands where the diagnosis said it would (its expected RMS for the top candidate).
     assert values[1] == pytest.approx(diagnosis["candidates"][0]["expected_rms_um"], rel=0.1)
     assert server["api"].get(f"/models/{child}").json()["parent_id"] == model_id
+    page.wait_for_selector(f"#model-list tr[data-model-id='{child}']")   # the stored list shows it too
     shot(page, "refine_history")
 
 

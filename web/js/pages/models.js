@@ -40,13 +40,17 @@ export async function enter(root, [modelId], query = {}) {
     </div>
     <div id="model-detail"></div>
   </div>`));
-  root.querySelector('#model-list').innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
+  renderModelList(root.querySelector('#model-list'), models, modelId);
+  root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
+  if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
+}
+
+function renderModelList(table, models, modelId) {
+  table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
     <th class="num">train RMS (µm)</th><th class="num">held-out RMS (µm)</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td><td>${m.axis}</td><td>${esc(m.kind)}</td>
       <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
       <td class="num">${fmt(m.metrics.train_rms_um)}</td><td class="num">${fmt(m.metrics.validation_rms_um)}</td></tr>`).join('');
-  root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
-  if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
 }
 
 async function identify(root) {
@@ -149,6 +153,8 @@ async function refine(el, model, effect, datasets = []) {
       const child = job.result.model_id;
       out.append(h(`<p class="ok" id="refined" data-model-id="${esc(child)}">Added ${esc(effect)}: model <a href="#/models/${esc(child)}">${esc(child)}</a>.</p>`));
       await renderHistory(el, await api(`/models/${encodeURIComponent(child)}`, { signal: controller.signal }), true);
+      const list = document.querySelector('#model-list');
+      if (list) renderModelList(list, await api('/models', { signal: controller.signal }), model.id);
     } else {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `refine ${job.state}`));
     }
