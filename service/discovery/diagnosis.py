@@ -116,7 +116,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             "verdict": "missing_effect" if missing else "complete",
             "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst),
             "candidates": candidates, "failures": worst, "signature": sig,
-            "ambiguity": ambiguity(physical, records), "noise": floor, "metrics": ev}
+            "ambiguity": ambiguity(physical, records, noise), "noise": floor, "metrics": ev}
 
 
 def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst) -> str:
@@ -161,18 +161,31 @@ SEPARATING = {
 }
 
 
-def ambiguity(physical: list[dict], records) -> dict | None:
-    """Two leading candidates that explain the residual about equally well, and the experiment."""
+#: two leading candidates are told apart when the runner-up leaves at least this many times the
+#: unexplained excess (held-out RMS² above the noise floor²) of the leader
+SEPARATED_EXCESS_RATIO = 2.0
+
+
+def remaining_excess(candidate: dict, noise: float) -> float:
+    """What a candidate leaves unexplained above the noise floor (µm²), never below (σ/10)²."""
+    return max(candidate["expected_rms_um"] ** 2 - noise**2, (0.1 * noise) ** 2)
+
+
+def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
+    """Two leading candidates that explain the residual about equally well (scores within 0.1 and
+    the runner-up leaving less than twice the leader's unexplained excess), and the experiment."""
     if len(physical) < 2 or physical[1]["score"] < 0.3:
         return None
     a, b = physical[0], physical[1]
-    if a["score"] - b["score"] > 0.1:
+    ratio = remaining_excess(b, noise) / remaining_excess(a, noise)
+    if a["score"] - b["score"] > 0.1 or ratio >= SEPARATED_EXCESS_RATIO:
         return None
     why, body = SEPARATING.get(frozenset((a["effect"], b["effect"])),
                                ("a multi-frequency sine sweep with more cycles per frequency",
                                 {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0], "cycles": 10}))
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return {"effects": [a["effect"], b["effect"]],
+    return {"effects": [a["effect"], b["effect"]], "excess_ratio": ratio,
             "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-                    f"(scores {a['score']:.2f} and {b['score']:.2f}); {why}",
+                    f"(scores {a['score']:.2f} and {b['score']:.2f}; held-out {_fmt_nm(a['expected_rms_um'])} and "
+                    f"{_fmt_nm(b['expected_rms_um'])}); {why}",
             "experiment": {"axes": axes, **body}}

@@ -101,6 +101,7 @@ function setup() {
   window.addEventListener('hashchange', route);
   refreshPill();
   setInterval(refreshPill, 2000);
+  window.addEventListener('evc:job', refreshPill);
   route();
 }
 
