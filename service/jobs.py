@@ -73,8 +73,7 @@ class JobManager:
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="evc-job")
         self._bench_thread = threading.Thread(target=self._bench_worker, name="evc-bench-owner", daemon=True)
         self._running_bench_job: str | None = None
-        self._closed = False
-        store.fail_unfinished_jobs("the service stopped before this job finished")
+        self._closed = False  # jobs a previous process left unfinished: service.recovery, before this
         self._bench_thread.start()
 
     # ------------------------------------------------------------------ public

@@ -195,6 +195,19 @@ class Store:
     def list_jobs(self, limit: int = 100) -> list[dict]:
         return self._list(tables.jobs, limit=limit, newest_first=True)
 
+    def unfinished_jobs(self) -> list[dict]:
+        """Jobs neither succeeded, failed nor cancelled (queued or running), oldest first."""
+        query = (select(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+                 .order_by(tables.jobs.c.created_at, tables.jobs.c.id))
+        with self.engine.connect() as conn:
+            return [dict(row) for row in conn.execute(query).mappings()]
+
+    def datasets_of_job(self, job_id: str) -> list[dict]:
+        """The datasets a job stored (normally none or one)."""
+        query = select(tables.datasets).where(tables.datasets.c.job_id == job_id).order_by(tables.datasets.c.created_at)
+        with self.engine.connect() as conn:
+            return [dict(row) for row in conn.execute(query).mappings()]
+
     def fail_unfinished_jobs(self, reason: str) -> int:
         """Mark jobs left queued or running by a previous process as failed; returns how many."""
         with self.engine.begin() as conn:
