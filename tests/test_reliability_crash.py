@@ -1,0 +1,94 @@
+"""Crash safety (issue 9 §4): kill -9 the service during a sweep, restart it on the same store.
+
+The bench is the default one with its DAQ paced to real time (fixtures/benches/default_realtime.toml),
+so the sweep's samples take wall time and the number kept can be checked against the time it ran.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import httpx
+
+from tests.live_server import ROOT, Server
+
+SAMPLE_RATE_HZ = 20_000.0
+CHUNK_S = 1.0  # service.store.chunks.CHUNK_S: at most this much is lost at a kill
+
+
+def _store_check(data_dir, *flags) -> tuple[int, dict]:
+    proc = subprocess.run([sys.executable, "-m", "service.cli", "store", "check", "--data-dir", str(data_dir),
+                           "--json", *flags], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    return proc.returncode, json.loads(proc.stdout)
+
+
+def _wait_running(client: httpx.Client, job_id: str, timeout_s: float = 60.0) -> float:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/api/jobs/{job_id}").json()
+        if job["state"] == "running":
+            return time.monotonic()
+        assert job["state"] == "queued", job
+        time.sleep(0.02)
+    raise AssertionError(f"job {job_id} did not start")
+
+
+def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
+    data_dir = tmp_path / "store"
+    server = Server(data_dir, tmp_path / "serve1.log", bench="default_realtime")
+    try:
+        with httpx.Client(base_url=server.url, timeout=30) as client:
+            r = client.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1.0], "cycles": 30,
+                                                 "sample_rate_hz": SAMPLE_RATE_HZ})
+            assert r.status_code == 202, r.text
+            job_id = r.json()["job_id"]
+            assert r.json()["duration_s"] > 30
+            started = _wait_running(client, job_id)
+            time.sleep(4.5)
+            elapsed_s = time.monotonic() - started
+            chunks = sorted((data_dir / "partial" / job_id).glob("chunk_*.npz"))
+            assert len(chunks) >= 2, "a running sweep writes a chunk about every second"
+            server.proc.kill()  # SIGKILL: no shut-down code runs
+            server.proc.wait(timeout=30)
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
+
+    # Offline, before the restart, the check sees the job the dead process left running.
+    code, report = _store_check(data_dir, "--offline")
+    assert code == 1 and {p["kind"] for p in report["problems"]} == {"unfinished_job", "orphan_chunks"}
+
+    server = Server(data_dir, tmp_path / "serve2.log", bench="default_realtime")
+    try:
+        with httpx.Client(base_url=server.url, timeout=30) as client:
+            job = client.get(f"/api/jobs/{job_id}").json()
+            assert job["state"] == "failed" and job["error"] == "interrupted by restart"
+            dataset_id = job["result"]["dataset_id"]
+            assert job["result"]["partial"] is True
+
+            ds = client.get(f"/api/datasets/{dataset_id}").json()
+            assert ds["partial"] is True and ds["partial_reason"] == "interrupted by restart"
+            assert ds["job_id"] == job_id and ds["source"] == "sweep" and ds["axes"] == ["y", "z"]
+            n = ds["samples"]
+            # every whole second written before the kill is kept; at most the last chunk is lost
+            assert SAMPLE_RATE_HZ * (elapsed_s - CHUNK_S - 1.0) <= n <= SAMPLE_RATE_HZ * (elapsed_s + 0.5), (n, elapsed_s)
+            assert all(block["complete"] is False for block in ds["blocks"])  # the one block was cut short
+
+            data = client.get(f"/api/datasets/{dataset_id}/data").json()
+            t_s = data["t_s"]
+            assert len(t_s) == n and t_s[0] == 0.0
+            assert abs(t_s[-1] - (n - 1) / SAMPLE_RATE_HZ) < 1e-9  # no gap, no duplicate rows
+
+            listed = [d for d in client.get("/api/datasets").json() if d["job_id"] == job_id]
+            assert [(d["id"], d["partial"]) for d in listed] == [(dataset_id, True)]  # never shown complete
+            assert not (data_dir / "partial" / job_id).exists()
+
+            code, report = _store_check(data_dir)
+            assert code == 0 and report["ok"], report
+            assert report["counts"]["partial_datasets"] == 1
+    finally:
+        assert server.stop()
+    code, report = _store_check(data_dir, "--offline")
+    assert code == 0, report
