@@ -92,3 +92,35 @@ def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
         assert server.stop()
     code, report = _store_check(data_dir, "--offline")
     assert code == 0, report
+
+
+def test_store_check_names_each_inconsistency_and_exits_1(tmp_path, capsys):
+    import numpy as np
+
+    from service.cli import main
+    from service.store import Store
+    from service.store.chunks import ChunkWriter
+
+    store = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
+    meta = {"source": "import", "axes": ["y"], "sample_rate_hz": 10.0}
+    kept = store.add_dataset({"t_s": np.arange(5.0)}, {**meta, "name": "kept"})
+    lost = store.add_dataset({"t_s": np.arange(5.0)}, {**meta, "name": "lost"})
+    assert main(["store", "check", "--data-dir", str(tmp_path), "--offline"]) == 0
+    assert "consistent" in capsys.readouterr().out
+
+    (tmp_path / lost["file"]).unlink()                                     # a row without its file
+    (tmp_path / "arrays" / "ds_stray.npz").write_bytes(b"x")               # a file without its row
+    (tmp_path / "arrays" / ".ds_half.123.tmp").write_bytes(b"x")           # an unfinished atomic write
+    done = store.add_job("sweep", None, needs_bench=True)
+    store.update_job(done["id"], state="succeeded", progress=0.5, result={"dataset_id": "ds_gone"})
+    ChunkWriter(tmp_path, done["id"], meta).append({"t_s": np.arange(3.0)})  # chunks of a finished job
+    store.close()
+
+    assert main(["store", "check", "--data-dir", str(tmp_path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    found = {(p["kind"], p["id"]) for p in report["problems"]}
+    assert found == {("missing_array", lost["id"]), ("orphan_array", "ds_stray"), ("temp_file", ".ds_half.123.tmp"),
+                     ("orphan_chunks", done["id"]), ("impossible_job", done["id"])}
+    details = " ".join(p["detail"] for p in report["problems"] if p["kind"] == "impossible_job")
+    assert "no finished_at" in details and "progress 0.50" in details and "ds_gone" in details
+    assert kept["id"] not in {p["id"] for p in report["problems"]}
