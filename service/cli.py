@@ -31,7 +31,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from service.benchmarks import get_benchmark
 
     try:
-        result = get_benchmark(args.name)()
+        benchmark = get_benchmark(args.name)
+        result = benchmark(duration_s=args.duration) if args.duration is not None else benchmark()
     except KeyError as exc:
         print(exc.args[0], file=sys.stderr)
         return 2
@@ -79,6 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
     bench.add_argument("name", help="emulator | identification | …")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
+    bench.add_argument("--duration", type=float, help="service: seconds of load (default 60)")
     bench.set_defaults(func=_cmd_bench)
 
     store = sub.add_parser("store", help="maintain the store (check)")

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import io
 import json
+import queue
 import shutil
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +46,9 @@ class ChunkWriter:
 
     ``meta`` is the dataset metadata known at the start (see ``Store.add_dataset``; it needs
     ``sample_rate_hz``). Arrays passed to ``append`` are the new rows only, one 1-D array per
-    column, all the same length, the same columns every time.
+    column, all the same length, the same columns every time. The files are written by a
+    background thread, so the acquisition loop that calls ``append`` never waits for the disk
+    (compression and fsync take tens of milliseconds, longer than a control period).
     """
 
     def __init__(self, data_dir: Path, job_id: str, meta: dict, chunk_s: float = CHUNK_S):
@@ -53,17 +57,23 @@ class ChunkWriter:
         self.rows_per_chunk = max(1, int(round(chunk_s * float(meta["sample_rate_hz"]))))
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_rows = 0
+        self._queued = 0         # chunks handed to the writer thread
+        self._rows_handed = 0    # rows in those chunks
         self.chunks = 0          # chunk files written
         self.rows_written = 0    # rows in those files
+        self.error: BaseException | None = None  # the writer's failure, if any (the run goes on)
         write_bytes_atomic(self.directory / META_FILE, json.dumps(clean_json(meta)).encode())
+        self._queue: queue.Queue = queue.Queue()
+        self._thread = threading.Thread(target=self._write_loop, name=f"chunks-{job_id}", daemon=True)
+        self._thread.start()
 
     @property
     def rows_seen(self) -> int:
-        """Rows handed to ``append`` so far (written or pending)."""
-        return self.rows_written + self._pending_rows
+        """Rows handed to ``append`` so far (written, queued or pending)."""
+        return self._rows_handed + self._pending_rows
 
     def append(self, arrays: dict[str, np.ndarray]) -> None:
-        """Add new rows; writes a chunk once ``rows_per_chunk`` rows are pending."""
+        """Add new rows (copied); queues a chunk once ``rows_per_chunk`` rows are pending."""
         lengths = {len(v) for v in arrays.values()}
         if len(lengths) != 1:
             raise ValueError(f"chunk columns differ in length: {sorted(lengths)}")
@@ -71,24 +81,48 @@ class ChunkWriter:
         if n == 0:
             return
         for name, values in arrays.items():
-            self._pending.setdefault(name, []).append(np.asarray(values))
+            self._pending.setdefault(name, []).append(np.array(values, copy=True))
         self._pending_rows += n
         if self._pending_rows >= self.rows_per_chunk:
-            self.flush()
+            self._hand_over()
 
     def flush(self) -> None:
-        """Write whatever is pending as the next chunk (nothing if nothing is pending)."""
+        """Queue whatever is pending and wait until every queued chunk is on disk."""
+        self._hand_over()
+        self._queue.join()
+
+    def discard(self) -> None:
+        """Stop the writer and remove the job's chunk directory (its dataset is stored, or nothing
+        is to be kept)."""
+        self._queue.put(None)
+        self._thread.join(timeout=60)
+        discard(self.directory)
+
+    def _hand_over(self) -> None:
         if not self._pending_rows:
             return
         arrays = {name: np.concatenate(parts) for name, parts in self._pending.items()}
-        write_arrays(self.directory, f"chunk_{self.chunks + 1:06d}", arrays)
-        self.chunks += 1
-        self.rows_written += self._pending_rows
+        self._queued += 1
+        self._queue.put((self._queued, arrays))
+        self._rows_handed += self._pending_rows
         self._pending, self._pending_rows = {}, 0
 
-    def discard(self) -> None:
-        """Remove the job's chunk directory (its dataset is stored, or nothing is to be kept)."""
-        discard(self.directory)
+    def _write_loop(self) -> None:
+        while True:
+            item = self._queue.get()
+            try:
+                if item is None:
+                    return
+                if self.error is None:
+                    number, arrays = item
+                    try:
+                        write_arrays(self.directory, f"chunk_{number:06d}", arrays)
+                        self.chunks += 1
+                        self.rows_written += len(next(iter(arrays.values())))
+                    except BaseException as exc:  # a full disk: keep running, later chunks would leave a gap
+                        self.error = exc
+            finally:
+                self._queue.task_done()
 
 
 def discard(directory: Path) -> None:
