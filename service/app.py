@@ -22,7 +22,7 @@ from service.api import models as models_api
 from service.api import sweeps as sweeps_api
 from service.api import trajectories as trajectories_api
 from service.api import web as web_api
-from service.jobs import JobManager
+from service.jobs import JobManager, freeze_heap
 from service.recovery import recover
 from service.settings import Settings
 from service.store import Store
@@ -55,6 +55,7 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
             app.state.bench = factory(settings)
             try:
                 app.state.jobs = JobManager(app.state.store, on_cancel_bench=app.state.bench.request_stop)
+                freeze_heap()  # what start-up loaded is never scanned again by the collector
                 try:
                     yield
                 finally:

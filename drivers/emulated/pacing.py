@@ -5,8 +5,9 @@ identification, but not for what a real bench imposes: a hardware-timed clock th
 sample every 1/fs seconds whether or not the host keeps up. With pacing, each block of ``n``
 samples handed to the world is due at ``t0 + produced / fs`` (wall clock, ``time.monotonic``):
 the pacer sleeps until then if the host is early, and counts an **overrun** if the host hands
-the block over later than ``tolerance_blocks`` block durations after it was due (the buffer the
-hardware would hold ran dry). After an overrun the schedule restarts from now, so one stall
+the block over later than ``tolerance_blocks`` block durations after it was due: the DAQ's output
+buffer holds two blocks (the one playing and the next one, as the buffered control loop queues
+them), so a block later than that finds the buffer run dry. After an overrun the schedule restarts from now, so one stall
 counts once. ``idle`` (the output parked at 0 V between runs) stops the clock.
 
 Counters: ``periods`` (blocks paced), ``overruns``, ``max_late_s`` (worst lateness seen).
@@ -20,7 +21,7 @@ import time
 class Pacer:
     """Paces blocks of samples to a sample clock of ``sample_rate_hz`` (Hz)."""
 
-    def __init__(self, tolerance_blocks: float = 1.0):
+    def __init__(self, tolerance_blocks: float = 2.0):
         self.tolerance_blocks = float(tolerance_blocks)
         self.periods = 0
         self.overruns = 0

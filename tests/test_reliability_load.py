@@ -1,0 +1,25 @@
+"""Load (issue 9 §6): a short run of the `evcbench bench service` harness.
+
+50 requests/s on the status and data endpoints for 5 s while a real-time trajectory job runs on the
+emulated bench (DAQ paced to the sample clock). Asserted: every request answered without error, the
+load was delivered, and the job kept real time (no overrun) and succeeded. No latency assertion:
+machines are noisy; the latency figures are the benchmark's (README, "Fuzz and load").
+"""
+from __future__ import annotations
+
+from service.benchmarks.service_load import run_service_benchmark
+
+DURATION_S = 5.0
+RATE_HZ = 50.0
+
+
+def test_trajectory_keeps_real_time_under_50_requests_per_second():
+    result = run_service_benchmark(duration_s=DURATION_S, rate_hz=RATE_HZ)
+    assert result["errors"] == 0, result
+    assert result["requests"] == round(DURATION_S * RATE_HZ), result
+    assert result["achieved_rate_hz"] >= 0.95 * RATE_HZ, result
+    assert result["realtime"] is True
+    assert result["job_state"] == "succeeded", result
+    # 100 Hz: one paced block per period for the whole load (+2 s of margin) and its start ramps
+    assert result["job_periods"] >= (DURATION_S + 2.0) * 100, result
+    assert result["job_overruns"] == 0, result
