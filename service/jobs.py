@@ -76,6 +76,7 @@ class JobManager:
         self._lock = threading.Lock()
         self._bench_queue: queue.Queue[str | None] = queue.Queue()
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="evc-job")
+        self._persister = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-progress")
         self._bench_thread = threading.Thread(target=self._bench_worker, name="evc-bench-owner", daemon=True)
         self._running_bench_job: str | None = None
         self._closed = False  # jobs a previous process left unfinished: service.recovery, before this
@@ -168,6 +169,7 @@ class JobManager:
         self._bench_queue.put(None)
         self._bench_thread.join(timeout_s)
         self._pool.shutdown(wait=True, cancel_futures=True)
+        self._persister.shutdown(wait=True)
 
     # ------------------------------------------------------------------ workers
     def _bench_worker(self) -> None:
@@ -215,9 +217,9 @@ class JobManager:
             live.message = message
         live.version += 1
         now = time.monotonic()
-        if now - live.persisted_at >= PERSIST_EVERY_S:
-            live.persisted_at = now
-            self.store.update_job(job_id, progress=live.progress, message=live.message)
+        if now - live.persisted_at >= PERSIST_EVERY_S:  # written by another thread: a bench loop never
+            live.persisted_at = now                      # waits for the database (a WAL checkpoint may fsync)
+            self._persister.submit(self.store.update_progress, job_id, live.progress, live.message)
 
     def _finish(self, job_id: str, state: str, *, result: dict | None = None, error: str | None = None,
                 message: str | None = None, progress: float | None = None) -> None:

@@ -189,6 +189,14 @@ class Store:
         with self.engine.begin() as conn:
             conn.execute(update(tables.jobs).where(tables.jobs.c.id == job_id).values(**fields))
 
+    def update_progress(self, job_id: str, progress: float, message: str | None) -> None:
+        """Progress (0..1) and message of a job still queued or running; a late write after the job
+        ended changes nothing."""
+        with self.engine.begin() as conn:
+            conn.execute(update(tables.jobs).where(tables.jobs.c.id == job_id)
+                         .where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+                         .values(progress=progress, message=message))
+
     def get_job(self, job_id: str) -> dict:
         return self._get(tables.jobs, job_id, "job")
 
