@@ -12,7 +12,10 @@ The requests are the same every run; ``EVCBENCH_FUZZ_RANDOM=1`` draws new ones t
 """
 from __future__ import annotations
 
+import collections
+import json
 import os
+from pathlib import Path
 
 import pytest
 import schemathesis
@@ -22,6 +25,9 @@ from service.app import create_app
 from service.settings import Settings
 
 MAX_EXAMPLES = 80
+SUMMARY = Path(__file__).resolve().parent / "artifacts" / "fuzz_summary.json"
+#: (method path) -> Counter of status codes, written to SUMMARY at the end (the figures of a run)
+TALLY: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
 #: Reproducible by default (the same requests every run); EVCBENCH_FUZZ_RANDOM=1 explores new ones.
 DERANDOMIZE = os.environ.get("EVCBENCH_FUZZ_RANDOM", "") in ("", "0")
 
@@ -36,6 +42,14 @@ def fuzz_app(tmp_path_factory):
         app.state.fuzz_client = client
         yield app
     asgi.shutdown_lifespans()  # stops the jobs, parks the bench at 0 V and closes the store
+    total = collections.Counter()
+    for counts in TALLY.values():
+        total.update(counts)
+    SUMMARY.parent.mkdir(exist_ok=True)
+    SUMMARY.write_text(json.dumps({"requests": sum(total.values()), "method_paths": len(TALLY),
+                                   "status_codes": dict(sorted(total.items())),
+                                   "per_operation": {k: dict(sorted(v.items())) for k, v in sorted(TALLY.items())}},
+                                  indent=1))
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +69,7 @@ def test_no_server_errors_and_every_4xx_says_why(case, fuzz_app, auth_headers):
     response = case.call(base_url="http://testserver", session=fuzz_app.state.fuzz_client, headers=auth_headers,
                          timeout=30)
     _cancel_started_job(fuzz_app, response)
+    TALLY[f"{case.method} {case.path}"][response.status_code] += 1
     where = f"{case.method} {case.formatted_path} query={case.query} body={str(case.body)[:300]}"
     assert response.status_code < 500, f"{where} -> {response.status_code}: {response.text[:500]}"
     if 400 <= response.status_code < 500:
