@@ -124,3 +124,60 @@ def test_store_check_names_each_inconsistency_and_exits_1(tmp_path, capsys):
     details = " ".join(p["detail"] for p in report["problems"] if p["kind"] == "impossible_job")
     assert "no finished_at" in details and "progress 0.50" in details and "ds_gone" in details
     assert kept["id"] not in {p["id"] for p in report["problems"]}
+
+
+def test_chunks_are_a_gapless_prefix_and_recovery_rebuilds_a_trajectory_once(tmp_path):
+    """A trajectory's chunks (u, x and the reference per axis) become one partial dataset with their
+    units; a torn chunk (the temporary file of a write cut short) is ignored; a second recovery
+    creates nothing more."""
+    import numpy as np
+
+    from service.recovery import INTERRUPTED, recover
+    from service.store import Store
+    from service.store.chunks import ChunkWriter, chunk_dir
+
+    store = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
+    job = store.add_job("trajectory", {"frequency_hz": 100.0}, needs_bench=True)
+    store.update_job(job["id"], state="running", started_at="2026-01-01T00:00:00Z")
+    columns = ("u_y_v", "x_y_um", "ref_y_um", "u_z_v", "x_z_um", "ref_z_um")
+    units = {"t_s": "s", **{c: c.rsplit("_", 1)[-1] for c in columns}}
+    writer = ChunkWriter(tmp_path, job["id"], {"name": "ellipse", "source": "trajectory", "axes": ["y", "z"],
+                                               "sample_rate_hz": 1000.0, "blocks": [], "units": units,
+                                               "plan": {"frequency_hz": 100.0}, "job_id": job["id"]})
+    for p in range(25):  # 25 periods of 100 samples at 1 kHz: two whole chunks and 500 rows pending
+        rows = np.arange(p * 100, (p + 1) * 100)
+        writer.append({"t_s": rows / 1000.0, **{c: rows * 1.0 for c in columns}})
+    writer.flush()  # what a second more of running would have written ...
+    (chunk_dir(tmp_path, job["id"]) / ".chunk_000004.abc.tmp").write_bytes(b"torn")  # ... and a write cut short
+    assert writer.chunks == 3 and writer.rows_written == 2500
+
+    report = recover(store)
+    assert report["failed_jobs"] == [job["id"]] and len(report["datasets"]) == 1
+    ds = store.get_dataset(report["datasets"][0])
+    assert ds["partial"] and ds["partial_reason"] == INTERRUPTED and ds["samples"] == 2500
+    assert ds["source"] == "trajectory" and ds["units"] == units
+    arrays = store.load_arrays(ds["id"])
+    np.testing.assert_array_equal(arrays["x_z_um"], np.arange(2500.0))  # in order, no gap, no repeat
+    assert store.get_job(job["id"])["result"] == {"dataset_id": ds["id"], "samples": 2500, "partial": True}
+    assert not chunk_dir(tmp_path, job["id"]).exists()
+    assert recover(store) == {"failed_jobs": [], "datasets": [], "problems": []}
+    assert len(store.list_datasets()) == 1
+    store.close()
+
+
+def test_a_finished_sweep_leaves_no_chunks(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    with TestClient(create_app(Settings(data_dir=tmp_path, bench="default", seed=1))) as client:
+        r = client.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [20.0], "cycles": 40})
+        job_id = r.json()["job_id"]
+        deadline = time.monotonic() + 120
+        while (job := client.get(f"/api/jobs/{job_id}").json())["state"] in ("queued", "running"):
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert job["state"] == "succeeded" and job["result"]["partial"] is False
+        assert client.get(f"/api/datasets/{job['result']['dataset_id']}").json()["partial"] is False
+    assert not (tmp_path / "partial" / job_id).exists()
