@@ -26,15 +26,15 @@ def bench_snapshot(bench: Bench) -> dict:
             "sensor_scale_um_per_v": {a: s.scale_um_per_v for a, s in bench.parts.sensors.items()}}
 
 
-def record_arrays(record: BenchRecord) -> dict[str, np.ndarray]:
-    """A bench record as dataset arrays: t_s, then u_<axis>_v and x_<axis>_um, then temp_c."""
-    arrays = {"t_s": record.t_s}
+def record_arrays(record: BenchRecord, start: int = 0) -> dict[str, np.ndarray]:
+    """Rows ``start:`` of a bench record as dataset arrays: t_s, then u_<axis>_v and x_<axis>_um, then temp_c."""
+    arrays = {"t_s": np.arange(start, record.samples) / record.sample_rate_hz}
     for axis in sorted(record.x_um):
-        arrays[f"u_{axis}_v"] = np.asarray(record.u_cmd_v[axis], dtype=float)
-        arrays[f"x_{axis}_um"] = np.asarray(record.x_um[axis], dtype=float)
+        arrays[f"u_{axis}_v"] = np.asarray(record.u_cmd_v[axis][start:], dtype=float)
+        arrays[f"x_{axis}_um"] = np.asarray(record.x_um[axis][start:], dtype=float)
     for name, values in record.extra.items():
         if name == "temp_c" and len(values) == record.samples:
-            arrays["temp_c"] = np.asarray(values, dtype=float)
+            arrays["temp_c"] = np.asarray(values[start:], dtype=float)
     return arrays
 
 
@@ -52,7 +52,7 @@ def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep
     chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
 
     def on_block(record: BenchRecord, fraction: float) -> None:
-        chunks.append({k: v[chunks.rows_seen:] for k, v in record_arrays(record).items()})
+        chunks.append(record_arrays(record, start=chunks.rows_seen))  # the new rows only
         ctx.progress(0.98 * fraction, f"sweeping: {fraction * duration:.1f} of {duration:.1f} s")
 
     ctx.progress(0.0, f"sweeping: 0 of {duration:.1f} s")
