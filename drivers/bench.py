@@ -18,6 +18,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from drivers.interfaces import AxisLimits, BenchParts, DriverError, LimitError, NotSupportedError
+from drivers.live import LiveMonitor
 
 ACTUATOR_V_MIN = 0.0
 ACTUATOR_V_MAX = 120.0
@@ -80,6 +81,8 @@ class Bench:
         self._stop_requested = threading.Event()
         self._last_u_v = {axis: 0.0 for axis in self.axes}
         self._closed = False
+        #: decimated live signals of whatever the bench streams (see drivers/live.py)
+        self.live = LiveMonitor(self.axes)
 
     # ------------------------------------------------------------------ limits
     def max_frequency_hz(self, axis: str, vpp_v: float) -> float:
@@ -203,6 +206,7 @@ class Bench:
             chunks_u: dict[str, list[np.ndarray]] = {axis: [] for axis in self.axes}
             chunks_ai: list[np.ndarray] = []
             previous = {axis: 0.0 for axis in self.axes}
+            self.live.begin(actual, "buffered run")
             try:
                 for start in range(0, n, block_samples):
                     stop = min(start + block_samples, n)
@@ -222,6 +226,7 @@ class Bench:
                         record = self._record(chunks_u, chunks_ai, actual)
                         record.partial, record.reason = True, f"daq: {exc}"
                         raise RunInterrupted(record.reason, record) from exc
+                    self.live.push({a: chunks_u[a][-1] for a in self.axes}, self._x_um(chunks_ai[-1]))
                     fault = self.fault_reason()
                     record = self._record(chunks_u, chunks_ai, actual)
                     if fault:
@@ -303,9 +308,13 @@ class Bench:
 
     def _record(self, chunks_u, chunks_ai, rate) -> BenchRecord:
         ai = np.concatenate(chunks_ai) if chunks_ai else np.zeros((0, self.parts.daq.capabilities.ai_channels))
-        x = {a: ai[:, self.parts.ai_channel[a]] * self.parts.sensors[a].scale_um_per_v for a in self.axes}
+        x = self._x_um(ai)
         u = {a: np.concatenate(chunks_u[a]) if chunks_u[a] else np.zeros(0) for a in self.axes}
         return BenchRecord(sample_rate_hz=rate, u_cmd_v=u, x_um=x)
+
+    def _x_um(self, ai: np.ndarray) -> dict[str, np.ndarray]:
+        """DAQ input volts (samples × channels) → micrometres per axis."""
+        return {a: ai[:, self.parts.ai_channel[a]] * self.parts.sensors[a].scale_um_per_v for a in self.axes}
 
     def fault_reason(self) -> str | None:
         """The first amplifier fault or sensor loss, in words, or None when every part is healthy."""

@@ -53,9 +53,13 @@ def fuzz_app(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def auth_headers() -> dict[str, str]:
-    """Headers every fuzzed call carries: none yet; the auth work puts a bearer token here."""
-    return {}
+def auth_headers(fuzz_app) -> dict[str, str]:
+    """Headers every fuzzed call carries: an operate-scope token (the admin endpoints are excluded),
+    so the fuzzer reaches the handlers instead of stopping at 401."""
+    from service import auth
+
+    token = auth.issue(fuzz_app.state.store, "fuzz", "operate", "cli")[0]
+    return {"Authorization": f"Bearer {token}"}
 
 
 # The spec of an app that is never started (building the spec needs no store and no bench).

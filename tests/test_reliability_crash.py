@@ -39,7 +39,7 @@ def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
     data_dir = tmp_path / "store"
     server = Server(data_dir, tmp_path / "serve1.log", bench="default_realtime")
     try:
-        with httpx.Client(base_url=server.url, timeout=30) as client:
+        with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as client:
             r = client.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1.0], "cycles": 30,
                                                  "sample_rate_hz": SAMPLE_RATE_HZ})
             assert r.status_code == 202, r.text
@@ -62,7 +62,7 @@ def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
 
     server = Server(data_dir, tmp_path / "serve2.log", bench="default_realtime")
     try:
-        with httpx.Client(base_url=server.url, timeout=30) as client:
+        with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as client:
             job = client.get(f"/api/jobs/{job_id}").json()
             assert job["state"] == "failed" and job["error"] == "interrupted by restart"
             dataset_id = job["result"]["dataset_id"]
@@ -166,12 +166,11 @@ def test_chunks_are_a_gapless_prefix_and_recovery_rebuilds_a_trajectory_once(tmp
 
 
 def test_a_finished_sweep_leaves_no_chunks(tmp_path):
-    from fastapi.testclient import TestClient
-
+    from api_client import authed_client
     from service.app import create_app
     from service.settings import Settings
 
-    with TestClient(create_app(Settings(data_dir=tmp_path, bench="default", seed=1))) as client:
+    with authed_client(create_app(Settings(data_dir=tmp_path, bench="default", seed=1))) as client:
         r = client.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [20.0], "cycles": 40})
         job_id = r.json()["job_id"]
         deadline = time.monotonic() + 120

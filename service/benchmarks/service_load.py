@@ -52,7 +52,10 @@ def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, heade
     with tempfile.TemporaryDirectory(prefix="evcbench-load-") as data_dir:
         proc, url = spawn_service(Path(data_dir), BENCH, Path(data_dir) / "serve.log")
         try:
-            with httpx.Client(base_url=url, headers=headers or {}, timeout=30) as client:
+            if headers is None:  # the service's own bootstrap admin token (written at start-up, mode 0600)
+                token = (Path(data_dir) / "admin.token").read_text().strip()
+                headers = {"Authorization": f"Bearer {token}"}
+            with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
                 return _measure(client, duration_s, rate_hz)
         finally:
             proc.terminate()

@@ -108,6 +108,7 @@ class Tracker:
         rec = TrackRecord(x_um=np.full((n, 2), np.nan), u_v=np.zeros((n, 2)), ref_um=self.ref.x_um, samples=0)
         self.bench.configure(self.fs)
         self._settle()
+        self.bench.live.begin(self.fs, "tracking")
         try:
             if self.mode == "point_by_point":
                 self._run_pbp(rec, on_period, should_stop)
@@ -126,6 +127,9 @@ class Tracker:
         daq.write_read(np.zeros((int(settle_s * self.fs), daq.capabilities.ao_channels)))
 
     def _end_period(self, p, rec, on_period, should_stop) -> bool:
+        s = slice(p * self.ref.period, rec.samples)
+        self.bench.live.push({a: rec.u_v[s, i] for i, a in enumerate(self.bench.axes)},
+                             {a: rec.x_um[s, i] for i, a in enumerate(self.bench.axes)})
         reason = self.bench.fault_reason()
         if reason:
             rec.tripped = reason
