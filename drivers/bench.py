@@ -302,6 +302,8 @@ class Bench:
                            lim.max_frequency_hz(lim.v_max_v - lim.v_min_v)} for a, lim in self.limits.items()},
             "modes": {"buffered": daq.capabilities.buffered, "point_by_point": daq.capabilities.point_by_point,
                       "point_by_point_reason": daq.capabilities.point_by_point_reason},
+            # real-time pacing of an emulated DAQ: periods paced and overruns (a real DAQ has none)
+            "timing": daq.timing() if callable(getattr(daq, "timing", None)) else {"realtime": False},
         }
 
     def _record(self, chunks_u, chunks_ai, rate) -> BenchRecord:

@@ -1,7 +1,10 @@
 """Running a planned sweep on the bench and storing what it measured as one dataset.
 
 A cancelled or interrupted run keeps the samples taken so far: they are stored as a dataset
-marked ``partial`` (with the reason), and the bench leaves its output at 0 V either way.
+marked ``partial`` (with the reason), and the bench leaves its output at 0 V either way. While the
+run goes on, its samples are also written in ~1 s fsync'ed chunks (service.store.chunks), so that
+a killed process loses at most the last second: service.recovery rebuilds a partial dataset from
+them at the next start.
 """
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from drivers.bench import Bench, BenchRecord, RunInterrupted
 from service.datasets import units_for
 from service.jobs import JobContext, JobInterrupted
 from service.store import Store, utc_now
+from service.store.chunks import ChunkWriter
 from service.sweeps import PlannedSweep, trim_blocks
 
 
@@ -22,15 +26,15 @@ def bench_snapshot(bench: Bench) -> dict:
             "sensor_scale_um_per_v": {a: s.scale_um_per_v for a, s in bench.parts.sensors.items()}}
 
 
-def record_arrays(record: BenchRecord) -> dict[str, np.ndarray]:
-    """A bench record as dataset arrays: t_s, then u_<axis>_v and x_<axis>_um, then temp_c."""
-    arrays = {"t_s": record.t_s}
+def record_arrays(record: BenchRecord, start: int = 0) -> dict[str, np.ndarray]:
+    """Rows ``start:`` of a bench record as dataset arrays: t_s, then u_<axis>_v and x_<axis>_um, then temp_c."""
+    arrays = {"t_s": np.arange(start, record.samples) / record.sample_rate_hz}
     for axis in sorted(record.x_um):
-        arrays[f"u_{axis}_v"] = np.asarray(record.u_cmd_v[axis], dtype=float)
-        arrays[f"x_{axis}_um"] = np.asarray(record.x_um[axis], dtype=float)
+        arrays[f"u_{axis}_v"] = np.asarray(record.u_cmd_v[axis][start:], dtype=float)
+        arrays[f"x_{axis}_um"] = np.asarray(record.x_um[axis][start:], dtype=float)
     for name, values in record.extra.items():
         if name == "temp_c" and len(values) == record.samples:
-            arrays["temp_c"] = np.asarray(values, dtype=float)
+            arrays["temp_c"] = np.asarray(values[start:], dtype=float)
     return arrays
 
 
@@ -41,29 +45,35 @@ def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep
     On a stop (cancel, fault) the partial record is stored and JobInterrupted carries its id.
     """
     duration = planned.duration_s
+    started_at = utc_now()
+    meta = {"name": name or _default_name(plan), "source": "sweep", "axes": sorted(bench.axes),
+            "sample_rate_hz": planned.sample_rate_hz, "blocks": planned.blocks, "plan": plan,
+            "config": bench_snapshot(bench), "job_id": ctx.job_id, "started_at": started_at}
+    chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
 
-    def on_block(_record: BenchRecord, fraction: float) -> None:
+    def on_block(record: BenchRecord, fraction: float) -> None:
+        chunks.append(record_arrays(record, start=chunks.rows_seen))  # the new rows only
         ctx.progress(0.98 * fraction, f"sweeping: {fraction * duration:.1f} of {duration:.1f} s")
 
     ctx.progress(0.0, f"sweeping: 0 of {duration:.1f} s")
-    started_at = utc_now()
     try:
-        record = bench.run(planned.u_v, planned.sample_rate_hz, on_block=on_block,
-                           should_stop=lambda: ctx.cancelled)
-        reason = None
-    except RunInterrupted as exc:
-        record, reason = exc.record, exc.reason
-    finished_at = utc_now()
-    if record.samples == 0:
-        raise JobInterrupted(f"{reason}; no samples were taken", None)
-    arrays = record_arrays(record)
-    blocks = trim_blocks(planned.blocks, record.samples, record.sample_rate_hz)
-    ctx.progress(0.99, "storing")
-    row = store.add_dataset(arrays, {
-        "name": name or _default_name(plan), "source": "sweep", "axes": sorted(record.x_um),
-        "sample_rate_hz": record.sample_rate_hz, "blocks": blocks, "plan": plan,
-        "config": bench_snapshot(bench), "units": units_for(arrays), "partial": reason is not None,
-        "partial_reason": reason, "job_id": ctx.job_id, "started_at": started_at, "finished_at": finished_at})
+        try:
+            record = bench.run(planned.u_v, planned.sample_rate_hz, on_block=on_block,
+                               should_stop=lambda: ctx.cancelled)
+            reason = None
+        except RunInterrupted as exc:
+            record, reason = exc.record, exc.reason
+        if record.samples == 0:
+            raise JobInterrupted(f"{reason}; no samples were taken", None)
+        arrays = record_arrays(record)
+        ctx.progress(0.99, "storing")
+        row = store.add_dataset(arrays, {
+            **meta, "axes": sorted(record.x_um), "sample_rate_hz": record.sample_rate_hz,
+            "blocks": trim_blocks(planned.blocks, record.samples, record.sample_rate_hz),
+            "units": units_for(arrays), "partial": reason is not None, "partial_reason": reason,
+            "finished_at": utc_now()})
+    finally:  # stored (or nothing to keep): the chunks are only for a process that dies mid-run
+        chunks.discard()
     result = {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"]}
     if reason is not None:
         raise JobInterrupted(f"{reason}: {row['samples']} samples kept as partial dataset {row['id']}", result)

@@ -1,5 +1,6 @@
-"""The FastAPI application: opens the store and the bench at start-up, mounts the routers, and at
-shut-down stops the jobs (a running sweep keeps its partial data) and closes the bench at 0 V."""
+"""The FastAPI application: opens the store (recovering what a killed process left: see
+service.recovery) and the bench at start-up, mounts the routers, and at shut-down stops the jobs
+(a running sweep keeps its partial data) and closes the bench at 0 V."""
 from __future__ import annotations
 
 import time
@@ -23,6 +24,8 @@ from service.api import sweeps as sweeps_api
 from service.api import tokens as tokens_api
 from service.api import trajectories as trajectories_api
 from service.api import web as web_api
+from service.jobs import JobManager, freeze_heap
+from service.recovery import recover
 from service.auth import ensure_bootstrap_token
 from service.binding import is_loopback
 from service.jobs import JobManager
@@ -58,11 +61,13 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
         app.state.started_at = time.time()
         app.state.store = Store(settings.resolved_database_url, settings.data_dir)
         try:
+            app.state.recovery = recover(app.state.store)
             if settings.auth == "tokens":
                 ensure_bootstrap_token(app.state.store, settings.data_dir)
             app.state.bench = factory(settings)
             try:
                 app.state.jobs = JobManager(app.state.store, on_cancel_bench=app.state.bench.request_stop)
+                freeze_heap()  # what start-up loaded is never scanned again by the collector
                 try:
                     yield
                 finally:

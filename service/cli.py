@@ -38,7 +38,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from service.benchmarks import get_benchmark
 
     try:
-        result = get_benchmark(args.name)()
+        benchmark = get_benchmark(args.name)
+        result = benchmark(duration_s=args.duration) if args.duration is not None else benchmark()
     except KeyError as exc:
         print(exc.args[0], file=sys.stderr)
         return 2
@@ -48,6 +49,25 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         for key, value in result.items():
             print(f"{key:>32}: {value}")
     return 0
+
+
+def _cmd_store_check(args: argparse.Namespace) -> int:
+    from service.store import Store
+    from service.store.check import check_store, format_report
+
+    defaults = Settings()
+    settings = Settings(data_dir=args.data_dir or defaults.data_dir,
+                        database_url=args.database_url or defaults.database_url)
+    if not settings.data_dir.is_dir():
+        print(f"no store at {settings.data_dir}", file=sys.stderr)
+        return 2
+    store = Store(settings.resolved_database_url, settings.data_dir)
+    try:
+        report = check_store(store, quick=args.quick, offline=args.offline)
+    finally:
+        store.close()
+    print(json.dumps(report) if args.json else format_report(report))
+    return 0 if report["ok"] else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,7 +90,19 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
     bench.add_argument("name", help="emulator | identification | …")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
+    bench.add_argument("--duration", type=float, help="service: seconds of load (default 60)")
     bench.set_defaults(func=_cmd_bench)
+
+    store = sub.add_parser("store", help="maintain the store (check)")
+    store_sub = store.add_subparsers(dest="store_command", required=True)
+    check = store_sub.add_parser("check", help="report inconsistencies between rows and files; exit 1 if any")
+    check.add_argument("--data-dir", type=__import__("pathlib").Path, help="store directory (default ./var)")
+    check.add_argument("--database-url", help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
+    check.add_argument("--quick", action="store_true", help="skip the SHA-256 of every array file")
+    check.add_argument("--offline", action="store_true",
+                       help="no service runs on this store: a queued or running job is a problem too")
+    check.add_argument("--json", action="store_true", help="print one JSON object")
+    check.set_defaults(func=_cmd_store_check)
 
     from service import cli_remote, cli_tokens
 

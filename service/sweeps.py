@@ -25,6 +25,7 @@ from service.errors import FieldError
 
 WAVEFORMS = ("sine", "step", "chirp", "multisine")
 MAX_SAMPLES = 20_000_000  # 1000 s at 20 kHz: about 0.5 GB of float64 while running
+MAX_CLOCK_DIVISOR = 2 ** 32  # a 32-bit counter divides the DAQ timebase into the sample clock
 MIN_SAMPLES_PER_CYCLE = 20  # fewer cannot resolve a hysteresis loop (as service.hysteresis requires)
 
 
@@ -116,6 +117,9 @@ def check_sample_rate(sample_rate_hz: float, timebase_hz: float = 100e6) -> floa
     if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
         raise PlanError("sample_rate_hz", "must be a positive number of hertz")
     divisor = timebase_hz / sample_rate_hz
+    if not divisor <= MAX_CLOCK_DIVISOR:
+        raise PlanError("sample_rate_hz", f"{sample_rate_hz:g} Hz is below the slowest clock the "
+                        f"{timebase_hz / 1e6:g} MHz timebase can make ({timebase_hz / MAX_CLOCK_DIVISOR:.3g} Hz)")
     if abs(divisor - round(divisor)) > 1e-9 * divisor or round(divisor) < 1:
         low, high = timebase_hz / math.ceil(divisor), timebase_hz / max(math.floor(divisor), 1)
         raise PlanError("sample_rate_hz", f"{sample_rate_hz:g} Hz is not a divisor of the "
@@ -128,10 +132,10 @@ def build(plan: PlanBase, max_rate_v_per_s: float) -> PlannedSweep:
     fs = float(plan.sample_rate_hz)
     if plan.v_min >= plan.v_max and not isinstance(plan, StepPlan):
         raise PlanError("v_max", f"v_max ({plan.v_max:g} V) must exceed v_min ({plan.v_min:g} V)")
-    estimate = int(_planned_seconds(plan) * fs) * (1 if plan.together else len(plan.axes))
-    if estimate > MAX_SAMPLES:  # refuse before allocating anything
-        raise PlanError(_length_field(plan), f"the plan lasts about {estimate / fs:.0f} s ({estimate} samples); "
-                        f"the limit is {MAX_SAMPLES} samples")
+    estimate = _planned_seconds(plan) * fs * (1 if plan.together else len(plan.axes))
+    if not estimate <= MAX_SAMPLES:  # refuse before allocating anything (also catches inf and NaN)
+        raise PlanError(_length_field(plan), f"the plan lasts about {estimate / fs:.3g} s ({estimate:.3g} samples); "
+                        f"the limit is {MAX_SAMPLES} samples ({MAX_SAMPLES / fs:.0f} s at {fs:g} Hz)")
     segment_of = {"sine": _sine_segments, "step": _step_segments, "chirp": _chirp_segments,
                   "multisine": _multisine_segments}[plan.waveform]
     pieces, blocks = segment_of(plan, fs, max_rate_v_per_s)
@@ -343,8 +347,9 @@ def _planned_seconds(plan: PlanBase) -> float:
     if isinstance(plan, MultisinePlan):
         low = min((f for f in plan.frequencies_hz if f > 0), default=0.0)
         return (max(plan.cycles, 0) / low if low else 0.0) + 2 * settle
-    if isinstance(plan, ChirpPlan):
-        return max(plan.duration_s, 0.0) * 1.5 + 2 * settle  # the duration is rounded to whole cycles
+    if isinstance(plan, ChirpPlan):  # the duration is rounded to whole cycles of the mean frequency, at least one
+        mean_hz = (plan.f_start_hz + plan.f_stop_hz) / 2
+        return max(max(plan.duration_s, 0.0) * 1.5, 1.0 / mean_hz if mean_hz > 0 else 0.0) + 2 * settle
     if isinstance(plan, StepPlan):
         return len(plan.levels_v or (plan.v_max,)) * (2 * max(plan.hold_s, 0.0) + settle) + settle
     return 0.0

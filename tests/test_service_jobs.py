@@ -9,6 +9,7 @@ import time
 import pytest
 
 from service.jobs import JobInterrupted, JobManager
+from service.recovery import recover
 from service.store import Store
 
 
@@ -137,11 +138,12 @@ def test_sse_streams_progress_then_the_end(store):
 
 def test_restart_marks_unfinished_jobs_failed_and_shutdown_cancels_queued(store):
     store.add_job("sweep", None, needs_bench=True)  # left "queued" by a process that died
+    assert len(recover(store)["failed_jobs"]) == 1  # what the app runs at start-up, before the manager
     manager = JobManager(store)
     gate = threading.Event()
     try:
         assert manager.list()[0]["state"] == "failed"
-        assert "stopped before this job finished" in manager.list()[0]["error"]
+        assert manager.list()[0]["error"] == "interrupted by restart"
         blocking = manager.submit("sweep", None, lambda ctx: {"gate": gate.wait(5)}, needs_bench=True)
         waiting = manager.submit("sweep", None, lambda ctx: {"ran": True}, needs_bench=True)
         threading.Timer(0.2, gate.set).start()

@@ -27,7 +27,7 @@ RULES: dict[str, tuple] = {
     "daq.timebase_hz": ("num", 1e6, 1e10), "daq.sample_rate_hz": ("num", 1.0, 1e8),
     "daq.max_sample_rate_hz": ("num", 1.0, 1e8), "daq.range_v": ("num", 0.1, 100.0),
     "daq.resolution_bits": ("int", 8, 24), "daq.monitor_ratio_v_per_v": ("num", 1e-4, 1.0),
-    "daq.latency.samples": ("int", 0, 1000),
+    "daq.latency.samples": ("int", 0, 1000), "daq.realtime": ("bool",),
     "ambient.temperature_c": ("num", -40.0, 100.0), "ambient.drift.rate_c_per_s": ("num", -1.0, 1.0),
     "ambient.drift.cycle_amplitude_c": ("num", 0.0, 20.0), "ambient.drift.cycle_period_s": ("num", 1.0, 1e7),
     "coupling.y_from_z": ("num", -0.5, 0.5), "coupling.z_from_y": ("num", -0.5, 0.5),
@@ -69,7 +69,7 @@ RULES: dict[str, tuple] = {
 for _effect in EFFECTS:
     RULES[_effect + ".enabled"] = ("bool",)
     RULES[_effect + ".scale"] = ("num", 0.0, 1000.0)
-OPTIONAL = {"seed", "description"}
+OPTIONAL = {"seed", "description", "daq.realtime"}
 
 
 def list_benches() -> list[str]:

@@ -89,6 +89,12 @@ class EmulatedDaq:
         step_fn, args = self.world.kernel_state()
         return step_fn, args, self.world.take_noise
 
+    def timing(self) -> dict:
+        """Real-time pacing counters (``realtime``, ``periods``, ``overruns``, ``max_late_ms``);
+        ``{"realtime": False}`` when the emulator runs as fast as it can."""
+        pacer = self.world.pacer
+        return pacer.counters() if pacer is not None else {"realtime": False}
+
     def write_idle(self) -> None:
         """AO to 0 V, then let the world run idle until the amplifier outputs are below 10 mV."""
         if self._closed:

@@ -13,6 +13,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from drivers.emulated import kernels as K
+from drivers.emulated.pacing import Pacer
 
 AXES = ("y", "z")
 NOISE_CHUNK = 1 << 16       # samples of noise generated at a time
@@ -81,6 +82,10 @@ class World:
         self.sample_rate_hz = 0.0
         self.set_sample_rate(float(daq["sample_rate_hz"]))
         self._injected: dict[str, set[str]] = {k: set() for k in FAULT_KINDS}
+        #: ``[daq] realtime = true``: blocks take wall time at the sample clock (see pacing.py)
+        self.pacer = Pacer() if daq.get("realtime", False) else None
+        if self.pacer is not None:
+            self._warm_up()
         self.last_diag = K.empty_diag(0)
         self._scratch_out = np.zeros((1, K.NOISE_COLS))
         self._scratch_diag = K.empty_diag(1)
@@ -215,6 +220,14 @@ class World:
         for kind in self._injected:
             self._injected[kind].clear()
 
+    def _warm_up(self) -> None:
+        """Compile the block kernels now, on copies of the state (the world and its noise stream are
+        untouched), so that a real-time clock never starts on a cold kernel."""
+        args = tuple(np.copy(a) for a in self._kernel_args())
+        out, diag = np.empty((2, K.NOISE_COLS)), K.empty_diag(2)
+        K.run_block(*args, np.zeros((2, 2)), self._noise, 0, out, diag)
+        K.run_idle(*args, self._noise, 0, 2, IDLE_THRESHOLD_V, out, diag)
+
     # ------------------------------------------------------------------ running
     def _kernel_args(self):
         return (self.pg, self.pa, self.sg, self.sa, self.ring, self.tp, self.ps, self.ev, self.ca, self.cw, self.cs)
@@ -229,6 +242,8 @@ class World:
         """Advance len(ao) samples with the given (n, 2) AO block; return the (n, 4) AI block."""
         ao = np.ascontiguousarray(ao_daq_v, dtype=np.float64)
         n = ao.shape[0]
+        if self.pacer is not None:
+            self.pacer.tick(n, self.sample_rate_hz)
         out = np.empty((n, K.NOISE_COLS))
         diag = K.empty_diag(n)
         self.sa[:, K.S_SATN] = 0.0
@@ -250,7 +265,10 @@ class World:
         return out[0]
 
     def idle(self) -> int:
-        """AO to 0 V, then advance until both amplifier outputs are below 10 mV (cap 20 ms)."""
+        """AO to 0 V, then advance until both amplifier outputs are below 10 mV (cap 20 ms).
+        Not paced: a parked output stops the real-time clock."""
+        if self.pacer is not None:
+            self.pacer.stop_clock()
         max_n = max(int(math.ceil(IDLE_CAP_S * self.sample_rate_hz)), self.latency + 1)
         self._ensure_noise(max_n)
         used = K.run_idle(*self._kernel_args(), self._noise, self._cursor, max_n, IDLE_THRESHOLD_V,
@@ -344,7 +362,11 @@ class World:
         return K.world_sample, self._kernel_args()
 
     def take_noise(self, n: int) -> tuple[np.ndarray, int]:
-        """Reserve n noise rows: returns (array, first row). Keeps the stream reproducible."""
+        """Reserve n noise rows: returns (array, first row). Keeps the stream reproducible.
+        Compiled callers reserve one block (a control period) at a time: that is where a
+        real-time world paces them."""
+        if self.pacer is not None:
+            self.pacer.tick(n, self.sample_rate_hz)
         self._ensure_noise(n)
         start = self._cursor
         self._cursor += n

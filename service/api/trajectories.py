@@ -12,14 +12,15 @@ from drivers.bench import Bench
 from service.acquisition import bench_snapshot
 from service.api.deps import get_bench, get_jobs, get_store
 from service.control.feedforward import as_feedforward
-from service.control.loop import PIDGains
+from service.control.loop import PIDGains, TrackRecord
 from service.control.safety import ControlRefused
-from service.control.session import Controller, plan, track
+from service.control.session import SAMPLE_RATE_HZ, Controller, plan, track
 from service.control.trajectory import Ellipse
 from service.errors import FieldError
 from service.jobs import JobContext, JobManager
 from service.modelling import load_model
 from service.store import NotFoundError, Store, utc_now
+from service.store.chunks import ChunkWriter
 
 router = APIRouter(tags=["trajectories"])
 
@@ -104,31 +105,41 @@ def build_controller(body: TrajectoryRequest, store: Store) -> Controller:
                       allow_saturation=c.allow_saturation)
 
 
+def trace_arrays(rec: TrackRecord, sample_rate_hz: float, axes, start: int, stop: int) -> dict[str, np.ndarray]:
+    """Rows ``start:stop`` of a tracking run as dataset columns: t_s, u_<axis>_v, x_<axis>_um, ref_<axis>_um."""
+    arrays = {"t_s": np.arange(start, stop) / sample_rate_hz}
+    for i, ax in enumerate(axes):
+        arrays[f"u_{ax}_v"] = rec.u_v[start:stop, i]
+        arrays[f"x_{ax}_um"] = rec.x_um[start:stop, i]
+        arrays[f"ref_{ax}_um"] = rec.ref_um[start:stop, i]
+    return arrays
+
+
 def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse, controller: Controller,
                    mode: str, params: dict, name: str | None) -> dict:
-    """The job: track, report the error per period as progress, store measured and reference traces."""
+    """The job: track, report the error per period as progress, store measured and reference traces
+    (written in ~1 s chunks while it runs, so a killed process keeps them: service.recovery)."""
     total = ellipse.cycles + 6
+    units = {f"{q}_{ax}_{u}": u for ax in bench.axes for q, u in (("u", "v"), ("x", "um"), ("ref", "um"))}
+    meta = {"name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
+            "axes": list(bench.axes), "sample_rate_hz": SAMPLE_RATE_HZ, "blocks": [], "plan": params,
+            "config": bench_snapshot(bench), "units": {"t_s": "s", **units}, "job_id": ctx.job_id,
+            "started_at": utc_now()}
+    chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
 
     def on_period(p, rec):
+        chunks.append(trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, chunks.rows_seen, rec.samples))
         last = rec.error_per_period_um[-1] if rec.error_per_period_um else None
         msg = f"period {p + 1}/{total}" + (f": error {last * 1e3:.1f} nm RMS" if last is not None else "")
         ctx.progress(min(0.97, (p + 1) / total), msg)
 
-    started_at = utc_now()
-    result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period, should_stop=lambda: ctx.cancelled)
-    n = rec.samples
-    arrays = {"t_s": np.arange(n) / ref.sample_rate_hz}
-    for i, ax in enumerate(bench.axes):
-        arrays[f"u_{ax}_v"] = rec.u_v[:n, i]
-        arrays[f"x_{ax}_um"] = rec.x_um[:n, i]
-        arrays[f"ref_{ax}_um"] = ref.x_um[:n, i]
-    units = {k: k.rsplit("_", 1)[-1] for k in arrays}
-    row = store.add_dataset(arrays, {
-        "name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
-        "axes": list(bench.axes), "sample_rate_hz": ref.sample_rate_hz, "blocks": [], "plan": params,
-        "config": bench_snapshot(bench), "units": units, "partial": bool(result["tripped"] or result["stopped"]),
-        "partial_reason": result["tripped"], "job_id": ctx.job_id, "started_at": started_at,
-        "finished_at": utc_now()})
+    try:
+        result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period, should_stop=lambda: ctx.cancelled)
+        row = store.add_dataset(trace_arrays(rec, ref.sample_rate_hz, bench.axes, 0, rec.samples), {
+            **meta, "sample_rate_hz": ref.sample_rate_hz, "partial": bool(result["tripped"] or result["stopped"]),
+            "partial_reason": result["tripped"], "finished_at": utc_now()})
+    finally:
+        chunks.discard()
     result["dataset_id"] = row["id"]
     if result["tripped"]:
         raise RuntimeError(f"tripped: {result['tripped']} (traces kept in dataset {row['id']})")

@@ -13,6 +13,7 @@ BENCHMARKS: dict[str, str] = {
     "identification": "service.benchmarks.identification:run_identification_benchmark",
     "control": "service.benchmarks.control:run_control_benchmark",
     "discovery": "service.benchmarks.discovery:run_discovery_benchmark",
+    "service": "service.benchmarks.service_load:run_service_benchmark",
     "auth": "service.benchmarks.auth:run_auth_benchmark",
 }
 

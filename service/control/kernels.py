@@ -69,7 +69,7 @@ _RUNNERS: dict = {}
 
 
 def _build_runner(step_fn):
-    @njit
+    @njit(nogil=True)  # the GIL is free while a period runs: handlers and the loop do not stall each other
     def runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last, dt,
                x_out, u_out, ai, diag):
         n = ref_um.shape[0]
@@ -104,7 +104,7 @@ def _build_runner(step_fn):
     return runner
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def watch_block(ref_um, x_um, trip, over):
     """The same divergence watch over a measured block (buffered mode): (first tripping sample+1, status)."""
     for k in range(ref_um.shape[0]):

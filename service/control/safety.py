@@ -62,7 +62,7 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
         field = f"{axis}_range_um"
         lo, hi = bench.parts.sensors[axis].range_um
         top = float(np.max(x_ref_um[:, i]))
-        if top > 0.95 * hi or float(np.min(x_ref_um[:, i])) < lo:
+        if not (top <= 0.95 * hi and float(np.min(x_ref_um[:, i])) >= lo):  # NaN fails too
             raise ControlRefused(field, f"{axis} reference reaches {top:.2f} µm; the gauge reads {lo:g}–{hi:g} µm")
         vpp = bench.limits[axis].v_max_v - bench.limits[axis].v_min_v
         if u_ff_v is not None:

@@ -10,6 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Longest run (s): 600 s at 20 kHz is 12 M samples per axis, about 0.5 GB of traces while it runs.
+MAX_DURATION_S = 600.0
+RAMP_PERIODS = 3  # raised-cosine start and stop ramps, in periods each
+
 
 @dataclass(frozen=True)
 class Ellipse:
@@ -30,8 +34,11 @@ class Ellipse:
         det = c2 - s2
         if abs(det) < 1e-9:
             raise ValueError("inclination_deg: 45° leaves the semi-axes undetermined by the ranges")
-        a2 = (az * az * c2 - ay * ay * s2) / det
-        b2 = (ay * ay * c2 - az * az * s2) / det
+        with np.errstate(over="ignore", invalid="ignore"):  # huge spans: refused just below
+            a2 = (az * az * c2 - ay * ay * s2) / det
+            b2 = (ay * ay * c2 - az * az * s2) / det
+        if not (np.isfinite(a2) and np.isfinite(b2)):
+            raise ValueError(f"y_range_um: spans of {2 * ay:g} µm (Y) and {2 * az:g} µm (Z) are too large to sample")
         if a2 < 0 or b2 < 0 or (a2 < b2):
             raise ValueError(f"inclination_deg: no ellipse inclined {self.inclination_deg:g}° to Z has "
                              f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm")
@@ -51,6 +58,10 @@ def validate(e: Ellipse) -> None:
         raise ValueError(f"frequency_hz: must lie in (0, 1000] Hz, got {e.frequency_hz}")
     if not 1 <= e.cycles <= 10_000:
         raise ValueError(f"cycles: must lie in 1–10000, got {e.cycles}")
+    duration_s = (e.cycles + 2 * RAMP_PERIODS) / e.frequency_hz
+    if duration_s > MAX_DURATION_S:
+        raise ValueError(f"cycles: {e.cycles} cycles at {e.frequency_hz:g} Hz (with the start and stop ramps) "
+                         f"last {duration_s:.3g} s; a trajectory may last at most {MAX_DURATION_S:g} s")
     if not -90 <= e.inclination_deg <= 90:
         raise ValueError(f"inclination_deg: must lie in −90–90°, got {e.inclination_deg}")
     e.semi_axes_um()
@@ -78,7 +89,7 @@ class Reference:
         return self.x_um[s:s + self.period]
 
 
-def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = 3) -> Reference:
+def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = RAMP_PERIODS) -> Reference:
     """Sample the ellipse; the frequency must give a whole number of samples per period.
 
     Ramps are raised-cosine windows over ``ramp_periods`` on the centre and the amplitude, so

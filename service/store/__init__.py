@@ -195,11 +195,32 @@ class Store:
         with self.engine.begin() as conn:
             conn.execute(update(tables.jobs).where(tables.jobs.c.id == job_id).values(**fields))
 
+    def update_progress(self, job_id: str, progress: float, message: str | None) -> None:
+        """Progress (0..1) and message of a job still queued or running; a late write after the job
+        ended changes nothing."""
+        with self.engine.begin() as conn:
+            conn.execute(update(tables.jobs).where(tables.jobs.c.id == job_id)
+                         .where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+                         .values(progress=progress, message=message))
+
     def get_job(self, job_id: str) -> dict:
         return self._get(tables.jobs, job_id, "job")
 
     def list_jobs(self, limit: int = 100) -> list[dict]:
         return self._list(tables.jobs, limit=limit, newest_first=True)
+
+    def unfinished_jobs(self) -> list[dict]:
+        """Jobs neither succeeded, failed nor cancelled (queued or running), oldest first."""
+        query = (select(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+                 .order_by(tables.jobs.c.created_at, tables.jobs.c.id))
+        with self.engine.connect() as conn:
+            return [dict(row) for row in conn.execute(query).mappings()]
+
+    def datasets_of_job(self, job_id: str) -> list[dict]:
+        """The datasets a job stored (normally none or one)."""
+        query = select(tables.datasets).where(tables.datasets.c.job_id == job_id).order_by(tables.datasets.c.created_at)
+        with self.engine.connect() as conn:
+            return [dict(row) for row in conn.execute(query).mappings()]
 
     def fail_unfinished_jobs(self, reason: str) -> int:
         """Mark jobs left queued or running by a previous process as failed; returns how many."""

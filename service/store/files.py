@@ -15,17 +15,22 @@ class IntegrityError(RuntimeError):
 
 
 def write_arrays(directory: Path, stem: str, arrays: dict[str, np.ndarray]) -> tuple[Path, str]:
-    """Write ``arrays`` to ``directory/stem.npz`` atomically; return (path, sha256 hex).
-
-    The bytes go to a temporary file in the same directory, are fsync'ed, then renamed over
-    the final name, so a reader never sees a half-written file.
-    """
-    directory.mkdir(parents=True, exist_ok=True)
+    """Write ``arrays`` to ``directory/stem.npz`` atomically; return (path, sha256 hex)."""
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **{k: np.asarray(v) for k, v in arrays.items()})
     data = buffer.getvalue()
     final = directory / f"{stem}.npz"
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{stem}.", suffix=".tmp")
+    write_bytes_atomic(final, data)
+    return final, hashlib.sha256(data).hexdigest()
+
+
+def write_bytes_atomic(final: Path, data: bytes) -> None:
+    """Write ``data`` to ``final`` so that a reader (or a restart after kill -9) sees either the
+    old file or the whole new one: the bytes go to a temporary file in the same directory (named
+    ``.<name>.*.tmp``), are fsync'ed, renamed over the final name, and the directory is fsync'ed."""
+    directory = final.parent
+    directory.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{final.stem}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
@@ -36,7 +41,6 @@ def write_arrays(directory: Path, stem: str, arrays: dict[str, np.ndarray]) -> t
         Path(tmp).unlink(missing_ok=True)
         raise
     _fsync_dir(directory)
-    return final, hashlib.sha256(data).hexdigest()
 
 
 def read_arrays(path: Path, sha256: str) -> dict[str, np.ndarray]:
