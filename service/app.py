@@ -11,6 +11,7 @@ from fastapi import FastAPI
 
 from drivers.bench import Bench
 from service import __version__
+from service.api import admin as admin_api
 from service.api import bench as bench_api
 from service.api import datasets as datasets_api
 from service.api import errors as errors_api
@@ -27,7 +28,7 @@ from service.store import Store
 
 #: Routers mounted under /api, in the order they appear in the docs.
 ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
-           models_api.router, discovery_api.router, trajectories_api.router)
+           models_api.router, discovery_api.router, trajectories_api.router, admin_api.router)
 
 
 def open_configured_bench(settings: Settings) -> Bench:

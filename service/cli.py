@@ -23,7 +23,12 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         port=args.port or defaults.port,
         database_url=args.database_url or defaults.database_url,
     )
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+    from service.safe_shutdown import install
+
+    app = create_app(settings)
+    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
+    install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
+    server.run()
     return 0
 
 

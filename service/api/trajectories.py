@@ -16,7 +16,7 @@ from service.control.safety import ControlRefused
 from service.control.session import Controller, plan, track
 from service.control.trajectory import Ellipse
 from service.errors import FieldError
-from service.jobs import JobContext, JobManager
+from service.jobs import JobContext, JobInterrupted, JobManager
 from service.modelling import load_model
 from service.store import NotFoundError, Store, utc_now
 
@@ -123,11 +123,14 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
         "name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
         "axes": list(bench.axes), "sample_rate_hz": ref.sample_rate_hz, "blocks": [], "plan": params,
         "config": bench_snapshot(bench), "units": units, "partial": bool(result["tripped"] or result["stopped"]),
-        "partial_reason": result["tripped"], "job_id": ctx.job_id, "started_at": started_at,
+        "partial_reason": result["tripped"] or rec.stop_reason, "job_id": ctx.job_id, "started_at": started_at,
         "finished_at": utc_now()})
     result["dataset_id"] = row["id"]
+    kept = f"{n} samples kept as partial dataset {row['id']}"
     if result["tripped"]:
-        raise RuntimeError(f"tripped: {result['tripped']} (traces kept in dataset {row['id']})")
+        raise JobInterrupted(f"tripped: {result['tripped']}: {kept}", result)
+    if result["stopped"]:
+        raise JobInterrupted(f"{rec.stop_reason or 'stopped on request'}: {kept}", result, cancelled=True)
     return result
 
 
