@@ -118,9 +118,10 @@ class EmulatedDaq:
         """AO to 0 V, then let the world run idle until the amplifier outputs are below 10 mV."""
         if self._closed:
             return
+        t0 = self.world.time_s
         self.world.idle()
         self.world.faults.idle_written()
-        self.world.output_log.record("idle")
+        self.world.output_log.record("idle", zero_from_t_s=round(t0, 6))
 
     def close(self) -> None:
         if not self._closed:

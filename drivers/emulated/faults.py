@@ -49,7 +49,8 @@ class FaultUnavailable(ValueError):
 
 @dataclass
 class Fault:
-    """One scheduled fault. ``fired_at_s`` is the session time it fired at (s), None while armed."""
+    """One scheduled fault. ``fired_at_s`` is the session time it fired at (s), None while armed;
+    ``world_t_s`` the emulator's clock then (as in the output log)."""
 
     id: int
     kind: str
@@ -58,6 +59,7 @@ class Fault:
     source: str
     state: str = "armed"
     fired_at_s: float | None = None
+    world_t_s: float | None = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -176,7 +178,7 @@ class FaultInjector:
         with self._lock:
             due = [f for f in self._faults if f.state == "armed" and f.after_s <= now + 1e-9]
             for f in due:
-                f.state, f.fired_at_s = "fired", now
+                f.state, f.fired_at_s, f.world_t_s = "fired", now, self.world.time_s
         for f in due:
             self._fire(f, now)
 

@@ -2,7 +2,8 @@
 
 The emulated DAQ records one entry per write (a buffered block, a point-by-point period, a 0 V
 write, the close): emulated time ``t_s``, the last DAQ volts applied to each amplifier input
-``daq_ao_v`` and each amplifier's output ``amplifier_v`` (actuator volts, noise-free). The last
+``daq_ao_v`` and each amplifier's output ``amplifier_v`` (actuator volts, noise-free); an "idle"
+entry (a 0 V write) also has ``zero_from_t_s``, the emulated time the 0 V write began. The last
 ``keep`` entries stay in memory (``entries()``, ``last()``); with ``[emulator] output_log = PATH``
 each entry is also appended to PATH as one JSON line, flushed at once, so a test can read what a
 separate ``evcbench serve`` process applied, e.g. after SIGTERM::
@@ -46,13 +47,13 @@ class OutputLog:
         self._lock = threading.Lock()
         self._file = open(self.path, "a", buffering=1) if self.path else None
 
-    def record(self, event: str) -> dict:
-        """Append the world's present amplifier inputs and outputs as one entry."""
+    def record(self, event: str, **extra) -> dict:
+        """Append the world's present amplifier inputs and outputs as one entry (plus ``extra``)."""
         ao = self.world.applied_ao_v()
         vout = self.world.amplifier_output_v()
         entry = {"t_s": round(self.world.time_s, 6), "event": event,
                  "daq_ao_v": {a: float(ao[i]) for i, a in enumerate(AXES)},
-                 "amplifier_v": {a: float(vout[i]) for i, a in enumerate(AXES)}}
+                 "amplifier_v": {a: float(vout[i]) for i, a in enumerate(AXES)}, **extra}
         with self._lock:
             self._entries.append(entry)
             if self._file is not None:
