@@ -181,16 +181,18 @@ class Bench(LimitsMixin):
             for start in range(0, n, block_samples):
                 if start and should_stop is not None and should_stop():
                     self.request_stop()
-                why = session.interrupted()
-                if why:
-                    raise self._interrupted(why, chunks_u, chunks_ai, actual, stopped=not self.tripped)
                 stop = min(start + block_samples, n)
                 ao = np.zeros((stop - start, n_ao))
+                blocks = {}
                 for axis in self.axes:
-                    block = self.clamp_block(axis, commands[axis][start:stop], previous[axis], actual)
-                    previous[axis] = float(block[-1])
-                    chunks_u[axis].append(block)
-                    ao[:, self.parts.ao_channel[axis]] = block / self.parts.amplifiers[axis].gain_v_per_v
+                    blocks[axis] = self.clamp_block(axis, commands[axis][start:stop], previous[axis], actual)
+                    ao[:, self.parts.ao_channel[axis]] = blocks[axis] / self.parts.amplifiers[axis].gain_v_per_v
+                why = session.interrupted()   # checked right before the write: nothing leaves after a stop
+                if why:
+                    raise self._interrupted(why, chunks_u, chunks_ai, actual, stopped=not self.tripped)
+                for axis in self.axes:
+                    previous[axis] = float(blocks[axis][-1])
+                    chunks_u[axis].append(blocks[axis])
                 try:
                     chunks_ai.append(daq.write_read(ao))
                 except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far

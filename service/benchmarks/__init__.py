@@ -13,6 +13,7 @@ BENCHMARKS: dict[str, str] = {
     "identification": "service.benchmarks.identification:run_identification_benchmark",
     "control": "service.benchmarks.control:run_control_benchmark",
     "discovery": "service.benchmarks.discovery:run_discovery_benchmark",
+    "safety": "service.benchmarks.safety:run_safety_benchmark",
 }
 
 
