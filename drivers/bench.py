@@ -198,7 +198,9 @@ class Bench(LimitsMixin):
                 except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far
                     for axis in self.axes:
                         chunks_u[axis].pop()
-                    raise self._interrupted(self.tripped or f"daq: {exc}", chunks_u, chunks_ai, actual) from exc
+                    why = session.interrupted()   # a write abandoned by a stop or a watchdog trip says so
+                    raise self._interrupted(why or f"daq: {exc}", chunks_u, chunks_ai, actual,
+                                            stopped=bool(why) and not self.tripped) from exc
                 session.feed(stop - start)
                 fault = self.fault_reason()
                 if fault:

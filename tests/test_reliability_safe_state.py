@@ -201,3 +201,23 @@ def test_sigterm_drives_a_live_service_to_zero_volts_and_cancels_its_job(tmp_pat
         assert ds["partial"] is True and ds["partial_reason"] == "stopped by SIGTERM" and ds["samples"] > 0
     finally:
         store.close()
+
+
+def test_emergency_stop_of_a_stalled_loop_writes_zero_volts_itself(service):
+    """The loop does not answer (stalled in a write): the stop writes 0 V from the request's thread
+    after [safety] stop_wait_s (0.5 s), before the watchdog's 1 s, and the job is cancelled."""
+    app, http, stops = service
+    assert http.post("/api/admin/faults", json={"fault": "loop_stall", "after_s": 0.2}).status_code == 201
+    job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
+    deadline = time.monotonic() + 60
+    while http.get("/api/admin/faults").json()["faults"][0]["state"] != "fired":
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    answer = http.post("/api/bench/stop").json()
+    assert answer["loop_answered"] is False and answer["cancelled_job_id"] == job_id
+    job = _wait(http, job_id, _ended)
+    assert job["state"] == "cancelled" and job["message"].startswith("emergency stop: "), job
+    assert app.state.bench.watchdog.last_trip is None          # the stop came first
+    idle, between = _first_zero_after(app, stops[0])
+    assert between == [] and idle["daq_ao_v"] == {"y": 0.0, "z": 0.0}
+    assert round(idle["zero_from_t_s"] * FS) == round(0.2 * FS)   # nothing was written after the stall began

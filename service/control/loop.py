@@ -119,7 +119,8 @@ class Tracker:
                 else:
                     self._run_buffered(rec, on_period, should_stop, session)
             except DriverError as exc:  # a transport or the DAQ failed mid-run: keep what was measured
-                rec.tripped = self.bench.tripped or f"daq: {exc}"
+                if not self._interrupted(rec, session):   # unless a stop or the watchdog abandoned the write
+                    rec.tripped = f"daq: {exc}"
         if self.ilc is not None:
             rec.ilc_stop_reason = self.ilc.stop_reason
         return rec
