@@ -13,7 +13,9 @@ Each fault fires once, ``after_s`` seconds (emulated time) after the start of th
     loop_stall             the loop stops writing samples (its next write blocks) until
                            someone drives the output to 0 V (the watchdog), then fails
 
-Sensor and amplifier faults act on the world's state at the exact sample (blocks are split).
+Sensor and amplifier faults act on the world's state at the exact sample of a buffered write (the
+block is split); in a compiled point-by-point run (one period per call) every fault fires at the
+first period boundary at or after its time, at most one period late.
 Serial and CAN faults act at the transport (the pty and the CAN bus of drivers/emulated/wire/), so
 the real drivers' error handling runs. Faults come from the ``[faults]`` table of a bench
 configuration (``[faults.sensor_dropout] axis = "z"  after_s = 0.4``) or from ``add`` (the
