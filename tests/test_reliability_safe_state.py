@@ -221,3 +221,34 @@ def test_emergency_stop_of_a_stalled_loop_writes_zero_volts_itself(service):
     idle, between = _first_zero_after(app, stops[0])
     assert between == [] and idle["daq_ao_v"] == {"y": 0.0, "z": 0.0}
     assert round(idle["zero_from_t_s"] * FS) == round(0.2 * FS)   # nothing was written after the stall began
+
+
+def test_a_stop_during_the_ilc_response_measurement_ends_the_whole_experiment():
+    """ILC runs two sessions (response measurement, then tracking); a stop in the first must not let
+    the second drive the bench."""
+    from contextlib import contextmanager
+
+    from service.control.loop import StopRequested
+
+    bench = open_bench("default", seed=4)
+    sessions = []
+    original = bench.session
+
+    @contextmanager
+    def session(*args, **kwargs):
+        with original(*args, **kwargs) as s:
+            sessions.append(bench.parts.world.time_s)
+            bench.request_stop("emergency stop")   # as if POST /api/bench/stop arrived now
+            yield s
+
+    bench.session = session
+    try:
+        with pytest.raises(StopRequested, match="emergency stop"):
+            track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, 20), Controller(pid=TUNED_PID, ilc=True))
+        assert len(sessions) == 1                                   # the tracking session never opened
+        drive = [e for e in bench.parts.world.output_log.entries() if e["event"] in ("block", "period")]
+        assert all(max(abs(v) for v in e["daq_ao_v"].values()) == 0.0 for e in drive)   # settle only: 0 V
+        assert bench.parts.world.output_log.last()["daq_ao_v"] == {"y": 0.0, "z": 0.0}
+    finally:
+        del bench.session
+        bench.close()

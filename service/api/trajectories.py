@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from drivers.bench import Bench
 from service.acquisition import bench_snapshot
 from service.api.deps import get_bench, get_jobs, get_store
-from service.control.loop import PIDGains
+from service.control.loop import PIDGains, StopRequested
 from service.control.safety import ControlRefused
 from service.control.session import Controller, plan, track
 from service.control.trajectory import Ellipse
@@ -111,7 +111,12 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
         ctx.progress(min(0.97, (p + 1) / total), msg)
 
     started_at = utc_now()
-    result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period, should_stop=lambda: ctx.cancelled)
+    try:
+        result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period,
+                                 should_stop=lambda: ctx.cancelled)
+    except StopRequested as exc:
+        raise JobInterrupted(f"{exc.reason} while measuring the response for the ILC; nothing stored",
+                             None, cancelled=True) from None
     n = rec.samples
     arrays = {"t_s": np.arange(n) / ref.sample_rate_hz}
     for i, ax in enumerate(bench.axes):

@@ -25,6 +25,15 @@ QUEUED_BLOCKS = 2   # buffered streaming: blocks in flight ahead of the one bein
 SETTLE_S = 0.05     # 0 V held before each run so earlier motion has died out
 
 
+class StopRequested(RuntimeError):
+    """A run that other runs depend on (the ILC's response measurement) was stopped on request;
+    nothing may drive the bench after it in the same experiment. ``reason`` says who stopped it."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
 @dataclass(frozen=True)
 class PIDGains:
     """Paper eq. 19 gains: kp V/µm, ki V/(µm·s), kd V·s/µm; derivative filter time constant tf_s."""
