@@ -138,6 +138,14 @@ class JobManager:
             self.cancel(job_id, reason)
         return job_id
 
+    def cancel_queued_bench_jobs(self, reason: str | None = None) -> list[str]:
+        """Cancel every bench job still waiting for the bench (an emergency stop keeps it still)."""
+        with self._lock:
+            ids = [i for i, live in self._live.items() if live.needs_bench and live.state == "queued"]
+        for job_id in ids:
+            self.cancel(job_id, reason)
+        return ids
+
     async def events(self, job_id: str) -> AsyncIterator[str]:
         """Server-sent events: a ``progress`` event on every change, then ``end`` with the final job."""
         self.store.get_job(job_id)  # NotFoundError before the stream starts

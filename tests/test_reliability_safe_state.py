@@ -138,9 +138,13 @@ def _assert_stopped(app, http, job_id, stops, max_samples: int) -> dict:
 def test_emergency_stop_preempts_a_sweep_within_one_block(service):
     app, http, stops = service
     job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
+    queued_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
     _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
     answer = http.post("/api/bench/stop")
     assert answer.status_code == 200 and answer.json()["cancelled_job_id"] == job_id
+    assert answer.json()["cancelled_queued_job_ids"] == [queued_id]    # the bench stays still
+    queued = http.get(f"/api/jobs/{queued_id}").json()
+    assert queued["state"] == "cancelled" and queued["message"] == "emergency stop" and queued["started_at"] is None
     assert answer.json()["loop_answered"] is True
     assert max(abs(v) for v in answer.json()["output_v"].values()) < 0.05
     _assert_stopped(app, http, job_id, stops, max_samples=BLOCK)
