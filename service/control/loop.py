@@ -118,7 +118,9 @@ class Tracker:
         """Run every period; returns the record (``tripped`` says why it ended early)."""
         n = self.ref.x_um.shape[0]
         rec = TrackRecord(x_um=np.full((n, 2), np.nan), u_v=np.zeros((n, 2)), ref_um=self.ref.x_um, samples=0)
-        compiled = self._compiled_runner() if self.mode == "point_by_point" else None  # before the watchdog
+        # compile before the watchdog is armed (compiling can take seconds on a fresh numba cache)
+        compiled = self._compiled_runner() if self.mode == "point_by_point" else None
+        CK.watch_block(self.ref.x_um[:0], rec.x_um[:0], self.trip, np.zeros(2))
         with self.bench.session(period_s=self.ref.period / self.fs, name="a tracking run") as session:
             self.bench.configure(self.fs)
             try:
