@@ -72,6 +72,32 @@ class BenchRecord:
         return np.arange(self.samples) / self.sample_rate_hz
 
 
+class _Acquired:
+    """The samples of one buffered run in preallocated arrays, so adding a block and viewing the
+    record so far cost O(block), never O(run) (a long sweep must not look like a stalled loop)."""
+
+    def __init__(self, bench: "Bench", n: int, rate_hz: float):
+        self.bench, self.rate_hz, self.done = bench, rate_hz, 0
+        self.u = {a: np.empty(n) for a in bench.axes}
+        self.x = {a: np.empty(n) for a in bench.axes}
+
+    def add(self, u_blocks: Mapping[str, np.ndarray], ai: np.ndarray) -> None:
+        parts, k = self.bench.parts, len(ai)
+        for a in self.bench.axes:
+            self.u[a][self.done:self.done + k] = u_blocks[a]
+            self.x[a][self.done:self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
+        self.done += k
+
+    def record(self) -> BenchRecord:
+        return BenchRecord(sample_rate_hz=self.rate_hz, u_cmd_v={a: v[:self.done] for a, v in self.u.items()},
+                           x_um={a: v[:self.done] for a, v in self.x.items()})
+
+    def interrupted(self, reason: str, stopped: bool = False) -> RunInterrupted:
+        record = self.record()
+        record.partial, record.reason = True, reason
+        return RunInterrupted(reason, record, stopped=stopped)
+
+
 class Bench(LimitsMixin):
     """A two-axis piezo bench behind driver interfaces. Thread-safe: one run at a time."""
 
@@ -175,8 +201,7 @@ class Bench(LimitsMixin):
             daq = self.parts.daq
             n_ao = daq.capabilities.ao_channels
             commands = {axis: np.asarray(u_v.get(axis, np.zeros(n)), dtype=float) for axis in self.axes}
-            chunks_u: dict[str, list[np.ndarray]] = {axis: [] for axis in self.axes}
-            chunks_ai: list[np.ndarray] = []
+            acquired = _Acquired(self, n, actual)
             previous = {axis: 0.0 for axis in self.axes}
             for start in range(0, n, block_samples):
                 if start and should_stop is not None and should_stop():
@@ -189,31 +214,21 @@ class Bench(LimitsMixin):
                     ao[:, self.parts.ao_channel[axis]] = blocks[axis] / self.parts.amplifiers[axis].gain_v_per_v
                 why = session.interrupted()   # checked right before the write: nothing leaves after a stop
                 if why:
-                    raise self._interrupted(why, chunks_u, chunks_ai, actual, stopped=not self.tripped)
-                for axis in self.axes:
-                    previous[axis] = float(blocks[axis][-1])
-                    chunks_u[axis].append(blocks[axis])
+                    raise acquired.interrupted(why, stopped=not self.tripped)
+                previous = {axis: float(blocks[axis][-1]) for axis in self.axes}
                 try:
-                    chunks_ai.append(daq.write_read(ao))
+                    ai = daq.write_read(ao)
                 except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far
-                    for axis in self.axes:
-                        chunks_u[axis].pop()
                     why = session.interrupted()   # a write abandoned by a stop or a watchdog trip says so
-                    raise self._interrupted(why or f"daq: {exc}", chunks_u, chunks_ai, actual,
-                                            stopped=bool(why) and not self.tripped) from exc
+                    raise acquired.interrupted(why or f"daq: {exc}", stopped=bool(why) and not self.tripped) from exc
+                acquired.add(blocks, ai)
                 session.feed(stop - start)
                 fault = self.fault_reason()
                 if fault:
-                    raise self._interrupted(f"{fault} (run stopped at t={stop / actual:.2f} s)", chunks_u,
-                                            chunks_ai, actual)
+                    raise acquired.interrupted(f"{fault} (run stopped at t={stop / actual:.2f} s)")
                 if on_block is not None:
-                    on_block(self._record(chunks_u, chunks_ai, actual), stop / n)
-            return self._record(chunks_u, chunks_ai, actual)
-
-    def _interrupted(self, reason: str, chunks_u, chunks_ai, rate: float, stopped: bool = False) -> RunInterrupted:
-        record = self._record(chunks_u, chunks_ai, rate)
-        record.partial, record.reason = True, reason
-        return RunInterrupted(reason, record, stopped=stopped)
+                    on_block(acquired.record(), stop / n)
+            return acquired.record()
 
     def step(self, u_v: Mapping[str, float]) -> dict[str, float]:
         """Point-by-point: apply one clamped sample per axis and return x_um per axis."""
@@ -295,12 +310,6 @@ class Bench(LimitsMixin):
             "modes": {"buffered": daq.capabilities.buffered, "point_by_point": daq.capabilities.point_by_point,
                       "point_by_point_reason": daq.capabilities.point_by_point_reason},
         }
-
-    def _record(self, chunks_u, chunks_ai, rate) -> BenchRecord:
-        ai = np.concatenate(chunks_ai) if chunks_ai else np.zeros((0, self.parts.daq.capabilities.ai_channels))
-        x = {a: ai[:, self.parts.ai_channel[a]] * self.parts.sensors[a].scale_um_per_v for a in self.axes}
-        u = {a: np.concatenate(chunks_u[a]) if chunks_u[a] else np.zeros(0) for a in self.axes}
-        return BenchRecord(sample_rate_hz=rate, u_cmd_v=u, x_um=x)
 
     def fault_reason(self) -> str | None:
         """The first amplifier fault or sensor loss, in words, or None when every part is healthy."""
