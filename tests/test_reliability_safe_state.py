@@ -256,3 +256,28 @@ def test_a_stop_during_the_ilc_response_measurement_ends_the_whole_experiment():
     finally:
         del bench.session
         bench.close()
+
+
+def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
+    """safe_shutdown.install wraps uvicorn's handler: 0 V and the job cancelled first, then uvicorn's."""
+    import signal
+
+    from service.safe_shutdown import install
+
+    app, http, stops = service
+    calls = []
+
+    class FakeServer:
+        def handle_exit(self, sig, frame):
+            calls.append((sig, app.state.bench.describe()["safety"]["running"]))
+
+    server = FakeServer()
+    install(server, app)
+    job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
+    _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    server.handle_exit(signal.SIGINT, None)
+    assert calls == [(signal.SIGINT, False)]          # uvicorn's handler ran after the loop had stopped
+    job = _wait(http, job_id, _ended)
+    assert job["state"] == "cancelled" and job["message"].startswith("stopped by SIGINT: "), job
+    idle, between = _first_zero_after(app, stops[0])
+    assert between == [] and round((idle["zero_from_t_s"] - stops[0]) * FS) <= BLOCK
