@@ -162,3 +162,29 @@ def test_output_log_file_records_the_applied_voltages(tmp_path: Path):
     assert entries[0]["event"] == "block" and entries[0]["daq_ao_v"]["y"] == pytest.approx(30.0 / 20.0, abs=1e-3)
     assert entries[-1]["event"] == "close" and entries[-1]["daq_ao_v"] == {"y": 0.0, "z": 0.0}
     assert abs(entries[-1]["amplifier_v"]["y"]) < 0.05
+
+
+TRAJECTORY = {"y_range_um": [1, 6], "z_range_um": [1, 11], "frequency_hz": 100, "cycles": 60,
+              "controller": {"pid": {"kp_y": 1.0, "ki_y": 300.0, "kd_y": 0.01, "kp_z": 1.0, "ki_z": 300.0,
+                                     "kd_z": 0.01, "tf_s": 2e-4}}}
+
+
+@pytest.mark.parametrize("fault,axis,words", [
+    ("sensor_dropout", "y", "gauge y: dropout (injected at t=0.30 s)"),
+    ("sensor_saturation", "z", "sensor at the end of its range or lost"),
+    ("amplifier_overcurrent", "z", "amplifier z: over-current"),
+    ("daq_underflow", None, "daq: AO buffer underflow at t=0.30 s"),
+], ids=["sensor_dropout", "sensor_saturation", "amplifier_overcurrent", "daq_underflow"])
+def test_faults_during_a_point_by_point_trajectory(app_client, fault, axis, words):
+    app, http = app_client
+    assert http.post("/api/admin/faults", json={"fault": fault, "axis": axis, "after_s": 0.3}).status_code == 201
+    started = http.post("/api/trajectories", json=TRAJECTORY)
+    assert started.status_code == 202
+    job = _wait(http, started.json()["job_id"])
+    assert job["state"] == "failed" and job["error"].startswith("tripped: ") and words in job["error"], job
+    ds = http.get(f"/api/datasets/{job['result']['dataset_id']}").json()
+    # the run (after 50 ms of settling) reached the fault's period: 0.25 s of tracking, to one period more
+    assert ds["partial"] is True and int(0.25 * FS) <= ds["samples"] <= int(0.25 * FS) + 200
+    data = http.get(f"/api/datasets/{ds['id']}/data").json()
+    assert len(data["x_y_um"]) == len(data["ref_z_um"]) == ds["samples"]
+    _assert_zero_volts(app)

@@ -152,6 +152,13 @@ class Tracker:
             rec.stopped, rec.stop_reason = True, why
         return why is not None
 
+    def _trip_reason(self, status: int, rec: TrackRecord) -> str:
+        """The watch's trip in words, naming the device fault behind it when there is one (an amplifier
+        that tripped to 0 V makes the tracking error diverge)."""
+        fault = self.bench.fault_reason()
+        cause = f"{CK.TRIP_REASONS[status]} ({fault})" if fault else CK.TRIP_REASONS[status]
+        return f"{cause} at {rec.samples / self.fs * 1e3:.1f} ms; output set to 0 V"
+
     def _end_period(self, p, rec, on_period, should_stop, session) -> bool:
         session.feed(self.ref.period)
         reason = self.bench.fault_reason()
@@ -205,7 +212,7 @@ class Tracker:
                 return
             if status != CK.OK:
                 self.bench.parts.daq.write_idle()
-                rec.tripped = f"{CK.TRIP_REASONS[status]} at {rec.samples / self.fs * 1e3:.1f} ms; output set to 0 V"
+                rec.tripped = self._trip_reason(status, rec)
                 return
             if self._end_period(p, rec, on_period, should_stop, session):
                 return
@@ -233,7 +240,7 @@ class Tracker:
             rec.samples = p * N + (done if status != CK.OK else N)
             if status != CK.OK:
                 daq.write_idle()
-                rec.tripped = f"{CK.TRIP_REASONS[status]} at {rec.samples / self.fs * 1e3:.1f} ms; output set to 0 V"
+                rec.tripped = self._trip_reason(status, rec)
                 return
             if self._end_period(p, rec, on_period, should_stop, session):
                 return
