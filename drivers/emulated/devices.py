@@ -107,7 +107,8 @@ class EmulatedDaq:
 
         def take_noise(n: int):
             """Once per period: log the output, fire the faults due within the next n samples."""
-            world.output_log.record("period")
+            if n:
+                world.output_log.record("period")
             if world.faults.samples_until_due(n) is not None:
                 world.faults.fire_due()
             return world.take_noise(n)
