@@ -24,6 +24,7 @@ import numpy as np
 
 from drivers.interfaces import AxisLimits, BenchParts, DriverError, LimitError, NotSupportedError
 from drivers.limits import ACTUATOR_V_MAX, ACTUATOR_V_MIN, RESONANCE_FRACTION, LimitsMixin  # noqa: F401 (re-exported)
+from drivers.live import LiveMonitor
 from drivers.watchdog import SafetyConfig, Watchdog
 
 STOPPED_ON_REQUEST = "stopped on request"
@@ -88,6 +89,10 @@ class _Acquired:
             self.x[a][self.done:self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
         self.done += k
 
+    def last_x_um(self, k: int) -> dict[str, np.ndarray]:
+        """The last ``k`` displacement samples per axis (µm), as views."""
+        return {a: v[self.done - k:self.done] for a, v in self.x.items()}
+
     def record(self) -> BenchRecord:
         return BenchRecord(sample_rate_hz=self.rate_hz, u_cmd_v={a: v[:self.done] for a, v in self.u.items()},
                            x_um={a: v[:self.done] for a, v in self.x.items()})
@@ -126,6 +131,8 @@ class Bench(LimitsMixin):
         self._closed = False
         self.safety = SafetyConfig.from_config(parts.config.get("safety"))
         self.watchdog = Watchdog(parts.daq, self.safety, on_trip=self._on_watchdog_trip)
+        #: decimated live signals of whatever the bench streams (see drivers/live.py)
+        self.live = LiveMonitor(self.axes)
 
     # ------------------------------------------------------------------ running
     def configure(self, sample_rate_hz: float) -> float:
@@ -203,6 +210,7 @@ class Bench(LimitsMixin):
             commands = {axis: np.asarray(u_v.get(axis, np.zeros(n)), dtype=float) for axis in self.axes}
             acquired = _Acquired(self, n, actual)
             previous = {axis: 0.0 for axis in self.axes}
+            self.live.begin(actual, "buffered run")
             for start in range(0, n, block_samples):
                 if start and should_stop is not None and should_stop():
                     self.request_stop()
@@ -222,6 +230,7 @@ class Bench(LimitsMixin):
                     why = session.interrupted()   # a write abandoned by a stop or a watchdog trip says so
                     raise acquired.interrupted(why or f"daq: {exc}", stopped=bool(why) and not self.tripped) from exc
                 acquired.add(blocks, ai)
+                self.live.push(blocks, acquired.last_x_um(len(ai)))
                 session.feed(stop - start)
                 fault = self.fault_reason()
                 if fault:

@@ -12,6 +12,7 @@ from fastapi import FastAPI
 from drivers.bench import Bench
 from service import __version__
 from service.api import admin as admin_api
+from service.api import auth as auth_api
 from service.api import bench as bench_api
 from service.api import datasets as datasets_api
 from service.api import errors as errors_api
@@ -20,15 +21,21 @@ from service.api import discovery as discovery_api
 from service.api import jobs as jobs_api
 from service.api import models as models_api
 from service.api import sweeps as sweeps_api
+from service.api import tokens as tokens_api
 from service.api import trajectories as trajectories_api
 from service.api import web as web_api
+from service.auth import ensure_bootstrap_token
+from service.binding import is_loopback
 from service.jobs import JobManager
 from service.settings import Settings
 from service.store import Store
 
-#: Routers mounted under /api, in the order they appear in the docs.
+#: Routers mounted under /api, in the order they appear in the docs. Every one but health needs a
+#: token (service/api/auth.py): read for GET/HEAD, operate for writes, admin under /api/admin.
 ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
-           models_api.router, discovery_api.router, trajectories_api.router, admin_api.router)
+           models_api.router, discovery_api.router, trajectories_api.router, tokens_api.router,
+           admin_api.router)
+OPEN_ROUTERS = (health_api.router,)
 
 
 def open_configured_bench(settings: Settings) -> Bench:
@@ -39,8 +46,11 @@ def open_configured_bench(settings: Settings) -> Bench:
 
 
 def create_app(settings: Settings | None = None, bench_factory: Callable[[Settings], Bench] | None = None) -> FastAPI:
-    """Build the app. The bench is opened on start-up and left at 0 V and closed on shut-down."""
+    """Build the app. The bench is opened on start-up and left at 0 V and closed on shut-down.
+    With auth on, start-up also writes the bootstrap admin token to <data_dir>/admin.token."""
     settings = settings or Settings()
+    if settings.auth == "off" and not is_loopback(settings.host):
+        raise ValueError(f"auth 'off' is allowed only on loopback, not on host {settings.host!r}")
     factory = bench_factory or open_configured_bench
 
     @asynccontextmanager
@@ -50,6 +60,8 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
         app.state.started_at = time.time()
         app.state.store = Store(settings.resolved_database_url, settings.data_dir)
         try:
+            if settings.auth == "tokens":
+                ensure_bootstrap_token(app.state.store, settings.data_dir)
             app.state.bench = factory(settings)
             try:
                 app.state.jobs = JobManager(app.state.store, on_cancel_bench=app.state.bench.request_stop)
@@ -65,8 +77,11 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
     app = FastAPI(title="EVC Bench", version=__version__, lifespan=lifespan,
                   description="Characterise, model and control a two-axis piezo EVC bench. Units live in "
                               "field names: _v volts at the actuator, _um micrometres, _hz, _s.")
+    app.state.settings = settings  # also before start-up, for tests that seed tokens
     errors_api.install(app)
+    auth_api.install(app)
     for router in ROUTERS:
-        app.include_router(router, prefix="/api")
+        app.include_router(router, prefix="/api",
+                           dependencies=[] if router in OPEN_ROUTERS else auth_api.REQUIRE_TOKEN)
     web_api.mount(app)  # the dashboard's static files at /web, after the API routes
     return app

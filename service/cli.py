@@ -22,9 +22,15 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         host=args.host or defaults.host,
         port=args.port or defaults.port,
         database_url=args.database_url or defaults.database_url,
+        auth=args.auth or defaults.auth,
     )
+    from service.cli_tokens import serve_refusal
     from service.safe_shutdown import install
 
+    refusal = serve_refusal(settings)
+    if refusal:
+        print(f"evcbench serve: {refusal}", file=sys.stderr)
+        return 2
     app = create_app(settings)
     server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
     install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
@@ -53,13 +59,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     serve = sub.add_parser("serve", help="start the REST service")
-    serve.add_argument("--host", help="bind address (default 127.0.0.1)")
+    serve.add_argument("--host", help="bind address (default 127.0.0.1; any other address needs auth on and "
+                       "a token from `evcbench token create`)")
     serve.add_argument("--port", type=int, help="TCP port (default 8000)")
     serve.add_argument("--data-dir", type=__import__("pathlib").Path, help="store directory (default ./var)")
     serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
     serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")
     serve.add_argument("--database-url", help="SQLAlchemy URL of the metadata database "
                        "(default: SQLite in the data dir; env EVCBENCH_DATABASE_URL)")
+    serve.add_argument("--auth", choices=("tokens", "off"),
+                       help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)")
     serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
@@ -67,9 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true", help="print one JSON object")
     bench.set_defaults(func=_cmd_bench)
 
-    from service.cli_remote import add_commands
+    from service import cli_remote, cli_tokens
 
-    add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
+    cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
+    cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
     return parser
 
 

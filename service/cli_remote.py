@@ -18,6 +18,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         p = sub.add_parser(name, help=help_text)
         p.add_argument("--url", default=os.environ.get("EVCBENCH_URL", DEFAULT_URL),
                        help=f"service address (default {DEFAULT_URL}, env EVCBENCH_URL)")
+        p.add_argument("--token", help="API token (default: env EVCBENCH_TOKEN, or for a local service "
+                       "<data dir>/admin.token, the data dir from EVCBENCH_DATA_DIR or ./var)")
         p.add_argument("--json", action="store_true", help="print the raw JSON answer")
         p.set_defaults(func=lambda args: _guarded(func, args))
         return p
@@ -193,11 +195,14 @@ class ProgressBar:
 
 def _guarded(func, args) -> int:
     try:
-        with Client(args.url) as api:
+        with Client(args.url, token=args.token) as api:
             return func(api, args)
     except ApiError as exc:
         field = f" [{exc.field}]" if exc.field else ""
         print(f"error {exc.status_code}{field}: {exc.detail}", file=sys.stderr)
+        if exc.status_code == 401:
+            print("hint: pass --token or set EVCBENCH_TOKEN; a local service's admin token is <data dir>/admin.token, "
+                  "found when EVCBENCH_DATA_DIR (default ./var) names that data dir", file=sys.stderr)
         return 2
     except httpx.TransportError as exc:
         print(f"error: cannot reach the service at {args.url}: {exc}", file=sys.stderr)

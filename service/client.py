@@ -7,15 +7,20 @@
     print(api.compare(model["id"], job["result"]["dataset_id"])["metrics"])
 
 Every non-2xx answer raises ApiError with the server's ``detail`` and the ``field`` at fault.
+The API token is ``token=``, else $EVCBENCH_TOKEN, else (for a loopback URL) the local service's
+bootstrap token in <data_dir>/admin.token (data_dir: ``data_dir=``, $EVCBENCH_DATA_DIR or ./var).
 """
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 import httpx
+
+from service.binding import is_loopback
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
@@ -30,11 +35,30 @@ class ApiError(RuntimeError):
         self.status_code, self.detail, self.field = status_code, detail, field
 
 
-class Client:
-    """Talks to one service. ``http`` may be any httpx.Client (e.g. FastAPI's TestClient)."""
+def resolve_token(base_url: str, token: str | None = None, data_dir: str | Path | None = None) -> str | None:
+    """The token to send: ``token``, $EVCBENCH_TOKEN, or <data_dir>/admin.token for a loopback URL."""
+    token = token or os.environ.get("EVCBENCH_TOKEN")
+    if token or not is_loopback(httpx.URL(base_url).host):
+        return token or None
+    path = Path(data_dir or os.environ.get("EVCBENCH_DATA_DIR") or "var") / "admin.token"
+    try:
+        return path.read_text().strip() or None
+    except OSError:
+        return None
 
-    def __init__(self, base_url: str = DEFAULT_URL, timeout_s: float = 60.0, http: httpx.Client | None = None):
-        self.http = http or httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout_s)
+
+class Client:
+    """Talks to one service. ``http`` may be any httpx.Client (e.g. FastAPI's TestClient), whose
+    own headers then carry the token unless ``token`` is given."""
+
+    def __init__(self, base_url: str = DEFAULT_URL, timeout_s: float = 60.0, http: httpx.Client | None = None,
+                 token: str | None = None, data_dir: str | Path | None = None):
+        if http is None:
+            http = httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout_s)
+            token = resolve_token(base_url, token, data_dir)
+        if token:
+            http.headers["Authorization"] = f"Bearer {token}"
+        self.http = http
 
     def close(self) -> None:
         self.http.close()

@@ -124,7 +124,7 @@ def history(store: Store, model_id: str) -> list[dict]:
             removed = [e for e in prev if e not in effects]
             change = ", ".join([f"+{e}" for e in added] + [f"-{e}" for e in removed]) or "refit"
         out.append({"model_id": r["id"], "parent_id": r["parent_id"], "effects": ["hysteresis"] + effects,
-                    "change": change, "train_rms_um": r["metrics"].get("train_rms_um"),
+                    "change": change, "datasets": list(r["datasets"]), "train_rms_um": r["metrics"].get("train_rms_um"),
                     "validation_rms_um": r["metrics"].get("validation_rms_um"), "created_at": r["created_at"]})
         prev = effects
     return out

@@ -13,6 +13,7 @@ class Settings:
     ``bench`` names a file in fixtures/benches/ (or a path to one); ``seed`` makes the
     emulated bench reproducible. ``host`` defaults to loopback. ``database_url`` is an
     SQLAlchemy URL (``postgresql+psycopg://…``); empty means SQLite in ``data_dir``.
+    ``auth`` is ``tokens`` (every /api route but health needs a token) or ``off`` (loopback only).
     """
 
     data_dir: Path = field(default_factory=lambda: Path(os.environ.get("EVCBENCH_DATA_DIR", "var")))
@@ -21,6 +22,11 @@ class Settings:
     host: str = field(default_factory=lambda: os.environ.get("EVCBENCH_HOST", "127.0.0.1"))
     port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_PORT", "8000")))
     database_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_DATABASE_URL") or None)
+    auth: str = field(default_factory=lambda: os.environ.get("EVCBENCH_AUTH", "tokens"))
+
+    def __post_init__(self) -> None:
+        if self.auth not in ("tokens", "off"):
+            raise ValueError(f"auth must be 'tokens' or 'off', not {self.auth!r}")
 
     @property
     def resolved_database_url(self) -> str:

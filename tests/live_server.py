@@ -21,12 +21,16 @@ def _free_port() -> int:
 
 
 class Server:
-    """``evcbench serve`` in a subprocess with its own data dir and port."""
+    """``evcbench serve`` in a subprocess with its own data dir and port. ``token`` is the service's
+    bootstrap admin token (<data_dir>/admin.token), ``headers`` carry it, ``dashboard_url()``
+    opens the dashboard with it already stored in the browser."""
 
     def __init__(self, data_dir: Path, log: Path, bench: str = "default", seed: int = 1):
         self.port = _free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = log
+        self.data_dir = Path(data_dir)
+        self.token: str | None = None
         env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
         env["OPENBLAS_NUM_THREADS"] = "1"
         self.proc = subprocess.Popen(
@@ -39,12 +43,23 @@ class Server:
                 raise AssertionError(f"the service exited with {self.proc.returncode}:\n{log.read_text()}")
             try:
                 if httpx.get(f"{self.url}/api/health", timeout=1).status_code == 200:
+                    self.token = (self.data_dir / "admin.token").read_text().strip()
                     return
             except httpx.TransportError:
                 pass
             time.sleep(0.2)
         self.proc.kill()
         raise AssertionError(f"the service did not answer within 120 s:\n{log.read_text()}")
+
+    @property
+    def headers(self) -> dict:
+        """The header that authenticates a request to this server (admin scope)."""
+        return {"Authorization": f"Bearer {self.token}"}
+
+    def dashboard_url(self, route: str = "bench") -> str:
+        """The dashboard at ``#/route`` with ``token=`` in the fragment: the page stores it in
+        localStorage and removes it from the address (a fragment never reaches the server)."""
+        return f"{self.url}/web/#/{route}{'&' if '?' in route else '?'}token={self.token}"
 
     def stop(self) -> bool:
         """SIGTERM, then True if the process ran its shut-down and exited cleanly. (Uvicorn

@@ -1,15 +1,14 @@
 """The service skeleton: /api/health and /api/bench on the emulated bench, and 0 V at shut-down."""
 from __future__ import annotations
 
-from fastapi.testclient import TestClient
-
+from api_client import authed_client
 from service.app import create_app
 from service.settings import Settings
 
 
 def test_health_and_bench_describe_the_emulated_bench(tmp_path):
     app = create_app(Settings(data_dir=tmp_path, bench="default", seed=0))
-    with TestClient(app) as client:
+    with authed_client(app) as client:
         health = client.get("/api/health")
         assert health.status_code == 200
         assert health.json()["status"] == "ok"
@@ -34,7 +33,7 @@ def test_health_and_bench_describe_the_emulated_bench(tmp_path):
 
 
 def test_docs_are_served(tmp_path):
-    with TestClient(create_app(Settings(data_dir=tmp_path, seed=0))) as client:
+    with authed_client(create_app(Settings(data_dir=tmp_path, seed=0))) as client:
         assert client.get("/docs").status_code == 200
         spec = client.get("/openapi.json").json()
         assert "/api/health" in spec["paths"] and "/api/bench" in spec["paths"]

@@ -6,8 +6,8 @@ import dataclasses
 import time
 
 import pytest
-from fastapi.testclient import TestClient
 
+from api_client import authed_client
 from service.app import create_app
 from service.settings import Settings
 
@@ -18,7 +18,7 @@ BASE = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclina
 @pytest.fixture(scope="module")
 def http(tmp_path_factory):
     app = create_app(Settings(data_dir=tmp_path_factory.mktemp("ctl"), bench="default", seed=4))
-    with TestClient(app) as client:
+    with authed_client(app) as client:
         client.app_state = app.state
         yield client
 
@@ -88,3 +88,32 @@ def test_point_by_point_pid_job(http):
     res = job["result"]
     assert res["mode"] == "point_by_point" and res["tripped"] is None
     assert len(res["error_per_period_um"]) == 5 and res["error_per_period_um"][-1] < res["error_per_period_um"][0]
+
+
+def test_composite_model_ids_as_feedforward_and_stroke_refusal(http):
+    """A discovery composite model (hysteresis + delay + dynamics) stored by POST /api/models is usable
+    as feedforward_model_y/z (DESIGN.md §5); a Z range beyond its stroke is refused with the reason."""
+    r = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 3,
+                                       "together": False})
+    assert r.status_code == 202, r.text
+    job, _ = _wait(http, r.json()["job_id"])
+    dataset_id = job["result"]["dataset_id"]
+    ids = {}
+    for ax in ("y", "z"):
+        r = http.post("/api/models", json={"axis": ax, "datasets": [dataset_id],
+                                           "effects": ["hysteresis", "delay", "dynamics"]})
+        assert r.status_code == 202, r.text
+        job, _ = _wait(http, r.json()["job_id"])
+        assert job["state"] == "succeeded", job
+        ids[ax] = job["result"]["model_id"]
+    ff = {"feedforward_model_y": ids["y"], "feedforward_model_z": ids["z"]}
+    r = http.post("/api/trajectories", json={"shape": "ellipse", "y_range_um": [1, 6], "z_range_um": [1, 11],
+                                             "frequency_hz": 100, "cycles": 5, "controller": ff})
+    assert r.status_code == 422 and r.json()["field"] == "z_range_um", r.text
+    assert "the axis reaches" in r.json()["detail"] and "at 120 V" in r.json()["detail"]
+    pid = {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1, "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4}
+    r = http.post("/api/trajectories", json={**BASE, "cycles": 10, "controller": {**ff, "pid": pid}})
+    assert r.status_code == 202, r.text
+    job, _ = _wait(http, r.json()["job_id"])
+    assert job["state"] == "succeeded", job
+    assert job["result"]["tripped"] is None and job["result"]["relative_error_pct"] < 6.2

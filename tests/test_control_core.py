@@ -124,3 +124,18 @@ def test_modes_follow_the_daq_capabilities(bench):
         assert exc.value.field == "mode"
     finally:
         daq.capabilities = original
+
+
+def test_compiled_ilc_step_equals_the_learning_matrices_and_projects_into_the_limits():
+    from service.control.ilc import HarmonicILC
+
+    rng = np.random.default_rng(0)
+    g = (rng.standard_normal((2, 21)) + 1j * rng.standard_normal((2, 21))) * 0.05
+    g[:, 0] = np.abs(g[:, 1])
+    e = rng.standard_normal((200, 2)) * 0.01
+    ilc = HarmonicILC(g, 200)
+    assert np.allclose(ilc.update(e), ilc._step(e), atol=1e-12)     # harmonic DFT/irfft = dense L·e
+    ilc = HarmonicILC(g, 200, gain=1.0)
+    base = np.full((200, 2), 119.0)
+    u = ilc.update(e * 100, base_v=base, limits_v=(np.zeros(2), np.full(2, 120.0)))
+    assert np.all(base + u <= 120.0 + 1e-12) and np.all(base + u >= -1e-12) and np.any(u == 1.0)

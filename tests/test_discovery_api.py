@@ -6,8 +6,8 @@ import time
 import warnings
 
 import pytest
-from fastapi.testclient import TestClient
 
+from api_client import authed_client
 from service.app import create_app
 from service.settings import Settings
 
@@ -26,7 +26,7 @@ def _wait(http, job_id, timeout_s=120.0) -> dict:
 @pytest.fixture
 def http(tmp_path):
     warnings.simplefilter("ignore")
-    with TestClient(create_app(Settings(data_dir=tmp_path, bench="creep", seed=0))) as client:
+    with authed_client(create_app(Settings(data_dir=tmp_path, bench="creep", seed=0))) as client:
         yield client
 
 

@@ -3,8 +3,9 @@
 words, and each accepted step must lower the held-out error.
 
 Not yet met (see docs/discovery.md): the final validation RMS is within 2× the estimated noise
-floor only on the blocks that drive the other axis (coupling-only blocks); on Y's own 1–100 Hz
-blocks it stays several noise floors above it. This test pins what the service achieves today.
+floor only on the 1–50 Hz blocks that drive the other axis (coupling-only blocks); on Y's own
+1–100 Hz blocks it stays about 3× above it, and the diagnosis says so ("NOT at the noise floor").
+This test pins what the service achieves today.
 """
 from __future__ import annotations
 
@@ -31,6 +32,11 @@ def test_default_bench_discovery_converges():
         top = next(c for c in s["diagnosis"]["candidates"] if c["kind"] == "physical")
         assert top["high"] and len(top["evidence"]) > 40
     final = steps[-1]["per_block"]
-    # the blocks where only the other axis moves: coupling fully explained, at the noise floor
-    other_axis = [b for b in final if b["validation_rms_um"] < 0.02]
-    assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in other_axis[:3])
+    # the sweep drives Y (blocks 0–3), then Z alone (blocks 4–7, where Y sees only the coupling)
+    own, other_axis = final[:4], final[4:]
+    assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in other_axis[:3]), other_axis
+    assert all(b["validation_rms_um"] <= 4 * b["noise_floor_um"] for b in own), own
+    last = steps[-1]["diagnosis"]
+    # the verdict says honestly that the repeatable part is above the floor (today 2.3×)
+    assert not last["at_noise_floor"] and "NOT at the noise floor" in last["verdict_text"]
+    assert 1.0 < last["repeatable_to_noise"] < 4.0

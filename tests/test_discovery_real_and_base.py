@@ -24,7 +24,8 @@ def _quiet():
 def test_base_bench_claims_no_physical_effect(axis):
     record = sweep_records("base", seed=0)[axis]
     d = diagnose([record])
-    assert d["verdict"] == "complete", d["verdict_text"]
+    assert d["verdict"] == "complete", d["verdict_text"]  # no physical effect is missing
+    assert ("NOT at the noise floor" in d["verdict_text"]) == (not d["at_noise_floor"])
     physical = [c for c in d["candidates"] if c["kind"] == "physical"]
     assert physical and all(not c["high"] for c in physical), [(c["effect"], c["score"]) for c in physical]
     assert any(c["effect"] == "operators" and c["kind"] == "capacity" for c in d["candidates"])

@@ -50,12 +50,20 @@ def test_ambiguity_names_a_runnable_experiment():
     from service.api.sweeps import SweepRequest
     from service.sweeps import plan_for_bench, plan_from_dict
 
-    d = diagnose([sweep_records("drift", seed=0)["y"]])
-    assert d["candidates"][0]["effect"] == "drift"
+    d = diagnose([sweep_records("delay", seed=0)["y"]])
+    assert d["candidates"][0]["effect"] == "delay"
     amb = d["ambiguity"]
-    assert amb and set(amb["effects"]) == {"drift", "creep"} and "step" in amb["text"]
+    assert amb and set(amb["effects"]) == {"delay", "rate_dependence"} and "higher-frequency" in amb["text"]
     body = SweepRequest(**amb["experiment"]).model_dump()
-    assert plan_for_bench(plan_from_dict(body), open_bench("drift", 0)).samples > 0
+    assert plan_for_bench(plan_from_dict(body), open_bench("delay", 0)).samples > 0
+
+
+def test_creep_and_drift_are_not_confused_on_a_sine_sweep():
+    """Creep is bounded to relax in the direction of the drive change, so it cannot pose as a
+    drift of the lab: the drift bench's diagnosis is not ambiguous between them."""
+    d = diagnose([sweep_records("drift", seed=0)["y"]])
+    scores = {c["effect"]: c["score"] for c in d["candidates"]}
+    assert d["candidates"][0]["effect"] == "drift" and scores["drift"] - scores["creep"] > 0.3, scores
 
 
 def _found_and_fixed(bench, record, expect_complete: bool | None = None):

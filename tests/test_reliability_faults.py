@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
+from api_client import authed_client
 from drivers.emulated import open_bench
 from drivers.bench import RunInterrupted
 from service.app import create_app
@@ -24,14 +24,14 @@ PLANNED_SAMPLES = int(2.0 * FS)
 @pytest.fixture(params=["default"])
 def app_client(request, tmp_path):
     app = create_app(Settings(data_dir=tmp_path, bench=request.param, seed=1))
-    with TestClient(app) as http:
+    with authed_client(app) as http:
         yield app, http
 
 
 @pytest.fixture
 def wire_client(tmp_path):
     app = create_app(Settings(data_dir=tmp_path, bench="default_wire", seed=1))
-    with TestClient(app) as http:
+    with authed_client(app) as http:
         yield app, http
 
 
@@ -122,6 +122,9 @@ def test_transport_faults_act_on_the_wire(wire_client, fault, words):
 
 def test_fault_requests_are_checked(app_client):
     app, http = app_client
+    with authed_client(app, scope="operate") as operator:   # fault injection is for admins only
+        refused = operator.post("/api/admin/faults", json={"fault": "loop_stall", "after_s": 1})
+        assert refused.status_code == 403 and refused.json()["detail"]
     bad = http.post("/api/admin/faults", json={"fault": "meteor", "after_s": 1})
     assert bad.status_code == 422 and bad.json()["field"] == "fault" and "sensor_dropout" in bad.json()["detail"]
     no_axis = http.post("/api/admin/faults", json={"fault": "sensor_dropout"})

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
+from api_client import authed_client
 from drivers.emulated import open_bench
 from drivers.watchdog import SafetyConfig, Watchdog
 from live_server import ROOT, Server
@@ -88,7 +88,7 @@ def test_a_stalled_tracking_loop_is_tripped_to_zero_volts_by_the_watchdog():
 @pytest.fixture
 def service(tmp_path):
     app = create_app(Settings(data_dir=tmp_path, bench="default", seed=1))
-    with TestClient(app) as http:
+    with authed_client(app) as http:
         world = app.state.bench.parts.world
         stops: list[float] = []
         original = app.state.bench.request_stop
@@ -187,7 +187,7 @@ def test_sigterm_drives_a_live_service_to_zero_volts_and_cancels_its_job(tmp_pat
     data_dir = tmp_path / "data"
     server = Server(data_dir, tmp_path / "server.log", bench=str(bench))
     import httpx
-    with httpx.Client(base_url=server.url, timeout=30) as http:
+    with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as http:
         job_id = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 5000}).json()["job_id"]
         _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
     assert server.stop(), (tmp_path / "server.log").read_text()[-3000:]

@@ -10,8 +10,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
+from api_client import authed_client
 from service.app import create_app
 from service.client import ApiError, Client
 from service.settings import Settings
@@ -23,7 +23,7 @@ LONG = {"axes": ["y"], "frequencies_hz": [0.5], "cycles": 100, "name": "long"}  
 
 def _service(data_dir: Path):
     app = create_app(Settings(data_dir=data_dir, bench="default", seed=1))
-    http = TestClient(app)
+    http = authed_client(app)
     return app, http, Client(http=http)
 
 

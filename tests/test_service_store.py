@@ -164,21 +164,20 @@ def test_array_files_are_written_atomically(tmp_path):
 def test_the_service_runs_on_postgresql(postgres_url, tmp_path):
     """The whole service with its metadata in PostgreSQL: a sweep (with its nested bench
     configuration), an identification, and a restart that finds both unchanged."""
-    from fastapi.testclient import TestClient
-
+    from api_client import authed_client
     from service.app import create_app
     from service.client import Client
     from service.settings import Settings
 
     settings = Settings(data_dir=tmp_path, bench="default", seed=1, database_url=postgres_url)
     try:
-        with TestClient(create_app(settings)) as http:
+        with authed_client(create_app(settings)) as http:
             api = Client(http=http)
             assert api.health()["store"] == "postgresql"
             dataset_id = api.sweep(axes=["z"], frequencies_hz=[20, 80], cycles=3)["result"]["dataset_id"]
             model = api.identify("z", [dataset_id], model="dynamic_pi")
             before = (api.dataset(dataset_id), model, api.compare(model["id"], dataset_id, arrays=False))
-        with TestClient(create_app(settings)) as http:
+        with authed_client(create_app(settings)) as http:
             api = Client(http=http)
             after = (api.dataset(dataset_id), api.model(model["id"]),
                      api.compare(model["id"], dataset_id, arrays=False))

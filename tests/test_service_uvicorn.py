@@ -20,8 +20,10 @@ from realdata import MODEL_VI_DO as REAL
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _cli(url: str, *args: str) -> subprocess.CompletedProcess:
-    result = subprocess.run([sys.executable, "-m", "service.cli", *args, "--url", url], cwd=ROOT,
+def _cli(server: Server, *args: str) -> subprocess.CompletedProcess:
+    """``evcbench`` as a lab user runs it next to the service: the token comes from <data dir>/admin.token."""
+    env = {**{k: v for k, v in os.environ.items() if k != "EVCBENCH_TOKEN"}, "EVCBENCH_DATA_DIR": str(server.data_dir)}
+    result = subprocess.run([sys.executable, "-m", "service.cli", *args, "--url", server.url], cwd=ROOT, env=env,
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, f"evcbench {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
     return result
@@ -43,7 +45,7 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
     log = tmp_path / "server.log"
     server = Server(data_dir, log)
     try:
-        with Client(server.url) as api:
+        with Client(server.url, token=server.token) as api:
             # --- the Python client
             events = []
             job = api.sweep(axes=["y"], frequencies_hz=[10, 50, 100], cycles=3, on_progress=events.append)
@@ -55,21 +57,24 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
             assert len(compared["metrics"]["per_block"]) == 3 and len(compared["x_predicted_um"]) <= 500
 
             # --- the CLI, as a user runs it
-            out = _cli(server.url, "sweep", "--axes", "y", "--frequencies", "20,80", "--cycles", "3", "--wait")
+            out = _cli(server, "sweep", "--axes", "y", "--frequencies", "20,80", "--cycles", "3", "--wait")
             assert "100.0 %" in out.stderr and "[####" in out.stderr  # the progress bar
             cli_dataset = out.stdout.split("dataset ")[1].split()[0]
             assert api.dataset(cli_dataset)["blocks"][1]["frequency_hz"] == 80.0
-            out = _cli(server.url, "identify", "--axis", "y", "--datasets", f"{dataset_id},{cli_dataset}")
+            out = _cli(server, "identify", "--axis", "y", "--datasets", f"{dataset_id},{cli_dataset}")
             cli_model = out.stdout.split("model ")[1].split()[0]
             assert sorted(api.model(cli_model)["datasets"]) == sorted([dataset_id, cli_dataset])
-            out = _cli(server.url, "compare", cli_model, "--dataset", cli_dataset)
+            out = _cli(server, "compare", cli_model, "--dataset", cli_dataset)
             assert "heldout_rms_um" in out.stdout and "overall: RMS" in out.stdout
-            metrics = json.loads(_cli(server.url, "compare", cli_model, "--dataset", cli_dataset, "--json").stdout)
+            metrics = json.loads(_cli(server, "compare", cli_model, "--dataset", cli_dataset, "--json").stdout)
             assert [b["frequency_hz"] for b in metrics["per_block"]] == [20.0, 80.0]
-            assert cli_model in _cli(server.url, "models").stdout
-            assert "identify" in _cli(server.url, "jobs").stdout
+            assert cli_model in _cli(server, "models").stdout
+            assert "identify" in _cli(server, "jobs").stdout
+            refused = subprocess.run([sys.executable, "-m", "service.cli", "jobs", "--url", server.url, "--token",
+                                      "evc_wrong"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+            assert refused.returncode == 2 and "error 401 [authorization]: unknown API token" in refused.stderr
             if os.environ.get("EVCBENCH_SKIP_REAL_DATA") != "1":
-                out = _cli(server.url, "import", str(REAL), "--columns", '{"u":0,"x":4}', "--sample-rate-hz",
+                out = _cli(server, "import", str(REAL), "--columns", '{"u":0,"x":4}', "--sample-rate-hz",
                            "200", "--axis", "y", "--delimiter", "whitespace")
                 assert "8027 samples at 200 Hz" in out.stdout
 
@@ -86,7 +91,7 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
 
     server = Server(data_dir, log)
     try:
-        with Client(server.url) as api:
+        with Client(server.url, token=server.token) as api:
             after = _state(api, data_dir)
             partial = [d for d in after["datasets"] if d["partial"]]
             assert len(partial) == 1 and partial[0]["job_id"] == long["job_id"]

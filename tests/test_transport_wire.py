@@ -7,12 +7,12 @@ import time
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from drivers.bench import RunInterrupted
 from drivers.composed import check_transport, open_configured
 from drivers.emulated import kernels as K
 from drivers.emulated import open_bench
+from api_client import authed_client
 from service.app import create_app
 from service.client import Client
 from service.settings import Settings
@@ -23,7 +23,7 @@ BLOCK = 1000
 
 def _served(tmp_path, bench):
     app = create_app(Settings(data_dir=tmp_path / bench, bench=bench, seed=3))
-    http = TestClient(app)
+    http = authed_client(app)
     return app, http, Client(http=http)
 
 

@@ -1,7 +1,7 @@
-"""GET /api/bench: backend, axes, amplifier and sensor state, limits; POST /api/bench/stop."""
+"""GET /api/bench: backend, axes, amplifier and sensor state, limits; POST /api/bench/stop; GET /api/bench/live."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 
 router = APIRouter(tags=["bench"])
 
@@ -29,3 +29,15 @@ def emergency_stop(request: Request) -> dict:
     job_id = state.jobs.cancel_running_bench_job(EMERGENCY_STOP) or running
     return {"stopped": True, "cancelled_job_id": job_id, "cancelled_queued_job_ids": queued,
             "loop_answered": loop_answered, "output_v": state.bench.output_v()}
+
+
+@router.get("/bench/live")
+def bench_live(request: Request, since: int | None = Query(default=None, ge=0, description=(
+                   "cursor from the previous answer; omitted: the latest max_points samples")),
+               max_points: int = Query(default=2000, ge=1, le=20_000)) -> dict:
+    """Live signals of whatever the bench streams (any job): decimated t_s, u_<axis>_v and
+    x_<axis>_um since ``since``, with the cursor for the next call. ``runs`` numbers each
+    sample's run (time restarts at 0 s with every run); ``running_job_id`` names the job."""
+    state = request.app.state
+    return {**state.bench.live.since(since, max_points), "axes": list(state.bench.axes),
+            "running_job_id": state.jobs.running_bench_job}

@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from drivers.bench import Bench
 from service.acquisition import bench_snapshot
 from service.api.deps import get_bench, get_jobs, get_store
+from service.control.feedforward import as_feedforward
 from service.control.loop import PIDGains, StopRequested
 from service.control.safety import ControlRefused
 from service.control.session import Controller, plan, track
@@ -44,6 +45,8 @@ class ControllerRequest(BaseModel):
     ilc: bool = False
     ilc_gain: float = Field(default=0.2, gt=0, le=1)
     ilc_harmonics: int = Field(default=20, ge=1, le=50)
+    #: run a range beyond the axis's stroke anyway, commands clamped at 0/120 V (the refusal becomes a warning)
+    allow_saturation: bool = False
 
 
 class TrajectoryRequest(BaseModel):
@@ -86,7 +89,7 @@ def build_controller(body: TrajectoryRequest, store: Store) -> Controller:
         if model_id is None:
             continue
         try:
-            models[ax] = load_model(store.get_model(model_id))
+            models[ax] = as_feedforward(load_model(store.get_model(model_id)))
         except NotFoundError:
             raise FieldError(f"controller.feedforward_model_{ax}", f"no model {model_id!r}") from None
         except Exception as exc:  # a model that cannot be rebuilt or inverted
@@ -97,7 +100,8 @@ def build_controller(body: TrajectoryRequest, store: Store) -> Controller:
     if c.pid is not None:
         p = c.pid
         pid = {"y": PIDGains(p.kp_y, p.ki_y, p.kd_y, p.tf_s), "z": PIDGains(p.kp_z, p.ki_z, p.kd_z, p.tf_s)}
-    return Controller(feedforward=models, pid=pid, ilc=c.ilc, ilc_gain=c.ilc_gain, ilc_harmonics=c.ilc_harmonics)
+    return Controller(feedforward=models, pid=pid, ilc=c.ilc, ilc_gain=c.ilc_gain, ilc_harmonics=c.ilc_harmonics,
+                      allow_saturation=c.allow_saturation)
 
 
 def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse, controller: Controller,

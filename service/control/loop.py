@@ -125,6 +125,7 @@ class Tracker:
             self.bench.configure(self.fs)
             try:
                 self._settle(session)
+                self.bench.live.begin(self.fs, "tracking")
                 if self.mode == "point_by_point":
                     self._run_pbp(compiled, rec, on_period, should_stop, session)
                 else:
@@ -161,6 +162,9 @@ class Tracker:
 
     def _end_period(self, p, rec, on_period, should_stop, session) -> bool:
         session.feed(self.ref.period)
+        s = slice(p * self.ref.period, rec.samples)
+        self.bench.live.push({a: rec.u_v[s, i] for i, a in enumerate(self.bench.axes)},
+                             {a: rec.x_um[s, i] for i, a in enumerate(self.bench.axes)})
         reason = self.bench.fault_reason()
         if reason:
             rec.tripped = f"{reason} (tripped at t={rec.samples / self.fs:.2f} s)"

@@ -12,7 +12,7 @@ from drivers.bench import Bench
 from service.control.feedforward import feedforward_v
 from service.control.ilc import HarmonicILC, frf_from_periods, multisine
 from service.control.loop import SETTLE_S, PIDGains, StopRequested, TrackRecord, Tracker
-from service.control.safety import check_mode, check_trajectory
+from service.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
 from service.control.trajectory import Ellipse, Reference, reference
 
 SAMPLE_RATE_HZ = 20_000.0
@@ -34,6 +34,8 @@ class Controller:
     ilc: bool = False
     ilc_gain: float = 0.2
     ilc_harmonics: int = 20
+    #: run a range beyond the stroke anyway (commands clamped at 0/120 V; the reason becomes a warning)
+    allow_saturation: bool = False
 
 
 def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarray, centre_um: np.ndarray,
@@ -78,8 +80,12 @@ def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
             "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= 119.999) | (rec.u_v[start:end] <= 1e-3)))}
 
 
-def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str) -> tuple[Reference, np.ndarray | None]:
-    """Reference and feedforward (V), after every safety check (raises ControlRefused)."""
+def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
+         warnings: list[str] | None = None) -> tuple[Reference, np.ndarray | None]:
+    """Reference and feedforward (V), after every safety check (raises ControlRefused). A range beyond
+    the stroke (by a feedforward model with flexure dynamics) is refused unless
+    ``controller.allow_saturation``, when its reason is appended to ``warnings`` instead; a
+    hysteresis-only model's verdict is always a warning (see safety.check_stroke)."""
     check_mode(bench, mode, controller.pid is not None)
     ref = reference(ellipse, SAMPLE_RATE_HZ)
     u_ff = None
@@ -89,8 +95,17 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str) -> t
             model = controller.feedforward.get(axis)
             if model is not None:
                 u_ff[:, i] = feedforward_v(model, ref.x_um[:, i], SAMPLE_RATE_HZ, v_limits=(-np.inf, np.inf))
-        check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz,
-                         steady=slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period))
+        steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
+        check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady)
+        reasons, soft = check_stroke(bench, {"y": ellipse.y_range_um, "z": ellipse.z_range_um},
+                                     ellipse.frequency_hz, ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ,
+                                     steady=steady)
+        if reasons and not controller.allow_saturation:
+            axis = reasons[0][0].lower()
+            raise ControlRefused(f"{axis}_range_um", "; ".join(reasons) + " (set controller.allow_saturation "
+                                 "to run it with the command clamped at 0/120 V)")
+        if warnings is not None:
+            warnings.extend(reasons + soft)
         u_ff = np.clip(u_ff, 0.0, 120.0)
     else:
         check_trajectory(bench, ref.x_um, None, ellipse.frequency_hz)
@@ -101,7 +116,8 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
           on_period: Callable[[int, TrackRecord], None] | None = None,
           should_stop: Callable[[], bool] | None = None) -> tuple[dict, TrackRecord, Reference]:
     """Run one experiment; returns (result dict, record, reference)."""
-    ref, u_ff = plan(bench, ellipse, controller, mode)
+    warnings: list[str] = []
+    ref, u_ff = plan(bench, ellipse, controller, mode, warnings)
     ilc = None
     if controller.ilc:
         steady = ref.steady_period()
@@ -110,13 +126,14 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
         g = measure_response(bench, ref.period, controller.ilc_harmonics, bias, steady.mean(axis=0), mode,
                              controller.pid, amplitude_v=10.0 if controller.pid is None else 4.0)
         ilc = HarmonicILC(g, ref.period, gain=controller.ilc_gain)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rec = Tracker(bench, ref, u_ff, mode=mode, pid=controller.pid, ilc=ilc).run(on_period, should_stop)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     result = {"mode": mode, "samples": rec.samples, "tripped": rec.tripped, "stopped": rec.stopped,
               "loop_wall_s": wall, "loop_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / wall,
+              "loop_cpu_s": cpu, "loop_cpu_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / max(cpu, 1e-9),
               "error_per_period_um": rec.error_per_period_um, "ilc_stop_reason": rec.ilc_stop_reason,
-              "reference_peak_to_peak_um": ellipse.peak_to_peak_um}
+              "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings}
     if rec.tripped is None and not rec.stopped:
         result.update(metrics(rec, ref))
     return result, rec, ref

@@ -50,7 +50,8 @@ class CompositeModel:
         p = play_operators(rec.u_v, self.thresholds_v)
         p_other = None if rec.u_other_v is None else play_operators(rec.u_other_v, self.thresholds_v)
         return RecordContext(rec.u_v, rec.fs_hz, p, rec.du, rec.ddu, rec.u_other_v, p_other,
-                             self.scales["min_period_s"], 1.0 / self.scales["min_period_s"], self.scales["u_scale_v"])
+                             self.scales["min_period_s"], 1.0 / self.scales["min_period_s"], self.scales["u_scale_v"],
+                             self.scales.get("time_scale_s", rec.n / rec.fs_hz))
 
     def raw_blocks(self, rec: Record) -> list[Block]:
         """Hysteresis, offset and additive effect blocks of one record (before transforms)."""
@@ -72,7 +73,8 @@ class CompositeModel:
         n = self.n_operators * (OPERATOR_FACTOR if "operators" in self.effects else 1)
         self.thresholds_v = equal_thresholds(u_max, n)
         self.scales = {"u_scale_v": max(float(np.max(np.abs(r.u_v))) for r in records),
-                       "min_period_s": min(r.min_period_s() for r in records)}
+                       "min_period_s": min(r.min_period_s() for r in records),
+                       "time_scale_s": max(r.n / r.fs_hz for r in records)}
 
     def fit(self, records: Sequence[Record], fixed_theta: dict | None = None,
             exclude_frequency_hz: float | None = None) -> "CompositeModel":

@@ -107,21 +107,35 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and (physical[0]["score"] >= HIGH_SCORE or physical[0]["significant"])
     repeatable = floor["repeatable_rms_um"]
+    ratio = None if repeatable is None or not noise else repeatable / noise
+    at_floor = ratio is not None and ratio <= CLEAR_DROP_NOISE
+    worst = failures(records, res)
     return {"effects": ["hysteresis"] + model.effects, "residual_rms_um": v0, "train_rms_um": ev["train_rms_um"],
             "noise_floor_um": noise, "repeatable_rms_um": repeatable,
+            "repeatable_to_noise": ratio, "at_noise_floor": bool(at_floor),
             "verdict": "missing_effect" if missing else "complete",
-            "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable),
-            "candidates": candidates, "failures": failures(records, res), "signature": sig,
-            "ambiguity": ambiguity(physical, records), "noise": floor, "metrics": ev}
+            "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst),
+            "candidates": candidates, "failures": worst, "signature": sig,
+            "ambiguity": ambiguity(physical, records, noise), "noise": floor, "metrics": ev}
 
 
-def _verdict_text(missing, physical, candidates, v0, noise, repeatable) -> str:
+def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst) -> str:
+    """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
+    whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
     if missing:
         return (f"missing effect: {physical[0]['effect']} (score {physical[0]['score']:.2f}); held-out RMS "
                 f"{v0:.4g} µm against a noise floor of {noise:.3g} µm")
+    rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
+    if at_floor:
+        text = (f"complete: the remaining {_fmt_nm(v0)} is at the noise floor (repeatable part {rep} against "
+                f"{_fmt_nm(noise)} of noise)")
+    else:
+        where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
+        text = (f"complete as far as the effects library goes, but NOT at the noise floor: {rep} of the "
+                f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise. No physical "
+                f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
+                f"outside the library{where}")
     cap = [c for c in candidates if c["kind"] == "capacity" and c["score"] >= HIGH_SCORE]
-    text = (f"complete: no physical effect explains the remaining {v0:.4g} µm (noise floor {noise:.3g} µm, "
-            f"repeatable part {repeatable if repeatable is None else round(repeatable, 6)} µm)")
     if cap:
         text += "; more hysteresis capacity (operators) would still help — a model-capacity change, not physics"
     return text
@@ -129,9 +143,10 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable) -> str:
 
 #: pairs of effects that look alike on a sine sweep, and the experiment that separates them
 SEPARATING = {
-    frozenset(("creep", "drift")): ("a step-hold sweep: creep relaxes logarithmically after each step and "
-                                    "restarts at every step; drift keeps its pace regardless of the steps",
-                                    {"waveform": "step", "levels_v": [30.0, 60.0, 90.0, 120.0], "hold_s": 4.0}),
+    frozenset(("creep", "drift")): ("a step-hold sweep up and down: creep relaxes logarithmically after each "
+                                    "step and reverses when the drive steps down; drift keeps its direction "
+                                    "and pace regardless of the steps",
+                                    {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0}),
     frozenset(("delay", "rate_dependence")): ("a higher-frequency sine sweep: a delay is the same time at every "
                                               "frequency; rate dependence changes the loop shape with rate",
                                               {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0],
@@ -146,18 +161,31 @@ SEPARATING = {
 }
 
 
-def ambiguity(physical: list[dict], records) -> dict | None:
-    """Two leading candidates that explain the residual about equally well, and the experiment."""
+#: two leading candidates are told apart when the runner-up leaves at least this many times the
+#: unexplained excess (held-out RMS² above the noise floor²) of the leader
+SEPARATED_EXCESS_RATIO = 2.0
+
+
+def remaining_excess(candidate: dict, noise: float) -> float:
+    """What a candidate leaves unexplained above the noise floor (µm²), never below (σ/10)²."""
+    return max(candidate["expected_rms_um"] ** 2 - noise**2, (0.1 * noise) ** 2)
+
+
+def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
+    """Two leading candidates that explain the residual about equally well (scores within 0.1 and
+    the runner-up leaving less than twice the leader's unexplained excess), and the experiment."""
     if len(physical) < 2 or physical[1]["score"] < 0.3:
         return None
     a, b = physical[0], physical[1]
-    if a["score"] - b["score"] > 0.1:
+    ratio = remaining_excess(b, noise) / remaining_excess(a, noise)
+    if a["score"] - b["score"] > 0.1 or ratio >= SEPARATED_EXCESS_RATIO:
         return None
     why, body = SEPARATING.get(frozenset((a["effect"], b["effect"])),
                                ("a multi-frequency sine sweep with more cycles per frequency",
                                 {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0], "cycles": 10}))
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return {"effects": [a["effect"], b["effect"]],
+    return {"effects": [a["effect"], b["effect"]], "excess_ratio": ratio,
             "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-                    f"(scores {a['score']:.2f} and {b['score']:.2f}); {why}",
+                    f"(scores {a['score']:.2f} and {b['score']:.2f}; held-out {_fmt_nm(a['expected_rms_um'])} and "
+                    f"{_fmt_nm(b['expected_rms_um'])}); {why}",
             "experiment": {"axes": axes, **body}}

@@ -22,7 +22,8 @@ class RecordContext:
 
     ``p`` play-operator outputs (V), ``du``/``ddu`` drive derivatives (V/s, V/s²),
     ``u_other_v`` the other axis's drive (or None), ``min_period_s`` the shortest drive period
-    over the data set, ``duration_s`` the record length.
+    over the data set, ``time_scale_s`` the longest record's duration over the data set (so that
+    time-based columns mean the same seconds in every record, whatever its length).
     """
 
     u_v: np.ndarray
@@ -35,6 +36,7 @@ class RecordContext:
     min_period_s: float
     max_frequency_hz: float
     u_scale_v: float
+    time_scale_s: float = 0.0
     cache: dict = field(default_factory=dict)
 
     @property

@@ -2,7 +2,9 @@
 
 A log(t) response needs several decades of relaxation times: the drive is passed through
 first-order low-pass filters with time constants log-spaced (2 per decade) from twice the
-shortest drive period up to half the record; their weights (µm/V) come from least squares.
+shortest drive period up to half the longest record (the same set for every record); their weights (µm/V) come from least squares, bounded ≥ 0: creep always continues in the
+direction of the last drive change (it reverses when the drive steps down), which a slow drift
+of the lab or the gauge does not.
 """
 from __future__ import annotations
 
@@ -31,10 +33,10 @@ class Creep(Effect):
                  "in log(time); per-cycle mean residual rises with log(t) within each block")
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
-        taus = creep_time_constants_s(ctx.min_period_s, ctx.n / ctx.fs_hz)
+        taus = creep_time_constants_s(ctx.min_period_s, ctx.time_scale_s or ctx.n / ctx.fs_hz)
         u0 = ctx.u_v / ctx.u_scale_v
         cols = np.column_stack([first_order_lowpass(u0, tau, ctx.fs_hz) - u0 for tau in taus])
-        return [Block.make("creep_weights_um", cols)]
+        return [Block.make("creep_weights_um", cols, lower=0.0)]
 
     def describe(self, theta, values):
         return ""

@@ -21,6 +21,7 @@ from sqlalchemy.engine import Engine
 from service import __version__
 from service.store import tables
 from service.store.files import IntegrityError, read_arrays, write_arrays
+from service.store.tokens import TokenRows
 
 __all__ = ["Store", "NotFoundError", "IntegrityError", "utc_now", "clean_json", "json_sha256"]
 
@@ -100,6 +101,11 @@ class Store:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.engine = make_engine(database_url)
         tables.metadata.create_all(self.engine)
+
+    @property
+    def tokens(self) -> TokenRows:
+        """The API token rows (hashes only; see service.auth)."""
+        return TokenRows(self.engine)
 
     @property
     def backend(self) -> str:

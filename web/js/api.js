@@ -1,11 +1,20 @@
 // REST client of the dashboard: JSON in and out, the API token (if set) as a Bearer header,
 // errors carrying the API's own `detail` in words, and job progress from the SSE stream.
+// A 401 answer fires the window event 'evc:unauthorized' (the shell then asks for a token).
 
 const TOKEN_KEY = 'evcbench.token';
 
 export function getToken() { return localStorage.getItem(TOKEN_KEY) || ''; }
 export function setToken(value) {
   if (value) localStorage.setItem(TOKEN_KEY, value); else localStorage.removeItem(TOKEN_KEY);
+}
+
+/** An /api URL for EventSource, which cannot send headers: the token goes in ?token= (the API
+ *  accepts it there only on /api/jobs/{id}/events). */
+export function streamUrl(path) {
+  const token = getToken();
+  if (!token) return `/api${path}`;
+  return `/api${path}${path.includes('?') ? '&' : '?'}token=${encodeURIComponent(token)}`;
 }
 
 export class ApiError extends Error {
@@ -49,6 +58,11 @@ export async function api(path, { method = 'GET', body, form, signal } = {}) {
       }
       field = payload.field || null;
     } catch (_) { /* not JSON */ }
+    if (response.status === 401) {
+      detail = `${detail}. Paste an API token under Settings (top right); on the service's machine it is in ` +
+               '<data dir>/admin.token.';
+      window.dispatchEvent(new CustomEvent('evc:unauthorized', { detail }));
+    }
     throw new ApiError(response.status, detail, field);
   }
   if (response.status === 204) return null;

@@ -59,21 +59,49 @@ async function refreshPill() {
     pill.textContent = bench.running_job_id ? `bench busy: ${bench.running_job_id}` : `bench idle · ${bench.backend}`;
     pill.dataset.runningJob = bench.running_job_id || '';
   } catch (err) {
-    pill.textContent = `bench: ${err.message}`;
+    pill.textContent = err.status === 401 ? 'bench: API token needed' : `bench: ${err.message}`;
   }
 }
 
+/** A link may carry the token in its fragment (#/page?token=evc_…): store it, drop it from the address. */
+function takeTokenFromAddress() {
+  const [path, search = ''] = location.hash.split('?');
+  const query = new URLSearchParams(search);
+  if (!query.has('token')) return;
+  setToken(query.get('token'));
+  query.delete('token');
+  const rest = query.toString();
+  history.replaceState(null, '', `${location.pathname}${location.search}${path}${rest ? `?${rest}` : ''}`);
+}
+
+/** The API answered 401: open the settings with the token field and say what to paste (once,
+ *  until a token is saved: the bench pill's polling must not steal the focus every 2 s). */
+let askedForToken = false;
+function askForToken(event) {
+  if (askedForToken) return;
+  askedForToken = true;
+  document.getElementById('settings').open = true;
+  document.getElementById('token').focus();
+  banner(event.detail);
+}
+
 function setup() {
+  takeTokenFromAddress();
   document.getElementById('estop').addEventListener('click', emergencyStop);
   const token = document.getElementById('token');
   token.value = getToken();
-  document.getElementById('token-save').addEventListener('click', () => {
+  window.addEventListener('evc:unauthorized', askForToken);
+  document.getElementById('token-save').addEventListener('click', async () => {
     setToken(token.value.trim());
+    askedForToken = false;
+    await route();
     banner('API token saved in this browser.', 'info');
+    refreshPill();
   });
   window.addEventListener('hashchange', route);
   refreshPill();
   setInterval(refreshPill, 2000);
+  window.addEventListener('evc:job', refreshPill);
   route();
 }
 

@@ -81,12 +81,6 @@ export async function lineChart(el, { title, xs, series, xLabel, yLabel, y2Label
   return chart;
 }
 
-/** Append points to a scrolling chart made by lineChart (keeps the last `keep`). */
-export function scroll(chart, row, keep = 300) {
-  const data = chart.data.map((column, i) => [...column, row[i]].slice(-keep));
-  chart.setData(data);
-}
-
 function niceTicks(lo, hi, n = 6) {
   if (!(hi > lo)) { hi = lo + 1; lo -= 1; }
   const raw = (hi - lo) / n;

@@ -52,8 +52,10 @@ export async function runJob(container, path, body, title, { signal, onUpdate } 
   container.replaceChildren(line);
   const started = await api(path, { method: 'POST', body, signal });
   line.update({ id: started.job_id, state: started.state || 'queued', progress: 0 });
+  window.dispatchEvent(new CustomEvent('evc:job', { detail: { id: started.job_id } }));
   const job = await followJob(started.job_id, (j) => { line.update(j); if (onUpdate) onUpdate(j); }, { signal });
   line.update(job);
+  window.dispatchEvent(new CustomEvent('evc:job', { detail: job }));   // the top bar's bench pill refreshes
   return job;
 }
 

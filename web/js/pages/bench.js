@@ -1,12 +1,14 @@
-// Bench: devices and their state, the hard limits, recent jobs, and live signals (the amplifier
-// output voltage and current per axis, polled from GET /api/bench, scrolling).
+// Bench: devices and their state, the hard limits, recent jobs, live signals of any job (u and x
+// per axis, scrolling, from GET /api/bench/live) and the last recording.
 import { api, esc, fmt, followJob } from '../api.js';
-import { lineChart, scroll, destroyAll } from '../charts.js';
+import { lineChart, destroyAll } from '../charts.js';
+import { liveSignals } from '../live.js';
 import { h, jobLine } from '../ui.js';
 
 let timer = null;
 let controller = null;
 let following = null;
+let live = null;
 const charts = [];
 
 export async function enter(root) {
@@ -19,11 +21,9 @@ export async function enter(root) {
       <div class="card"><h2>State</h2><table id="state"></table></div>
       <div class="card"><h2>Hard limits</h2><table id="limits"></table></div>
     </div>
-    <div class="card"><h2>Live signals <span class="muted">(amplifier output per axis, 4 Hz)</span></h2>
-      <div id="live" class="chart"></div>
+    <div class="card"><h2>Live signals <span class="muted">(drive u and displacement x per axis, during any job)</span></h2>
       <div id="bench-job"></div>
-      <p class="muted">The API reports the amplifier output live; the gauges' displacement x (µm) is recorded with each job
-        and drawn below when the job ends.</p></div>
+      <div id="live"></div></div>
     <div class="card"><h2>Last recording <span class="muted" id="last-recording-name"></span></h2><div id="last-recording"></div></div>
     <div class="card"><h2>Recent jobs</h2><table id="jobs"></table></div>
   </div>`));
@@ -35,23 +35,15 @@ export async function enter(root) {
     axes.map((a) => { const l = bench.limits[a]; return `<tr><td>${a}</td><td class="num">${fmt(l.v_min_v)}</td><td class="num">${fmt(l.v_max_v)}</td>
       <td class="num">${fmt(l.slew_limit_v_per_s)}</td><td class="num">${fmt(l.current_limit_a)}</td><td class="num">${fmt(l.capacitance_f * 1e6)}</td>
       <td class="num">${fmt(l.first_resonance_hz)}</td><td class="num">${fmt(l.max_frequency_hz_at_full_range)}</td></tr>`; }).join('');
-  const t0 = performance.now();
-  const series = [];
-  for (const a of axes) series.push({ label: `u_${a} (V)`, values: [] });
-  for (const a of axes) series.push({ label: `I_${a} (mA)`, values: [], scale: 'y2' });
-  const live = await lineChart(root.querySelector('#live'), { xs: [], series, xLabel: 'time (s)',
-    yLabel: 'amplifier output (V)', y2Label: 'current (mA)', height: 240, yRange: [-5, 125] });
-  charts.push(live);
+  live = liveSignals(root.querySelector('#live'), axes);
   const poll = async () => {
     try {
       const b = await api('/bench');
-      const t = (performance.now() - t0) / 1000;
-      scroll(live, [t, ...axes.map((a) => b.amplifiers[a].output_v), ...axes.map((a) => 1000 * b.amplifiers[a].current_a)], 240);
       renderState(root, b);
       if (b.running_job_id && b.running_job_id !== following) follow(root, b.running_job_id);
     } catch (_) { /* the pill shows connection errors */ }
   };
-  timer = setInterval(poll, 250);
+  timer = setInterval(poll, 1000);
   const jobs = await refreshJobs(root);
   const last = jobs.find((j) => j.result && j.result.dataset_id);
   if (last) await showRecording(root, last.result.dataset_id);
@@ -104,13 +96,23 @@ async function refreshJobs(root) {
   el.innerHTML = `<tr><th>job</th><th>kind</th><th>state</th><th class="num">progress</th><th>result / error</th><th>created</th></tr>` +
     jobs.map((j) => `<tr><td>${esc(j.id)}</td><td>${esc(j.kind)}</td><td class="state-${j.state}">${j.state}</td>
       <td class="num">${Math.round(100 * j.progress)} %</td>
-      <td>${j.error ? `<span class="bad">${esc(j.error)}</span>` : esc(j.result ? Object.entries(j.result).filter(([, v]) => typeof v !== 'object').map(([k, v]) => `${k}: ${v}`).join(', ') : '')}</td>
+      <td class="result">${j.error ? `<span class="bad">${esc(j.error)}</span>` : esc(summary(j.result))}</td>
       <td>${esc(j.created_at)}</td></tr>`).join('');
   return jobs;
 }
 
+/** A job result in a line: ids first, then up to four numbers (rounded). */
+function summary(result) {
+  if (!result) return '';
+  const entries = Object.entries(result).filter(([, v]) => v !== null && typeof v !== 'object');
+  const ids = entries.filter(([k]) => k.endsWith('_id'));
+  const numbers = entries.filter(([k, v]) => typeof v === 'number' && /_(um|pct|v|hz|s)$/.test(k)).slice(0, 4);
+  return [...ids, ...numbers].map(([k, v]) => `${k}: ${typeof v === 'number' ? fmt(v) : v}`).join(', ');
+}
+
 export function leave() {
   clearInterval(timer);
+  if (live) live.stop();
   if (controller) controller.abort();
   destroyAll(charts);
 }

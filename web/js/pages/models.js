@@ -6,6 +6,7 @@
 import { api, esc, fmt, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
+import { renderDiagnosis } from './diagnosis.js';
 
 const charts = [];
 let controller = null;
@@ -39,13 +40,17 @@ export async function enter(root, [modelId], query = {}) {
     </div>
     <div id="model-detail"></div>
   </div>`));
-  root.querySelector('#model-list').innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
+  renderModelList(root.querySelector('#model-list'), models, modelId);
+  root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
+  if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
+}
+
+function renderModelList(table, models, modelId) {
+  table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
     <th class="num">train RMS (µm)</th><th class="num">held-out RMS (µm)</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td><td>${m.axis}</td><td>${esc(m.kind)}</td>
       <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
       <td class="num">${fmt(m.metrics.train_rms_um)}</td><td class="num">${fmt(m.metrics.validation_rms_um)}</td></tr>`).join('');
-  root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
-  if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
 }
 
 async function identify(root) {
@@ -97,9 +102,11 @@ async function showModel(el, modelId, query) {
   // Diagnosis first (its failure ranges shade the compare plots), then history and compare.
   let diagnosis = null;
   if (canDiagnose) {
+    el.querySelector('#diagnosis').innerHTML = '<p class="muted" id="diagnosis-wait">Diagnosing: every candidate effect is fitted in turn on the held-out cycles…</p>';
     try {
       diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
-      renderDiagnosis(el, model, diagnosis, canRefine);
+      renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, { canRefine, signal, jobBox: el.querySelector('#separate-job'),
+        onAdd: (effect, extra) => refine(el, model, effect, extra) });
     } catch (e) { showError(el.querySelector('#diagnosis'), e, 'Diagnosis failed: '); }
   } else {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
@@ -136,57 +143,18 @@ function failureRanges(diagnosis, compared) {
   return { time, drive };
 }
 
-function describe(value) {
-  if (value === null || value === undefined) return '';
-  if (typeof value === 'string') return esc(value);
-  if (Array.isArray(value)) return value.map(describe).join('; ');
-  if (typeof value === 'object') return Object.entries(value).map(([k, v]) => `${esc(k)}: ${typeof v === 'number' ? fmt(v) : describe(v)}`).join(', ');
-  return esc(typeof value === 'number' ? fmt(value) : String(value));
-}
-
-/** {a, b, text, body} when the diagnosis offers the experiment that separates two candidates. */
-function separatingExperiment(d) {
-  const amb = d.ambiguity;
-  if (amb && amb.experiment) return { a: amb.effects[0], b: amb.effects[1], text: amb.text, body: amb.experiment };
-  return null;
-}
-
-function renderDiagnosis(el, model, d, canRefine) {
-  const box = el.querySelector('#diagnosis');
-  const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
-  const candidates = d.candidates || [];
-  box.innerHTML = `<p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" class="${verdictClass}">
-      ${d.verdict === 'complete' ? 'The model explains the data down to the noise floor.' : 'Something is missing from the model.'}
-      Residual RMS <b data-value="${d.residual_rms_um}">${fmt(d.residual_rms_um)} µm</b> · noise floor ${fmt(d.noise_floor_um)} µm</p>
-    ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
-    ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
-    <h3>Candidate effects, best first</h3>
-    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after (µm)</th><th>evidence</th><th></th></tr>
-    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}"${i === 0 ? ' class="best"' : ''}>
-      <td>${i + 1}</td><td>${esc(c.effect)}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmt(c.expected_rms_um)}</td>
-      <td class="evidence">${describe(c.evidence)}</td>
-      <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
-    </table>
-    <div id="separate"></div>`;
-  box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => refine(el, model, b.dataset.effect)));
-  const experiment = separatingExperiment(d);
-  if (experiment) {
-    const sep = box.querySelector('#separate');
-    sep.innerHTML = `<h3>Separate</h3><p>${esc(experiment.text || '')}</p>
-      <button type="button" id="separate-run">Run the experiment that separates ${esc(experiment.a)} from ${esc(experiment.b)}</button>`;
-    sep.querySelector('#separate-run').addEventListener('click', () => separate(el, model, experiment));
-  }
-}
-
-async function refine(el, model, effect) {
+async function refine(el, model, effect, datasets = []) {
   const out = el.querySelector('#refine-job');
   el.querySelectorAll('.add-effect').forEach((b) => { b.disabled = true; });
   try {
-    const job = await runJob(out, `/models/${encodeURIComponent(model.id)}/refine`, { add: effect }, `add ${effect}`, { signal: controller.signal });
+    const job = await runJob(out, `/models/${encodeURIComponent(model.id)}/refine`,
+      datasets.length ? { add: effect, datasets } : { add: effect }, `add ${effect}`, { signal: controller.signal });
     if (job.state === 'succeeded') {
       const child = job.result.model_id;
       out.append(h(`<p class="ok" id="refined" data-model-id="${esc(child)}">Added ${esc(effect)}: model <a href="#/models/${esc(child)}">${esc(child)}</a>.</p>`));
       await renderHistory(el, await api(`/models/${encodeURIComponent(child)}`, { signal: controller.signal }), true);
+      const list = document.querySelector('#model-list');
+      if (list) renderModelList(list, await api('/models', { signal: controller.signal }), model.id);
     } else {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `refine ${job.state}`));
     }
@@ -197,25 +165,16 @@ async function refine(el, model, effect) {
   }
 }
 
-async function separate(el, model, experiment) {
-  const out = el.querySelector('#separate-job');
-  try {
-    // The diagnosis gives a ready-to-POST sweep body.
-    const job = await runJob(out, '/sweeps', experiment.body, 'separating experiment', { signal: controller.signal });
-    if (job.state === 'succeeded' && job.result?.dataset_id) {
-      out.append(h(`<p>Dataset <a href="#/models/${esc(model.id)}?dataset=${esc(job.result.dataset_id)}">${esc(job.result.dataset_id)}</a> recorded: compare the model on it.</p>`));
-    }
-  } catch (e) {
-    showError(out.appendChild(document.createElement('p')), e);
-  }
-}
-
 async function lineage(model, canHistory) {
   if (canHistory) {
     const r = await api(`/models/${encodeURIComponent(model.id)}/history`, { signal: controller.signal });
     const steps = Array.isArray(r) ? r : (r.history || r.lineage || r.steps || r.models || []);
-    return steps.map((s) => ({ id: s.model_id || s.id, effects: s.effects || [], change: s.change || null,
-      rms: s.validation_rms_um ?? s.metrics?.validation_rms_um }));
+    return steps.map((s, i) => {
+      // A refit on more data (e.g. after a separating experiment) is measured on other held-out cycles.
+      const added = i && s.datasets ? s.datasets.filter((d) => !(steps[i - 1].datasets || []).includes(d)).length : 0;
+      return { id: s.model_id || s.id, effects: s.effects || [], rms: s.validation_rms_um ?? s.metrics?.validation_rms_um,
+        change: [s.change, added ? `+${added} dataset${added > 1 ? 's' : ''} (RMS over more data)` : ''].filter(Boolean).join(', ') || null };
+    });
   }
   // Without the endpoint: walk parent_id.
   const steps = [];
@@ -239,9 +198,9 @@ async function renderHistory(el, model, canHistory) {
   charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
     yLabel: 'held-out RMS (µm)', series: [{ label: 'held-out RMS (µm)', values: steps.map((s) => s.rms), points: true, width: 2 }],
     height: 220, points: true, integerX: true }));
-  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>version</th><th>model</th><th>change</th><th>effects</th><th class="num">held-out RMS (µm)</th></tr>
-    ${steps.map((s, i) => `<tr data-rms="${s.rms}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
-      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td>${(s.effects || []).map(esc).join(' + ')}</td><td class="num">${fmt(s.rms)}</td></tr>`).join('')}</table>`;
+  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS (µm)</th></tr>
+    ${steps.map((s, i) => `<tr data-rms="${s.rms}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
+      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmt(s.rms)}</td></tr>`).join('')}</table>`;
 }
 
 async function renderCompare(el, model, datasetId, diagnosis) {

@@ -2,10 +2,12 @@
 // and the resulting dataset with its time series.
 import { api, esc, fmt } from '../api.js';
 import { lineChart, destroyAll } from '../charts.js';
+import { liveSignals } from '../live.js';
 import { h, runJob, showError } from '../ui.js';
 
 const charts = [];
 let controller = null;
+let live = null;
 
 export async function enter(root) {
   controller = new AbortController();
@@ -27,6 +29,7 @@ export async function enter(root) {
       <div id="sweep-job"></div>
       <div id="sweep-error"></div>
     </div>
+    <div class="card" id="sweep-live-card" hidden><h2>Live signals <span class="muted">(drive u and displacement x per axis)</span></h2><div id="sweep-live"></div></div>
     <div class="card" id="sweep-result" hidden><h2>Resulting dataset</h2><div id="sweep-summary"></div><div id="sweep-chart"></div></div>
   </div>`));
   root.querySelector('#sweep-form').addEventListener('submit', (e) => { e.preventDefault(); start(root); });
@@ -47,6 +50,11 @@ async function start(root) {
   const button = root.querySelector('#sweep-start');
   button.disabled = true;
   try {
+    if (!live) {
+      const { axes } = await api('/bench', { signal: controller.signal });
+      root.querySelector('#sweep-live-card').hidden = false;
+      live = liveSignals(root.querySelector('#sweep-live'), axes);
+    }
     const job = await runJob(root.querySelector('#sweep-job'), '/sweeps', body, 'sweep', { signal: controller.signal });
     if (job.state === 'succeeded' || job.result?.dataset_id) await showDataset(root, job);
     if (job.state === 'failed') showError(err, new Error(job.error || 'the sweep failed'));
@@ -77,5 +85,6 @@ async function showDataset(root, job) {
 
 export function leave() {
   if (controller) controller.abort();
+  if (live) { live.stop(); live = null; }
   destroyAll(charts);
 }

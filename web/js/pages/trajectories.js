@@ -98,10 +98,14 @@ async function run(root) {
     const el = root.querySelector('#period-chart');
     el.dataset.values = JSON.stringify(values);
     el.dataset.points = String(values.length);
-    if (periodChart) { periodChart.setData([values.map((_, i) => i + 1), values]); return; }
-    periodChart = await lineChart(el, { xs: values.map((_, i) => i + 1), xLabel: 'period', yLabel: 'tracking error (µm)',
-      series: [{ label: 'error per period (µm)', values, points: true, width: 2 }], height: 240, integerX: true });
-    charts.push(periodChart);
+    const xs = values.map((_, i) => i + 1);
+    if (!periodChart) {   // a promise, so that updates arriving while it is made wait for it
+      periodChart = lineChart(el, { xs, xLabel: 'period', yLabel: 'tracking error (µm)',
+        series: [{ label: 'error per period (µm)', values, points: true, width: 2 }], height: 240, integerX: true });
+      charts.push(await periodChart);
+    } else {
+      (await periodChart).setData([xs, values]);
+    }
   };
   const live = [];   // error per period from the progress messages ("period 7/56: error 312.4 nm RMS")
   let lastMessage = '';
@@ -109,7 +113,11 @@ async function run(root) {
     const job = await runJob(root.querySelector('#traj-job'), '/trajectories', body, 'trajectory', {
       signal: controller.signal, onUpdate: (j) => {
         const m = /error ([0-9.eE+-]+) nm/.exec(j.message || '');
-        if (m && j.message !== lastMessage) { live.push(Number(m[1]) / 1000); drawPeriods(live.slice()); }
+        if (m && j.message !== lastMessage) {
+          live.push(Number(m[1]) / 1000);
+          root.querySelector('#period-chart').dataset.livePoints = String(live.length);
+          drawPeriods(live.slice());
+        }
         lastMessage = j.message || '';
       } });
     if (job.state === 'succeeded') {

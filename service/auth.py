@@ -1,0 +1,127 @@
+"""API tokens: issue, check and revoke; the bootstrap admin token.
+
+A token is ``evc_<43 url-safe characters>`` (32 random bytes). Only its SHA-256 is stored, with a
+name, one scope, an origin (bootstrap | cli | api), a creation time and a revoked flag. Scopes
+nest: read ⊂ operate ⊂ admin, so an admin token can do everything an operate token can.
+
+No web framework here: the FastAPI dependency is service/api/auth.py.
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import os
+import secrets
+from pathlib import Path
+
+from service.errors import FieldError
+from service.store import Store, new_id, utc_now
+
+TOKEN_PREFIX = "evc_"
+SCOPES = ("read", "operate", "admin")
+ORIGINS = ("bootstrap", "cli", "api")
+BOOTSTRAP_FILE = "admin.token"
+
+
+class AuthError(Exception):
+    """A request without the right token: 401 (none, unknown or revoked) or 403 (scope too low).
+    ``field`` names where the token was looked for (authorization, token) or ``scope``."""
+
+    def __init__(self, status_code: int, detail: str, field: str = "authorization"):
+        super().__init__(detail)
+        self.status_code, self.detail, self.field = status_code, detail, field
+
+
+def hash_token(token: str) -> str:
+    """SHA-256 hex digest of a token's plaintext (what the store keeps)."""
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def scope_allows(granted: str, needed: str) -> bool:
+    """True if a token of scope ``granted`` may do what needs ``needed`` (read < operate < admin)."""
+    return SCOPES.index(granted) >= SCOPES.index(needed)
+
+
+def required_scope(method: str, path: str) -> str:
+    """The scope a request needs: admin under /api/admin, read for GET/HEAD/OPTIONS, else operate."""
+    if path == "/api/admin" or path.startswith("/api/admin/"):
+        return "admin"
+    return "read" if method.upper() in ("GET", "HEAD", "OPTIONS") else "operate"
+
+
+def issue(store: Store, name: str, scope: str, origin: str) -> tuple[str, dict]:
+    """Create a token; returns (plaintext, record). The plaintext is shown once and never stored."""
+    if scope not in SCOPES:
+        raise FieldError("scope", f"must be one of {', '.join(SCOPES)}, not {scope!r}")
+    if origin not in ORIGINS:
+        raise ValueError(f"origin must be one of {', '.join(ORIGINS)}, not {origin!r}")
+    name = (name or "").strip()
+    if not name:
+        raise FieldError("name", "a token needs a name (who or what uses it)")
+    plaintext = TOKEN_PREFIX + secrets.token_urlsafe(32)
+    row = {"id": new_id("tok"), "name": name, "scope": scope, "sha256": hash_token(plaintext),
+           "origin": origin, "revoked": False, "created_at": utc_now(), "revoked_at": None}
+    store.tokens.add(row)
+    return plaintext, public(row)
+
+
+def public(row: dict) -> dict:
+    """A token record as shown to users: no hash, and the scopes the token grants."""
+    record = {k: v for k, v in row.items() if k != "sha256"}
+    record["scopes"] = list(SCOPES[:SCOPES.index(row["scope"]) + 1])
+    return record
+
+
+def authenticate(store: Store, token: str | None) -> dict:
+    """The record of a valid token; AuthError(401) says why otherwise (missing, malformed,
+    unknown, revoked). The stored and presented hashes are compared in constant time."""
+    if not token:
+        raise AuthError(401, "missing API token: send the header 'Authorization: Bearer <token>' "
+                             "(create one with `evcbench token create`)")
+    if not token.startswith(TOKEN_PREFIX):
+        raise AuthError(401, f"malformed API token: tokens start with {TOKEN_PREFIX!r}")
+    digest = hash_token(token)
+    row = store.tokens.by_hash(digest)
+    if row is None or not hmac.compare_digest(row["sha256"], digest):
+        raise AuthError(401, "unknown API token")
+    if row["revoked"]:
+        raise AuthError(401, f"API token {row['id']} ({row['name']}) has been revoked")
+    return public(row)
+
+
+def authorize(record: dict, needed: str) -> None:
+    """AuthError(403) naming the needed scope if ``record``'s scope is lower."""
+    if not scope_allows(record["scope"], needed):
+        raise AuthError(403, f"this request needs the '{needed}' scope; token {record['id']} "
+                             f"({record['name']}) has '{record['scope']}'", field="scope")
+
+
+def ensure_bootstrap_token(store: Store, data_dir: Path) -> Path:
+    """Make sure <data_dir>/admin.token (mode 0600) holds a valid bootstrap admin token, so the
+    local CLI and dashboard work; a missing, unknown or revoked one is replaced. Returns the path."""
+    path = Path(data_dir) / BOOTSTRAP_FILE
+    try:
+        authenticate(store, path.read_text().strip())
+        os.chmod(path, 0o600)
+        return path
+    except (OSError, AuthError):
+        pass
+    plaintext, _ = issue(store, "bootstrap admin", "admin", "bootstrap")
+    write_secret(path, plaintext)
+    return path
+
+
+def write_secret(path: Path, text: str) -> None:
+    """Write ``text`` + newline to ``path`` created with mode 0600 (replacing any old file)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.unlink(missing_ok=True)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as handle:
+        handle.write(text + "\n")
+    os.replace(tmp, path)
+
+
+def remote_tokens(store: Store) -> list[dict]:
+    """Active tokens made on purpose (cli or api), i.e. not the local bootstrap token."""
+    return [t for t in store.tokens.list() if not t["revoked"] and t["origin"] != "bootstrap"]

@@ -1,0 +1,76 @@
+"""The dashboard and API tokens in a real browser (Debian's chromium via Playwright, as in
+test_web_dashboard.py): without a token the page asks for one, a pasted token is kept in
+localStorage and used, a link's #…?token= is stored and removed from the address, and an
+EventSource follows a job through streamUrl() (?token=, the one place the API accepts it)."""
+from __future__ import annotations
+
+import pytest
+
+from live_server import Server
+from test_web_dashboard import ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, sync_api  # skips with the dashboard tests
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("webauth")
+    server = Server(tmp / "var", tmp / "server.log", seed=1)
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def page():
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        try:
+            pg = browser.new_context(viewport={"width": 1280, "height": 800}).new_page()
+            pg.set_default_timeout(60_000)
+            yield pg
+        finally:
+            browser.close()
+
+
+def test_the_dashboard_asks_for_a_token_and_keeps_it(live, page):
+    page.goto(f"{live.url}/web/#/datasets")
+    page.wait_for_selector("#page[data-ready='1']")
+    page.wait_for_selector("#settings[open] #token")
+    text = page.inner_text("#banner")
+    assert text.startswith("missing API token") and "Paste an API token under Settings" in text
+    assert page.evaluate("document.activeElement.id") == "token"
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / "web_token_prompt.png"))
+
+    page.fill("#token", live.token)
+    page.click("#token-save")
+    page.wait_for_selector("#banner.info")
+    assert page.inner_text("#banner") == "API token saved in this browser."
+    assert page.evaluate("localStorage.getItem('evcbench.token')") == live.token
+    page.reload()
+    page.wait_for_selector("#page[data-ready='1']")
+    page.wait_for_function("document.getElementById('bench-pill').textContent.startsWith('bench idle')")
+
+
+def test_a_link_token_is_stored_and_dropped_and_event_source_follows_a_job(live, page):
+    page.goto(live.dashboard_url("bench"))
+    page.wait_for_selector("#page[data-ready='1']")
+    assert page.url.endswith("/web/#/bench") and "token" not in page.url
+    assert page.evaluate("localStorage.getItem('evcbench.token')") == live.token
+
+    import httpx
+
+    with httpx.Client(base_url=f"{live.url}/api", headers=live.headers, timeout=60) as api:
+        job_id = api.post("/sweeps", json={"axes": ["y"], "frequencies_hz": [20], "cycles": 2}).json()["job_id"]
+    final = page.evaluate("""async (jobId) => {
+        const { streamUrl } = await import('/web/js/api.js');
+        const url = streamUrl(`/jobs/${jobId}/events`);
+        const state = await new Promise((resolve, reject) => {
+          const source = new EventSource(url);
+          source.addEventListener('end', (e) => { source.close(); resolve(JSON.parse(e.data).state); });
+          source.onerror = () => { source.close(); reject(new Error('stream refused')); };
+        });
+        return { url, state };
+    }""", job_id)
+    assert final["url"] == f"/api/jobs/{job_id}/events?token={live.token}"
+    assert final["state"] == "succeeded"

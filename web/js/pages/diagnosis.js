@@ -1,0 +1,123 @@
+// The Models page's diagnosis card: the verdict, where the model fails, the ranked candidate effects
+// with their evidence and "Add <effect>" buttons, and — where two candidates explain the residual
+// about equally well — "Run the experiment that separates A from B": the diagnosis's ready-to-POST
+// sweep, then the diagnosis again with the new dataset added (GET …/diagnosis?extra_datasets=…),
+// shown beside the scores before.
+import { api, esc, fmt } from '../api.js';
+import { h, runJob, showError } from '../ui.js';
+
+function describe(value) {
+  if (value === null || value === undefined) return '';
+  if (typeof value === 'string') return esc(value);
+  if (Array.isArray(value)) return value.map(describe).join('; ');
+  if (typeof value === 'object') return Object.entries(value).map(([k, v]) => `${esc(k)}: ${typeof v === 'number' ? fmt(v) : describe(v)}`).join(', ');
+  return esc(typeof value === 'number' ? fmt(value) : String(value));
+}
+
+/** {a, b, text, body} when the diagnosis offers the experiment that separates two candidates. */
+export function separatingExperiment(d) {
+  const amb = d && d.ambiguity;
+  if (amb && amb.experiment && Array.isArray(amb.effects) && amb.effects.length >= 2) {
+    return { a: amb.effects[0], b: amb.effects[1], text: amb.text, body: amb.experiment };
+  }
+  return null;
+}
+
+const candidate = (d, effect) => (d.candidates || []).find((c) => c.effect === effect) || {};
+const score = (d, effect) => candidate(d, effect).score;
+const heldOutNm = (d, effect) => (candidate(d, effect).expected_rms_um ?? NaN) * 1e3;
+
+/** Scores of the two effects before and after the experiment, and what the user should conclude. */
+function separationSummary(before, after, experiment, datasetId) {
+  const { a, b } = experiment;
+  const rows = [a, b].map((e) => ({ effect: e, before: score(before, e), after: score(after, e),
+    nmBefore: heldOutNm(before, e), nmAfter: heldOutNm(after, e) }));
+  const gap = (k) => Math.abs((rows[0][k] ?? 0) - (rows[1][k] ?? 0));
+  const lead = rows.slice().sort((x, y) => (y.after ?? -1) - (x.after ?? -1) || x.nmAfter - y.nmAfter)[0];
+  const other = rows.find((r) => r !== lead);
+  // the service judges the ambiguity (scores and unexplained excess); none left means told apart
+  const separated = !separatingExperiment(after);
+  return `<div id="separation" data-dataset-id="${esc(datasetId)}" data-gap-before="${gap('before')}" data-gap-after="${gap('after')}"
+      data-leader="${esc(lead.effect)}" data-separated="${separated}">
+    <h3>Separating experiment: result</h3>
+    <p class="${separated ? 'ok' : 'warn'}">${separated
+      ? `With dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, <b>${esc(lead.effect)}</b> explains the residual clearly better than ${esc(other.effect)} (held-out ${fmt(lead.nmAfter, 3)} nm against ${fmt(other.nmAfter, 3)} nm; score ${fmt(lead.after, 3)} against ${fmt(other.after, 3)}).`
+      : `Even with dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, ${esc(a)} and ${esc(b)} remain close; a longer experiment may be needed.`}</p>
+    <table id="separation-table"><tr><th>effect</th><th class="num">score before</th><th class="num">score with the experiment</th>
+      <th class="num">held-out before (nm)</th><th class="num">held-out with the experiment (nm)</th></tr>
+      ${rows.map((r) => `<tr data-effect="${esc(r.effect)}" data-before="${r.before ?? ''}" data-after="${r.after ?? ''}" data-nm-after="${r.nmAfter}"${r === lead ? ' class="best"' : ''}>
+        <td>${esc(r.effect)}</td><td class="num">${fmt(r.before, 3)}</td><td class="num">${fmt(r.after, 3)}</td>
+        <td class="num">${fmt(r.nmBefore, 3)}</td><td class="num">${fmt(r.nmAfter, 3)}</td></tr>`).join('')}</table>
+    <p class="muted">The candidates below are ranked on all the data, the experiment included; "Add" refits with it.</p></div>`;
+}
+
+/**
+ * Render diagnosis `d` of `model` into `box`. `onAdd(effect, extraDatasets)` starts a refine job;
+ * the Separate button runs the experiment (its progress in `jobBox`) and re-renders with the new diagnosis. `extra` names the
+ * datasets the diagnosis added to the model's own; `before`/`experiment` the earlier diagnosis.
+ */
+export function renderDiagnosis(box, model, d, opts) {
+  const { canRefine, onAdd, jobBox, extra = [], before = null, experiment = null, datasetId = null } = opts;
+  const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
+  const candidates = d.candidates || [];
+  box.innerHTML = `${before ? separationSummary(before, d, experiment, datasetId) : ''}
+    <p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" data-extra-datasets="${esc(extra.join(','))}" class="${verdictClass}">
+      ${d.verdict === 'complete' ? 'The model explains the data down to the noise floor.' : 'Something is missing from the model.'}
+      Residual RMS <b data-value="${d.residual_rms_um}">${fmt(d.residual_rms_um)} µm</b> · noise floor ${fmt(d.noise_floor_um)} µm</p>
+    ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
+    ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
+    <h3>Candidate effects, best first</h3>
+    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after (µm)</th><th>evidence</th><th></th></tr>
+    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}"${i === 0 ? ' class="best"' : ''}>
+      <td>${i + 1}</td><td>${esc(c.effect)}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmt(c.expected_rms_um)}</td>
+      <td class="evidence">${describe(c.evidence)}</td>
+      <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
+    </table>
+    <div id="separate"></div>`;
+  box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => onAdd(b.dataset.effect, extra)));
+  const offered = separatingExperiment(d);
+  if (!offered) return;
+  const sep = box.querySelector('#separate');
+  sep.innerHTML = `<h3>Separate</h3><p>${esc(offered.text || '')}</p>
+    <p class="muted">The experiment: ${describe(offered.body)}.</p>
+    <button type="button" class="primary" id="separate-run" data-a="${esc(offered.a)}" data-b="${esc(offered.b)}">Run the experiment that separates ${esc(offered.a)} from ${esc(offered.b)}</button>`;
+  sep.querySelector('#separate-run').addEventListener('click', async (e) => {
+    e.target.disabled = true;
+    const found = await separate(jobBox, model, offered, extra, opts.signal);
+    if (found) {
+      renderDiagnosis(box, model, found.diagnosis, { ...opts, extra: found.extra, before: d, experiment: offered,
+        datasetId: found.datasetId });
+    } else {
+      e.target.disabled = false;
+    }
+  });
+}
+
+/** Run the experiment (a sweep job), then the diagnosis with its dataset; null when either fails. */
+async function separate(out, model, experiment, extra, signal) {
+  try {
+    const job = await runJob(out, '/sweeps', experiment.body, `separating experiment (${experiment.body.waveform || 'sweep'})`, { signal });
+    if (job.state !== 'succeeded' || !job.result?.dataset_id) {
+      showError(out.appendChild(document.createElement('p')), new Error(job.error || `the experiment was ${job.state}`));
+      return null;
+    }
+    const datasetId = job.result.dataset_id;
+    const all = [...extra, datasetId];
+    const wait = h(`<p class="muted" id="separate-wait">Dataset ${esc(datasetId)} recorded. Re-running the diagnosis with it
+      (every candidate is refitted on all the data): <span>0</span> s…</p>`);
+    out.append(wait);
+    const t0 = Date.now();
+    const tick = setInterval(() => { wait.querySelector('span').textContent = String(Math.round((Date.now() - t0) / 1000)); }, 1000);
+    try {
+      const query = all.map((id) => `extra_datasets=${encodeURIComponent(id)}`).join('&');
+      const diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis?${query}`, { signal });
+      return { diagnosis, datasetId, extra: all };
+    } finally {
+      clearInterval(tick);
+      wait.remove();
+    }
+  } catch (e) {
+    showError(out.appendChild(document.createElement('p')), e, 'Separating experiment failed: ');
+    return null;
+  }
+}
