@@ -160,6 +160,8 @@ class FaultInjector:
     def samples_until_due(self, n: int) -> int | None:
         """Samples (0..n-1) that can be written before the next armed fault fires, or None if none
         fires within the next ``n`` samples."""
+        if not self._faults:   # the common case, checked once per block or period: no lock, no list
+            return None
         dt = 1.0 / self.world.sample_rate_hz
         now = self.session_time_s()
         with self._lock:

@@ -43,33 +43,37 @@ class OutputLog:
         cfg = check_config(section)
         self.world = world
         self.path = cfg["output_log"] or None
-        self._entries: deque[dict] = deque(maxlen=cfg["output_log_keep"])
+        self._entries: deque[tuple] = deque(maxlen=cfg["output_log_keep"])
         self._lock = threading.Lock()
         self._file = open(self.path, "a", buffering=1) if self.path else None
 
-    def record(self, event: str, **extra) -> dict:
-        """Append the world's present amplifier inputs and outputs as one entry (plus ``extra``)."""
-        ao = self.world.applied_ao_v()
-        vout = self.world.amplifier_output_v()
-        entry = {"t_s": round(self.world.time_s, 6), "event": event,
-                 "daq_ao_v": {a: float(ao[i]) for i, a in enumerate(AXES)},
-                 "amplifier_v": {a: float(vout[i]) for i, a in enumerate(AXES)}, **extra}
+    def record(self, event: str, **extra) -> None:
+        """Append the world's present amplifier inputs and outputs as one entry (plus ``extra``).
+        Cheap (called once per block or period): a tuple now, the dict only when read."""
+        raw = (self.world.time_s, event, self.world.applied_ao_v(), self.world.amplifier_output_v(), extra)
         with self._lock:
-            self._entries.append(entry)
+            self._entries.append(raw)
             if self._file is not None:
-                self._file.write(json.dumps(entry) + "\n")
-        return entry
+                self._file.write(json.dumps(_entry(raw)) + "\n")
 
     def entries(self) -> list[dict]:
         with self._lock:
-            return list(self._entries)
+            raws = list(self._entries)
+        return [_entry(r) for r in raws]
 
     def last(self) -> dict | None:
         with self._lock:
-            return self._entries[-1] if self._entries else None
+            raw = self._entries[-1] if self._entries else None
+        return None if raw is None else _entry(raw)
 
     def close(self) -> None:
         with self._lock:
             if self._file is not None:
                 self._file.close()
                 self._file = None
+
+
+def _entry(raw: tuple) -> dict:
+    t_s, event, ao, vout, extra = raw
+    return {"t_s": round(t_s, 6), "event": event, "daq_ao_v": {a: float(ao[i]) for i, a in enumerate(AXES)},
+            "amplifier_v": {a: float(vout[i]) for i, a in enumerate(AXES)}, **extra}
