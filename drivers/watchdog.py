@@ -110,6 +110,10 @@ class Watchdog:
 
     def _watch(self) -> None:
         while not self._closed:
+            if not self._armed:      # parked (no polling) until arm() or close() wakes it
+                self._wake.wait()
+                self._wake.clear()
+                continue
             self._wake.wait(self.config.watchdog_poll_s)
             self._wake.clear()
             with self._lock:
