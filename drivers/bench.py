@@ -154,6 +154,11 @@ class Bench(LimitsMixin):
             self._stop_reason = reason
         self._stop_flag[0] = 1
 
+    @property
+    def running(self) -> bool:
+        """True while a session (a run) owns the bench."""
+        return not self._idle.is_set()
+
     def interrupt_reason(self) -> str | None:
         """Why the running loop must stop now (watchdog trip, stop request), or None."""
         if self.tripped:
@@ -263,7 +268,7 @@ class Bench(LimitsMixin):
         """Emergency stop: raise the stop flag, let the running loop write 0 V (it checks the flag
         every block or ≤ 50 samples), and write 0 V here if it has not within ``wait_s`` (default
         ``[safety] stop_wait_s``) or if no loop runs. Returns True if a running loop answered."""
-        running = not self._idle.is_set()
+        running = self.running
         self.request_stop(reason)
         answered = self._idle.wait(self.safety.stop_wait_s if wait_s is None else wait_s)
         if not answered:
@@ -315,7 +320,7 @@ class Bench(LimitsMixin):
             "limits": {a: {**lim.as_dict(), "max_frequency_hz_at_full_range":
                            lim.max_frequency_hz(lim.v_max_v - lim.v_min_v)} for a, lim in self.limits.items()},
             "safety": {**self.safety.__dict__, "watchdog_last_trip": self.watchdog.last_trip,
-                       "stop_requested": bool(self._stop_flag[0]), "running": not self._idle.is_set()},
+                       "stop_requested": bool(self._stop_flag[0]), "running": self.running},
             "modes": {"buffered": daq.capabilities.buffered, "point_by_point": daq.capabilities.point_by_point,
                       "point_by_point_reason": daq.capabilities.point_by_point_reason},
         }

@@ -68,7 +68,7 @@ def _stop_once(bench, run, period: int, rng: random.Random) -> dict:
     try:
         worker = threading.Thread(target=run)
         worker.start()
-        while bench._idle.is_set() and worker.is_alive():
+        while not bench.running and worker.is_alive():
             time.sleep(0.001)
         time.sleep(0.05 + 0.15 * rng.random())
         t0 = time.perf_counter()
