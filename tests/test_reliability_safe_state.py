@@ -86,8 +86,15 @@ def test_a_stalled_tracking_loop_is_tripped_to_zero_volts_by_the_watchdog():
 
 
 @pytest.fixture
-def service(tmp_path):
-    app = create_app(Settings(data_dir=tmp_path, bench="default", seed=1))
+def service(tmp_path, request):
+    """The app on the default bench; a test's ``safety`` marker adds a [safety] table."""
+    bench = "default"
+    marker = request.node.get_closest_marker("safety")
+    if marker is not None:
+        bench = str(tmp_path / "bench.toml")
+        Path(bench).write_text(f'extends = "{ROOT / "fixtures" / "benches" / "default.toml"}"\n[safety]\n'
+                               + "".join(f"{k} = {v}\n" for k, v in marker.kwargs.items()))
+    app = create_app(Settings(data_dir=tmp_path / "data", bench=bench, seed=1))
     with authed_client(app) as http:
         world = app.state.bench.parts.world
         stops: list[float] = []
@@ -207,9 +214,10 @@ def test_sigterm_drives_a_live_service_to_zero_volts_and_cancels_its_job(tmp_pat
         store.close()
 
 
+@pytest.mark.safety(stop_wait_s=0.1, watchdog_min_s=10.0)
 def test_emergency_stop_of_a_stalled_loop_writes_zero_volts_itself(service):
     """The loop does not answer (stalled in a write): the stop writes 0 V from the request's thread
-    after [safety] stop_wait_s (0.5 s), before the watchdog's 1 s, and the job is cancelled."""
+    after [safety] stop_wait_s (0.1 s here), long before the watchdog (10 s here), and the job is cancelled."""
     app, http, stops = service
     assert http.post("/api/admin/faults", json={"fault": "loop_stall", "after_s": 0.2}).status_code == 201
     job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
@@ -280,4 +288,5 @@ def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
     job = _wait(http, job_id, _ended)
     assert job["state"] == "cancelled" and job["message"].startswith("stopped by SIGINT: "), job
     idle, between = _first_zero_after(app, stops[0])
-    assert between == [] and round((idle["zero_from_t_s"] - stops[0]) * FS) <= BLOCK
+    # a stop that lands between the flag check and the write lets that one block out: one control period
+    assert len(between) <= 1 and round((idle["zero_from_t_s"] - stops[0]) * FS) <= BLOCK
