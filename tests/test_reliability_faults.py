@@ -100,7 +100,7 @@ def test_each_fault_fails_the_job_keeps_partial_data_and_leaves_zero_volts(app_c
     _assert_zero_volts(app)
     if fault == "loop_stall":    # the watchdog tripped after its 1 s floor (4 × 0.1 s blocks < 1 s)
         trip = app.state.bench.watchdog.last_trip
-        assert 1.0 <= trip["stalled_s"] < 1.5 and trip["timeout_s"] == 1.0
+        assert 1.0 <= trip["stalled_s"] < 2.0 and trip["timeout_s"] == 1.0
     cleared = http.delete("/api/admin/faults")
     assert cleared.status_code == 200 and cleared.json()["cleared"] == 1
     again = _wait(http, http.post("/api/sweeps", json={**SWEEP, "cycles": 2}).json()["job_id"])
