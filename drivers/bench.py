@@ -225,7 +225,7 @@ class Bench(LimitsMixin):
                 for axis in self.axes:
                     blocks[axis] = self.clamp_block(axis, commands[axis][start:stop], previous[axis], actual)
                     ao[:, self.parts.ao_channel[axis]] = blocks[axis] / self.parts.amplifiers[axis].gain_v_per_v
-                why = session.interrupted()   # checked right before the write: nothing leaves after a stop
+                why = session.interrupted()   # right before the write: at most this one block follows a stop
                 if why:
                     raise acquired.interrupted(why, stopped=not self.tripped)
                 previous = {axis: float(blocks[axis][-1]) for axis in self.axes}
