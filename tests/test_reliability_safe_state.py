@@ -7,11 +7,9 @@ so they do not depend on the machine's speed; the watchdog's wall-clock bounds a
 from __future__ import annotations
 
 import json
-import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from api_client import authed_client
