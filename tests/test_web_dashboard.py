@@ -9,6 +9,8 @@ and the charting library (npm ci in web/). Playwright's own browser download is 
 """
 from __future__ import annotations
 
+import contextlib
+
 import json
 import math
 import re
@@ -46,10 +48,17 @@ def _browser_setup_is_complete():
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """``evcbench serve`` on the hidden-effect bench, in a subprocess with its own data dir."""
-    tmp = tmp_path_factory.mktemp("web")
-    live = Server(tmp / "var", tmp / "server.log", bench=HIDDEN, seed=1)
+    with serving(tmp_path_factory, HIDDEN) as s:
+        yield s
+
+
+@contextlib.contextmanager
+def serving(tmp_path_factory, bench: str, timeout_s: float = 120):
+    """A live service on ``bench`` with an authenticated API client: {"url", "api", "live"}."""
+    tmp = tmp_path_factory.mktemp(f"web_{bench}")
+    live = Server(tmp / "var", tmp / "server.log", bench=bench, seed=1)
     try:
-        with httpx.Client(base_url=f"{live.url}/api", timeout=60, headers=live.headers) as api:
+        with httpx.Client(base_url=f"{live.url}/api", timeout=timeout_s, headers=live.headers) as api:
             yield {"url": live.url, "api": api, "live": live}
     finally:
         live.stop()
@@ -371,19 +380,18 @@ def test_errors_are_shown_in_words(page, server):
 @pytest.fixture(scope="module")
 def delay_server(tmp_path_factory):
     """A second service on the delay bench, where delay and rate dependence look alike on a
-    1–100 Hz sine sweep."""
-    tmp = tmp_path_factory.mktemp("web_delay")
-    live = Server(tmp / "var", tmp / "server.log", bench="delay", seed=1)
-    try:
-        with httpx.Client(base_url=f"{live.url}/api", timeout=120) as api:
-            yield {"url": live.url, "api": api}
-    finally:
-        live.stop()
+    1–100 Hz sine sweep of both axes one after the other (on Y alone the diagnosis already tells
+    them apart)."""
+    with serving(tmp_path_factory, "delay") as s:
+        yield s
 
 
 def test_separate_two_look_alike_effects(page, delay_server):
     server = delay_server
-    dataset_id = run_sweep_in_browser(page, server, frequencies="1,10,50,100", cycles=5)
+    # the characterisation discovery asks for: both axes one after the other (DESIGN §5)
+    job = server["api"].post("/sweeps", json={"axes": ["y", "z"], "together": False, "waveform": "sine",
+                                              "frequencies_hz": [1, 10, 50, 100], "cycles": 5}).json()
+    dataset_id = wait_job(server, job["job_id"])["result"]["dataset_id"]
     goto(page, server, f"models?dataset={dataset_id}")
     page.select_option("#identify-datasets", [dataset_id])
     page.click("#identify-start")

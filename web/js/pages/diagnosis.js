@@ -62,7 +62,9 @@ export function renderDiagnosis(box, model, d, opts) {
   const candidates = d.candidates || [];
   box.innerHTML = `${before ? separationSummary(before, d, experiment, datasetId) : ''}
     <p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" data-extra-datasets="${esc(extra.join(','))}" class="${verdictClass}">
-      ${d.verdict === 'complete' ? 'The model explains the data down to the noise floor.' : 'Something is missing from the model.'}
+      ${d.verdict !== 'complete' ? 'Something is missing from the model.'
+        : d.at_noise_floor === false ? 'No effect in the library is missing, but the model is not yet at the noise floor (see below).'
+        : 'The model explains the data down to the noise floor.'}
       Residual RMS <b data-value="${d.residual_rms_um}">${fmt(d.residual_rms_um)} µm</b> · noise floor ${fmt(d.noise_floor_um)} µm</p>
     ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
