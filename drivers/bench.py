@@ -7,36 +7,50 @@ Safety, in order of defence:
 1. ``check_waveform`` refuses a whole plan that leaves 0–120 V, or whose rate of change
    exceeds the slew limit or the amplifier's current limit into the stack capacitance.
 2. Every command that reaches the DAQ is clamped to 0–120 V and rate-limited.
-3. Every run, stop, close or failure ends with the DAQ output at 0 V.
+3. Every run happens inside ``session()``, which guarantees 0 V on exit, arms the watchdog
+   (drivers/watchdog.py: 0 V when no sample is written for N periods) and carries the stop
+   flag that ``stop()`` raises; loops check it every block (buffered) or every ≤ 50 samples
+   (the compiled point-by-point runner), so a stop pre-empts a run within one control period.
+4. Every run, stop, close or failure ends with the DAQ output at 0 V.
 """
 from __future__ import annotations
 
 import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import Callable, Iterator, Mapping
 
 import numpy as np
 
 from drivers.interfaces import AxisLimits, BenchParts, DriverError, LimitError, NotSupportedError
+from drivers.limits import ACTUATOR_V_MAX, ACTUATOR_V_MIN, RESONANCE_FRACTION, LimitsMixin  # noqa: F401 (re-exported)
 from drivers.live import LiveMonitor
+from drivers.watchdog import SafetyConfig, Watchdog
 
-ACTUATOR_V_MIN = 0.0
-ACTUATOR_V_MAX = 120.0
-# A sampled waveform's finite-difference slope overshoots the analytic one by rounding
-# and quantisation; allow this relative margin before calling it a limit violation.
-_RATE_CHECK_MARGIN = 1.02
-# A non-resonant device works below its first resonance; a sine above this fraction of it
-# rings the flexure (and its harmonics sit on the mode), so it is refused.
-RESONANCE_FRACTION = 0.5
-
+STOPPED_ON_REQUEST = "stopped on request"
 
 class RunInterrupted(DriverError):
     """A run stopped early (cancel, device fault, sensor loss). ``record`` holds the data so far."""
 
-    def __init__(self, reason: str, record: "BenchRecord"):
+    def __init__(self, reason: str, record: "BenchRecord", stopped: bool = False):
         super().__init__(reason)
         self.reason = reason
         self.record = record
+        self.stopped = stopped  # True: a stop request (cancel, emergency stop, signal); False: a fault
+
+
+class BenchSession:
+    """What a loop holds while it owns the bench: ``stop_flag`` (uint8[1], non-zero = stop; compiled
+    loops poll it), ``feed(samples)`` for the watchdog and ``interrupted()``: the reason to stop now."""
+
+    def __init__(self, bench: "Bench"):
+        self.bench = bench
+        self.stop_flag = bench._stop_flag
+        self.feed = bench.watchdog.feed
+
+    def interrupted(self) -> str | None:
+        """The watchdog trip or the stop request, in words, or None to carry on."""
+        return self.bench.interrupt_reason()
 
 
 @dataclass
@@ -59,7 +73,37 @@ class BenchRecord:
         return np.arange(self.samples) / self.sample_rate_hz
 
 
-class Bench:
+class _Acquired:
+    """The samples of one buffered run in preallocated arrays, so adding a block and viewing the
+    record so far cost O(block), never O(run) (a long sweep must not look like a stalled loop)."""
+
+    def __init__(self, bench: "Bench", n: int, rate_hz: float):
+        self.bench, self.rate_hz, self.done = bench, rate_hz, 0
+        self.u = {a: np.empty(n) for a in bench.axes}
+        self.x = {a: np.empty(n) for a in bench.axes}
+
+    def add(self, u_blocks: Mapping[str, np.ndarray], ai: np.ndarray) -> None:
+        parts, k = self.bench.parts, len(ai)
+        for a in self.bench.axes:
+            self.u[a][self.done:self.done + k] = u_blocks[a]
+            self.x[a][self.done:self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
+        self.done += k
+
+    def last_x_um(self, k: int) -> dict[str, np.ndarray]:
+        """The last ``k`` displacement samples per axis (µm), as views."""
+        return {a: v[self.done - k:self.done] for a, v in self.x.items()}
+
+    def record(self) -> BenchRecord:
+        return BenchRecord(sample_rate_hz=self.rate_hz, u_cmd_v={a: v[:self.done] for a, v in self.u.items()},
+                           x_um={a: v[:self.done] for a, v in self.x.items()})
+
+    def interrupted(self, reason: str, stopped: bool = False) -> RunInterrupted:
+        record = self.record()
+        record.partial, record.reason = True, reason
+        return RunInterrupted(reason, record, stopped=stopped)
+
+
+class Bench(LimitsMixin):
     """A two-axis piezo bench behind driver interfaces. Thread-safe: one run at a time."""
 
     def __init__(self, parts: BenchParts, v_min_v: float = ACTUATOR_V_MIN, v_max_v: float = ACTUATOR_V_MAX):
@@ -78,87 +122,17 @@ class Bench:
                 first_resonance_hz=parts.resonance_hz.get(axis, float("nan")),
             )
         self._lock = threading.RLock()
-        self._stop_requested = threading.Event()
+        self._stop_flag = np.zeros(1, dtype=np.uint8)  # shared with compiled loops
+        self._stop_reason: str | None = None
+        self._idle = threading.Event()                # set while no session runs
+        self._idle.set()
+        self.tripped: str | None = None                 # the watchdog's reason, latched for the session
         self._last_u_v = {axis: 0.0 for axis in self.axes}
         self._closed = False
+        self.safety = SafetyConfig.from_config(parts.config.get("safety"))
+        self.watchdog = Watchdog(parts.daq, self.safety, on_trip=self._on_watchdog_trip)
         #: decimated live signals of whatever the bench streams (see drivers/live.py)
         self.live = LiveMonitor(self.axes)
-
-    # ------------------------------------------------------------------ limits
-    def max_frequency_hz(self, axis: str, vpp_v: float) -> float:
-        """Largest sine frequency at ``vpp_v`` that the amplifier can drive into the stack."""
-        return self.limits[self._axis(axis)].max_frequency_hz(vpp_v)
-
-    def check_sine(self, axis: str, vpp_v: float, frequency_hz: float) -> None:
-        """Refuse a sine whose peak current or slew rate exceeds the amplifier's limits, or whose
-        frequency comes within reach of the axis's first resonance."""
-        lim = self.limits[self._axis(axis)]
-        need_a = np.pi * frequency_hz * vpp_v * lim.capacitance_f
-        if need_a > lim.current_limit_a:
-            raise LimitError(
-                f"{vpp_v:g} Vpp at {frequency_hz:g} Hz needs {need_a * 1e3:.0f} mA; the amplifier's "
-                f"limit is {lim.current_limit_a * 1e3:.0f} mA (largest frequency at this amplitude: "
-                f"{lim.max_frequency_hz(vpp_v):.1f} Hz)")
-        slew = np.pi * frequency_hz * vpp_v
-        if slew > lim.slew_limit_v_per_s:
-            raise LimitError(
-                f"{vpp_v:g} Vpp at {frequency_hz:g} Hz slews at {slew / 1e3:.1f} V/ms; the amplifier's "
-                f"limit is {lim.slew_limit_v_per_s / 1e3:.1f} V/ms")
-        if np.isfinite(lim.first_resonance_hz) and frequency_hz > RESONANCE_FRACTION * lim.first_resonance_hz:
-            raise LimitError(
-                f"{frequency_hz:g} Hz is above {RESONANCE_FRACTION:g} × the {axis} axis's first resonance "
-                f"({lim.first_resonance_hz:g} Hz); a non-resonant drive must stay below "
-                f"{RESONANCE_FRACTION * lim.first_resonance_hz:.1f} Hz")
-
-    def check_waveform(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float) -> None:
-        """Refuse a planned waveform that would leave the limits. Raises LimitError saying why."""
-        if sample_rate_hz <= 0 or not np.isfinite(sample_rate_hz):
-            raise LimitError(f"sample rate {sample_rate_hz} Hz must be a positive number")
-        for axis, u in u_v.items():
-            lim = self.limits[self._axis(axis)]
-            u = np.asarray(u, dtype=float)
-            if u.ndim != 1 or len(u) == 0:
-                raise LimitError(f"u_{axis} must be a non-empty 1-D array of volts")
-            if not np.all(np.isfinite(u)):
-                raise LimitError(f"u_{axis} contains NaN or infinite values")
-            if u.max() > lim.v_max_v or u.min() < lim.v_min_v:
-                raise LimitError(
-                    f"u_{axis} spans {u.min():.1f}–{u.max():.1f} V; the actuator limit is "
-                    f"{lim.v_min_v:g}–{lim.v_max_v:g} V")
-            if len(u) > 1:
-                rate = float(np.max(np.abs(np.diff(u)))) * sample_rate_hz
-                need_a = rate * lim.capacitance_f
-                if need_a > lim.current_limit_a * _RATE_CHECK_MARGIN:
-                    raise LimitError(
-                        f"u_{axis} changes at up to {rate / 1e3:.1f} V/ms, which needs {need_a * 1e3:.0f} mA "
-                        f"into {lim.capacitance_f * 1e6:.2f} µF; the amplifier's limit is "
-                        f"{lim.current_limit_a * 1e3:.0f} mA")
-                if rate > lim.slew_limit_v_per_s * _RATE_CHECK_MARGIN:
-                    raise LimitError(
-                        f"u_{axis} changes at up to {rate / 1e3:.1f} V/ms; the amplifier's slew limit is "
-                        f"{lim.slew_limit_v_per_s / 1e3:.1f} V/ms")
-
-    def clamp(self, axis: str, u_v: float, previous_v: float, dt_s: float) -> float:
-        """Clamp one command to the voltage range and to the largest step the limits allow."""
-        lim = self.limits[axis]
-        max_step = dt_s * min(lim.slew_limit_v_per_s, lim.current_limit_a / lim.capacitance_f)
-        u = min(max(u_v, previous_v - max_step), previous_v + max_step)
-        return min(max(u, lim.v_min_v), lim.v_max_v)
-
-    def clamp_block(self, axis: str, u_v: np.ndarray, previous_v: float, sample_rate_hz: float) -> np.ndarray:
-        """Vector form of ``clamp`` for a block of commands (sequential because of the rate limit)."""
-        lim = self.limits[axis]
-        u = np.clip(np.nan_to_num(np.asarray(u_v, dtype=float), nan=0.0), lim.v_min_v, lim.v_max_v)
-        max_step = min(lim.slew_limit_v_per_s, lim.current_limit_a / lim.capacitance_f) / sample_rate_hz
-        steps = np.diff(np.concatenate(([previous_v], u)))
-        if np.all(np.abs(steps) <= max_step):
-            return u
-        out = np.empty_like(u)
-        prev = previous_v
-        for k, target in enumerate(u):  # rare path: only when a block violates the rate limit
-            prev = min(max(target, prev - max_step), prev + max_step)
-            out[k] = prev
-        return out
 
     # ------------------------------------------------------------------ running
     def configure(self, sample_rate_hz: float) -> float:
@@ -174,9 +148,45 @@ class Bench:
     def supports_point_by_point(self) -> bool:
         return self.parts.daq.capabilities.point_by_point
 
-    def request_stop(self) -> None:
-        """Ask the running job to stop at its next block or sample; the output then goes to 0 V."""
-        self._stop_requested.set()
+    def request_stop(self, reason: str = STOPPED_ON_REQUEST) -> None:
+        """Ask the running loop to stop at its next block (or ≤ 50 samples); it then writes 0 V."""
+        if self._stop_reason is None or reason != STOPPED_ON_REQUEST:
+            self._stop_reason = reason
+        self._stop_flag[0] = 1
+
+    @property
+    def running(self) -> bool:
+        """True while a session (a run) owns the bench."""
+        return not self._idle.is_set()
+
+    def interrupt_reason(self) -> str | None:
+        """Why the running loop must stop now (watchdog trip, stop request), or None."""
+        if self.tripped:
+            return self.tripped
+        if self._stop_flag[0]:
+            return self._stop_reason or STOPPED_ON_REQUEST
+        return None
+
+    @contextmanager
+    def session(self, period_s: float, name: str = "run") -> Iterator[BenchSession]:
+        """Own the bench for one run: one at a time, stop flag cleared, watchdog armed with this
+        loop's control period ``period_s`` (s); the DAQ output is at 0 V when the block exits."""
+        self._ensure_open()
+        with self._lock:
+            self._stop_flag[0], self._stop_reason, self.tripped = 0, None, None
+            self._idle.clear()
+            try:
+                begin = getattr(self.parts.daq, "begin_session", None)
+                if begin is not None:
+                    begin()
+                self.watchdog.arm(period_s, name)
+                yield BenchSession(self)
+            finally:
+                self.watchdog.disarm()
+                try:
+                    self._to_zero()
+                finally:
+                    self._idle.set()
 
     def run(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, *, block_samples: int = 2000,
             on_block: Callable[[BenchRecord, float], None] | None = None,
@@ -184,9 +194,10 @@ class Bench:
         """Stream a planned waveform through the bench in buffered blocks and return the record.
 
         ``u_v`` maps axis → actuator volts; axes left out are held at 0 V. ``on_block`` gets the
-        record so far and the fraction done; ``should_stop`` is polled between blocks. A stop, a
-        device fault or sensor saturation raises RunInterrupted carrying the partial record. The
-        output is at 0 V when this returns or raises.
+        record so far and the fraction done; the stop flag and ``should_stop`` are polled before
+        every block (one block = one control period here). A stop, a watchdog trip, a device fault
+        or sensor saturation raises RunInterrupted carrying the partial record. The output is at
+        0 V when this returns or raises.
         """
         self._ensure_open()
         self.check_waveform(u_v, sample_rate_hz)
@@ -194,8 +205,7 @@ class Bench:
         if len(lengths) != 1:
             raise LimitError(f"all axes need the same number of samples, got {sorted(lengths)}")
         n = lengths.pop()
-        with self._lock:
-            self._stop_requested.clear()
+        with self.session(period_s=block_samples / sample_rate_hz, name="a buffered run") as session:
             actual = self.parts.daq.configure(sample_rate_hz)
             if abs(actual - sample_rate_hz) > 1e-9 * sample_rate_hz:
                 raise LimitError(f"sample rate {sample_rate_hz} Hz is not a divisor of the DAQ timebase; "
@@ -203,43 +213,36 @@ class Bench:
             daq = self.parts.daq
             n_ao = daq.capabilities.ao_channels
             commands = {axis: np.asarray(u_v.get(axis, np.zeros(n)), dtype=float) for axis in self.axes}
-            chunks_u: dict[str, list[np.ndarray]] = {axis: [] for axis in self.axes}
-            chunks_ai: list[np.ndarray] = []
+            acquired = _Acquired(self, n, actual)
             previous = {axis: 0.0 for axis in self.axes}
             self.live.begin(actual, "buffered run")
-            try:
-                for start in range(0, n, block_samples):
-                    stop = min(start + block_samples, n)
-                    ao = np.zeros((stop - start, n_ao))
-                    for axis in self.axes:
-                        block = self.clamp_block(axis, commands[axis][start:stop], previous[axis], actual)
-                        previous[axis] = float(block[-1])
-                        chunks_u[axis].append(block)
-                        ao[:, self.parts.ao_channel[axis]] = block / self.parts.amplifiers[axis].gain_v_per_v
-                    try:
-                        chunks_ai.append(daq.write_read(ao))
-                    except RunInterrupted:
-                        raise
-                    except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far
-                        for axis in self.axes:
-                            chunks_u[axis].pop()
-                        record = self._record(chunks_u, chunks_ai, actual)
-                        record.partial, record.reason = True, f"daq: {exc}"
-                        raise RunInterrupted(record.reason, record) from exc
-                    self.live.push({a: chunks_u[a][-1] for a in self.axes}, self._x_um(chunks_ai[-1]))
-                    fault = self.fault_reason()
-                    record = self._record(chunks_u, chunks_ai, actual)
-                    if fault:
-                        record.partial, record.reason = True, fault
-                        raise RunInterrupted(fault, record)
-                    if on_block is not None:
-                        on_block(record, stop / n)
-                    if stop < n and (self._stop_requested.is_set() or (should_stop and should_stop())):
-                        record.partial, record.reason = True, "stopped on request"
-                        raise RunInterrupted("stopped on request", record)
-                return self._record(chunks_u, chunks_ai, actual)
-            finally:
-                self._to_zero()
+            for start in range(0, n, block_samples):
+                if start and should_stop is not None and should_stop():
+                    self.request_stop()
+                stop = min(start + block_samples, n)
+                ao = np.zeros((stop - start, n_ao))
+                blocks = {}
+                for axis in self.axes:
+                    blocks[axis] = self.clamp_block(axis, commands[axis][start:stop], previous[axis], actual)
+                    ao[:, self.parts.ao_channel[axis]] = blocks[axis] / self.parts.amplifiers[axis].gain_v_per_v
+                why = session.interrupted()   # right before the write: at most this one block follows a stop
+                if why:
+                    raise acquired.interrupted(why, stopped=not self.tripped)
+                previous = {axis: float(blocks[axis][-1]) for axis in self.axes}
+                try:
+                    ai = daq.write_read(ao)
+                except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far
+                    why = session.interrupted()   # a write abandoned by a stop or a watchdog trip says so
+                    raise acquired.interrupted(why or f"daq: {exc}", stopped=bool(why) and not self.tripped) from exc
+                acquired.add(blocks, ai)
+                self.live.push(blocks, acquired.last_x_um(len(ai)))
+                session.feed(stop - start)
+                fault = self.fault_reason()
+                if fault:
+                    raise acquired.interrupted(f"{fault} (run stopped at t={stop / actual:.2f} s)")
+                if on_block is not None:
+                    on_block(acquired.record(), stop / n)
+            return acquired.record()
 
     def step(self, u_v: Mapping[str, float]) -> dict[str, float]:
         """Point-by-point: apply one clamped sample per axis and return x_um per axis."""
@@ -261,10 +264,25 @@ class Bench:
         return {axis: float(ai[self.parts.ai_channel[axis]]) * self.parts.sensors[axis].scale_um_per_v
                 for axis in self.axes}
 
-    def stop(self) -> None:
-        """Emergency stop: request any run to end and drive the output to 0 V now."""
-        self._stop_requested.set()
-        self._to_zero()
+    def stop(self, reason: str = "emergency stop", wait_s: float | None = None) -> bool:
+        """Emergency stop: raise the stop flag, let the running loop write 0 V (it checks the flag
+        every block or ≤ 50 samples), and write 0 V here if it has not within ``wait_s`` (default
+        ``[safety] stop_wait_s``) or if no loop runs. Returns True if a running loop answered."""
+        running = self.running
+        self.request_stop(reason)
+        answered = self._idle.wait(self.safety.stop_wait_s if wait_s is None else wait_s)
+        if not answered:
+            self._to_zero()              # the loop did not answer (stalled): 0 V from this thread
+        elif self._lock.acquire(blocking=False):
+            try:                         # no loop owns the bench: make sure anyway
+                self._to_zero()
+            finally:
+                self._lock.release()
+        return running and answered
+
+    def _on_watchdog_trip(self, reason: str) -> None:
+        self.tripped = reason
+        self._stop_flag[0] = 1
 
     def close(self) -> None:
         if self._closed:
@@ -273,6 +291,7 @@ class Bench:
             self._to_zero()
         finally:
             self._closed = True
+            self.watchdog.close()
             self.parts.daq.close()
 
     def __enter__(self) -> "Bench":
@@ -300,21 +319,13 @@ class Bench:
                             **s.status().as_dict()} for a, s in self.parts.sensors.items()},
             "limits": {a: {**lim.as_dict(), "max_frequency_hz_at_full_range":
                            lim.max_frequency_hz(lim.v_max_v - lim.v_min_v)} for a, lim in self.limits.items()},
+            "safety": {**self.safety.__dict__, "watchdog_last_trip": self.watchdog.last_trip,
+                       "stop_requested": bool(self._stop_flag[0]), "running": self.running},
             "modes": {"buffered": daq.capabilities.buffered, "point_by_point": daq.capabilities.point_by_point,
                       "point_by_point_reason": daq.capabilities.point_by_point_reason},
             # real-time pacing of an emulated DAQ: periods paced and overruns (a real DAQ has none)
             "timing": daq.timing() if callable(getattr(daq, "timing", None)) else {"realtime": False},
         }
-
-    def _record(self, chunks_u, chunks_ai, rate) -> BenchRecord:
-        ai = np.concatenate(chunks_ai) if chunks_ai else np.zeros((0, self.parts.daq.capabilities.ai_channels))
-        x = self._x_um(ai)
-        u = {a: np.concatenate(chunks_u[a]) if chunks_u[a] else np.zeros(0) for a in self.axes}
-        return BenchRecord(sample_rate_hz=rate, u_cmd_v=u, x_um=x)
-
-    def _x_um(self, ai: np.ndarray) -> dict[str, np.ndarray]:
-        """DAQ input volts (samples × channels) → micrometres per axis."""
-        return {a: ai[:, self.parts.ai_channel[a]] * self.parts.sensors[a].scale_um_per_v for a in self.axes}
 
     def fault_reason(self) -> str | None:
         """The first amplifier fault or sensor loss, in words, or None when every part is healthy."""
@@ -335,8 +346,3 @@ class Bench:
     def _ensure_open(self) -> None:
         if self._closed:
             raise DriverError("the bench is closed")
-
-    def _axis(self, axis: str) -> str:
-        if axis not in self.limits:
-            raise LimitError(f"unknown axis {axis!r}; this bench has {', '.join(self.axes)}")
-        return axis

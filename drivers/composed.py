@@ -126,6 +126,12 @@ class ComposedDaq:
     def write_idle(self) -> None:
         self.inner.write_idle()
 
+    def begin_session(self) -> None:
+        """Optional DAQ hook (the emulator's fault clock); real DAQs need none."""
+        begin = getattr(self.inner, "begin_session", None)
+        if begin is not None:
+            begin()
+
     def close(self) -> None:
         try:
             self.inner.close()
@@ -174,6 +180,8 @@ def open_from_config(cfg: dict, seed: int = 0) -> Bench:
             can_bus, sensors = _can_sensors(t["sensors"], world, emulators, closers)
         else:
             can_bus = None
+        if world is not None:
+            world.faults.transports.update(emulators)   # serial / CAN faults act on the wire
         if world is not None and emulators:
             from drivers.emulated.wire import WireDaq
 

@@ -73,7 +73,11 @@ class Daq(Protocol):
         Raises NotSupportedError where ``capabilities.point_by_point`` is False."""
 
     def write_idle(self) -> None:
-        """Drive every AO channel to 0 V now."""
+        """Drive every AO channel to 0 V now. Must work from any thread (the watchdog and the
+        emergency stop call it while a loop may be stalled in another thread).
+
+        Optional: ``begin_session()``, called by ``Bench.session`` when a run starts (the emulator
+        counts its scheduled faults' ``after_s`` from there); real DAQs need not have it."""
 
     def close(self) -> None: ...
 

@@ -60,11 +60,11 @@ def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep
         try:
             record = bench.run(planned.u_v, planned.sample_rate_hz, on_block=on_block,
                                should_stop=lambda: ctx.cancelled)
-            reason = None
+            reason, stopped = None, False
         except RunInterrupted as exc:
-            record, reason = exc.record, exc.reason
+            record, reason, stopped = exc.record, exc.reason, exc.stopped
         if record.samples == 0:
-            raise JobInterrupted(f"{reason}; no samples were taken", None)
+            raise JobInterrupted(f"{reason}; no samples were taken", None, cancelled=stopped)
         arrays = record_arrays(record)
         ctx.progress(0.99, "storing")
         row = store.add_dataset(arrays, {
@@ -76,7 +76,8 @@ def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep
         chunks.discard()
     result = {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"]}
     if reason is not None:
-        raise JobInterrupted(f"{reason}: {row['samples']} samples kept as partial dataset {row['id']}", result)
+        raise JobInterrupted(f"{reason}: {row['samples']} samples kept as partial dataset {row['id']}", result,
+                             cancelled=stopped)
     return result
 
 

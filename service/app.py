@@ -12,6 +12,7 @@ from fastapi import FastAPI
 
 from drivers.bench import Bench
 from service import __version__
+from service.api import admin as admin_api
 from service.api import auth as auth_api
 from service.api import bench as bench_api
 from service.api import datasets as datasets_api
@@ -35,7 +36,8 @@ from service.store import Store
 #: Routers mounted under /api, in the order they appear in the docs. Every one but health needs a
 #: token (service/api/auth.py): read for GET/HEAD, operate for writes, admin under /api/admin.
 ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
-           models_api.router, discovery_api.router, trajectories_api.router, tokens_api.router)
+           models_api.router, discovery_api.router, trajectories_api.router, tokens_api.router,
+           admin_api.router)
 OPEN_ROUTERS = (health_api.router,)
 
 

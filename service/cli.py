@@ -25,12 +25,16 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         auth=args.auth or defaults.auth,
     )
     from service.cli_tokens import serve_refusal
+    from service.safe_shutdown import install
 
     refusal = serve_refusal(settings)
     if refusal:
         print(f"evcbench serve: {refusal}", file=sys.stderr)
         return 2
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+    app = create_app(settings)
+    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
+    install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
+    server.run()
     return 0
 
 

@@ -30,11 +30,12 @@ SSE_HEARTBEAT_S = 15.0
 
 
 class JobInterrupted(Exception):
-    """A job ended early but produced something (e.g. a partial dataset): ``result`` is kept."""
+    """A job ended early but produced something (e.g. a partial dataset): ``result`` is kept.
+    ``cancelled`` True: it was stopped on request (cancel, emergency stop, signal), not by a fault."""
 
-    def __init__(self, reason: str, result: dict | None = None):
+    def __init__(self, reason: str, result: dict | None = None, cancelled: bool = False):
         super().__init__(reason)
-        self.reason, self.result = reason, result
+        self.reason, self.result, self.cancelled = reason, result, cancelled
 
 
 @dataclass
@@ -48,6 +49,7 @@ class _Live:
     version: int = 0
     persisted_at: float = 0.0
     cancel: threading.Event = field(default_factory=threading.Event)
+    cancel_reason: str | None = None
 
 
 class JobContext:
@@ -111,16 +113,18 @@ class JobManager:
             row.update(state=live.state, progress=live.progress, message=live.message)
         return _public(row)
 
-    def cancel(self, job_id: str) -> dict:
-        """Cancel: a queued job at once; a running one is asked to stop (its state follows)."""
+    def cancel(self, job_id: str, reason: str | None = None) -> dict:
+        """Cancel: a queued job at once; a running one is asked to stop (its state follows).
+        ``reason`` (e.g. "emergency stop") becomes the job's message if the job gives none."""
         row = self.store.get_job(job_id)
         live = self._live.get(job_id)
         if row["state"] in TERMINAL_STATES or live is None:
             return self.get(job_id)
         with self._lock:
+            live.cancel_reason = live.cancel_reason or reason
             live.cancel.set()
             if live.state == "queued":
-                self._finish(job_id, "cancelled", message="cancelled before it started")
+                self._finish(job_id, "cancelled", message=reason or "cancelled before it started")
                 return self.get(job_id)
         if live.needs_bench and self._on_cancel_bench is not None and self._running_bench_job == job_id:
             self._on_cancel_bench()  # besides the job's own cancel flag, for jobs that poll only the bench
@@ -132,12 +136,20 @@ class JobManager:
         """The id of the job that owns the bench now, or None."""
         return self._running_bench_job
 
-    def cancel_running_bench_job(self) -> str | None:
+    def cancel_running_bench_job(self, reason: str | None = None) -> str | None:
         """Cancel whichever job owns the bench now; returns its id (None if the bench is idle)."""
         job_id = self._running_bench_job
         if job_id is not None:
-            self.cancel(job_id)
+            self.cancel(job_id, reason)
         return job_id
+
+    def cancel_queued_bench_jobs(self, reason: str | None = None) -> list[str]:
+        """Cancel every bench job still waiting for the bench (an emergency stop keeps it still)."""
+        with self._lock:
+            ids = [i for i, live in self._live.items() if live.needs_bench and live.state == "queued"]
+        for job_id in ids:
+            self.cancel(job_id, reason)
+        return ids
 
     async def events(self, job_id: str) -> AsyncIterator[str]:
         """Server-sent events: a ``progress`` event on every change, then ``end`` with the final job."""
@@ -197,14 +209,14 @@ class JobManager:
         try:
             result = live.fn(JobContext(self, job_id))
         except JobInterrupted as exc:
-            state = "cancelled" if live.cancel.is_set() else "failed"
+            state = "cancelled" if live.cancel.is_set() or exc.cancelled else "failed"
             self._finish(job_id, state, result=exc.result, message=exc.reason,
                          error=None if state == "cancelled" else exc.reason)
         except Exception as exc:  # the job's failure is its result; the worker lives on
             self._finish(job_id, "failed", message="failed", error=str(exc) or type(exc).__name__)
         else:
             if live.cancel.is_set() and not result:
-                self._finish(job_id, "cancelled", message="cancelled")
+                self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
             else:
                 self._finish(job_id, "succeeded", result=result, progress=1.0, message="done")
 

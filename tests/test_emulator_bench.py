@@ -219,7 +219,7 @@ def test_injected_amplifier_overcurrent_interrupts_run():
     assert st.fault and "injected" in st.fault_reason and abs(st.output_v) < 0.05
     with pytest.raises(ValueError, match="unknown fault kind"):
         world.inject_fault("meteor")
-    assert set(FAULT_KINDS) == {"sensor_dropout", "amplifier_overcurrent"}
+    assert set(FAULT_KINDS) == {"sensor_dropout", "sensor_saturation", "amplifier_overcurrent"}
     world.clear_faults()
     assert not bench.parts.amplifiers["y"].status().fault
 

@@ -116,7 +116,7 @@ def test_a_gauge_dropout_over_can_stops_the_run():
     bench = _wire_bench()
     try:
         reason, record = _run_with_fault(bench, lambda: bench.parts.world.inject_fault("sensor_dropout", "z"))
-        assert reason == "sensor z: gauge z (CAN node 2): dropout, signal lost"
+        assert reason == "sensor z: gauge z (CAN node 2): dropout, signal lost (run stopped at t=0.10 s)"
         assert record.samples == 2 * BLOCK
     finally:
         bench.close()
@@ -145,7 +145,7 @@ def test_gauges_on_ai_with_can_for_configuration_and_faults():
         nodes = wire.parts.daq.emulators["can"]
         reason, record = _run_with_fault(wire, lambda: nodes.inject("bus_off"))
         assert reason.startswith("sensor y: gauge y: CAN virtual:evc-emulated-")
-        assert reason.endswith("bus-off (error frame 0x40)")
+        assert reason.endswith("bus-off (error frame 0x40) (run stopped at t=0.10 s)")
         assert record.samples == 2 * BLOCK
     finally:
         wire.close()

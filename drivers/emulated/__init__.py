@@ -2,7 +2,9 @@
 
     from drivers.emulated import open_bench
     bench = open_bench("default", seed=1)          # fixtures/benches/default.toml
-    bench.world.inject_fault("sensor_dropout", "y")
+    bench.parts.world.inject_fault("sensor_dropout", "y")          # now
+    bench.parts.world.faults.add("loop_stall", after_s=0.4)        # scheduled (faults.py)
+    bench.parts.world.output_log.last()                            # what the amplifiers got (output_log.py)
 
 Configurations live in fixtures/benches/ (``list_benches()``); ``load_config`` resolves
 ``extends`` and overrides. Every effect is switchable and scalable there.

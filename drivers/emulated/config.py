@@ -70,6 +70,7 @@ for _effect in EFFECTS:
     RULES[_effect + ".enabled"] = ("bool",)
     RULES[_effect + ".scale"] = ("num", 0.0, 1000.0)
 OPTIONAL = {"seed", "description", "daq.realtime"}
+CHECKED_ELSEWHERE = ("transport", "safety", "faults", "emulator")
 
 
 def list_benches() -> list[str]:
@@ -166,8 +167,9 @@ def validate(cfg: dict) -> dict:
     if set(cfg.get("axes", {})) != set(AXES):
         raise ValueError(f"axes: need exactly {', '.join(AXES)}, got {sorted(cfg.get('axes', {}))}")
     present = set()
-    # the optional [transport] table (which transport serves each part) is checked by drivers.composed
-    for path, value in _leaves({k: v for k, v in cfg.items() if k != "transport"}):
+    # optional tables checked elsewhere: [transport] by drivers.composed, [safety] by drivers.watchdog,
+    # [faults] by drivers.emulated.faults, [emulator] by drivers.emulated.output_log
+    for path, value in _leaves({k: v for k, v in cfg.items() if k not in CHECKED_ELSEWHERE}):
         rule = _rule_for(path)
         if rule is None:
             raise ValueError(f"{path}: unknown key")
@@ -207,9 +209,16 @@ def validate(cfg: dict) -> dict:
 
 def load_config(name_or_path: str = "default", overrides: dict | None = None) -> dict:
     """Load fixtures/benches/<name>.toml (or a path), resolve ``extends``, merge overrides, validate."""
+    from drivers.emulated.faults import check_config as check_faults
+    from drivers.emulated.output_log import check_config as check_emulator
+    from drivers.watchdog import SafetyConfig
+
     cfg = _load_file(_resolve(name_or_path))
     if overrides:
         if not isinstance(overrides, dict):
             raise ValueError(f"overrides: must be a dict, got {type(overrides).__name__}")
         cfg = deep_merge(cfg, _expand_overrides(overrides))
+    SafetyConfig.from_config(cfg.get("safety"))
+    check_faults(cfg.get("faults"))
+    check_emulator(cfg.get("emulator"))
     return validate(cfg)

@@ -61,13 +61,29 @@ class EmulatedDaq:
                              "nothing was written")
 
     def write_read(self, ao_daq_v: np.ndarray) -> np.ndarray:
-        """Buffered: write an (n, 2) block of DAQ volts, return the (n, 4) AI block."""
+        """Buffered: write an (n, 2) block of DAQ volts, return the (n, 4) AI block. A scheduled
+        fault (faults.py) fires at its exact sample: the block is run in two parts around it."""
         self._ensure_open()
         ao = np.asarray(ao_daq_v, dtype=np.float64)
         if ao.ndim != 2 or ao.shape[1] != 2:
             raise ValueError(f"AO block must have shape (n, 2), got {ao.shape}")
         self._check_ao(ao)
-        return self.world.run(ao)
+        faults, parts = self.world.faults, []
+        while True:
+            k = faults.samples_until_due(len(ao))
+            if k is None:
+                break
+            if k:
+                parts.append(self.world.run(ao[:k]))
+                ao = ao[k:]
+            faults.fire_due()
+        parts.append(self.world.run(ao))
+        self.world.output_log.record("block")
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def begin_session(self) -> None:
+        """A bench session starts: scheduled faults count their ``after_s`` from now."""
+        self.world.faults.begin_session()
 
     def step(self, ao_daq_v: Sequence[float]) -> np.ndarray:
         """Point-by-point: one AO sample in, one AI sample (4,) out, through the same kernel."""
@@ -87,7 +103,17 @@ class EmulatedDaq:
         if self._closed or not self.capabilities.point_by_point:
             return None
         step_fn, args = self.world.kernel_state()
-        return step_fn, args, self.world.take_noise
+        world = self.world
+
+        def take_noise(n: int):
+            """Once per period: log the output, fire the faults due within the next n samples."""
+            if n:
+                world.output_log.record("period")
+            if world.faults.samples_until_due(n) is not None:
+                world.faults.fire_due()
+            return world.take_noise(n)
+
+        return step_fn, args, take_noise
 
     def timing(self) -> dict:
         """Real-time pacing counters (``realtime``, ``periods``, ``overruns``, ``max_late_ms``);
@@ -99,11 +125,17 @@ class EmulatedDaq:
         """AO to 0 V, then let the world run idle until the amplifier outputs are below 10 mV."""
         if self._closed:
             return
+        t0 = self.world.time_s
         self.world.idle()
+        self.world.faults.idle_written()
+        self.world.output_log.record("idle", zero_from_t_s=round(t0, 6))
 
     def close(self) -> None:
         if not self._closed:
             self.world.idle()
+            self.world.faults.idle_written()
+            self.world.output_log.record("close")
+            self.world.output_log.close()
             self._closed = True
 
     def _ensure_open(self) -> None:
@@ -141,8 +173,7 @@ class EmulatedAmplifier:
         if fault:
             reason = (f"over-current: {sa[K.S_FAULT_I] * 1e3:.0f} mA demanded (limit {self.current_limit_a * 1e3:.0f} mA) "
                       f"for {sa[K.S_FAULT_T] * 1e3:.1f} ms")
-            if self.world.injected("amplifier_overcurrent", self.axis):
-                reason += " (injected)"
+            reason += self.world.injected_note("amplifier_overcurrent", self.axis)
         return AmplifierStatus(enabled=bool(sa[K.S_ENABLED] > 0.5), fault=fault, fault_reason=reason,
                                output_v=float(sa[K.S_VP]), current_a=float(sa[K.S_IA]),
                                current_limited=bool(sa[K.S_CLIM] > 0.5))
@@ -162,12 +193,14 @@ class EmulatedSensor:
     def status(self) -> SensorStatus:
         sa = self.world.sa[self._a]
         if sa[K.S_DROP] > 0.5:
-            why = "injected" if self.world.injected("sensor_dropout", self.axis) else "signal lost"
-            return SensorStatus(ok=False, saturated=False, reason=f"gauge {self.axis}: dropout, output stuck at 0 V ({why})")
+            why = self.world.injected_note("sensor_dropout", self.axis) or " (signal lost)"
+            return SensorStatus(ok=False, saturated=False,
+                                reason=f"gauge {self.axis}: dropout{why}, output stuck at 0 V")
         if sa[K.S_SAT] > 0.5 or sa[K.S_SATN] > 0:
             v = sa[K.S_GV]
             return SensorStatus(ok=False, saturated=True,
-                                reason=f"gauge {self.axis}: saturated ({int(sa[K.S_SATN])} samples at ±{self.world.range_v:g} V, "
+                                reason=f"gauge {self.axis}: saturated{self.world.injected_note('sensor_saturation', self.axis)} "
+                                       f"({int(sa[K.S_SATN])} samples at ±{self.world.range_v:g} V, "
                                        f"last {v:+.2f} V): target outside ±{self.range_um[1]:g} µm")
         return SensorStatus(ok=True, saturated=False, reason=None)
 

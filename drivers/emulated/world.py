@@ -14,12 +14,14 @@ from scipy.linalg import expm
 
 from drivers.emulated import kernels as K
 from drivers.emulated.pacing import Pacer
+from drivers.emulated.faults import FaultInjector
+from drivers.emulated.output_log import OutputLog
 
 AXES = ("y", "z")
 NOISE_CHUNK = 1 << 16       # samples of noise generated at a time
 IDLE_THRESHOLD_V = 0.010    # write_idle waits until |amplifier output| < 10 mV ...
 IDLE_CAP_S = 0.020          # ... for at most 20 ms
-FAULT_KINDS = ("sensor_dropout", "amplifier_overcurrent")
+FAULT_KINDS = ("sensor_dropout", "sensor_saturation", "amplifier_overcurrent")  # world-level; see faults.py
 
 
 def _on(section: dict) -> float:
@@ -81,7 +83,9 @@ class World:
         self._build_static()
         self.sample_rate_hz = 0.0
         self.set_sample_rate(float(daq["sample_rate_hz"]))
-        self._injected: dict[str, set[str]] = {k: set() for k in FAULT_KINDS}
+        self._injected: dict[str, dict[str, float | None]] = {k: {} for k in FAULT_KINDS}  # kind → axis → at_s
+        self._saturation_offset_um = np.zeros(2)
+        self.last_ao = np.zeros(2)   # last AO row written through run/step (DAQ volts)
         #: ``[daq] realtime = true``: blocks take wall time at the sample clock (see pacing.py)
         self.pacer = Pacer() if daq.get("realtime", False) else None
         if self.pacer is not None:
@@ -90,6 +94,16 @@ class World:
         self._scratch_out = np.zeros((1, K.NOISE_COLS))
         self._scratch_diag = K.empty_diag(1)
         self.reset_state()
+        self._compile()
+        self.faults = FaultInjector(self, config.get("faults"))
+        self.output_log = OutputLog(self, config.get("emulator"))
+
+    def _compile(self) -> None:
+        """Compile (or load from numba's cache) the run and idle kernels with zero-length calls, so
+        the first run does not spend seconds compiling while the watchdog guards it."""
+        self.run(np.zeros((0, 2)))
+        K.run_idle(*self._kernel_args(), self._noise, self._cursor, 0, IDLE_THRESHOLD_V, self._scratch_out,
+                   self._scratch_diag)
 
     # ------------------------------------------------------------------ construction
     @staticmethod
@@ -219,6 +233,7 @@ class World:
             self.sa[a, K.S_GOFF] = self.config["axes"][ax]["gauge"]["offset_um"]
         for kind in self._injected:
             self._injected[kind].clear()
+        self._saturation_offset_um[:] = 0.0
 
     def _warm_up(self) -> None:
         """Compile the block kernels now, on copies of the state (the world and its noise stream are
@@ -250,6 +265,8 @@ class World:
         self._ensure_noise(n)
         K.run_block(*self._kernel_args(), ao, self._noise, self._cursor, out, diag)
         self._cursor += n
+        if n:
+            self.last_ao = ao[-1].copy()
         self.last_diag = diag
         return out
 
@@ -261,6 +278,7 @@ class World:
         K.world_sample(*self._kernel_args(), float(ao0), float(ao1), self._noise, self._cursor,
                        out, 0, self._scratch_diag)
         self._cursor += 1
+        self.last_ao = np.array([ao0, ao1], dtype=float)
         self.last_diag = self._scratch_diag
         return out[0]
 
@@ -274,7 +292,18 @@ class World:
         used = K.run_idle(*self._kernel_args(), self._noise, self._cursor, max_n, IDLE_THRESHOLD_V,
                           self._scratch_out, self._scratch_diag)
         self._cursor += used
+        self.last_ao = np.zeros(2)
         return int(used)
+
+    def applied_ao_v(self) -> np.ndarray:
+        """The DAQ volts last written to each amplifier input (Y, Z), whichever path wrote them."""
+        if self.latency > 0:
+            return self.ring[(int(self.sg[K.SG_RING]) - 1) % self.latency].copy()
+        return self.last_ao.copy()
+
+    def amplifier_output_v(self) -> np.ndarray:
+        """Each amplifier's output now (Y, Z), actuator volts before output noise."""
+        return self.sa[:, K.S_VOUT].copy()
 
     def closed_loop(self, ref_um: np.ndarray, kp: float, ki: float) -> np.ndarray:
         """Compiled causal point-by-point PI loop on both axes (see kernels.run_closed_loop)."""
@@ -322,16 +351,22 @@ class World:
             raise ValueError(f"unknown axis {axis!r}; the emulator has {', '.join(AXES)}")
         return AXES.index(axis)
 
-    def inject_fault(self, kind: str, axis: str | None = None) -> None:
-        """Fault injection: "sensor_dropout" (gauge stuck at 0 V, status not ok) or
-        "amplifier_overcurrent" (fault latched, output driven to 0 V). ``axis`` None = both."""
+    def inject_fault(self, kind: str, axis: str | None = None, at_s: float | None = None) -> None:
+        """Fault injection now: "sensor_dropout" (gauge stuck at 0 V, status not ok),
+        "sensor_saturation" (the gauge's offset jumps past full scale: it reads +10 V, status saturated)
+        or "amplifier_overcurrent" (fault latched, output driven to 0 V). ``axis`` None = both;
+        ``at_s`` is the session time to quote in status reasons. Scheduled faults: ``self.faults``."""
         if kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(FAULT_KINDS)}")
         for ax in (AXES if axis is None else (axis,)):
             a = self.axis_index(ax)
-            self._injected[kind].add(ax)
+            self._injected[kind][ax] = at_s
             if kind == "sensor_dropout":
                 self.sa[a, K.S_DROP] = 1.0
+            elif kind == "sensor_saturation":
+                jump = 2.0 * self.pa[a, K.S_RANGE_UM]
+                self._saturation_offset_um[a] += jump
+                self.sa[a, K.S_GOFF] += jump
             else:
                 self.sa[a, K.S_FAULT] = 1.0
                 self.sa[a, K.S_FAULT_I] = max(abs(self.sa[a, K.S_IA]), self.pa[a, K.A_CUR_DV] * self.pa[a, K.A_CAP_F]
@@ -343,6 +378,9 @@ class World:
         for a in range(2):
             self.clear_amplifier_fault(a)
             self.sa[a, K.S_DROP] = 0.0
+            self.sa[a, K.S_GOFF] -= self._saturation_offset_um[a]
+            self.sa[a, K.S_SAT] = 0.0
+        self._saturation_offset_um[:] = 0.0
         for kind in self._injected:
             self._injected[kind].clear()
 
@@ -351,10 +389,17 @@ class World:
         self.sa[a, K.S_OCT] = 0.0
         self.sa[a, K.S_OCQ] = 0.0
         self.sa[a, K.S_OCPEAK] = 0.0
-        self._injected["amplifier_overcurrent"].discard(AXES[a])
+        self._injected["amplifier_overcurrent"].pop(AXES[a], None)
 
     def injected(self, kind: str, axis: str) -> bool:
         return axis in self._injected.get(kind, ())
+
+    def injected_note(self, kind: str, axis: str) -> str:
+        """" (injected at t=0.41 s)" for an injected fault, "" otherwise (for status reasons)."""
+        if axis not in self._injected.get(kind, ()):
+            return ""
+        at_s = self._injected[kind][axis]
+        return " (injected)" if at_s is None else f" (injected at t={at_s:.2f} s)"
 
     def kernel_state(self):
         """(world_sample, args) for compiled callers: ``world_sample(*args, ao0, ao1, noise, kn, out, ko, diag)``.

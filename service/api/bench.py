@@ -13,14 +13,22 @@ def bench_state(request: Request) -> dict:
     return {**state.bench.describe(), "running_job_id": state.jobs.running_bench_job}
 
 
+EMERGENCY_STOP = "emergency stop"
+
+
 @router.post("/bench/stop")
 def emergency_stop(request: Request) -> dict:
-    """Emergency stop: drive every output to 0 V now and cancel the job that owns the bench
-    (its samples so far are kept as a partial dataset)."""
+    """Emergency stop: drive every output to 0 V first (the running loop stops within one control
+    period, or 0 V is written from here), then cancel the job that owns the bench with the reason
+    "emergency stop" (its samples so far are kept as a partial dataset) and the bench jobs queued
+    behind it, so the bench stays still. Jobs submitted afterwards run normally."""
     state = request.app.state
-    job_id = state.jobs.cancel_running_bench_job()
-    state.bench.stop()
-    return {"stopped": True, "cancelled_job_id": job_id, "output_v": state.bench.output_v()}
+    queued = state.jobs.cancel_queued_bench_jobs(EMERGENCY_STOP)
+    running = state.jobs.running_bench_job
+    loop_answered = state.bench.stop(EMERGENCY_STOP)
+    job_id = state.jobs.cancel_running_bench_job(EMERGENCY_STOP) or running
+    return {"stopped": True, "cancelled_job_id": job_id, "cancelled_queued_job_ids": queued,
+            "loop_answered": loop_answered, "output_v": state.bench.output_v()}
 
 
 @router.get("/bench/live")

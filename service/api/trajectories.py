@@ -12,12 +12,12 @@ from drivers.bench import Bench
 from service.acquisition import bench_snapshot
 from service.api.deps import get_bench, get_jobs, get_store
 from service.control.feedforward import as_feedforward
-from service.control.loop import PIDGains, TrackRecord
+from service.control.loop import PIDGains, StopRequested, TrackRecord
 from service.control.safety import ControlRefused
 from service.control.session import SAMPLE_RATE_HZ, Controller, plan, track
 from service.control.trajectory import Ellipse
 from service.errors import FieldError
-from service.jobs import JobContext, JobManager
+from service.jobs import JobContext, JobInterrupted, JobManager
 from service.modelling import load_model
 from service.store import NotFoundError, Store, utc_now
 from service.store.chunks import ChunkWriter
@@ -134,15 +134,24 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
         ctx.progress(min(0.97, (p + 1) / total), msg)
 
     try:
-        result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period, should_stop=lambda: ctx.cancelled)
-        row = store.add_dataset(trace_arrays(rec, ref.sample_rate_hz, bench.axes, 0, rec.samples), {
+        try:
+            result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period,
+                                     should_stop=lambda: ctx.cancelled)
+        except StopRequested as exc:
+            raise JobInterrupted(f"{exc.reason} while measuring the response for the ILC; nothing stored",
+                                 None, cancelled=True) from None
+        n = rec.samples
+        row = store.add_dataset(trace_arrays(rec, ref.sample_rate_hz, bench.axes, 0, n), {
             **meta, "sample_rate_hz": ref.sample_rate_hz, "partial": bool(result["tripped"] or result["stopped"]),
-            "partial_reason": result["tripped"], "finished_at": utc_now()})
-    finally:
+            "partial_reason": result["tripped"] or rec.stop_reason, "finished_at": utc_now()})
+    finally:  # stored (or nothing to keep): the chunks are only for a process that dies mid-run
         chunks.discard()
     result["dataset_id"] = row["id"]
+    kept = f"{n} samples kept as partial dataset {row['id']}"
     if result["tripped"]:
-        raise RuntimeError(f"tripped: {result['tripped']} (traces kept in dataset {row['id']})")
+        raise JobInterrupted(f"tripped: {result['tripped']}: {kept}", result)
+    if result["stopped"]:
+        raise JobInterrupted(f"{rec.stop_reason or 'stopped on request'}: {kept}", result, cancelled=True)
     return result
 
 

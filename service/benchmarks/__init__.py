@@ -14,6 +14,7 @@ BENCHMARKS: dict[str, str] = {
     "control": "service.benchmarks.control:run_control_benchmark",
     "discovery": "service.benchmarks.discovery:run_discovery_benchmark",
     "service": "service.benchmarks.service_load:run_service_benchmark",
+    "safety": "service.benchmarks.safety:run_safety_benchmark",
     "auth": "service.benchmarks.auth:run_auth_benchmark",
 }
 

@@ -49,7 +49,7 @@ def controller_cost_us(n: int = 400_000, period: int = 200, harmonics: int = 20)
         t0 = time.perf_counter()
         CK.point_by_point_runner(_pass_through)(wargs, noise, 0, ref[:m], uff[:m], pid_p, np.zeros((2, CK.NPS)),
                               np.zeros(2), lim, trip, np.zeros(2), np.ones(2), np.zeros(2), 1 / SAMPLE_RATE_HZ,
-                              x, u, np.zeros((1, 4)), np.zeros((1, 10)))
+                              x, u, np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
         return time.perf_counter() - t0
 
     once(1000)

@@ -16,8 +16,10 @@ KP, KI, KD, TF, ON, NPID = range(6)
 S_INT, S_DER, S_EPREV, NPS = range(4)
 L_VMIN, L_VMAX, L_STEP, L_GAIN, NL = range(5)
 T_ERR, T_N, T_RANGE, NT = range(4)
-OK, TRIP_ERROR, TRIP_RANGE = 0, 1, 2
-TRIP_REASONS = {TRIP_ERROR: "tracking error diverged", TRIP_RANGE: "sensor at the end of its range or lost"}
+OK, TRIP_ERROR, TRIP_RANGE, STOPPED = 0, 1, 2, 3
+TRIP_REASONS = {TRIP_ERROR: "tracking error diverged", TRIP_RANGE: "sensor at the end of its range or lost",
+                STOPPED: "stopped on request"}
+STOP_CHECK_SAMPLES = 32   # the runner polls its stop flag every this many samples (≤ 50)
 
 
 @njit(cache=True)
@@ -56,9 +58,11 @@ def point_by_point_runner(step_fn):
     plant; closing over ``step_fn`` avoids typing a function argument on every call).
 
     ``runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last,
-    dt, x_out, u_out, ai, diag) -> (samples run, status)``: a causal loop over ``ref_um.shape[0]``
+    dt, x_out, u_out, ai, diag, stop) -> (samples run, status)``: a causal loop over ``ref_um.shape[0]``
     samples, command k from the AI sample k-1, clamped, stepped through the plant; the error watch
-    trips on divergence. ``u_last``, ``y_last``, ``over``, ``pid_s`` carry state across calls."""
+    trips on divergence. ``u_last``, ``y_last``, ``over``, ``pid_s`` carry state across calls.
+    ``stop`` (uint8[1], e.g. ``BenchSession.stop_flag``) is polled every STOP_CHECK_SAMPLES samples:
+    non-zero returns STOPPED. The runner releases the GIL, so another thread can raise it mid-period."""
     key = id(step_fn)
     if key not in _RUNNERS:
         _RUNNERS[key] = (step_fn, _build_runner(step_fn))
@@ -71,10 +75,12 @@ _RUNNERS: dict = {}
 def _build_runner(step_fn):
     @njit(nogil=True)  # the GIL is free while a period runs: handlers and the loop do not stall each other
     def runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last, dt,
-               x_out, u_out, ai, diag):
+               x_out, u_out, ai, diag, stop):
         n = ref_um.shape[0]
         ao = np.zeros(2)
         for k in range(n):
+            if k % STOP_CHECK_SAMPLES == 0 and stop[0] != 0:
+                return k, STOPPED
             for a in range(2):
                 e = ref_um[k, a] - y_last[a]
                 u = pid_step(pid_p[a], pid_s[a], e, uff_v[k, a], u_last[a], lim[a, L_VMIN], lim[a, L_VMAX],

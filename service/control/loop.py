@@ -4,7 +4,8 @@ Point-by-point: each period runs in the compiled runner (kernels.point_by_point_
 DAQ's compiled stepping hook, PID every sample; Python only sees period boundaries (ILC update,
 fault check, progress). Buffered: one period per DAQ block with two blocks queued, so a
 correction learned from period j first reaches period j+2; no per-sample feedback.
-Every trip, stop or end leaves the DAQ at 0 V.
+Every run is a ``Bench.session``: the watchdog is fed once per period, the stop flag is polled by the
+compiled runner (every ≤ 50 samples) and between blocks, and every trip, stop or end leaves the DAQ at 0 V.
 """
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.bench import Bench
+from drivers.bench import Bench, BenchSession
+from drivers.interfaces import DriverError
 from service.control import kernels as CK
 from service.control.ilc import HarmonicILC
 from service.control.safety import stepping_hook
@@ -21,6 +23,15 @@ from service.control.trajectory import Reference
 
 QUEUED_BLOCKS = 2   # buffered streaming: blocks in flight ahead of the one being measured
 SETTLE_S = 0.05     # 0 V held before each run so earlier motion has died out
+
+
+class StopRequested(RuntimeError):
+    """A run that other runs depend on (the ILC's response measurement) was stopped on request;
+    nothing may drive the bench after it in the same experiment. ``reason`` says who stopped it."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
 
 
 @dataclass(frozen=True)
@@ -47,6 +58,7 @@ class TrackRecord:
     error_per_period_um: list[float] = field(default_factory=list)
     tripped: str | None = None
     stopped: bool = False
+    stop_reason: str | None = None
     ilc_stop_reason: str | None = None
 
 
@@ -106,48 +118,84 @@ class Tracker:
         """Run every period; returns the record (``tripped`` says why it ended early)."""
         n = self.ref.x_um.shape[0]
         rec = TrackRecord(x_um=np.full((n, 2), np.nan), u_v=np.zeros((n, 2)), ref_um=self.ref.x_um, samples=0)
-        self.bench.configure(self.fs)
-        self._settle()
-        self.bench.live.begin(self.fs, "tracking")
-        try:
-            if self.mode == "point_by_point":
-                self._run_pbp(rec, on_period, should_stop)
-            else:
-                self._run_buffered(rec, on_period, should_stop)
-        finally:
-            self.bench.parts.daq.write_idle()
+        # compile before the watchdog is armed (compiling can take seconds on a fresh numba cache)
+        compiled = self._compiled_runner() if self.mode == "point_by_point" else None
+        CK.watch_block(self.ref.x_um[:0], rec.x_um[:0], self.trip, np.zeros(2))
+        with self.bench.session(period_s=self.ref.period / self.fs, name="a tracking run") as session:
+            self.bench.configure(self.fs)
+            try:
+                self._settle(session)
+                self.bench.live.begin(self.fs, "tracking")
+                if self.mode == "point_by_point":
+                    self._run_pbp(compiled, rec, on_period, should_stop, session)
+                else:
+                    self._run_buffered(rec, on_period, should_stop, session)
+            except DriverError as exc:  # a transport or the DAQ failed mid-run: keep what was measured
+                if not self._interrupted(rec, session):   # unless a stop or the watchdog abandoned the write
+                    rec.tripped = f"daq: {exc}"
         if self.ilc is not None:
             rec.ilc_stop_reason = self.ilc.stop_reason
         return rec
 
-    def _settle(self, settle_s: float = SETTLE_S) -> None:
+    def _settle(self, session: BenchSession, settle_s: float = SETTLE_S) -> None:
         """Hold 0 V for ``settle_s`` so a previous run's motion has died out before this one starts."""
         daq = self.bench.parts.daq
         daq.write_idle()
-        daq.write_read(np.zeros((int(settle_s * self.fs), daq.capabilities.ao_channels)))
+        n = int(settle_s * self.fs)
+        daq.write_read(np.zeros((n, daq.capabilities.ao_channels)))
+        session.feed(n)
 
-    def _end_period(self, p, rec, on_period, should_stop) -> bool:
+    def _interrupted(self, rec: TrackRecord, session: BenchSession) -> bool:
+        why = session.interrupted()
+        if why and self.bench.tripped:
+            rec.tripped = why
+        elif why:
+            rec.stopped, rec.stop_reason = True, why
+        return why is not None
+
+    def _trip_reason(self, status: int, rec: TrackRecord) -> str:
+        """The watch's trip in words, naming the device fault behind it when there is one (an amplifier
+        that tripped to 0 V makes the tracking error diverge)."""
+        fault = self.bench.fault_reason()
+        cause = f"{CK.TRIP_REASONS[status]} ({fault})" if fault else CK.TRIP_REASONS[status]
+        return f"{cause} at {rec.samples / self.fs * 1e3:.1f} ms; output set to 0 V"
+
+    def _end_period(self, p, rec, on_period, should_stop, session) -> bool:
+        session.feed(self.ref.period)
         s = slice(p * self.ref.period, rec.samples)
         self.bench.live.push({a: rec.u_v[s, i] for i, a in enumerate(self.bench.axes)},
                              {a: rec.x_um[s, i] for i, a in enumerate(self.bench.axes)})
         reason = self.bench.fault_reason()
         if reason:
-            rec.tripped = reason
+            rec.tripped = f"{reason} (tripped at t={rec.samples / self.fs:.2f} s)"
+            return True
+        if self._interrupted(rec, session):
             return True
         self._learn(p, rec)
         if on_period is not None:
             on_period(p, rec)
         if should_stop is not None and should_stop():
-            rec.stopped = True
+            rec.stopped, rec.stop_reason = True, self.bench.interrupt_reason() or "stopped on request"
             return True
         return False
 
-    def _run_pbp(self, rec, on_period, should_stop) -> None:
+    def _compiled_runner(self):
+        """(runner, world args, take_noise), compiled by a zero-length call (compiling takes seconds,
+        which must not count as a stalled loop once the watchdog is armed)."""
         hook = stepping_hook(self.bench)
         if hook is None:
             raise RuntimeError("point_by_point needs the DAQ's compiled stepping hook")
         step_fn, args, take_noise = hook
         runner = CK.point_by_point_runner(step_fn)
+        noise, n0 = take_noise(0)
+        empty = np.zeros((0, 2))
+        runner(args, noise, n0, self.ref.x_um[:0], self._command(0)[:0], self.pid_p, np.zeros((2, CK.NPS)),
+               np.zeros(2), self.lim, self.trip, np.zeros(2), self.um_per_v, np.zeros(2), 1.0 / self.fs, empty,
+               empty.copy(), np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
+        return runner, args, take_noise
+
+    def _run_pbp(self, compiled, rec, on_period, should_stop, session) -> None:
+        runner, args, take_noise = compiled
         pid_s = np.zeros((2, CK.NPS))
         u_last, y_last, over = np.zeros(2), np.zeros(2), np.zeros(2)
         ai, diag = np.zeros((1, 4)), np.zeros((1, 10))
@@ -158,23 +206,30 @@ class Tracker:
             x, u = np.zeros((N, 2)), np.zeros((N, 2))
             done, status = runner(args, noise, n0, self.ref.x_um[s], self._command(p),
                                                  self.pid_p, pid_s, u_last, self.lim, self.trip, over,
-                                                 self.um_per_v, y_last, 1.0 / self.fs, x, u, ai, diag)
+                                                 self.um_per_v, y_last, 1.0 / self.fs, x, u, ai, diag,
+                                                 session.stop_flag)
             rec.x_um[s][:done], rec.u_v[s][:done] = x[:done], u[:done]
             rec.samples = p * N + done
+            if status == CK.STOPPED:
+                self.bench.parts.daq.write_idle()
+                self._interrupted(rec, session)
+                return
             if status != CK.OK:
                 self.bench.parts.daq.write_idle()
-                rec.tripped = f"{CK.TRIP_REASONS[status]} at {rec.samples / self.fs * 1e3:.1f} ms; output set to 0 V"
+                rec.tripped = self._trip_reason(status, rec)
                 return
-            if self._end_period(p, rec, on_period, should_stop):
+            if self._end_period(p, rec, on_period, should_stop, session):
                 return
 
-    def _run_buffered(self, rec, on_period, should_stop) -> None:
+    def _run_buffered(self, rec, on_period, should_stop, session) -> None:
         daq, parts, N = self.bench.parts.daq, self.bench.parts, self.ref.period
         queue = [self._command(p) for p in range(min(QUEUED_BLOCKS, self.ref.periods))]
         prev = np.zeros(2)
         over = np.zeros(2)
         for p in range(self.ref.periods):
             s = slice(p * N, (p + 1) * N)
+            if self._interrupted(rec, session):
+                return
             cmd = queue.pop(0)
             ao = np.zeros((N, daq.capabilities.ao_channels))
             for i, axis in enumerate(self.bench.axes):
@@ -189,9 +244,9 @@ class Tracker:
             rec.samples = p * N + (done if status != CK.OK else N)
             if status != CK.OK:
                 daq.write_idle()
-                rec.tripped = f"{CK.TRIP_REASONS[status]} at {rec.samples / self.fs * 1e3:.1f} ms; output set to 0 V"
+                rec.tripped = self._trip_reason(status, rec)
                 return
-            if self._end_period(p, rec, on_period, should_stop):
+            if self._end_period(p, rec, on_period, should_stop, session):
                 return
             if p + QUEUED_BLOCKS < self.ref.periods:
                 queue.append(self._command(p + QUEUED_BLOCKS))

@@ -11,7 +11,7 @@ import numpy as np
 from drivers.bench import Bench
 from service.control.feedforward import feedforward_v
 from service.control.ilc import HarmonicILC, frf_from_periods, multisine
-from service.control.loop import SETTLE_S, PIDGains, TrackRecord, Tracker
+from service.control.loop import SETTLE_S, PIDGains, StopRequested, TrackRecord, Tracker
 from service.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
 from service.control.trajectory import Ellipse, Reference, reference
 
@@ -55,6 +55,8 @@ def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarr
                     period=period, ramp_periods=ramp, cycles=periods - ramp)   # ramp in, no ramp out
     trip = np.array([[1e3, 1e9, 0.98 * bench.parts.sensors[a].range_um[1]] for a in bench.axes])
     rec = Tracker(bench, ref, u, mode=mode, pid=pid, trip=trip).run()
+    if rec.stopped:   # an emergency stop or a signal: the tracking run must not start afterwards
+        raise StopRequested(rec.stop_reason or "stopped on request")
     if rec.tripped:
         raise RuntimeError(f"response measurement stopped: {rec.tripped}")
     s = (ramp + 4) * period

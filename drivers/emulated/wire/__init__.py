@@ -69,5 +69,8 @@ class WireDaq:
     def write_idle(self) -> None:
         self.inner.write_idle()
 
+    def begin_session(self) -> None:
+        self.inner.begin_session()
+
     def close(self) -> None:
         self.inner.close()

@@ -1,0 +1,141 @@
+"""A watchdog thread that drives the outputs to 0 V when a control or acquisition loop stalls.
+
+It is independent of the request handlers and of the loop it guards: the loop ``feed``s it on
+every written sample or block; if nothing is written for ``timeout_s`` (``periods`` control
+periods, at least ``min_timeout_s``), the watchdog writes 0 V through the DAQ interface
+(``write_idle``) and reports the trip, with the reason in words, to ``on_trip``.
+
+Drivers know no service: this module knows only the ``Daq`` protocol. Configuration is the
+``[safety]`` table of a bench configuration::
+
+    [safety]
+    watchdog_periods = 4        # control periods without a written sample before the trip
+    watchdog_min_s = 1.0        # floor of the timeout (slow sweeps, blocks of ≥ 0.1 s), seconds
+    watchdog_poll_s = 0.005     # how often the thread looks, seconds
+    stop_wait_s = 0.5           # emergency stop: how long to wait for the loop to reach 0 V itself
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, fields
+from typing import Callable
+
+_LIMITS = {"watchdog_periods": (1.0, 1000.0), "watchdog_min_s": (0.001, 3600.0),
+           "watchdog_poll_s": (0.0005, 1.0), "stop_wait_s": (0.0, 60.0)}
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """The ``[safety]`` table: watchdog timeout = max(watchdog_periods × period_s, watchdog_min_s)."""
+
+    watchdog_periods: float = 4.0
+    watchdog_min_s: float = 1.0
+    watchdog_poll_s: float = 0.005
+    stop_wait_s: float = 0.5
+
+    @classmethod
+    def from_config(cls, section: dict | None) -> "SafetyConfig":
+        """Validate a ``[safety]`` table; raises ValueError naming the bad key."""
+        section = section or {}
+        if not isinstance(section, dict):
+            raise ValueError("safety: must be a table")
+        known = {f.name for f in fields(cls)}
+        for key, value in section.items():
+            if key not in known:
+                raise ValueError(f"safety.{key}: unknown key (known: {', '.join(sorted(known))})")
+            lo, hi = _LIMITS[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+                raise ValueError(f"safety.{key}: must be a number in {lo:g}..{hi:g}, got {value!r}")
+        return cls(**{k: float(v) for k, v in section.items()})
+
+    def timeout_s(self, period_s: float) -> float:
+        """The watchdog timeout for a loop whose control period (or block) is ``period_s`` seconds."""
+        return max(self.watchdog_periods * float(period_s), self.watchdog_min_s)
+
+
+class Watchdog:
+    """Guards one loop at a time: ``arm(period_s)``, ``feed()`` per write, ``disarm()`` at the end.
+
+    ``last_trip`` holds the last trip as a dict: reason, timeout_s, stalled_s (time from the
+    last feed to the 0 V write, seconds) and samples fed before it."""
+
+    def __init__(self, daq, config: SafetyConfig | None = None, on_trip: Callable[[str], None] | None = None):
+        self.daq = daq
+        self.config = config or SafetyConfig()
+        self.on_trip = on_trip
+        self.timeout_s = self.config.watchdog_min_s
+        self.period_s = 0.0
+        self.name = ""
+        self.last_trip: dict | None = None
+        self._armed = False
+        self._last_feed = time.monotonic()
+        self._fed = 0
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._closed = False
+        self._thread: threading.Thread | None = None
+
+    def arm(self, period_s: float, name: str = "run") -> float:
+        """Start guarding a loop whose control period is ``period_s``; returns the timeout (s)."""
+        with self._lock:
+            self.period_s, self.name = float(period_s), name
+            self.timeout_s = self.config.timeout_s(period_s)
+            self._last_feed, self._fed, self._armed = time.monotonic(), 0, True
+        if self._thread is None or not self._thread.is_alive():
+            self._thread = threading.Thread(target=self._watch, name="evc-watchdog", daemon=True)
+            self._thread.start()
+        self._wake.set()
+        return self.timeout_s
+
+    def feed(self, samples: int = 1) -> None:
+        """The loop wrote ``samples`` more samples (cheap: one clock read)."""
+        self._last_feed = time.monotonic()
+        self._fed += samples
+
+    def disarm(self) -> None:
+        with self._lock:
+            self._armed = False
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    def close(self) -> None:
+        self._closed = True
+        self._armed = False
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+
+    def _watch(self) -> None:
+        while not self._closed:
+            if not self._armed:      # parked (no polling) until arm() or close() wakes it
+                self._wake.wait()
+                self._wake.clear()
+                continue
+            self._wake.wait(self.config.watchdog_poll_s)
+            self._wake.clear()
+            with self._lock:
+                if not self._armed:
+                    continue
+                stalled = time.monotonic() - self._last_feed
+                if stalled < self.timeout_s:
+                    continue
+                self._armed = False
+            self._trip()
+
+    def _trip(self) -> None:
+        try:
+            self.daq.write_idle()
+            zero = "output set to 0 V"
+        except Exception as exc:  # noqa: BLE001 - report it; the trip itself must not die
+            zero = f"writing 0 V failed: {exc}"
+        stalled_s = time.monotonic() - self._last_feed   # last write → 0 V written
+        reason = (f"watchdog: no sample written for {stalled_s:.2f} s during {self.name} (limit "
+                  f"{self.timeout_s:.2f} s = max({self.config.watchdog_periods:g} periods of "
+                  f"{self.period_s * 1e3:.1f} ms, {self.config.watchdog_min_s:g} s)); {zero}")
+        self.last_trip = {"reason": reason, "timeout_s": self.timeout_s, "stalled_s": stalled_s,
+                          "samples_fed": self._fed, "at_monotonic_s": time.monotonic()}
+        if self.on_trip is not None:
+            self.on_trip(reason)

@@ -1,0 +1,54 @@
+"""SIGTERM / SIGINT: outputs to 0 V and the running bench job cancelled *before* uvicorn shuts down.
+
+``serve`` builds a ``uvicorn.Server`` and calls ``install(server, app)``. Uvicorn installs
+``server.handle_exit`` as its signal handler when it starts serving; ``install`` wraps it so that
+a signal first drives the bench to 0 V (``Bench.stop``: the running loop stops within one control
+period, or 0 V is written from here), then cancels the running bench job with the reason
+"stopped by SIGTERM" (its samples so far are kept as a partial dataset), and only then lets uvicorn
+shut down normally (lifespan shut-down: the jobs end, the bench closes at 0 V).
+"""
+from __future__ import annotations
+
+import logging
+import signal
+from typing import Any
+
+log = logging.getLogger("evcbench.safety")
+
+
+def reason_for(sig: int) -> str:
+    """"stopped by SIGTERM" / "stopped by SIGINT"."""
+    try:
+        return f"stopped by {signal.Signals(sig).name}"
+    except ValueError:
+        return f"stopped by signal {sig}"
+
+
+def safe_state(app: Any, reason: str) -> dict:
+    """0 V first, then cancel the running bench job with ``reason``. Safe to call more than once and
+    before the app has started (then there is nothing to stop)."""
+    state = getattr(app, "state", None)
+    bench, jobs = getattr(state, "bench", None), getattr(state, "jobs", None)
+    out: dict = {"reason": reason, "cancelled_job_id": None}
+    if bench is not None:
+        running = jobs.running_bench_job if jobs is not None else None
+        bench.stop(reason)
+        out["output_v"] = bench.output_v()
+        if jobs is not None:
+            out["cancelled_job_id"] = jobs.cancel_running_bench_job(reason) or running
+    log.warning("%s: outputs at 0 V, running job %s cancelled", reason, out["cancelled_job_id"])
+    return out
+
+
+def install(server: Any, app: Any) -> None:
+    """Wrap ``server.handle_exit`` (uvicorn's SIGTERM/SIGINT handler) with ``safe_state``."""
+    original = server.handle_exit
+
+    def handle_exit(sig: int, frame) -> None:
+        try:
+            safe_state(app, reason_for(sig))
+        except Exception:  # noqa: BLE001 - never keep uvicorn from shutting down
+            log.exception("safe state on signal %s failed", sig)
+        original(sig, frame)
+
+    server.handle_exit = handle_exit
