@@ -43,9 +43,10 @@ export async function enter(root) {
         <label>PID <select name="pid"><option value="">none</option><option value="tuned">tuned for this bench</option>
           <option value="paper">paper gains (Y 50/300/0.06, Z 70/450/0.08)</option></select></label>
         <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
+        <label class="check" title="run a range beyond the axis's stroke with the command clamped at 0/120 V"><input type="checkbox" name="allow_saturation">allow saturation</label>
         <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
       </form>
-      <div id="traj-job"></div><div id="traj-error"></div>
+      <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div>
     </div>
     <div class="grid">
       <div class="card"><h2>Error per period</h2><div id="period-chart"></div></div>
@@ -81,6 +82,8 @@ async function run(root) {
   const err = root.querySelector('#traj-error');
   err.textContent = '';
   const ctl = { ilc: f.get('ilc') === 'on' };
+  if (f.get('allow_saturation') === 'on') ctl.allow_saturation = true;
+  root.querySelector('#traj-warnings').innerHTML = '';
   if (f.get('feedforward_model_y')) ctl.feedforward_model_y = f.get('feedforward_model_y');
   if (f.get('feedforward_model_z')) ctl.feedforward_model_z = f.get('feedforward_model_z');
   if (f.get('pid')) ctl.pid = PID[f.get('pid')];
@@ -122,6 +125,9 @@ async function run(root) {
       } });
     if (job.state === 'succeeded') {
       const result = job.result;
+      if (result.warnings && result.warnings.length) {
+        root.querySelector('#traj-warnings').innerHTML = `<div class="warn">${result.warnings.map((w) => `<p>${esc(w)}</p>`).join('')}</div>`;
+      }
       await drawPeriods(perPeriod({ result }));
       renderErrors(root, result, body);
       await drawEllipse(root, result, body);
