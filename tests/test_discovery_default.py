@@ -1,14 +1,14 @@
 """Discovery on the default bench (several effects at realistic size): following the diagnosis
-(top physical candidate each time) must reach a 'complete' verdict with every step's evidence in
-words, and each accepted step must lower the held-out error.
+(top physical candidate each time, then hysteresis capacity while the model is not at the noise
+floor) must reach a 'complete' verdict at the noise floor, with every step's evidence in words,
+and each step must lower the held-out error.
 
-Not yet met (see docs/discovery.md): the final validation RMS is within 2× the estimated noise
-floor only on the 1–50 Hz blocks that drive the other axis (coupling-only blocks); on Y's own
-1–100 Hz blocks it stays about 3× above it, and the diagnosis says so ("NOT at the noise floor").
-This test pins what the service achieves today.
+Not yet met (see docs/discovery.md): the block where only Z moves at 100 Hz stays ~3× the floor
+on Y (the coupling arrives through Z's 290 Hz mode, which the coupling columns do not carry).
 """
 from __future__ import annotations
 
+import re
 import warnings
 
 from service.discovery.records import sweep_records
@@ -29,14 +29,19 @@ def test_default_bench_discovery_converges():
         assert after < before, rms
     assert rms[-1] <= 0.3 * rms[0], rms
     for s in steps[:-1]:
-        top = next(c for c in s["diagnosis"]["candidates"] if c["kind"] == "physical")
-        assert top["high"] and len(top["evidence"]) > 40
+        d = s["diagnosis"]
+        if d["verdict"] == "missing_effect":
+            top = next(c for c in d["candidates"] if c["kind"] == "physical")
+            assert top["high"] and re.search(r"\d", top["evidence"]) and top["effect"] in top["evidence"]
+        else:  # physics complete, not at the floor: capacity is added, and said to be capacity
+            assert not d["at_noise_floor"] and "NOT at the noise floor" in d["verdict_text"]
+            assert "capacity" in d["verdict_text"]
+    assert added[-1] == "operators"
+    last = steps[-1]["diagnosis"]
+    assert last["verdict"] == "complete" and last["at_noise_floor"], last["verdict_text"]
     final = steps[-1]["per_block"]
     # the sweep drives Y (blocks 0–3), then Z alone (blocks 4–7, where Y sees only the coupling)
     own, other_axis = final[:4], final[4:]
+    assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in own), own
     assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in other_axis[:3]), other_axis
-    assert all(b["validation_rms_um"] <= 4 * b["noise_floor_um"] for b in own), own
-    last = steps[-1]["diagnosis"]
-    # the verdict says honestly that the repeatable part is above the floor (today 2.3×)
-    assert not last["at_noise_floor"] and "NOT at the noise floor" in last["verdict_text"]
-    assert 1.0 < last["repeatable_to_noise"] < 4.0
+    assert other_axis[3]["validation_rms_um"] <= 4 * other_axis[3]["noise_floor_um"], other_axis  # the gap above

@@ -98,12 +98,15 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                     f"({removed:.0f} % of the excess above the {noise:.3g} µm noise floor)"
                     + (f"; fitted {fitted}" if fitted else "") + ".")
         candidates.append({"effect": name, "kind": eff.kind, "score": round(score, 4), "expected_rms_um": v,
+                           "excess_removed": round(removed / 100, 4),
                            "added_parameters": trial.n_parameters() - k0, "evidence": evidence,
                            "significant": significant,
                            "signature": eff.signature})
-    candidates.sort(key=lambda c: (-c["score"], c["expected_rms_um"]))
     for c in candidates:
         c["high"] = c["score"] >= HIGH_SCORE or c["significant"]
+    # Capacity can absorb any repeatable residual, physics included: a physical effect that is
+    # claimed ranks before it; otherwise the order is by score.
+    candidates.sort(key=lambda c: (not (c["kind"] == "physical" and c["high"]), -c["score"], c["expected_rms_um"]))
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and (physical[0]["score"] >= HIGH_SCORE or physical[0]["significant"])
     repeatable = floor["repeatable_rms_um"]
@@ -117,6 +120,11 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst),
             "candidates": candidates, "failures": worst, "signature": sig,
             "ambiguity": ambiguity(physical, records, noise), "noise": floor, "metrics": ev}
+
+
+def helpful_capacity(candidates) -> list[dict]:
+    """Capacity candidates that remove a significant share of the excess on held-out data."""
+    return [c for c in candidates if c["kind"] == "capacity" and c["excess_removed"] >= SIGNIFICANT_SHARE]
 
 
 def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst) -> str:
@@ -135,9 +143,10 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor
                 f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise. No physical "
                 f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
                 f"outside the library{where}")
-    cap = [c for c in candidates if c["kind"] == "capacity" and c["score"] >= HIGH_SCORE]
+    cap = helpful_capacity(candidates)
     if cap:
-        text += "; more hysteresis capacity (operators) would still help — a model-capacity change, not physics"
+        text += (f"; more hysteresis capacity ({cap[0]['effect']}) would remove {100 * cap[0]['excess_removed']:.0f} % "
+                 f"of the excess (held-out {_fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics")
     return text
 
 

@@ -1,9 +1,10 @@
 """One full discovery run as a report: diagnose, add the top physical candidate, refit, repeat
-until the verdict is complete; the error history as a figure (matplotlib Agg)."""
+until the verdict is complete, then more hysteresis capacity while the model is not at the noise
+floor and a capacity candidate removes a significant share of the excess; the error history as a figure (matplotlib Agg)."""
 from __future__ import annotations
 
 from service.discovery.composite import fit_composite
-from service.discovery.diagnosis import diagnose
+from service.discovery.diagnosis import diagnose, helpful_capacity
 
 MAX_STEPS = 8
 
@@ -22,9 +23,14 @@ def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) ->
         for row, nf in zip(per_block, noise_by_block):
             row["noise_floor_um"] = nf
         steps.append({"effects": ["hysteresis"] + list(effects), "diagnosis": d, "per_block": per_block})
-        if d["verdict"] != "missing_effect":
+        if d["verdict"] == "missing_effect":
+            effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical")]
+            continue
+        # complete as far as physics goes: more capacity if the model is not at the noise floor yet
+        capacity = [c for c in helpful_capacity(d["candidates"]) if c["effect"] not in effects]
+        if d["at_noise_floor"] or not capacity:
             break
-        effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical")]
+        effects = effects + [capacity[0]["effect"]]
     return steps
 
 
