@@ -29,9 +29,10 @@ install: $(STAMP) $(WEB_STAMP)
 browser:
 	bash tests/setup/install_browser.sh
 
-## Start the service on 127.0.0.1:8000 against the emulated bench, with its store in ./var.
+## Start the service on 127.0.0.1:8000 against the emulated bench, with its store in ./var. The
+## default bench is paced to real time, as hardware is (EVCBENCH_BENCH=<name> picks another).
 run: $(STAMP) $(WEB_STAMP)
-	$(VENV)/bin/evcbench serve --host 127.0.0.1 --port 8000 --data-dir var
+	$(VENV)/bin/evcbench serve --host 127.0.0.1 --port 8000 --data-dir var --bench "$${EVCBENCH_BENCH:-default_realtime}"
 
 ## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
