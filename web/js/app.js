@@ -43,7 +43,8 @@ async function emergencyStop() {
     const r = await api('/bench/stop', { method: 'POST' });
     const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${(Math.abs(v) < 0.005 ? 0 : Number(v)).toFixed(2)} V`).join(', ');
     banner(`Emergency stop: outputs at ${volts || '0 V'}` +
-           (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled.` : '; no job was running.'), 'info');
+           (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no job was running') +
+           ((r.cancelled_queued_job_ids || []).length ? `; queued bench jobs cancelled too: ${r.cancelled_queued_job_ids.join(', ')}.` : '.'), 'info');
     document.getElementById('banner').dataset.stopped = JSON.stringify(r);
   } catch (err) {
     banner(`Emergency stop FAILED: ${err.message}`);
