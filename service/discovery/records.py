@@ -97,13 +97,14 @@ def records_from_arrays(arrays: dict, fs_hz: float, blocks: list, axes, label: s
 
 
 def sweep_records(bench: str, seed: int = 0, frequencies_hz=(1.0, 10.0, 50.0, 100.0), cycles: int = 5,
-                  axes=("y", "z"), together: bool = False, plan: dict | None = None) -> dict[str, Record]:
+                  axes=("y", "z"), together: bool = False, plan: dict | None = None,
+                  overrides: dict | None = None) -> dict[str, Record]:
     """Run a sine characterisation (or ``plan``, a /api/sweeps-style body) on an emulated bench
-    and return ``{axis: Record}``."""
+    (its configuration changed by ``overrides``, dotted keys) and return ``{axis: Record}``."""
     from drivers.emulated import open_bench
     from service.sweeps import SinePlan, plan_for_bench, plan_from_dict, trim_blocks
 
-    b = open_bench(bench, seed)
+    b = open_bench(bench, seed, overrides)
     if plan is not None:
         axes = tuple(plan.get("axes", axes))
         sweep = plan_from_dict({**plan, "axes": axes})
