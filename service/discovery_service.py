@@ -25,8 +25,9 @@ def load_records(store: Store, dataset_ids: list[str], axis: str, field: str = "
         arrays = store.load_arrays(dataset_id)
         other = [a for a in row["axes"] if a != axis]
         u_other = arrays.get(f"u_{other[0]}_v") if other else None
+        x_other = arrays.get(f"x_{other[0]}_um") if other else None
         out.append(Record(dataset_id, arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], row["sample_rate_hz"],
-                          row["blocks"], axis, u_other))
+                          row["blocks"], axis, u_other, x_other))
     return out
 
 

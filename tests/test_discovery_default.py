@@ -1,10 +1,8 @@
 """Discovery on the default bench (several effects at realistic size): following the diagnosis
 (top physical candidate each time, then hysteresis capacity while the model is not at the noise
 floor) must reach a 'complete' verdict at the noise floor, with every step's evidence in words,
-and each step must lower the held-out error.
-
-Not yet met (see docs/discovery.md): the block where only Z moves at 100 Hz stays ~3× the floor
-on Y (the coupling arrives through Z's 290 Hz mode, which the coupling columns do not carry).
+and each step must lower the held-out error. The final validation RMS is within 2× the noise
+floor at 1, 10, 50 and 100 Hz, on Y's own blocks and on those where only Z moves.
 """
 from __future__ import annotations
 
@@ -36,7 +34,8 @@ def test_default_bench_discovery_converges():
         else:  # physics complete, not at the floor: capacity is added, and said to be capacity
             assert not d["at_noise_floor"] and "NOT at the noise floor" in d["verdict_text"]
             assert "capacity" in d["verdict_text"]
-    assert added[-1] == "operators"
+    capacity = [e for e in added if e == "operators"]
+    assert not capacity or added[-1] == "operators"  # capacity only once physics is complete
     last = steps[-1]["diagnosis"]
     assert last["verdict"] == "complete" and last["at_noise_floor"], last["verdict_text"]
     final = steps[-1]["per_block"]
@@ -44,4 +43,4 @@ def test_default_bench_discovery_converges():
     own, other_axis = final[:4], final[4:]
     assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in own), own
     assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in other_axis[:3]), other_axis
-    assert other_axis[3]["validation_rms_um"] <= 4 * other_axis[3]["noise_floor_um"], other_axis  # the gap above
+    assert other_axis[3]["validation_rms_um"] <= 2 * other_axis[3]["noise_floor_um"], other_axis

@@ -51,7 +51,7 @@ class CompositeModel:
         p_other = None if rec.u_other_v is None else play_operators(rec.u_other_v, self.thresholds_v)
         return RecordContext(rec.u_v, rec.fs_hz, p, rec.du, rec.ddu, rec.u_other_v, p_other,
                              self.scales["min_period_s"], 1.0 / self.scales["min_period_s"], self.scales["u_scale_v"],
-                             self.scales.get("time_scale_s", rec.n / rec.fs_hz))
+                             self.scales.get("time_scale_s", rec.n / rec.fs_hz), rec.x_other_um)
 
     def raw_blocks(self, rec: Record) -> list[Block]:
         """Hysteresis, offset and additive effect blocks of one record (before transforms)."""

@@ -110,16 +110,24 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and (physical[0]["score"] >= HIGH_SCORE or physical[0]["significant"])
     repeatable = floor["repeatable_rms_um"]
-    ratio = None if repeatable is None or not noise else repeatable / noise
+    ratio = worst_repeatable_to_noise(floor["per_block"])
     at_floor = ratio is not None and ratio <= CLEAR_DROP_NOISE
     worst = failures(records, res)
     return {"effects": ["hysteresis"] + model.effects, "residual_rms_um": v0, "train_rms_um": ev["train_rms_um"],
             "noise_floor_um": noise, "repeatable_rms_um": repeatable,
             "repeatable_to_noise": ratio, "at_noise_floor": bool(at_floor),
             "verdict": "missing_effect" if missing else "complete",
-            "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst),
+            "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio),
             "candidates": candidates, "failures": worst, "signature": sig,
             "ambiguity": ambiguity(physical, records, noise), "noise": floor, "metrics": ev}
+
+
+def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
+    """The largest ratio over blocks of the repeatable part to that block's own noise: "at the noise
+    floor" must hold at every frequency, not only on average."""
+    ratios = [b["repeatable_um"] / b["noise_um"] for b in per_block
+              if b.get("repeatable_um") is not None and b.get("noise_um") and np.isfinite(b["noise_um"])]
+    return max(ratios) if ratios else None
 
 
 def helpful_capacity(candidates) -> list[dict]:
@@ -127,7 +135,7 @@ def helpful_capacity(candidates) -> list[dict]:
     return [c for c in candidates if c["kind"] == "capacity" and c["excess_removed"] >= SIGNIFICANT_SHARE]
 
 
-def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst) -> str:
+def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None) -> str:
     """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
     whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
     if missing:
@@ -135,12 +143,13 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor
                 f"{v0:.4g} µm against a noise floor of {noise:.3g} µm")
     rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
     if at_floor:
-        text = (f"complete: the remaining {_fmt_nm(v0)} is at the noise floor (repeatable part {rep} against "
-                f"{_fmt_nm(noise)} of noise)")
+        text = (f"complete: the remaining {_fmt_nm(v0)} is at the noise floor in every block (repeatable part "
+                f"{rep} against {_fmt_nm(noise)} of noise; at most {ratio:.1f}× a block's own noise)")
     else:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
         text = (f"complete as far as the effects library goes, but NOT at the noise floor: {rep} of the "
-                f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise. No physical "
+                f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise (up to "
+                f"{ratio if ratio is not None else float('nan'):.1f}× a block's own noise). No physical "
                 f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
                 f"outside the library{where}")
     cap = helpful_capacity(candidates)

@@ -33,7 +33,8 @@ def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float, blocks: list[dict]
 
 @dataclass
 class Record:
-    """``u_v`` drive (V), ``x_um`` displacement (µm), ``fs_hz``, block table, optional other-axis drive."""
+    """``u_v`` drive (V), ``x_um`` displacement (µm), ``fs_hz``, block table, optional other-axis drive
+    (V) and measured other-axis displacement (µm)."""
 
     label: str
     u_v: np.ndarray
@@ -42,6 +43,7 @@ class Record:
     blocks: list = field(default_factory=list)
     axis: str | None = None
     u_other_v: np.ndarray | None = None
+    x_other_um: np.ndarray | None = None
 
     def __post_init__(self):
         self.u_v = np.asarray(self.u_v, dtype=float)
@@ -91,8 +93,9 @@ def records_from_arrays(arrays: dict, fs_hz: float, blocks: list, axes, label: s
     for axis in axes:
         other = [a for a in present if a != axis]
         u_other = arrays[f"u_{other[0]}_v"] if other else None
+        x_other = arrays.get(f"x_{other[0]}_um") if other else None
         out.append(Record(f"{label}{axis}", arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], fs_hz, blocks, axis,
-                          u_other))
+                          u_other, x_other))
     return out
 
 

@@ -23,7 +23,8 @@ class RecordContext:
     ``p`` play-operator outputs (V), ``du``/``ddu`` drive derivatives (V/s, V/s²),
     ``u_other_v`` the other axis's drive (or None), ``min_period_s`` the shortest drive period
     over the data set, ``time_scale_s`` the longest record's duration over the data set (so that
-    time-based columns mean the same seconds in every record, whatever its length).
+    time-based columns mean the same seconds in every record, whatever its length), ``x_other_um``
+    the other axis's measured displacement (µm; None when not measured, e.g. in a feedforward inverse).
     """
 
     u_v: np.ndarray
@@ -37,6 +38,7 @@ class RecordContext:
     max_frequency_hz: float
     u_scale_v: float
     time_scale_s: float = 0.0
+    x_other_um: np.ndarray | None = None
     cache: dict = field(default_factory=dict)
 
     @property
