@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from service.discovery.composite import CompositeModel, fit_composite, held_out_frequency_metrics
 from service.discovery.diagnosis import diagnose
-from service.discovery.records import Record
+from service.discovery.records import Record, record_for_axis
 from service.effects import EFFECTS, ordered
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted
@@ -23,11 +23,7 @@ def load_records(store: Store, dataset_ids: list[str], axis: str, field: str = "
         if axis not in row["axes"]:
             raise FieldError(field, f"dataset {dataset_id} has no {axis} axis")
         arrays = store.load_arrays(dataset_id)
-        other = [a for a in row["axes"] if a != axis]
-        u_other = arrays.get(f"u_{other[0]}_v") if other else None
-        x_other = arrays.get(f"x_{other[0]}_um") if other else None
-        out.append(Record(dataset_id, arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], row["sample_rate_hz"],
-                          row["blocks"], axis, u_other, x_other))
+        out.append(record_for_axis(dataset_id, arrays, row["sample_rate_hz"], row["blocks"], axis))
     return out
 
 

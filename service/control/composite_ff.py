@@ -20,11 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.effects import EFFECTS, RecordContext
+from service.effects import EFFECTS
 from service.effects.dynamics import digital_response
 from service.hysteresis.inverse import numerical_inverse
 from service.hysteresis.kernels import play_operators
-from service.identification.lsq import Block
 from service.signals import savgol_derivatives
 
 FIXED_POINT_ITERATIONS = 6
@@ -52,32 +51,15 @@ def invert_transforms(model, x_um: np.ndarray, fs_hz: float, max_frequency_hz: f
     return np.fft.irfft(W, n=n)
 
 
-def _context(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None) -> RecordContext:
-    p = play_operators(u_v, model.thresholds_v)
-    du, ddu = savgol_derivatives(u_v, fs_hz)
-    p_other = None if u_other_v is None else play_operators(u_other_v, model.thresholds_v)
-    return RecordContext(u_v, fs_hz, p, du, ddu, u_other_v, p_other, model.scales["min_period_s"],
-                         1.0 / model.scales["min_period_s"], model.scales["u_scale_v"])
-
-
 def additive_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None) -> np.ndarray:
-    """The additive effects' contribution (µm, before the transforms) for drive ``u_v``.
-
-    A block whose width differs from the fitted weights (creep's time constants depend on the record
-    length) is fitted to the nearest: its leading columns with the weights it has."""
-    ctx = _context(model, u_v, fs_hz, u_other_v)
+    """The additive effects' contribution (µm, before the transforms) for drive ``u_v`` (V)."""
+    du, ddu = savgol_derivatives(u_v, fs_hz)
+    ctx = model.context(u_v, fs_hz, du, ddu, u_other_v)
     out = np.zeros(u_v.size)
     for name in model.effects:
         for b in EFFECTS[name].blocks(ctx):
-            out += _block_value(b, model.coef.get(b.name))
+            out += b.columns @ model.coef[b.name]
     return out
-
-
-def _block_value(block: Block, coef) -> np.ndarray:
-    if coef is None:
-        return np.zeros(block.columns.shape[0])
-    m = min(block.columns.shape[1], coef.size)
-    return block.columns[:, :m] @ coef[:m]
 
 
 def predict_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None) -> np.ndarray:

@@ -47,11 +47,20 @@ class CompositeModel:
         return [e for e in self.effects if EFFECTS[e].stage == "transform"]
 
     def _context(self, rec: Record) -> RecordContext:
-        p = play_operators(rec.u_v, self.thresholds_v)
-        p_other = None if rec.u_other_v is None else play_operators(rec.u_other_v, self.thresholds_v)
-        return RecordContext(rec.u_v, rec.fs_hz, p, rec.du, rec.ddu, rec.u_other_v, p_other,
-                             self.scales["min_period_s"], 1.0 / self.scales["min_period_s"], self.scales["u_scale_v"],
-                             self.scales.get("time_scale_s", rec.n / rec.fs_hz), rec.x_other_um)
+        return self.context(rec.u_v, rec.fs_hz, rec.du, rec.ddu, rec.u_other_v, rec.x_other_um)
+
+    def context(self, u_v: np.ndarray, fs_hz: float, du: np.ndarray, ddu: np.ndarray,
+                u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None) -> RecordContext:
+        """What the effects see of a drive ``u_v`` (V) at ``fs_hz``, with this model's thresholds and
+        scales (so every effect block has the width its fitted weights have)."""
+        p = play_operators(u_v, self.thresholds_v)
+        p_other = None if u_other_v is None else play_operators(u_other_v, self.thresholds_v)
+        time_scale_s = self.scales.get("time_scale_s")
+        if time_scale_s is None:
+            raise ValueError("this composite model was stored before its time scale was kept: refit it "
+                             "(POST /api/models/{id}/refine with its own effects)")
+        return RecordContext(u_v, fs_hz, p, du, ddu, u_other_v, p_other, self.scales["min_period_s"],
+                             1.0 / self.scales["min_period_s"], self.scales["u_scale_v"], time_scale_s, x_other_um)
 
     def raw_blocks(self, rec: Record) -> list[Block]:
         """Hysteresis, offset and additive effect blocks of one record (before transforms)."""

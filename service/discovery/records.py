@@ -86,17 +86,18 @@ class Record:
         return np.concatenate(rows) if rows else np.zeros(0, dtype=int)
 
 
+def record_for_axis(label: str, arrays: dict, fs_hz: float, blocks: list, axis: str) -> Record:
+    """The Record of ``axis`` from dataset-style arrays (``u_<axis>_v``, ``x_<axis>_um``), with the
+    other axis's drive and measured displacement when the arrays have them."""
+    other = [a for a in ("y", "z") if a != axis and f"u_{a}_v" in arrays]
+    u_other = arrays[f"u_{other[0]}_v"] if other else None
+    x_other = arrays.get(f"x_{other[0]}_um") if other else None
+    return Record(label, arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], fs_hz, blocks, axis, u_other, x_other)
+
+
 def records_from_arrays(arrays: dict, fs_hz: float, blocks: list, axes, label: str = "") -> list[Record]:
-    """One Record per axis from dataset-style arrays (``u_<axis>_v``, ``x_<axis>_um``)."""
-    present = [a for a in ("y", "z") if f"u_{a}_v" in arrays]
-    out = []
-    for axis in axes:
-        other = [a for a in present if a != axis]
-        u_other = arrays[f"u_{other[0]}_v"] if other else None
-        x_other = arrays.get(f"x_{other[0]}_um") if other else None
-        out.append(Record(f"{label}{axis}", arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], fs_hz, blocks, axis,
-                          u_other, x_other))
-    return out
+    """One Record per axis, labelled ``<label><axis>``."""
+    return [record_for_axis(f"{label}{axis}", arrays, fs_hz, blocks, axis) for axis in axes]
 
 
 def sweep_records(bench: str, seed: int = 0, frequencies_hz=(1.0, 10.0, 50.0, 100.0), cycles: int = 5,

@@ -37,7 +37,7 @@ class RecordContext:
     min_period_s: float
     max_frequency_hz: float
     u_scale_v: float
-    time_scale_s: float = 0.0
+    time_scale_s: float
     x_other_um: np.ndarray | None = None
     cache: dict = field(default_factory=dict)
 

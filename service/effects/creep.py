@@ -33,7 +33,7 @@ class Creep(Effect):
                  "in log(time); per-cycle mean residual rises with log(t) within each block")
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
-        taus = creep_time_constants_s(ctx.min_period_s, ctx.time_scale_s or ctx.n / ctx.fs_hz)
+        taus = creep_time_constants_s(ctx.min_period_s, ctx.time_scale_s)
         u0 = ctx.u_v / ctx.u_scale_v
         cols = np.column_stack([first_order_lowpass(u0, tau, ctx.fs_hz) - u0 for tau in taus])
         return [Block.make("creep_weights_um", cols, lower=0.0)]

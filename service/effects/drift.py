@@ -19,6 +19,6 @@ class Drift(Effect):
                  "independent of the drive level and of when the drive changed")
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
-        s = 2.0 * ctx.t_s / (ctx.time_scale_s or ctx.n / ctx.fs_hz) - 1.0
+        s = 2.0 * ctx.t_s / ctx.time_scale_s - 1.0
         cols = np.column_stack([legendre.legval(s, np.eye(DEGREE + 1)[k]) for k in range(1, DEGREE + 1)])
         return [Block.make("drift_legendre_um", cols)]
