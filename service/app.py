@@ -29,7 +29,6 @@ from service.jobs import JobManager, freeze_heap
 from service.recovery import recover
 from service.auth import ensure_bootstrap_token
 from service.binding import is_loopback
-from service.jobs import JobManager
 from service.settings import Settings
 from service.store import Store
 

@@ -9,13 +9,13 @@ No web framework here: the FastAPI dependency is service/api/auth.py.
 from __future__ import annotations
 
 import hashlib
-import hmac
 import os
 import secrets
 from pathlib import Path
 
 from service.errors import FieldError
 from service.store import Store, new_id, utc_now
+from service.store.files import write_bytes_atomic
 
 TOKEN_PREFIX = "evc_"
 SCOPES = ("read", "operate", "admin")
@@ -82,7 +82,7 @@ def authenticate(store: Store, token: str | None) -> dict:
         raise AuthError(401, f"malformed API token: tokens start with {TOKEN_PREFIX!r}")
     digest = hash_token(token)
     row = store.tokens.by_hash(digest)
-    if row is None or not hmac.compare_digest(row["sha256"], digest):
+    if row is None:  # looked up by the sha256 itself: only the hash of a secret is ever compared
         raise AuthError(401, "unknown API token")
     if row["revoked"]:
         raise AuthError(401, f"API token {row['id']} ({row['name']}) has been revoked")
@@ -112,14 +112,9 @@ def ensure_bootstrap_token(store: Store, data_dir: Path) -> Path:
 
 
 def write_secret(path: Path, text: str) -> None:
-    """Write ``text`` + newline to ``path`` created with mode 0600 (replacing any old file)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.unlink(missing_ok=True)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w") as handle:
-        handle.write(text + "\n")
-    os.replace(tmp, path)
+    """Write ``text`` + newline to ``path`` with mode 0600, atomically (the store's own atomic write:
+    its temporary file is created 0600 by mkstemp and renamed over any old file)."""
+    write_bytes_atomic(Path(path), (text + "\n").encode())
 
 
 def remote_tokens(store: Store) -> list[dict]:

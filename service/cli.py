@@ -41,11 +41,19 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from service.benchmarks import get_benchmark
 
+    import inspect
+
     try:
         benchmark = get_benchmark(args.name)
-        result = benchmark(duration_s=args.duration) if args.duration is not None else benchmark()
     except KeyError as exc:
         print(exc.args[0], file=sys.stderr)
+        return 2
+    if args.duration is None:
+        result = benchmark()
+    elif "duration_s" in inspect.signature(benchmark).parameters:
+        result = benchmark(duration_s=args.duration)
+    else:
+        print(f"--duration: the {args.name} benchmark has no duration (only: service)", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(result))

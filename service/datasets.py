@@ -29,7 +29,8 @@ CANONICAL = {"t": "t_s", "temp_c": "temp_c", "u": "u", "x": "x",
 # header spellings accepted for each canonical name (our own export and the internal names)
 ALIASES = {"t_s": "t", "time": "t", "time_s": "t", **{f"u_{a}_v": f"u_{a}" for a in AXES},
            **{f"x_{a}_um": f"x_{a}" for a in AXES}, "u_v": "u", "x_um": "x"}
-UNITS = {"t_s": "s", "temp_c": "°C", **{f"u_{a}_v": "V" for a in AXES}, **{f"x_{a}_um": "µm" for a in AXES}}
+UNITS = {"t_s": "s", "temp_c": "°C", **{f"u_{a}_v": "V" for a in AXES}, **{f"x_{a}_um": "µm" for a in AXES},
+         **{f"ref_{a}_um": "µm" for a in AXES}}
 
 
 class DataError(FieldError):

@@ -25,17 +25,21 @@ def reason_for(sig: int) -> str:
 
 
 def safe_state(app: Any, reason: str) -> dict:
-    """0 V first, then cancel the running bench job with ``reason``. Safe to call more than once and
+    """The bench jobs queued are cancelled, the outputs go to 0 V (the running loop stops within one
+    control period, or 0 V is written from here), then the running bench job is cancelled with
+    ``reason``. Used by the emergency stop and the signal handlers; safe to call more than once and
     before the app has started (then there is nothing to stop)."""
     state = getattr(app, "state", None)
     bench, jobs = getattr(state, "bench", None), getattr(state, "jobs", None)
-    out: dict = {"reason": reason, "cancelled_job_id": None}
+    out: dict = {"reason": reason, "cancelled_job_id": None, "cancelled_queued_job_ids": []}
     if bench is not None:
+        if jobs is not None:
+            out["cancelled_queued_job_ids"] = jobs.cancel_queued_bench_jobs(reason)
         running = jobs.running_bench_job if jobs is not None else None
-        bench.stop(reason)
-        out["output_v"] = bench.output_v()
+        out["loop_answered"] = bench.stop(reason)
         if jobs is not None:
             out["cancelled_job_id"] = jobs.cancel_running_bench_job(reason) or running
+        out["output_v"] = bench.output_v()
     log.warning("%s: outputs at 0 V, running job %s cancelled", reason, out["cancelled_job_id"])
     return out
 

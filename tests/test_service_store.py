@@ -9,6 +9,7 @@ import pytest
 from sqlalchemy import text, update
 
 from pg_server import postgres_server
+from service.recovery import INTERRUPTED, recover
 from service.store import IntegrityError, NotFoundError, Store, tables
 from service.store.files import read_arrays, write_arrays
 
@@ -109,8 +110,8 @@ def test_jobs_life_cycle_and_restart_recovery(store):
     assert store.get_job(a["id"])["progress"] == 0.5
     assert store.get_job(b["id"])["result"] == {"model_id": "md_x", "rms_um": 0.5}
     assert [j["id"] for j in store.list_jobs()] == [b["id"], a["id"]]  # newest first
-    assert store.fail_unfinished_jobs("restarted") == 1
-    assert store.get_job(a["id"])["state"] == "failed" and store.get_job(a["id"])["error"] == "restarted"
+    assert recover(store)["failed_jobs"] == [a["id"]]  # the start-up recovery (service.recovery)
+    assert store.get_job(a["id"])["state"] == "failed" and store.get_job(a["id"])["error"] == INTERRUPTED
     assert store.get_job(b["id"])["state"] == "succeeded"
 
 

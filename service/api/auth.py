@@ -42,7 +42,6 @@ def require_token(request: Request, credentials: HTTPAuthorizationCredentials | 
         token = query_token
     record = authenticate(request.app.state.store, token)
     authorize(record, required_scope(request.method, path))
-    request.state.token = record
     return record
 
 

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Query, Request
 
+from service.safe_shutdown import safe_state
+
 router = APIRouter(tags=["bench"])
 
 
@@ -22,13 +24,9 @@ def emergency_stop(request: Request) -> dict:
     period, or 0 V is written from here), then cancel the job that owns the bench with the reason
     "emergency stop" (its samples so far are kept as a partial dataset) and the bench jobs queued
     behind it, so the bench stays still. Jobs submitted afterwards run normally."""
-    state = request.app.state
-    queued = state.jobs.cancel_queued_bench_jobs(EMERGENCY_STOP)
-    running = state.jobs.running_bench_job
-    loop_answered = state.bench.stop(EMERGENCY_STOP)
-    job_id = state.jobs.cancel_running_bench_job(EMERGENCY_STOP) or running
-    return {"stopped": True, "cancelled_job_id": job_id, "cancelled_queued_job_ids": queued,
-            "loop_answered": loop_answered, "output_v": state.bench.output_v()}
+    out = safe_state(request.app, EMERGENCY_STOP)
+    return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids",
+                                                    "loop_answered", "output_v")}}
 
 
 @router.get("/bench/live")

@@ -16,6 +16,7 @@ from service.control.loop import PIDGains, StopRequested, TrackRecord
 from service.control.safety import ControlRefused
 from service.control.session import SAMPLE_RATE_HZ, Controller, plan, track
 from service.control.trajectory import Ellipse
+from service.datasets import UNITS
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted, JobManager
 from service.modelling import load_model
@@ -120,10 +121,10 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
     """The job: track, report the error per period as progress, store measured and reference traces
     (written in ~1 s chunks while it runs, so a killed process keeps them: service.recovery)."""
     total = ellipse.cycles + 6
-    units = {f"{q}_{ax}_{u}": u for ax in bench.axes for q, u in (("u", "v"), ("x", "um"), ("ref", "um"))}
+    columns = ["t_s"] + [f"{q}_{ax}_{unit}" for ax in bench.axes for q, unit in (("u", "v"), ("x", "um"), ("ref", "um"))]
     meta = {"name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
             "axes": list(bench.axes), "sample_rate_hz": SAMPLE_RATE_HZ, "blocks": [], "plan": params,
-            "config": bench_snapshot(bench), "units": {"t_s": "s", **units}, "job_id": ctx.job_id,
+            "config": bench_snapshot(bench), "units": {name: UNITS[name] for name in columns}, "job_id": ctx.job_id,
             "started_at": utc_now()}
     chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
 

@@ -101,11 +101,8 @@ class Store:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.engine = make_engine(database_url)
         tables.metadata.create_all(self.engine)
-
-    @property
-    def tokens(self) -> TokenRows:
-        """The API token rows (hashes only; see service.auth)."""
-        return TokenRows(self.engine)
+        #: the API token rows (hashes only; see service.auth)
+        self.tokens = TokenRows(self.engine)
 
     @property
     def backend(self) -> str:
@@ -221,14 +218,6 @@ class Store:
         query = select(tables.datasets).where(tables.datasets.c.job_id == job_id).order_by(tables.datasets.c.created_at)
         with self.engine.connect() as conn:
             return [dict(row) for row in conn.execute(query).mappings()]
-
-    def fail_unfinished_jobs(self, reason: str) -> int:
-        """Mark jobs left queued or running by a previous process as failed; returns how many."""
-        with self.engine.begin() as conn:
-            result = conn.execute(
-                update(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
-                .values(state="failed", error=reason, message=reason, finished_at=utc_now()))
-            return result.rowcount or 0
 
     # ------------------------------------------------------------------ helpers
     def _get(self, table, record_id: str, field: str) -> dict:
