@@ -97,10 +97,6 @@ class Watchdog:
         with self._lock:
             self._armed = False
 
-    @property
-    def armed(self) -> bool:
-        return self._armed
-
     def close(self) -> None:
         self._closed = True
         self._armed = False

@@ -28,9 +28,9 @@ import threading
 import time
 from dataclasses import asdict, dataclass
 
+from drivers.emulated.config import AXES
 from drivers.interfaces import DriverError
 
-AXES = ("y", "z")
 #: kind -> (needs an axis, transport it needs or None, what it does in words)
 KINDS: dict[str, tuple[bool, str | None, str]] = {
     "sensor_dropout": (True, None, "dropped out"),

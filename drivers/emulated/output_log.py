@@ -18,7 +18,8 @@ import json
 import threading
 from collections import deque
 
-AXES = ("y", "z")
+from drivers.emulated.config import AXES
+
 
 
 def check_config(section) -> dict:

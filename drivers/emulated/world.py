@@ -88,8 +88,6 @@ class World:
         self.last_ao = np.zeros(2)   # last AO row written through run/step (DAQ volts)
         #: ``[daq] realtime = true``: blocks take wall time at the sample clock (see pacing.py)
         self.pacer = Pacer() if daq.get("realtime", False) else None
-        if self.pacer is not None:
-            self._warm_up()
         self.last_diag = K.empty_diag(0)
         self._scratch_out = np.zeros((1, K.NOISE_COLS))
         self._scratch_diag = K.empty_diag(1)
@@ -235,14 +233,6 @@ class World:
             self._injected[kind].clear()
         self._saturation_offset_um[:] = 0.0
 
-    def _warm_up(self) -> None:
-        """Compile the block kernels now, on copies of the state (the world and its noise stream are
-        untouched), so that a real-time clock never starts on a cold kernel."""
-        args = tuple(np.copy(a) for a in self._kernel_args())
-        out, diag = np.empty((2, K.NOISE_COLS)), K.empty_diag(2)
-        K.run_block(*args, np.zeros((2, 2)), self._noise, 0, out, diag)
-        K.run_idle(*args, self._noise, 0, 2, IDLE_THRESHOLD_V, out, diag)
-
     # ------------------------------------------------------------------ running
     def _kernel_args(self):
         return (self.pg, self.pa, self.sg, self.sa, self.ring, self.tp, self.ps, self.ev, self.ca, self.cw, self.cs)
@@ -266,7 +256,7 @@ class World:
         K.run_block(*self._kernel_args(), ao, self._noise, self._cursor, out, diag)
         self._cursor += n
         if n:
-            self.last_ao = ao[-1].copy()
+            self.last_ao[:] = ao[-1]
         self.last_diag = diag
         return out
 
@@ -278,7 +268,7 @@ class World:
         K.world_sample(*self._kernel_args(), float(ao0), float(ao1), self._noise, self._cursor,
                        out, 0, self._scratch_diag)
         self._cursor += 1
-        self.last_ao = np.array([ao0, ao1], dtype=float)
+        self.last_ao[0], self.last_ao[1] = ao0, ao1
         self.last_diag = self._scratch_diag
         return out[0]
 
@@ -292,7 +282,7 @@ class World:
         used = K.run_idle(*self._kernel_args(), self._noise, self._cursor, max_n, IDLE_THRESHOLD_V,
                           self._scratch_out, self._scratch_diag)
         self._cursor += used
-        self.last_ao = np.zeros(2)
+        self.last_ao[:] = 0.0
         return int(used)
 
     def applied_ao_v(self) -> np.ndarray:
@@ -390,9 +380,6 @@ class World:
         self.sa[a, K.S_OCQ] = 0.0
         self.sa[a, K.S_OCPEAK] = 0.0
         self._injected["amplifier_overcurrent"].pop(AXES[a], None)
-
-    def injected(self, kind: str, axis: str) -> bool:
-        return axis in self._injected.get(kind, ())
 
     def injected_note(self, kind: str, axis: str) -> str:
         """" (injected at t=0.41 s)" for an injected fault, "" otherwise (for status reasons)."""

@@ -17,8 +17,7 @@ S_INT, S_DER, S_EPREV, NPS = range(4)
 L_VMIN, L_VMAX, L_STEP, L_GAIN, NL = range(5)
 T_ERR, T_N, T_RANGE, NT = range(4)
 OK, TRIP_ERROR, TRIP_RANGE, STOPPED = 0, 1, 2, 3
-TRIP_REASONS = {TRIP_ERROR: "tracking error diverged", TRIP_RANGE: "sensor at the end of its range or lost",
-                STOPPED: "stopped on request"}
+TRIP_REASONS = {TRIP_ERROR: "tracking error diverged", TRIP_RANGE: "sensor at the end of its range or lost"}
 STOP_CHECK_SAMPLES = 32   # the runner polls its stop flag every this many samples (≤ 50)
 
 

@@ -94,10 +94,11 @@ def model_stroke_um(model, sample_rate_hz: float, v_max: float = 120.0) -> float
 
 
 def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: np.ndarray, u_ff_v: np.ndarray,
-                 models: dict, sample_rate_hz: float, v_max: float = 120.0,
+                 models: dict, sample_rate_hz: float,
                  steady: slice = slice(None)) -> tuple[list[str], list[str]]:
-    """(refusals, warnings): per axis, why a requested range lies beyond what the axis can reach at
-    0–``v_max`` V, judged by the feedforward model's demand over the ``steady`` samples.
+    """(refusals, warnings): per axis, why a requested range lies beyond what the axis can reach
+    within its actuator limits (``bench.limits``), judged by the feedforward model's demand over
+    the ``steady`` samples.
 
     What the stack must deliver is the reference seen through the inverse of the model's linear
     transforms (``stack_demand_um``: a flexure mode above the drive frequency amplifies the
@@ -108,7 +109,8 @@ def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: n
     for i, axis in enumerate(bench.axes):
         u = u_ff_v[steady, i]
         model = models.get(axis)
-        if model is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= -STROKE_TOLERANCE_V):
+        v_min, v_max = bench.limits[axis].v_min_v, bench.limits[axis].v_max_v
+        if model is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= v_min - STROKE_TOLERANCE_V):
             continue
         lo, hi = ranges_um[axis]
         demand = getattr(model, "stack_demand_um", None)

@@ -106,7 +106,8 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
                                  "to run it with the command clamped at 0/120 V)")
         if warnings is not None:
             warnings.extend(reasons + soft)
-        u_ff = np.clip(u_ff, 0.0, 120.0)
+        lims = [bench.limits[axis] for axis in bench.axes]
+        u_ff = np.clip(u_ff, [lim.v_min_v for lim in lims], [lim.v_max_v for lim in lims])
     else:
         check_trajectory(bench, ref.x_um, None, ellipse.frequency_hz)
     return ref, u_ff
