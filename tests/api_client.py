@@ -8,6 +8,8 @@ The token is issued in the app's store before start-up (as ``evcbench token crea
 """
 from __future__ import annotations
 
+import time
+
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
@@ -36,3 +38,20 @@ def authed_client(app: FastAPI, scope: str = "admin", **kwargs) -> TestClient:
     client = TestClient(app, headers=bearer(token), **kwargs)
     client.token = token
     return client
+
+
+def job_ended(job: dict) -> bool:
+    return job["state"] in ("succeeded", "failed", "cancelled")
+
+
+def wait_job(http, job_id: str, until=job_ended, timeout_s: float = 120.0, headers: dict | None = None,
+             poll_s: float = 0.02) -> dict:
+    """Poll ``GET /api/jobs/{job_id}`` on ``http`` (a TestClient or an httpx client on the service
+    root) until ``until(job)``; the job, or AssertionError naming its last state after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        job = http.get(f"/api/jobs/{job_id}", headers=headers).json()
+        if until(job):
+            return job
+        assert time.monotonic() < deadline, f"job {job_id} still {job.get('state')} after {timeout_s:g} s: {job}"
+        time.sleep(poll_s)

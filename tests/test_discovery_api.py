@@ -2,25 +2,19 @@
 GET diagnosis → POST refine → GET history, plus bad effect names (422 naming the field)."""
 from __future__ import annotations
 
-import time
 import warnings
 
 import pytest
 
-from api_client import authed_client
+from api_client import authed_client, wait_job
 from service.app import create_app
 from service.settings import Settings
 
 
 def _wait(http, job_id, timeout_s=120.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = http.get(f"/api/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            assert job["state"] == "succeeded", job
-            return job["result"]
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not finish")
+    job = wait_job(http, job_id, timeout_s=timeout_s)
+    assert job["state"] == "succeeded", job
+    return job["result"]
 
 
 @pytest.fixture

@@ -39,8 +39,5 @@ def test_default_bench_discovery_converges():
     last = steps[-1]["diagnosis"]
     assert last["verdict"] == "complete" and last["at_noise_floor"], last["verdict_text"]
     final = steps[-1]["per_block"]
-    # the sweep drives Y (blocks 0–3), then Z alone (blocks 4–7, where Y sees only the coupling)
-    own, other_axis = final[:4], final[4:]
-    assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in own), own
-    assert all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in other_axis[:3]), other_axis
-    assert other_axis[3]["validation_rms_um"] <= 2 * other_axis[3]["noise_floor_um"], other_axis
+    # Y's own blocks (0–3) and those where only Z moves (4–7, Y sees only the coupling)
+    assert len(final) == 8 and all(b["validation_rms_um"] <= 2 * b["noise_floor_um"] for b in final), final

@@ -21,6 +21,7 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 
+from api_client import bearer
 from service.app import create_app
 from service.settings import Settings
 
@@ -58,8 +59,7 @@ def auth_headers(fuzz_app) -> dict[str, str]:
     so the fuzzer reaches the handlers instead of stopping at 401."""
     from service import auth
 
-    token = auth.issue(fuzz_app.state.store, "fuzz", "operate", "cli")[0]
-    return {"Authorization": f"Bearer {token}"}
+    return bearer(auth.issue(fuzz_app.state.store, "fuzz", "operate", "cli")[0])
 
 
 # The spec of an app that is never started (building the spec needs no store and no bench).

@@ -12,7 +12,7 @@ import time
 
 import httpx
 
-from tests.live_server import ROOT, Server
+from live_server import ROOT, Server
 
 SAMPLE_RATE_HZ = 20_000.0
 CHUNK_S = 1.0  # service.store.chunks.CHUNK_S: at most this much is lost at a kill

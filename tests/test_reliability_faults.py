@@ -3,13 +3,12 @@ the bench configuration's [faults] table, leads to the output at 0 V, the job fa
 in words, and the samples so far stored as a dataset marked partial."""
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from api_client import authed_client
+from api_client import authed_client, wait_job
 from drivers.emulated import open_bench
 from drivers.bench import RunInterrupted
 from service.app import create_app
@@ -35,16 +34,6 @@ def wire_client(tmp_path):
         yield app, http
 
 
-def _wait(http, job_id: str, timeout_s: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = http.get(f"/api/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.02)
-    raise AssertionError(f"job {job_id} did not end: {job}")
-
-
 def _assert_zero_volts(app, via_driver: bool = True) -> None:
     """The last entry of the emulator's output log: 0 V DAQ volts at both amplifier inputs, amplifier
     outputs within 50 mV of 0 V (write_idle waits for < 10 mV, plus 2 mV noise). ``via_driver``: the
@@ -62,7 +51,7 @@ def _inject_and_sweep(app, http, fault: str, axis: str | None) -> tuple[dict, di
     assert posted.json()["state"] == "armed"
     started = http.post("/api/sweeps", json=SWEEP)
     assert started.status_code == 202
-    job = _wait(http, started.json()["job_id"])
+    job = wait_job(http, started.json()["job_id"])
     listed = http.get("/api/admin/faults")
     assert listed.status_code == 200
     (fired,) = listed.json()["faults"]
@@ -103,7 +92,7 @@ def test_each_fault_fails_the_job_keeps_partial_data_and_leaves_zero_volts(app_c
         assert 1.0 <= trip["stalled_s"] < 2.0 and trip["timeout_s"] == 1.0
     cleared = http.delete("/api/admin/faults")
     assert cleared.status_code == 200 and cleared.json()["cleared"] == 1
-    again = _wait(http, http.post("/api/sweeps", json={**SWEEP, "cycles": 2}).json()["job_id"])
+    again = wait_job(http, http.post("/api/sweeps", json={**SWEEP, "cycles": 2}).json()["job_id"])
     assert again["state"] == "succeeded"   # cleared: the bench works again
 
 
@@ -183,7 +172,7 @@ def test_faults_during_a_point_by_point_trajectory(app_client, fault, axis, word
     assert http.post("/api/admin/faults", json={"fault": fault, "axis": axis, "after_s": 0.3}).status_code == 201
     started = http.post("/api/trajectories", json=TRAJECTORY)
     assert started.status_code == 202
-    job = _wait(http, started.json()["job_id"])
+    job = wait_job(http, started.json()["job_id"])
     assert job["state"] == "failed" and job["error"].startswith("tripped: ") and words in job["error"], job
     ds = http.get(f"/api/datasets/{job['result']['dataset_id']}").json()
     # the run (after 50 ms of settling) reached the fault's period: 0.25 s of tracking, to one period more

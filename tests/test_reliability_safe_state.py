@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from api_client import authed_client
+from api_client import authed_client, wait_job
 from drivers.emulated import open_bench
 from drivers.watchdog import SafetyConfig, Watchdog
 from live_server import ROOT, Server
@@ -106,20 +106,6 @@ def service(tmp_path, request):
         yield app, http, stops
 
 
-def _wait(http, job_id, pred, timeout_s=120.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = http.get(f"/api/jobs/{job_id}").json()
-        if pred(job):
-            return job
-        time.sleep(0.01)
-    raise AssertionError(f"job {job_id}: {job}")
-
-
-def _ended(job) -> bool:
-    return job["state"] in ("succeeded", "failed", "cancelled")
-
-
 def _first_zero_after(app, t_s: float) -> tuple[dict, list[dict]]:
     """The first 0 V write at or after emulated time ``t_s`` and the drive entries between them."""
     entries = app.state.bench.parts.world.output_log.entries()
@@ -129,7 +115,7 @@ def _first_zero_after(app, t_s: float) -> tuple[dict, list[dict]]:
 
 
 def _assert_stopped(app, http, job_id, stops, max_samples: int) -> dict:
-    job = _wait(http, job_id, _ended)
+    job = wait_job(http, job_id)
     assert job["state"] == "cancelled" and job["message"].startswith("emergency stop: "), job
     idle, _ = _first_zero_after(app, stops[0])
     latency = round((idle["zero_from_t_s"] - stops[0]) * FS)
@@ -144,7 +130,7 @@ def test_emergency_stop_preempts_a_sweep_within_one_block(service):
     app, http, stops = service
     job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
     queued_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
-    _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
     answer = http.post("/api/bench/stop")
     assert answer.status_code == 200 and answer.json()["cancelled_job_id"] == job_id
     assert answer.json()["cancelled_queued_job_ids"] == [queued_id]    # the bench stays still
@@ -161,7 +147,7 @@ def test_emergency_stop_preempts_a_point_by_point_trajectory_within_one_period(s
     started = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 3000})
     assert started.status_code == 202
     job_id = started.json()["job_id"]
-    _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
     answer = http.post("/api/bench/stop")
     assert answer.status_code == 200 and answer.json()["cancelled_job_id"] == job_id
     job = _assert_stopped(app, http, job_id, stops, max_samples=PERIOD)
@@ -173,7 +159,7 @@ def test_sensor_loss_during_a_trajectory_trips_to_zero_volts_within_one_period(s
     posted = http.post("/api/admin/faults", json={"fault": "sensor_dropout", "axis": "z", "after_s": 0.3})
     assert posted.status_code == 201
     job_id = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 60}).json()["job_id"]
-    job = _wait(http, job_id, _ended)
+    job = wait_job(http, job_id)
     assert job["state"] == "failed" and "gauge z: dropout (injected at t=0.30 s)" in job["error"], job
     (fault,) = http.get("/api/admin/faults").json()["faults"]
     idle, between = _first_zero_after(app, fault["world_t_s"])
@@ -194,7 +180,7 @@ def test_sigterm_drives_a_live_service_to_zero_volts_and_cancels_its_job(tmp_pat
     import httpx
     with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as http:
         job_id = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 5000}).json()["job_id"]
-        _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+        wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
     assert server.stop(), (tmp_path / "server.log").read_text()[-3000:]
     entries = [json.loads(line) for line in log.read_text().splitlines()]
     drive = [i for i, e in enumerate(entries) if e["event"] == "period"]
@@ -225,7 +211,7 @@ def test_emergency_stop_of_a_stalled_loop_writes_zero_volts_itself(service):
         time.sleep(0.01)
     answer = http.post("/api/bench/stop").json()
     assert answer["loop_answered"] is False and answer["cancelled_job_id"] == job_id
-    job = _wait(http, job_id, _ended)
+    job = wait_job(http, job_id)
     assert job["state"] == "cancelled" and job["message"].startswith("emergency stop: "), job
     assert app.state.bench.watchdog.last_trip is None          # the stop came first
     idle, between = _first_zero_after(app, stops[0])
@@ -280,10 +266,10 @@ def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
     server = FakeServer()
     install(server, app)
     job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
-    _wait(http, job_id, lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
     server.handle_exit(signal.SIGINT, None)
     assert calls == [(signal.SIGINT, False)]          # uvicorn's handler ran after the loop had stopped
-    job = _wait(http, job_id, _ended)
+    job = wait_job(http, job_id)
     assert job["state"] == "cancelled" and job["message"].startswith("stopped by SIGINT: "), job
     idle, between = _first_zero_after(app, stops[0])
     # a stop that lands between the flag check and the write lets that one block out: one control period

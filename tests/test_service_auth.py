@@ -10,14 +10,13 @@ import re
 import stat
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
-from api_client import authed_client, bearer, issue_token
+from api_client import authed_client, bearer, issue_token, wait_job
 from service import auth
 from service.api.auth import RedactQueryToken
 from service.app import create_app
@@ -56,16 +55,6 @@ def _token(http: TestClient, scope: str, name: str | None = None) -> dict:
     r = http.post("/api/admin/tokens", json={"name": name or scope, "scope": scope}, headers=bearer(admin))
     assert r.status_code == 201, r.text
     return r.json()
-
-
-def _wait(http: TestClient, job_id: str, headers: dict) -> dict:
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        job = http.get(f"/api/jobs/{job_id}", headers=headers).json()
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not end")
 
 
 # ---------------------------------------------------------------------- pure functions
@@ -144,7 +133,7 @@ def test_scopes_read_operate_admin(service):
 
     r = http.post("/api/sweeps", json=SWEEP, headers=operate)
     assert r.status_code == 202, r.text
-    assert _wait(http, r.json()["job_id"], operate)["state"] == "succeeded"
+    assert wait_job(http, r.json()["job_id"], headers=operate)["state"] == "succeeded"
     r = http.get("/api/admin/tokens", headers=operate)
     assert r.status_code == 403 and "needs the 'admin' scope" in r.json()["detail"]
 
@@ -202,7 +191,7 @@ def test_query_token_only_on_the_event_stream(service):
     read = _token(http, "read")["token"]
     operate = bearer(_token(http, "operate")["token"])
     job_id = http.post("/api/sweeps", json=SWEEP, headers=operate).json()["job_id"]
-    _wait(http, job_id, operate)
+    wait_job(http, job_id, headers=operate)
     r = http.get(f"/api/jobs/{job_id}/events", params={"token": read})
     assert r.status_code == 200 and "event: end" in r.text
     assert http.get(f"/api/jobs/{job_id}/events").status_code == 401

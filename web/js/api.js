@@ -9,14 +9,6 @@ export function setToken(value) {
   if (value) localStorage.setItem(TOKEN_KEY, value); else localStorage.removeItem(TOKEN_KEY);
 }
 
-/** An /api URL for EventSource, which cannot send headers: the token goes in ?token= (the API
- *  accepts it there only on /api/jobs/{id}/events). */
-export function streamUrl(path) {
-  const token = getToken();
-  if (!token) return `/api${path}`;
-  return `/api${path}${path.includes('?') ? '&' : '?'}token=${encodeURIComponent(token)}`;
-}
-
 export class ApiError extends Error {
   constructor(status, detail, field) {
     super(detail);

@@ -32,12 +32,11 @@ function separationSummary(before, after, experiment, datasetId) {
   const { a, b } = experiment;
   const rows = [a, b].map((e) => ({ effect: e, before: score(before, e), after: score(after, e),
     nmBefore: heldOutNm(before, e), nmAfter: heldOutNm(after, e) }));
-  const gap = (k) => Math.abs((rows[0][k] ?? 0) - (rows[1][k] ?? 0));
   const lead = rows.slice().sort((x, y) => (y.after ?? -1) - (x.after ?? -1) || x.nmAfter - y.nmAfter)[0];
   const other = rows.find((r) => r !== lead);
   // the service judges the ambiguity (scores and unexplained excess); none left means told apart
   const separated = !separatingExperiment(after);
-  return `<div id="separation" data-dataset-id="${esc(datasetId)}" data-gap-before="${gap('before')}" data-gap-after="${gap('after')}"
+  return `<div id="separation" data-dataset-id="${esc(datasetId)}"
       data-leader="${esc(lead.effect)}" data-separated="${separated}">
     <h3>Separating experiment: result</h3>
     <p class="${separated ? 'ok' : 'warn'}">${separated
