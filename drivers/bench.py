@@ -29,6 +29,10 @@ from drivers.watchdog import SafetyConfig, Watchdog
 
 STOPPED_ON_REQUEST = "stopped on request"
 
+class BenchBusy(DriverError):
+    """The bench is owned by a run; the request needs it idle."""
+
+
 class RunInterrupted(DriverError):
     """A run stopped early (cancel, device fault, sensor loss). ``record`` holds the data so far."""
 
@@ -326,6 +330,26 @@ class Bench(LimitsMixin):
             # real-time pacing of an emulated DAQ: periods paced and overruns (a real DAQ has none)
             "timing": daq.timing() if callable(getattr(daq, "timing", None)) else {"realtime": False},
         }
+
+    def clear_faults(self) -> dict:
+        """Clear latched amplifier faults and the watchdog's trip once the cause is understood: the
+        operator's reset. Refused (BenchBusy) while a run owns the bench. The outputs stay at 0 V;
+        returns the faults that were cleared and any that remain (e.g. a lost sensor, which a reset
+        cannot mend) as {"cleared": [...], "remaining": reason | None}."""
+        if self.running or not self._lock.acquire(blocking=False):
+            raise BenchBusy("a run owns the bench; stop it before resetting faults")
+        try:
+            cleared = [f"amplifier {a}: {st.fault_reason or 'fault'}" for a, amp in self.parts.amplifiers.items()
+                       if (st := amp.status()).fault]
+            if self.tripped:
+                cleared.append(f"watchdog: {self.tripped}")
+            for amp in self.parts.amplifiers.values():
+                amp.clear_fault()
+            self.tripped = None
+            self._to_zero()
+            return {"cleared": cleared, "remaining": self.fault_reason()}
+        finally:
+            self._lock.release()
 
     def fault_reason(self) -> str | None:
         """The first amplifier fault or sensor loss, in words, or None when every part is healthy."""

@@ -67,6 +67,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cancel", action="store_true", help="cancel the job (a sweep keeps its partial data)")
     p.add_argument("--watch", action="store_true", help="follow the job with a progress bar")
 
+    remote("stop", "emergency stop: every output to 0 V, the bench job and its queue cancelled", _stop)
+    remote("reset", "clear latched amplifier faults and the watchdog's trip (bench idle, outputs at 0 V)", _reset)
+
     p = remote("datasets", "list datasets or show one", _datasets)
     p.add_argument("dataset_id", nargs="?")
 
@@ -151,6 +154,21 @@ def _jobs(api: Client, args) -> int:
     job = api.job(args.job_id)
     return _emit(args, job, f"job {job['id']} {job['kind']}: {job['state']} {job['progress'] * 100:.0f} % "
                             f"{job['message'] or ''}\nresult: {json.dumps(job['result'])}\nerror: {job['error']}")
+
+
+def _stop(api: Client, args) -> int:
+    out = api.stop_bench()
+    return _emit(args, out, f"stopped: output {out['output_v']} V; cancelled {out['cancelled_job_id'] or 'no job'}"
+                 + (f" and queued {', '.join(out['cancelled_queued_job_ids'])}" if out["cancelled_queued_job_ids"] else ""))
+
+
+def _reset(api: Client, args) -> int:
+    out = api.reset_bench()
+    lines = [f"cleared: {c}" for c in out["cleared"]] or ["nothing was latched"]
+    if out["remaining"]:
+        lines.append(f"still faulted (a reset cannot mend it): {out['remaining']}")
+    _emit(args, out, "\n".join(lines))
+    return 1 if out["remaining"] else 0
 
 
 def _datasets(api: Client, args) -> int:

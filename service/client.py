@@ -80,6 +80,11 @@ class Client:
         """Emergency stop: 0 V now, and the running bench job is cancelled."""
         return self._request("POST", "/api/bench/stop")
 
+    def reset_bench(self) -> dict:
+        """Clear latched amplifier faults and the watchdog's trip (409 while a job runs):
+        {"cleared": [...], "remaining": reason | None, "output_v": {...}}."""
+        return self._request("POST", "/api/bench/reset")
+
     # ------------------------------------------------------------------ jobs
     def job(self, job_id: str) -> dict:
         return self._request("GET", f"/api/jobs/{job_id}")

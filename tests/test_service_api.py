@@ -242,6 +242,29 @@ def test_a_device_fault_fails_the_sweep_but_keeps_its_samples(service):
     assert all(abs(v) < 0.05 for v in app.state.bench.output_v().values())
 
 
+def test_reset_clears_a_latched_amplifier_fault_so_the_bench_runs_again(service):
+    app, api = service
+    app.state.bench.parts.world.inject_fault("amplifier_overcurrent", "z")   # latches, output to 0 V
+    job = api.sweep(axes=["z"], frequencies_hz=[50], cycles=3)
+    assert job["state"] == "failed" and "amplifier z: over-current" in job["error"]
+    assert api.sweep(axes=["z"], frequencies_hz=[50], cycles=3)["state"] == "failed"   # latched until reset
+    out = api.reset_bench()
+    assert len(out["cleared"]) == 1 and out["cleared"][0].startswith("amplifier z: over-current")
+    assert out["remaining"] is None and all(abs(v) < 0.05 for v in out["output_v"].values())
+    assert api.sweep(axes=["z"], frequencies_hz=[50], cycles=3)["state"] == "succeeded"
+    assert api.reset_bench()["cleared"] == []
+
+
+def test_reset_is_refused_while_a_job_owns_the_bench(service):
+    app, api = service
+    started = api.start_sweep(**LONG)
+    _wait_progress(api, started["job_id"], 0.01)
+    with pytest.raises(ApiError) as exc:
+        api.reset_bench()
+    assert exc.value.status_code == 409 and started["job_id"] in exc.value.detail
+    api.stop_bench()
+
+
 def test_one_cycle_sweep_cannot_train_and_says_so(service):
     _, api = service
     dataset_id = api.sweep(axes=["y"], frequencies_hz=[50], cycles=1)["result"]["dataset_id"]

@@ -419,3 +419,23 @@ def test_separate_two_look_alike_effects(page, delay_server):
     assert held_out["rate_dependence"] > 1.5 * held_out["delay"], held_out
     assert page.locator("#separate-run").count() == 0   # no ambiguity left to separate
     shot(page, "separate_result")
+
+
+def test_a_latched_amplifier_fault_is_reset_from_the_bench_page(page, server):
+    api = server["api"]
+    assert api.post("/admin/faults", json={"fault": "amplifier_overcurrent", "axis": "z", "after_s": 0.05}).status_code == 201
+    job = api.post("/sweeps", json={"axes": ["z"], "frequencies_hz": [50], "cycles": 20}).json()
+    ended = wait_job(server, job["job_id"])
+    assert ended["state"] == "failed" and "amplifier z: over-current" in ended["error"]
+    goto(page, server, "bench")
+    page.wait_for_selector("#fault-actions:not([hidden])")
+    assert "over-current" in page.inner_text("#state tr[data-axis=z]")
+    page.click("#reset-faults")
+    page.wait_for_selector("#reset-result:has-text('Cleared: amplifier z: over-current')")
+    page.wait_for_selector("#fault-actions[hidden]", state="attached")
+    shot(page, "bench_reset")
+    bench = api.get("/bench").json()
+    assert not bench["amplifiers"]["z"]["fault"] and abs(bench["amplifiers"]["z"]["output_v"]) < 0.05
+    assert api.delete("/admin/faults").status_code == 200
+    again = api.post("/sweeps", json={"axes": ["z"], "frequencies_hz": [50], "cycles": 3}).json()
+    assert wait_job(server, again["job_id"])["state"] == "succeeded"

@@ -1,7 +1,10 @@
-"""GET /api/bench: backend, axes, amplifier and sensor state, limits; POST /api/bench/stop; GET /api/bench/live."""
+"""GET /api/bench: backend, axes, amplifier and sensor state, limits; POST /api/bench/stop;
+POST /api/bench/reset; GET /api/bench/live."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, HTTPException, Query, Request
+
+from drivers.bench import BenchBusy
 
 from service.safe_shutdown import safe_state
 
@@ -27,6 +30,21 @@ def emergency_stop(request: Request) -> dict:
     out = safe_state(request.app, EMERGENCY_STOP)
     return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids",
                                                     "loop_answered", "output_v")}}
+
+
+@router.post("/bench/reset")
+def reset_faults(request: Request) -> dict:
+    """Clear latched amplifier faults (e.g. an over-current trip) and the watchdog's trip, with the
+    outputs at 0 V, so jobs can run again. 409 while a job owns the bench. The answer lists what was
+    cleared and what remains (a lost sensor is not mended by a reset)."""
+    state = request.app.state
+    if state.jobs.running_bench_job is not None:
+        raise HTTPException(409, detail=f"job {state.jobs.running_bench_job} owns the bench; stop it first")
+    try:
+        out = state.bench.clear_faults()
+    except BenchBusy as exc:
+        raise HTTPException(409, detail=str(exc)) from None
+    return {**out, "output_v": state.bench.output_v()}
 
 
 @router.get("/bench/live")

@@ -1,18 +1,33 @@
 """Learned periodic correction (ILC) in the harmonic domain, with a zero-phase Q-filter.
 
 Per steady period j with error e_j (µm), for harmonics k = 0..K of the trajectory frequency:
-    U_{j+1}(k) = U_j(k) + γ · E_j(k) / G(k),      U(k) = 0 for k > K   (Q: ideal zero-phase low-pass)
-G(k) is the measured response (µm/V) from the feedforward input to the gauge at k·f0, measured
-on the bench by a small periodic multisine in the same loop (PID on or off) that the ILC runs in.
-The learning converges while |1 − γ·G_true/G| < 1 per harmonic, i.e. a phase error below 90°.
-A monitor pauses learning when the error has not fallen for ``patience`` periods (resuming if it
-later rises 1.25× above the best, e.g. by creep), and falls back to the best correction with half the
-gain if the error grows 3× (divergence).
+    U_{j+1}(k) = U_j(k) + γ_k · E_j(k) / Ĝ(k),      U(k) = 0 for k > K   (Q: ideal zero-phase low-pass)
+Ĝ(k) (µm/V) is the response from the feedforward input to the gauge at k·f0. Its prior G₀ is measured
+on the bench by a small multisine in the same loop (PID on or off) that the ILC runs in; the piezo's
+incremental gain depends on the amplitude, though (a 4 V minor loop has about a third of the full
+swing's), so Ĝ is refined from the run itself: every period gives ΔE(k) ≈ −G(k)·ΔU(k) between the
+corrections actually applied, and Ĝ is the Bayesian blend of those observations (weighted by |ΔU|²,
+forgetting factor ρ) with G₀ (trusted to ±50 %). Learning converges while the phase error of Ĝ is below 90°.
+
+Noise. σ² (µm², per harmonic of one period's normalised DFT) is measured with G₀. Harmonics whose
+error is within 2σ of zero learn with γ/4, so the correction averages the noise out instead of
+freezing a sample of it in. The monitor watches the learnable error (harmonics 0..K, where noise is
+a small part) rather than the total: it stops learning when that has not fallen for ``patience``
+periods (resuming if the total rises 1.25× above its best, e.g. by creep), and falls back to the best
+correction with half the gain if the total grows 3× (divergence).
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+#: Ĝ's prior is trusted to this fraction of |G₀| (one standard deviation)
+PRIOR_REL_SD = 0.5
+#: forgetting factor of the running Ĝ estimate per period
+FORGET = 0.95
+#: |E(k)|² below this many σ² counts as noise: that harmonic learns with γ·NOISE_GAIN_FACTOR
+SNR_GATE = 4.0
+NOISE_GAIN_FACTOR = 0.25
 
 
 def multisine(period: int, harmonics: int, amplitude_v: float, seed: int = 0) -> np.ndarray:
@@ -24,85 +39,147 @@ def multisine(period: int, harmonics: int, amplitude_v: float, seed: int = 0) ->
     return amplitude_v * s / np.max(np.abs(s))
 
 
-def frf_from_periods(u_v: np.ndarray, x_um: np.ndarray, period: int, harmonics: int) -> np.ndarray:
-    """G(k) (µm/V), k = 0..K, from whole periods of periodic input/output (averaged spectra).
-    G(0) is taken as the real |G(1)| (a multisine has no DC)."""
-    m = len(u_v) // period
-    U = np.fft.rfft(u_v[:m * period].reshape(m, period), axis=1).mean(axis=0)
-    X = np.fft.rfft(x_um[:m * period].reshape(m, period), axis=1).mean(axis=0)
-    g = X[:harmonics + 1] / np.where(np.abs(U[:harmonics + 1]) > 0, U[:harmonics + 1], 1.0)
+def period_spectra(x: np.ndarray, period: int, harmonics: int) -> np.ndarray:
+    """Normalised DFT (x's unit) at harmonics 0..K of each whole period: (periods, K+1[, ...])."""
+    m = len(x) // period
+    return np.fft.rfft(x[:m * period].reshape(m, period, *x.shape[1:]), axis=1)[:, :harmonics + 1] / period
+
+
+def frf_from_periods(u_v: np.ndarray, x_um: np.ndarray, period: int, harmonics: int) -> tuple[np.ndarray, float]:
+    """G(k) (µm/V), k = 0..K, from whole periods of periodic input/output (averaged spectra), and the
+    noise variance σ² (µm²) of one period's normalised DFT of x at a harmonic (median over k of the
+    period-to-period scatter). G(0) is taken as the real |G(1)| (a multisine has no DC)."""
+    U = period_spectra(u_v, period, harmonics).mean(axis=0)
+    Xp = period_spectra(x_um, period, harmonics)
+    X = Xp.mean(axis=0)
+    g = X / np.where(np.abs(U) > 0, U, 1.0)
     g[0] = abs(g[1])
-    return g
+    scatter = np.mean(np.abs(Xp[:, 1:] - X[None, 1:]) ** 2, axis=0) * len(Xp) / max(len(Xp) - 1, 1)
+    return g, float(np.median(scatter))
 
 
 class HarmonicILC:
-    """Per-axis harmonic ILC on one period. ``g`` (2, K+1) measured responses (µm/V)."""
+    """Per-axis harmonic ILC on one period. ``g`` (2, K+1) measured responses G₀ (µm/V);
+    ``noise_var_um2`` (2,) σ² per axis (see the module doc; None: no SNR gating)."""
 
     def __init__(self, g: np.ndarray, period: int, gain: float = 0.2, patience: int = 15,
-                 min_improvement: float = 0.01):
-        self.g = np.asarray(g, dtype=complex)
+                 min_improvement: float = 0.01, noise_var_um2=None, adapt: bool = True):
+        self.g0 = np.asarray(g, dtype=complex)
+        self.g = self.g0.copy()
         self.harmonics = self.g.shape[1] - 1
         if period // 2 < self.harmonics:
             raise ValueError(f"harmonics: {self.harmonics} exceed the period's Nyquist limit ({period // 2})")
         self.period, self.gain = period, float(gain)
         self.patience, self.min_improvement = patience, min_improvement
+        self.noise_var = None if noise_var_um2 is None else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy()
+        self.adapt = adapt
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
+        self.best_learnable_um = np.inf
         self.best_rms_um = np.inf
         self.stale = 0
         self.learning = True
         self.history_um: list[float] = []
+        self.learnable_history_um: list[float] = []
         self.stop_reason: str | None = None
         self.resume_factor = 1.25
         self.resumed = 0
         self.reverts = 0
+        self._suu = np.zeros((2, self.harmonics + 1))
+        self._sue = np.zeros((2, self.harmonics + 1), dtype=complex)
+        self._see = np.zeros((2, self.harmonics + 1))
+        self._n = 0.0
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None      # (E, applied U) of the last period
         k = np.arange(self.harmonics + 1)[:, None]
         phase = 2 * np.pi * k * np.arange(period)[None, :] / period
         self._cos, self._sin = np.cos(phase), np.sin(phase)        # (K+1, period) DFT tables
         self._zeros = np.zeros((period, 2))
 
-    def update(self, error_um: np.ndarray, base_v: np.ndarray | None = None, limits_v=None) -> np.ndarray:
+    # ------------------------------------------------------------------ the response estimate
+    def _refine_response(self, E: np.ndarray, applied_v: np.ndarray | None) -> None:
+        """Blend this period's ΔE/ΔU observation into Ĝ (see the module doc). E (K+1, 2) µm."""
+        if applied_v is None or not self.adapt:
+            return
+        A = np.fft.rfft(applied_v, axis=0)[:self.harmonics + 1] / self.period
+        if self._prev is not None:
+            dE, dA = (E - self._prev[0]).T, (A - self._prev[1]).T              # (2, K+1)
+            self._suu = FORGET * self._suu + np.abs(dA) ** 2
+            self._sue = FORGET * self._sue + np.conj(dA) * (-dE)
+            self._see = FORGET * self._see + np.abs(dE) ** 2
+            self._n = FORGET * self._n + 1.0
+            with np.errstate(invalid="ignore", divide="ignore"):
+                # what ΔU(k) does not explain of ΔE(k): gauge noise, plus the other harmonics' ΔU acting
+                # through the hysteresis (then the prior keeps its weight)
+                unexplained = (self._see - np.abs(self._sue) ** 2 / self._suu) / np.maximum(self._n - 1.0, 1.0)
+                var = self.noise_var if self.noise_var is not None else np.zeros(2)
+                unexplained = np.where(np.isfinite(unexplained), np.maximum(unexplained, 2 * var[:, None]), np.inf)
+                w0 = unexplained / (PRIOR_REL_SD * np.abs(self.g0)) ** 2
+                g = np.where(np.isfinite(w0) & (self._n > 1.5), (self._sue + w0 * self.g0) / (self._suu + w0),
+                             self.g0)
+            g[:, 0] = g[:, 0].real                                           # DC gain is real
+            self.g = g
+        self._prev = (E, A)
+
+    def harmonic_gains(self, E: np.ndarray) -> np.ndarray:
+        """γ_k per (axis, harmonic): γ where |E(k)|² > SNR_GATE·σ², γ·NOISE_GAIN_FACTOR where it is noise."""
+        gains = np.full((2, self.harmonics + 1), self.gain)
+        if self.noise_var is not None:
+            noise = np.abs(E.T) ** 2 <= SNR_GATE * self.noise_var[:, None]
+            gains[noise] *= NOISE_GAIN_FACTOR
+        return gains
+
+    # ------------------------------------------------------------------ one period
+    def update(self, error_um: np.ndarray, base_v: np.ndarray | None = None, limits_v=None,
+               applied_v: np.ndarray | None = None) -> np.ndarray:
         """Learn from one period's error (period, 2) µm; returns the correction (period, 2) V to apply next.
 
-        With ``base_v`` (the feedforward's period, V) and ``limits_v`` (lo, hi) per axis, the total
-        command is projected into the limits, so the learned correction cannot wind up against the clamp."""
+        ``applied_v`` is the correction that was actually applied during that period (the loop may
+        run one or more periods behind ``u_v``): it is what Ĝ is refined from. With ``base_v`` (the
+        feedforward's period, V) and ``limits_v`` (lo, hi) per axis, the total command is projected
+        into the limits, so the learned correction cannot wind up against the clamp."""
         flat = error_um.ravel()
         rms = float(np.sqrt(flat @ flat / flat.size))
+        E = np.fft.rfft(error_um, axis=0)[:self.harmonics + 1] / self.period          # (K+1, 2)
+        learnable = float(np.sqrt((np.sum(np.abs(E[0]) ** 2) + 2 * np.sum(np.abs(E[1:]) ** 2)) / 2))
         self.history_um.append(rms)
+        self.learnable_history_um.append(learnable)
+        self._refine_response(E, applied_v)
+        self.best_rms_um = min(self.best_rms_um, rms)
         if not self.learning:                 # paused: resume if the plant has drifted away
             if rms > self.resume_factor * self.best_rms_um:
-                self.learning, self.stale, self.best_rms_um = True, 0, rms
+                self.learning, self.stale = True, 0
+                self.best_rms_um, self.best_learnable_um = rms, learnable
                 self.resumed += 1
             return self.u_v
-        if rms < self.best_rms_um * (1 - self.min_improvement):
-            self.best_rms_um, self.best_u_v, self.stale = rms, self.u_v.copy(), 0
+        if rms > 3.0 * self.best_rms_um:     # diverging: back to the best correction, half the gain
+            self.u_v, self.gain = self.best_u_v.copy(), 0.5 * self.gain
+            self.best_rms_um, self.best_learnable_um, self.stale = np.inf, np.inf, 0
+            self.reverts += 1
+            self.stop_reason = f"error grew to {rms * 1e3:.1f} nm RMS: reverted, gain halved to {self.gain:g}"
+            if self.reverts >= 3:
+                self.learning = False
+            return self.u_v
+        if learnable < self.best_learnable_um * (1 - self.min_improvement):
+            self.best_learnable_um, self.best_u_v, self.stale = learnable, self.u_v.copy(), 0
         else:
             self.stale += 1
-            if rms > 3.0 * self.best_rms_um:  # diverging: back to the best correction, half the gain
-                self.u_v, self.gain = self.best_u_v.copy(), 0.5 * self.gain
-                self.best_rms_um, self.stale, self.reverts = np.inf, 0, self.reverts + 1
-                self.stop_reason = f"error grew to {rms * 1e3:.1f} nm RMS: reverted, gain halved to {self.gain:g}"
-                if self.reverts >= 3:
-                    self.learning = False
-                return self.u_v
             if self.stale >= self.patience:
                 self.learning = False
-                self.stop_reason = (f"error stopped falling (best {self.best_rms_um * 1e3:.1f} nm RMS); learning "
-                                    f"paused, resumes if it rises {self.resume_factor:g}×")
+                self.stop_reason = (f"learnable error stopped falling (best {self.best_learnable_um * 1e3:.1f} nm "
+                                    f"RMS in harmonics 0–{self.harmonics}); learning paused, resumes if the "
+                                    f"error rises {self.resume_factor:g}×")
                 return self.u_v
         self.u_v = self.u_v.copy()
         if base_v is None or limits_v is None:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
-        if getattr(self, "_coef_gain", None) != self.gain:
-            c = self.gain / self.g
-            self._coef, self._coef_gain = (np.ascontiguousarray(c.real), np.ascontiguousarray(c.imag)), self.gain
-        learn_step(np.ascontiguousarray(error_um), self._coef[0], self._coef[1], self._cos,
-                   self._sin, self.u_v, np.ascontiguousarray(base_v), np.asarray(limits_v[0], dtype=float),
-                   np.asarray(limits_v[1], dtype=float))
+        c = self.harmonic_gains(E) / self.g
+        learn_step(np.ascontiguousarray(error_um), np.ascontiguousarray(c.real), np.ascontiguousarray(c.imag),
+                   self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
+                   np.asarray(limits_v[0], dtype=float), np.asarray(limits_v[1], dtype=float))
         return self.u_v
 
     def learning_matrices(self) -> np.ndarray:
-        """(2, period, period) real matrices L with Δu = L·e per axis: irfft(Q·γ/G·rfft(e))."""
+        """(2, period, period) real matrices L with Δu = L·e per axis: irfft(Q·γ/Ĝ·rfft(e)) (no gating)."""
         eye = np.eye(self.period)
         E = np.fft.rfft(eye, axis=0)[:self.harmonics + 1]            # (K+1, period)
         out = np.empty((2, self.period, self.period))

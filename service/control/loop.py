@@ -91,6 +91,7 @@ class Tracker:
                               bench.parts.amplifiers[a].gain_v_per_v] for a in bench.axes])
         self.trip = trip_limits(bench, ref) if trip is None else trip
         self._ilc_limits = (self.lim[:, CK.L_VMIN].copy(), self.lim[:, CK.L_VMAX].copy())
+        self._ilc_applied: dict[int, np.ndarray] = {}   # period → the ILC correction its command carried
         self.um_per_v = np.array([bench.parts.sensors[a].scale_um_per_v for a in bench.axes])
 
     def _command(self, p: int) -> np.ndarray:
@@ -98,9 +99,11 @@ class Tracker:
         u = self.u_ff[s].copy()
         if self.ilc is not None:
             u += self.ref.envelope[s, None] * self.ilc.u_v
+            self._ilc_applied[p] = self.ilc.u_v          # the ILC publishes a new array per update
         return u
 
     def _learn(self, p: int, rec: TrackRecord) -> None:
+        applied = self._ilc_applied.pop(p, None)
         steady = self.ref.ramp_periods <= p < self.ref.ramp_periods + self.ref.cycles
         if not steady:
             return
@@ -108,7 +111,7 @@ class Tracker:
         err = self.ref.x_um[s] - rec.x_um[s]
         if self.ilc is not None:
             base = self.u_ff[self.ref.ramp_periods * self.ref.period:][:self.ref.period]
-            self.ilc.update(err, base_v=base, limits_v=self._ilc_limits)
+            self.ilc.update(err, base_v=base, limits_v=self._ilc_limits, applied_v=applied)
             rec.error_per_period_um.append(self.ilc.history_um[-1])
         else:
             rec.error_per_period_um.append(float(np.sqrt(np.mean(err ** 2))))

@@ -40,9 +40,10 @@ class Controller:
 
 def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarray, centre_um: np.ndarray,
                      mode: str, pid: dict[str, PIDGains] | None, amplitude_v: float = 10.0,
-                     periods: int = 16) -> np.ndarray:
-    """G(k) (2, K+1) µm/V from the feedforward input to the gauges: a multisine on top of ``bias_v``
-    in the same loop (PID or not) that the ILC will learn in; reference held at ``centre_um``."""
+                     periods: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """G(k) (2, K+1) µm/V from the feedforward input to the gauges, and the noise variance σ² (2,) µm²
+    of one period's normalised DFT per axis: a multisine on top of ``bias_v`` in the same loop (PID
+    or not) that the ILC will learn in; reference held at ``centre_um``."""
     ramp = 4
     n = (ramp + periods) * period
     env = np.ones(n)
@@ -60,7 +61,8 @@ def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarr
     if rec.tripped:
         raise RuntimeError(f"response measurement stopped: {rec.tripped}")
     s = (ramp + 4) * period
-    return np.stack([frf_from_periods(inj[s:, i], rec.x_um[s:n, i], period, harmonics) for i in range(2)])
+    fits = [frf_from_periods(inj[s:, i], rec.x_um[s:n, i], period, harmonics) for i in range(2)]
+    return np.stack([g for g, _ in fits]), np.array([var for _, var in fits])
 
 
 def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
@@ -124,9 +126,9 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
         steady = ref.steady_period()
         bias = (np.mean(u_ff[ref.ramp_periods * ref.period:][:ref.period], axis=0) if u_ff is not None
                 else np.full(2, 60.0))
-        g = measure_response(bench, ref.period, controller.ilc_harmonics, bias, steady.mean(axis=0), mode,
+        g, noise_var = measure_response(bench, ref.period, controller.ilc_harmonics, bias, steady.mean(axis=0), mode,
                              controller.pid, amplitude_v=10.0 if controller.pid is None else 4.0)
-        ilc = HarmonicILC(g, ref.period, gain=controller.ilc_gain)
+        ilc = HarmonicILC(g, ref.period, gain=controller.ilc_gain, noise_var_um2=noise_var)
     t0, c0 = time.perf_counter(), time.process_time()
     rec = Tracker(bench, ref, u_ff, mode=mode, pid=controller.pid, ilc=ilc).run(on_period, should_stop)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0

@@ -18,7 +18,10 @@ export async function enter(root) {
   root.append(h(`<div>
     <h1>Bench <span class="muted">${esc(bench.backend)}</span></h1>
     <div class="grid">
-      <div class="card"><h2>State</h2><table id="state"></table></div>
+      <div class="card"><h2>State</h2><table id="state"></table>
+        <div id="fault-actions" hidden><button id="reset-faults" title="POST /api/bench/reset">Reset latched faults</button>
+          <span class="muted">outputs stay at 0 V; find the cause first</span></div>
+        <div id="reset-result" class="muted"></div></div>
       <div class="card"><h2>Hard limits</h2><table id="limits"></table></div>
     </div>
     <div class="card"><h2>Live signals <span class="muted">(drive u and displacement x per axis, during any job)</span></h2>
@@ -28,6 +31,15 @@ export async function enter(root) {
     <div class="card"><h2>Recent jobs</h2><table id="jobs"></table></div>
   </div>`));
   renderState(root, bench);
+  root.querySelector('#reset-faults').addEventListener('click', async () => {
+    const out = root.querySelector('#reset-result');
+    try {
+      const r = await api('/bench/reset', { method: 'POST' });
+      out.textContent = (r.cleared.length ? `Cleared: ${r.cleared.join('; ')}.` : 'Nothing was latched.') +
+        (r.remaining ? ` Still faulted (a reset cannot mend it): ${r.remaining}` : '');
+      renderState(root, await api('/bench'));
+    } catch (err) { out.textContent = `Reset refused: ${err.message}`; }
+  });
   const axes = bench.axes;
   const lim = root.querySelector('#limits');
   lim.innerHTML = `<tr><th>axis</th><th class="num">V min (V)</th><th class="num">V max (V)</th><th class="num">slew (V/s)</th>
@@ -88,6 +100,8 @@ function renderState(root, b) {
       <td class="${s.ok ? 'ok' : 'bad'}">${s.ok ? (s.saturated ? 'saturated' : 'ok') : esc(s.reason || 'not ok')}</td>
       <td class="num">${s.range_um.map((v) => fmt(v)).join(' … ')}</td></tr>`; }).join('') +
     `<tr><td colspan="6" class="muted">running job: <span id="running">${esc(b.running_job_id || 'none')}</span></td></tr>`;
+  const faulted = b.axes.some((a) => b.amplifiers[a].fault);
+  root.querySelector('#fault-actions').hidden = !faulted || Boolean(b.running_job_id);
 }
 
 async function refreshJobs(root) {
