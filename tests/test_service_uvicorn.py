@@ -70,6 +70,9 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
             assert [b["frequency_hz"] for b in metrics["per_block"]] == [20.0, 80.0]
             assert cli_model in _cli(server, "models").stdout
             assert "identify" in _cli(server, "jobs").stdout
+            assert "nothing was latched" in _cli(server, "reset").stdout
+            stopped = json.loads(_cli(server, "stop", "--json").stdout)
+            assert stopped["cancelled_job_id"] is None and all(abs(v) < 0.05 for v in stopped["output_v"].values())
             refused = subprocess.run([sys.executable, "-m", "service.cli", "jobs", "--url", server.url, "--token",
                                       "evc_wrong"], cwd=ROOT, capture_output=True, text=True, timeout=120)
             assert refused.returncode == 2 and "error 401 [authorization]: unknown API token" in refused.stderr
