@@ -73,6 +73,7 @@ class HarmonicILC:
         self.patience, self.min_improvement = patience, min_improvement
         self.noise_var = None if noise_var_um2 is None else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy()
         self.adapt = adapt
+        self._noise_var0 = self.noise_var if self.noise_var is not None else np.zeros(2)
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
         self.best_learnable_um = np.inf
@@ -89,7 +90,7 @@ class HarmonicILC:
         self._sue = np.zeros((2, self.harmonics + 1), dtype=complex)
         self._see = np.zeros((2, self.harmonics + 1))
         self._n = 0.0
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None      # (E, applied U) of the last period
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None      # (E, applied U) (2, K+1) of the last period
         k = np.arange(self.harmonics + 1)[:, None]
         phase = 2 * np.pi * k * np.arange(period)[None, :] / period
         self._cos, self._sin = np.cos(phase), np.sin(phase)        # (K+1, period) DFT tables
@@ -97,36 +98,16 @@ class HarmonicILC:
 
     # ------------------------------------------------------------------ the response estimate
     def _refine_response(self, E: np.ndarray, applied_v: np.ndarray | None) -> None:
-        """Blend this period's ΔE/ΔU observation into Ĝ (see the module doc). E (K+1, 2) µm."""
+        """Blend this period's ΔE/ΔU observation into Ĝ (see the module doc). E (2, K+1) µm."""
         if applied_v is None or not self.adapt:
             return
-        A = np.fft.rfft(applied_v, axis=0)[:self.harmonics + 1] / self.period
+        A = np.empty_like(E)
+        spectrum(np.ascontiguousarray(applied_v), self._cos, self._sin, A)
         if self._prev is not None:
-            dE, dA = (E - self._prev[0]).T, (A - self._prev[1]).T              # (2, K+1)
-            self._suu = FORGET * self._suu + np.abs(dA) ** 2
-            self._sue = FORGET * self._sue + np.conj(dA) * (-dE)
-            self._see = FORGET * self._see + np.abs(dE) ** 2
             self._n = FORGET * self._n + 1.0
-            with np.errstate(invalid="ignore", divide="ignore"):
-                # what ΔU(k) does not explain of ΔE(k): gauge noise, plus the other harmonics' ΔU acting
-                # through the hysteresis (then the prior keeps its weight)
-                unexplained = (self._see - np.abs(self._sue) ** 2 / self._suu) / np.maximum(self._n - 1.0, 1.0)
-                var = self.noise_var if self.noise_var is not None else np.zeros(2)
-                unexplained = np.where(np.isfinite(unexplained), np.maximum(unexplained, 2 * var[:, None]), np.inf)
-                w0 = unexplained / (PRIOR_REL_SD * np.abs(self.g0)) ** 2
-                g = np.where(np.isfinite(w0) & (self._n > 1.5), (self._sue + w0 * self.g0) / (self._suu + w0),
-                             self.g0)
-            g[:, 0] = g[:, 0].real                                           # DC gain is real
-            self.g = g
+            blend_response(E, A, self._prev[0], self._prev[1], self._suu, self._sue, self._see, self._n,
+                           self.g0, self._noise_var0, PRIOR_REL_SD, FORGET, self.g)
         self._prev = (E, A)
-
-    def harmonic_gains(self, E: np.ndarray) -> np.ndarray:
-        """γ_k per (axis, harmonic): γ where |E(k)|² > SNR_GATE·σ², γ·NOISE_GAIN_FACTOR where it is noise."""
-        gains = np.full((2, self.harmonics + 1), self.gain)
-        if self.noise_var is not None:
-            noise = np.abs(E.T) ** 2 <= SNR_GATE * self.noise_var[:, None]
-            gains[noise] *= NOISE_GAIN_FACTOR
-        return gains
 
     # ------------------------------------------------------------------ one period
     def update(self, error_um: np.ndarray, base_v: np.ndarray | None = None, limits_v=None,
@@ -137,10 +118,9 @@ class HarmonicILC:
         run one or more periods behind ``u_v``): it is what Ĝ is refined from. With ``base_v`` (the
         feedforward's period, V) and ``limits_v`` (lo, hi) per axis, the total command is projected
         into the limits, so the learned correction cannot wind up against the clamp."""
-        flat = error_um.ravel()
-        rms = float(np.sqrt(flat @ flat / flat.size))
-        E = np.fft.rfft(error_um, axis=0)[:self.harmonics + 1] / self.period          # (K+1, 2)
-        learnable = float(np.sqrt((np.sum(np.abs(E[0]) ** 2) + 2 * np.sum(np.abs(E[1:]) ** 2)) / 2))
+        error_um = np.ascontiguousarray(error_um)
+        E = np.empty((2, self.harmonics + 1), dtype=complex)                       # normalised DFT, µm
+        rms, learnable = spectrum(error_um, self._cos, self._sin, E)
         self.history_um.append(rms)
         self.learnable_history_um.append(learnable)
         self._refine_response(E, applied_v)
@@ -172,9 +152,10 @@ class HarmonicILC:
         self.u_v = self.u_v.copy()
         if base_v is None or limits_v is None:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
-        c = self.harmonic_gains(E) / self.g
-        learn_step(np.ascontiguousarray(error_um), np.ascontiguousarray(c.real), np.ascontiguousarray(c.imag),
-                   self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
+        coef_re, coef_im = np.empty((2, self.harmonics + 1)), np.empty((2, self.harmonics + 1))
+        learning_coefficients(E, self.g, self.gain, self._noise_var0 * (SNR_GATE if self.noise_var is not None else -1.0),
+                              NOISE_GAIN_FACTOR, coef_re, coef_im)
+        learn_step(error_um, coef_re, coef_im, self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
                    np.asarray(limits_v[0], dtype=float), np.asarray(limits_v[1], dtype=float))
         return self.u_v
 
@@ -223,3 +204,64 @@ def learn_step(e, coef_re, coef_im, cos_t, sin_t, u, base, lo, hi):
             v = u[i, a] + acc[i] / n
             total = min(max(base[i, a] + v, lo[a]), hi[a])
             u[i, a] = total - base[i, a]
+
+
+@njit(cache=True)
+def blend_response(E, A, E_prev, A_prev, suu, sue, see, n, g0, noise_var, prior_rel_sd, forget, g):
+    """One period's Ĝ refinement in place (see the module doc). E, A (2, K+1): this period's error and
+    applied correction spectra; suu, sue, see: the forgetting sums of |ΔU|², conj(ΔU)·(−ΔE), |ΔE|²;
+    n: the forgetting count (already updated). Ĝ keeps G₀ until two observations are in, and where
+    ΔU(k) explains nothing of ΔE(k) (then the unexplained variance, floored at 2σ², is the prior's weight)."""
+    for a in range(E.shape[0]):
+        for k in range(E.shape[1]):
+            de = E[a, k] - E_prev[a, k]
+            da = A[a, k] - A_prev[a, k]
+            suu[a, k] = forget * suu[a, k] + (da.real * da.real + da.imag * da.imag)
+            sue[a, k] = forget * sue[a, k] - np.conj(da) * de
+            see[a, k] = forget * see[a, k] + (de.real * de.real + de.imag * de.imag)
+            if n <= 1.5 or suu[a, k] <= 0.0:
+                g[a, k] = g0[a, k]
+                continue
+            explained = (sue[a, k].real ** 2 + sue[a, k].imag ** 2) / suu[a, k]
+            unexplained = max((see[a, k] - explained) / max(n - 1.0, 1.0), 2.0 * noise_var[a])
+            sd = prior_rel_sd * abs(g0[a, k])
+            w0 = unexplained / (sd * sd) if sd > 0.0 else np.inf
+            if not np.isfinite(w0):
+                g[a, k] = g0[a, k]
+                continue
+            est = (sue[a, k] + w0 * g0[a, k]) / (suu[a, k] + w0)
+            g[a, k] = est.real + 0j if k == 0 else est           # DC gain is real
+
+
+@njit(cache=True, fastmath=True)
+def spectrum(x, cos_t, sin_t, out):
+    """Normalised DFT of each column of x (n, 2) at harmonics 0..K into out (2, K+1); returns
+    (RMS of x, RMS of its harmonics 0..K), both in x's unit."""
+    n, kk = x.shape[0], cos_t.shape[0]
+    total = 0.0
+    band = 0.0
+    for a in range(x.shape[1]):
+        for i in range(n):
+            total += x[i, a] * x[i, a]
+        for k in range(kk):
+            re = 0.0
+            im = 0.0
+            for i in range(n):
+                re += x[i, a] * cos_t[k, i]
+                im -= x[i, a] * sin_t[k, i]
+            out[a, k] = complex(re / n, im / n)
+            band += (re * re + im * im) / (n * n) * (1.0 if k == 0 else 2.0)
+    cols = x.shape[1]
+    return np.sqrt(total / (n * cols)), np.sqrt(band / cols)
+
+
+@njit(cache=True)
+def learning_coefficients(E, g, gain, gate, noise_factor, coef_re, coef_im):
+    """γ_k/Ĝ(k) per (axis, harmonic) into coef_re/coef_im: γ where |E(k)|² > gate[a] (SNR_GATE·σ²; a
+    negative gate turns the gating off), γ·noise_factor where the error is at the noise."""
+    for a in range(E.shape[0]):
+        for k in range(E.shape[1]):
+            e2 = E[a, k].real ** 2 + E[a, k].imag ** 2
+            c = (gain * noise_factor if e2 <= gate[a] else gain) / g[a, k]
+            coef_re[a, k] = c.real
+            coef_im[a, k] = c.imag
