@@ -92,13 +92,17 @@ def turning_points(y: np.ndarray, swing_fraction: float = TURNING_SWING_FRACTION
 def dominant_period_samples(y: np.ndarray) -> float:
     """Dominant period (samples) from the mean spacing of turning points (two per cycle).
 
-    With fewer than two interior turning points the longest monotone stretch,
-    endpoints included, is taken as the half period.
+    Only the regular half periods count (within 25 % of the median spacing), so a hold, or small
+    cycles under the turning-point prominence in an amplitude ramp, do not stretch the period.
+    With fewer than two interior turning points the longest monotone stretch, endpoints included,
+    is taken as the half period.
     """
     y = np.asarray(y, dtype=float)
     tp = turning_points(y)
     if tp.size >= 2:
-        return 2.0 * float(tp[-1] - tp[0]) / (tp.size - 1)
+        half = np.diff(tp).astype(float)
+        regular = np.abs(half - np.median(half)) <= 0.25 * np.median(half)
+        return 2.0 * float(np.mean(half[regular]))
     marks = np.concatenate([[0], tp, [max(y.size - 1, 1)]])
     return 2.0 * float(np.max(np.diff(marks)))
 

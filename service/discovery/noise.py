@@ -5,7 +5,9 @@ cycle when the period is fractional); the first cycle (start-up transient) is dr
 three or more remain. ``noise_um`` comes from the differences of successive cycles, each with
 its own mean and slope removed (slow drift/creep is reported as ``slow_rms_um``, not as noise),
 as the median over cycle pairs; ``repeatable_um`` = RMS of the mean cycle with the noise's share
-(σ²/N) removed.
+(σ²/N) removed. Only pairs whose drive repeated count (drive difference ≤ 1 % of its swing): in an
+amplitude ramp or across a hold, the residual changes because the drive did, which is not noise.
+With no such pair the noise comes from second differences of the residual.
 """
 from __future__ import annotations
 
@@ -26,14 +28,22 @@ def cycles_matrix(r: np.ndarray, period_samples: float) -> np.ndarray | None:
     return mat[1:] if n_cycles >= 3 else mat
 
 
-def repeatability(r: np.ndarray, period_samples: float) -> dict:
-    """``noise_um``, ``repeatable_um``, ``slow_rms_um``, ``cycles`` of one block's residual."""
+#: successive cycles count as "the same drive" when their drive differs by at most this share of its swing
+SAME_DRIVE_SHARE = 0.01
+
+
+def repeatability(r: np.ndarray, period_samples: float, drive: np.ndarray | None = None) -> dict:
+    """``noise_um``, ``repeatable_um``, ``slow_rms_um``, ``cycles`` of one block's residual ``r``
+    (µm); ``drive`` (same length, any unit) restricts the noise to cycles whose drive repeated."""
     mat = None if not period_samples else cycles_matrix(r, period_samples)
+    if mat is not None and drive is not None:
+        same = repeated_cycles(cycles_matrix(np.asarray(drive, dtype=float), period_samples))
+        mat = _longest_run(mat, same)
     if mat is None:
         d2 = np.diff(r, 2)
         sigma = float(np.std(d2) / np.sqrt(6.0)) if d2.size > 2 else float("nan")
         return {"noise_um": sigma, "repeatable_um": None, "slow_rms_um": None, "cycles": 0,
-                "method": "second differences (no whole cycles)"}
+                "method": "second differences (no two successive cycles with the same drive)"}
     n, m = mat.shape
     mean_cycle = mat.mean(axis=0)
     dev = mat - mean_cycle
@@ -44,6 +54,27 @@ def repeatability(r: np.ndarray, period_samples: float) -> dict:
     return {"noise_um": float(np.sqrt(var)), "repeatable_um": float(np.sqrt(max(rep2, 0.0))),
             "slow_rms_um": float(np.sqrt(np.mean(slow**2))), "cycles": int(n),
             "method": "cycle-to-cycle repeatability"}
+
+
+def repeated_cycles(drive_mat: np.ndarray) -> np.ndarray:
+    """(N−1,) bool: successive cycles i, i+1 of the drive that repeat (RMS difference ≤
+    SAME_DRIVE_SHARE of the drive's swing over the block)."""
+    swing = float(np.ptp(drive_mat)) or 1.0
+    change = np.sqrt(np.mean(np.diff(drive_mat, axis=0) ** 2, axis=1))
+    return change <= SAME_DRIVE_SHARE * swing
+
+
+def _longest_run(mat: np.ndarray, same: np.ndarray) -> np.ndarray | None:
+    """The longest run of successive cycles whose drive repeated (None if no pair did)."""
+    best, start, best_span = None, None, 0
+    for i, ok in enumerate(np.append(same, False)):
+        if ok and start is None:
+            start = i
+        elif not ok and start is not None:
+            if i - start > best_span:
+                best, best_span = (start, i + 1), i - start
+            start = None
+    return None if best is None else mat[best[0]:best[1]]
 
 
 def _mean_and_slope(rows: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -68,7 +99,7 @@ def noise_floor(records, residuals) -> dict:
     for rec, res in zip(records, residuals):
         for s in rec.splits:
             a, b = s.train[0], s.held_out[1]
-            fig = repeatability(res[a:b], rec.period_samples(s))
+            fig = repeatability(res[a:b], rec.period_samples(s), rec.u_v[a:b])
             per_block.append({"dataset_id": rec.label, "index": s.block.get("index"),
                               "frequency_hz": s.block.get("frequency_hz"), **fig})
     noise = [b["noise_um"] for b in per_block if np.isfinite(b["noise_um"])]

@@ -1,0 +1,63 @@
+"""The noise floor and the period on imported data whose drive does not repeat everywhere: bursts
+with amplitude ramps and a hold (like ../shared/data/real/yan9a-dbo/Test_Vi_Do_Di.dat)."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from realdata import REAL_DIR, requires_real_data
+from service.discovery.diagnosis import diagnose
+from service.discovery.noise import repeatability
+from service.discovery.records import Record
+from service.signals import dominant_period_samples
+
+PERIOD = 200.0          # samples per cycle
+
+
+def burst_drive(rng=None) -> tuple[np.ndarray, np.ndarray]:
+    """Drive (V) and its amplitude envelope: 6 steady cycles, 12 ramping down, a 1300-sample hold,
+    12 ramping up, 6 steady: most successive cycles differ in amplitude."""
+    env = np.concatenate([np.ones(1200), np.linspace(1, 0, 2400), np.zeros(1300), np.linspace(0, 1, 2400),
+                          np.ones(1200)])
+    t = np.arange(env.size)
+    phase = np.where(np.arange(env.size) < 4900, 0.0, 0.7)      # the burst after the hold restarts in phase 0.7
+    return 1.8 + 1.6 * env * np.sin(2 * np.pi * t / PERIOD + phase), env
+
+
+def test_period_ignores_a_hold_and_ramps():
+    u, _ = burst_drive()
+    assert abs(dominant_period_samples(u) / PERIOD - 1) < 0.005
+
+
+def test_noise_counts_only_cycles_whose_drive_repeated():
+    rng = np.random.default_rng(0)
+    u, env = burst_drive()
+    sigma = 0.01
+    t = np.arange(u.size)
+    # a residual that depends on the amplitude (a model error, repeatable for a given drive) plus noise
+    residual = 1.0 * env * np.sin(4 * np.pi * t / PERIOD) + sigma * rng.standard_normal(u.size)
+    blind = repeatability(residual, PERIOD)["noise_um"]
+    matched = repeatability(residual, PERIOD, drive=u)
+    assert abs(matched["noise_um"] / sigma - 1) < 0.15
+    assert matched["method"] == "cycle-to-cycle repeatability"
+    assert blind > 1.5 * sigma                    # counting every pair, the ramps pass for noise
+    # a drive that never repeats (a chirp): second differences instead
+    chirp = np.sin(2 * np.pi * np.cumsum(np.linspace(1 / 400, 1 / 100, 6000)))
+    fallback = repeatability(sigma * rng.standard_normal(6000), PERIOD, drive=chirp)
+    assert fallback["cycles"] == 0 and "second differences" in fallback["method"]
+    assert abs(fallback["noise_um"] / sigma - 1) < 0.15
+
+
+@requires_real_data
+def test_real_bursts_with_a_hold_get_the_same_noise_floor_as_the_steady_file():
+    data = np.loadtxt(REAL_DIR / "yan9a-dbo" / "Test_Vi_Do_Di.dat")[:11152]   # before the authors' inverse
+    record = Record("Test_Vi_Do_Di", data[:, 0], data[:, 4], 200.0)
+    assert abs(record.period_samples(record.splits[0]) / 200.0 - 1) < 0.01
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = diagnose([record])
+    assert 0.03 < d["noise_floor_um"] < 0.12          # Model_Vi_Do.dat: about 0.066 µm
+    assert d["verdict"] == "missing_effect" and not d["at_noise_floor"]
+    assert d["held_out_to_noise"] > 3
