@@ -93,7 +93,8 @@ def dominant_period_samples(y: np.ndarray) -> float:
     """Dominant period (samples) from the mean spacing of turning points (two per cycle).
 
     Only the regular half periods count (within 25 % of the median spacing), so a hold, or small
-    cycles under the turning-point prominence in an amplitude ramp, do not stretch the period.
+    cycles under the turning-point prominence in an amplitude ramp, do not stretch the period;
+    when fewer than half are regular (several tones), the mean of all.
     With fewer than two interior turning points the longest monotone stretch, endpoints included,
     is taken as the half period.
     """
@@ -102,7 +103,9 @@ def dominant_period_samples(y: np.ndarray) -> float:
     if tp.size >= 2:
         half = np.diff(tp).astype(float)
         regular = np.abs(half - np.median(half)) <= 0.25 * np.median(half)
-        return 2.0 * float(np.mean(half[regular]))
+        if regular.sum() >= max(1, half.size // 2):
+            return 2.0 * float(np.mean(half[regular]))
+        return 2.0 * float(tp[-1] - tp[0]) / (tp.size - 1)   # no regular rhythm (several tones): the mean
     marks = np.concatenate([[0], tp, [max(y.size - 1, 1)]])
     return 2.0 * float(np.max(np.diff(marks)))
 

@@ -13,11 +13,13 @@ from service.discovery.composite import CompositeModel
 from service.discovery.diagnosis import diagnose
 from service.discovery.records import sweep_records
 
-#: Known gap (issue 5): after `dynamics` is added on the dynamics bench, the resonance fit leaves
-#: ~14 nm (Y) / ~30 nm (Z) against a ~3 nm floor, and rate_dependence (0.82 Y, 0.61 Z) is still
-#: claimed. Strict: this turns red once the dynamics effect models the flexure completely.
-DYNAMICS_INCOMPLETE = pytest.mark.xfail(strict=True, reason="the dynamics effect leaves a repeatable residual "
-                                        "that rate_dependence still claims after the refine")
+#: Known gap (issue 5), Z only: after `dynamics` is added on the dynamics bench, the 10-operator PI's
+#: loop-shape error (≈15 nm at 1 Hz, the continuous Preisach density a PI cannot follow) has a 3rd
+#: harmonic that the 291 Hz mode amplifies about tenfold at 100 Hz (32 nm), and rate_dependence
+#: still claims it (25.5 → 10.6 nm). Y passes since the emulator's flexure no longer leads by half a
+#: sample. Strict: this turns red once the hysteresis shape is modelled well enough.
+DYNAMICS_INCOMPLETE_Z = pytest.mark.xfail(strict=True, reason="on Z the PI's loop-shape error, amplified by the "
+                                          "291 Hz mode at 100 Hz, is claimed by rate_dependence after the refine")
 VARIANTS = ["creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence"]
 
 
@@ -39,8 +41,7 @@ def test_hidden_effect_is_found_on_z(bench):
     _found_and_fixed(bench, sweep_records(bench, seed=0)["z"])
 
 
-@DYNAMICS_INCOMPLETE
-@pytest.mark.parametrize("axis", ["y", "z"])
+@pytest.mark.parametrize("axis", ["y", pytest.param("z", marks=DYNAMICS_INCOMPLETE_Z)])
 def test_nothing_physical_is_left_after_adding_dynamics(axis):
     _found_and_fixed("dynamics", sweep_records("dynamics", seed=0)[axis], expect_complete=True)
 
