@@ -69,7 +69,8 @@ def test_buffered_ilc_job_reports_error_per_period_and_stores_traces(http):
     assert job["state"] == "succeeded", job
     res = job["result"]
     err = res["error_per_period_um"]
-    assert len(err) == 25 and err[-1] < 0.3 * err[0]
+    assert len(err) == 25 and err[-1] < 0.1 * err[0]
+    assert max(err[10:]) < 0.3 * err[0]          # no growing back (a harmonic learning out of phase)
     for key in ("max_error_y_um", "max_error_z_um", "rms_error_um", "relative_error_pct"):
         assert res[key] >= 0
     assert any("error" in m and "nm RMS" in m for m in messages) or job["message"]

@@ -59,17 +59,19 @@ def test_refined_response_rescues_learning_where_the_measured_phase_is_wrong_by_
     assert np.all(np.abs(np.abs(excited) - 2.5) < 0.4) and np.all(np.abs(np.abs(ratio[:, 1]) - 2.5) < 0.4)
 
 
-def test_noise_gate_lets_the_learned_correction_average_the_noise_out():
+def test_learned_correction_averages_the_noise_out():
+    """With a fixed gain γ the correction freezes in √(γ/(2−γ)) of the noise in its 2K+1 learned
+    components; the noise gate (γ/4 at the noise) and the per-harmonic gain halving must leave less."""
     g0 = g_nominal()
     noise = 3e-3
     var = np.full(2, noise ** 2 / PERIOD)
-    gated = HarmonicILC(g0, PERIOD, noise_var_um2=var, patience=1000, adapt=False)
-    ungated = HarmonicILC(g0, PERIOD, noise_var_um2=None, patience=1000, adapt=False)
-    run(gated, g0, 80, noise, seed=1)
-    run(ungated, g0, 80, noise, seed=1)
+    gamma = 0.2
+    fixed_gain_um = noise * np.sqrt(gamma / (2 - gamma)) * np.sqrt((2 * K + 1) / PERIOD)
     r = reference()
-    # the systematic error the frozen correction leaves, without noise (µm RMS)
-    left_gated = np.sqrt(np.mean((r - plant_response(g0, gated.u_v)) ** 2))
-    left_ungated = np.sqrt(np.mean((r - plant_response(g0, ungated.u_v)) ** 2))
-    assert left_gated < 0.8 * left_ungated        # γ/(2−γ) of the noise is frozen in; γ/4 where it is noise
-    assert left_gated < 0.15 * noise
+    left = []
+    for seed in range(5):
+        ilc = HarmonicILC(g0, PERIOD, gain=gamma, noise_var_um2=var, patience=1000, adapt=False)
+        run(ilc, g0, 80, noise, seed=seed)
+        left.append(np.sqrt(np.mean((r - plant_response(g0, ilc.u_v)) ** 2)))   # systematic error left, µm
+    assert np.mean(left) < 0.75 * fixed_gain_um
+    assert max(left) < 0.15 * noise
