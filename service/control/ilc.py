@@ -74,10 +74,6 @@ class HarmonicILC:
         self.noise_var = None if noise_var_um2 is None else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy()
         self.adapt = adapt
         self._noise_var0 = self.noise_var if self.noise_var is not None else np.zeros(2)
-        #: per (axis, harmonic): the learning gain's share (halved each time that harmonic's error
-        #: grows to twice its smallest while above the noise) and that smallest |E(k)| (µm)
-        self._harmonic_scale = np.ones((2, self.harmonics + 1))
-        self._smallest_error = np.full((2, self.harmonics + 1), np.inf)
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
         self.best_learnable_um = np.inf
@@ -158,9 +154,8 @@ class HarmonicILC:
         if base_v is None or limits_v is None:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
         coef_re, coef_im = np.empty((2, self.harmonics + 1)), np.empty((2, self.harmonics + 1))
-        gate = self._noise_var0 * (SNR_GATE if self.noise_var is not None else -1.0)
-        learning_coefficients(E, self.g, self.gain, gate, NOISE_GAIN_FACTOR, self._harmonic_scale,
-                              self._smallest_error, coef_re, coef_im)
+        learning_coefficients(E, self.g, self.gain, self._noise_var0 * (SNR_GATE if self.noise_var is not None else -1.0),
+                              NOISE_GAIN_FACTOR, coef_re, coef_im)
         learn_step(error_um, coef_re, coef_im, self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
                    np.asarray(limits_v[0], dtype=float), np.asarray(limits_v[1], dtype=float))
         return self.u_v
@@ -262,21 +257,13 @@ def spectrum(x, cos_t, sin_t, out):
 
 
 @njit(cache=True)
-def learning_coefficients(E, g, gain, gate, noise_factor, scale, smallest, coef_re, coef_im):
+def learning_coefficients(E, g, gain, gate, noise_factor, coef_re, coef_im):
     """γ_k/Ĝ(k) per (axis, harmonic) into coef_re/coef_im: γ where |E(k)|² > gate[a] (SNR_GATE·σ²; a
-    negative gate turns the gating off), γ·noise_factor where the error is at the noise; times the
-    harmonic's ``scale``, halved in place when |E(k)| (above the gate) has grown to twice its
-    ``smallest`` so far (a harmonic that does not converge, e.g. where the hysteresis makes the
-    operating point's phase differ from Ĝ, learns ever more gently instead of growing)."""
+    negative gate turns the gating off), γ·noise_factor where the error is at the noise."""
     for a in range(E.shape[0]):
         for k in range(E.shape[1]):
             e2 = E[a, k].real ** 2 + E[a, k].imag ** 2
-            mag = np.sqrt(e2)
-            if e2 > gate[a] and mag > 2.0 * smallest[a, k]:
-                scale[a, k] *= 0.5
-                smallest[a, k] = mag
-            smallest[a, k] = min(smallest[a, k], mag)
-            c = (gain * noise_factor if e2 <= gate[a] else gain) * scale[a, k] / g[a, k]
+            c = (gain * noise_factor if e2 <= gate[a] else gain) / g[a, k]
             coef_re[a, k] = c.real
             coef_im[a, k] = c.imag
 
@@ -298,6 +285,6 @@ def compile_kernels() -> None:
     blend_response(E, A, E.copy(), A.copy(), np.zeros((2, 2)), np.zeros((2, 2), dtype=complex), np.zeros((2, 2)),
                    2.0, g, np.zeros(2), PRIOR_REL_SD, FORGET, g.copy())
     re, im = np.zeros((2, 2)), np.zeros((2, 2))
-    learning_coefficients(E, g, 0.1, np.zeros(2), 0.25, np.ones((2, 2)), np.full((2, 2), np.inf), re, im)
+    learning_coefficients(E, g, 0.1, np.zeros(2), 0.25, re, im)
     learn_step(e, re, im, cos_t, sin_t, np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(2), np.ones(2))
     _compiled = True
