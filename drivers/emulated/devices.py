@@ -106,7 +106,10 @@ class EmulatedDaq:
         world = self.world
 
         def take_noise(n: int):
-            """Once per period: log the output, fire the faults due within the next n samples."""
+            """Once per period: log the output, fire the faults due within the next n samples, and
+            start the gauges' saturation count afresh (per block, as ``run`` and ``step`` do; a
+            count left from an earlier block, e.g. ringing after a trip, is not this period's)."""
+            world.sa[:, K.S_SATN] = 0.0
             if n:
                 world.output_log.record("period")
             if world.faults.samples_until_due(n) is not None:
