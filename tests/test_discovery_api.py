@@ -73,3 +73,32 @@ def test_discovery_over_rest(http):
     r = http.post(f"/api/models/{new_id}/refine", json={"effects": ["hysteresis"]})
     back = _wait(http, r.json()["job_id"])["model_id"]
     assert http.get(f"/api/models/{back}").json()["effects"] == ["hysteresis"]
+
+
+def test_a_sweep_imported_as_a_bare_csv_is_cut_into_its_blocks_and_diagnosed(tmp_path):
+    """A characterisation that reaches the service as a CSV without its block table (exported
+    elsewhere, simulated, ...) is validated per frequency like a sweep: the import finds the blocks,
+    and the diagnosis finds the hidden effect (a frequency-dependent one: the held-out part of a
+    bare file's last 20 % would be one axis at rest)."""
+    warnings.simplefilter("ignore")
+    with authed_client(create_app(Settings(data_dir=tmp_path, bench="dynamics", seed=0))) as http:
+        r = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5,
+                                           "together": False})
+        swept = _wait(http, r.json()["job_id"])["dataset_id"]
+        csv = http.get(f"/api/datasets/{swept}/data", params={"format": "csv"}).content
+        r = http.post("/api/datasets", files={"file": ("sweep.csv", csv, "text/csv")}, data={"name": "bare sweep"})
+        assert r.status_code == 201, r.text
+        imported = http.get(f"/api/datasets/{r.json()['id']}").json()
+        blocks = imported["blocks"]
+        assert [round(b["frequency_hz"], 3) for b in blocks] == [1.0, 10.0, 50.0, 100.0] * 2
+        assert [b["axes"] for b in blocks] == [["y"]] * 4 + [["z"]] * 4 and all(b["cycles"] >= 4 for b in blocks)
+
+        r = http.post("/api/models", json={"axis": "y", "datasets": [imported["id"]], "effects": ["hysteresis"]})
+        base_id = _wait(http, r.json()["job_id"])["model_id"]
+        d = http.get(f"/api/models/{base_id}/diagnosis").json()
+        assert d["verdict"] == "missing_effect" and d["candidates"][0]["effect"] == "dynamics", d["candidates"][:3]
+        r = http.post(f"/api/models/{base_id}/refine", json={"add": "dynamics"})
+        new_id = _wait(http, r.json()["job_id"])["model_id"]
+        history = http.get(f"/api/models/{new_id}/history").json()
+        rms = [step["validation_rms_um"] for step in (history["steps"] if isinstance(history, dict) else history)]
+        assert len(rms) == 2 and rms[-1] < 0.5 * rms[0], rms
