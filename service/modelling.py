@@ -10,6 +10,7 @@ import numpy as np
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted
 from service.store import NotFoundError, Store
+from service.discovery.composite import sensitivity_sign
 from service.validation import evaluate_record, fit_on_training_rows, mean_of, split_blocks, training_mask
 from service.validation import metrics as sample_metrics
 
@@ -40,7 +41,7 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
                          f"model {model!r} takes effects ['hysteresis'] only")
     if not datasets:
         raise FieldError("datasets", "give at least one dataset id")
-    training_samples = 0
+    training_samples, drive, response = 0, [], []
     for dataset_id in datasets:
         try:
             row = store.get_dataset(dataset_id)
@@ -51,7 +52,16 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
                              f"{', '.join(row['axes'])})")
         if not split_blocks(row["blocks"], row["samples"], row["sample_rate_hz"], axis):
             raise FieldError("datasets", f"dataset {dataset_id} has no block that drives axis {axis}")
-        training_samples += int(_load(store, dataset_id, axis, row=row)[3].sum())  # FieldError if unusable
+        _, series, _, mask = _load(store, dataset_id, axis, row=row)  # FieldError if unusable
+        training_samples += int(mask.sum())
+        drive.append(series.u_v[mask])
+        response.append(series.x_um[mask])
+    if model != "composite" and len(set(effects)) == 1 and training_samples and \
+            sensitivity_sign(np.concatenate(drive), np.concatenate(response)) < 0:
+        raise FieldError("datasets", f"x falls as u rises in {', '.join(datasets)} (the gauge reads against the "
+                         f"drive): the paper's PI models need x rising with u (operator weights ≥ 0). Ask for "
+                         f"model 'composite', which fits sign·x, or re-import with the x column's scale −1 "
+                         f"(columns {{\"x\": {{\"column\": …, \"scale\": -1}}}})")
     if training_samples == 0:
         raise FieldError("datasets", "no training data: every block is too short to hold out its last "
                                      "cycle and keep one for the fit (sweep at least 2 cycles)")

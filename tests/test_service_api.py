@@ -307,6 +307,20 @@ def test_real_data_imports_identifies_and_exports(service):
         assert handle.attrs["sha256"] == ds["sha256"]
 
 
+@requires_real_data
+def test_a_gauge_reading_against_the_drive_is_refused_by_the_pi_family_and_fitted_by_the_composite(service):
+    _, api = service
+    mapping = {"u": 0, "x": {"column": 4, "scale": -1}}
+    ds = api.import_dataset(REAL, columns=mapping, axis="y", sample_rate_hz=200, delimiter="whitespace")
+    with pytest.raises(ApiError) as exc:
+        api.identify("y", [ds["id"]], model="static_pi")
+    assert exc.value.status_code == 422 and exc.value.field == "datasets" and "x falls as u rises" in exc.value.detail
+    flipped = api.identify("y", [ds["id"]], model="composite")
+    upright = api.identify("y", [api.import_dataset(REAL, columns={"u": 0, "x": 4}, axis="y", sample_rate_hz=200,
+                                                    delimiter="whitespace")["id"]], model="composite")
+    assert flipped["metrics"]["validation_rms_um"] == pytest.approx(upright["metrics"]["validation_rms_um"], rel=1e-6)
+
+
 def test_datasets_and_models_survive_a_restart_unchanged(tmp_path):
     _, http, api = _service(tmp_path)
     with http:

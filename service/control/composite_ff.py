@@ -66,14 +66,14 @@ def predict_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | Non
     """The model's displacement (µm) for a drive ``u_v`` (V) from rest (no dataset record needed)."""
     w = play_operators(u_v, model.thresholds_v) @ model.coef["weights_um_per_v"] + model.coef["offset_um"][0]
     w = w + additive_um(model, u_v, fs_hz, u_other_v)
-    return model._transform(w[:, None], fs_hz, model.theta)[:, 0]
+    return model.sign * model._transform(w[:, None], fs_hz, model.theta)[:, 0]
 
 
 def composite_inverse(model, x_ref_um: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None,
                       iterations: int = FIXED_POINT_ITERATIONS, u_limits_v=(-60.0, 180.0)) -> np.ndarray:
     """The drive (V) whose model output follows ``x_ref_um`` (see the module docstring). The inner PI
     inverse may go beyond 0–120 V (``u_limits_v``) so that the safety check sees what is needed."""
-    x = np.asarray(x_ref_um, dtype=float)
+    x = model.sign * np.asarray(x_ref_um, dtype=float)    # in the model's own direction (fitted to sign·x)
     w = invert_transforms(model, x, fs_hz)
     weights = model.coef["weights_um_per_v"]
     offset = float(model.coef["offset_um"][0])
@@ -86,7 +86,7 @@ def composite_inverse(model, x_ref_um: np.ndarray, fs_hz: float, u_other_v: np.n
         return u
     best, best_err = u, np.inf
     for _ in range(iterations):
-        err = float(np.sqrt(np.mean((predict_um(model, u, fs_hz, u_other_v) - x) ** 2)))
+        err = float(np.sqrt(np.mean((model.sign * predict_um(model, u, fs_hz, u_other_v) - x) ** 2)))
         if err < best_err:
             best, best_err = u, err
         u = pi_inverse(w - additive_um(model, u, fs_hz, u_other_v))

@@ -168,8 +168,9 @@ def write_markdown(path: Path, rows: dict, noise: float, args, bench_json: dict 
         "1/10/50/100 Hz sine sweeps over the voltage span the case needs (±5 V; found from a first 0–120 V "
         "fit): the transforms are inverted per harmonic of the reference, then the PI by the exact "
         "numerical inverse. **PID**: paper eq. 19 with filtered derivative and anti-windup. **ILC**: "
-        "harmonic ILC on harmonics 1–20 of 100 Hz, learning filter γ/G(k) with G measured on the bench "
-        "by a multisine in the same loop, γ = 0.2. Errors are over the last 5 of the steady periods.", "",
+        "harmonic ILC on harmonics 1–20 of 100 Hz, learning filter γ/Ĝ(k): Ĝ measured on the bench "
+        "by a multisine in the same loop, then refined from the run's own ΔE/ΔU; γ = 0.2, γ/4 on harmonics "
+        "at the noise. Errors are over the last 5 of the steady periods.", "",
         f"Gauge noise at rest (measured): {noise * 1e3:.2f} nm RMS → the (d) RMS target is "
         f"{2 * noise * 1e3:.1f} nm.", ""]
     if fits:

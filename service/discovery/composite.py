@@ -24,6 +24,14 @@ from service.validation import evaluate_record, mean_of
 OUTER_ITERATIONS = 2
 
 
+def sensitivity_sign(u_v: np.ndarray, x_um: np.ndarray) -> float:
+    """+1 if the displacement rises with the drive (least-squares slope ≥ 0), −1 if the gauge reads
+    the other way (mounted on the far side, or a negative scale). The hysteresis operators' weights
+    are bounded ≥ 0, so a model is fitted to sign·x and predicts sign·(…)."""
+    du, dx = u_v - np.mean(u_v), x_um - np.mean(x_um)
+    return -1.0 if float(du @ dx) < 0 else 1.0
+
+
 class CompositeModel:
     """``effects`` names (registry order is applied), ``n_operators`` base play operators."""
 
@@ -40,6 +48,7 @@ class CompositeModel:
         self.coef: dict[str, np.ndarray] | None = None
         self.scales: dict = {}
         self.train_rms_um = None
+        self.sign = 1.0          #: −1 when the gauge reads against the drive (see sensitivity_sign)
 
     # -- design -------------------------------------------------------------------------
     @property
@@ -101,6 +110,8 @@ class CompositeModel:
         a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
         rows = [r.fit_rows(exclude_frequency_hz) for r in records]
         target = np.concatenate([r.x_um[i] for r, i in zip(records, rows)])
+        self.sign = sensitivity_sign(np.concatenate([r.u_v[i] for r, i in zip(records, rows)]), target)
+        target = self.sign * target    # fitted in the actuator's own direction (bounded weights ≥ 0)
 
         def solve(theta, exact: str | None = None):
             """Weights for ``theta``; ``exact`` names a row-local transform applied at the rows only
@@ -187,7 +198,7 @@ class CompositeModel:
         blocks = self.raw_blocks(rec)
         a = np.hstack([b.columns for b in blocks])
         c = np.concatenate([self.coef[b.name] for b in blocks])
-        return self._transform(a, rec.fs_hz, self.theta) @ c
+        return self.sign * (self._transform(a, rec.fs_hz, self.theta) @ c)
 
     def evaluate(self, records: Sequence[Record]) -> dict:
         """Train/held-out metrics per dataset and their means over blocks (service.validation)."""
@@ -211,7 +222,7 @@ class CompositeModel:
         return {"model": self.name, "effects": ["hysteresis"] + self.effects, "n_operators": self.n_operators,
                 "thresholds_v": self.thresholds_v.tolist(), "scales": self.scales,
                 "theta": self.theta, "coef": {k: v.tolist() for k, v in self.coef.items()},
-                "train_rms_um": self.train_rms_um}
+                "train_rms_um": self.train_rms_um, "sign": self.sign}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CompositeModel":
@@ -220,6 +231,7 @@ class CompositeModel:
         m.scales, m.theta = dict(d["scales"]), {k: dict(v) for k, v in d["theta"].items()}
         m.coef = {k: np.asarray(v, dtype=float) for k, v in d["coef"].items()}
         m.train_rms_um = d.get("train_rms_um")
+        m.sign = float(d.get("sign", 1.0))
         return m
 
 

@@ -34,9 +34,12 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
     g = sig.get("rms_growth_exponent")
     growth = f"the residual grows with frequency as f^{g:.2f}" if g is not None else "frequency growth unknown"
     if name == "delay":
+        if sig.get("lag_ms") is None:
+            return "no lag can be measured: the model's prediction does not move in any block"
         per = ", ".join(f"{k} Hz: {v:.3g}" for k, v in sig["lag_ms_by_frequency"].items())
+        spread = sig.get("lag_ms_spread")
         return (f"the residual lags the drive by {sig['lag_ms']:.3g} ms (slope-weighted mean; per block {per} ms, spread "
-                f"{sig['lag_ms_spread']:.2g} ms): delay")
+                f"{spread if spread is None else f'{spread:.2g}'} ms): delay")
     if name == "rate_dependence":
         r = sig.get("rate_r")
         return f"{growth}, and follows u̇·u (|r| = {r:.2f}): rate dependence" if r is not None else growth
