@@ -56,7 +56,12 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
         training_samples += int(mask.sum())
         drive.append(series.u_v[mask])
         response.append(series.x_um[mask])
-    if model != "composite" and len(set(effects)) == 1 and training_samples and \
+    paper_family = model != "composite" and len(set(effects)) == 1
+    if paper_family and training_samples and max(float(np.max(u)) for u in drive if u.size) <= 0:
+        raise FieldError("datasets", f"the drive of {', '.join(datasets)} never rises above 0 V: the paper's PI "
+                         f"models place their thresholds from 0 V up. Ask for model 'composite', which counts "
+                         f"from the lowest drive, or re-import the u column with an offset")
+    if paper_family and training_samples and \
             sensitivity_sign(np.concatenate(drive), np.concatenate(response)) < 0:
         raise FieldError("datasets", f"x falls as u rises in {', '.join(datasets)} (the gauge reads against the "
                          f"drive): the paper's PI models need x rising with u (operator weights ≥ 0). Ask for "

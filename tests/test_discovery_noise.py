@@ -61,3 +61,20 @@ def test_real_bursts_with_a_hold_get_the_same_noise_floor_as_the_steady_file():
     assert 0.03 < d["noise_floor_um"] < 0.12          # Model_Vi_Do.dat: about 0.066 µm
     assert d["verdict"] == "missing_effect" and not d["at_noise_floor"]
     assert d["held_out_to_noise"] > 3
+
+
+@requires_real_data
+def test_the_diagnosis_does_not_depend_on_the_drives_origin_or_units_or_the_gauges_sign():
+    """Other labs' files: a bipolar or negative amplifier input, millivolts, a gauge reading against
+    the drive. The composite model counts from the lowest drive and fits sign·x, so the diagnosis is
+    the same as for the file as recorded."""
+    data = np.loadtxt(REAL_DIR / "yan9a-dbo" / "Model_Vi_Do.dat")
+    u, x = data[:, 0], data[:, 4]
+    results = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for drive, response in ((u, x), (u - 1.8, x), (u - 4.0, x), (1000 * u, x), (u, -x)):
+            d = diagnose([Record("variant", drive, response, 200.0)])
+            results.append((round(d["residual_rms_um"], 9), round(d["noise_floor_um"], 9),
+                            [(c["effect"], round(c["score"], 6)) for c in d["candidates"]]))
+    assert all(r == results[0] for r in results[1:]), results

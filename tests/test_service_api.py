@@ -319,6 +319,10 @@ def test_a_gauge_reading_against_the_drive_is_refused_by_the_pi_family_and_fitte
     upright = api.identify("y", [api.import_dataset(REAL, columns={"u": 0, "x": 4}, axis="y", sample_rate_hz=200,
                                                     delimiter="whitespace")["id"]], model="composite")
     assert flipped["metrics"]["validation_rms_um"] == pytest.approx(upright["metrics"]["validation_rms_um"], rel=1e-6)
+    below = {"u": {"column": 0, "offset": -4.0}, "x": 4}       # imports take actuator volts only
+    with pytest.raises(ApiError) as exc:
+        api.import_dataset(REAL, columns=below, axis="y", sample_rate_hz=200, delimiter="whitespace")
+    assert exc.value.status_code == 422 and "0–120 V" in exc.value.detail
 
 
 def test_datasets_and_models_survive_a_restart_unchanged(tmp_path):

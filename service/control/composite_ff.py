@@ -64,7 +64,8 @@ def additive_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | No
 
 def predict_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None) -> np.ndarray:
     """The model's displacement (µm) for a drive ``u_v`` (V) from rest (no dataset record needed)."""
-    w = play_operators(u_v, model.thresholds_v) @ model.coef["weights_um_per_v"] + model.coef["offset_um"][0]
+    w = play_operators(u_v - model.u_origin_v, model.thresholds_v) @ model.coef["weights_um_per_v"] \
+        + model.coef["offset_um"][0]
     w = w + additive_um(model, u_v, fs_hz, u_other_v)
     return model.sign * model._transform(w[:, None], fs_hz, model.theta)[:, 0]
 
@@ -78,8 +79,11 @@ def composite_inverse(model, x_ref_um: np.ndarray, fs_hz: float, u_other_v: np.n
     weights = model.coef["weights_um_per_v"]
     offset = float(model.coef["offset_um"][0])
 
+    origin = model.u_origin_v       # the operators count from it: invert relative to it, answer in V
+
     def pi_inverse(target):
-        return numerical_inverse(target, model.thresholds_v, weights, offset, u_limits_v=u_limits_v)
+        limits = (u_limits_v[0] - origin, u_limits_v[1] - origin)
+        return numerical_inverse(target, model.thresholds_v, weights, offset, u_limits_v=limits) + origin
 
     u = pi_inverse(w)
     if not any(EFFECTS[e].stage == "additive" for e in model.effects):

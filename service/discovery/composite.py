@@ -62,6 +62,9 @@ class CompositeModel:
                 u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None) -> RecordContext:
         """What the effects see of a drive ``u_v`` (V) at ``fs_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
+        origin = self.u_origin_v
+        u_v = u_v - origin
+        u_other_v = None if u_other_v is None else u_other_v - origin
         p = play_operators(u_v, self.thresholds_v)
         p_other = None if u_other_v is None else play_operators(u_other_v, self.thresholds_v)
         time_scale_s = self.scales.get("time_scale_s")
@@ -86,11 +89,18 @@ class CompositeModel:
         return columns
 
     # -- fitting ------------------------------------------------------------------------
+    @property
+    def u_origin_v(self) -> float:
+        """The drive (V) the model's operators count from: 0 V, or the lowest drive of the fitted
+        records if it went below 0 V (a bipolar or negative amplifier input)."""
+        return float(self.scales.get("u_origin_v", 0.0))
+
     def _setup(self, records: Sequence[Record]) -> None:
-        u_max = max(float(np.max(r.u_v)) for r in records)
+        origin = min(0.0, min(float(np.min(r.u_v)) for r in records))
+        u_max = max(float(np.max(r.u_v)) for r in records) - origin
         n = self.n_operators * (OPERATOR_FACTOR if "operators" in self.effects else 1)
         self.thresholds_v = equal_thresholds(u_max, n)
-        self.scales = {"u_scale_v": max(float(np.max(np.abs(r.u_v))) for r in records),
+        self.scales = {"u_origin_v": origin, "u_scale_v": max(float(np.max(np.abs(r.u_v - origin))) for r in records),
                        "min_period_s": min(r.min_period_s() for r in records),
                        "time_scale_s": max(r.n / r.fs_hz for r in records)}
 
