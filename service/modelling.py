@@ -10,7 +10,6 @@ import numpy as np
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted
 from service.store import NotFoundError, Store
-from service.discovery.composite import sensitivity_sign
 from service.validation import evaluate_record, fit_on_training_rows, mean_of, split_blocks, training_mask
 from service.validation import metrics as sample_metrics
 
@@ -41,7 +40,7 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
                          f"model {model!r} takes effects ['hysteresis'] only")
     if not datasets:
         raise FieldError("datasets", "give at least one dataset id")
-    training_samples, drive, response = 0, [], []
+    training_samples, drive = 0, []
     for dataset_id in datasets:
         try:
             row = store.get_dataset(dataset_id)
@@ -55,18 +54,11 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
         _, series, _, mask = _load(store, dataset_id, axis, row=row)  # FieldError if unusable
         training_samples += int(mask.sum())
         drive.append(series.u_v[mask])
-        response.append(series.x_um[mask])
     paper_family = model != "composite" and len(set(effects)) == 1
     if paper_family and training_samples and max(float(np.max(u)) for u in drive if u.size) <= 0:
         raise FieldError("datasets", f"the drive of {', '.join(datasets)} never rises above 0 V: the paper's PI "
                          f"models place their thresholds from 0 V up. Ask for model 'composite', which counts "
                          f"from the lowest drive, or re-import the u column with an offset")
-    if paper_family and training_samples and \
-            sensitivity_sign(np.concatenate(drive), np.concatenate(response)) < 0:
-        raise FieldError("datasets", f"x falls as u rises in {', '.join(datasets)} (the gauge reads against the "
-                         f"drive): the paper's PI models need x rising with u (operator weights ≥ 0). Ask for "
-                         f"model 'composite', which fits sign·x, or re-import with the x column's scale −1 "
-                         f"(columns {{\"x\": {{\"column\": …, \"scale\": -1}}}})")
     if training_samples == 0:
         raise FieldError("datasets", "no training data: every block is too short to hold out its last "
                                      "cycle and keep one for the fit (sweep at least 2 cycles)")

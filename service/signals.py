@@ -135,3 +135,11 @@ def savgol_derivatives(
     d1 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=1, delta=dt, mode="interp")
     d2 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=2, delta=dt, mode="interp")
     return d1, d2
+
+
+def sensitivity_sign(u_v: np.ndarray, x_um: np.ndarray) -> float:
+    """+1 if the displacement rises with the drive (least-squares slope ≥ 0), −1 if the gauge reads
+    the other way (mounted on the far side, or a negative scale). Hysteresis operators' weights are
+    bounded ≥ 0, so models are fitted to sign·x and predict sign·(…)."""
+    du, dx = u_v - np.mean(u_v), x_um - np.mean(x_um)
+    return -1.0 if float(du @ dx) < 0 else 1.0

@@ -16,20 +16,13 @@ from service.effects import EFFECTS, RecordContext, ordered
 from service.effects.harmonics import harmonic_data
 from service.effects.operators import OPERATOR_FACTOR
 from service.hysteresis.base import equal_thresholds
+from service.signals import sensitivity_sign
 from service.hysteresis.kernels import play_operators
 from service.identification.lsq import Block, solve_blocks
 from service.discovery.records import Record
 from service.validation import evaluate_record, mean_of
 
 OUTER_ITERATIONS = 2
-
-
-def sensitivity_sign(u_v: np.ndarray, x_um: np.ndarray) -> float:
-    """+1 if the displacement rises with the drive (least-squares slope ≥ 0), −1 if the gauge reads
-    the other way (mounted on the far side, or a negative scale). The hysteresis operators' weights
-    are bounded ≥ 0, so a model is fitted to sign·x and predicts sign·(…)."""
-    du, dx = u_v - np.mean(u_v), x_um - np.mean(x_um)
-    return -1.0 if float(du @ dx) < 0 else 1.0
 
 
 class CompositeModel:

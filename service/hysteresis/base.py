@@ -9,7 +9,7 @@ import numpy as np
 
 from service.hysteresis.data import Series, as_series_list, finite_array
 from service.identification.lsq import Block, design_matrix, solve_blocks, stack_blocks
-from service.signals import savgol_derivatives
+from service.signals import savgol_derivatives, sensitivity_sign
 
 
 def equal_thresholds(u_max_v: float, n_operators: int) -> np.ndarray:
@@ -68,6 +68,7 @@ class HysteresisModel:
         self.weights_um_per_v: np.ndarray | None = None
         self.offset_um = 0.0
         self.train_rms_um: float | None = None
+        self.sign = 1.0       #: −1 when the gauge reads against the drive: fitted to −x, predicts −(…)
 
     # -- the design -----------------------------------------------------------------
     def blocks(self, signal: Signal) -> list[Block]:
@@ -91,6 +92,8 @@ class HysteresisModel:
         """(records, stacked x_um, validated row weights or None); sets thresholds if unset."""
         items = as_series_list(data)
         target = np.concatenate([s.require_x() for s in items])
+        self.sign = sensitivity_sign(np.concatenate([s.u_v for s in items]), target)
+        target = self.sign * target
         if row_weights is not None:
             row_weights = finite_array("row_weights", row_weights)
             if row_weights.size != target.size:
@@ -141,14 +144,14 @@ class HysteresisModel:
         x = np.zeros(signal.u_v.size)
         for blk in self.blocks(signal):
             x += blk.columns @ np.atleast_1d(getattr(self, blk.name))
-        return x
+        return self.sign * x
 
     # -- serialisation ----------------------------------------------------------------
     def to_dict(self) -> dict:
         """JSON-serialisable parameters (floats round-trip exactly through json)."""
         self._require_fitted()
         out = {"model": self.name, "thresholds_v": self.thresholds_v.tolist(),
-               "train_rms_um": self.train_rms_um}
+               "train_rms_um": self.train_rms_um, "sign": self.sign}
         out.update({k: getattr(self, k) for k in self._config_names})
         for key in self._param_names:
             val = getattr(self, key)
@@ -162,6 +165,7 @@ class HysteresisModel:
         model = cls(thresholds_v=d["thresholds_v"], **{k: d[k] for k in cls._config_names if k != "n_operators"})
         model.set_parameters({k: d[k] for k in cls._param_names})
         model.train_rms_um = d.get("train_rms_um")
+        model.sign = float(d.get("sign", 1.0))
         return model
 
     def __repr__(self) -> str:

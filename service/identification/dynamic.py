@@ -35,7 +35,8 @@ def rate_problem(data, static_data=None, n_operators: int = 10, fit_offset: bool
     static = StaticPI(thresholds_v=equal_thresholds(u_max, n_operators), fit_offset=fit_offset).fit(static_items)
     model = DynamicPI.from_static(static)
     blocks = stack_blocks([[b for b in model.blocks(Signal(s)) if b.name in RATE_BLOCKS] for s in items])
-    target = np.concatenate([s.require_x() - static.predict(s) for s in items])
+    # in the static part's own direction (sign −1: the gauge reads against the drive)
+    target = static.sign * np.concatenate([s.require_x() - static.predict(s) for s in items])
     return model, blocks, target
 
 
