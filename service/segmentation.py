@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.signals import turning_points
+from service.signals import longest_linked_run, turning_points
 
 #: a half period belongs to a run while within this share of the run's median half period
 STEADY_SHARE = 0.2
@@ -65,16 +65,8 @@ def _steady_chain(crossings: np.ndarray, period: float) -> np.ndarray:
     crossings of a steady drive repeat to a small fraction of a sample)."""
     if crossings.size < 2:
         return crossings
-    ok = np.abs(np.diff(crossings) - period) <= CROSSING_SHARE * period
-    best, start, best_span = (0, 1), None, 0
-    for i, good in enumerate(np.append(ok, False)):
-        if good and start is None:
-            start = i
-        elif not good and start is not None:
-            if i - start > best_span:
-                best, best_span = (start, i + 1), i - start
-            start = None
-    return crossings[best[0]:best[1]]
+    run = longest_linked_run(np.abs(np.diff(crossings) - period) <= CROSSING_SHARE * period)
+    return crossings[:1] if run is None else crossings[run[0]:run[1]]
 
 
 def detect_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict]:

@@ -143,3 +143,17 @@ def sensitivity_sign(u_v: np.ndarray, x_um: np.ndarray) -> float:
     bounded ≥ 0, so models are fitted to sign·x and predict sign·(…)."""
     du, dx = u_v - np.mean(u_v), x_um - np.mean(x_um)
     return -1.0 if float(du @ dx) < 0 else 1.0
+
+
+def longest_linked_run(linked: np.ndarray) -> tuple[int, int] | None:
+    """Items i..j−1 (as ``(i, j)``) of the longest run whose successive pairs are all ``linked``
+    (``linked[k]`` joins items k and k+1); None if no pair is."""
+    best, start, best_span = None, None, 0
+    for k, ok in enumerate(np.append(np.asarray(linked, dtype=bool), False)):
+        if ok and start is None:
+            start = k
+        elif not ok and start is not None:
+            if k - start > best_span:
+                best, best_span = (start, k + 1), k - start
+            start = None
+    return best

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.signals import longest_linked_run
+
 
 def cycles_matrix(r: np.ndarray, period_samples: float) -> np.ndarray | None:
     """(N, M) whole cycles of ``r`` (None if fewer than two)."""
@@ -66,15 +68,8 @@ def repeated_cycles(drive_mat: np.ndarray) -> np.ndarray:
 
 def _longest_run(mat: np.ndarray, same: np.ndarray) -> np.ndarray | None:
     """The longest run of successive cycles whose drive repeated (None if no pair did)."""
-    best, start, best_span = None, None, 0
-    for i, ok in enumerate(np.append(same, False)):
-        if ok and start is None:
-            start = i
-        elif not ok and start is not None:
-            if i - start > best_span:
-                best, best_span = (start, i + 1), i - start
-            start = None
-    return None if best is None else mat[best[0]:best[1]]
+    run = longest_linked_run(same)
+    return None if run is None else mat[run[0]:run[1]]
 
 
 def _mean_and_slope(rows: np.ndarray, s: np.ndarray) -> np.ndarray:
