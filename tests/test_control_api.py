@@ -122,3 +122,26 @@ def test_composite_model_ids_as_feedforward_and_stroke_refusal(http):
     job, _ = _wait(http, r.json()["job_id"])
     assert job["state"] == "succeeded", job
     assert job["result"]["tripped"] is None and job["result"]["relative_error_pct"] < 6.2
+
+
+def test_a_feedforward_model_whose_inverse_diverges_is_refused_before_the_bench_moves(http):
+    """The paper's dynamic PI, fitted on 1/10/50/100 Hz, has an inverse that does not converge at
+    100 Hz; a static PI from the same sweep is accepted. The refusal names the field and the miss."""
+    r = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 3,
+                                       "together": False})
+    dataset_id = _wait(http, r.json()["job_id"])[0]["result"]["dataset_id"]
+    ids = {}
+    for kind in ("dynamic_pi", "static_pi"):
+        for axis in ("y", "z"):
+            r = http.post("/api/models", json={"axis": axis, "datasets": [dataset_id], "model": kind})
+            ids[kind, axis] = _wait(http, r.json()["job_id"])[0]["result"]["model_id"]
+    jobs_before = len(http.get("/api/jobs").json())
+    r = http.post("/api/trajectories", json={**BASE, "controller": {
+        "feedforward_model_y": ids["dynamic_pi", "y"], "feedforward_model_z": ids["dynamic_pi", "z"]}})
+    assert r.status_code == 422 and r.json()["field"].startswith("controller.feedforward_model_")
+    assert "inverse does not converge at 100 Hz" in r.json()["detail"] and "µm RMS" in r.json()["detail"]
+    assert len(http.get("/api/jobs").json()) == jobs_before            # nothing was queued
+    r = http.post("/api/trajectories", json={**BASE, "cycles": 5, "controller": {
+        "feedforward_model_y": ids["static_pi", "y"], "feedforward_model_z": ids["static_pi", "z"]}})
+    assert r.status_code == 202, r.text
+    assert _wait(http, r.json()["job_id"])[0]["state"] == "succeeded"

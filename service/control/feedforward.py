@@ -44,6 +44,24 @@ def feedforward_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, v_limits=(
     return np.clip(u, *v_limits)
 
 
+#: a feedforward drive whose model, run forward, misses the reference by more than this share of
+#: the reference's range (RMS) is refused: the inverse did not converge
+INVERSE_TOLERANCE_SHARE = 0.05
+
+
+def inverse_miss_um(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rate_hz: float,
+                    steady: slice) -> float | None:
+    """RMS (µm) by which the model's own prediction of its feedforward drive ``u_v`` misses the
+    reference over ``steady`` (None if the model cannot predict): a check that the inverse converged.
+    The paper's dynamic PI inverse does not at 50–100 Hz (its segment-switched weights make the
+    answer step; see service/hysteresis/inverse.py)."""
+    predict = getattr(model, "predict", None)
+    if predict is None:
+        return None
+    back = np.asarray(predict(np.asarray(u_v, dtype=float), sample_rate_hz), dtype=float)
+    return float(np.sqrt(np.mean((back[steady] - np.asarray(x_ref_um)[steady]) ** 2)))
+
+
 #: the composite model used as feedforward: hysteresis + delay + flexure dynamics. On the default
 #: bench (case 2, FF + tuned PID) adding asymmetry, creep or rate dependence to these made the
 #: tracking worse (2.1 % → 2.2 %, 4.2 %, 11.9 %): their columns, fitted on sine sweeps, extrapolate

@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from drivers.bench import Bench
-from service.control.feedforward import feedforward_v
+from service.control.feedforward import INVERSE_TOLERANCE_SHARE, feedforward_v, inverse_miss_um
 from service.control.ilc import HarmonicILC, frf_from_periods, multisine
 from service.control.loop import SETTLE_S, PIDGains, StopRequested, TrackRecord, Tracker
 from service.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
@@ -82,6 +82,20 @@ def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
             "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= 119.999) | (rec.u_v[start:end] <= 1e-3)))}
 
 
+def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequency_hz: float,
+                  steady: slice) -> None:
+    """Refuse a feedforward drive the model itself says misses the reference (a diverged inverse)."""
+    miss = inverse_miss_um(model, u_v, x_ref_um, SAMPLE_RATE_HZ, steady)
+    span = float(np.ptp(x_ref_um[steady]))
+    if miss is not None and miss > INVERSE_TOLERANCE_SHARE * span:
+        name = type(model).__name__
+        raise ControlRefused(f"controller.feedforward_model_{axis}", (
+            f"the {name} model's inverse does not converge at {frequency_hz:g} Hz: its own prediction of the "
+            f"feedforward drive misses the {axis.upper()} reference by {miss:.3g} µm RMS "
+            f"({100 * miss / span:.0f} % of its {span:.3g} µm range). The paper's dynamic PI inverse diverges at "
+            f"50–100 Hz (segment-switched weights); use a static_pi or composite model"))
+
+
 def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
          warnings: list[str] | None = None) -> tuple[Reference, np.ndarray | None]:
     """Reference and feedforward (V), after every safety check (raises ControlRefused). A range beyond
@@ -93,11 +107,12 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
     u_ff = None
     if any(m is not None for m in controller.feedforward.values()):
         u_ff = np.zeros_like(ref.x_um)
+        steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
         for i, axis in enumerate(bench.axes):
             model = controller.feedforward.get(axis)
             if model is not None:
                 u_ff[:, i] = feedforward_v(model, ref.x_um[:, i], SAMPLE_RATE_HZ, v_limits=(-np.inf, np.inf))
-        steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
+                check_inverse(model, axis, u_ff[:, i], ref.x_um[:, i], ellipse.frequency_hz, steady)
         check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady)
         reasons, soft = check_stroke(bench, {"y": ellipse.y_range_um, "z": ellipse.z_range_um},
                                      ellipse.frequency_hz, ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ,
