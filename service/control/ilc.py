@@ -71,9 +71,10 @@ class HarmonicILC:
             raise ValueError(f"harmonics: {self.harmonics} exceed the period's Nyquist limit ({period // 2})")
         self.period, self.gain = period, float(gain)
         self.patience, self.min_improvement = patience, min_improvement
-        self.noise_var = None if noise_var_um2 is None else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy()
+        self.gated = noise_var_um2 is not None
+        self.noise_var = (np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy() if self.gated
+                          else np.zeros(2))
         self.adapt = adapt
-        self._noise_var0 = self.noise_var if self.noise_var is not None else np.zeros(2)
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
         self.best_learnable_um = np.inf
@@ -107,7 +108,7 @@ class HarmonicILC:
         if self._prev is not None:
             self._n = FORGET * self._n + 1.0
             blend_response(E, A, self._prev[0], self._prev[1], self._suu, self._sue, self._see, self._n,
-                           self.g0, self._noise_var0, PRIOR_REL_SD, FORGET, self.g)
+                           self.g0, self.noise_var, PRIOR_REL_SD, FORGET, self.g)
         self._prev = (E, A)
 
     # ------------------------------------------------------------------ one period
@@ -154,9 +155,9 @@ class HarmonicILC:
         if base_v is None or limits_v is None:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
         coef_re, coef_im = np.empty((2, self.harmonics + 1)), np.empty((2, self.harmonics + 1))
-        learning_coefficients(E, self.g, self.gain, self._noise_var0 * (SNR_GATE if self.noise_var is not None else -1.0),
-                              NOISE_GAIN_FACTOR, coef_re, coef_im)
-        learn_step(error_um, coef_re, coef_im, self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
+        gate = SNR_GATE * self.noise_var if self.gated else np.full(2, -1.0)
+        learning_coefficients(E, self.g, self.gain, gate, NOISE_GAIN_FACTOR, coef_re, coef_im)
+        learn_step(E, coef_re, coef_im, self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
                    np.asarray(limits_v[0], dtype=float), np.asarray(limits_v[1], dtype=float))
         return self.u_v
 
@@ -177,23 +178,17 @@ class HarmonicILC:
 
 
 @njit(cache=True, fastmath=True)
-def learn_step(e, coef_re, coef_im, cos_t, sin_t, u, base, lo, hi):
-    """One compiled ILC step in place: per axis a, E(k) = DFT of e[:, a] at harmonics 0..K,
-    Δu = irfft(coef[a, k]·E(k)) (harmonics above K zero: the Q-filter), u += Δu, then u is projected
-    so that base + u stays within [lo[a], hi[a]] V. ``coef`` = γ/G(k) (V/µm) as real and imaginary parts."""
-    n, kk = e.shape[0], cos_t.shape[0]
-    ea = np.empty(n)
-    for a in range(e.shape[1]):
-        for i in range(n):
-            ea[i] = e[i, a]
-        d_re = np.zeros(kk)
-        d_im = np.zeros(kk)
+def learn_step(E, coef_re, coef_im, cos_t, sin_t, u, base, lo, hi):
+    """One compiled ILC step in place: per axis a, with E (2, K+1) the period's error at harmonics
+    0..K (normalised DFT, µm), Δu = irfft(coef[a, k]·E(k)) (harmonics above K zero: the Q-filter),
+    u += Δu, then u is projected so that base + u stays within [lo[a], hi[a]] V. ``coef`` = γ/Ĝ(k)
+    (V/µm) as real and imaginary parts."""
+    n, kk = u.shape[0], cos_t.shape[0]
+    for a in range(u.shape[1]):
+        d_re = np.empty(kk)
+        d_im = np.empty(kk)
         for k in range(kk):
-            er = 0.0
-            ei = 0.0
-            for i in range(n):
-                er += ea[i] * cos_t[k, i]
-                ei -= ea[i] * sin_t[k, i]
+            er, ei = E[a, k].real, E[a, k].imag
             d_re[k] = coef_re[a, k] * er - coef_im[a, k] * ei
             d_im[k] = coef_re[a, k] * ei + coef_im[a, k] * er
         acc = np.full(n, d_re[0])
@@ -202,8 +197,7 @@ def learn_step(e, coef_re, coef_im, cos_t, sin_t, u, base, lo, hi):
             for i in range(n):
                 acc[i] += cr * cos_t[k, i] - ci * sin_t[k, i]
         for i in range(n):
-            v = u[i, a] + acc[i] / n
-            total = min(max(base[i, a] + v, lo[a]), hi[a])
+            total = min(max(base[i, a] + u[i, a] + acc[i], lo[a]), hi[a])
             u[i, a] = total - base[i, a]
 
 
@@ -286,5 +280,5 @@ def compile_kernels() -> None:
                    2.0, g, np.zeros(2), PRIOR_REL_SD, FORGET, g.copy())
     re, im = np.zeros((2, 2)), np.zeros((2, 2))
     learning_coefficients(E, g, 0.1, np.zeros(2), 0.25, re, im)
-    learn_step(e, re, im, cos_t, sin_t, np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(2), np.ones(2))
+    learn_step(E, re, im, cos_t, sin_t, np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(2), np.ones(2))
     _compiled = True
