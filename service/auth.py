@@ -96,12 +96,20 @@ def authorize(record: dict, needed: str) -> None:
                              f"({record['name']}) has '{record['scope']}'", field="scope")
 
 
+def read_bootstrap_token(data_dir: str | Path) -> str | None:
+    """The service's bootstrap admin token from <data_dir>/admin.token, or None if unreadable."""
+    try:
+        return (Path(data_dir) / BOOTSTRAP_FILE).read_text().strip() or None
+    except OSError:
+        return None
+
+
 def ensure_bootstrap_token(store: Store, data_dir: Path) -> Path:
     """Make sure <data_dir>/admin.token (mode 0600) holds a valid bootstrap admin token, so the
     local CLI and dashboard work; a missing, unknown or revoked one is replaced. Returns the path."""
     path = Path(data_dir) / BOOTSTRAP_FILE
     try:
-        authenticate(store, path.read_text().strip())
+        authenticate(store, read_bootstrap_token(data_dir) or "")
         os.chmod(path, 0o600)
         return path
     except (OSError, AuthError):

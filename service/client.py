@@ -40,11 +40,9 @@ def resolve_token(base_url: str, token: str | None = None, data_dir: str | Path 
     token = token or os.environ.get("EVCBENCH_TOKEN")
     if token or not is_loopback(httpx.URL(base_url).host):
         return token or None
-    path = Path(data_dir or os.environ.get("EVCBENCH_DATA_DIR") or "var") / "admin.token"
-    try:
-        return path.read_text().strip() or None
-    except OSError:
-        return None
+    from service.auth import read_bootstrap_token
+
+    return read_bootstrap_token(data_dir or os.environ.get("EVCBENCH_DATA_DIR") or "var")
 
 
 class Client:

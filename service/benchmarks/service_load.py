@@ -38,6 +38,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from service.auth import read_bootstrap_token
+
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = "default_realtime"
 FREQUENCY_HZ = 100.0
@@ -53,8 +55,7 @@ def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, heade
         proc, url = spawn_service(Path(data_dir), BENCH, Path(data_dir) / "serve.log")
         try:
             if headers is None:  # the service's own bootstrap admin token (written at start-up, mode 0600)
-                token = (Path(data_dir) / "admin.token").read_text().strip()
-                headers = {"Authorization": f"Bearer {token}"}
+                headers = {"Authorization": f"Bearer {read_bootstrap_token(data_dir)}"}
             with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
                 return _measure(client, duration_s, rate_hz)
         finally:
@@ -65,15 +66,17 @@ def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, heade
                 proc.kill()
 
 
-def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.0) -> tuple[subprocess.Popen, str]:
-    """``evcbench serve`` on a free loopback port; returns (process, base URL) once /api/health answers."""
+def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.0,
+                  seed: int = 1) -> tuple[subprocess.Popen, str]:
+    """``evcbench serve`` on a free loopback port; returns (process, base URL) once /api/health answers
+    (RuntimeError with the log's tail if it exits or stays silent). Also tests/live_server.py's."""
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
     env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
-    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    env["OPENBLAS_NUM_THREADS"] = "1"
     proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-                             "--data-dir", str(data_dir), "--bench", bench, "--seed", "1"],
+                             "--data-dir", str(data_dir), "--bench", bench, "--seed", str(seed)],
                             cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + timeout_s
