@@ -1,6 +1,6 @@
 """The harmonic ILC on a simulated linear periodic plant: the in-run refinement of Ĝ rescues learning
-when the measured G₀ is wrong by more than 90° of phase (where plain γ/G₀ learning diverges), and
-the SNR gate lets the correction average the gauge noise out."""
+when the measured G₀ is wrong by more than 90° of phase (where plain γ/G₀ learning stalls or
+diverges), and the SNR gate lets the correction average the gauge noise out."""
 from __future__ import annotations
 
 import numpy as np
@@ -61,7 +61,7 @@ def test_refined_response_rescues_learning_where_the_measured_phase_is_wrong_by_
 
 def test_learned_correction_averages_the_noise_out():
     """With a fixed gain γ the correction freezes in √(γ/(2−γ)) of the noise in its 2K+1 learned
-    components; the noise gate (γ/4 at the noise) and the per-harmonic gain halving must leave less."""
+    components; the noise gate (γ/4 where the error is at the noise) must leave less."""
     g0 = g_nominal()
     noise = 3e-3
     var = np.full(2, noise ** 2 / PERIOD)

@@ -20,8 +20,11 @@ def test_pure_proportional_on_a_static_plant_has_an_infinite_margin_and_pd_cross
 
 
 def test_the_papers_gains_need_less_delay_than_a_20_khz_loop_has():
+    from service.control.report import PAPER_AXES
+    from service.control.session import PAPER_PID, TUNED_PID
+
     loop_delay_s = 1.5 / 20_000                      # one sample + half a sample of hold
-    for gains, g, fn in (((50, 300, 0.06), 0.053, 482.6), ((70, 450, 0.08), 0.077, 290.7)):
-        assert delay_margin(*gains, g, fn, 0.05).delay_margin_s < loop_delay_s
-    tuned = delay_margin(1.0, 300.0, 0.01, 0.077, 290.7, 0.05)   # the report's tuned gains
-    assert tuned.delay_margin_s > 2 * loop_delay_s
+    for axis, (g, fn) in PAPER_AXES.items():
+        paper, tuned = PAPER_PID[axis], TUNED_PID[axis]
+        assert delay_margin(paper.kp, paper.ki, paper.kd, g, fn, 0.05).delay_margin_s < loop_delay_s
+        assert delay_margin(tuned.kp, tuned.ki, tuned.kd, g, fn, 0.05).delay_margin_s > 2 * loop_delay_s

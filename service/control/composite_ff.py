@@ -23,7 +23,6 @@ import numpy as np
 from service.effects import EFFECTS
 from service.effects.dynamics import digital_response
 from service.hysteresis.inverse import numerical_inverse
-from service.hysteresis.kernels import play_operators
 from service.signals import savgol_derivatives
 
 FIXED_POINT_ITERATIONS = 6
@@ -51,23 +50,22 @@ def invert_transforms(model, x_um: np.ndarray, fs_hz: float, max_frequency_hz: f
     return np.fft.irfft(W, n=n)
 
 
-def additive_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None) -> np.ndarray:
-    """The additive effects' contribution (µm, before the transforms) for drive ``u_v`` (V)."""
+def _stack_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(hysteresis + offset, additive effects) in µm before the transforms, for drive ``u_v`` (V),
+    from one context (its play operators and derivatives computed once)."""
     du, ddu = savgol_derivatives(u_v, fs_hz)
     ctx = model.context(u_v, fs_hz, du, ddu, u_other_v)
-    out = np.zeros(u_v.size)
+    additive = np.zeros(u_v.size)
     for name in model.effects:
         for b in EFFECTS[name].blocks(ctx):
-            out += b.columns @ model.coef[b.name]
-    return out
+            additive += b.columns @ model.coef[b.name]
+    return ctx.p @ model.coef["weights_um_per_v"] + model.coef["offset_um"][0], additive
 
 
 def predict_um(model, u_v: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None) -> np.ndarray:
     """The model's displacement (µm) for a drive ``u_v`` (V) from rest (no dataset record needed)."""
-    w = play_operators(u_v - model.u_origin_v, model.thresholds_v) @ model.coef["weights_um_per_v"] \
-        + model.coef["offset_um"][0]
-    w = w + additive_um(model, u_v, fs_hz, u_other_v)
-    return model.sign * model._transform(w[:, None], fs_hz, model.theta)[:, 0]
+    hysteresis, additive = _stack_um(model, u_v, fs_hz, u_other_v)
+    return model.sign * model._transform((hysteresis + additive)[:, None], fs_hz, model.theta)[:, 0]
 
 
 def composite_inverse(model, x_ref_um: np.ndarray, fs_hz: float, u_other_v: np.ndarray | None = None,
@@ -89,11 +87,14 @@ def composite_inverse(model, x_ref_um: np.ndarray, fs_hz: float, u_other_v: np.n
     if not any(EFFECTS[e].stage == "additive" for e in model.effects):
         return u
     best, best_err = u, np.inf
-    for _ in range(iterations):
-        err = float(np.sqrt(np.mean((model.sign * predict_um(model, u, fs_hz, u_other_v) - x) ** 2)))
+    for it in range(iterations):
+        hysteresis, additive = _stack_um(model, u, fs_hz, u_other_v)
+        stack = model._transform((hysteresis + additive)[:, None], fs_hz, model.theta)[:, 0]
+        err = float(np.sqrt(np.mean((stack - x) ** 2)))      # in the model's own direction, as x
         if err < best_err:
             best, best_err = u, err
-        u = pi_inverse(w - additive_um(model, u, fs_hz, u_other_v))
+        if it + 1 < iterations:
+            u = pi_inverse(w - additive)
     return best
 
 

@@ -105,7 +105,7 @@ def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, mar
     from service.control.trajectory import reference
 
     ref = reference(ellipse, sample_rate_hz)
-    steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
+    steady = ref.steady
     out = {}
     for i, axis in enumerate(bench.axes):
         full = identify_composite(bench, axis, effects)

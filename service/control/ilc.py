@@ -71,9 +71,8 @@ class HarmonicILC:
             raise ValueError(f"harmonics: {self.harmonics} exceed the period's Nyquist limit ({period // 2})")
         self.period, self.gain = period, float(gain)
         self.patience, self.min_improvement = patience, min_improvement
-        self.gated = noise_var_um2 is not None
-        self.noise_var = (np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy() if self.gated
-                          else np.zeros(2))
+        self.noise_var = (np.zeros(2) if noise_var_um2 is None    # no noise known: every harmonic learns at γ
+                          else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy())
         self.adapt = adapt
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
@@ -82,7 +81,6 @@ class HarmonicILC:
         self.stale = 0
         self.learning = True
         self.history_um: list[float] = []
-        self.learnable_history_um: list[float] = []
         self.stop_reason: str | None = None
         self.resume_factor = 1.25
         self.resumed = 0
@@ -124,7 +122,6 @@ class HarmonicILC:
         E = np.empty((2, self.harmonics + 1), dtype=complex)                       # normalised DFT, µm
         rms, learnable = spectrum(error_um, self._cos, self._sin, E)
         self.history_um.append(rms)
-        self.learnable_history_um.append(learnable)
         self._refine_response(E, applied_v)
         self.best_rms_um = min(self.best_rms_um, rms)
         if not self.learning:                 # paused: resume if the plant has drifted away
@@ -155,26 +152,10 @@ class HarmonicILC:
         if base_v is None or limits_v is None:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
         coef_re, coef_im = np.empty((2, self.harmonics + 1)), np.empty((2, self.harmonics + 1))
-        gate = SNR_GATE * self.noise_var if self.gated else np.full(2, -1.0)
-        learning_coefficients(E, self.g, self.gain, gate, NOISE_GAIN_FACTOR, coef_re, coef_im)
+        learning_coefficients(E, self.g, self.gain, SNR_GATE * self.noise_var, NOISE_GAIN_FACTOR, coef_re, coef_im)
         learn_step(E, coef_re, coef_im, self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
                    np.asarray(limits_v[0], dtype=float), np.asarray(limits_v[1], dtype=float))
         return self.u_v
-
-    def learning_matrices(self) -> np.ndarray:
-        """(2, period, period) real matrices L with Δu = L·e per axis: irfft(Q·γ/Ĝ·rfft(e)) (no gating)."""
-        eye = np.eye(self.period)
-        E = np.fft.rfft(eye, axis=0)[:self.harmonics + 1]            # (K+1, period)
-        out = np.empty((2, self.period, self.period))
-        for a in range(2):
-            dU = np.zeros((self.period // 2 + 1, self.period), dtype=complex)
-            dU[:self.harmonics + 1] = self.gain * E / self.g[a][:, None]
-            out[a] = np.fft.irfft(dU, n=self.period, axis=0)
-        return out
-
-    def _step(self, error_um: np.ndarray) -> np.ndarray:
-        """Δu (period, 2) V for one period's error by the dense learning matrices (reference for tests)."""
-        return np.matmul(self.learning_matrices(), error_um.T[:, :, None])[:, :, 0].T
 
 
 @njit(cache=True, fastmath=True)
@@ -252,8 +233,8 @@ def spectrum(x, cos_t, sin_t, out):
 
 @njit(cache=True)
 def learning_coefficients(E, g, gain, gate, noise_factor, coef_re, coef_im):
-    """γ_k/Ĝ(k) per (axis, harmonic) into coef_re/coef_im: γ where |E(k)|² > gate[a] (SNR_GATE·σ²; a
-    negative gate turns the gating off), γ·noise_factor where the error is at the noise."""
+    """γ_k/Ĝ(k) per (axis, harmonic) into coef_re/coef_im: γ where |E(k)|² > gate[a] (SNR_GATE·σ²),
+    γ·noise_factor where the error is at the noise."""
     for a in range(E.shape[0]):
         for k in range(E.shape[1]):
             e2 = E[a, k].real ** 2 + E[a, k].imag ** 2

@@ -110,7 +110,7 @@ class Tracker:
         s = slice(p * self.ref.period, (p + 1) * self.ref.period)
         err = self.ref.x_um[s] - rec.x_um[s]
         if self.ilc is not None:
-            base = self.u_ff[self.ref.ramp_periods * self.ref.period:][:self.ref.period]
+            base = self.u_ff[self.ref.steady][:self.ref.period]
             self.ilc.update(err, base_v=base, limits_v=self._ilc_limits, applied_v=applied)
             rec.error_per_period_um.append(self.ilc.history_um[-1])
         else:
@@ -192,7 +192,7 @@ class Tracker:
         runner = CK.point_by_point_runner(step_fn)
         noise, n0 = take_noise(0)
         empty = np.zeros((0, 2))
-        runner(args, noise, n0, self.ref.x_um[:0], self._command(0)[:0], self.pid_p, np.zeros((2, CK.NPS)),
+        runner(args, noise, n0, self.ref.x_um[:0], self.u_ff[:0], self.pid_p, np.zeros((2, CK.NPS)),
                np.zeros(2), self.lim, self.trip, np.zeros(2), self.um_per_v, np.zeros(2), 1.0 / self.fs, empty,
                empty.copy(), np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
         return runner, args, take_noise

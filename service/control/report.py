@@ -22,7 +22,7 @@ import numpy as np
 from drivers.emulated import open_bench
 from service.control.feedforward import identify, identify_composite_for
 from service.control.safety import ControlRefused
-from service.control.session import ILC_PID, PAPER_PID, TUNED_PID, Controller, plan, track
+from service.control.session import ILC_PID, PAPER_PID, TUNED_PID, Controller, track
 from service.control.stability import delay_margin
 from service.control.trajectory import Ellipse
 
@@ -50,11 +50,10 @@ def run_row(bench, ellipse, ctl) -> tuple[dict, object, object]:
     ``allow_saturation`` so the table shows what the bench does there."""
     refused = None
     try:
-        plan(bench, ellipse, ctl, "point_by_point")
+        result, rec, ref = track(bench, ellipse, ctl)
     except ControlRefused as exc:
         refused = exc.reason
-        ctl = dataclasses.replace(ctl, allow_saturation=True)
-    result, rec, ref = track(bench, ellipse, ctl)
+        result, rec, ref = track(bench, ellipse, dataclasses.replace(ctl, allow_saturation=True))
     result["refused"] = refused
     return result, rec, ref
 

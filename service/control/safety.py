@@ -95,8 +95,8 @@ def model_stroke_um(model, sample_rate_hz: float, v_max: float = 120.0) -> float
 
 def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: np.ndarray, u_ff_v: np.ndarray,
                  models: dict, sample_rate_hz: float,
-                 steady: slice = slice(None)) -> tuple[list[str], list[str]]:
-    """(refusals, warnings): per axis, why a requested range lies beyond what the axis can reach
+                 steady: slice = slice(None)) -> tuple[dict[str, str], list[str]]:
+    """(refusals {axis: reason}, warnings): per axis, why a requested range lies beyond what the axis can reach
     within its actuator limits (``bench.limits``), judged by the feedforward model's demand over
     the ``steady`` samples.
 
@@ -105,7 +105,7 @@ def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: n
     fundamental, so the stack needs less than the reference). Only a model with those dynamics can
     judge that, so only its verdict is a refusal; a hysteresis-only model ignores the mode's gain
     (+13 % at 100 Hz on Z here) and its verdict is a warning."""
-    refusals, warnings = [], []
+    refusals, warnings = {}, []
     for i, axis in enumerate(bench.axes):
         u = u_ff_v[steady, i]
         model = models.get(axis)
@@ -121,5 +121,8 @@ def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: n
                 f"{np.min(u):.1f}–{np.max(u):.1f} V by the feedforward model; the axis reaches "
                 f"{model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at {v_max:g} V, so the range is beyond "
                 f"the stroke")
-        (refusals if demand else warnings).append(text)
+        if demand:
+            refusals[axis] = text
+        else:
+            warnings.append(text)
     return refusals, warnings

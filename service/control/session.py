@@ -107,7 +107,7 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
     u_ff = None
     if any(m is not None for m in controller.feedforward.values()):
         u_ff = np.zeros_like(ref.x_um)
-        steady = slice(ref.ramp_periods * ref.period, (ref.ramp_periods + ref.cycles) * ref.period)
+        steady = ref.steady
         for i, axis in enumerate(bench.axes):
             model = controller.feedforward.get(axis)
             if model is not None:
@@ -118,11 +118,10 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
                                      ellipse.frequency_hz, ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ,
                                      steady=steady)
         if reasons and not controller.allow_saturation:
-            axis = reasons[0][0].lower()
-            raise ControlRefused(f"{axis}_range_um", "; ".join(reasons) + " (set controller.allow_saturation "
-                                 "to run it with the command clamped at 0/120 V)")
+            raise ControlRefused(f"{next(iter(reasons))}_range_um", "; ".join(reasons.values()) + " (set "
+                                 "controller.allow_saturation to run it with the command clamped at 0/120 V)")
         if warnings is not None:
-            warnings.extend(reasons + soft)
+            warnings.extend([*reasons.values(), *soft])
         lims = [bench.limits[axis] for axis in bench.axes]
         u_ff = np.clip(u_ff, [lim.v_min_v for lim in lims], [lim.v_max_v for lim in lims])
     else:
@@ -139,7 +138,7 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
     ilc = None
     if controller.ilc:
         steady = ref.steady_period()
-        bias = (np.mean(u_ff[ref.ramp_periods * ref.period:][:ref.period], axis=0) if u_ff is not None
+        bias = (np.mean(u_ff[ref.steady][:ref.period], axis=0) if u_ff is not None
                 else np.full(2, 60.0))
         g, noise_var = measure_response(bench, ref.period, controller.ilc_harmonics, bias, steady.mean(axis=0), mode,
                              controller.pid, amplitude_v=10.0 if controller.pid is None else 4.0)

@@ -83,10 +83,14 @@ class Reference:
     def periods(self) -> int:
         return 2 * self.ramp_periods + self.cycles
 
+    @property
+    def steady(self) -> slice:
+        """The samples of the steady periods (between the ramps)."""
+        return slice(self.ramp_periods * self.period, (self.ramp_periods + self.cycles) * self.period)
+
     def steady_period(self) -> np.ndarray:
         """One steady-state period (period, 2) in µm."""
-        s = self.ramp_periods * self.period
-        return self.x_um[s:s + self.period]
+        return self.x_um[self.steady][:self.period]
 
 
 def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = RAMP_PERIODS) -> Reference:
