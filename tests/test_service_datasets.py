@@ -8,7 +8,8 @@ import h5py
 import numpy as np
 import pytest
 
-from service.datasets import DataError, estimate_block, parse_table, periodic_period_s, to_csv, to_hdf5
+from service.datasets import DataError, parse_table, to_csv, to_hdf5
+from service.segmentation import blocks_without_table
 from realdata import MODEL_VI_DO as REAL, requires_real_data
 
 
@@ -31,7 +32,7 @@ def test_real_piezo_data_imports_with_a_column_mapping():
     np.testing.assert_array_equal(table.arrays["u_y_v"], raw[:, 0])
     np.testing.assert_array_equal(table.arrays["x_y_um"], raw[:, 4])
     assert table.arrays["t_s"][-1] == pytest.approx(8026 / 200)
-    block = estimate_block(table.arrays["u_y_v"], 200)
+    [block] = blocks_without_table({"y": table.arrays["u_y_v"]}, 200)
     assert block["frequency_hz"] == pytest.approx(1.0, rel=1e-3)  # the README: 1 Hz drive
     assert block["cycles"] == 40 and (block["start"], block["stop"]) == (0, 8027)
 
@@ -90,11 +91,13 @@ def test_hdf5_export_carries_units_and_metadata():
         assert "plan" not in handle.attrs
 
 
-def test_period_estimate_needs_a_periodic_drive():
+def test_a_record_without_a_table_gets_one_block_or_its_steady_stretches():
     fs = 1000.0
     t = np.arange(5000) / fs
-    assert periodic_period_s(60 - 60 * np.cos(2 * np.pi * 4 * t), fs) == pytest.approx(0.25, rel=1e-3)
-    assert periodic_period_s(np.linspace(0, 120, 5000), fs) is None  # a ramp
-    chirp = 60 - 60 * np.cos(2 * np.pi * (1 * t + 2 * t ** 2))
-    assert periodic_period_s(chirp, fs) is None
-    assert estimate_block(np.linspace(0, 120, 5000), fs)["frequency_hz"] is None
+    [sine] = blocks_without_table({"y": 60 - 60 * np.cos(2 * np.pi * 4 * t)}, fs)
+    assert sine["frequency_hz"] == pytest.approx(4.0, rel=1e-3) and sine["cycles"] == 20
+    [ramp] = blocks_without_table({"y": np.linspace(0, 120, 5000)}, fs)
+    assert ramp["frequency_hz"] is None and (ramp["start"], ramp["stop"]) == (0, 5000)
+    chirp = blocks_without_table({"y": 60 - 60 * np.cos(2 * np.pi * (1 * t + 2 * t ** 2))}, fs)
+    freqs = [b["frequency_hz"] for b in chirp]            # stretches of a slowly rising frequency
+    assert len(chirp) >= 2 and freqs == sorted(freqs) and 1.0 < freqs[0] < freqs[-1] < 21.0

@@ -10,8 +10,8 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import get_store
-from service.datasets import DataError, estimate_block, parse_table, to_csv, to_hdf5, units_for
-from service.segmentation import imported_blocks
+from service.datasets import DataError, parse_table, to_csv, to_hdf5, units_for
+from service.segmentation import blocks_without_table
 from service.store import Store
 
 router = APIRouter(prefix="/datasets", tags=["datasets"])
@@ -61,10 +61,7 @@ def _import(store: Store, content: bytes, name: str, options: dict) -> dict:
     """Parse, validate and store (off the event loop)."""
     table = parse_table(content, columns=options["columns"], axis=options["axis"],
                         sample_rate_hz=options["sample_rate_hz"], delimiter=options["delimiter"])
-    blocks = imported_blocks({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
-    if blocks is None:
-        block = estimate_block(table.arrays[f"u_{table.axes[0]}_v"], table.sample_rate_hz)
-        blocks = [{**block, "axes": table.axes}]
+    blocks = blocks_without_table({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
     row = store.add_dataset(table.arrays, {
         "name": name, "source": "import", "axes": table.axes, "sample_rate_hz": table.sample_rate_hz,
         "blocks": blocks, "units": units_for(table.arrays), "plan": {"import": options}})

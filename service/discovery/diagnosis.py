@@ -111,7 +111,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     # claimed ranks before it; otherwise the order is by score.
     candidates.sort(key=lambda c: (not (c["kind"] == "physical" and c["high"]), -c["score"], c["expected_rms_um"]))
     physical = [c for c in candidates if c["kind"] == "physical"]
-    missing = bool(physical) and (physical[0]["score"] >= HIGH_SCORE or physical[0]["significant"])
+    missing = bool(physical) and physical[0]["high"]
     repeatable = floor["repeatable_rms_um"]
     ratio = worst_repeatable_to_noise(floor["per_block"])
     # Both: every block's repeatable part within 2σ of its own noise, and the held-out residual

@@ -38,14 +38,15 @@ def repeatability(r: np.ndarray, period_samples: float, drive: np.ndarray | None
     """``noise_um``, ``repeatable_um``, ``slow_rms_um``, ``cycles`` of one block's residual ``r``
     (µm); ``drive`` (same length, any unit) restricts the noise to cycles whose drive repeated."""
     mat = None if not period_samples else cycles_matrix(r, period_samples)
+    why = "no period (not a periodic drive)" if not period_samples else "fewer than two whole cycles"
     if mat is not None and drive is not None:
         same = repeated_cycles(cycles_matrix(np.asarray(drive, dtype=float), period_samples))
-        mat = _longest_run(mat, same)
+        mat, why = _longest_run(mat, same), "no two successive cycles with the same drive"
     if mat is None:
         d2 = np.diff(r, 2)
         sigma = float(np.std(d2) / np.sqrt(6.0)) if d2.size > 2 else float("nan")
         return {"noise_um": sigma, "repeatable_um": None, "slow_rms_um": None, "cycles": 0,
-                "method": "second differences (no two successive cycles with the same drive)"}
+                "method": f"second differences ({why})"}
     n, m = mat.shape
     mean_cycle = mat.mean(axis=0)
     dev = mat - mean_cycle

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.segmentation import imported_blocks
+from service.segmentation import blocks_without_table
 from service.signals import dominant_period_samples, savgol_derivatives
 from service.validation import split_blocks, training_mask
 
@@ -49,11 +49,12 @@ class Record:
     def __post_init__(self):
         self.u_v = np.asarray(self.u_v, dtype=float)
         self.x_um = np.asarray(self.x_um, dtype=float)
-        if not self.blocks:   # no block table: the steady stretches of the drives, if there are several
-            drives = {"this": self.u_v} if self.u_other_v is None else {"this": self.u_v, "other": self.u_other_v}
-            other = {"y": "z", "z": "y"}.get(self.axis or "", "other")
-            self.blocks = [{**b, "axes": [self.axis if a == "this" else other for a in b["axes"]]}
-                           for b in imported_blocks(drives, self.fs_hz) or []]
+        if not self.blocks:   # no block table: as an import would cut it
+            axis = self.axis or "y"
+            drives = {axis: self.u_v}
+            if self.u_other_v is not None:
+                drives[{"y": "z", "z": "y"}.get(axis, "other")] = self.u_other_v
+            self.blocks = blocks_without_table(drives, self.fs_hz)
         # every block, also those that drive only the other axis: they show coupling
         self.splits = split_blocks(self.blocks, self.u_v.size, self.fs_hz)
         self.train = training_mask(self.splits, self.u_v.size)

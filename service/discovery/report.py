@@ -27,7 +27,7 @@ def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) ->
             effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical")]
             continue
         # complete as far as physics goes: more capacity if the model is not at the noise floor yet
-        capacity = [c for c in helpful_capacity(d["candidates"]) if c["effect"] not in effects]
+        capacity = helpful_capacity(d["candidates"])     # diagnose() offers only effects not in the model
         if d["at_noise_floor"] or not capacity:
             break
         effects = effects + [capacity[0]["effect"]]

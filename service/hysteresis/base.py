@@ -128,6 +128,10 @@ class HysteresisModel:
             elif key in self._param_names:
                 setattr(self, key, np.array(val, dtype=float))
 
+    def in_model_direction(self, x_um) -> np.ndarray:
+        """``x_um`` as the model was fitted (sign·x): what its inverses must reproduce."""
+        return self.sign * np.asarray(x_um, dtype=float)
+
     # -- prediction -------------------------------------------------------------------
     def _require_thresholds(self):
         if self.thresholds_v is None:

@@ -72,7 +72,7 @@ class GRPI(HysteresisModel):
                 u_limits_v=(-np.inf, np.inf)):
         """Voltage (V) for ``x_ref_um``; |u̇| as in :func:`numerical_inverse`."""
         self._require_fitted()
-        return numerical_inverse(self.sign * np.asarray(x_ref_um, dtype=float), self.thresholds_v,
+        return numerical_inverse(self.in_model_direction(x_ref_um), self.thresholds_v,
                                  self.weights_um_per_v, self.offset_um,
                                  sample_rate_hz, envelope=self.envelope, du_v_per_s=du_v_per_s,
                                  refinements=refinements, u_limits_v=u_limits_v)

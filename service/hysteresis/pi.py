@@ -32,7 +32,7 @@ class StaticPI(HysteresisModel):
         ``"numerical"`` is the exact per-sample inverse. ``sample_rate_hz`` is unused (rate-independent).
         """
         self._require_fitted()
-        x_ref_um = self.sign * np.asarray(x_ref_um, dtype=float)     # in the model's own direction
+        x_ref_um = self.in_model_direction(x_ref_um)
         if method == "analytic":
             return analytic_pi_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v, self.offset_um)
         if method == "numerical":
@@ -96,7 +96,7 @@ class DynamicPI(HysteresisModel):
         """
         self._require_fitted()
         return numerical_inverse(
-            self.sign * np.asarray(x_ref_um, dtype=float), self.thresholds_v, self.weights_um_per_v, self.offset_um, sample_rate_hz,
+            self.in_model_direction(x_ref_um), self.thresholds_v, self.weights_um_per_v, self.offset_um, sample_rate_hz,
             alpha_um_per_v2_s=self.alpha_um_per_v2_s, beta_um_per_v2_s2=self.beta_um_per_v2_s2,
             du_v_per_s=du_v_per_s, ddu_v_per_s2=ddu_v_per_s2, refinements=refinements, u_limits_v=u_limits_v,
         )
