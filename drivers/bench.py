@@ -23,11 +23,15 @@ from typing import Callable, Iterator, Mapping
 import numpy as np
 
 from drivers.interfaces import AxisLimits, BenchParts, DriverError, LimitError, NotSupportedError
-from drivers.limits import ACTUATOR_V_MAX, ACTUATOR_V_MIN, RESONANCE_FRACTION, LimitsMixin  # noqa: F401 (re-exported)
+from drivers.limits import ACTUATOR_V_MAX, ACTUATOR_V_MIN, LimitsMixin
 from drivers.live import LiveMonitor
 from drivers.watchdog import SafetyConfig, Watchdog
 
 STOPPED_ON_REQUEST = "stopped on request"
+
+#: samples per buffered block of ``Bench.run`` (one control period of a sweep)
+RUN_BLOCK_SAMPLES = 2000
+
 
 class BenchBusy(DriverError):
     """The bench is owned by a run; the request needs it idle."""
@@ -192,7 +196,7 @@ class Bench(LimitsMixin):
                 finally:
                     self._idle.set()
 
-    def run(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, *, block_samples: int = 2000,
+    def run(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, *, block_samples: int = RUN_BLOCK_SAMPLES,
             on_block: Callable[[BenchRecord, float], None] | None = None,
             should_stop: Callable[[], bool] | None = None) -> BenchRecord:
         """Stream a planned waveform through the bench in buffered blocks and return the record.

@@ -83,9 +83,8 @@ class LiveMonitor:
         max_points = max(1, int(max_points))
         with self._lock:
             first = max(0, self._total - self.capacity)
-            start = first if cursor is None else min(max(int(cursor), first), self._total)
-            if cursor is None:
-                start = max(first, self._total - max_points)
+            start = (max(first, self._total - max_points) if cursor is None
+                     else min(max(int(cursor), first), self._total))
             n = self._total - start
             stride = max(1, math.ceil(n / max_points))
             pos = (start + np.arange(0, n, stride)) % self.capacity

@@ -74,7 +74,8 @@ def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep
             "finished_at": utc_now()})
     finally:  # stored (or nothing to keep): the chunks are only for a process that dies mid-run
         chunks.discard()
-    result = {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"]}
+    result = {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"],
+              **({"warnings": chunks.warnings()} if chunks.warnings() else {})}
     if reason is not None:
         raise JobInterrupted(f"{reason}: {row['samples']} samples kept as partial dataset {row['id']}", result,
                              cancelled=stopped)

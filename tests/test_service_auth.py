@@ -51,7 +51,7 @@ def service(tmp_path):
 
 def _token(http: TestClient, scope: str, name: str | None = None) -> dict:
     """A token of ``scope`` issued over the API with the bootstrap admin token."""
-    admin = (http.app.state.settings.data_dir / "admin.token").read_text().strip()
+    admin = auth.read_bootstrap_token(http.app.state.settings.data_dir)
     r = http.post("/api/admin/tokens", json={"name": name or scope, "scope": scope}, headers=bearer(admin))
     assert r.status_code == 201, r.text
     return r.json()
@@ -110,7 +110,7 @@ def test_missing_unknown_and_revoked_tokens_get_401_with_a_reason(service):
     assert r.status_code == 401 and r.json()["detail"] == "unknown API token"
     assert "malformed" in http.get("/api/bench", headers=bearer("hunter2")).json()["detail"]
 
-    admin = bearer((http.app.state.settings.data_dir / "admin.token").read_text().strip())
+    admin = bearer(auth.read_bootstrap_token(http.app.state.settings.data_dir))
     record = _token(http, "operate", "alice")
     assert http.get("/api/bench", headers=bearer(record["token"])).status_code == 200
     r = http.delete(f"/api/admin/tokens/{record['id']}", headers=admin)
@@ -140,7 +140,7 @@ def test_scopes_read_operate_admin(service):
 
 def test_token_management_over_the_api_never_returns_a_secret_twice(service):
     app, http = service
-    admin = bearer((app.state.settings.data_dir / "admin.token").read_text().strip())
+    admin = bearer(auth.read_bootstrap_token(app.state.settings.data_dir))
     created = _token(http, "operate", "ci runner")
     assert created["token"].startswith("evc_") and created["origin"] == "api"
     assert created["scopes"] == ["read", "operate"]

@@ -42,6 +42,8 @@ KINDS: dict[str, tuple[bool, str | None, str]] = {
     "daq_underflow": (False, None, "DAQ buffer underflow"),
     "loop_stall": (False, None, "loop stalled"),
 }
+#: the faults the world itself carries out (the ones that act on an axis's device)
+WORLD_KINDS = tuple(kind for kind, (needs_axis, _, _) in KINDS.items() if needs_axis)
 STALL_MAX_S = 30.0   # a stalled write gives up after this long even if nobody writes 0 V
 
 
@@ -187,7 +189,7 @@ class FaultInjector:
             self._fire(f, now)
 
     def _fire(self, f: Fault, t_s: float) -> None:
-        if f.kind in ("sensor_dropout", "sensor_saturation", "amplifier_overcurrent"):
+        if f.kind in WORLD_KINDS:
             self.world.inject_fault(f.kind, f.axis, at_s=t_s)
         elif f.kind == "serial_disconnect":
             self.transports["serial"].unplug()

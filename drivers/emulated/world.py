@@ -14,14 +14,14 @@ from scipy.linalg import expm
 
 from drivers.emulated import kernels as K
 from drivers.emulated.pacing import Pacer
-from drivers.emulated.faults import FaultInjector
+from drivers.emulated.faults import WORLD_KINDS, FaultInjector
 from drivers.emulated.output_log import OutputLog
 
 AXES = ("y", "z")
 NOISE_CHUNK = 1 << 16       # samples of noise generated at a time
 IDLE_THRESHOLD_V = 0.010    # write_idle waits until |amplifier output| < 10 mV ...
 IDLE_CAP_S = 0.020          # ... for at most 20 ms
-FAULT_KINDS = ("sensor_dropout", "sensor_saturation", "amplifier_overcurrent")  # world-level; see faults.py
+FAULT_KINDS = WORLD_KINDS  # the kinds inject_fault takes (faults.py)
 
 
 def _on(section: dict) -> float:

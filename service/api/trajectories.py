@@ -16,7 +16,7 @@ from service.control.loop import PIDGains, StopRequested, TrackRecord
 from service.control.safety import ControlRefused
 from service.control.session import SAMPLE_RATE_HZ, Controller, plan, track
 from service.control.trajectory import Ellipse
-from service.datasets import UNITS
+from service.datasets import units_for
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted, JobManager
 from service.modelling import load_model
@@ -121,10 +121,9 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
     """The job: track, report the error per period as progress, store measured and reference traces
     (written in ~1 s chunks while it runs, so a killed process keeps them: service.recovery)."""
     total = ellipse.cycles + 6
-    columns = ["t_s"] + [f"{q}_{ax}_{unit}" for ax in bench.axes for q, unit in (("u", "v"), ("x", "um"), ("ref", "um"))]
     meta = {"name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
             "axes": list(bench.axes), "sample_rate_hz": SAMPLE_RATE_HZ, "blocks": [], "plan": params,
-            "config": bench_snapshot(bench), "units": {name: UNITS[name] for name in columns}, "job_id": ctx.job_id,
+            "config": bench_snapshot(bench), "job_id": ctx.job_id,
             "started_at": utc_now()}
     chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
 
@@ -142,12 +141,14 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
             raise JobInterrupted(f"{exc.reason} while measuring the response for the ILC; nothing stored",
                                  None, cancelled=True) from None
         n = rec.samples
-        row = store.add_dataset(trace_arrays(rec, ref.sample_rate_hz, bench.axes, 0, n), {
-            **meta, "sample_rate_hz": ref.sample_rate_hz, "partial": bool(result["tripped"] or result["stopped"]),
+        arrays = trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, 0, n)
+        row = store.add_dataset(arrays, {
+            **meta, "units": units_for(arrays), "partial": bool(result["tripped"] or result["stopped"]),
             "partial_reason": result["tripped"] or rec.stop_reason, "finished_at": utc_now()})
     finally:  # stored (or nothing to keep): the chunks are only for a process that dies mid-run
         chunks.discard()
     result["dataset_id"] = row["id"]
+    result["warnings"] = result.get("warnings", []) + chunks.warnings()
     kept = f"{n} samples kept as partial dataset {row['id']}"
     if result["tripped"]:
         raise JobInterrupted(f"tripped: {result['tripped']}: {kept}", result)

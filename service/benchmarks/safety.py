@@ -22,12 +22,14 @@ import time
 
 import numpy as np
 
-from drivers.bench import RunInterrupted
+from drivers.bench import RUN_BLOCK_SAMPLES, RunInterrupted
 from drivers.emulated import open_bench
+from service.control.session import SAMPLE_RATE_HZ
 
-FS = 20_000.0
-BLOCK = 2000
-PERIOD = 200
+FS = SAMPLE_RATE_HZ
+BLOCK = RUN_BLOCK_SAMPLES                 # a sweep's control period: one buffered block
+TRAJECTORY_HZ = 100.0
+PERIOD = round(FS / TRAJECTORY_HZ)       # a trajectory's control period: one ellipse period
 
 
 def _sine(seconds: float, hz: float = 5.0) -> np.ndarray:
@@ -47,7 +49,7 @@ def _trajectory(bench, cycles: int) -> None:
     from service.control.session import TUNED_PID, Controller, track
     from service.control.trajectory import Ellipse
 
-    track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, cycles), Controller(pid=TUNED_PID))
+    track(bench, Ellipse((1, 6), (1, 11), 0.0, TRAJECTORY_HZ, cycles), Controller(pid=TUNED_PID))
 
 
 def _zero_after(world, t_s: float) -> float:

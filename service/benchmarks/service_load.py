@@ -39,12 +39,14 @@ import httpx
 import numpy as np
 
 from service.auth import read_bootstrap_token
+from service.control.session import TUNED_PID
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = "default_realtime"
 FREQUENCY_HZ = 100.0
 #: PID without a feedforward model (service.control.session.TUNED_PID): tracks the ellipse stably.
-PID = {"kp_y": 1.0, "ki_y": 300.0, "kd_y": 0.01, "kp_z": 1.0, "ki_z": 300.0, "kd_z": 0.01, "tf_s": 2e-4}
+PID = {**{f"{gain}_{axis}": getattr(TUNED_PID[axis], gain) for axis in TUNED_PID for gain in ("kp", "ki", "kd")},
+       "tf_s": TUNED_PID["y"].tf_s}
 ELLIPSE = {"shape": "ellipse", "amplitude_y_um": 5.0, "amplitude_z_um": 10.0, "frequency_hz": FREQUENCY_HZ,
            "mode": "point_by_point", "controller": {"pid": PID}}
 

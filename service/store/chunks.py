@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import queue
 import shutil
 import threading
@@ -98,6 +99,11 @@ class ChunkWriter:
         self._thread.join(timeout=60)
         discard(self.directory)
 
+    def warnings(self) -> list[str]:
+        """What a job result should say about the chunks: a write that failed (crash safety was lost)."""
+        return [] if self.error is None else [f"the running record could not be written to disk ({self.error}): "
+                                              "a crash during the run would have lost it"]
+
     def _hand_over(self) -> None:
         if not self._pending_rows:
             return
@@ -121,6 +127,9 @@ class ChunkWriter:
                         self.rows_written += len(next(iter(arrays.values())))
                     except BaseException as exc:  # a full disk: keep running, later chunks would leave a gap
                         self.error = exc
+                        logging.getLogger(__name__).error(
+                            "job %s: writing chunk %d failed (%s); this run is no longer recoverable after a "
+                            "crash, its dataset is still stored when it ends", self.directory.name, number, exc)
             finally:
                 self._queue.task_done()
 
