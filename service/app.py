@@ -28,7 +28,7 @@ from service.api import web as web_api
 from service.jobs import JobManager, freeze_heap
 from service.recovery import recover
 from service.auth import ensure_bootstrap_token
-from service.binding import is_loopback
+from service.binding import auth_refusal
 from service.settings import Settings
 from service.store import Store
 
@@ -51,8 +51,9 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
     """Build the app. The bench is opened on start-up and left at 0 V and closed on shut-down.
     With auth on, start-up also writes the bootstrap admin token to <data_dir>/admin.token."""
     settings = settings or Settings()
-    if settings.auth == "off" and not is_loopback(settings.host):
-        raise ValueError(f"auth 'off' is allowed only on loopback, not on host {settings.host!r}")
+    refusal = auth_refusal(settings.host, settings.auth)
+    if refusal:
+        raise ValueError(refusal)
     factory = bench_factory or open_configured_bench
 
     @asynccontextmanager

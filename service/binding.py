@@ -19,13 +19,21 @@ def is_loopback(host: str | None) -> bool:
         return False
 
 
+def auth_refusal(host: str, auth: str) -> str | None:
+    """Why ``auth`` may not be used on ``host`` (auth off off loopback), or None."""
+    if auth != "tokens" and not is_loopback(host):
+        return (f"refusing to listen on {host}: auth is {auth!r}, which is allowed only on loopback "
+                f"(127.0.0.1); use --auth tokens")
+    return None
+
+
 def bind_refusal(host: str, auth: str, remote_token_count: int) -> str | None:
     """Why the service must not listen on ``host``, or None if it may."""
     if is_loopback(host):
         return None
-    if auth != "tokens":
-        return (f"refusing to listen on {host}: auth is {auth!r}, which is allowed only on loopback "
-                f"(127.0.0.1); use --auth tokens")
+    refusal = auth_refusal(host, auth)
+    if refusal:
+        return refusal
     if remote_token_count == 0:
         return (f"refusing to listen on {host}: it is not a loopback address and no API token exists "
                 f"besides the local bootstrap one; create one first with "

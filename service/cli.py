@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from service.settings import Settings
 
@@ -64,16 +65,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_store_check(args: argparse.Namespace) -> int:
-    from service.store import Store
+    from service.cli_tokens import open_store
     from service.store.check import check_store, format_report
 
-    defaults = Settings()
-    settings = Settings(data_dir=args.data_dir or defaults.data_dir,
-                        database_url=args.database_url or defaults.database_url)
-    if not settings.data_dir.is_dir():
-        print(f"no store at {settings.data_dir}", file=sys.stderr)
+    data_dir = Path(args.data_dir or Settings().data_dir)
+    if not data_dir.is_dir():
+        print(f"no store at {data_dir}", file=sys.stderr)
         return 2
-    store = Store(settings.resolved_database_url, settings.data_dir)
+    store = open_store(args.data_dir, args.database_url)
     try:
         report = check_store(store, quick=args.quick, offline=args.offline)
     finally:
@@ -90,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--host", help="bind address (default 127.0.0.1; any other address needs auth on and "
                        "a token from `evcbench token create`)")
     serve.add_argument("--port", type=int, help="TCP port (default 8000)")
-    serve.add_argument("--data-dir", type=__import__("pathlib").Path, help="store directory (default ./var)")
+    serve.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
     serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
     serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")
     serve.add_argument("--database-url", help="SQLAlchemy URL of the metadata database "
@@ -108,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     store = sub.add_parser("store", help="maintain the store (check)")
     store_sub = store.add_subparsers(dest="store_command", required=True)
     check = store_sub.add_parser("check", help="report inconsistencies between rows and files; exit 1 if any")
-    check.add_argument("--data-dir", type=__import__("pathlib").Path, help="store directory (default ./var)")
+    check.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
     check.add_argument("--database-url", help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
     check.add_argument("--quick", action="store_true", help="skip the SHA-256 of every array file")
     check.add_argument("--offline", action="store_true",
