@@ -57,8 +57,16 @@ class SafetyConfig:
 class Watchdog:
     """Guards one loop at a time: ``arm(period_s)``, ``feed()`` per write, ``disarm()`` at the end.
 
-    ``last_trip`` holds the last trip as a dict: reason, timeout_s, stalled_s (time from the
-    last feed to the 0 V write, seconds) and samples fed before it."""
+    ``last_trip`` holds the last trip as a dict:
+
+    - ``reason`` in words, ``timeout_s`` (the limit, seconds);
+    - ``stalled_s``: the gap that tripped it, from the last feed to the moment the watchdog decided
+      (seconds; ≥ ``timeout_s``), and ``samples_fed`` before that moment;
+    - ``at_monotonic_s``: that moment (``time.monotonic()``);
+    - ``zero_v_s``: from that moment until ``write_idle`` returned (seconds), ``zero_v_at_monotonic_s``;
+    - ``fed_during_zero_v``: samples the loop still fed while 0 V was being written (normally 0).
+
+    A loop that feeds again while ``write_idle`` runs does not shrink the reported gap."""
 
     def __init__(self, daq, config: SafetyConfig | None = None, on_trip: Callable[[str], None] | None = None):
         self.daq = daq
@@ -115,23 +123,31 @@ class Watchdog:
             with self._lock:
                 if not self._armed:
                     continue
-                stalled = time.monotonic() - self._last_feed
-                if stalled < self.timeout_s:
+                decided_s, last_feed_s, fed = time.monotonic(), self._last_feed, self._fed
+                if decided_s - last_feed_s < self.timeout_s:
                     continue
                 self._armed = False
-            self._trip()
+            self._trip(decided_s, decided_s - last_feed_s, fed)
 
-    def _trip(self) -> None:
+    def _trip(self, decided_s: float, stalled_s: float, fed: int) -> None:
+        """Write 0 V and report. ``stalled_s`` is the gap seen when the trip was decided (at the
+        monotonic time ``decided_s``, seconds), ``fed`` the samples fed until then."""
         try:
             self.daq.write_idle()
             zero = "output set to 0 V"
         except Exception as exc:  # noqa: BLE001 - report it; the trip itself must not die
-            zero = f"writing 0 V failed: {exc}"
-        stalled_s = time.monotonic() - self._last_feed   # last write → 0 V written
+            zero = "writing 0 V failed"
+            failure = f": {exc}"
+        else:
+            failure = ""
+        zero_at_s = time.monotonic()
+        zero_v_s = zero_at_s - decided_s
         reason = (f"watchdog: no sample written for {stalled_s:.2f} s during {self.name} (limit "
                   f"{self.timeout_s:.2f} s = max({self.config.watchdog_periods:g} periods of "
-                  f"{self.period_s * 1e3:.1f} ms, {self.config.watchdog_min_s:g} s)); {zero}")
+                  f"{self.period_s * 1e3:.1f} ms, {self.config.watchdog_min_s:g} s)); "
+                  f"{zero} {zero_v_s * 1e3:.1f} ms after the trip{failure}")
         self.last_trip = {"reason": reason, "timeout_s": self.timeout_s, "stalled_s": stalled_s,
-                          "samples_fed": self._fed, "at_monotonic_s": time.monotonic()}
+                          "samples_fed": fed, "at_monotonic_s": decided_s, "zero_v_s": zero_v_s,
+                          "zero_v_at_monotonic_s": zero_at_s, "fed_during_zero_v": self._fed - fed}
         if self.on_trip is not None:
             self.on_trip(reason)

@@ -7,6 +7,7 @@ so they do not depend on the machine's speed; the watchdog's wall-clock bounds a
 from __future__ import annotations
 
 import json
+import threading
 import time
 from pathlib import Path
 
@@ -55,13 +56,53 @@ def test_watchdog_trips_a_stalled_loop_after_its_timeout_and_not_before():
         assert trip["samples_fed"] == 4000 and trip["timeout_s"] == pytest.approx(0.08)
         assert 0.08 <= trip["stalled_s"] < 0.08 + 1.0
         assert "no sample written for" in trips[0] and "4 periods of 20.0 ms" in trips[0]
-        assert trips[0].endswith("output set to 0 V")
+        assert "output set to 0 V" in trips[0] and trips[0].endswith("ms after the trip")
         assert SafetyConfig(watchdog_min_s=1.0).timeout_s(0.01) == 1.0       # the 1 s floor for fast loops
         assert SafetyConfig().timeout_s(2.0) == 8.0                           # 4 periods of a slow one
     finally:
         dog.close()
     with pytest.raises(ValueError, match="safety.watchdog_periods"):
         SafetyConfig.from_config({"watchdog_periods": 0})
+
+
+class _SlowIdleDaq:
+    """A DAQ whose 0 V write takes a while, during which the stalled loop wakes up and feeds."""
+
+    def __init__(self):
+        self.idle_started, self.loop_fed = threading.Event(), threading.Event()
+
+    def write_idle(self):
+        self.idle_started.set()
+        assert self.loop_fed.wait(10)
+
+
+def test_a_trip_reports_the_gap_that_tripped_it_not_the_one_after_a_slow_zero_volt_write():
+    daq, trips = _SlowIdleDaq(), []
+    dog = Watchdog(daq, SafetyConfig(watchdog_periods=4, watchdog_min_s=0.05, watchdog_poll_s=0.002), trips.append)
+
+    def loop():                    # feeds once, stalls until the trip writes 0 V, then feeds 7 times
+        dog.feed(100)
+        assert daq.idle_started.wait(10)
+        for _ in range(7):
+            dog.feed(10)
+        daq.loop_fed.set()
+
+    try:
+        timeout_s = dog.arm(period_s=0.01, name="a test loop")
+        worker = threading.Thread(target=loop)
+        worker.start()
+        worker.join(20)
+        deadline = time.monotonic() + 10
+        while not trips and time.monotonic() < deadline:
+            time.sleep(0.005)
+        trip = dog.last_trip
+        assert len(trips) == 1 and trip["timeout_s"] == pytest.approx(0.05) == timeout_s
+        assert trip["stalled_s"] >= trip["timeout_s"]           # the old report said ~0 s here
+        assert trip["samples_fed"] == 100 and trip["fed_during_zero_v"] == 70
+        assert trip["zero_v_s"] >= 0 and trip["zero_v_at_monotonic_s"] >= trip["at_monotonic_s"]
+        assert f"no sample written for {trip['stalled_s']:.2f} s" in trips[0]
+    finally:
+        dog.close()
 
 
 def test_a_stalled_tracking_loop_is_tripped_to_zero_volts_by_the_watchdog():
