@@ -16,6 +16,7 @@ Safety, in order of defence:
 from __future__ import annotations
 
 import threading
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Mapping
@@ -136,6 +137,9 @@ class Bench(LimitsMixin):
         self._idle.set()
         self.tripped: str | None = None                 # the watchdog's reason, latched for the session
         self._last_u_v = {axis: 0.0 for axis in self.axes}
+        #: time.monotonic() (s) when the DAQ output last reached 0 V (a write_idle returned)
+        self.last_zero_monotonic_s: float | None = None
+        self.last_stop: dict | None = None
         self._closed = False
         self.safety = SafetyConfig.from_config(parts.config.get("safety"))
         self.watchdog = Watchdog(parts.daq, self.safety, on_trip=self._on_watchdog_trip)
@@ -157,10 +161,35 @@ class Bench(LimitsMixin):
         return self.parts.daq.capabilities.point_by_point
 
     def request_stop(self, reason: str = STOPPED_ON_REQUEST) -> None:
-        """Ask the running loop to stop at its next block (or ≤ 50 samples); it then writes 0 V."""
+        """Ask the running loop to stop now: the flag its compiled loops poll every ≤ 50 samples, and
+        the DAQ's ``abort`` (where it has one), which ends a buffered block that is waiting for its
+        slot; the loop then writes 0 V from its own thread."""
         if self._stop_reason is None or reason != STOPPED_ON_REQUEST:
             self._stop_reason = reason
         self._stop_flag[0] = 1
+        abort = getattr(self.parts.daq, "abort", None)
+        if callable(abort) and self.running:
+            abort()
+
+    @property
+    def compiled_stepping(self) -> bool:
+        """True when the DAQ offers a compiled stepping hook (a 20 kHz per-sample loop in real time)."""
+        hook = getattr(self.parts.daq, "stepping_hook", None)
+        return callable(hook) and hook() is not None
+
+    def execute(self, plan: Callable, *args, on_event: Callable | None = None,
+                should_stop: Callable[[], bool] | None = None):
+        """Run ``plan(bench, emit, *args)`` on this bench and return its result: the one way a job
+        runs a plan, here in the caller's thread (service.runtime.engine runs the same call in the
+        bench's own process). ``emit(*payload)`` passes events to ``on_event``; after each one,
+        ``should_stop()`` true raises the stop flag, so the plan's loop stops within one period."""
+        def emit(*payload) -> None:
+            if on_event is not None:
+                on_event(*payload)
+            if should_stop is not None and should_stop():
+                self.request_stop()
+
+        return plan(self, emit, *args)
 
     @property
     def running(self) -> bool:
@@ -273,12 +302,16 @@ class Bench(LimitsMixin):
                 for axis in self.axes}
 
     def stop(self, reason: str = "emergency stop", wait_s: float | None = None) -> bool:
-        """Emergency stop: raise the stop flag, let the running loop write 0 V (it checks the flag
-        every block or ≤ 50 samples), and write 0 V here if it has not within ``wait_s`` (default
-        ``[safety] stop_wait_s``) or if no loop runs. Returns True if a running loop answered."""
+        """Emergency stop: raise the stop flag and abort the DAQ's output, let the running loop write
+        0 V (a buffered block waiting for its slot ends at once; compiled loops check the flag every
+        ≤ 50 samples), and write 0 V here if it has not within ``wait_s`` (default ``[safety]
+        stop_wait_s``) or if no loop runs. Returns True if a running loop answered. ``last_stop``
+        keeps the request's and the 0 V write's ``time.monotonic()`` (s) for latency figures."""
+        requested_s = time.monotonic()
         running = self.running
         self.request_stop(reason)
         answered = self._idle.wait(self.safety.stop_wait_s if wait_s is None else wait_s)
+        zero_s = self.last_zero_monotonic_s if running and answered else None
         if not answered:
             self._to_zero()              # the loop did not answer (stalled): 0 V from this thread
         elif self._lock.acquire(blocking=False):
@@ -286,6 +319,10 @@ class Bench(LimitsMixin):
                 self._to_zero()
             finally:
                 self._lock.release()
+        if zero_s is None or zero_s < requested_s:
+            zero_s = self.last_zero_monotonic_s
+        self.last_stop = {"reason": reason, "requested_monotonic_s": requested_s, "zero_monotonic_s": zero_s,
+                          "loop_answered": running and answered}
         return running and answered
 
     def _on_watchdog_trip(self, reason: str) -> None:
@@ -368,6 +405,7 @@ class Bench(LimitsMixin):
 
     def _to_zero(self) -> None:
         self.parts.daq.write_idle()
+        self.last_zero_monotonic_s = time.monotonic()
         for axis in self.axes:
             self._last_u_v[axis] = 0.0
 

@@ -24,6 +24,10 @@ class NotSupportedError(DriverError):
     """The backend cannot do what was asked (for example point-by-point on a USB DAQ)."""
 
 
+class OutputAborted(DriverError):
+    """A buffered write did not play: the output was stopped (``abort``) while it waited."""
+
+
 class LimitError(ValueError):
     """A request would drive the hardware outside its limits; nothing was written."""
 
@@ -77,7 +81,10 @@ class Daq(Protocol):
         emergency stop call it while a loop may be stalled in another thread).
 
         Optional: ``begin_session()``, called by ``Bench.session`` when a run starts (the emulator
-        counts its scheduled faults' ``after_s`` from there); real DAQs need not have it."""
+        counts its scheduled faults' ``after_s`` from there); real DAQs need not have it.
+        Optional: ``abort()``, called from any thread by a stop: the running buffered write ends
+        without playing the rest of its block (it returns or raises ``OutputAborted``), so the
+        writing loop reaches 0 V within a fraction of a block rather than after it."""
 
     def close(self) -> None: ...
 

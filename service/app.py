@@ -41,7 +41,12 @@ OPEN_ROUTERS = (health_api.router,)
 
 
 def open_configured_bench(settings: Settings) -> Bench:
-    """Open the bench the settings name (the emulated backend unless a config says otherwise)."""
+    """Open the bench the settings name (the emulated backend unless a config says otherwise): in
+    the bench engine's own process (``engine = process``, the default) or in this one (``inline``)."""
+    if settings.engine == "process":
+        from service.runtime.engine import open_engine
+
+        return open_engine(settings.bench, seed=settings.seed)
     from drivers.emulated import open_bench
 
     return open_bench(settings.bench, seed=settings.seed)

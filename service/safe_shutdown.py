@@ -25,21 +25,22 @@ def reason_for(sig: int) -> str:
 
 
 def safe_state(app: Any, reason: str) -> dict:
-    """The bench jobs queued are cancelled, the outputs go to 0 V (the running loop stops within one
-    control period, or 0 V is written from here), then the running bench job is cancelled with
-    ``reason``. Used by the emergency stop and the signal handlers; safe to call more than once and
-    before the app has started (then there is nothing to stop)."""
+    """The outputs go to 0 V first (the running loop stops within one control period, or 0 V is
+    written from here), then the bench jobs queued are cancelled and the running bench job is
+    cancelled with ``reason``: nothing that touches the store comes before the 0 V. Used by the
+    emergency stop and the signal handlers; safe to call more than once and before the app has
+    started (then there is nothing to stop). ``stop`` holds the bench's latency figures."""
     state = getattr(app, "state", None)
     bench, jobs = getattr(state, "bench", None), getattr(state, "jobs", None)
     out: dict = {"reason": reason, "cancelled_job_id": None, "cancelled_queued_job_ids": []}
     if bench is not None:
-        if jobs is not None:
-            out["cancelled_queued_job_ids"] = jobs.cancel_queued_bench_jobs(reason)
         running = jobs.running_bench_job if jobs is not None else None
         out["loop_answered"] = bench.stop(reason)
+        out["stop"] = dict(getattr(bench, "last_stop", None) or {})
         if jobs is not None:
+            out["cancelled_queued_job_ids"] = jobs.cancel_queued_bench_jobs(reason)
             out["cancelled_job_id"] = jobs.cancel_running_bench_job(reason) or running
-        out["output_v"] = bench.output_v()
+        out["output_v"] = out["stop"].get("output_v") or bench.output_v()
     log.warning("%s: outputs at 0 V, running job %s cancelled", reason, out["cancelled_job_id"])
     return out
 

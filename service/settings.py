@@ -5,6 +5,14 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+#: Jobs waiting for the bench (sweeps, trajectories) beyond the running one; one more is refused
+#: with 429 (service.jobs.QueueFull), so a runaway script cannot queue hours of bench time.
+MAX_QUEUED_BENCH_JOBS = 16
+#: Jobs waiting for a compute worker (identification, refinement, …), counted apart from the bench's.
+MAX_QUEUED_COMPUTE_JOBS = 32
+#: The Retry-After (s) a refused submission carries.
+QUEUE_RETRY_AFTER_S = 5
+
 
 @dataclass(frozen=True)
 class Settings:
@@ -23,10 +31,15 @@ class Settings:
     port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_PORT", "8000")))
     database_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_DATABASE_URL") or None)
     auth: str = field(default_factory=lambda: os.environ.get("EVCBENCH_AUTH", "tokens"))
+    #: ``process``: the bench engine runs in its own process (service.runtime.engine), so no request
+    #: can delay the real-time loop or the stop; ``inline``: in this process (tests of internals)
+    engine: str = field(default_factory=lambda: os.environ.get("EVCBENCH_ENGINE", "process"))
 
     def __post_init__(self) -> None:
         if self.auth not in ("tokens", "off"):
             raise ValueError(f"auth must be 'tokens' or 'off', not {self.auth!r}")
+        if self.engine not in ("process", "inline"):
+            raise ValueError(f"engine must be 'process' or 'inline', not {self.engine!r}")
 
     @property
     def resolved_database_url(self) -> str:

@@ -8,11 +8,14 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import threading
+
 import numpy as np
 
 from drivers.emulated import kernels as K
 from drivers.emulated.world import AXES, World
-from drivers.interfaces import AmplifierStatus, DaqCapabilities, DriverError, LimitError, SensorStatus
+from drivers.interfaces import (AmplifierStatus, DaqCapabilities, DriverError, LimitError, OutputAborted,
+                                SensorStatus)
 
 
 class EmulatedDaq:
@@ -28,6 +31,8 @@ class EmulatedDaq:
             resolution_bits=world.bits, timebase_hz=self.timebase_hz,
             max_sample_rate_hz=float(daq["max_sample_rate_hz"]))
         self._closed = False
+        #: set by ``abort`` (a stop): buffered writes are refused until the next session begins
+        self._aborted = threading.Event()
 
     @property
     def sample_rate_hz(self) -> float:
@@ -68,6 +73,8 @@ class EmulatedDaq:
         if ao.ndim != 2 or ao.shape[1] != 2:
             raise ValueError(f"AO block must have shape (n, 2), got {ao.shape}")
         self._check_ao(ao)
+        if self._aborted.is_set():
+            raise OutputAborted("the output was stopped; nothing was written")
         faults, parts = self.world.faults, []
         while True:
             k = faults.samples_until_due(len(ao))
@@ -82,8 +89,20 @@ class EmulatedDaq:
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def begin_session(self) -> None:
-        """A bench session starts: scheduled faults count their ``after_s`` from now."""
+        """A bench session starts: scheduled faults count their ``after_s`` from now; a past abort is over."""
+        self._aborted.clear()
+        if self.world.pacer is not None:
+            self.world.pacer.resume()
         self.world.faults.begin_session()
+
+    def abort(self) -> None:
+        """Stop the buffered output now, from any thread (a DAQmx task stop on hardware): a write
+        waiting for its slot of the real-time clock returns at once with OutputAborted instead of
+        playing its block, and later writes are refused until ``begin_session``. The writer then
+        drives 0 V (``write_idle``) from its own thread, so the world is never run by two threads."""
+        self._aborted.set()
+        if self.world.pacer is not None:
+            self.world.pacer.abort()
 
     def step(self, ao_daq_v: Sequence[float]) -> np.ndarray:
         """Point-by-point: one AO sample in, one AI sample (4,) out, through the same kernel."""

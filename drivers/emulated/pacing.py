@@ -30,6 +30,8 @@ class Pacer:
         self._produced = 0
         self._rate_hz = 0.0
         self._lock = threading.Lock()
+        #: set by ``abort``: the sleep for the next slot ends at once (the emergency stop's path)
+        self.aborted = threading.Event()
 
     def tick(self, n: int, sample_rate_hz: float) -> None:
         """A block of ``n`` samples is about to be produced at ``sample_rate_hz``: wait for its slot."""
@@ -49,7 +51,14 @@ class Pacer:
             self._produced += n
         wait = due - time.monotonic()
         if wait > 0:
-            time.sleep(wait)
+            self.aborted.wait(wait)
+
+    def abort(self) -> None:
+        """End a sleeping ``tick`` now and every later one at once, until ``resume`` (a new session)."""
+        self.aborted.set()
+
+    def resume(self) -> None:
+        self.aborted.clear()
 
     def stop_clock(self) -> None:
         """The output is parked: the next block starts a new schedule."""

@@ -16,6 +16,7 @@ from drivers.emulated import kernels as K
 from drivers.emulated.pacing import Pacer
 from drivers.emulated.faults import WORLD_KINDS, FaultInjector
 from drivers.emulated.output_log import OutputLog
+from drivers.interfaces import OutputAborted
 
 AXES = ("y", "z")
 NOISE_CHUNK = 1 << 16       # samples of noise generated at a time
@@ -249,6 +250,8 @@ class World:
         n = ao.shape[0]
         if self.pacer is not None:
             self.pacer.tick(n, self.sample_rate_hz)
+            if self.pacer.aborted.is_set():     # stopped while waiting for the block's slot
+                raise OutputAborted("the output was stopped; the block was not played")
         out = np.empty((n, K.NOISE_COLS))
         diag = K.empty_diag(n)
         self.sa[:, K.S_SATN] = 0.0

@@ -2,6 +2,9 @@
 POST /api/bench/reset; GET /api/bench/live."""
 from __future__ import annotations
 
+import asyncio
+from concurrent.futures import ThreadPoolExecutor
+
 from fastapi import APIRouter, HTTPException, Query, Request
 
 from drivers.bench import BenchBusy
@@ -21,15 +24,27 @@ def bench_state(request: Request) -> dict:
 EMERGENCY_STOP = "emergency stop"
 
 
+#: The emergency stop's own thread: it never waits for the request thread pool that downloads,
+#: imports and other routes share.
+_STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop")
+
+
 @router.post("/bench/stop")
-def emergency_stop(request: Request) -> dict:
-    """Emergency stop: drive every output to 0 V first (the running loop stops within one control
-    period, or 0 V is written from here), then cancel the job that owns the bench with the reason
-    "emergency stop" (its samples so far are kept as a partial dataset) and the bench jobs queued
-    behind it, so the bench stays still. Jobs submitted afterwards run normally."""
-    out = safe_state(request.app, EMERGENCY_STOP)
+async def emergency_stop(request: Request) -> dict:
+    """Emergency stop: drive every output to 0 V first (the bench engine aborts the running block, the
+    loop writes 0 V within one control period, or 0 V is written from the engine's stop thread),
+    then cancel the job that owns the bench with the reason "emergency stop" (its samples so far are
+    kept as a partial dataset) and the bench jobs queued behind it, so the bench stays still. Jobs
+    submitted afterwards run normally. ``zero_after_request_ms`` is the engine's measured time from
+    receiving the stop to the 0 V write."""
+    out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, safe_state, request.app, EMERGENCY_STOP)
+    stop = out.get("stop") or {}
+    zero_ms = None
+    if stop.get("zero_monotonic_s") is not None and stop.get("requested_monotonic_s") is not None:
+        zero_ms = round(max(0.0, stop["zero_monotonic_s"] - stop["requested_monotonic_s"]) * 1e3, 3)
     return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids",
-                                                    "loop_answered", "output_v")}}
+                                                    "loop_answered", "output_v")},
+            "zero_after_request_ms": zero_ms, "zero_monotonic_s": stop.get("zero_monotonic_s")}
 
 
 @router.post("/bench/reset")

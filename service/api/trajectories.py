@@ -12,9 +12,9 @@ from drivers.bench import Bench
 from service.acquisition import bench_snapshot
 from service.api.deps import get_bench, get_jobs, get_store
 from service.control.feedforward import as_feedforward
-from service.control.loop import PIDGains, StopRequested, TrackRecord
+from service.control.loop import PIDGains, StopRequested
 from service.control.safety import ControlRefused
-from service.control.session import SAMPLE_RATE_HZ, Controller, plan, track
+from service.control.session import SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
 from service.control.trajectory import Ellipse
 from service.datasets import units_for
 from service.errors import FieldError
@@ -106,16 +106,6 @@ def build_controller(body: TrajectoryRequest, store: Store) -> Controller:
                       allow_saturation=c.allow_saturation)
 
 
-def trace_arrays(rec: TrackRecord, sample_rate_hz: float, axes, start: int, stop: int) -> dict[str, np.ndarray]:
-    """Rows ``start:stop`` of a tracking run as dataset columns: t_s, u_<axis>_v, x_<axis>_um, ref_<axis>_um."""
-    arrays = {"t_s": np.arange(start, stop) / sample_rate_hz}
-    for i, ax in enumerate(axes):
-        arrays[f"u_{ax}_v"] = rec.u_v[start:stop, i]
-        arrays[f"x_{ax}_um"] = rec.x_um[start:stop, i]
-        arrays[f"ref_{ax}_um"] = rec.ref_um[start:stop, i]
-    return arrays
-
-
 def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse, controller: Controller,
                    mode: str, params: dict, name: str | None) -> dict:
     """The job: track, report the error per period as progress, store measured and reference traces
@@ -127,16 +117,15 @@ def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse
             "started_at": utc_now()}
     chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
 
-    def on_period(p, rec):
-        chunks.append(trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, chunks.rows_seen, rec.samples))
-        last = rec.error_per_period_um[-1] if rec.error_per_period_um else None
-        msg = f"period {p + 1}/{total}" + (f": error {last * 1e3:.1f} nm RMS" if last is not None else "")
+    def on_period(p: int, arrays: dict, last_error_um: float | None) -> None:
+        chunks.append(arrays)
+        msg = f"period {p + 1}/{total}" + (f": error {last_error_um * 1e3:.1f} nm RMS" if last_error_um is not None else "")
         ctx.progress(min(0.97, (p + 1) / total), msg)
 
     try:
         try:
-            result, rec, ref = track(bench, ellipse, controller, mode, on_period=on_period,
-                                     should_stop=lambda: ctx.cancelled)
+            result, rec, ref = bench.execute(track_plan, ellipse, controller, mode, on_event=on_period,
+                                             should_stop=lambda: ctx.cancelled)
         except StopRequested as exc:
             raise JobInterrupted(f"{exc.reason} while measuring the response for the ILC; nothing stored",
                                  None, cancelled=True) from None

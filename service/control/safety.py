@@ -33,7 +33,7 @@ def available_modes(bench: Bench) -> dict[str, str | None]:
     pbp = None
     if not caps.point_by_point:
         pbp = caps.point_by_point_reason or "this DAQ has no point-by-point mode"
-    elif stepping_hook(bench) is None:
+    elif not bench.compiled_stepping:
         pbp = "this DAQ offers no compiled stepping hook, so a 20 kHz per-sample loop cannot run in real time"
     return {"point_by_point": pbp,
             "buffered": None if caps.buffered else "this DAQ has no buffered streaming mode"}

@@ -154,3 +154,27 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
     if rec.tripped is None and not rec.stopped:
         result.update(metrics(rec, ref))
     return result, rec, ref
+
+
+def trace_arrays(rec: TrackRecord, sample_rate_hz: float, axes, start: int, stop: int) -> dict[str, np.ndarray]:
+    """Rows ``start:stop`` of a tracking run as dataset columns: t_s, u_<axis>_v, x_<axis>_um, ref_<axis>_um."""
+    arrays = {"t_s": np.arange(start, stop) / sample_rate_hz}
+    for i, ax in enumerate(axes):
+        arrays[f"u_{ax}_v"] = rec.u_v[start:stop, i].copy()
+        arrays[f"x_{ax}_um"] = rec.x_um[start:stop, i].copy()
+        arrays[f"ref_{ax}_um"] = rec.ref_um[start:stop, i].copy()
+    return arrays
+
+
+def track_plan(bench: Bench, emit, ellipse: Ellipse, controller: Controller, mode: str):
+    """``track`` as a plan for ``Bench.execute`` (it runs where the bench is, possibly the engine
+    process): after each period it emits ``(period, new trace rows, last error µm or None)``."""
+    sent = 0
+
+    def on_period(p: int, rec: TrackRecord) -> None:
+        nonlocal sent
+        last = rec.error_per_period_um[-1] if rec.error_per_period_um else None
+        emit(p, trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, sent, rec.samples), last)
+        sent = rec.samples
+
+    return track(bench, ellipse, controller, mode, on_period=on_period)

@@ -1,0 +1,135 @@
+"""The bench engine in its own process (the product's default): the API drives it as it drove the
+in-process bench, the stop reaches 0 V from the engine, and the engine outlives nothing it owns.
+
+Behaviour, not timing: the machine is shared. ``evcbench bench safety`` measures the latencies.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from service.app import create_app
+from service.settings import Settings
+from tests.api_client import authed_client, wait_job
+
+
+@pytest.fixture(scope="module")
+def http(tmp_path_factory):
+    app = create_app(Settings(data_dir=tmp_path_factory.mktemp("engine"), seed=3, engine="process",
+                              bench="default_realtime"))
+    with authed_client(app) as client:
+        client.app_state = app.state
+        yield client
+
+
+def test_the_bench_lives_in_another_process(http):
+    bench = http.get("/api/bench").json()
+    assert bench["engine"]["process"] == "separate"
+    assert bench["engine"]["pid"] != os.getpid()
+    assert bench["axes"] == ["y", "z"] and bench["limits"]["y"]["v_max_v"] > 0
+    assert http.get("/api/health").json()["backend"] == "emulated:default_realtime"
+
+
+def test_sweep_through_the_engine_stores_every_sample(http):
+    job = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [10, 50], "cycles": 2}).json()
+    done = wait_job(http, job["job_id"], timeout_s=120)
+    assert done["state"] == "succeeded", done
+    ds = http.get(f"/api/datasets/{done['result']['dataset_id']}").json()
+    data = http.get(f"/api/datasets/{ds['id']}/data", params={"max_points": 100000}).json()
+    assert ds["samples"] == len(data["t_s"]) and ds["samples"] > 0
+    assert np.ptp(data["x_y_um"]) > 3.0            # the stage moved: a real sweep, not zeros
+    assert ds["config"]["backend"] == "emulated:default_realtime"
+
+
+def test_stop_during_a_realtime_sweep_reaches_0v_in_the_engine(http):
+    job = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 20}).json()
+    wait_job(http, job["job_id"], until=lambda j: j["state"] == "running" and j["progress"] > 0.02, timeout_s=60)
+    answer = http.post("/api/bench/stop").json()
+    assert answer["stopped"] and answer["cancelled_job_id"] == job["job_id"]
+    assert answer["loop_answered"] is True
+    assert all(abs(v) < 0.05 for v in answer["output_v"].values())
+    # the 0 V write happened after the request reached the engine, within one 100 ms sweep block
+    assert 0.0 <= answer["zero_after_request_ms"] < 100.0
+    done = wait_job(http, job["job_id"])
+    assert done["state"] == "cancelled" and "emergency stop" in done["message"]
+    partial = http.get(f"/api/datasets/{done['result']['dataset_id']}").json()
+    assert partial["partial"] and partial["samples"] > 0
+
+
+def test_trajectory_and_cancel_through_the_engine(http):
+    body = {"amplitude_y_um": 2.5, "amplitude_z_um": 4.0, "frequency_hz": 100, "cycles": 400,
+            "controller": {"pid": None, "ilc": False}}
+    job = http.post("/api/trajectories", json=body).json()
+    assert "job_id" in job, job
+    wait_job(http, job["job_id"], until=lambda j: j["state"] == "running" and "period" in (j["message"] or ""),
+             timeout_s=120)
+    http.delete(f"/api/jobs/{job['job_id']}")
+    done = wait_job(http, job["job_id"], timeout_s=60)
+    assert done["state"] == "cancelled", done
+    ds = http.get(f"/api/datasets/{done['result']['dataset_id']}").json()
+    assert ds["partial"] and 0 < ds["samples"] < 406 * 200
+    amplifiers = http.get("/api/bench").json()["amplifiers"]
+    assert all(abs(amplifiers[a]["output_v"]) < 0.05 for a in ("y", "z"))
+
+
+def test_fault_injection_crosses_to_the_engine(http):
+    added = http.post("/api/admin/faults", json={"fault": "sensor_dropout", "axis": "z", "after_s": 0.2})
+    assert added.status_code == 201, added.text
+    job = http.post("/api/sweeps", json={"axes": ["z"], "frequencies_hz": [10], "cycles": 5}).json()
+    done = wait_job(http, job["job_id"], timeout_s=60)
+    assert done["state"] == "failed" and "sensor z" in done["error"]
+    listed = http.get("/api/admin/faults").json()
+    assert [f["kind"] for f in listed["faults"]] == ["sensor_dropout"]
+    assert http.delete("/api/admin/faults").json()["cleared"] == 1
+
+
+def test_the_engine_goes_to_0v_and_exits_when_the_service_is_killed(tmp_path):
+    """kill -9 of the web process: the engine sees its pipes close, drives 0 V and exits."""
+    log = tmp_path / "output.jsonl"
+    script = textwrap.dedent(f"""
+        import sys, time
+        import numpy as np
+        from service.runtime.engine import open_engine
+        if __name__ == "__main__":
+            bench = open_engine("default_realtime", seed=1, overrides={{"emulator": {{"output_log": {str(log)!r}}}}})
+            print(bench.engine_pid, flush=True)
+            fs = 20000.0
+            u = 60 - 60 * np.cos(2 * np.pi * 5 * np.arange(int(30 * fs)) / fs)
+            bench.run({{"y": u, "z": u}}, fs)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                            cwd=os.path.dirname(os.path.dirname(__file__)))
+    engine_pid = int(proc.stdout.readline())
+    deadline = time.monotonic() + 60
+    while not log.exists() or log.read_text().count('"block"') < 5:
+        assert time.monotonic() < deadline, "the sweep never started"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(10)
+    deadline = time.monotonic() + 30
+    while _alive(engine_pid):
+        assert time.monotonic() < deadline, "the engine outlived its service"
+        time.sleep(0.05)
+    import json
+    last = json.loads(log.read_text().strip().splitlines()[-1])
+    assert last["event"] in ("idle", "close")
+    assert all(abs(v) < 0.05 for v in last["amplifier_v"].values())
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:   # a zombie (exited, not yet reaped by its parent) counts as gone
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] != "Z"
+    except FileNotFoundError:
+        return False
