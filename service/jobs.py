@@ -4,7 +4,8 @@ States: queued → running → succeeded | failed | cancelled (a queued job may 
 cancelled). Every job is persisted in the store; live progress is kept in memory and written
 through at most every ``PERSIST_EVERY_S``. Jobs that need the bench run one at a time, in
 submission order, on a single worker thread (that thread owns the bench); the others run on a
-small thread pool beside it.
+small thread pool beside it. Each queue is bounded (``MAX_QUEUED_BENCH_JOBS``,
+``MAX_QUEUED_COMPUTE_JOBS``): a submission beyond it raises ``QueueFull`` and stores nothing.
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import AsyncIterator, Callable
 
+from service.settings import MAX_QUEUED_BENCH_JOBS, MAX_QUEUED_COMPUTE_JOBS, QUEUE_RETRY_AFTER_S
 from service.store import TERMINAL_STATES, Store, clean_json, utc_now
 
 PERSIST_EVERY_S = 0.5
@@ -36,6 +38,16 @@ class JobInterrupted(Exception):
     def __init__(self, reason: str, result: dict | None = None, cancelled: bool = False):
         super().__init__(reason)
         self.reason, self.result, self.cancelled = reason, result, cancelled
+
+
+class QueueFull(Exception):
+    """A job queue holds its limit of queued jobs; nothing was stored. ``queue`` is "bench" or
+    "compute"; ``queued`` and ``limit`` count jobs; ``retry_after_s`` is a hint in seconds."""
+
+    def __init__(self, queue_name: str, queued: int, limit: int, retry_after_s: float = QUEUE_RETRY_AFTER_S):
+        super().__init__(f"the {queue_name} job queue is full: {queued} {queue_name} jobs queued (limit {limit}); "
+                         f"retry when one has started, or cancel one (DELETE /api/jobs/{{id}})")
+        self.queue, self.queued, self.limit, self.retry_after_s = queue_name, queued, limit, retry_after_s
 
 
 @dataclass
@@ -69,13 +81,19 @@ class JobContext:
 
 
 class JobManager:
-    """Runs, tracks and cancels jobs. ``on_cancel_bench`` is called to stop a running bench job."""
+    """Runs, tracks and cancels jobs. ``on_cancel_bench`` is called to stop a running bench job.
+    At most ``max_queued_bench_jobs`` bench jobs and ``max_queued_compute_jobs`` other jobs wait
+    (running ones are not counted)."""
 
-    def __init__(self, store: Store, on_cancel_bench: Callable[[], None] | None = None, workers: int = 2):
+    def __init__(self, store: Store, on_cancel_bench: Callable[[], None] | None = None, workers: int = 2,
+                 max_queued_bench_jobs: int = MAX_QUEUED_BENCH_JOBS,
+                 max_queued_compute_jobs: int = MAX_QUEUED_COMPUTE_JOBS):
         self.store = store
         self._on_cancel_bench = on_cancel_bench
         self._live: dict[str, _Live] = {}
         self._lock = threading.Lock()
+        self.queue_limits = {True: int(max_queued_bench_jobs), False: int(max_queued_compute_jobs)}
+        self._reserved = {True: 0, False: 0}  # places taken by submissions whose row is being written
         self._bench_queue: queue.Queue[str | None] = queue.Queue()
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="evc-job")
         self._persister = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-progress")
@@ -87,12 +105,25 @@ class JobManager:
     # ------------------------------------------------------------------ public
     def submit(self, kind: str, params: dict | None, fn: Callable[[JobContext], dict],
                needs_bench: bool) -> dict:
-        """Queue a job; ``fn(ctx)`` returns the result dict. Returns the stored job record."""
+        """Queue a job; ``fn(ctx)`` returns the result dict. Returns the stored job record.
+        QueueFull (nothing stored) if its queue already holds its limit of queued jobs."""
         if self._closed:
             raise RuntimeError("the service is shutting down; no new jobs")
-        row = self.store.add_job(kind, params, needs_bench)
         with self._lock:
-            self._live[row["id"]] = _Live(kind=kind, needs_bench=needs_bench, fn=fn)
+            queued = self._reserved[needs_bench] + sum(
+                1 for live in self._live.values() if live.needs_bench == needs_bench and live.state == "queued")
+            limit = self.queue_limits[needs_bench]
+            if queued >= limit:
+                raise QueueFull("bench" if needs_bench else "compute", queued, limit)
+            self._reserved[needs_bench] += 1
+        row = None
+        try:
+            row = self.store.add_job(kind, params, needs_bench)
+        finally:
+            with self._lock:  # the reserved place becomes the job's (or is given back on a failed write)
+                self._reserved[needs_bench] -= 1
+                if row is not None:
+                    self._live[row["id"]] = _Live(kind=kind, needs_bench=needs_bench, fn=fn)
         if needs_bench:
             self._bench_queue.put(row["id"])
         else:

@@ -6,6 +6,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from service.errors import FieldError
+from service.jobs import QueueFull
 from service.store import IntegrityError, NotFoundError
 
 
@@ -33,6 +34,12 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(NotFoundError)
     async def _not_found(_request: Request, exc: NotFoundError) -> JSONResponse:
         return JSONResponse(status_code=404, content={"detail": str(exc), "field": exc.field})
+
+    @app.exception_handler(QueueFull)
+    async def _queue_full(_request: Request, exc: QueueFull) -> JSONResponse:
+        return JSONResponse(status_code=429, headers={"Retry-After": str(int(exc.retry_after_s))},
+                            content={"detail": str(exc), "field": None, "queue": exc.queue,
+                                     "queued": exc.queued, "limit": exc.limit})
 
     @app.exception_handler(IntegrityError)
     async def _integrity(_request: Request, exc: IntegrityError) -> JSONResponse:
