@@ -11,7 +11,7 @@ from sqlalchemy import text, update
 from pg_server import postgres_server
 from service.recovery import INTERRUPTED, recover
 from service.store import IntegrityError, NotFoundError, Store, tables
-from service.store.files import read_arrays, write_arrays
+from service.store.files import file_sha256, open_arrays, read_arrays, write_arrays
 
 
 @pytest.fixture(scope="session")
@@ -160,6 +160,28 @@ def test_array_files_are_written_atomically(tmp_path):
     assert read_arrays(path, digest)["t_s"].shape == (500,)
     with pytest.raises(IntegrityError, match="ds_x.npz"):
         read_arrays(path, "0" * 64)
+
+
+@pytest.mark.parametrize("legacy", [False, True], ids=["uncompressed", "compressed-before-streaming"])
+def test_arrays_open_lazily_memory_mapped_or_a_range_at_a_time(tmp_path, legacy):
+    arrays = _arrays(n=300_001)
+    if legacy:   # a file written before the store wrote uncompressed members
+        path = tmp_path / "old.npz"
+        np.savez_compressed(path, **arrays)
+        digest = file_sha256(path)
+    else:
+        path, digest = write_arrays(tmp_path, "ds_new", arrays)
+    with open_arrays(path, digest) as stored:
+        assert stored.names == list(arrays) and stored.length == 300_001
+        assert isinstance(stored.column("u_y_v"), np.memmap) is not legacy
+        for start, stop, step in [(0, 10, 1), (5, 300_001, 7), (1000, 299_999, 200_000), (299_990, 10**6, 1)]:
+            for name, values in stored.rows(start, stop, step).items():
+                np.testing.assert_array_equal(values, arrays[name][start:stop:step])
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(IntegrityError, match="corrupt"):
+        open_arrays(path, digest)
 
 
 def test_the_service_runs_on_postgresql(postgres_url, tmp_path):

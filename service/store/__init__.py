@@ -20,10 +20,10 @@ from sqlalchemy.engine import Engine
 
 from service import __version__
 from service.store import tables
-from service.store.files import IntegrityError, read_arrays, write_arrays
+from service.store.files import IntegrityError, StoredArrays, open_arrays, read_arrays, write_arrays
 from service.store.tokens import TokenRows
 
-__all__ = ["Store", "NotFoundError", "IntegrityError", "utc_now", "clean_json", "json_sha256"]
+__all__ = ["Store", "NotFoundError", "IntegrityError", "StoredArrays", "utc_now", "clean_json", "json_sha256"]
 
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 
@@ -149,6 +149,12 @@ class Store:
         """The dataset's arrays, verified against the stored checksum."""
         record = self.get_dataset(dataset_id)
         return read_arrays(self.data_dir / record["file"], record["sha256"])
+
+    def open_arrays(self, dataset_id: str) -> StoredArrays:
+        """The dataset's arrays opened lazily (memory-mapped or read a range at a time), after the
+        file was verified against the stored checksum (read in blocks). Close it when done."""
+        record = self.get_dataset(dataset_id)
+        return open_arrays(self.data_dir / record["file"], record["sha256"])
 
     # ------------------------------------------------------------------ models
     def add_model(self, record: dict) -> dict:
