@@ -80,13 +80,30 @@ def authenticate(store: Store, token: str | None) -> dict:
                              "(create one with `evcbench token create`)")
     if not token.startswith(TOKEN_PREFIX):
         raise AuthError(401, f"malformed API token: tokens start with {TOKEN_PREFIX!r}")
-    digest = hash_token(token)
-    row = store.tokens.by_hash(digest)
-    if row is None:  # looked up by the sha256 itself: only the hash of a secret is ever compared
-        raise AuthError(401, "unknown API token")
-    if row["revoked"]:
-        raise AuthError(401, f"API token {row['id']} ({row['name']}) has been revoked")
+    row = store.tokens.by_hash(hash_token(token))  # by the sha256 itself: only a secret's hash is compared
+    reason = refusal(row)
+    if reason is not None:
+        raise AuthError(401, reason)
     return public(row)
+
+
+def refusal(row: dict | None) -> str | None:
+    """Why a stored token row may not be used (unknown, revoked), in words, or None if it may."""
+    if row is None:
+        return "unknown API token"
+    if row["revoked"]:
+        return f"API token {row['id']} ({row['name']}) has been revoked"
+    return None
+
+
+def still_valid(store: Store, record: dict) -> str | None:
+    """Re-check a token that was valid when a long request (an event stream) began: why it no
+    longer is, or None. One indexed row read; ``record`` is what ``authenticate`` returned (an
+    ``id`` of None, as with auth off, is always valid)."""
+    if record.get("id") is None:
+        return None
+    row = store.tokens.get(record["id"])
+    return f"API token {record['id']} no longer exists" if row is None else refusal(row)
 
 
 def authorize(record: dict, needed: str) -> None:

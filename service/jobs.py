@@ -29,6 +29,8 @@ PERSIST_EVERY_S = 0.5
 BENCH_SWITCH_INTERVAL_S = 0.0005
 SSE_POLL_S = 0.1
 SSE_HEARTBEAT_S = 15.0
+#: How often an open event stream re-checks its caller's token (s): a revoked token's stream ends.
+SSE_RECHECK_S = 1.0
 
 
 class JobInterrupted(Exception):
@@ -182,11 +184,22 @@ class JobManager:
             self.cancel(job_id, reason)
         return ids
 
-    async def events(self, job_id: str) -> AsyncIterator[str]:
-        """Server-sent events: a ``progress`` event on every change, then ``end`` with the final job."""
+    async def events(self, job_id: str, recheck: Callable[[], str | None] | None = None) -> AsyncIterator[str]:
+        """Server-sent events: a ``progress`` event on every change, then ``end`` with the final job.
+
+        ``recheck`` (if given) is called off the event loop about every ``SSE_RECHECK_S``; when it
+        returns a reason (the caller's token was revoked), the stream ends with an ``error`` event
+        whose data is ``{"detail": reason, "field": "authorization", "status": 401}``."""
         self.store.get_job(job_id)  # NotFoundError before the stream starts
         seen, last, last_sent = -1, None, time.monotonic()
+        checked = time.monotonic()
         while True:
+            if recheck is not None and time.monotonic() - checked >= SSE_RECHECK_S:
+                reason = await asyncio.to_thread(recheck)
+                checked = time.monotonic()
+                if reason is not None:
+                    yield _sse("error", {"detail": reason, "field": "authorization", "status": 401})
+                    return
             live = self._live.get(job_id)
             version = None if live is None else live.version  # None: finished, read the store
             if version is None or version != seen:

@@ -4,6 +4,7 @@ SSE stream, the token CLI (create → use → revoke), and the loopback-only bin
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import os
 import re
@@ -12,11 +13,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from api_client import authed_client, bearer, issue_token, wait_job
+from live_server import Server
 from service import auth
 from service.api.auth import RedactQueryToken
 from service.app import create_app
@@ -200,6 +203,45 @@ def test_query_token_only_on_the_event_stream(service):
     assert "accepted only on /api/jobs/{id}/events" in r.json()["detail"]
     r = http.post("/api/bench/stop", params={"token": read})
     assert r.status_code == 401 and r.json()["field"] == "token"
+
+
+def _sse_events(lines):
+    """(event, data) pairs of a server-sent event stream's lines."""
+    event, data = "message", []
+    for line in lines:
+        if line.startswith("event:"):
+            event = line[6:].strip()
+        elif line.startswith("data:"):
+            data.append(line[5:].strip())
+        elif not line and data:
+            yield event, json.loads("\n".join(data))
+            event, data = "message", []
+
+
+def test_a_revoked_tokens_open_event_stream_ends_with_an_error(tmp_path):
+    """A real server and a sweep paced to real time (60 s of plan): the stream of a read token ends
+    with ``event: error`` once the token is revoked, long before the job ends."""
+    server = Server(tmp_path / "store", tmp_path / "serve.log", bench="default_realtime")
+    try:
+        with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as admin:
+            read = admin.post("/api/admin/tokens", json={"name": "watcher", "scope": "read"}).json()
+            r = admin.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [1.0], "cycles": 60})
+            assert r.status_code == 202 and r.json()["duration_s"] > 60
+            job_id, events = r.json()["job_id"], []
+            with httpx.Client(base_url=server.url, timeout=30) as viewer, viewer.stream(
+                    "GET", f"/api/jobs/{job_id}/events", params={"token": read["token"]}) as stream:
+                assert stream.status_code == 200
+                for event, data in _sse_events(stream.iter_lines()):
+                    events.append((event, data))
+                    if len(events) == 1:
+                        assert admin.delete(f"/api/admin/tokens/{read['id']}").status_code == 200
+            assert [e for e, _ in events[:-1]] == ["progress"] * (len(events) - 1)
+            assert events[-1] == ("error", {"detail": f"API token {read['id']} (watcher) has been revoked",
+                                            "field": "authorization", "status": 401})
+            assert admin.get(f"/api/jobs/{job_id}").json()["state"] in ("queued", "running")  # the job goes on
+            admin.delete(f"/api/jobs/{job_id}")
+    finally:
+        assert server.stop()
 
 
 def test_auth_off_is_open_and_loopback_only(tmp_path):

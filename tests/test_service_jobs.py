@@ -3,14 +3,17 @@ cancellation, failures, SSE, and recovery after a restart. No bench or HTTP need
 from __future__ import annotations
 
 import asyncio
+import json
 import threading
 import time
 
 import pytest
 
+from service import auth
+from service import jobs as jobs_module
 from service.jobs import JobInterrupted, JobManager
 from service.recovery import recover
-from service.store import Store
+from service.store import Store, utc_now
 
 
 @pytest.fixture
@@ -133,6 +136,46 @@ def test_sse_streams_progress_then_the_end(store):
         # subscribing after the end gives the end at once
         assert asyncio.run(collect(submitted["id"])) == [events[-1]]
     finally:
+        manager.shutdown()
+
+
+def test_sse_of_a_revoked_token_ends_with_an_error_while_the_job_goes_on(store, monkeypatch):
+    monkeypatch.setattr(jobs_module, "SSE_RECHECK_S", 0.05)
+    manager = JobManager(store)
+    _, record = auth.issue(store, "watcher", "read", "cli")
+    stop, checks = threading.Event(), []
+
+    def long_job(ctx):
+        k = 0
+        while not stop.wait(0.01):
+            k += 1
+            ctx.progress(min(k / 10_000, 0.99), f"step {k}")
+        return {"steps": k}
+
+    def recheck():
+        checks.append(threading.current_thread().name)
+        return auth.still_valid(store, record)
+
+    async def collect(job_id):
+        events = []
+        async for text in manager.events(job_id, recheck=recheck):
+            events.append(text)
+            if len(events) == 3:
+                store.tokens.revoke(record["id"], utc_now())
+        return events
+
+    try:
+        job_id = manager.submit("identify", None, long_job, needs_bench=False)["id"]
+        events = asyncio.run(collect(job_id))
+        assert events[-1].startswith("event: error\n")
+        error = json.loads(events[-1].split("data: ", 1)[1])
+        assert error["status"] == 401 and error["field"] == "authorization"
+        assert error["detail"] == f"API token {record['id']} (watcher) has been revoked"
+        assert all(e.startswith("event: progress\n") for e in events[:-1]) and len(events) >= 4
+        assert manager.get(job_id)["state"] == "running"          # only the stream ended
+        assert checks and threading.main_thread().name not in checks  # checked off the event loop's thread
+    finally:
+        stop.set()
         manager.shutdown()
 
 

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import logging
 import re
+from functools import partial
+from typing import Callable
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from service.auth import AuthError, authenticate, authorize, required_scope
+from service.auth import AuthError, authenticate, authorize, required_scope, still_valid
 
 #: A token in a query string, as written to the access log.
 QUERY_TOKEN = re.compile(r"(?<=[?&]token=)[^&\s]+")
@@ -47,6 +49,15 @@ def require_token(request: Request, credentials: HTTPAuthorizationCredentials | 
 
 #: Pass to include_router(dependencies=…) for every router that needs a token.
 REQUIRE_TOKEN = [Depends(require_token)]
+
+
+def token_recheck(request: Request, record: dict) -> Callable[[], str | None] | None:
+    """For a long response (the event stream): a callable that says why the caller's token is no
+    longer valid (revoked, deleted), or None while it is; None when auth is off. It reads the store:
+    call it off the event loop."""
+    if request.app.state.settings.auth == "off" or record.get("id") is None:
+        return None
+    return partial(still_valid, request.app.state.store, record)
 
 
 class RedactQueryToken(logging.Filter):

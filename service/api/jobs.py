@@ -1,9 +1,10 @@
 """Jobs: GET /api/jobs, GET /api/jobs/{id}, GET /api/jobs/{id}/events (SSE), DELETE /api/jobs/{id}."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import StreamingResponse
 
+from service.api.auth import require_token, token_recheck
 from service.api.deps import get_jobs
 from service.jobs import JobManager
 
@@ -23,10 +24,13 @@ def get_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
 
 
 @router.get("/{job_id}/events")
-async def job_events(job_id: str, jobs: JobManager = Depends(get_jobs)) -> StreamingResponse:
-    """Server-sent events: ``progress`` on every change (data: the job as JSON), then ``end``."""
+async def job_events(job_id: str, request: Request, token: dict = Depends(require_token),
+                     jobs: JobManager = Depends(get_jobs)) -> StreamingResponse:
+    """Server-sent events: ``progress`` on every change (data: the job as JSON), then ``end``. If the
+    token is revoked meanwhile, the stream ends with ``error`` (data: ``{"detail", "field", "status"}``)."""
     jobs.store.get_job(job_id)  # 404 before the stream opens
-    return StreamingResponse(jobs.events(job_id), media_type="text/event-stream",
+    events = jobs.events(job_id, recheck=token_recheck(request, token))  # ends if the token is revoked
+    return StreamingResponse(events, media_type="text/event-stream",
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 

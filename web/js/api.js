@@ -103,7 +103,7 @@ export const isTerminal = (job) => TERMINAL.has(job.state);
 
 /** Follow a job until it ends: onUpdate(job) on every progress event; resolves with the final job.
  *  Reads GET /api/jobs/{id}/events (SSE, via fetch so the token header is sent); polls if the
- *  stream breaks. */
+ *  stream breaks or ends with an `error` event (a revoked token: the poll then gets the 401). */
 export async function followJob(jobId, onUpdate = () => {}, { signal } = {}) {
   try {
     const response = await fetch(`/api/jobs/${jobId}/events`, { headers: headers(), signal });
@@ -127,6 +127,10 @@ export async function followJob(jobId, onUpdate = () => {}, { signal } = {}) {
           else if (line.startsWith('data:')) data.push(line.slice(5).trim());
         }
         if (!data.length) continue;
+        if (event === 'error') {  // the token was revoked meanwhile: the poll below meets the 401
+          reader.cancel().catch(() => {});
+          throw new Error(JSON.parse(data.join('\n')).detail);
+        }
         last = JSON.parse(data.join('\n'));
         onUpdate(last);
         if (event === 'end' || isTerminal(last)) {
