@@ -141,6 +141,9 @@ def watchdog_latency() -> list[dict]:
 
 
 def run_safety_benchmark() -> dict:
-    """Stop, fault and watchdog latencies side by side (see the module docstring)."""
+    """Stop, fault and watchdog latencies side by side (see the module docstring), then the stop and
+    a sweep with the service under load (service.benchmarks.safety_load)."""
+    from service.benchmarks.safety_load import run_safety_under_load
+
     return {"stop": stop_latency(), "faults": fault_latency(), "watchdog": watchdog_latency(),
-            "sample_rate_hz": FS}
+            "sample_rate_hz": FS, "under_load": run_safety_under_load()}
