@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 import httpx
+import numpy as np
 
 from service.binding import is_loopback
 
@@ -145,17 +146,16 @@ class Client:
     def import_dataset(self, file: str | Path | bytes, *, filename: str | None = None, name: str | None = None,
                        axis: str | None = None, columns: dict | str | None = None,
                        sample_rate_hz: float | None = None, delimiter: str | None = None) -> dict:
-        """Upload a CSV/table (a path or bytes) as a dataset; returns its record."""
-        if isinstance(file, (str, Path)):
-            filename = filename or Path(file).name
-            content = Path(file).read_bytes()
-        else:
-            content = file
+        """Upload a CSV/table (a path, streamed from disk, or bytes) as a dataset; returns its record."""
         form = {"name": name, "axis": axis, "sample_rate_hz": sample_rate_hz, "delimiter": delimiter,
                 "columns": json.dumps(columns) if isinstance(columns, dict) else columns}
         form = {k: str(v) for k, v in form.items() if v is not None}
+        if isinstance(file, (str, Path)):
+            with open(file, "rb") as handle:
+                return self._request("POST", "/api/datasets", data=form,
+                                     files={"file": (filename or Path(file).name, handle, "text/csv")})
         return self._request("POST", "/api/datasets", data=form,
-                             files={"file": (filename or "upload.csv", content, "text/csv")})
+                             files={"file": (filename or "upload.csv", file, "text/csv")})
 
     def datasets(self) -> list[dict]:
         return self._request("GET", "/api/datasets")
@@ -164,10 +164,46 @@ class Client:
         return self._request("GET", f"/api/datasets/{dataset_id}")
 
     def dataset_data(self, dataset_id: str, format: str = "json", max_points: int | None = None):
-        """JSON arrays (dict), or the CSV text / HDF5 bytes with ``format="csv"``/``"hdf5"``."""
+        """JSON arrays (dict) decimated by the service to at most ``max_points`` points per column
+        (default: the service's, 10 000; ``stride`` says by how much), or the whole CSV text / HDF5
+        bytes with ``format="csv"``/``"hdf5"``. For every sample as numpy arrays use ``dataset_arrays``."""
         params = {"format": format, **({"max_points": max_points} if max_points else {})}
         response = self._send("GET", f"/api/datasets/{dataset_id}/data", params=params)
         return response.json() if format == "json" else response.text if format == "csv" else response.content
+
+    def dataset_chunks(self, dataset_id: str) -> Iterator[dict[str, np.ndarray]]:
+        """Every sample of a dataset, streamed (NDJSON) a chunk of rows at a time: dicts of numpy
+        arrays ``{"t_s": ..., "u_y_v": ..., …}`` of a few thousand rows each, in order."""
+        lines = self._ndjson(dataset_id)
+        header = next(lines)
+        for chunk in lines:
+            yield {name: np.asarray(chunk[name]) for name in header["columns"]}
+
+    def dataset_arrays(self, dataset_id: str) -> dict[str, np.ndarray]:
+        """Every sample of a dataset as numpy arrays, streamed (NDJSON) and filled in chunk by chunk:
+        only the arrays themselves grow with the dataset."""
+        lines = self._ndjson(dataset_id)
+        header = next(lines)
+        out: dict[str, np.ndarray] = {}
+        for chunk in lines:
+            start = chunk["start"]
+            for name in header["columns"]:
+                values = np.asarray(chunk[name])
+                if name not in out:
+                    out[name] = np.empty(header["samples"], dtype=values.dtype)
+                out[name][start:start + values.size] = values
+        return out
+
+    def _ndjson(self, dataset_id: str) -> Iterator[dict]:
+        """The objects of ``GET /api/datasets/{id}/data?format=ndjson``: the header, then the chunks."""
+        with self.http.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "ndjson"},
+                              timeout=None) as response:
+            if response.status_code >= 400:
+                response.read()
+                self._raise(response)
+            for line in response.iter_lines():
+                if line:
+                    yield json.loads(line)
 
     # ------------------------------------------------------------------ models
     def start_identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",

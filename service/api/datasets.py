@@ -1,24 +1,34 @@
-"""Datasets: import (multipart CSV), list, describe, and export (JSON, CSV, HDF5)."""
+"""Datasets: import (multipart CSV, parsed as a stream), list, describe, and download (streamed)."""
 from __future__ import annotations
 
-import math
-from typing import Literal
+from typing import BinaryIO, Iterator, Literal
 
-import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, UploadFile
-from fastapi.responses import Response
+from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import get_store
-from service.datasets import DataError, parse_table, to_csv, to_hdf5, units_for
+from service.dataset_export import (JSON_DEFAULT_MAX_POINTS, csv_chunks, export_names, file_chunks, hdf5_file,
+                                    json_chunks, json_stride, ndjson_chunks)
+from service.datasets import SAMPLE_RATE_RANGE_HZ, parse_table, units_for
 from service.segmentation import blocks_without_table
-from service.store import Store
+from service.store import Store, StoredArrays
 
 router = APIRouter(prefix="/datasets", tags=["datasets"])
 
 MAX_UPLOAD_BYTES = 200 * 1024 * 1024
 SUMMARY_KEYS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "partial", "partial_reason",
                 "created_at", "started_at", "finished_at", "job_id")
+MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "application/x-ndjson",
+               "hdf5": "application/x-hdf5"}
+_RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
+
+
+def _with_figures(endpoint):
+    """Put the module's figures into the endpoint's docstring (shown in /docs): {rate_range},
+    {json_max_points}; literal braces are doubled."""
+    endpoint.__doc__ = endpoint.__doc__.format(rate_range=_RATE_TEXT, json_max_points=JSON_DEFAULT_MAX_POINTS)
+    return endpoint
 
 
 def dataset_view(row: dict, full: bool = True) -> dict:
@@ -27,44 +37,52 @@ def dataset_view(row: dict, full: bool = True) -> dict:
     view["duration_s"] = row["samples"] / row["sample_rate_hz"]
     view["n_blocks"] = len(row["blocks"])
     if full:
+        plan = row["plan"] if isinstance(row["plan"], dict) else {}
         view.update(blocks=row["blocks"], plan=row["plan"], config=row["config"], units=row["units"],
-                    software_version=row["software_version"], file=row["file"], sha256=row["sha256"])
+                    drive_range_v=plan.get("drive_range_v"), software_version=row["software_version"],
+                    file=row["file"], sha256=row["sha256"])
     return view
 
 
 @router.post("", status_code=201)
+@_with_figures
 async def import_dataset(
     file: UploadFile = File(..., description="CSV (header t,u_y,x_y,… or u,x) or a headerless table"),
     name: str | None = Form(None, max_length=200),
     axis: str | None = Form(None, description="y or z, for single-axis files with columns u, x"),
-    columns: str | None = Form(None, description='JSON mapping, e.g. {"u": 0, "x": 4} (0-based)'),
-    sample_rate_hz: float | None = Form(None, description="needed when the file has no t column"),
+    columns: str | None = Form(None, description='JSON mapping, e.g. {"u": 0, "x": 4} (0-based); '
+                                                 "columns it does not name are ignored"),
+    sample_rate_hz: float | None = Form(None, description=f"needed when the file has no t column ({_RATE_TEXT})"),
     delimiter: str | None = Form(None, description="comma | tab | semicolon | whitespace (default: guess)"),
     store: Store = Depends(get_store),
 ) -> dict:
-    """Import a table as a dataset: ``201 {"id", "axes", "samples", "sample_rate_hz", …}``.
+    """Import a table as a dataset: ``201 {{"id", "axes", "samples", "sample_rate_hz", "drive_range_v", …}}``.
 
-    Refused with 422 naming the field or column at fault (malformed rows, NaN, volts outside
-    0–120 V, …); nothing is stored then.
+    The file is parsed as a stream in a worker thread (numpy's parser, a block at a time). Refused
+    with 422 naming the field or column at fault (``file``, ``columns``, ``axis``, ``delimiter``,
+    ``sample_rate_hz``, ``t``, a column with NaN, …); the options and the first line are checked
+    before any data row is read, so e.g. a headerless file without ``columns`` is refused at once.
+    The sample rate, given or implied by a ``t`` column, must lie in {rate_range}. Measured data is
+    not a command: any drive range is accepted (bipolar, above the bench's limits) and shown as
+    ``drive_range_v``. Nothing is stored when a request is refused.
     """
-    content = await file.read(MAX_UPLOAD_BYTES + 1)
-    if len(content) > MAX_UPLOAD_BYTES:
+    if file.size is not None and file.size > MAX_UPLOAD_BYTES:
         raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
-    if sample_rate_hz is not None and not math.isfinite(sample_rate_hz):
-        raise DataError("sample_rate_hz", "must be a finite number of hertz")
     options = {"filename": file.filename, "columns": columns, "axis": axis, "sample_rate_hz": sample_rate_hz,
                "delimiter": delimiter}
-    return await run_in_threadpool(_import, store, content, name or file.filename or "imported", options)
+    return await run_in_threadpool(_import, store, file.file, name or file.filename or "imported", options)
 
 
-def _import(store: Store, content: bytes, name: str, options: dict) -> dict:
+def _import(store: Store, handle: BinaryIO, name: str, options: dict) -> dict:
     """Parse, validate and store (off the event loop)."""
-    table = parse_table(content, columns=options["columns"], axis=options["axis"],
+    handle.seek(0)
+    table = parse_table(handle, columns=options["columns"], axis=options["axis"],
                         sample_rate_hz=options["sample_rate_hz"], delimiter=options["delimiter"])
     blocks = blocks_without_table({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
     row = store.add_dataset(table.arrays, {
         "name": name, "source": "import", "axes": table.axes, "sample_rate_hz": table.sample_rate_hz,
-        "blocks": blocks, "units": units_for(table.arrays), "plan": {"import": options}})
+        "blocks": blocks, "units": units_for(table.arrays),
+        "plan": {"import": options, "drive_range_v": table.drive_range_v}})
     return dataset_view(row)
 
 
@@ -76,28 +94,56 @@ def list_datasets(store: Store = Depends(get_store)) -> list[dict]:
 
 @router.get("/{dataset_id}")
 def get_dataset(dataset_id: str, store: Store = Depends(get_store)) -> dict:
-    """A dataset's metadata: block table, plan, bench configuration snapshot, units, checksum."""
+    """A dataset's metadata: block table, plan, bench configuration snapshot, units, drive range
+    per axis (``drive_range_v``, volts, for imports), checksum."""
     return dataset_view(store.get_dataset(dataset_id))
 
 
 @router.get("/{dataset_id}/data", response_model=None)
-def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "hdf5"] = "json",
-                     max_points: int | None = Query(None, ge=2, description="json: decimate to about this many"),
-                     store: Store = Depends(get_store)) -> dict | Response:
-    """The samples: JSON arrays (``t_s``, ``u_y_v``, ``x_y_um``, …), CSV (DESIGN §4) or HDF5."""
+@_with_figures
+def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "hdf5"] = "json",
+                     max_points: int | None = Query(None, ge=2, description="json: at most this many points per "
+                                                    f"column (default {JSON_DEFAULT_MAX_POINTS})"),
+                     store: Store = Depends(get_store)) -> StreamingResponse:
+    """The samples, streamed: memory does not grow with the dataset.
+
+    - ``json`` (default): ``{{"id", "sample_rate_hz", "samples", "stride", "decimated",
+      "full_resolution", "units", "t_s": [...], "u_y_v": [...], …}}``, every ``stride``-th sample so
+      that a column has at most ``max_points`` points (default {json_max_points}).
+      For every sample use ``format=csv`` or ``format=ndjson`` (named in ``full_resolution``).
+    - ``csv``: DESIGN §4 (header ``t,u_y,x_y,…``), every sample; importable as it is.
+    - ``ndjson``: a first line ``{{"id", "sample_rate_hz", "units", "columns", "samples",
+      "rows_per_line"}}``, then one line per chunk of rows, ``{{"start": <first row>, "t_s": [...], …}}``.
+    - ``hdf5``: one dataset per array (``unit`` attribute), the metadata as attributes.
+
+    The file is checked against its SHA-256 before the first byte is sent (500 if it does not match).
+    """
     row = store.get_dataset(dataset_id)
-    arrays = store.load_arrays(dataset_id)
+    source = store.open_arrays(dataset_id)
+    names = export_names(source)
+    meta = {"id": dataset_id, "sample_rate_hz": row["sample_rate_hz"], "units": units_for(names)}
+    headers = {"Content-Disposition": f'attachment; filename="{dataset_id}.{"h5" if format == "hdf5" else format}"'}
     if format == "csv":
-        return Response(to_csv(arrays), media_type="text/csv", headers=_attachment(dataset_id, "csv"))
-    if format == "hdf5":
-        meta = {k: row[k] for k in ("id", "name", "source", "sample_rate_hz", "blocks", "plan", "config",
-                                    "units", "software_version", "created_at", "partial", "sha256")}
-        return Response(to_hdf5(arrays, meta), media_type="application/x-hdf5",
-                        headers=_attachment(dataset_id, "h5"))
-    stride = max(1, math.ceil(row["samples"] / max_points)) if max_points else 1
-    return {"id": dataset_id, "sample_rate_hz": row["sample_rate_hz"], "stride": stride,
-            "units": units_for(arrays), **{k: np.asarray(v)[::stride].tolist() for k, v in arrays.items()}}
+        chunks = csv_chunks(source)
+    elif format == "ndjson":
+        chunks = ndjson_chunks(source, meta)
+    elif format == "hdf5":
+        with source:
+            handle = hdf5_file(source, {k: row[k] for k in (
+                "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
+                "created_at", "partial", "sha256")})
+        return StreamingResponse(file_chunks(handle), media_type=MEDIA_TYPES[format], headers=headers)
+    else:
+        stride = json_stride(row["samples"], max_points)
+        route = f"/api/datasets/{dataset_id}/data?format="
+        chunks = json_chunks(source, {**meta, "samples": row["samples"], "stride": stride, "decimated": stride > 1,
+                                      "full_resolution": {"csv": route + "csv", "ndjson": route + "ndjson"}},
+                             stride)
+        headers = {}
+    return StreamingResponse(_closing(source, chunks), media_type=MEDIA_TYPES[format], headers=headers)
 
 
-def _attachment(dataset_id: str, extension: str) -> dict:
-    return {"Content-Disposition": f'attachment; filename="{dataset_id}.{extension}"'}
+def _closing(source: StoredArrays, chunks: Iterator[bytes]) -> Iterator[bytes]:
+    """``chunks``, closing ``source`` when they end (or the client goes away)."""
+    with source:
+        yield from chunks
