@@ -87,6 +87,27 @@ def test_json_round_trip_gives_identical_predictions(truth_fn):
     assert again.to_dict() == model.to_dict()
 
 
+@pytest.mark.parametrize("name", sorted(MODEL_REGISTRY))
+def test_a_negative_or_bipolar_drive_counts_the_operators_from_its_lowest_volt(name):
+    """Measured data may come from a bipolar amplifier: the operators count from the lowest drive,
+    so a record shifted by −150 V (−150…−30 V) fits exactly like the same loop at 0…120 V."""
+    truth = static_truth()
+    drives = [Series.from_waveform(biased_sine(1.0, 3, FS)), Series.from_waveform(biased_sine(10.0, 3, FS))]
+    shifted = [Series(s.u_v - 150.0, truth.predict(s), FS, *s.derivatives()) for s in drives]
+    model = MODEL_REGISTRY[name]().fit(shifted)
+    assert model.u_origin_v == -150.0
+    np.testing.assert_array_equal(model.thresholds_v, truth.thresholds_v)     # 0, 6, …, 54 V above −150 V
+    assert model.train_rms_um < 1e-6
+    again = model_from_dict(json.loads(json.dumps(model.to_dict())))
+    np.testing.assert_array_equal(again.predict(shifted[0]), model.predict(shifted[0]))
+    if name == "static_pi":
+        np.testing.assert_allclose(model.weights_um_per_v, WEIGHTS, rtol=1e-6)
+        u_back = model.inverse(truth.predict(drives[0]), method="numerical", u_limits_v=(-150.0, -30.0))
+        np.testing.assert_allclose(u_back, drives[0].u_v - 150.0, atol=1e-6)
+        bipolar = Series(2.5 * drives[0].u_v - 150.0, truth.predict(drives[0]), FS)   # −150…+150 V
+        assert StaticPI().fit(bipolar).thresholds_v[-1] == pytest.approx(135.0)   # 0…135 V above −150 V
+
+
 def test_models_refuse_misuse():
     with pytest.raises(RuntimeError, match="not fitted"):
         StaticPI().predict(np.linspace(0, 120, 100))

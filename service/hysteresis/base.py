@@ -69,6 +69,9 @@ class HysteresisModel:
         self.offset_um = 0.0
         self.train_rms_um: float | None = None
         self.sign = 1.0       #: −1 when the gauge reads against the drive: fitted to −x, predicts −(…)
+        #: the drive (V) the operators count from: 0 V, or the lowest drive of the fitted records when
+        #: it went below 0 V (a bipolar or negative record); thresholds span the drive above it
+        self.u_origin_v = 0.0
 
     # -- the design -----------------------------------------------------------------
     def blocks(self, signal: Signal) -> list[Block]:
@@ -101,7 +104,9 @@ class HysteresisModel:
             if np.any(row_weights < 0) or not np.any(row_weights > 0):
                 raise ValueError("row_weights must be non-negative and not all zero")
         if self.thresholds_v is None:
-            self.thresholds_v = equal_thresholds(max(float(s.u_v.max()) for s in items), self.n_operators)
+            self.u_origin_v = min(0.0, min(float(s.u_v.min()) for s in items))
+            u_max_v = max(float(s.u_v.max()) for s in items)
+            self.thresholds_v = equal_thresholds(u_max_v - self.u_origin_v, self.n_operators)
         return items, target, row_weights
 
     def stacked_blocks(self, items: Sequence[Series]) -> list[Block]:
@@ -127,6 +132,14 @@ class HysteresisModel:
                 setattr(self, key, float(np.atleast_1d(val)[0]))
             elif key in self._param_names:
                 setattr(self, key, np.array(val, dtype=float))
+
+    def operator_input(self, u_v) -> np.ndarray:
+        """The drive as the operators see it: ``u_v − u_origin_v`` (V)."""
+        return np.asarray(u_v, dtype=float) - self.u_origin_v
+
+    def inverse_limits(self, u_limits_v) -> tuple[float, float]:
+        """Drive limits (V) in the operators' coordinates (an inverse adds ``u_origin_v`` back)."""
+        return (u_limits_v[0] - self.u_origin_v, u_limits_v[1] - self.u_origin_v)
 
     def in_model_direction(self, x_um) -> np.ndarray:
         """``x_um`` as the model was fitted (sign·x): what its inverses must reproduce."""
@@ -156,6 +169,8 @@ class HysteresisModel:
         self._require_fitted()
         out = {"model": self.name, "thresholds_v": self.thresholds_v.tolist(),
                "train_rms_um": self.train_rms_um, "sign": self.sign}
+        if self.u_origin_v:
+            out["u_origin_v"] = self.u_origin_v
         out.update({k: getattr(self, k) for k in self._config_names})
         for key in self._param_names:
             val = getattr(self, key)
@@ -170,6 +185,7 @@ class HysteresisModel:
         model.set_parameters({k: d[k] for k in cls._param_names})
         model.train_rms_um = d.get("train_rms_um")
         model.sign = float(d.get("sign", 1.0))
+        model.u_origin_v = float(d.get("u_origin_v", 0.0))
         return model
 
     def __repr__(self) -> str:

@@ -40,7 +40,7 @@ class GRPI(HysteresisModel):
         """Rate-dependent play-operator outputs (n, n_operators) in V."""
         a1, a2, b1, b2 = self.envelope if envelope is None else envelope
         du, _ = signal.derivatives()
-        h_l, h_r = grpi_envelopes(signal.u_v, du, a1, a2, b1, b2)
+        h_l, h_r = grpi_envelopes(self.operator_input(signal.u_v), du, a1, a2, b1, b2)
         return envelope_play_operators(h_l, h_r, self.thresholds_v)
 
     def blocks(self, signal: Signal, envelope=None) -> list[Block]:
@@ -72,7 +72,8 @@ class GRPI(HysteresisModel):
                 u_limits_v=(-np.inf, np.inf)):
         """Voltage (V) for ``x_ref_um``; |u̇| as in :func:`numerical_inverse`."""
         self._require_fitted()
-        return numerical_inverse(self.in_model_direction(x_ref_um), self.thresholds_v,
-                                 self.weights_um_per_v, self.offset_um,
-                                 sample_rate_hz, envelope=self.envelope, du_v_per_s=du_v_per_s,
-                                 refinements=refinements, u_limits_v=u_limits_v)
+        u_v = numerical_inverse(self.in_model_direction(x_ref_um), self.thresholds_v,
+                                self.weights_um_per_v, self.offset_um,
+                                sample_rate_hz, envelope=self.envelope, du_v_per_s=du_v_per_s,
+                                refinements=refinements, u_limits_v=self.inverse_limits(u_limits_v))
+        return u_v + self.u_origin_v

@@ -22,7 +22,7 @@ class StaticPI(HysteresisModel):
     _param_names = ("weights_um_per_v", "offset_um")
 
     def blocks(self, signal: Signal) -> list[Block]:
-        p = play_operators(signal.u_v, self.thresholds_v)
+        p = play_operators(self.operator_input(signal.u_v), self.thresholds_v)
         return [Block.make("weights_um_per_v", p, lower=0.0)] + self._offset_blocks(p.shape[0])
 
     def inverse(self, x_ref_um, sample_rate_hz=None, method: str = "analytic", u_limits_v=(-np.inf, np.inf)):
@@ -34,10 +34,11 @@ class StaticPI(HysteresisModel):
         self._require_fitted()
         x_ref_um = self.in_model_direction(x_ref_um)
         if method == "analytic":
-            return analytic_pi_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v, self.offset_um)
+            return analytic_pi_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v,
+                                       self.offset_um) + self.u_origin_v
         if method == "numerical":
             return numerical_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v, self.offset_um,
-                                     u_limits_v=u_limits_v)
+                                     u_limits_v=self.inverse_limits(u_limits_v)) + self.u_origin_v
         raise ValueError(f"unknown inverse method {method!r}: use 'analytic' or 'numerical'")
 
 
@@ -69,7 +70,7 @@ class DynamicPI(HysteresisModel):
         self.beta_um_per_v2_s2 = np.zeros(4)
 
     def blocks(self, signal: Signal) -> list[Block]:
-        p = play_operators(signal.u_v, self.thresholds_v)
+        p = play_operators(self.operator_input(signal.u_v), self.thresholds_v)
         du, ddu = signal.derivatives()
         col_a, col_b = segment_columns(du, ddu, p.sum(axis=1))
         return [
@@ -85,6 +86,7 @@ class DynamicPI(HysteresisModel):
         model.weights_um_per_v = static.weights_um_per_v.copy()
         model.offset_um = static.offset_um
         model.sign = static.sign
+        model.u_origin_v = static.u_origin_v
         return model
 
     def inverse(self, x_ref_um, sample_rate_hz: float, du_v_per_s=None, ddu_v_per_s2=None,
@@ -98,5 +100,6 @@ class DynamicPI(HysteresisModel):
         return numerical_inverse(
             self.in_model_direction(x_ref_um), self.thresholds_v, self.weights_um_per_v, self.offset_um, sample_rate_hz,
             alpha_um_per_v2_s=self.alpha_um_per_v2_s, beta_um_per_v2_s2=self.beta_um_per_v2_s2,
-            du_v_per_s=du_v_per_s, ddu_v_per_s2=ddu_v_per_s2, refinements=refinements, u_limits_v=u_limits_v,
-        )
+            du_v_per_s=du_v_per_s, ddu_v_per_s2=ddu_v_per_s2, refinements=refinements,
+            u_limits_v=self.inverse_limits(u_limits_v),
+        ) + self.u_origin_v
