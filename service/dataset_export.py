@@ -85,7 +85,7 @@ def json_chunks(source, meta: dict, stride: int) -> Iterator[bytes]:
     head = json.dumps(meta)
     yield head[:-1].encode()
     separator = ", " if meta else ""
-    span = CHUNK_VALUES * stride
+    span = rows_per_chunk(len(source.names)) * stride
     for name in export_names(source):
         yield f"{separator}{json.dumps(name)}: [".encode()
         separator, comma = ", ", ""

@@ -23,7 +23,7 @@ from drivers.interfaces import AXES
 from service.table_reader import DataError, Layout, TableReader
 
 __all__ = ["DataError", "ParsedTable", "parse_table", "check_sample_rate", "units_for", "ordered_names",
-           "csv_name", "SAMPLE_RATE_RANGE_HZ", "CANONICAL", "UNITS"]
+           "csv_name", "stored_sample_rate_hz", "SAMPLE_RATE_RANGE_HZ", "CANONICAL", "UNITS"]
 
 #: sample rates (Hz) an imported record may have, given or implied by its time column
 SAMPLE_RATE_RANGE_HZ = (1.0, 10e6)
@@ -97,6 +97,16 @@ def check_sample_rate(sample_rate_hz: float | None, field: str = "sample_rate_hz
         raise DataError(field, f"{value:g} Hz is outside {low:g} Hz–{high / 1e6:g} MHz" if math.isfinite(value)
                         else f"must be a finite number of hertz in {low:g} Hz–{high / 1e6:g} MHz")
     return value
+
+
+def stored_sample_rate_hz(row: dict, field: str = "datasets") -> float:
+    """A stored dataset's sample rate (Hz); a DataError naming ``field`` if it lies outside
+    SAMPLE_RATE_RANGE_HZ (a record stored before the bounds existed cannot be modelled)."""
+    try:
+        return check_sample_rate(row["sample_rate_hz"])
+    except DataError as exc:
+        raise DataError(field, f"dataset {row['id']}: sample_rate_hz {exc.message}; import it again with a "
+                               "sample rate in range") from None
 
 
 def units_for(arrays) -> dict[str, str]:

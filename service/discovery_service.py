@@ -2,6 +2,7 @@
 diagnose a stored model, refine it (add/remove/set effects) and walk its lineage."""
 from __future__ import annotations
 
+from service.datasets import stored_sample_rate_hz
 from service.discovery.composite import CompositeModel, fit_composite, held_out_frequency_metrics
 from service.discovery.diagnosis import diagnose
 from service.discovery.records import Record, record_for_axis
@@ -22,8 +23,9 @@ def load_records(store: Store, dataset_ids: list[str], axis: str, field: str = "
             raise FieldError(field, f"no dataset with id {dataset_id!r}") from None
         if axis not in row["axes"]:
             raise FieldError(field, f"dataset {dataset_id} has no {axis} axis")
+        fs_hz = stored_sample_rate_hz(row, field)
         arrays = store.load_arrays(dataset_id)
-        out.append(record_for_axis(dataset_id, arrays, row["sample_rate_hz"], row["blocks"], axis))
+        out.append(record_for_axis(dataset_id, arrays, fs_hz, row["blocks"], axis))
     return out
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.datasets import stored_sample_rate_hz
 from service.errors import FieldError
 from service.jobs import JobContext, JobInterrupted
 from service.store import NotFoundError, Store
@@ -152,7 +153,7 @@ def _load(store: Store, dataset_id: str, axis: str, row: dict | None = None, fie
 
     row = row or store.get_dataset(dataset_id)
     arrays = store.load_arrays(dataset_id)
-    u, x, fs = arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], row["sample_rate_hz"]
+    u, x, fs = arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], stored_sample_rate_hz(row, field)
     splits = split_blocks(row["blocks"], len(u), fs, axis)
     du, ddu = drive_derivatives(u, fs, row["blocks"])
     try:

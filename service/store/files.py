@@ -197,9 +197,11 @@ class StoredArrays:
 
 
 def _sha256_of(handle: BinaryIO) -> str:
-    digest = hashlib.sha256()
-    for block in iter(lambda: handle.read(BLOCK_BYTES), b""):
-        digest.update(block)
+    """SHA-256 (hex) of the rest of an open file, read into one reused block."""
+    digest, block = hashlib.sha256(), bytearray(BLOCK_BYTES)
+    view = memoryview(block)
+    while size := handle.readinto(block):
+        digest.update(view[:size])
     return digest.hexdigest()
 
 
