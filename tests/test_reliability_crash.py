@@ -160,7 +160,10 @@ def test_chunks_are_a_gapless_prefix_and_recovery_rebuilds_a_trajectory_once(tmp
     np.testing.assert_array_equal(arrays["x_z_um"], np.arange(2500.0))  # in order, no gap, no repeat
     assert store.get_job(job["id"])["result"] == {"dataset_id": ds["id"], "samples": 2500, "partial": True}
     assert not chunk_dir(tmp_path, job["id"]).exists()
-    assert recover(store) == {"failed_jobs": [], "datasets": [], "problems": []}
+    [cleared] = report["cleaned"]       # the chunk directory, torn chunk included, is accounted for
+    assert (cleared["kind"], cleared["path"], cleared["dataset"]) == ("chunks", f"partial/{job['id']}", ds["id"])
+    assert cleared["bytes"] == report["freed_bytes"] > 2500 * 7 * 8
+    assert recover(store) == {"failed_jobs": [], "datasets": [], "problems": [], "cleaned": [], "freed_bytes": 0}
     assert len(store.list_datasets()) == 1
     store.close()
 

@@ -103,12 +103,17 @@ class Store:
         tables.metadata.create_all(self.engine)
         #: the API token rows (hashes only; see service.auth)
         self.tokens = TokenRows(self.engine)
+        #: the data dir's lock (service.store.lock) while this store's process owns it: the running
+        #: service (taken by service.recovery) or ``evcbench store repair``; released by ``close``
+        self.owner_lock = None
 
     @property
     def backend(self) -> str:
         return self.engine.dialect.name
 
     def close(self) -> None:
+        if self.owner_lock is not None:
+            self.owner_lock.release()
         self.engine.dispose()
 
     # ------------------------------------------------------------------ datasets

@@ -4,7 +4,7 @@ Problems reported, each as ``{"kind", "id", "detail"}``:
 - ``missing_array``: a dataset row whose array file is missing;
 - ``corrupt_array``: a dataset's array file whose SHA-256 differs from the row's (unless ``quick``);
 - ``orphan_array``: an array file no dataset row refers to;
-- ``temp_file``: a leftover ``.*.tmp`` of an unfinished atomic write;
+- ``temp_file``: a leftover ``.*.tmp`` of an unfinished atomic write (in the data dir or arrays/);
 - ``orphan_chunks``: a chunk directory under ``partial/`` whose job is not queued or running
   (recovery at the next start turns such chunks into a partial dataset);
 - ``impossible_job``: a job in an unknown state, finished without ``finished_at``, failed without
@@ -12,19 +12,23 @@ Problems reported, each as ``{"kind", "id", "detail"}``:
 - ``dangling_reference``: a model whose datasets or parent, or a dataset whose job, is missing;
 - ``unfinished_job``: a job queued or running while the service is not running (only when
   ``offline``; recovery marks it failed at the next start).
+
+Start-up recovery (service.recovery) clears the temporary files, orphan arrays and chunks and the
+unfinished jobs; ``evcbench store repair`` (service.repair) clears the rest. A problem of a row in
+quarantine (service.store.quarantine: a missing or corrupt array, a dangling reference, set aside by
+repair) is listed under ``quarantined`` and no longer makes the store inconsistent.
 """
 from __future__ import annotations
 
-import hashlib
-
-from service.store import TERMINAL_STATES, Store
+from service.store import TERMINAL_STATES, Store, debris, quarantine
 from service.store.chunks import partial_root
+from service.store.files import file_sha256
 
 STATES = ("queued", "running", *TERMINAL_STATES)
 
 
 def check_store(store: Store, quick: bool = False, offline: bool = False) -> dict:
-    """Check ``store``; returns ``{"ok", "problems", "counts"}``. ``quick`` skips the checksums;
+    """Check ``store``; returns ``{"ok", "problems", "quarantined", "counts"}``. ``quick`` skips the checksums;
     ``offline`` says no service is running on the store (so no job may be queued or running)."""
     problems: list[dict] = []
 
@@ -35,22 +39,24 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
     models = store.list_models()
     jobs = {row["id"]: row for row in store.list_jobs(limit=None)}
     dataset_ids = {row["id"] for row in datasets}
-    referenced = set()
+    cleanup = debris.find(store.data_dir, datasets)
+    restorable = {a["id"]: a["path"] for a in cleanup if a["action"] == "restore"}
     for row in datasets:
         path = store.data_dir / row["file"]
-        referenced.add(path.resolve())
         if not path.is_file():
-            problem("missing_array", row["id"], f"array file {row['file']} is missing")
-        elif not quick and hashlib.sha256(path.read_bytes()).hexdigest() != row["sha256"]:
+            copy = restorable.get(row["id"])
+            problem("missing_array", row["id"], f"array file {row['file']} is missing" + (
+                f" (its copy {copy} matches: start-up recovery or store repair moves it back)" if copy else ""))
+        elif not quick and file_sha256(path) != row["sha256"]:
             problem("corrupt_array", row["id"], f"array file {row['file']} does not match its sha256")
         if row["job_id"] and row["job_id"] not in jobs:
             problem("dangling_reference", row["id"], f"dataset names job {row['job_id']}, which does not exist")
-    if store.arrays_dir.is_dir():
-        for path in sorted(store.arrays_dir.iterdir()):
-            if path.name.endswith(".tmp"):
-                problem("temp_file", path.name, f"leftover temporary file arrays/{path.name}")
-            elif path.is_file() and path.resolve() not in referenced:
-                problem("orphan_array", path.stem, f"arrays/{path.name} belongs to no dataset")
+    for action in cleanup:
+        name, size = action["path"].rsplit("/", 1)[-1], debris.format_bytes(action["bytes"])
+        if action["kind"] == "temp_file":
+            problem("temp_file", name, f"leftover temporary file {action['path']} ({size})")
+        elif action["kind"] == "orphan_array":
+            problem("orphan_array", name.rsplit(".", 1)[0], f"{action['path']} belongs to no dataset ({size})")
     root = partial_root(store.data_dir)
     if root.is_dir():
         for directory in sorted(p for p in root.iterdir() if p.is_dir()):
@@ -59,8 +65,8 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
                 state = "no such job" if job is None else f"job is {job['state']}"
                 problem("orphan_chunks", directory.name, f"partial/{directory.name}: {state}")
     for job in jobs.values():
-        for detail in _job_problems(job, dataset_ids, offline):
-            problem("unfinished_job" if detail.startswith("still") else "impossible_job", job["id"], detail)
+        for kind, detail, _fix in job_problems(job, dataset_ids, offline):
+            problem(kind, job["id"], detail)
     model_ids = {row["id"] for row in models}
     for row in models:
         missing = [d for d in row["datasets"] if d not in dataset_ids]
@@ -68,28 +74,48 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
             problem("dangling_reference", row["id"], f"model names missing datasets {', '.join(missing)}")
         if row["parent_id"] and row["parent_id"] not in model_ids:
             problem("dangling_reference", row["id"], f"model's parent {row['parent_id']} does not exist")
+    entries, open_problems, answering = quarantine.entries(store), [], set()
+    for p in problems:
+        entry = quarantine.answered_by(p, entries)
+        if entry is None:
+            open_problems.append(p)
+        else:
+            answering.add((entry["record_id"], entry["kind"]))
+    aside = [p for p in debris.quarantine_dir(store.data_dir).glob("*") if p.is_file()]
     counts = {"datasets": len(datasets), "models": len(models), "jobs": len(jobs),
-              "partial_datasets": sum(bool(row["partial"]) for row in datasets)}
-    return {"ok": not problems, "problems": problems, "counts": counts}
+              "partial_datasets": sum(bool(row["partial"]) for row in datasets), "quarantined": len(entries),
+              "quarantine_files": len(aside), "quarantine_bytes": sum(p.stat().st_size for p in aside)}
+    quarantined = [{"kind": e["kind"], "id": e["record_id"], "detail": e["detail"], "moved_to": e["moved_to"],
+                    "since": e["created_at"], "resolved": (e["record_id"], e["kind"]) not in answering}
+                   for e in entries]
+    return {"ok": not open_problems, "problems": open_problems, "quarantined": quarantined, "counts": counts}
 
 
-def _job_problems(job: dict, dataset_ids: set[str], offline: bool) -> list[str]:
+def job_problems(job: dict, dataset_ids: set[str], offline: bool) -> list[tuple[str, str, dict | None]]:
+    """(kind, detail in words, fix) for each inconsistency of a job row. ``fix`` is the update of the
+    row that resolves it (``evcbench store repair``), None for an unfinished job (recovery fails it)."""
     state, out = job["state"], []
+    last_known_at = job["finished_at"] or job["started_at"] or job["created_at"]  # the job's last known time
     if state not in STATES:
-        return [f"unknown state {state!r}"]
+        fix = {"state": "failed", "finished_at": last_known_at,
+               "error": f"unknown state {state!r} (set failed by store repair)"}
+        return [("impossible_job", f"unknown state {state!r}", fix)]
     if state in TERMINAL_STATES and not job["finished_at"]:
-        out.append(f"{state} but has no finished_at")
+        out.append(("impossible_job", f"{state} but has no finished_at", {"finished_at": last_known_at}))
     if state == "running" and not job["started_at"]:
-        out.append("running but has no started_at")
+        out.append(("impossible_job", "running but has no started_at", {"started_at": job["created_at"]}))
     if state == "failed" and not job["error"]:
-        out.append("failed without an error")
+        out.append(("impossible_job", "failed without an error",
+                    {"error": "no error was recorded (set by store repair)"}))
     if state == "succeeded" and job["progress"] < 1.0:
-        out.append(f"succeeded at progress {job['progress']:.2f}")
-    dataset_id = (job["result"] or {}).get("dataset_id") if isinstance(job["result"], dict) else None
+        out.append(("impossible_job", f"succeeded at progress {job['progress']:.2f}", {"progress": 1.0}))
+    result = job["result"] if isinstance(job["result"], dict) else {}
+    dataset_id = result.get("dataset_id")
     if dataset_id and dataset_id not in dataset_ids:
-        out.append(f"result names dataset {dataset_id}, which does not exist")
+        out.append(("impossible_job", f"result names dataset {dataset_id}, which does not exist",
+                    {"result": {**result, "dataset_id": None, "missing_dataset_id": dataset_id}}))
     if offline and state in ("queued", "running"):
-        out.append(f"still {state} though no service runs (recovered at the next start)")
+        out.append(("unfinished_job", f"still {state} though no service runs (recovered at the next start)", None))
     return out
 
 
@@ -98,5 +124,15 @@ def format_report(report: dict) -> str:
     c = report["counts"]
     head = (f"store: {c['datasets']} datasets ({c['partial_datasets']} partial), {c['models']} models, "
             f"{c['jobs']} jobs: " + ("consistent" if report["ok"] else f"{len(report['problems'])} problem(s)"))
-    return "\n".join([head] + [f"  {p['kind']}: {p['id']}: {p['detail']}" for p in report["problems"]])
+    lines = [head] + [f"  {p['kind']}: {p['id']}: {p['detail']}" for p in report["problems"]]
+    if report["quarantined"]:
+        lines.append(f"{len(report['quarantined'])} record(s) in quarantine "
+                     "(kept as they are, see `evcbench store repair`):")
+        lines += [f"  {q['kind']}: {q['id']}: {q['detail']} (since {q['since']})"
+                  + (": resolved, lifted at the next repair" if q["resolved"] else "") for q in report["quarantined"]]
+    if c["quarantine_files"]:
+        lines.append(f"{c['quarantine_files']} file(s) moved aside in {debris.QUARANTINE_DIR}/arrays/ "
+                     f"({debris.format_bytes(c['quarantine_bytes'])}): "
+                     "delete them once you are sure no database names them")
+    return "\n".join(lines)
 

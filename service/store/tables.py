@@ -1,4 +1,4 @@
-"""The metadata schema (SQLAlchemy Core): datasets, models and jobs.
+"""The metadata schema (SQLAlchemy Core): datasets, models, jobs and the quarantine.
 
 Timestamps are ISO-8601 UTC strings so that SQLite and PostgreSQL return identical values;
 structured fields are JSON. Sample arrays are not here: they live in checksummed files.
@@ -63,4 +63,15 @@ jobs = Table(
     Column("created_at", String(40), nullable=False),
     Column("started_at", String(40), nullable=True),
     Column("finished_at", String(40), nullable=True),
+)
+
+#: Rows known to be damaged, set aside by ``evcbench store repair`` instead of being deleted (see
+#: service.store.quarantine): a dataset whose array is missing or corrupt, a dangling reference.
+quarantine = Table(
+    "quarantine", metadata,
+    Column("record_id", String(40), primary_key=True),     # the dataset or model
+    Column("kind", String(40), primary_key=True),          # missing_array | corrupt_array | dangling_reference
+    Column("detail", Text, nullable=False),
+    Column("moved_to", Text, nullable=True),               # a damaged file moved aside, relative to the data dir
+    Column("created_at", String(40), nullable=False),
 )
