@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -81,6 +82,27 @@ def _cmd_store_check(args: argparse.Namespace) -> int:
     return 0 if report["ok"] else 1
 
 
+def _cmd_store_repair(args: argparse.Namespace) -> int:
+    from service.cli_tokens import open_store
+    from service.repair import StoreBusy, format_repair, repair_store
+
+    data_dir = Path(args.data_dir or Settings().data_dir)
+    if not data_dir.is_dir():
+        print(f"no store at {data_dir}", file=sys.stderr)
+        return 2
+    logging.getLogger("evcbench.recovery").setLevel(logging.ERROR)  # the report below says it all
+    store = open_store(args.data_dir, args.database_url)
+    try:
+        report = repair_store(store, dry_run=args.dry_run)
+    except StoreBusy as exc:
+        print(f"evcbench store repair: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        store.close()
+    print(json.dumps(report) if args.json else format_repair(report))
+    return 0 if args.dry_run or report["after"]["ok"] else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="evcbench", description="EVC Bench: piezo bench service and tools.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -104,16 +126,25 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--duration", type=float, help="service: seconds of load (default 60)")
     bench.set_defaults(func=_cmd_bench)
 
-    store = sub.add_parser("store", help="maintain the store (check)")
+    store = sub.add_parser("store", help="maintain the store (check, repair)")
     store_sub = store.add_subparsers(dest="store_command", required=True)
-    check = store_sub.add_parser("check", help="report inconsistencies between rows and files; exit 1 if any")
-    check.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
-    check.add_argument("--database-url", help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
+
+    def store_verb(name: str, help_text: str, func) -> argparse.ArgumentParser:
+        verb = store_sub.add_parser(name, help=help_text)
+        verb.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
+        verb.add_argument("--database-url",
+                          help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
+        verb.add_argument("--json", action="store_true", help="print one JSON object")
+        verb.set_defaults(func=func)
+        return verb
+
+    check = store_verb("check", "report inconsistencies between rows and files; exit 1 if any", _cmd_store_check)
     check.add_argument("--quick", action="store_true", help="skip the SHA-256 of every array file")
     check.add_argument("--offline", action="store_true",
                        help="no service runs on this store: a queued or running job is a problem too")
-    check.add_argument("--json", action="store_true", help="print one JSON object")
-    check.set_defaults(func=_cmd_store_check)
+    repair = store_verb("repair", "fix what `store check` finds, never deleting a dataset row (the service must "
+                        "be stopped); exit 1 if problems remain", _cmd_store_repair)
+    repair.add_argument("--dry-run", action="store_true", help="change nothing; say what would be done")
 
     from service import cli_remote, cli_tokens
 
