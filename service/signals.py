@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numba import njit
 from scipy.signal import find_peaks, savgol_filter
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.
@@ -87,9 +88,49 @@ def turning_points(y: np.ndarray, swing_fraction: float = TURNING_SWING_FRACTION
     if span == 0.0:
         return np.empty(0, dtype=int)
     prominence = swing_fraction * span
-    peaks, _ = find_peaks(y, prominence=prominence)
-    troughs, _ = find_peaks(-y, prominence=prominence)
-    return np.sort(np.concatenate([peaks, troughs]))
+    return np.sort(np.concatenate([prominent_peaks(y, prominence), prominent_peaks(-y, prominence)]))
+
+
+def prominent_peaks(y: np.ndarray, prominence: float) -> np.ndarray:
+    """Indices of the local maxima of ``y`` whose prominence is at least ``prominence``: the same as
+    ``scipy.signal.find_peaks(y, prominence=prominence)[0]``, in time linear in the record. (SciPy
+    scans from every peak to the nearest higher sample, which is the whole record when the peaks
+    are equally high, as in a clean or quantised drive: half a minute for 10 M samples.)"""
+    y = np.ascontiguousarray(y, dtype=float)
+    peaks, _ = find_peaks(y)
+    if peaks.size == 0:
+        return peaks
+    return peaks[_prominences(y, peaks) >= prominence]
+
+
+@njit(cache=True)
+def _prominences(y, peaks):
+    """Prominence of every peak (scipy's definition, no window): its height above the higher of the
+    lowest points on either side before a higher sample. One pass per side with a stack of
+    (height, lowest point since the peak below it on the stack): each peak is pushed and popped once."""
+    n = peaks.size
+    gaps = np.empty(n + 1)                  # the lowest point before, between and after the peaks
+    gaps[0] = y[:peaks[0] + 1].min()
+    for k in range(n - 1):
+        gaps[k + 1] = y[peaks[k]:peaks[k + 1] + 1].min()
+    gaps[n] = y[peaks[n - 1]:].min()
+    base = np.empty((2, n))
+    heights, lows = np.empty(n), np.empty(n)
+    for side in range(2):
+        top = 0
+        for j in range(n):
+            k = j if side == 0 else n - 1 - j
+            low = np.inf if j == 0 else (gaps[k] if side == 0 else gaps[k + 1])
+            while top > 0 and heights[top - 1] <= y[peaks[k]]:
+                low = min(low, lows[top - 1])
+                top -= 1
+            base[side, k] = min(low, gaps[0] if side == 0 else gaps[n]) if top == 0 else low
+            heights[top], lows[top] = y[peaks[k]], low
+            top += 1
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = y[peaks[k]] - max(base[0, k], base[1, k])
+    return out
 
 
 def dominant_period_samples(y: np.ndarray) -> float:

@@ -38,3 +38,21 @@ def test_axes_driven_together_make_one_block_and_a_single_sine_is_one_whole_bloc
     assert (one["start"], one["frequency_hz"], one["cycles"]) == (0, 1.0, 20)
     [none] = blocks_without_table({"y": np.full(5000, 30.0)}, FS)        # no oscillation at all
     assert none["frequency_hz"] is None and (none["start"], none["stop"]) == (0, 5000)
+
+
+def test_prominent_peaks_are_scipys_without_its_quadratic_scan():
+    """Equally high peaks (a clean or quantised drive) made SciPy scan the whole record from every
+    peak; ``prominent_peaks`` must give exactly SciPy's peaks, plateaus and ties included."""
+    from scipy.signal import find_peaks
+
+    from service.signals import prominent_peaks
+
+    rng = np.random.default_rng(0)
+    for trial in range(200):
+        n = int(rng.integers(3, 400))
+        y = [rng.normal(size=n).cumsum(), np.round(3 * np.sin(np.arange(n) * rng.uniform(0.05, 1.0))),
+             rng.integers(0, 3, n).astype(float), np.round(rng.normal(size=n).cumsum())][trial % 4]
+        for prominence in (0.0, 0.5, 1.0, 2.0):
+            np.testing.assert_array_equal(prominent_peaks(y, prominence), find_peaks(y, prominence=prominence)[0])
+    drive = np.round(biased_sine(10, 2000, rest_s=0), 3)             # 400 000 samples, 2000 equal peaks
+    assert prominent_peaks(drive, 12.0).size == 2000
