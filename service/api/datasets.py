@@ -5,9 +5,9 @@ from typing import BinaryIO, Iterator, Literal
 
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, UploadFile
 from fastapi.responses import StreamingResponse
-from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import get_store
+from service.runtime.bulk import iterate_bulk, run_bulk
 from service.dataset_export import (JSON_DEFAULT_MAX_POINTS, csv_chunks, export_names, file_chunks, hdf5_file,
                                     json_chunks, json_stride, ndjson_chunks)
 from service.datasets import SAMPLE_RATE_RANGE_HZ, parse_table, units_for
@@ -70,7 +70,7 @@ async def import_dataset(
         raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
     options = {"filename": file.filename, "columns": columns, "axis": axis, "sample_rate_hz": sample_rate_hz,
                "delimiter": delimiter}
-    return await run_in_threadpool(_import, store, file.file, name or file.filename or "imported", options)
+    return await run_bulk(_import, store, file.file, name or file.filename or "imported", options)
 
 
 def _import(store: Store, handle: BinaryIO, name: str, options: dict) -> dict:
@@ -132,7 +132,7 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
             handle = hdf5_file(source, {k: row[k] for k in (
                 "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
                 "created_at", "partial", "sha256")})
-        return StreamingResponse(file_chunks(handle), media_type=MEDIA_TYPES[format], headers=headers)
+        return StreamingResponse(iterate_bulk(file_chunks(handle)), media_type=MEDIA_TYPES[format], headers=headers)
     else:
         stride = json_stride(row["samples"], max_points)
         route = f"/api/datasets/{dataset_id}/data?format="
@@ -140,7 +140,7 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
                                       "full_resolution": {"csv": route + "csv", "ndjson": route + "ndjson"}},
                              stride)
         headers = {}
-    return StreamingResponse(_closing(source, chunks), media_type=MEDIA_TYPES[format], headers=headers)
+    return StreamingResponse(iterate_bulk(_closing(source, chunks)), media_type=MEDIA_TYPES[format], headers=headers)
 
 
 def _closing(source: StoredArrays, chunks: Iterator[bytes]) -> Iterator[bytes]:
