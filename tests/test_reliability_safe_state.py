@@ -43,7 +43,8 @@ def test_watchdog_trips_a_stalled_loop_after_its_timeout_and_not_before():
     daq, trips = _FakeDaq(), []
     dog = Watchdog(daq, SafetyConfig(watchdog_periods=4, watchdog_min_s=0.05, watchdog_poll_s=0.002), trips.append)
     try:
-        assert dog.arm(period_s=0.02, name="a test loop") == pytest.approx(0.08)   # 4 × 20 ms > 50 ms floor
+        # 4 × 100 ms > 50 ms floor; a feed every 20 ms leaves 20× margin on a busy shared machine
+        assert dog.arm(period_s=0.1, name="a test loop") == pytest.approx(0.4)
         for _ in range(10):          # fed every 20 ms for 0.2 s: no trip
             time.sleep(0.02)
             dog.feed(400)
@@ -53,9 +54,9 @@ def test_watchdog_trips_a_stalled_loop_after_its_timeout_and_not_before():
             time.sleep(0.005)
         assert daq.idle_calls == 1 and len(trips) == 1
         trip = dog.last_trip
-        assert trip["samples_fed"] == 4000 and trip["timeout_s"] == pytest.approx(0.08)
-        assert 0.08 <= trip["stalled_s"] < 0.08 + 1.0
-        assert "no sample written for" in trips[0] and "4 periods of 20.0 ms" in trips[0]
+        assert trip["samples_fed"] == 4000 and trip["timeout_s"] == pytest.approx(0.4)
+        assert 0.4 <= trip["stalled_s"] < 0.4 + 1.0
+        assert "no sample written for" in trips[0] and "4 periods of 100.0 ms" in trips[0]
         assert "output set to 0 V" in trips[0] and trips[0].endswith("ms after the trip")
         assert SafetyConfig(watchdog_min_s=1.0).timeout_s(0.01) == 1.0       # the 1 s floor for fast loops
         assert SafetyConfig().timeout_s(2.0) == 8.0                           # 4 periods of a slow one
