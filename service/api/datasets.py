@@ -8,8 +8,8 @@ from fastapi.responses import StreamingResponse
 
 from service.api.deps import get_store
 from service.runtime.bulk import iterate_bulk, run_bulk
-from service.dataset_export import (JSON_DEFAULT_MAX_POINTS, csv_chunks, export_names, file_chunks, hdf5_file,
-                                    json_chunks, json_stride, ndjson_chunks)
+from service.dataset_export import (JSON_DEFAULT_MAX_POINTS, csv_chunks, export_names, hdf5_chunks, json_chunks,
+                                    json_stride, ndjson_chunks)
 from service.datasets import SAMPLE_RATE_RANGE_HZ, parse_table, units_for
 from service.segmentation import blocks_without_table
 from service.store import Store, StoredArrays
@@ -127,12 +127,10 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
         chunks = csv_chunks(source)
     elif format == "ndjson":
         chunks = ndjson_chunks(source, meta)
-    elif format == "hdf5":
-        with source:
-            handle = hdf5_file(source, {k: row[k] for k in (
-                "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
-                "created_at", "partial", "sha256")})
-        return StreamingResponse(iterate_bulk(file_chunks(handle)), media_type=MEDIA_TYPES[format], headers=headers)
+    elif format == "hdf5":   # written to a temporary file on the first chunk, then sent
+        chunks = hdf5_chunks(source, {k: row[k] for k in (
+            "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
+            "created_at", "partial", "sha256")})
     else:
         stride = json_stride(row["samples"], max_points)
         route = f"/api/datasets/{dataset_id}/data?format="
