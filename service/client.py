@@ -114,7 +114,9 @@ class Client:
         """Follow a job until it ends (SSE; polling if the stream breaks); returns the final job."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         try:
-            for _event, job in self.events(job_id):
+            for event, job in self.events(job_id):
+                if event == "error":   # the stream ended because the token is no longer valid
+                    raise ApiError(job.get("status", 401), job.get("detail", "event stream refused"), job.get("field"))
                 if on_progress:
                     on_progress(job)
                 if job["state"] in TERMINAL_STATES:

@@ -126,9 +126,9 @@ def _stats(values: list[float]) -> dict:
 
 
 def _summary(presses: list[dict]) -> dict:
+    landed = [p["output_v_max"] < 0.05 and p["cancelled"] and p["job_state"] == "cancelled" for p in presses]
     return {"zero_ms": _stats([p["zero_ms"] for p in presses]), "answer_ms": _stats([p["answer_ms"] for p in presses]),
-            "every_stop_landed": all(p["output_v_max"] < 0.05 and p["cancelled"] and p["job_state"] == "cancelled"
-                                     for p in presses)}
+            "every_stop_landed": all(landed), "not_landed": [p for p, ok in zip(presses, landed) if not ok]}
 
 
 def peak_rss_mb(pid: int) -> float:

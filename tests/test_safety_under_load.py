@@ -1,0 +1,29 @@
+"""The emergency stop and a sweep while others load the service: behaviour, not timing.
+
+A real ``evcbench serve`` (engine in its own process) runs sweeps while four clients stream
+full-resolution CSV downloads and one imports a CSV, each client its own process; the stop is
+pressed at random moments. The latencies are figures of ``evcbench bench safety --json``; here the
+stop must always land, the sweep must never be tripped by others' requests, and memory stays bounded.
+"""
+import pytest
+
+from service.benchmarks.safety_load import run_safety_under_load
+
+pytestmark = pytest.mark.slow
+
+
+def test_stop_lands_and_sweep_survives_under_load():
+    out = run_safety_under_load(presses=3, import_mb=10.0, seed=1)
+    for phase in ("stop_idle", "stop_under_load"):
+        assert out[phase]["every_stop_landed"], out[phase]["not_landed"]
+        assert out[phase]["zero_ms"]["n"] >= 3
+        # every stop reports a 0 V write that came after the request was sent
+        assert 0.0 <= out[phase]["zero_ms"]["max"] < float("inf")
+    sweep = out["sweep_under_load"]
+    assert sweep["state"] == "succeeded", sweep["error"]
+    assert sweep["watchdog_trips"] == 0 and sweep["overruns"] == 0 and sweep["periods"] > 0
+    load = out["load"]
+    assert load["downloads_completed"] >= 4 and load["import_status"] == [201]
+    # memory does not grow with what is downloaded: hundreds of MB streamed, the web process stays small
+    assert load["download_mb"] > 50
+    assert out["rss_mb"]["web"] < 1024 and out["rss_mb"]["engine"] < 1024
