@@ -88,28 +88,49 @@ class TableReader:
         yield from self._blocks
 
     def _parse(self, lines: list[str], first_no: int, usecols: list[int]) -> np.ndarray:
-        """(rows, len(usecols)) floats of one block; a DataError naming the line if one is malformed."""
-        sep = self.layout.sep
+        """(rows, len(usecols)) floats of one block; a DataError naming the line if one is malformed.
+
+        Every column at once when they are all numbers (numpy checks that each row has as many);
+        else the rows' field counts are checked here and only the columns asked for are converted."""
+        sep, width = self.layout.sep, self.layout.width
+        if not "".join(lines).strip():
+            return np.empty((0, len(usecols)))
         try:
-            if not "".join(lines).strip():
-                return np.empty((0, len(usecols)))
-            return np.loadtxt(lines, delimiter=sep, comments="#", ndmin=2, usecols=usecols, dtype=float)
+            rows = np.loadtxt(lines, delimiter=sep, comments="#", ndmin=2, dtype=float)
+            if rows.shape[1] == width:
+                return rows[:, usecols]
         except ValueError:
-            pass   # blank-but-spaced lines, or a real error: line by line, for the message
-        out = []
+            pass   # text or blanks in some column, spaces on a blank line, or a real error
+        kept = self._checked_lines(lines, first_no)
+        if not kept:
+            return np.empty((0, len(usecols)))
+        try:
+            return np.loadtxt(kept, delimiter=sep, comments="#", ndmin=2, usecols=usecols, dtype=float)
+        except ValueError:
+            pass   # a value that is not a number: find it, for the message
+        for k, line in enumerate(lines):
+            text = line.strip()
+            if text and not text.startswith("#"):
+                fields = _split(text, sep)
+                bad = [fields[i] for i in usecols if not _is_number(fields[i])]
+                if bad:
+                    raise DataError("file", f"line {first_no + k}: {bad[0]!r} is not a number")
+        return np.array([[float(_split(t, sep)[i]) for i in usecols] for t in kept]).reshape(-1, len(usecols))
+
+    def _checked_lines(self, lines: list[str], first_no: int) -> list[str]:
+        """The data lines of a block (blank and comment lines dropped), each checked to have as many
+        fields as the first line."""
+        sep, width = self.layout.sep, self.layout.width
+        kept = []
         for k, line in enumerate(lines):
             text = line.strip()
             if not text or text.startswith("#"):
                 continue
-            fields = _split(text, sep)
-            if len(fields) <= usecols[-1]:
-                raise DataError("file", f"line {first_no + k} has {len(fields)} fields; expected {self.layout.width}")
-            try:
-                out.append([float(fields[i]) for i in usecols])
-            except ValueError:
-                bad = next(fields[i] for i in usecols if not _is_number(fields[i]))
-                raise DataError("file", f"line {first_no + k}: {bad!r} is not a number") from None
-        return np.array(out, dtype=float).reshape(-1, len(usecols))
+            count = len(text.split()) if sep is None else text.count(sep) + 1
+            if count != width:
+                raise DataError("file", f"line {first_no + k} has {count} fields; expected {width}")
+            kept.append(text)
+        return kept
 
     # ------------------------------------------------------------------ text
     def _text_blocks(self) -> Iterator[tuple[int, list[str]]]:

@@ -72,7 +72,7 @@ def test_sweep_identify_and_compare(service):
     assert ds["config"]["backend"] == "emulated:default"
     assert ds["plan"]["frequencies_hz"] == [10.0, 50.0, 100.0] and ds["plan"]["cycles"] == 3
     assert ds["units"]["x_y_um"] == "µm" and ds["software_version"] and ds["created_at"].endswith("Z")
-    data = api.dataset_data(dataset_id)
+    data = api.dataset_arrays(dataset_id)                   # every sample (NDJSON, streamed)
     assert len(data["x_y_um"]) == ds["samples"] == len(data["t_s"])
     u = np.array(data["u_y_v"])
     assert u.max() == pytest.approx(120.0, abs=0.01) and u[0] == 0.0 and u[-1] == 0.0
@@ -130,7 +130,8 @@ def _csv(rows=20, bad=None):
 BAD_REQUESTS = [
     (("post", "/api/datasets", {"files": {"file": ("bad.csv", _csv(bad=(4, "0.003,1,2,3")))}}), 422, "file"),
     (("post", "/api/datasets", {"files": {"file": ("nan.csv", _csv(bad=(4, "0.003,nan,1")))}}), 422, "u_y"),
-    (("post", "/api/datasets", {"files": {"file": ("hot.csv", _csv(bad=(4, "0.003,121,1")))}}), 422, "u_y"),
+    (("post", "/api/datasets", {"files": {"file": ("slow.csv", _csv())}, "data": {"sample_rate_hz": "1e-300"}}), 422,
+     "sample_rate_hz"),
     (("post", "/api/datasets", {"files": {"file": ("empty.csv", b"")}}), 422, "file"),
     (("post", "/api/datasets", {"data": {"axis": "y"}}), 422, "file"),
     (("post", "/api/datasets", {"files": {"file": ("a.dat", _csv()[10:])}, "data": {"columns": "[1"}}), 422, "columns"),
@@ -211,7 +212,7 @@ def test_cancelled_sweep_keeps_partial_data_and_leaves_zero_volts(service):
     assert ds["partial"] and "stopped on request" in ds["partial_reason"]
     assert 0 < ds["samples"] < first["samples"] and ds["name"] == "long"
     assert ds["blocks"][0]["complete"] is False and ds["blocks"][0]["stop"] == ds["samples"]
-    assert len(api.dataset_data(ds["id"])["x_y_um"]) == ds["samples"]
+    assert len(api.dataset_arrays(ds["id"])["x_y_um"]) == ds["samples"]
     assert api.job(second["job_id"])["state"] == "cancelled"
 
 
@@ -322,10 +323,10 @@ def test_a_gauge_reading_against_the_drive_is_fitted_like_the_upright_file(servi
         assert flipped["metrics"]["validation_rms_um"] == pytest.approx(upright["metrics"]["validation_rms_um"],
                                                                          rel=1e-6), model
         assert flipped["parameters"]["sign"] == -1.0 and upright["parameters"]["sign"] == 1.0
-    below = {"u": {"column": 0, "offset": -4.0}, "x": 4}       # imports take actuator volts only
-    with pytest.raises(ApiError) as exc:
-        api.import_dataset(REAL, columns=below, axis="y", sample_rate_hz=200, delimiter="whitespace")
-    assert exc.value.status_code == 422 and "0–120 V" in exc.value.detail
+    below = {"u": {"column": 0, "offset": -4.0}, "x": 4}       # measured data is not a command (issue 17 §6)
+    shifted = api.import_dataset(REAL, columns=below, axis="y", sample_rate_hz=200, delimiter="whitespace")
+    drive = np.loadtxt(REAL)[:, 0] - 4.0
+    assert shifted["drive_range_v"]["y"] == pytest.approx([drive.min(), drive.max()]) and drive.min() < 0
 
 
 def test_datasets_and_models_survive_a_restart_unchanged(tmp_path):
