@@ -40,6 +40,19 @@ class MemoryArrays:
         return {name: self._arrays[name][start:stop:step] for name in (names or self.names)}
 
 
+class RowRange:
+    """Rows ``start:stop`` of an array source, read like one (``names``, ``length``, ``rows``)."""
+
+    def __init__(self, source, start: int, stop: int):
+        self._source, self._start = source, start
+        self.names = source.names
+        self.length = max(0, min(stop, source.length) - start)
+
+    def rows(self, start: int, stop: int, step: int = 1, names: list[str] | None = None) -> dict[str, np.ndarray]:
+        stop = min(stop, self.length)
+        return self._source.rows(self._start + start, self._start + stop, step, names)
+
+
 def rows_per_chunk(n_columns: int) -> int:
     """Rows encoded per step for ``n_columns`` columns."""
     return max(256, CHUNK_VALUES // max(1, n_columns))

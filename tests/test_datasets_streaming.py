@@ -219,3 +219,16 @@ def test_a_record_stored_before_the_bounds_is_refused_by_the_models_not_a_500(se
         assert job["state"] == "failed" and "sample_rate_hz" in job["error"]
     else:
         assert composite.status_code == 422
+
+
+def test_a_download_can_be_cut_to_a_range_of_samples(service):
+    _, http, api = service
+    arrays, content = _table(5000, 1000.0, axes=("y",))
+    ds = api.import_dataset(content)
+    cut = http.get(f"/api/datasets/{ds['id']}/data", params={"start": 1000, "stop": 3000, "max_points": 100}).json()
+    assert (cut["start"], cut["stop"], cut["stride"], len(cut["u_y_v"])) == (1000, 3000, 20, 100)
+    np.testing.assert_array_equal(cut["x_y_um"], arrays["x_y_um"][1000:3000:20])
+    csv = http.get(f"/api/datasets/{ds['id']}/data", params={"format": "csv", "start": 4990}).text.splitlines()
+    assert csv[0] == "t,u_y,x_y" and len(csv) == 11 and float(csv[1].split(",")[0]) == pytest.approx(4.99)
+    refused = http.get(f"/api/datasets/{ds['id']}/data", params={"start": 5000})
+    assert refused.status_code == 422 and refused.json()["field"] == "start"

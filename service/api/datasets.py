@@ -8,9 +8,10 @@ from fastapi.responses import StreamingResponse
 
 from service.api.deps import get_store
 from service.runtime.bulk import iterate_bulk, run_bulk
-from service.dataset_export import (JSON_DEFAULT_MAX_POINTS, csv_chunks, export_names, hdf5_chunks, json_chunks,
-                                    json_stride, ndjson_chunks)
+from service.dataset_export import (JSON_DEFAULT_MAX_POINTS, RowRange, csv_chunks, export_names, hdf5_chunks,
+                                    json_chunks, json_stride, ndjson_chunks)
 from service.datasets import SAMPLE_RATE_RANGE_HZ, parse_table, units_for
+from service.errors import FieldError
 from service.segmentation import blocks_without_table
 from service.store import Store, StoredArrays
 
@@ -104,6 +105,8 @@ def get_dataset(dataset_id: str, store: Store = Depends(get_store)) -> dict:
 def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "hdf5"] = "json",
                      max_points: int | None = Query(None, ge=2, description="json: at most this many points per "
                                                     f"column (default {JSON_DEFAULT_MAX_POINTS})"),
+                     start: int = Query(0, ge=0, description="first sample (0-based)"),
+                     stop: int | None = Query(None, ge=1, description="end sample, exclusive (default: the last)"),
                      store: Store = Depends(get_store)) -> StreamingResponse:
     """The samples, streamed: memory does not grow with the dataset.
 
@@ -116,26 +119,33 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
       "rows_per_line"}}``, then one line per chunk of rows, ``{{"start": <first row>, "t_s": [...], …}}``.
     - ``hdf5``: one dataset per array (``unit`` attribute), the metadata as attributes.
 
-    The file is checked against its SHA-256 before the first byte is sent (500 if it does not match).
+    ``start``/``stop`` cut every format to samples ``start:stop`` (``max_points`` then applies to
+    the cut). The file is checked against its SHA-256 before the first byte is sent (500 if it
+    does not match).
     """
     row = store.get_dataset(dataset_id)
+    stop = row["samples"] if stop is None else min(stop, row["samples"])
+    if start >= stop:
+        raise FieldError("start", f"no samples in {start}:{stop}; the dataset has {row['samples']} (0-based)")
     source = store.open_arrays(dataset_id)
+    view = source if (start, stop) == (0, row["samples"]) else RowRange(source, start, stop)
     names = export_names(source)
-    meta = {"id": dataset_id, "sample_rate_hz": row["sample_rate_hz"], "units": units_for(names)}
+    meta = {"id": dataset_id, "sample_rate_hz": row["sample_rate_hz"], "units": units_for(names),
+            **({} if view is source else {"start": start, "stop": stop})}
     headers = {"Content-Disposition": f'attachment; filename="{dataset_id}.{"h5" if format == "hdf5" else format}"'}
     if format == "csv":
-        chunks = csv_chunks(source)
+        chunks = csv_chunks(view)
     elif format == "ndjson":
-        chunks = ndjson_chunks(source, meta)
+        chunks = ndjson_chunks(view, meta)
     elif format == "hdf5":   # written to a temporary file on the first chunk, then sent
-        chunks = hdf5_chunks(source, {k: row[k] for k in (
+        chunks = hdf5_chunks(view, {**meta, **{k: row[k] for k in (
             "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
-            "created_at", "partial", "sha256")})
+            "created_at", "partial", "sha256")}})
     else:
-        stride = json_stride(row["samples"], max_points)
+        stride = json_stride(view.length, max_points)
         route = f"/api/datasets/{dataset_id}/data?format="
-        chunks = json_chunks(source, {**meta, "samples": row["samples"], "stride": stride, "decimated": stride > 1,
-                                      "full_resolution": {"csv": route + "csv", "ndjson": route + "ndjson"}},
+        chunks = json_chunks(view, {**meta, "samples": row["samples"], "stride": stride, "decimated": stride > 1,
+                                    "full_resolution": {"csv": route + "csv", "ndjson": route + "ndjson"}},
                              stride)
         headers = {}
     return StreamingResponse(iterate_bulk(_closing(source, chunks)), media_type=MEDIA_TYPES[format], headers=headers)

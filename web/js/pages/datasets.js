@@ -173,8 +173,8 @@ async function showDataset(root, id) {
     const want = Math.max(1, Math.ceil(span / 3000));   // about 3000 points per loop
     let arrays = data; let offset = Math.floor(b.start / data.stride);
     let count = Math.floor(span / data.stride); let step = Math.max(1, Math.round(want / data.stride));
-    if (data.stride > 1 && span / data.stride < 400) {  // too coarse in the decimated copy
-      arrays = await fullData(id); offset = b.start; count = span; step = want;
+    if (data.stride > 1 && span > 0 && b.start < ds.samples && span / data.stride < 400) {  // too coarse: fetch the block alone
+      arrays = await blockData(id, b.start, b.stop); offset = 0; count = arrays.t_s.length; step = 1;
     }
     for (const a of blockAxes) {
       const u = []; const x = [];
@@ -192,10 +192,9 @@ async function showDataset(root, id) {
   for (const [el, spec] of todo) charts.push(await xyChart(el, spec));   // after layout: each knows its width
 }
 
-let fullCache = null;
-async function fullData(id) {
-  if (!fullCache || fullCache.id !== id) fullCache = await api(`/datasets/${encodeURIComponent(id)}/data`, { signal: controller.signal });
-  return fullCache;
+// One block at about 3000 points per column (the service decimates the samples start:stop).
+function blockData(id, start, stop) {
+  return api(`/datasets/${encodeURIComponent(id)}/data?start=${start}&stop=${stop}&max_points=3000`, { signal: controller.signal });
 }
 
 export function leave() {
