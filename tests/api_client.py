@@ -13,8 +13,8 @@ import time
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from service import auth
-from service.settings import Settings
+from service.security import auth
+from service.runtime.settings import Settings
 from service.store import Store
 
 

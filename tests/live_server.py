@@ -7,8 +7,8 @@ from pathlib import Path
 
 import httpx
 
-from service.auth import read_bootstrap_token
-from service.benchmarks.service_load import ROOT, spawn_service  # noqa: F401  (ROOT re-exported for tests)
+from service.security.auth import read_bootstrap_token
+from service.perf.service_load import ROOT, spawn_service  # noqa: F401  (ROOT re-exported for tests)
 
 
 class Server:

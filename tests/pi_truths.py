@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.hysteresis import GRPI, DynamicPI, StaticPI, equal_thresholds
+from service.science.models import GRPI, DynamicPI, StaticPI, equal_thresholds
 
 FS = 20_000.0  # Hz
 #: µm/V per operator at thresholds 0, 6, …, 54 V: the shape of the paper's Table 2, all > 0.

@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 from api_client import authed_client
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 
 
 def test_health_and_bench_describe_the_emulated_bench(tmp_path):

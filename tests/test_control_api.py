@@ -10,8 +10,8 @@ import time
 import pytest
 
 from api_client import authed_client
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 
 BASE = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclination_deg": 20,
         "frequency_hz": 100, "cycles": 20}

@@ -1,4 +1,4 @@
-"""Feedforward from a discovery composite model (service.control.composite_ff): its inverse is exact
+"""Feedforward from a discovery composite model (service.science.control.composite_ff): its inverse is exact
 on the model itself, it beats the paper's static-PI feedforward on case 2, and a range beyond the
 stroke is refused with the reason (or run clamped, with the reason as a warning)."""
 from __future__ import annotations
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from drivers.emulated import open_bench
-from service.control.composite_ff import predict_um
-from service.control.feedforward import identify, identify_composite, identify_composite_for
-from service.control.safety import ControlRefused
-from service.control.session import TUNED_PID, Controller, plan, track
-from service.control.trajectory import Ellipse, reference
+from service.science.control.composite_ff import predict_um
+from service.science.control.feedforward import identify, identify_composite, identify_composite_for
+from service.science.control.safety import ControlRefused
+from service.science.control.session import TUNED_PID, Controller, plan, track
+from service.science.control.trajectory import Ellipse, reference
 
 CASE1 = Ellipse((1, 6), (1, 11), 0.0, 100.0, 30)
 CASE2 = Ellipse((1, 5), (1, 9), 20.0, 100.0, 30)

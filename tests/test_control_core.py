@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from drivers.emulated import open_bench
-from service.control import kernels as CK
-from service.control.loop import PIDGains
-from service.control.safety import ControlRefused, available_modes
-from service.control.session import TUNED_PID, Controller, plan
-from service.control.trajectory import Ellipse, reference
+from service.science.control import kernels as CK
+from service.science.control.loop import PIDGains
+from service.science.control.safety import ControlRefused, available_modes
+from service.science.control.session import TUNED_PID, Controller, plan
+from service.science.control.trajectory import Ellipse, reference
 
 DT = 1 / 20_000
 
@@ -139,7 +139,7 @@ def learning_matrices(ilc) -> np.ndarray:
 
 
 def test_compiled_ilc_step_equals_the_learning_matrices_and_projects_into_the_limits():
-    from service.control.ilc import HarmonicILC
+    from service.science.control.ilc import HarmonicILC
 
     rng = np.random.default_rng(0)
     g = (rng.standard_normal((2, 21)) + 1j * rng.standard_normal((2, 21))) * 0.05

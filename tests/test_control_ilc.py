@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.control.ilc import HarmonicILC
+from service.science.control.ilc import HarmonicILC
 
 PERIOD, K = 200, 20
 

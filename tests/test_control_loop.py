@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from drivers.emulated import open_bench
-from service.control.feedforward import identify
-from service.control.session import ILC_PID, PAPER_PID, TUNED_PID, Controller, track
-from service.control.trajectory import Ellipse
+from service.science.control.feedforward import identify
+from service.science.control.session import ILC_PID, PAPER_PID, TUNED_PID, Controller, track
+from service.science.control.trajectory import Ellipse
 
 CASE2 = dict(y_range_um=(1, 5), z_range_um=(1, 9), inclination_deg=20.0, frequency_hz=100.0)
 

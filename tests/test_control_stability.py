@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.control.stability import delay_margin
+from service.science.control.stability import delay_margin
 
 
 def test_pure_proportional_on_a_static_plant_has_an_infinite_margin_and_pd_crosses_where_kd_says():
@@ -20,8 +20,8 @@ def test_pure_proportional_on_a_static_plant_has_an_infinite_margin_and_pd_cross
 
 
 def test_the_papers_gains_need_less_delay_than_a_20_khz_loop_has():
-    from service.control.report import PAPER_AXES
-    from service.control.session import PAPER_PID, TUNED_PID
+    from service.reports.tracking import PAPER_AXES
+    from service.science.control.session import PAPER_PID, TUNED_PID
 
     loop_delay_s = 1.5 / 20_000                      # one sample + half a sample of hold
     for axis, (g, fn) in PAPER_AXES.items():

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from api_client import authed_client, wait_job
-from service.app import create_app
-from service.client import Client
-from service.dataset_export import JSON_DEFAULT_MAX_POINTS, csv_chunks
-from service.datasets import SAMPLE_RATE_RANGE_HZ, DataError, parse_table
-from service.segmentation import blocks_without_table
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.frontends.client import Client
+from service.science.data.export import JSON_DEFAULT_MAX_POINTS, csv_chunks
+from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ, DataError, parse_table
+from service.science.data.segmentation import blocks_without_table
+from service.runtime.settings import Settings
 from service.store import Store
-from service.table_reader import READ_BLOCK_BYTES
+from service.science.data.table_reader import READ_BLOCK_BYTES
 
 
 @pytest.fixture(scope="module")

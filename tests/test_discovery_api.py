@@ -7,8 +7,8 @@ import warnings
 import pytest
 
 from api_client import authed_client, wait_job
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 
 
 def _wait(http, job_id, timeout_s=120.0) -> dict:

@@ -9,8 +9,8 @@ from __future__ import annotations
 import re
 import warnings
 
-from service.discovery.records import sweep_records
-from service.discovery.report import discovery_run
+from service.science.discovery.records import sweep_records
+from service.science.discovery.loop import discovery_run
 
 
 def test_default_bench_discovery_converges():

@@ -7,9 +7,9 @@ import warnings
 
 import pytest
 
-from service.discovery.composite import CompositeModel
-from service.discovery.diagnosis import diagnose
-from service.discovery.records import sweep_records
+from service.science.discovery.composite import CompositeModel
+from service.science.discovery.diagnosis import diagnose
+from service.science.discovery.records import sweep_records
 
 OTHER_MAGNITUDES = [
     ("creep", {"axes.y.piezo.creep.scale": 0.3, "axes.z.piezo.creep.scale": 0.3}),

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.discovery.composite import CompositeModel
-from service.discovery.records import sweep_records
+from service.science.discovery.composite import CompositeModel
+from service.science.discovery.records import sweep_records
 
 
 def test_creep_columns_do_not_depend_on_each_records_length():

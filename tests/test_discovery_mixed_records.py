@@ -7,8 +7,8 @@ import warnings
 
 import pytest
 
-from service.discovery.diagnosis import SEPARATING, diagnose
-from service.discovery.records import sweep_records
+from service.science.discovery.diagnosis import SEPARATING, diagnose
+from service.science.discovery.records import sweep_records
 
 STEP_HOLD = {"axes": ["y"], **SEPARATING[frozenset(("creep", "drift"))][1]}
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from realdata import REAL_DIR, requires_real_data
-from service.discovery.diagnosis import diagnose
-from service.discovery.noise import repeatability
-from service.discovery.records import Record
-from service.signals import dominant_period_samples
+from service.science.discovery.diagnosis import diagnose
+from service.science.discovery.noise import repeatability
+from service.science.discovery.records import Record
+from service.science.data.signals import dominant_period_samples
 
 PERIOD = 200.0          # samples per cycle
 

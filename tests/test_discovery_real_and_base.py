@@ -7,8 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from service.discovery.diagnosis import diagnose
-from service.discovery.records import Record, sweep_records
+from service.science.discovery.diagnosis import diagnose
+from service.science.discovery.records import Record, sweep_records
 from realdata import MODEL_VI_DO as REAL, requires_real_data
 
 

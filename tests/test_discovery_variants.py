@@ -9,9 +9,9 @@ import warnings
 
 import pytest
 
-from service.discovery.composite import CompositeModel
-from service.discovery.diagnosis import diagnose
-from service.discovery.records import sweep_records
+from service.science.discovery.composite import CompositeModel
+from service.science.discovery.diagnosis import diagnose
+from service.science.discovery.records import sweep_records
 
 #: Known gap (issue 5), Z only: after `dynamics` is added on the dynamics bench, the 10-operator PI's
 #: loop-shape error (≈15 nm at 1 Hz, the continuous Preisach density a PI cannot follow) has a 3rd
@@ -48,8 +48,8 @@ def test_nothing_physical_is_left_after_adding_dynamics(axis):
 
 def test_ambiguity_names_a_runnable_experiment():
     from drivers.emulated import open_bench
-    from service.api.sweeps import SweepRequest
-    from service.sweeps import plan_for_bench, plan_from_dict
+    from service.http.sweeps import SweepRequest
+    from service.usecases.plans import plan_for_bench, plan_from_dict
 
     d = diagnose([sweep_records("delay", seed=0)["y"]])
     assert d["candidates"][0]["effect"] == "delay"

@@ -7,7 +7,7 @@ import pytest
 from drivers.bench import Bench, RunInterrupted
 from drivers.emulated import FAULT_KINDS, list_benches, load_config, open_bench
 from drivers.interfaces import Amplifier, Daq, DisplacementSensor, DriverError, LimitError
-from service import signals
+from service.science.data import signals
 
 FS = 20000.0
 VARIANTS = ("creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.calibration import PAPER, THRESHOLDS_V, VARIANTS, measure_calibration, play_outputs, sweep_pi_rms
+from service.reports.calibration import PAPER, THRESHOLDS_V, VARIANTS, measure_calibration, play_outputs, sweep_pi_rms
 
 
 def play_reference(u: np.ndarray, r: float, y0: float = 0.0) -> np.ndarray:

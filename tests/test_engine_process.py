@@ -15,8 +15,8 @@ import time
 import numpy as np
 import pytest
 
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 from tests.api_client import authed_client, wait_job
 
 

@@ -22,8 +22,8 @@ import schemathesis
 from hypothesis import HealthCheck, settings
 
 from api_client import bearer
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 
 MAX_EXAMPLES = 80
 SUMMARY = Path(__file__).resolve().parent / "artifacts" / "fuzz_summary.json"
@@ -57,7 +57,7 @@ def fuzz_app(tmp_path_factory):
 def auth_headers(fuzz_app) -> dict[str, str]:
     """Headers every fuzzed call carries: an operate-scope token (the admin endpoints are excluded),
     so the fuzzer reaches the handlers instead of stopping at 401."""
-    from service import auth
+    from service.security import auth
 
     return bearer(auth.issue(fuzz_app.state.store, "fuzz", "operate", "cli")[0])
 

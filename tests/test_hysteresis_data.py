@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from service.hysteresis import Series, StaticPI
-from service.signals import biased_sine, dominant_period_samples, multi_sine, savgol_derivatives
+from service.science.models import Series, StaticPI
+from service.science.data.signals import biased_sine, dominant_period_samples, multi_sine, savgol_derivatives
 
 FS = 20_000.0
 

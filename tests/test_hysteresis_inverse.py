@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from service.benchmarks.identification import lagged_pi_loops, static_truth
-from service.hysteresis import GRPI, DynamicPI, StaticPI
-from service.hysteresis.inverse import analytic_inverse_parameters, numerical_inverse
-from service.signals import biased_sine, multi_sine
+from service.perf.identification import lagged_pi_loops, static_truth
+from service.science.models import GRPI, DynamicPI, StaticPI
+from service.science.models.inverse import analytic_inverse_parameters, numerical_inverse
+from service.science.data.signals import biased_sine, multi_sine
 from pi_truths import FS, WEIGHTS
 from pi_truths import static_truth as static_truth_of_tests
 

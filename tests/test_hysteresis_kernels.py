@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from service.hysteresis import equal_thresholds
-from service.hysteresis.kernels import (
+from service.science.models import equal_thresholds
+from service.science.models.kernels import (
     dynamic_weight_shift,
     envelope_play_operators,
     gpi_step,

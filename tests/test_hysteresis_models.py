@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from service.benchmarks.identification import lagged_pi_loops
-from service.hysteresis import GRPI, MODEL_REGISTRY, DynamicPI, Series, StaticPI, model_from_dict
-from service.identify import fit_metrics
-from service.signals import biased_sine, multi_sine
+from service.perf.identification import lagged_pi_loops
+from service.science.models import GRPI, MODEL_REGISTRY, DynamicPI, Series, StaticPI, model_from_dict
+from service.science.fitting.pi_family import fit_metrics
+from service.science.data.signals import biased_sine, multi_sine
 from pi_truths import FS, WEIGHTS, dynamic_truth, grpi_truth, static_truth
 from realdata import MODEL_VI_DO as REAL, requires_real_data
 

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from service.benchmarks.identification import run_identification_benchmark
-from service.hysteresis import GRPI, DynamicPI, Series, StaticPI, equal_thresholds
-from service.hysteresis.base import Signal
-from service.identify import (
+from service.perf.identification import run_identification_benchmark
+from service.science.models import GRPI, DynamicPI, Series, StaticPI, equal_thresholds
+from service.science.models.base import Signal
+from service.science.fitting.pi_family import (
     Block,
     evaluate,
     fit_dynamic_pi_pso,
@@ -17,7 +17,7 @@ from service.identify import (
     solve_blocks,
     stack_blocks,
 )
-from service.signals import biased_sine
+from service.science.data.signals import biased_sine
 from pi_truths import FS, WEIGHTS, dynamic_truth
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ import pytest
 
 from drivers.live import LiveMonitor
 from api_client import authed_client
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 
 
 def test_monitor_decimates_evenly_across_blocks_and_keeps_the_latest():

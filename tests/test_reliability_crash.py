@@ -19,7 +19,7 @@ CHUNK_S = 1.0  # service.store.chunks.CHUNK_S: at most this much is lost at a ki
 
 
 def _store_check(data_dir, *flags) -> tuple[int, dict]:
-    proc = subprocess.run([sys.executable, "-m", "service.cli", "store", "check", "--data-dir", str(data_dir),
+    proc = subprocess.run([sys.executable, "-m", "service.frontends.cli", "store", "check", "--data-dir", str(data_dir),
                            "--json", *flags], cwd=ROOT, capture_output=True, text=True, timeout=120)
     return proc.returncode, json.loads(proc.stdout)
 
@@ -97,7 +97,7 @@ def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
 def test_store_check_names_each_inconsistency_and_exits_1(tmp_path, capsys):
     import numpy as np
 
-    from service.cli import main
+    from service.frontends.cli import main
     from service.store import Store
     from service.store.chunks import ChunkWriter
 
@@ -132,7 +132,7 @@ def test_chunks_are_a_gapless_prefix_and_recovery_rebuilds_a_trajectory_once(tmp
     creates nothing more."""
     import numpy as np
 
-    from service.recovery import INTERRUPTED, recover
+    from service.runtime.recovery import INTERRUPTED, recover
     from service.store import Store
     from service.store.chunks import ChunkWriter, chunk_dir
 
@@ -170,8 +170,8 @@ def test_chunks_are_a_gapless_prefix_and_recovery_rebuilds_a_trajectory_once(tmp
 
 def test_a_finished_sweep_leaves_no_chunks(tmp_path):
     from api_client import authed_client
-    from service.app import create_app
-    from service.settings import Settings
+    from service.runtime.app import create_app
+    from service.runtime.settings import Settings
 
     with authed_client(create_app(Settings(data_dir=tmp_path, bench="default", seed=1))) as client:
         r = client.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [20.0], "cycles": 40})

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.cli import main
-from service.recovery import recover
+from service.frontends.cli import main
+from service.runtime.recovery import recover
 from service.store import Store
 from service.store.chunks import ChunkWriter, chunk_dir
 from service.store.lock import StoreLock
@@ -275,18 +275,18 @@ def test_kill_9_of_the_service_mid_import_is_clean_after_the_next_start(tmp_path
     temps = list((data_dir / "arrays").glob(".ds_*.tmp"))
     assert len(temps) == 1 and temps[0].stat().st_size > 1_000_000, (temps, (tmp_path / "serve1.log").read_text())
     size_mb = temps[0].stat().st_size / 1e6
-    code = subprocess.run([sys.executable, "-m", "service.cli", "store", "check", "--data-dir", str(data_dir),
+    code = subprocess.run([sys.executable, "-m", "service.frontends.cli", "store", "check", "--data-dir", str(data_dir),
                            "--offline"], cwd=ROOT, capture_output=True, timeout=120).returncode
     assert code == 1
 
     monkeypatch.delenv("EVC_TEST_STALL_MARKER")
     server = Server(data_dir, tmp_path / "serve2.log")
     try:
-        proc = subprocess.run([sys.executable, "-m", "service.cli", "store", "check", "--data-dir", str(data_dir),
+        proc = subprocess.run([sys.executable, "-m", "service.frontends.cli", "store", "check", "--data-dir", str(data_dir),
                                "--json"], cwd=ROOT, capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stdout + (tmp_path / "serve2.log").read_text()
         assert not temps[0].exists() and _sha256(kept_file) == kept_sha
-        busy = subprocess.run([sys.executable, "-m", "service.cli", "store", "repair", "--data-dir", str(data_dir)],
+        busy = subprocess.run([sys.executable, "-m", "service.frontends.cli", "store", "repair", "--data-dir", str(data_dir)],
                               cwd=ROOT, capture_output=True, text=True, timeout=120)
         assert busy.returncode == 2 and "stop the service first" in busy.stderr   # the service holds the store
         with httpx.Client(base_url=server.url, timeout=60, headers=server.headers) as client:

@@ -11,8 +11,8 @@ import pytest
 from api_client import authed_client, wait_job
 from drivers.emulated import open_bench
 from drivers.bench import RunInterrupted
-from service.app import create_app
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
 
 FS = 20_000.0
 AFTER_S = 0.41

@@ -12,7 +12,7 @@ starved under the requests would miss far more — and the benchmark reports the
 """
 from __future__ import annotations
 
-from service.benchmarks.service_load import run_service_benchmark
+from service.perf.service_load import run_service_benchmark
 
 DURATION_S = 5.0
 RATE_HZ = 50.0

@@ -17,10 +17,10 @@ from api_client import authed_client, wait_job
 from drivers.emulated import open_bench
 from drivers.watchdog import SafetyConfig, Watchdog
 from live_server import ROOT, Server
-from service.app import create_app
-from service.control.session import TUNED_PID, Controller, track
-from service.control.trajectory import Ellipse
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.science.control.session import TUNED_PID, Controller, track
+from service.science.control.trajectory import Ellipse
+from service.runtime.settings import Settings
 from service.store import Store
 
 FS = 20_000.0
@@ -266,7 +266,7 @@ def test_a_stop_during_the_ilc_response_measurement_ends_the_whole_experiment():
     the second drive the bench."""
     from contextlib import contextmanager
 
-    from service.control.loop import StopRequested
+    from service.science.control.loop import StopRequested
 
     bench = open_bench("default", seed=4)
     sessions = []
@@ -296,7 +296,7 @@ def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
     """safe_shutdown.install wraps uvicorn's handler: 0 V and the job cancelled first, then uvicorn's."""
     import signal
 
-    from service.safe_shutdown import install
+    from service.runtime.safe_shutdown import install
 
     app, http, stops = service
     calls = []

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.hysteresis import DynamicPI, StaticPI
-from service.reproduction import render_markdown, sweep_series
+from service.science.models import DynamicPI, StaticPI
+from service.reports.reproduction import render_markdown, sweep_series
 
 
 def _mean_rms(model, loops) -> float:

@@ -7,7 +7,7 @@ stop must always land, the sweep must never be tripped by others' requests, and 
 """
 import pytest
 
-from service.benchmarks.safety_load import run_safety_under_load
+from service.perf.safety_load import run_safety_under_load
 
 pytestmark = pytest.mark.slow
 

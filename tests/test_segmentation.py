@@ -1,9 +1,9 @@
-"""Blocks of records imported without a block table (service/segmentation.py), on synthetic drives."""
+"""Blocks of records imported without a block table (service/science/data/segmentation.py), on synthetic drives."""
 from __future__ import annotations
 
 import numpy as np
 
-from service.segmentation import blocks_without_table, detect_blocks
+from service.science.data.segmentation import blocks_without_table, detect_blocks
 
 FS = 2000.0
 
@@ -45,7 +45,7 @@ def test_prominent_peaks_are_scipys_without_its_quadratic_scan():
     peak; ``prominent_peaks`` must give exactly SciPy's peaks, plateaus and ties included."""
     from scipy.signal import find_peaks
 
-    from service.signals import prominent_peaks
+    from service.science.data.signals import prominent_peaks
 
     rng = np.random.default_rng(0)
     for trial in range(200):

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from api_client import authed_client
-from service.app import create_app
-from service.client import ApiError, Client
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.frontends.client import ApiError, Client
+from service.runtime.settings import Settings
 from realdata import MODEL_VI_DO as REAL, requires_real_data
 
 SHORT = {"axes": ["y"], "frequencies_hz": [10, 50, 100], "cycles": 3}

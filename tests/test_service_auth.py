@@ -20,13 +20,13 @@ from sqlalchemy import select
 
 from api_client import authed_client, bearer, issue_token, wait_job
 from live_server import Server
-from service import auth
-from service.api.auth import RedactQueryToken
-from service.app import create_app
-from service.binding import bind_refusal, is_loopback
-from service.cli_tokens import serve_refusal
-from service.client import Client, resolve_token
-from service.settings import Settings
+from service.security import auth
+from service.http.auth import RedactQueryToken
+from service.runtime.app import create_app
+from service.security.binding import bind_refusal, is_loopback
+from service.frontends.cli_tokens import serve_refusal
+from service.frontends.client import Client, resolve_token
+from service.runtime.settings import Settings
 from service.store import Store, tables
 from service.store.tokens import tokens as token_table
 from test_service_store import postgres_url  # noqa: F401  (the session's PostgreSQL fixture)
@@ -37,7 +37,7 @@ SWEEP = {"axes": ["y"], "frequencies_hz": [20], "cycles": 1, "settle_s": 0.0}
 
 def _cli(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
-    result = subprocess.run([sys.executable, "-m", "service.cli", *args], cwd=ROOT, env=env,
+    result = subprocess.run([sys.executable, "-m", "service.frontends.cli", *args], cwd=ROOT, env=env,
                             capture_output=True, text=True, timeout=120)
     if check:
         assert result.returncode == 0, f"evcbench {' '.join(args)}: {result.stdout}{result.stderr}"

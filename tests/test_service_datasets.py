@@ -8,9 +8,9 @@ import h5py
 import numpy as np
 import pytest
 
-from service.dataset_export import to_csv, to_hdf5
-from service.datasets import DataError, parse_table
-from service.segmentation import blocks_without_table
+from service.science.data.export import to_csv, to_hdf5
+from service.science.data.datasets import DataError, parse_table
+from service.science.data.segmentation import blocks_without_table
 from realdata import MODEL_VI_DO as REAL, requires_real_data
 
 

@@ -9,9 +9,9 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 
 from api_client import authed_client, wait_job
-from service.app import create_app
-from service.jobs import JobManager, QueueFull
-from service.settings import MAX_QUEUED_BENCH_JOBS, Settings
+from service.runtime.app import create_app
+from service.runtime.jobs import JobManager, QueueFull
+from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, Settings
 from service.store import Store
 
 TINY_SWEEP = {"axes": ["y"], "frequencies_hz": [50.0], "cycles": 2, "settle_s": 0.0, "sample_rate_hz": 5000.0}

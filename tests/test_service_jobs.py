@@ -9,10 +9,10 @@ import time
 
 import pytest
 
-from service import auth
-from service import jobs as jobs_module
-from service.jobs import JobInterrupted, JobManager
-from service.recovery import recover
+from service.security import auth
+from service.runtime import jobs as jobs_module
+from service.runtime.jobs import JobInterrupted, JobManager
+from service.runtime.recovery import recover
 from service.store import Store, utc_now
 
 

@@ -9,7 +9,7 @@ import pytest
 from sqlalchemy import text, update
 
 from pg_server import postgres_server
-from service.recovery import INTERRUPTED, recover
+from service.runtime.recovery import INTERRUPTED, recover
 from service.store import IntegrityError, NotFoundError, Store, tables
 from service.store.files import file_sha256, open_arrays, read_arrays, write_arrays
 
@@ -110,7 +110,7 @@ def test_jobs_life_cycle_and_restart_recovery(store):
     assert store.get_job(a["id"])["progress"] == 0.5
     assert store.get_job(b["id"])["result"] == {"model_id": "md_x", "rms_um": 0.5}
     assert [j["id"] for j in store.list_jobs()] == [b["id"], a["id"]]  # newest first
-    assert recover(store)["failed_jobs"] == [a["id"]]  # the start-up recovery (service.recovery)
+    assert recover(store)["failed_jobs"] == [a["id"]]  # the start-up recovery (service.runtime.recovery)
     assert store.get_job(a["id"])["state"] == "failed" and store.get_job(a["id"])["error"] == INTERRUPTED
     assert store.get_job(b["id"])["state"] == "succeeded"
 
@@ -188,9 +188,9 @@ def test_the_service_runs_on_postgresql(postgres_url, tmp_path):
     """The whole service with its metadata in PostgreSQL: a sweep (with its nested bench
     configuration), an identification, and a restart that finds both unchanged."""
     from api_client import authed_client
-    from service.app import create_app
-    from service.client import Client
-    from service.settings import Settings
+    from service.runtime.app import create_app
+    from service.frontends.client import Client
+    from service.runtime.settings import Settings
 
     settings = Settings(data_dir=tmp_path, bench="default", seed=1, database_url=postgres_url)
     try:

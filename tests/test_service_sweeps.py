@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.sweeps import (ChirpPlan, MultisinePlan, PlanError, SinePlan, StepPlan, build, check_sample_rate,
+from service.usecases.plans import (ChirpPlan, MultisinePlan, PlanError, SinePlan, StepPlan, build, check_sample_rate,
                             plan_from_dict, trim_blocks)
 
 MAX_RATE = 100e3  # V/s

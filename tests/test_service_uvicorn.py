@@ -1,5 +1,5 @@
 """A real service process (``evcbench serve`` under uvicorn, on a free port): sweep → identify →
-compare through service/client.py and through the CLI, then SIGTERM during a sweep and a restart
+compare through service/frontends/client.py and through the CLI, then SIGTERM during a sweep and a restart
 that finds every dataset and model unchanged (checksums)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from service.client import Client
+from service.frontends.client import Client
 from live_server import Server
 from realdata import MODEL_VI_DO as REAL
 
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _cli(server: Server, *args: str) -> subprocess.CompletedProcess:
     """``evcbench`` as a lab user runs it next to the service: the token comes from <data dir>/admin.token."""
     env = {**{k: v for k, v in os.environ.items() if k != "EVCBENCH_TOKEN"}, "EVCBENCH_DATA_DIR": str(server.data_dir)}
-    result = subprocess.run([sys.executable, "-m", "service.cli", *args, "--url", server.url], cwd=ROOT, env=env,
+    result = subprocess.run([sys.executable, "-m", "service.frontends.cli", *args, "--url", server.url], cwd=ROOT, env=env,
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, f"evcbench {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
     return result
@@ -73,7 +73,7 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
             assert "nothing was latched" in _cli(server, "reset").stdout
             stopped = json.loads(_cli(server, "stop", "--json").stdout)
             assert stopped["cancelled_job_id"] is None and all(abs(v) < 0.05 for v in stopped["output_v"].values())
-            refused = subprocess.run([sys.executable, "-m", "service.cli", "jobs", "--url", server.url, "--token",
+            refused = subprocess.run([sys.executable, "-m", "service.frontends.cli", "jobs", "--url", server.url, "--token",
                                       "evc_wrong"], cwd=ROOT, capture_output=True, text=True, timeout=120)
             assert refused.returncode == 2 and "error 401 [authorization]: unknown API token" in refused.stderr
             if os.environ.get("EVCBENCH_SKIP_REAL_DATA") != "1":

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.hysteresis import MODEL_REGISTRY, Series
-from service.validation import evaluate_record, fit_on_training_rows, metrics, split_blocks, training_mask
+from service.science.models import MODEL_REGISTRY, Series
+from service.science.fitting.validation import evaluate_record, fit_on_training_rows, metrics, split_blocks, training_mask
 
 
 def _block(index, start, stop, f=None, cycles=None, axes=None):

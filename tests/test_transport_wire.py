@@ -13,9 +13,9 @@ from drivers.composed import check_transport, open_configured
 from drivers.emulated import kernels as K
 from drivers.emulated import open_bench
 from api_client import authed_client
-from service.app import create_app
-from service.client import Client
-from service.settings import Settings
+from service.runtime.app import create_app
+from service.frontends.client import Client
+from service.runtime.settings import Settings
 
 FS = 20_000.0
 BLOCK = 1000

@@ -1,0 +1,1 @@
+"""Runtime: the app, the job manager, start-up recovery, shut-down, settings and the bench engine process."""

@@ -101,10 +101,10 @@ class Store:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.engine = make_engine(database_url)
         tables.metadata.create_all(self.engine)
-        #: the API token rows (hashes only; see service.auth)
+        #: the API token rows (hashes only; see service.security.auth)
         self.tokens = TokenRows(self.engine)
         #: the data dir's lock (service.store.lock) while this store's process owns it: the running
-        #: service (taken by service.recovery) or ``evcbench store repair``; released by ``close``
+        #: service (taken by service.runtime.recovery) or ``evcbench store repair``; released by ``close``
         self.owner_lock = None
 
     @property

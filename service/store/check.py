@@ -13,8 +13,8 @@ Problems reported, each as ``{"kind", "id", "detail"}``:
 - ``unfinished_job``: a job queued or running while the service is not running (only when
   ``offline``; recovery marks it failed at the next start).
 
-Start-up recovery (service.recovery) clears the temporary files, orphan arrays and chunks and the
-unfinished jobs; ``evcbench store repair`` (service.repair) clears the rest. A problem of a row in
+Start-up recovery (service.runtime.recovery) clears the temporary files, orphan arrays and chunks and the
+unfinished jobs; ``evcbench store repair`` (service.store.repair) clears the rest. A problem of a row in
 quarantine (service.store.quarantine: a missing or corrupt array, a dangling reference, set aside by
 repair) is listed under ``quarantined`` and no longer makes the store inconsistent.
 """

@@ -6,7 +6,7 @@ in memory and, once ``CHUNK_S`` seconds of samples (at the acquisition's sample 
 accumulated, writes them as ``chunk_<n>.npz`` atomically (temporary file, fsync, rename, fsync of
 the directory). ``meta.json`` beside them holds what the dataset row needs (name, source, axes,
 sample_rate_hz, blocks, plan, config, units, job_id, started_at). So after a ``kill -9`` at most
-the last second of samples is lost, and ``service.recovery`` can rebuild a dataset marked partial
+the last second of samples is lost, and ``service.runtime.recovery`` can rebuild a dataset marked partial
 from the chunks. When the job stores its dataset normally, ``discard`` removes the directory.
 
 A chunk file is either absent or whole (the rename is atomic); a leftover ``.*.tmp`` file is an

@@ -9,7 +9,7 @@
   (another ``--database-url``, an older backup) sees every completed dataset of the right one this
   way. So they are never deleted: they are moved to ``quarantine/arrays/`` and moved back as soon as
   a dataset row names them and their SHA-256 matches that row's (``restore``).
-- Chunk directories under ``partial/`` are service.recovery's (they become partial datasets).
+- Chunk directories under ``partial/`` are service.runtime.recovery's (they become partial datasets).
 
 Nothing here may run while another process writes to the store: the caller holds the store's
 lock (service.store.lock).

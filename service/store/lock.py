@@ -1,6 +1,6 @@
 """Who owns a data directory: an exclusive advisory lock on ``<data_dir>/service.lock``.
 
-The running service takes it at start-up (``service.recovery``) and keeps it until the store is
+The running service takes it at start-up (``service.runtime.recovery``) and keeps it until the store is
 closed; ``evcbench store repair`` takes it too, so the two never touch the same files at once.
 The kernel drops the lock when its process dies, even by ``kill -9``: a lock that cannot be taken
 always means a live owner. The file holds the owner's pid, for messages only.

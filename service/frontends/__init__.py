@@ -1,0 +1,1 @@
+"""Front ends: the ``evcbench`` command line and the Python client."""

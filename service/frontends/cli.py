@@ -1,0 +1,163 @@
+"""The ``evcbench`` command line: serve the API, run benchmarks, and drive a running service
+(sweep, import, identify, compare, jobs, datasets, models: see service/frontends/cli_remote.py)."""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from service.runtime.settings import Settings
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.runtime.app import create_app
+
+    defaults = Settings()
+    settings = Settings(
+        data_dir=args.data_dir or defaults.data_dir,
+        bench=args.bench or defaults.bench,
+        seed=args.seed if args.seed is not None else defaults.seed,
+        host=args.host or defaults.host,
+        port=args.port or defaults.port,
+        database_url=args.database_url or defaults.database_url,
+        auth=args.auth or defaults.auth,
+    )
+    from service.frontends.cli_tokens import serve_refusal
+    from service.runtime.safe_shutdown import install
+
+    refusal = serve_refusal(settings)
+    if refusal:
+        print(f"evcbench serve: {refusal}", file=sys.stderr)
+        return 2
+    app = create_app(settings)
+    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
+    install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
+    server.run()
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from service.perf import get_benchmark
+
+    import inspect
+
+    try:
+        benchmark = get_benchmark(args.name)
+    except KeyError as exc:
+        print(exc.args[0], file=sys.stderr)
+        return 2
+    if args.duration is None:
+        result = benchmark()
+    elif "duration_s" in inspect.signature(benchmark).parameters:
+        result = benchmark(duration_s=args.duration)
+    else:
+        print(f"--duration: the {args.name} benchmark has no duration (only: service)", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for key, value in result.items():
+            print(f"{key:>32}: {value}")
+    return 0
+
+
+def _cmd_store_check(args: argparse.Namespace) -> int:
+    from service.frontends.cli_tokens import open_store
+    from service.store.check import check_store, format_report
+
+    data_dir = Path(args.data_dir or Settings().data_dir)
+    if not data_dir.is_dir():
+        print(f"no store at {data_dir}", file=sys.stderr)
+        return 2
+    store = open_store(args.data_dir, args.database_url)
+    try:
+        report = check_store(store, quick=args.quick, offline=args.offline)
+    finally:
+        store.close()
+    print(json.dumps(report) if args.json else format_report(report))
+    return 0 if report["ok"] else 1
+
+
+def _cmd_store_repair(args: argparse.Namespace) -> int:
+    from service.frontends.cli_tokens import open_store
+    from service.store.repair import StoreBusy, format_repair, repair_store
+
+    data_dir = Path(args.data_dir or Settings().data_dir)
+    if not data_dir.is_dir():
+        print(f"no store at {data_dir}", file=sys.stderr)
+        return 2
+    logging.getLogger("evcbench.recovery").setLevel(logging.ERROR)  # the report below says it all
+    store = open_store(args.data_dir, args.database_url)
+    try:
+        report = repair_store(store, dry_run=args.dry_run)
+    except StoreBusy as exc:
+        print(f"evcbench store repair: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        store.close()
+    print(json.dumps(report) if args.json else format_repair(report))
+    return 0 if args.dry_run or report["after"]["ok"] else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="evcbench", description="EVC Bench: piezo bench service and tools.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    serve = sub.add_parser("serve", help="start the REST service")
+    serve.add_argument("--host", help="bind address (default 127.0.0.1; any other address needs auth on and "
+                       "a token from `evcbench token create`)")
+    serve.add_argument("--port", type=int, help="TCP port (default 8000)")
+    serve.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
+    serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
+    serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")
+    serve.add_argument("--database-url", help="SQLAlchemy URL of the metadata database "
+                       "(default: SQLite in the data dir; env EVCBENCH_DATABASE_URL)")
+    serve.add_argument("--auth", choices=("tokens", "off"),
+                       help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)")
+    serve.set_defaults(func=_cmd_serve)
+
+    bench = sub.add_parser("bench", help="run a benchmark and print its figures")
+    bench.add_argument("name", help="emulator | identification | …")
+    bench.add_argument("--json", action="store_true", help="print one JSON object")
+    bench.add_argument("--duration", type=float, help="service: seconds of load (default 60)")
+    bench.set_defaults(func=_cmd_bench)
+
+    store = sub.add_parser("store", help="maintain the store (check, repair)")
+    store_sub = store.add_subparsers(dest="store_command", required=True)
+
+    def store_verb(name: str, help_text: str, func) -> argparse.ArgumentParser:
+        verb = store_sub.add_parser(name, help=help_text)
+        verb.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
+        verb.add_argument("--database-url",
+                          help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
+        verb.add_argument("--json", action="store_true", help="print one JSON object")
+        verb.set_defaults(func=func)
+        return verb
+
+    check = store_verb("check", "report inconsistencies between rows and files; exit 1 if any", _cmd_store_check)
+    check.add_argument("--quick", action="store_true", help="skip the SHA-256 of every array file")
+    check.add_argument("--offline", action="store_true",
+                       help="no service runs on this store: a queued or running job is a problem too")
+    repair = store_verb("repair", "fix what `store check` finds, never deleting a dataset row (the service must "
+                        "be stopped); exit 1 if problems remain", _cmd_store_repair)
+    repair.add_argument("--dry-run", action="store_true", help="change nothing; say what would be done")
+
+    from service.frontends import cli_remote
+    from service.frontends import cli_tokens
+
+    cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
+    cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

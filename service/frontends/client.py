@@ -1,0 +1,255 @@
+"""A small Python client of the EVC Bench REST API (used by the CLI and the tests).
+
+    from service.frontends.client import Client
+    api = Client("http://127.0.0.1:8000")
+    job = api.sweep(axes=["y"], frequencies_hz=[1, 10], cycles=5, wait=True)
+    model = api.identify("y", [job["result"]["dataset_id"]], model="static_pi")
+    print(api.compare(model["id"], job["result"]["dataset_id"])["metrics"])
+
+Every non-2xx answer raises ApiError with the server's ``detail`` and the ``field`` at fault.
+The API token is ``token=``, else $EVCBENCH_TOKEN, else (for a loopback URL) the local service's
+bootstrap token in <data_dir>/admin.token (data_dir: ``data_dir=``, $EVCBENCH_DATA_DIR or ./var).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import httpx
+import numpy as np
+
+from service.security.binding import is_loopback
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+TERMINAL_STATES = ("succeeded", "failed", "cancelled")
+ProgressCallback = Callable[[dict], None]
+
+
+class ApiError(RuntimeError):
+    """The service refused a request: ``status_code``, ``detail`` (words) and ``field``."""
+
+    def __init__(self, status_code: int, detail: str, field: str | None = None):
+        super().__init__(f"{status_code}: {detail}")
+        self.status_code, self.detail, self.field = status_code, detail, field
+
+
+def resolve_token(base_url: str, token: str | None = None, data_dir: str | Path | None = None) -> str | None:
+    """The token to send: ``token``, $EVCBENCH_TOKEN, or <data_dir>/admin.token for a loopback URL."""
+    token = token or os.environ.get("EVCBENCH_TOKEN")
+    if token or not is_loopback(httpx.URL(base_url).host):
+        return token or None
+    from service.security.auth import read_bootstrap_token
+
+    return read_bootstrap_token(data_dir or os.environ.get("EVCBENCH_DATA_DIR") or "var")
+
+
+class Client:
+    """Talks to one service. ``http`` may be any httpx.Client (e.g. FastAPI's TestClient), whose
+    own headers then carry the token unless ``token`` is given."""
+
+    def __init__(self, base_url: str = DEFAULT_URL, timeout_s: float = 60.0, http: httpx.Client | None = None,
+                 token: str | None = None, data_dir: str | Path | None = None):
+        if http is None:
+            http = httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout_s)
+            token = resolve_token(base_url, token, data_dir)
+        if token:
+            http.headers["Authorization"] = f"Bearer {token}"
+        self.http = http
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ bench
+    def health(self) -> dict:
+        return self._request("GET", "/api/health")
+
+    def bench(self) -> dict:
+        return self._request("GET", "/api/bench")
+
+    def stop_bench(self) -> dict:
+        """Emergency stop: 0 V now, and the running bench job is cancelled."""
+        return self._request("POST", "/api/bench/stop")
+
+    def reset_bench(self) -> dict:
+        """Clear latched amplifier faults and the watchdog's trip (409 while a job runs):
+        {"cleared": [...], "remaining": reason | None, "output_v": {...}}."""
+        return self._request("POST", "/api/bench/reset")
+
+    # ------------------------------------------------------------------ jobs
+    def job(self, job_id: str) -> dict:
+        return self._request("GET", f"/api/jobs/{job_id}")
+
+    def jobs(self, limit: int = 100) -> list[dict]:
+        return self._request("GET", "/api/jobs", params={"limit": limit})
+
+    def cancel(self, job_id: str) -> dict:
+        return self._request("DELETE", f"/api/jobs/{job_id}")
+
+    def events(self, job_id: str) -> Iterator[tuple[str, dict]]:
+        """The job's server-sent events as (event, job) pairs, ending with ("end", final job)."""
+        with self.http.stream("GET", f"/api/jobs/{job_id}/events", timeout=None) as response:
+            if response.status_code >= 400:
+                response.read()
+                self._raise(response)
+            event, data = "message", []
+            for line in response.iter_lines():
+                if line.startswith("event:"):
+                    event = line[6:].strip()
+                elif line.startswith("data:"):
+                    data.append(line[5:].strip())
+                elif not line and data:
+                    yield event, json.loads("\n".join(data))
+                    event, data = "message", []
+
+    def wait(self, job_id: str, on_progress: ProgressCallback | None = None, timeout_s: float | None = None) -> dict:
+        """Follow a job until it ends (SSE; polling if the stream breaks); returns the final job."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        try:
+            for event, job in self.events(job_id):
+                if event == "error":   # the stream ended because the token is no longer valid
+                    raise ApiError(job.get("status", 401), job.get("detail", "event stream refused"), job.get("field"))
+                if on_progress:
+                    on_progress(job)
+                if job["state"] in TERMINAL_STATES:
+                    return job
+                if deadline and time.monotonic() > deadline:
+                    break
+        except httpx.TransportError:
+            pass
+        while True:
+            job = self.job(job_id)
+            if on_progress:
+                on_progress(job)
+            if job["state"] in TERMINAL_STATES:
+                return job
+            if deadline and time.monotonic() > deadline:
+                raise TimeoutError(f"job {job_id} is still {job['state']} after {timeout_s} s")
+            time.sleep(0.2)
+
+    # ------------------------------------------------------------------ sweeps and datasets
+    def start_sweep(self, **plan) -> dict:
+        """Queue a sweep (fields as in POST /api/sweeps); returns ``{"job_id", …}``."""
+        return self._request("POST", "/api/sweeps", json=plan)
+
+    def sweep(self, wait: bool = True, on_progress: ProgressCallback | None = None, **plan) -> dict:
+        """Run a sweep; with ``wait`` return the finished job (its result has ``dataset_id``)."""
+        started = self.start_sweep(**plan)
+        return self.wait(started["job_id"], on_progress) if wait else self.job(started["job_id"])
+
+    def import_dataset(self, file: str | Path | bytes, *, filename: str | None = None, name: str | None = None,
+                       axis: str | None = None, columns: dict | str | None = None,
+                       sample_rate_hz: float | None = None, delimiter: str | None = None) -> dict:
+        """Upload a CSV/table (a path, streamed from disk, or bytes) as a dataset; returns its record."""
+        form = {"name": name, "axis": axis, "sample_rate_hz": sample_rate_hz, "delimiter": delimiter,
+                "columns": json.dumps(columns) if isinstance(columns, dict) else columns}
+        form = {k: str(v) for k, v in form.items() if v is not None}
+        if isinstance(file, (str, Path)):
+            with open(file, "rb") as handle:
+                return self._request("POST", "/api/datasets", data=form,
+                                     files={"file": (filename or Path(file).name, handle, "text/csv")})
+        return self._request("POST", "/api/datasets", data=form,
+                             files={"file": (filename or "upload.csv", file, "text/csv")})
+
+    def datasets(self) -> list[dict]:
+        return self._request("GET", "/api/datasets")
+
+    def dataset(self, dataset_id: str) -> dict:
+        return self._request("GET", f"/api/datasets/{dataset_id}")
+
+    def dataset_data(self, dataset_id: str, format: str = "json", max_points: int | None = None):
+        """JSON arrays (dict) decimated by the service to at most ``max_points`` points per column
+        (default: the service's, 10 000; ``stride`` says by how much), or the whole CSV text / HDF5
+        bytes with ``format="csv"``/``"hdf5"``. For every sample as numpy arrays use ``dataset_arrays``."""
+        params = {"format": format, **({"max_points": max_points} if max_points else {})}
+        response = self._send("GET", f"/api/datasets/{dataset_id}/data", params=params)
+        return response.json() if format == "json" else response.text if format == "csv" else response.content
+
+    def dataset_chunks(self, dataset_id: str) -> Iterator[dict[str, np.ndarray]]:
+        """Every sample of a dataset, streamed (NDJSON) a chunk of rows at a time: dicts of numpy
+        arrays ``{"t_s": ..., "u_y_v": ..., …}`` of a few thousand rows each, in order."""
+        lines = self._ndjson(dataset_id)
+        header = next(lines)
+        for chunk in lines:
+            yield {name: np.asarray(chunk[name]) for name in header["columns"]}
+
+    def dataset_arrays(self, dataset_id: str) -> dict[str, np.ndarray]:
+        """Every sample of a dataset as numpy arrays, streamed (NDJSON) and filled in chunk by chunk:
+        only the arrays themselves grow with the dataset."""
+        lines = self._ndjson(dataset_id)
+        header = next(lines)
+        out: dict[str, np.ndarray] = {}
+        for chunk in lines:
+            start = chunk["start"]
+            for name in header["columns"]:
+                values = np.asarray(chunk[name])
+                if name not in out:
+                    out[name] = np.empty(header["samples"], dtype=values.dtype)
+                out[name][start:start + values.size] = values
+        return out
+
+    def _ndjson(self, dataset_id: str) -> Iterator[dict]:
+        """The objects of ``GET /api/datasets/{id}/data?format=ndjson``: the header, then the chunks."""
+        with self.http.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "ndjson"},
+                              timeout=None) as response:
+            if response.status_code >= 400:
+                response.read()
+                self._raise(response)
+            for line in response.iter_lines():
+                if line:
+                    yield json.loads(line)
+
+    # ------------------------------------------------------------------ models
+    def start_identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
+                       effects: Sequence[str] = ("hysteresis",), n_operators: int = 10) -> dict:
+        body = {"axis": axis, "datasets": list(datasets), "model": model, "effects": list(effects),
+                "n_operators": n_operators}
+        return self._request("POST", "/api/models", json=body)
+
+    def identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
+                 effects: Sequence[str] = ("hysteresis",), n_operators: int = 10,
+                 on_progress: ProgressCallback | None = None) -> dict:
+        """Identify and wait; returns the stored model. ApiError if the job did not succeed."""
+        started = self.start_identify(axis, datasets, model, effects, n_operators)
+        job = self.wait(started["job_id"], on_progress)
+        if job["state"] != "succeeded":
+            raise ApiError(500, f"identification job {job['id']} {job['state']}: {job['error'] or job['message']}")
+        return self.model(job["result"]["model_id"])
+
+    def model(self, model_id: str) -> dict:
+        return self._request("GET", f"/api/models/{model_id}")
+
+    def models(self) -> list[dict]:
+        return self._request("GET", "/api/models")
+
+    def compare(self, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:
+        """Measured, predicted and residual arrays (unless ``arrays`` is False) and the metrics."""
+        params = {"dataset": dataset_id, "arrays": arrays, **({"max_points": max_points} if max_points else {})}
+        return self._request("GET", f"/api/models/{model_id}/compare", params=params)
+
+    # ------------------------------------------------------------------ plumbing
+    def _request(self, method: str, path: str, **kwargs):
+        return self._send(method, path, **kwargs).json()
+
+    def _send(self, method: str, path: str, **kwargs) -> httpx.Response:
+        response = self.http.request(method, path, **kwargs)
+        if response.status_code >= 400:
+            self._raise(response)
+        return response
+
+    @staticmethod
+    def _raise(response: httpx.Response) -> None:
+        try:
+            body = response.json()
+            detail, field = body.get("detail", response.text), body.get("field")
+        except ValueError:
+            detail, field = response.text or response.reason_phrase, None
+        raise ApiError(response.status_code, str(detail), field)

@@ -1,0 +1,157 @@
+"""Datasets: import (multipart CSV, parsed as a stream), list, describe, and download (streamed)."""
+from __future__ import annotations
+
+from typing import BinaryIO, Iterator, Literal
+
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, UploadFile
+from fastapi.responses import StreamingResponse
+
+from service.http.deps import get_store
+from service.runtime.bulk import iterate_bulk, run_bulk
+from service.science.data.export import (JSON_DEFAULT_MAX_POINTS, RowRange, csv_chunks, export_names, hdf5_chunks,
+                                    json_chunks, json_stride, ndjson_chunks)
+from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ, parse_table, units_for
+from service.science.errors import FieldError
+from service.science.data.segmentation import blocks_without_table
+from service.store import Store, StoredArrays
+
+router = APIRouter(prefix="/datasets", tags=["datasets"])
+
+MAX_UPLOAD_BYTES = 200 * 1024 * 1024
+SUMMARY_KEYS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "partial", "partial_reason",
+                "created_at", "started_at", "finished_at", "job_id")
+MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "application/x-ndjson",
+               "hdf5": "application/x-hdf5"}
+_RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
+
+
+def _with_figures(endpoint):
+    """Put the module's figures into the endpoint's docstring (shown in /docs): {rate_range},
+    {json_max_points}; literal braces are doubled."""
+    endpoint.__doc__ = endpoint.__doc__.format(rate_range=_RATE_TEXT, json_max_points=JSON_DEFAULT_MAX_POINTS)
+    return endpoint
+
+
+def dataset_view(row: dict, full: bool = True) -> dict:
+    """A dataset record as the API shows it (units in the field names)."""
+    view = {k: row[k] for k in SUMMARY_KEYS}
+    view["duration_s"] = row["samples"] / row["sample_rate_hz"]
+    view["n_blocks"] = len(row["blocks"])
+    if full:
+        plan = row["plan"] if isinstance(row["plan"], dict) else {}
+        view.update(blocks=row["blocks"], plan=row["plan"], config=row["config"], units=row["units"],
+                    drive_range_v=plan.get("drive_range_v"), software_version=row["software_version"],
+                    file=row["file"], sha256=row["sha256"])
+    return view
+
+
+@router.post("", status_code=201)
+@_with_figures
+async def import_dataset(
+    file: UploadFile = File(..., description="CSV (header t,u_y,x_y,… or u,x) or a headerless table"),
+    name: str | None = Form(None, max_length=200),
+    axis: str | None = Form(None, description="y or z, for single-axis files with columns u, x"),
+    columns: str | None = Form(None, description='JSON mapping, e.g. {"u": 0, "x": 4} (0-based); '
+                                                 "columns it does not name are ignored"),
+    sample_rate_hz: float | None = Form(None, description=f"needed when the file has no t column ({_RATE_TEXT})"),
+    delimiter: str | None = Form(None, description="comma | tab | semicolon | whitespace (default: guess)"),
+    store: Store = Depends(get_store),
+) -> dict:
+    """Import a table as a dataset: ``201 {{"id", "axes", "samples", "sample_rate_hz", "drive_range_v", …}}``.
+
+    The file is parsed as a stream in a worker thread (numpy's parser, a block at a time). Refused
+    with 422 naming the field or column at fault (``file``, ``columns``, ``axis``, ``delimiter``,
+    ``sample_rate_hz``, ``t``, a column with NaN, …); the options and the first line are checked
+    before any data row is read, so e.g. a headerless file without ``columns`` is refused at once.
+    The sample rate, given or implied by a ``t`` column, must lie in {rate_range}. Measured data is
+    not a command: any drive range is accepted (bipolar, above the bench's limits) and shown as
+    ``drive_range_v``. Nothing is stored when a request is refused.
+    """
+    if file.size is not None and file.size > MAX_UPLOAD_BYTES:
+        raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
+    options = {"filename": file.filename, "columns": columns, "axis": axis, "sample_rate_hz": sample_rate_hz,
+               "delimiter": delimiter}
+    return await run_bulk(_import, store, file.file, name or file.filename or "imported", options)
+
+
+def _import(store: Store, handle: BinaryIO, name: str, options: dict) -> dict:
+    """Parse, validate and store (off the event loop)."""
+    handle.seek(0)
+    table = parse_table(handle, columns=options["columns"], axis=options["axis"],
+                        sample_rate_hz=options["sample_rate_hz"], delimiter=options["delimiter"])
+    blocks = blocks_without_table({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
+    row = store.add_dataset(table.arrays, {
+        "name": name, "source": "import", "axes": table.axes, "sample_rate_hz": table.sample_rate_hz,
+        "blocks": blocks, "units": units_for(table.arrays),
+        "plan": {"import": options, "drive_range_v": table.drive_range_v}})
+    return dataset_view(row)
+
+
+@router.get("")
+def list_datasets(store: Store = Depends(get_store)) -> list[dict]:
+    """Every dataset, oldest first (summary fields)."""
+    return [dataset_view(row, full=False) for row in store.list_datasets()]
+
+
+@router.get("/{dataset_id}")
+def get_dataset(dataset_id: str, store: Store = Depends(get_store)) -> dict:
+    """A dataset's metadata: block table, plan, bench configuration snapshot, units, drive range
+    per axis (``drive_range_v``, volts, for imports), checksum."""
+    return dataset_view(store.get_dataset(dataset_id))
+
+
+@router.get("/{dataset_id}/data", response_model=None)
+@_with_figures
+def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "hdf5"] = "json",
+                     max_points: int | None = Query(None, ge=2, description="json: at most this many points per "
+                                                    f"column (default {JSON_DEFAULT_MAX_POINTS})"),
+                     start: int = Query(0, ge=0, description="first sample (0-based)"),
+                     stop: int | None = Query(None, ge=1, description="end sample, exclusive (default: the last)"),
+                     store: Store = Depends(get_store)) -> StreamingResponse:
+    """The samples, streamed: memory does not grow with the dataset.
+
+    - ``json`` (default): ``{{"id", "sample_rate_hz", "samples", "stride", "decimated",
+      "full_resolution", "units", "t_s": [...], "u_y_v": [...], …}}``, every ``stride``-th sample so
+      that a column has at most ``max_points`` points (default {json_max_points}).
+      For every sample use ``format=csv`` or ``format=ndjson`` (named in ``full_resolution``).
+    - ``csv``: DESIGN §4 (header ``t,u_y,x_y,…``), every sample; importable as it is.
+    - ``ndjson``: a first line ``{{"id", "sample_rate_hz", "units", "columns", "samples",
+      "rows_per_line"}}``, then one line per chunk of rows, ``{{"start": <first row>, "t_s": [...], …}}``.
+    - ``hdf5``: one dataset per array (``unit`` attribute), the metadata as attributes.
+
+    ``start``/``stop`` cut every format to samples ``start:stop`` (``max_points`` then applies to
+    the cut). The file is checked against its SHA-256 before the first byte is sent (500 if it
+    does not match).
+    """
+    row = store.get_dataset(dataset_id)
+    stop = row["samples"] if stop is None else min(stop, row["samples"])
+    if start >= stop:
+        raise FieldError("start", f"no samples in {start}:{stop}; the dataset has {row['samples']} (0-based)")
+    source = store.open_arrays(dataset_id)
+    view = source if (start, stop) == (0, row["samples"]) else RowRange(source, start, stop)
+    names = export_names(source)
+    meta = {"id": dataset_id, "sample_rate_hz": row["sample_rate_hz"], "units": units_for(names),
+            **({} if view is source else {"start": start, "stop": stop})}
+    headers = {"Content-Disposition": f'attachment; filename="{dataset_id}.{"h5" if format == "hdf5" else format}"'}
+    if format == "csv":
+        chunks = csv_chunks(view)
+    elif format == "ndjson":
+        chunks = ndjson_chunks(view, meta)
+    elif format == "hdf5":   # written to a temporary file on the first chunk, then sent
+        chunks = hdf5_chunks(view, {**meta, **{k: row[k] for k in (
+            "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
+            "created_at", "partial", "sha256")}})
+    else:
+        stride = json_stride(view.length, max_points)
+        route = f"/api/datasets/{dataset_id}/data?format="
+        chunks = json_chunks(view, {**meta, "samples": row["samples"], "stride": stride, "decimated": stride > 1,
+                                    "full_resolution": {"csv": route + "csv", "ndjson": route + "ndjson"}},
+                             stride)
+        headers = {}
+    return StreamingResponse(iterate_bulk(_closing(source, chunks)), media_type=MEDIA_TYPES[format], headers=headers)
+
+
+def _closing(source: StoredArrays, chunks: Iterator[bytes]) -> Iterator[bytes]:
+    """``chunks``, closing ``source`` when they end (or the client goes away)."""
+    with source:
+        yield from chunks

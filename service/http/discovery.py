@@ -1,0 +1,54 @@
+"""Discovery routes under /models: diagnosis, refine (a job) and history. No science here."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Query
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.http.deps import get_jobs, get_store
+from service.usecases.discover import diagnose_model, history, refined_effects
+from service.runtime.jobs import JobManager
+from service.usecases.identify import identify
+from service.store import Store
+
+router = APIRouter(prefix="/models", tags=["discovery"])
+
+
+class RefineRequest(BaseModel):
+    """Exactly one of: ``add`` an effect, ``remove`` one, or refit with ``effects``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    add: str | None = None
+    remove: str | None = None
+    effects: list[str] | None = Field(default=None, max_length=20)
+    datasets: list[str] = Field(default=[], max_length=100, description="datasets to add to the fit")
+
+
+@router.get("/{model_id}/diagnosis")
+def get_diagnosis(model_id: str, extra_datasets: list[str] = Query(default=[]),
+                  store: Store = Depends(get_store)) -> dict:
+    """Residual RMS, noise floor, verdict, ranked candidates with evidence, failures, ambiguity."""
+    return diagnose_model(store, model_id, extra_datasets)
+
+
+@router.post("/{model_id}/refine", status_code=202)
+def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store),
+           jobs: JobManager = Depends(get_jobs)) -> dict:
+    """Queue a refit with another effect set on the same data; the new model's parent is ``model_id``."""
+    row = store.get_model(model_id)
+    effects = ["hysteresis"] + refined_effects(row, body.add, body.remove, body.effects)
+    datasets = list(row["datasets"]) + [d for d in body.datasets if d not in row["datasets"]]
+    params = {"axis": row["axis"], "datasets": datasets, "effects": effects, "model": "composite",
+              "n_operators": int(row["options"].get("n_operators", 10)), "parent_id": model_id}
+    if body.datasets:
+        from service.usecases.discover import load_records
+
+        load_records(store, body.datasets, row["axis"])  # FieldError naming datasets
+    job = jobs.submit("refine", params, lambda ctx: identify(ctx, store, **params), needs_bench=False)
+    return {"job_id": job["id"], "state": job["state"]}
+
+
+@router.get("/{model_id}/history")
+def get_history(model_id: str, store: Store = Depends(get_store)) -> dict:
+    """The lineage from the first model to this one, with train and validation RMS at each step."""
+    return {"model_id": model_id, "steps": history(store, model_id)}

@@ -1,0 +1,46 @@
+"""Error responses: every 4xx carries ``detail`` in words, naming the field at fault in ``field``."""
+from __future__ import annotations
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from service.science.errors import FieldError
+from service.runtime.jobs import QueueFull
+from service.store import IntegrityError, NotFoundError
+
+
+def _field_of(loc: tuple | list) -> str:
+    """The request field of a pydantic error location: ('body', 'v_max') → 'v_max'."""
+    parts = [str(p) for p in loc if p not in ("body", "query", "path", "form", "header")]
+    return ".".join(parts) if parts else str(loc[-1]) if loc else "body"
+
+
+def install(app: FastAPI) -> None:
+    """Register the handlers that turn service errors into JSON responses."""
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [{"field": _field_of(e.get("loc", ())), "message": e.get("msg", "invalid")}
+                  for e in exc.errors()]
+        detail = "; ".join(f"{e['field']}: {e['message']}" for e in errors) or "invalid request"
+        return JSONResponse(status_code=422, content={"detail": detail, "field": errors[0]["field"] if errors
+                                                      else None, "errors": errors})
+
+    @app.exception_handler(FieldError)
+    async def _field(_request: Request, exc: FieldError) -> JSONResponse:
+        return JSONResponse(status_code=exc.status_code, content={"detail": str(exc), "field": exc.field})
+
+    @app.exception_handler(NotFoundError)
+    async def _not_found(_request: Request, exc: NotFoundError) -> JSONResponse:
+        return JSONResponse(status_code=404, content={"detail": str(exc), "field": exc.field})
+
+    @app.exception_handler(QueueFull)
+    async def _queue_full(_request: Request, exc: QueueFull) -> JSONResponse:
+        return JSONResponse(status_code=429, headers={"Retry-After": str(int(exc.retry_after_s))},
+                            content={"detail": str(exc), "field": None, "queue": exc.queue,
+                                     "queued": exc.queued, "limit": exc.limit})
+
+    @app.exception_handler(IntegrityError)
+    async def _integrity(_request: Request, exc: IntegrityError) -> JSONResponse:
+        return JSONResponse(status_code=500, content={"detail": str(exc)})

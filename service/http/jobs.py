@@ -1,0 +1,41 @@
+"""Jobs: GET /api/jobs, GET /api/jobs/{id}, GET /api/jobs/{id}/events (SSE), DELETE /api/jobs/{id}."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Query, Request
+from fastapi.responses import StreamingResponse
+
+from service.http.auth import require_token, token_recheck
+from service.http.deps import get_jobs
+from service.runtime.jobs import JobManager
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+
+@router.get("")
+def list_jobs(limit: int = Query(100, ge=1, le=1000), jobs: JobManager = Depends(get_jobs)) -> list[dict]:
+    """The newest jobs first: id, kind, state, progress (0..1), message, result, error, timestamps."""
+    return jobs.list(limit)
+
+
+@router.get("/{job_id}")
+def get_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
+    """One job: ``state`` is queued | running | succeeded | failed | cancelled; ``progress`` 0..1."""
+    return jobs.get(job_id)
+
+
+@router.get("/{job_id}/events")
+async def job_events(job_id: str, request: Request, token: dict = Depends(require_token),
+                     jobs: JobManager = Depends(get_jobs)) -> StreamingResponse:
+    """Server-sent events: ``progress`` on every change (data: the job as JSON), then ``end``. If the
+    token is revoked meanwhile, the stream ends with ``error`` (data: ``{"detail", "field", "status"}``)."""
+    jobs.store.get_job(job_id)  # 404 before the stream opens
+    events = jobs.events(job_id, recheck=token_recheck(request, token))  # ends if the token is revoked
+    return StreamingResponse(events, media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+@router.delete("/{job_id}", status_code=202)
+def cancel_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
+    """Cancel: a queued job is cancelled at once; a running sweep stops at its next block,
+    leaves the output at 0 V and keeps the samples so far as a partial dataset."""
+    return jobs.cancel(job_id)

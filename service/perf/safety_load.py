@@ -1,0 +1,183 @@
+"""Benchmark: the emergency stop and a real-time sweep while others load the service.
+
+    evcbench bench safety --json      (the ``under_load`` part)
+
+A real ``evcbench serve`` (default_realtime bench, the engine in its own process) runs sweeps
+while four clients download full-resolution datasets (streamed CSV) and one imports a ~50 MB CSV,
+over and over. Meanwhile the emergency stop is pressed at random moments of a running sweep.
+Figures, side by side in one run:
+
+* ``stop``: request → 0 V at the actuator (the engine's 0 V write, ``time.monotonic`` seconds
+  being one clock for every process of the machine) and request → answer, p50/p99/max in ms,
+  with the same figures for the service idle;
+* ``sweep``: one 1/10/50/100 Hz sweep run to its end under the load: its state, watchdog trips and
+  the emulated DAQ's real-time overruns;
+* ``rss_mb``: peak resident memory of the web process and of the engine process.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import random
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+from service.security.auth import read_bootstrap_token
+from service.perf.service_load import spawn_service
+
+SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5}
+LONG_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 30}
+DOWNLOADERS = 4
+
+
+def _wait(client: httpx.Client, job_id: str, states: tuple[str, ...], timeout_s: float = 300) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/api/jobs/{job_id}").json()
+        if job["state"] in states:
+            return job
+        time.sleep(0.05)
+    raise TimeoutError(f"job {job_id} not {states} within {timeout_s} s")
+
+
+def write_import_csv(path: Path, megabytes: float) -> Path:
+    """A two-axis CSV (t,u_y,x_y,u_z,x_z) of about ``megabytes`` MB: a 5 Hz sine sampled at 20 kHz."""
+    rows = int(megabytes * 1e6 / 60)
+    t = np.arange(rows) / 20000.0
+    u = 60 - 60 * np.cos(2 * np.pi * 5 * t)
+    table = np.column_stack([t, u, u * 0.05, u, u * 0.077])
+    np.savetxt(path, table, delimiter=",", fmt="%.9g", header="t,u_y,x_y,u_z,x_z", comments="")
+    return path
+
+
+def _download_loop(url: str, headers: dict, dataset_id: str, stop, results) -> None:
+    """One client (its own process) downloading the dataset's full-resolution CSV until ``stop``."""
+    done, received = 0, 0
+    with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
+        while not stop.is_set():
+            with c.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "csv"}) as r:
+                for chunk in r.iter_bytes():
+                    received += len(chunk)
+                    if stop.is_set():
+                        break
+            done += 1
+    results.put({"downloads": done, "download_bytes": received})
+
+
+def _upload_loop(url: str, headers: dict, csv_path: str, stop, results) -> None:
+    """One client (its own process) importing the CSV at ``csv_path`` over and over until ``stop``."""
+    done, statuses = 0, set()
+    with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
+        while not stop.is_set():
+            with open(csv_path, "rb") as f:
+                statuses.add(c.post("/api/datasets", files={"file": ("load.csv", f, "text/csv")}).status_code)
+            done += 1
+    results.put({"imports": done, "import_status": statuses})
+
+
+def _start_load(url: str, headers: dict, dataset_id: str, csv_path: Path):
+    """The four downloaders and the importer, each in its own process like a real client (so this
+    process, which presses the stop and times it, shares no interpreter lock with them)."""
+    ctx = multiprocessing.get_context("spawn")
+    stop, results = ctx.Event(), ctx.Queue()
+    procs = [ctx.Process(target=_download_loop, args=(url, headers, dataset_id, stop, results), daemon=True)
+             for _ in range(DOWNLOADERS)]
+    procs.append(ctx.Process(target=_upload_loop, args=(url, headers, str(csv_path), stop, results), daemon=True))
+    for p in procs:
+        p.start()
+    return procs, stop, results
+
+
+def _stop_load(procs, stop, results) -> dict:
+    stop.set()
+    counts = {"downloads": 0, "download_bytes": 0, "imports": 0, "import_status": set()}
+    for _ in procs:
+        part = results.get(timeout=300)
+        for key, value in part.items():
+            counts[key] = counts[key] | value if key == "import_status" else counts[key] + value
+    for p in procs:
+        p.join(30)
+    return counts
+
+
+def _press(client: httpx.Client, rng: random.Random) -> dict:
+    """Start a long sweep, press the stop at a random moment of it, return the figures."""
+    job = client.post("/api/sweeps", json=LONG_SWEEP).json()
+    _wait(client, job["job_id"], ("running",))
+    time.sleep(0.3 + 1.5 * rng.random())
+    t_send = time.monotonic()
+    answer = client.post("/api/bench/stop").json()
+    t_answer = time.monotonic()
+    done = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
+    zero = answer.get("zero_monotonic_s")
+    return {"answer_ms": (t_answer - t_send) * 1e3,
+            "zero_ms": (zero - t_send) * 1e3 if zero is not None else float("inf"),
+            "output_v_max": max(abs(v) for v in answer["output_v"].values()),
+            "job_state": done["state"], "cancelled": answer["cancelled_job_id"] == job["job_id"]}
+
+
+def _stats(values: list[float]) -> dict:
+    a = np.asarray(values, dtype=float)
+    return {"p50": round(float(np.percentile(a, 50)), 2), "p99": round(float(np.percentile(a, 99)), 2),
+            "max": round(float(a.max()), 2), "n": int(a.size)}
+
+
+def _summary(presses: list[dict]) -> dict:
+    landed = [p["output_v_max"] < 0.05 and p["cancelled"] and p["job_state"] == "cancelled" for p in presses]
+    return {"zero_ms": _stats([p["zero_ms"] for p in presses]), "answer_ms": _stats([p["answer_ms"] for p in presses]),
+            "every_stop_landed": all(landed), "not_landed": [p for p, ok in zip(presses, landed) if not ok]}
+
+
+def peak_rss_mb(pid: int) -> float:
+    """VmHWM of a process (MB): its peak resident set so far."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int = 0) -> dict:
+    """The figures above, from one service started for this run (see the module docstring)."""
+    rng = random.Random(seed)
+    with tempfile.TemporaryDirectory(prefix="evc-safety-") as tmp:
+        tmp = Path(tmp)
+        proc, url = spawn_service(tmp / "data", "default_realtime", tmp / "service.log")
+        try:
+            headers = {"Authorization": f"Bearer {read_bootstrap_token(tmp / 'data')}"}
+            with httpx.Client(base_url=url, headers=headers, timeout=600) as client:
+                engine_pid = client.get("/api/bench").json()["engine"]["pid"]
+                seeded = client.post("/api/sweeps", json=SWEEP).json()
+                dataset_id = _wait(client, seeded["job_id"], ("succeeded",))["result"]["dataset_id"]
+                idle = [_press(client, rng) for _ in range(max(3, presses // 3))]
+                csv_path = write_import_csv(tmp / "load.csv", import_mb)
+                load = _start_load(url, headers, dataset_id, csv_path)
+                try:
+                    time.sleep(2.0)
+                    loaded = [_press(client, rng) for _ in range(presses)]
+                    before = client.get("/api/bench").json()
+                    job = client.post("/api/sweeps", json=SWEEP).json()
+                    swept = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
+                    after = client.get("/api/bench").json()
+                finally:
+                    counts = _stop_load(*load)
+                trip = after["safety"].get("watchdog_last_trip")
+                return {
+                    "stop_idle": _summary(idle), "stop_under_load": _summary(loaded),
+                    "sweep_under_load": {
+                        "state": swept["state"], "error": swept["error"],
+                        "watchdog_trips": int(trip is not None and trip != before["safety"].get("watchdog_last_trip")),
+                        "overruns": after["timing"].get("overruns", 0) - before["timing"].get("overruns", 0),
+                        "periods": after["timing"].get("periods", 0) - before["timing"].get("periods", 0)},
+                    "load": {"downloaders": DOWNLOADERS, "downloads_completed": counts["downloads"],
+                             "download_mb": round(counts["download_bytes"] / 1e6, 1),
+                             "import_mb": round(csv_path.stat().st_size / 1e6, 1),
+                             "imports_completed": counts["imports"],
+                             "import_status": sorted(counts["import_status"])},
+                    "rss_mb": {"web": round(peak_rss_mb(proc.pid), 1), "engine": round(peak_rss_mb(engine_pid), 1)},
+                }
+        finally:
+            proc.terminate()
+            proc.wait(60)

@@ -1,0 +1,1 @@
+"""Reports: scripts that regenerate docs/ (reproduction, calibration, discovery, tracking)."""

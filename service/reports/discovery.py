@@ -1,0 +1,31 @@
+"""Reproduce docs/discovery.md's run: ``python -m service.reports.discovery [--bench default]
+[--axis y] [--figure docs/img/discovery_history.png]``. Prints the steps as Markdown."""
+from __future__ import annotations
+
+import argparse
+import warnings
+
+from service.science.discovery.records import sweep_records
+from service.science.discovery.loop import discovery_run, history_figure, markdown
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--bench", default="default")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--axis", default="y", choices=["y", "z"])
+    ap.add_argument("--figure", default="docs/img/discovery_history.png")
+    args = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    record = sweep_records(args.bench, args.seed)[args.axis]
+    steps = discovery_run([record])
+    history_figure(steps, args.figure, f"Discovery on the {args.bench} bench, axis {args.axis.upper()}")
+    print(markdown(steps))
+    print("| frequency | validation RMS (nm) | noise floor (nm) | ratio |\n|---|---|---|---|")
+    for b in steps[-1]["per_block"]:
+        print(f"| {b['frequency_hz']:g} Hz | {b['validation_rms_um'] * 1e3:.2f} | {b['noise_floor_um'] * 1e3:.2f} | "
+              f"{b['validation_rms_um'] / b['noise_floor_um']:.1f} |")
+
+
+if __name__ == "__main__":
+    main()

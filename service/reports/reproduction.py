@@ -1,0 +1,228 @@
+"""Reproduce the paper's Table 6 on the emulated bench: static PI, GRPI and dynamic PI RMS errors.
+
+Run ``python -m service.reports.reproduction`` to sweep Y and Z at 1, 10, 50 and 100 Hz (0–120 V biased
+sine, 5 cycles, 20 kHz) on the default bench, identify the three models the way the paper did,
+print the table beside the paper's figures and write docs/reproduction.md.
+
+How each model is identified (paper §2.3):
+- static PI: 10 operators (0, 6, …, 54 V), weights ≥ 0 by least squares on the 1 Hz loop only;
+- GRPI: envelope (a1, a2, b1, b2) by variable projection, weights ≥ 0, on all four loops;
+- dynamic PI: ω, α1..4, β1..4 on all four loops — exactly by least squares (joint), and by the
+  paper's two procedures (ω on 1 Hz, then α, β by least squares or by PSO).
+Every RMS is over the whole 5-cycle record of that frequency.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.reports.calibration import CYCLES, FREQUENCIES_HZ, SAMPLE_RATE_HZ, run_loops
+from service.science.models import GRPI, Series, StaticPI
+from service.science.fitting.pi_family import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, identify
+from service.science.data.signals import biased_sine
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Table 6 of the paper, RMS error in µm: {axis: {f_hz: (dynamic PI, GRPI, static PI)}}.
+PAPER_TABLE6_UM = {
+    "y": {10.0: (0.0586, 0.0933, 0.0991), 100.0: (0.0812, 0.0985, 0.1075)},
+    "z": {10.0: (0.0901, 0.1449, 0.1406), 100.0: (0.1039, 0.1326, 0.1513)},
+}
+MODEL_COLUMNS = ("dynamic_joint", "dynamic_two_stage", "dynamic_pso", "grpi", "static")
+
+
+#: Cumulative switches for the ablation: which emulated effects explain the gap to the paper.
+ABLATION_STEPS = (
+    ("default bench", ()),
+    ("flexure dynamics off", ("flexure.dynamics",)),
+    ("… and creep off", ("flexure.dynamics", "piezo.creep")),
+    ("… and asymmetry off", ("flexure.dynamics", "piezo.creep", "piezo.asymmetry")),
+)
+
+
+def _switched_off(paths: tuple[str, ...]) -> dict:
+    """Config overrides that disable ``paths`` (e.g. "piezo.creep") on both axes."""
+    overrides: dict = {"axes": {}}
+    for axis in ("y", "z"):
+        node = overrides["axes"].setdefault(axis, {})
+        for path in paths:
+            parts = path.split(".")
+            cursor = node
+            for part in parts:
+                cursor = cursor.setdefault(part, {})
+            cursor["enabled"] = False
+    return overrides
+
+
+def sweep_series(bench_name: str = "default", seed: int = 0, overrides: dict | None = None) -> dict[str, list[Series]]:
+    """Per axis, one Series per frequency, with the commanded waveform's exact derivatives."""
+    loops = run_loops(bench_name, seed=seed, overrides=overrides)
+    out: dict[str, list[Series]] = {}
+    for axis, by_frequency in loops.items():
+        out[axis] = []
+        for f_hz in FREQUENCIES_HZ:
+            u_v, x_um = by_frequency[f_hz]
+            wave = biased_sine(f_hz, CYCLES, SAMPLE_RATE_HZ)
+            out[axis].append(Series(u_v, x_um, SAMPLE_RATE_HZ, wave.d1_per_s, wave.d2_per_s2, label=f"{f_hz:g} Hz"))
+    return out
+
+
+def _rms(model, series: Series) -> float:
+    return float(np.sqrt(np.mean((series.x_um - model.predict(series)) ** 2)))
+
+
+def identify_axis(loops: list[Series], seed: int = 0, with_pso: bool = True) -> dict:
+    """Fit every model of the table to one axis's loops; returns RMS per model per frequency."""
+    one_hz = loops[0]
+    timings: dict[str, float] = {}
+
+    def timed(name, fit):
+        start = time.perf_counter()
+        model = fit()
+        timings[name] = time.perf_counter() - start
+        return model
+
+    models = {
+        "static": timed("static", lambda: StaticPI().fit(one_hz)),
+        "grpi": timed("grpi", lambda: GRPI().fit(loops)),
+        "dynamic_joint": timed("dynamic_joint", lambda: identify("dynamic_pi", loops)),
+        "dynamic_two_stage": timed("dynamic_two_stage", lambda: fit_dynamic_pi_two_stage(loops, static_data=one_hz)),
+    }
+    if with_pso:
+        models["dynamic_pso"] = timed("dynamic_pso", lambda: fit_dynamic_pi_pso(loops, static_data=one_hz, seed=seed)[0])
+    rms = {name: {s.label: _rms(model, s) for s in loops} for name, model in models.items()}
+    return {"rms_um": rms, "fit_s": timings}
+
+
+def reproduce(bench_name: str = "default", seed: int = 0) -> dict:
+    """Sweep, identify and tabulate both axes. Returns {axis: identify_axis(...)}."""
+    return {axis: identify_axis(loops, seed) for axis, loops in sweep_series(bench_name, seed).items()}
+
+
+def ablation(bench_name: str = "default", seed: int = 0) -> list[tuple[str, dict]]:
+    """Table 6's models again with emulated effects switched off step by step (no PSO)."""
+    return [(label, {axis: identify_axis(loops, seed, with_pso=False) for axis, loops in
+                     sweep_series(bench_name, seed, _switched_off(paths)).items()})
+            for label, paths in ABLATION_STEPS]
+
+
+def _ablation_reading(steps: list[tuple[str, dict]]) -> str:
+    """The ablation's lessons, quoted from its own numbers."""
+    rms = {label: result for label, result in steps}
+
+    def cell(label, axis, f_hz, model="dynamic_joint"):
+        return rms[label][axis]["rms_um"][model][f"{f_hz:g} Hz"]
+
+    first, no_flex, no_creep, no_asym = (label for label, _ in steps)
+    return "\n".join([
+        "",
+        f"- **Z at 100 Hz is the flexure.** The emulated Z mode sits at 290.7 Hz (the paper's FEM figure) with "
+        f"light damping; a 100 Hz drive puts the hysteresis's third harmonic at 300 Hz, on that mode, and Z rings. "
+        f"No PI-family model has structural dynamics, so the dynamic PI leaves {cell(first, 'z', 100):.3f} µm; with "
+        f"the flexure's dynamics switched off it leaves {cell(no_flex, 'z', 100):.3f} µm, the paper's order "
+        f"(0.104 µm). Y at 100 Hz falls likewise from {cell(first, 'y', 100):.3f} to {cell(no_flex, 'y', 100):.3f} µm. "
+        f"The paper's device evidently had its Z mode further from 300 Hz or more damping.",
+        f"- **At 10 Hz the error is asymmetry, which no symmetric operator fits.** Electrostriction (∝ u²) and "
+        f"saturation make the emulated loop non-centrosymmetric; switching them off drops the 10 Hz dynamic-PI "
+        f"error on Y from {cell(no_creep, 'y', 10):.3f} to {cell(no_asym, 'y', 10):.4f} µm. That is why the "
+        f"dynamic PI gains less over the static PI at 10 Hz here than in the paper: the rate-dependent part of "
+        f"the emulated error is small beside the asymmetric part.",
+        f"- **Creep adds a few hundredths of a µm** over a 5-cycle record (Y 10 Hz: {cell(no_flex, 'y', 10):.3f} → "
+        f"{cell(no_creep, 'y', 10):.3f} µm).",
+        f"- **With only hysteresis and rate dependence left** (last row) both rate-dependent models capture the "
+        f"emulated dielectric relaxation, which the static PI cannot: at Y 100 Hz the static PI leaves "
+        f"{cell(no_asym, 'y', 100, 'static') / cell(no_asym, 'y', 100):.0f}× the dynamic PI's error and "
+        f"{cell(no_asym, 'y', 100, 'static') / cell(no_asym, 'y', 100, 'grpi'):.0f}× the GRPI's. A relaxation is a lag, "
+        f"which GRPI's |u̇|-shifted envelopes follow more closely than the segmented weights of eq. 3.",
+        "- These residuals are what the discovery workflow attributes to the `dynamics`, `asymmetry`, `creep` and "
+        "`rate_dependence` effects.",
+    ]) + "\n"
+
+
+def render_ablation(steps: list[tuple[str, dict]]) -> str:
+    """Markdown: RMS (µm) of dynamic PI / GRPI / static PI at 10 and 100 Hz per ablation step."""
+    lines = ["## Which emulated physics makes the difference (ablation)", "",
+             "The same sweep and fits with emulated effects switched off cumulatively. Cells: dynamic PI (exact LS) / "
+             "GRPI / static PI, RMS in µm. Paper: Y 10 Hz 0.0586 / 0.0933 / 0.0991, Y 100 Hz 0.0812 / 0.0985 / 0.1075, "
+             "Z 10 Hz 0.0901 / 0.1449 / 0.1406, Z 100 Hz 0.1039 / 0.1326 / 0.1513.", "",
+             "| emulator | Y 10 Hz | Y 100 Hz | Z 10 Hz | Z 100 Hz |", "|---|---|---|---|---|"]
+    for label, result in steps:
+        cells = []
+        for axis in ("y", "z"):
+            for f_hz in (10.0, 100.0):
+                rms = result[axis]["rms_um"]
+                cells.append(" / ".join(f"{rms[m][f'{f_hz:g} Hz']:.4f}" for m in ("dynamic_joint", "grpi", "static")))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n" + _ablation_reading(steps)
+
+
+def render_markdown(result: dict, bench_name: str = "default", seed: int = 0) -> str:
+    """docs/reproduction.md: the table in the paper's layout, beside the paper's figures."""
+    lines = [
+        "# The paper's Table 6, reproduced on the emulated bench",
+        "",
+        f"Produced by `python -m service.reports.reproduction` (bench `{bench_name}`, seed {seed}). Drive: "
+        "u = 60 − 60 cos(2πft) V, 5 cycles at 20 kHz, each axis alone with the other at 0 V. "
+        "RMS error over the whole record, µm. Static PI fitted on the 1 Hz loop (as the paper); "
+        "GRPI and dynamic PI on the 1, 10, 50 and 100 Hz loops together. The dynamic PI is solved "
+        "three ways: exactly by joint least squares (ω ≥ 0), by the paper's two stages with α, β "
+        "by least squares, and by the paper's PSO (N = M = 100, w = 0.5, c1 = c2 = 2).",
+        "",
+        "| axis | frequency | dynamic PI (exact LS) | dynamic PI (two-stage) | dynamic PI (PSO) | GRPI | static PI | "
+        "paper: dynamic / GRPI / static |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for axis in ("y", "z"):
+        rms = result[axis]["rms_um"]
+        for f_hz in FREQUENCIES_HZ:
+            label = f"{f_hz:g} Hz"
+            paper = PAPER_TABLE6_UM[axis].get(f_hz)
+            paper_text = " / ".join(f"{v:.4f}" for v in paper) if paper else "—"
+            cells = " | ".join(f"{rms[m][label]:.4f}" for m in MODEL_COLUMNS)
+            lines.append(f"| {axis.upper()} | {label} | {cells} | {paper_text} |")
+    lines += ["", "Fit times (s): " + "; ".join(
+        f"{axis.upper()}: " + ", ".join(f"{k} {v:.2f}" for k, v in result[axis]["fit_s"].items()) for axis in ("y", "z")),
+        "", _discussion(result)]
+    return "\n".join(lines) + "\n"
+
+
+def _discussion(result: dict) -> str:
+    def mean(axis, model, freqs=(10.0, 100.0)):
+        return float(np.mean([result[axis]["rms_um"][model][f"{f:g} Hz"] for f in freqs]))
+
+    holds = [f"{axis.upper()} {f:g} Hz" for axis in ("y", "z") for f in (10.0, 100.0)
+             if mean(axis, "dynamic_joint", (f,)) < mean(axis, "grpi", (f,)) <= mean(axis, "static", (f,)) * 1.0001]
+    fails = [f"{axis.upper()} {f:g} Hz" for axis in ("y", "z") for f in (10.0, 100.0)
+             if f"{axis.upper()} {f:g} Hz" not in holds]
+    y_order = [mean("y", m) for m in ("dynamic_joint", "grpi", "static")]
+    return "\n".join([
+        "## Reading the table",
+        "",
+        f"- **Ordering.** The paper's ordering, dynamic < GRPI ≤ static, holds at {', '.join(holds) or 'no cell'}"
+        + (f" and not at {', '.join(fails)}" if fails else "") +
+        f". On Y the mean over 10 and 100 Hz is {y_order[0]:.4f} µm (dynamic PI), {y_order[1]:.4f} µm (GRPI) and "
+        f"{y_order[2]:.4f} µm (static PI).",
+        "- **The exact solution is the optimum.** The dynamic PI is linear in ω, α and β once the play-operator "
+        "outputs are known, so joint least squares reaches the lowest error the model can; the paper's two-stage "
+        "procedure fixes ω on the 1 Hz loop and cannot do better, and PSO converges towards the two-stage optimum "
+        "(see `evcbench bench identification --json` for speed: least squares is over 100× faster).",
+        "- **Where the emulator differs from the paper, and why:** see the ablation below, which switches the "
+        "emulator's effects off one by one.",
+    ])
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    bench_name = argv[0] if argv else "default"
+    result = reproduce(bench_name)
+    text = render_markdown(result, bench_name) + "\n" + render_ablation(ablation(bench_name))
+    print(text)
+    if bench_name == "default":
+        (ROOT / "docs" / "reproduction.md").write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""The FastAPI application: opens the store (recovering what a killed process left: see
+service.runtime.recovery) and the bench at start-up, mounts the routers, and at shut-down stops the jobs
+(a running sweep keeps its partial data) and closes the bench at 0 V."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from contextlib import asynccontextmanager
+from typing import Callable
+
+from fastapi import FastAPI
+
+from drivers.bench import Bench
+from service import __version__
+from service.http import admin as admin_api
+from service.http import auth as auth_api
+from service.http import bench as bench_api
+from service.http import datasets as datasets_api
+from service.http import errors as errors_api
+from service.http import health as health_api
+from service.http import discovery as discovery_api
+from service.http import jobs as jobs_api
+from service.http import models as models_api
+from service.http import sweeps as sweeps_api
+from service.http import tokens as tokens_api
+from service.http import trajectories as trajectories_api
+from service.http import web as web_api
+from service.runtime.jobs import JobManager, freeze_heap
+from service.runtime.recovery import recover
+from service.security.auth import ensure_bootstrap_token
+from service.security.binding import auth_refusal
+from service.runtime.settings import Settings
+from service.store import Store
+
+#: Routers mounted under /api, in the order they appear in the docs. Every one but health needs a
+#: token (service/http/auth.py): read for GET/HEAD, operate for writes, admin under /api/admin.
+ROUTERS = (health_api.router, bench_api.router, jobs_api.router, sweeps_api.router, datasets_api.router,
+           models_api.router, discovery_api.router, trajectories_api.router, tokens_api.router,
+           admin_api.router)
+OPEN_ROUTERS = (health_api.router,)
+
+
+def open_configured_bench(settings: Settings) -> Bench:
+    """Open the bench the settings name (the emulated backend unless a config says otherwise): in
+    the bench engine's own process (``engine = process``, the default) or in this one (``inline``)."""
+    if settings.engine == "process":
+        from service.runtime.engine import open_engine
+
+        return open_engine(settings.bench, seed=settings.seed)
+    from drivers.emulated import open_bench
+
+    return open_bench(settings.bench, seed=settings.seed)
+
+
+def create_app(settings: Settings | None = None, bench_factory: Callable[[Settings], Bench] | None = None) -> FastAPI:
+    """Build the app. The bench is opened on start-up and left at 0 V and closed on shut-down.
+    With auth on, start-up also writes the bootstrap admin token to <data_dir>/admin.token."""
+    settings = settings or Settings()
+    refusal = auth_refusal(settings.host, settings.auth)
+    if refusal:
+        raise ValueError(refusal)
+    factory = bench_factory or open_configured_bench
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+        app.state.settings = settings
+        app.state.started_at = time.time()
+        app.state.store = Store(settings.resolved_database_url, settings.data_dir)
+        try:
+            app.state.recovery = recover(app.state.store)
+            if settings.auth == "tokens":
+                ensure_bootstrap_token(app.state.store, settings.data_dir)
+            app.state.bench = factory(settings)
+            try:
+                app.state.jobs = JobManager(app.state.store, on_cancel_bench=app.state.bench.request_stop)
+                freeze_heap()  # what start-up loaded is never scanned again by the collector
+                try:
+                    yield
+                finally:
+                    app.state.jobs.shutdown()
+            finally:
+                app.state.bench.close()
+        finally:
+            app.state.store.close()
+
+    app = FastAPI(title="EVC Bench", version=__version__, lifespan=lifespan,
+                  description="Characterise, model and control a two-axis piezo EVC bench. Units live in "
+                              "field names: _v volts at the actuator, _um micrometres, _hz, _s.")
+    app.state.settings = settings  # also before start-up, for tests that seed tokens
+    errors_api.install(app)
+    auth_api.install(app)
+    for router in ROUTERS:
+        app.include_router(router, prefix="/api",
+                           dependencies=[] if router in OPEN_ROUTERS else auth_api.REQUIRE_TOKEN)
+    web_api.mount(app)  # the dashboard's static files at /web, after the API routes
+    return app

@@ -1,0 +1,53 @@
+"""Service settings, read from the environment (EVCBENCH_*) with safe defaults."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+#: Jobs waiting for the bench (sweeps, trajectories) beyond the running one; one more is refused
+#: with 429 (service.runtime.jobs.QueueFull), so a runaway script cannot queue hours of bench time.
+MAX_QUEUED_BENCH_JOBS = 16
+#: Jobs waiting for a compute worker (identification, refinement, …), counted apart from the bench's.
+MAX_QUEUED_COMPUTE_JOBS = 32
+#: The Retry-After (s) a refused submission carries.
+QUEUE_RETRY_AFTER_S = 5
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Where the service keeps its data and which bench it drives.
+
+    ``bench`` names a file in fixtures/benches/ (or a path to one); ``seed`` makes the
+    emulated bench reproducible. ``host`` defaults to loopback. ``database_url`` is an
+    SQLAlchemy URL (``postgresql+psycopg://…``); empty means SQLite in ``data_dir``.
+    ``auth`` is ``tokens`` (every /api route but health needs a token) or ``off`` (loopback only).
+    """
+
+    data_dir: Path = field(default_factory=lambda: Path(os.environ.get("EVCBENCH_DATA_DIR", "var")))
+    bench: str = field(default_factory=lambda: os.environ.get("EVCBENCH_BENCH", "default"))
+    seed: int | None = field(default_factory=lambda: _int_or_none(os.environ.get("EVCBENCH_SEED")))
+    host: str = field(default_factory=lambda: os.environ.get("EVCBENCH_HOST", "127.0.0.1"))
+    port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_PORT", "8000")))
+    database_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_DATABASE_URL") or None)
+    auth: str = field(default_factory=lambda: os.environ.get("EVCBENCH_AUTH", "tokens"))
+    #: ``process``: the bench engine runs in its own process (service.runtime.engine), so no request
+    #: can delay the real-time loop or the stop; ``inline``: in this process (tests of internals)
+    engine: str = field(default_factory=lambda: os.environ.get("EVCBENCH_ENGINE", "process"))
+
+    def __post_init__(self) -> None:
+        if self.auth not in ("tokens", "off"):
+            raise ValueError(f"auth must be 'tokens' or 'off', not {self.auth!r}")
+        if self.engine not in ("process", "inline"):
+            raise ValueError(f"engine must be 'process' or 'inline', not {self.engine!r}")
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The metadata database: ``database_url`` if set, else SQLite at <data_dir>/evcbench.db."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{Path(self.data_dir).resolve() / 'evcbench.db'}"
+
+
+def _int_or_none(text: str | None) -> int | None:
+    return int(text) if text not in (None, "") else None

@@ -1,0 +1,1 @@
+"""Data: records, tables (CSV import/export), segmentation into blocks, signal helpers."""

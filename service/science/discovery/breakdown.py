@@ -1,0 +1,96 @@
+"""Where a model fails: its held-out residual broken down by frequency, loop branch and segment
+(signs of u̇, ü), turning points, amplitude, and time; and the signature numbers each effect's
+evidence quotes (lag, growth with frequency, trends, symmetry, coupling)."""
+from __future__ import annotations
+
+import numpy as np
+
+from service.science.models.kernels import segment_index
+
+SEGMENTS = ("rising, accelerating", "rising, decelerating", "falling, accelerating", "falling, decelerating")
+
+
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0
+
+
+def _held_rows(rec) -> np.ndarray:
+    mask = np.zeros(rec.n, dtype=bool)
+    for s in rec.splits:
+        mask[s.held_out[0]:s.held_out[1]] = True
+    return mask
+
+
+def failures(records, residuals, top: int = 6) -> list[dict]:
+    """The worst places of the held-out residual, worst first, each in words and numbers."""
+    places = []
+    for rec, res in zip(records, residuals):
+        held = _held_rows(rec)
+        seg = segment_index(np.ascontiguousarray(rec.du), np.ascontiguousarray(rec.ddu))
+        for s in rec.splits:
+            rows = slice(*s.held_out)
+            f = s.block.get("frequency_hz")
+            where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
+            places.append((f"{rec.label} {where}", _rms(res[rows]), "frequency"))
+        for k, name in enumerate(SEGMENTS):
+            m = held & (seg == k)
+            places.append((f"{rec.label} {name} branch", _rms(res[m]), "branch"))
+        speed = np.abs(rec.du)
+        slow = held & (speed < 0.1 * np.percentile(speed[held], 95))
+        places.append((f"{rec.label} turning points (|u̇| < 10 % of its peak)", _rms(res[slow]), "turning points"))
+        lo, hi = np.percentile(rec.u_v[held], [33, 67])
+        for name, m in (("low third of the drive", rec.u_v < lo), ("top third of the drive", rec.u_v > hi)):
+            bound = f"u {'<' if 'low' in name else '>'} {lo if 'low' in name else hi:.3g} V"
+            places.append((f"{rec.label} {name} ({bound})", _rms(res[held & m]), "amplitude"))
+    places.sort(key=lambda p: -p[1])
+    return [{"where": w, "rms_um": round(v, 6), "by": by,
+             "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"} for w, v, by in places[:top]]
+
+
+def signatures(records, residuals, predictions) -> dict:
+    """Numbers the evidence strings quote, from the current model's residual on every block."""
+    lags, rms_f, trend, logslope, even, coupling, rate_r = [], [], [], [], [], [], []
+    for rec, res, pred in zip(records, residuals, predictions):
+        dpred = np.gradient(pred, 1.0 / rec.fs_hz)
+        s_rate = rec.du * (rec.u_v - rec.u_v.min())
+        for s in rec.splits:
+            a, b = s.train[0], s.held_out[1]
+            r, d = res[a:b] - res[a:b].mean(), dpred[a:b]
+            f = s.block.get("frequency_hz")
+            moves = np.ptp(rec.u_v[a:b]) > 1e-6
+            if moves and np.dot(d, d) > 0:
+                design = np.column_stack([np.ones(b - a), pred[a:b], d])  # r ≈ c + g·x̂ − τ·dx̂/dt
+                lags.append((f, float(-np.linalg.lstsq(design, res[a:b], rcond=None)[0][2]), float(np.dot(d, d))))
+                rms_f.append((f, _rms(r)))
+                if np.std(s_rate[a:b]) > 0 and np.std(r) > 0:
+                    rate_r.append(abs(float(np.corrcoef(r, s_rate[a:b])[0, 1])))
+                u = rec.u_v[a:b]
+                centre = 0.5 * (u.max() + u.min())
+                uu = (u - centre) / max(0.5 * np.ptp(u), 1e-9)
+                c = np.polyfit(uu, r, 2)
+                even.append(float(np.sqrt(np.mean((c[0] * (uu**2 - np.mean(uu**2))) ** 2)) / max(_rms(r), 1e-300)))
+                period = int(round(rec.period_samples(s) or (b - a)))
+                n_cyc = (b - a) // max(period, 1)
+                if n_cyc >= 2:
+                    means = res[a:a + n_cyc * period].reshape(n_cyc, period).mean(axis=1)
+                    tc = (np.arange(n_cyc) + 0.5) * period / rec.fs_hz
+                    trend.append(float(np.polyfit(tc, means, 1)[0]))
+                    logslope.append(float(np.polyfit(np.log10(tc), means, 1)[0]))
+            elif rec.u_other_v is not None and np.ptp(rec.u_other_v[a:b]) > 1e-6 and np.std(r) > 0:
+                coupling.append(float(np.corrcoef(r, rec.u_other_v[a:b])[0, 1]))
+    freqs = [f for f, _, _ in lags if f]
+    weights = np.array([w for _, _, w in lags])
+    growth = None
+    if len({f for f, _ in rms_f if f}) >= 2:
+        fr = np.array([[f, v] for f, v in rms_f if f and v > 0])
+        growth = float(np.polyfit(np.log(fr[:, 0]), np.log(fr[:, 1]), 1)[0])
+    fast = [(f, v) for f, v, w in lags if w >= 0.05 * weights.max()] if lags else []  # where a lag is visible
+    return {"lag_ms_by_frequency": {f"{f:g}" if f else "record": round(v * 1e3, 4) for f, v in fast},
+            "lag_ms_spread": float(np.std([v for _, v in fast]) * 1e3) if fast else None,
+            "lag_ms": float(np.average([v for _, v, _ in lags], weights=weights) * 1e3) if lags else None,
+            "rms_growth_exponent": growth, "frequencies_hz": sorted(set(freqs)),
+            "cycle_mean_trend_um_per_s": float(np.median(trend)) if trend else None,
+            "cycle_mean_um_per_decade": float(np.median(logslope)) if logslope else None,
+            "even_fraction": float(np.median(even)) if even else None,
+            "coupling_r": float(np.median(coupling)) if coupling else None,
+            "rate_r": float(np.median(rate_r)) if rate_r else None}

@@ -1,0 +1,82 @@
+"""One full discovery run as a report: diagnose, add the top physical candidate, refit, repeat
+until the verdict is complete, then more hysteresis capacity while the model is not at the noise
+floor and a capacity candidate removes a significant share of the excess; the error history as a figure (matplotlib Agg)."""
+from __future__ import annotations
+
+from service.science.discovery.composite import fit_composite
+from service.science.discovery.diagnosis import diagnose, helpful_capacity
+
+MAX_STEPS = 8
+
+
+def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) -> list[dict]:
+    """Steps of an automatic discovery: each with effects, diagnosis and per-block validation RMS."""
+    effects, steps, theta = [], [], {}
+    for _ in range(max_steps):
+        model = fit_composite(records, effects, n_operators, theta)
+        theta = model.theta
+        d = diagnose(records, model=model)
+        per_block = [{"dataset_id": ds["dataset_id"], "frequency_hz": b["frequency_hz"],
+                      "validation_rms_um": b["validation"]["rms_um"]}
+                     for ds in d["metrics"]["per_dataset"] for b in ds["blocks"]]
+        noise_by_block = [b["noise_um"] for b in d["noise"]["per_block"]]
+        for row, nf in zip(per_block, noise_by_block):
+            row["noise_floor_um"] = nf
+        steps.append({"effects": ["hysteresis"] + list(effects), "diagnosis": d, "per_block": per_block})
+        if d["verdict"] == "missing_effect":
+            effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical")]
+            continue
+        # complete as far as physics goes: more capacity if the model is not at the noise floor yet
+        capacity = helpful_capacity(d["candidates"])     # diagnose() offers only effects not in the model
+        if d["at_noise_floor"] or not capacity:
+            break
+        effects = effects + [capacity[0]["effect"]]
+    return steps
+
+
+def history_figure(steps: list[dict], path: str, title: str = "") -> None:
+    """Held-out RMS per step (mean over blocks) with the noise floor, log scale, to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = ["hysteresis"] + ["+" + s["effects"][-1] for s in steps[1:]]
+    val = [s["diagnosis"]["residual_rms_um"] * 1e3 for s in steps]
+    train = [s["diagnosis"]["train_rms_um"] * 1e3 for s in steps]
+    noise = [s["diagnosis"]["noise_floor_um"] * 1e3 for s in steps]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    x = range(len(steps))
+    ax.plot(x, val, "o-", label="validation RMS (held-out cycles)")
+    ax.plot(x, train, "s--", label="training RMS")
+    ax.plot(x, noise, "k:", label="noise floor (non-repeatable part)")
+    ax.set_xticks(list(x), labels, rotation=20)
+    ax.set_yscale("log")
+    ax.set_ylabel("RMS error (nm)")
+    ax.set_title(title or "Discovery: error history")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(steps: list[dict]) -> str:
+    """The diagnosis at each step in words (for docs/discovery.md)."""
+    out = []
+    for i, s in enumerate(steps):
+        d = s["diagnosis"]
+        out.append(f"### Step {i}: {' + '.join(s['effects'])}\n")
+        out.append(f"- held-out RMS {d['residual_rms_um'] * 1e3:.2f} nm, training {d['train_rms_um'] * 1e3:.2f} nm, "
+                   f"noise floor {d['noise_floor_um'] * 1e3:.2f} nm, repeatable part "
+                   f"{(d['repeatable_rms_um'] or 0) * 1e3:.2f} nm")
+        out.append(f"- verdict: **{d['verdict']}** — {d['verdict_text']}")
+        for f in d["failures"][:3]:
+            out.append(f"- fails worst at: {f['text']}")
+        for c in d["candidates"][:3]:
+            out.append(f"- candidate `{c['effect']}` ({c['kind']}), score {c['score']:.2f}, expected "
+                       f"{c['expected_rms_um'] * 1e3:.2f} nm: {c['evidence']}")
+        if d.get("ambiguity"):
+            out.append(f"- ambiguity: {d['ambiguity']['text']}; experiment: `{d['ambiguity']['experiment']}`")
+        out.append("")
+    return "\n".join(out)

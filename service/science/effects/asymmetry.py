@@ -1,0 +1,22 @@
+"""Asymmetry: a loop that is not point-symmetric (electrostriction ∝ u², saturation ∝ u³, and
+a saturating hysteretic strain ∝ S² whose size depends on the field, ∝ u·S): columns in the
+normalised drive u/u_max and the normalised hysteretic state S = Σ_{i≥1} P_i / u_max.
+(S³ is left out on purpose: it also bends a symmetric Preisach loop, so on a bench without
+asymmetry it would claim the hysteresis model's own shape error as asymmetry.)"""
+from __future__ import annotations
+
+import numpy as np
+
+from service.science.effects.base import Effect, RecordContext
+from service.science.fitting.lsq import Block
+
+
+class Asymmetry(Effect):
+    name = "asymmetry"
+    signature = ("the branch-mean residual is an even (parabolic) or saturating function of the "
+                 "drive: the loop is not point-symmetric about its centre")
+
+    def blocks(self, ctx: RecordContext) -> list[Block]:
+        u = ctx.u_v / ctx.u_scale_v
+        s = ctx.p[:, 1:].sum(axis=1) / ctx.u_scale_v if ctx.p.shape[1] > 1 else u
+        return [Block.make("asymmetry_um", np.column_stack([u**2, u**3, s**2, u * s]))]

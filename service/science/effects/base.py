@@ -1,0 +1,89 @@
+"""The effect contract: what every physical effect (and the capacity candidate) provides.
+
+An effect acts on the composite model's design in one of three places (``stage``):
+- ``additive``: extra regressor columns (weights by least squares);
+- ``transform``: a linear operator applied to every column (delay, flexure dynamics) whose few
+  nonlinear parameters are found by a 1-D/2-D outer search;
+- ``capacity``: a change of the hysteresis basis itself (more play operators).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from service.science.fitting.lsq import Block
+
+
+@dataclass
+class RecordContext:
+    """One record as the effects see it (arrays at the full sample rate ``fs_hz``).
+
+    ``p`` play-operator outputs (V), ``du``/``ddu`` drive derivatives (V/s, V/s²),
+    ``u_other_v`` the other axis's drive (or None), ``min_period_s`` the shortest drive period
+    over the data set, ``time_scale_s`` the longest record's duration over the data set (so that
+    time-based columns mean the same seconds in every record, whatever its length), ``x_other_um``
+    the other axis's measured displacement (µm; None when not measured, e.g. in a feedforward inverse).
+    """
+
+    u_v: np.ndarray
+    fs_hz: float
+    p: np.ndarray
+    du: np.ndarray
+    ddu: np.ndarray
+    u_other_v: np.ndarray | None
+    p_other: np.ndarray | None
+    min_period_s: float
+    max_frequency_hz: float
+    u_scale_v: float
+    time_scale_s: float
+    x_other_um: np.ndarray | None = None
+    cache: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return self.u_v.size
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return np.arange(self.n) / self.fs_hz
+
+
+class Effect:
+    """Base: subclasses set ``name``, ``kind``, ``stage``, ``signature`` and implement the hooks."""
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = "physical"  # or "capacity"
+    stage: ClassVar[str] = "additive"
+    #: the residual signature in words (what the diagnosis looks for)
+    signature: ClassVar[str] = ""
+    #: transforms: True if the transform commutes with time shifts of the drive (delay, LTI filters)
+    shift_invariant: ClassVar[bool] = True
+
+    def blocks(self, ctx: RecordContext) -> list[Block]:
+        """Additive regressor blocks (stage ``additive``)."""
+        return []
+
+    # -- transforms (stage "transform") -----------------------------------------------
+    def grid(self, fs_hz: float, min_period_s: float, max_frequency_hz: float) -> list[dict]:
+        """Candidate values of the nonlinear parameters for the outer search."""
+        return [{}]
+
+    def apply(self, columns: np.ndarray, fs_hz: float, theta: dict) -> np.ndarray:
+        """The transform applied to columns (n, p)."""
+        return columns
+
+    #: transforms that can be evaluated at a few rows (``apply_rows``) get an exact search
+    row_local: ClassVar[bool] = False
+
+    def apply_rows(self, columns: np.ndarray, fs_hz: float, theta: dict, rows: np.ndarray) -> np.ndarray:
+        return self.apply(columns, fs_hz, theta)[rows]
+
+    def refine(self, theta: dict, cost, fine: bool = False) -> dict:
+        """Optional local refinement around the best grid value; ``cost(theta) -> float``."""
+        return theta
+
+    def describe(self, theta: dict, values: dict) -> str:
+        """Fitted parameters in words (units in the text)."""
+        return ""

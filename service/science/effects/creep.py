@@ -1,0 +1,42 @@
+"""Creep: the strain keeps moving after the drive stops, logarithmically in time.
+
+A log(t) response needs several decades of relaxation times: the drive is passed through
+first-order low-pass filters with time constants log-spaced (2 per decade) from twice the
+shortest drive period up to half the longest record (the same set for every record); their weights (µm/V) come from least squares, bounded ≥ 0: creep always continues in the
+direction of the last drive change (it reverses when the drive steps down), which a slow drift
+of the lab or the gauge does not.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+from service.science.effects.base import Effect, RecordContext
+from service.science.fitting.lsq import Block
+
+
+def creep_time_constants_s(min_period_s: float, duration_s: float, per_decade: int = 2) -> np.ndarray:
+    lo, hi = 2.0 * min_period_s, max(4.0 * min_period_s, 0.5 * duration_s)
+    n = max(2, int(np.ceil(np.log10(hi / lo) * per_decade)) + 1)
+    return np.logspace(np.log10(lo), np.log10(hi), n)
+
+
+def first_order_lowpass(x: np.ndarray, tau_s: float, fs_hz: float) -> np.ndarray:
+    """Exact-discretised first-order lag of unit DC gain, starting at rest."""
+    a = np.exp(-1.0 / (tau_s * fs_hz))
+    return lfilter([1.0 - a], [1.0, -a], x, axis=0)
+
+
+class Creep(Effect):
+    name = "creep"
+    signature = ("the residual keeps moving after each change of the drive level, roughly linearly "
+                 "in log(time); per-cycle mean residual rises with log(t) within each block")
+
+    def blocks(self, ctx: RecordContext) -> list[Block]:
+        taus = creep_time_constants_s(ctx.min_period_s, ctx.time_scale_s)
+        u0 = ctx.u_v / ctx.u_scale_v
+        cols = np.column_stack([first_order_lowpass(u0, tau, ctx.fs_hz) - u0 for tau in taus])
+        return [Block.make("creep_weights_um", cols, lower=0.0)]
+
+    def describe(self, theta, values):
+        return ""

@@ -1,0 +1,53 @@
+"""Delay: the measured output lags the drive by τ (DAQ pipeline, amplifier/gauge lag) — the
+whole model output is evaluated at t − τ, with fractional τ by linear interpolation. τ (s) is
+found by a 1-D search (grid, then golden refinement)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from service.science.effects.base import Effect
+
+
+def shift_columns(columns: np.ndarray, delay_samples: float) -> np.ndarray:
+    """columns(t − d) for d ≥ 0 samples (fractional, linear interpolation; held at the start)."""
+    if delay_samples <= 0:
+        return columns
+    k, frac = int(np.floor(delay_samples)), delay_samples - np.floor(delay_samples)
+    n = columns.shape[0]
+    idx = np.arange(n)
+    i0 = np.clip(idx - k, 0, n - 1)
+    i1 = np.clip(idx - k - 1, 0, n - 1)
+    return (1.0 - frac) * columns[i0] + frac * columns[i1]
+
+
+class Delay(Effect):
+    name = "delay"
+    stage = "transform"
+    row_local = True
+    signature = ("the residual is the model's slope times a constant time: it lags the drive by the "
+                 "same time at every frequency, so it grows in proportion to frequency")
+
+    def grid(self, fs_hz, min_period_s, max_frequency_hz):
+        tau_max = min(0.2 * min_period_s, 64.0 / fs_hz)  # a delay is a fraction of the fastest cycle
+        return [{"delay_s": float(t)} for t in np.linspace(0.0, tau_max, 25)]
+
+    def apply(self, columns, fs_hz, theta):
+        return shift_columns(columns, theta["delay_s"] * fs_hz)
+
+    def apply_rows(self, columns, fs_hz, theta, rows):
+        """The delayed columns at ``rows`` only (cheap: the search re-solves every weight)."""
+        d = max(theta["delay_s"] * fs_hz, 0.0)
+        k, frac = int(np.floor(d)), d - np.floor(d)
+        n = columns.shape[0]
+        return (1.0 - frac) * columns[np.clip(rows - k, 0, n - 1)] + frac * columns[np.clip(rows - k - 1, 0, n - 1)]
+
+    def refine(self, theta, cost):
+        t0 = theta["delay_s"]
+        step = max(t0 * 0.25, 1e-6)
+        res = minimize_scalar(lambda t: cost({"delay_s": max(t, 0.0)}), bounds=(max(0.0, t0 - step), t0 + step),
+                              method="bounded", options={"xatol": 1e-7, "maxiter": 12})
+        return {"delay_s": float(max(res.x, 0.0))} if res.fun <= cost(theta) else theta
+
+    def describe(self, theta, values):
+        return f"delay {theta['delay_s'] * 1e3:.3g} ms"

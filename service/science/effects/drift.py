@@ -1,0 +1,24 @@
+"""Drift: a slow output change unrelated to the drive (thermal or gauge offset drift):
+Legendre polynomials of degree 1..3 of the time since the record started, scaled by the longest
+record, so a drift rate (µm/s) is shared by records of different lengths and every record starts
+from the same drift state (the shared offset) (µm)."""
+from __future__ import annotations
+
+import numpy as np
+from numpy.polynomial import legendre
+
+from service.science.effects.base import Effect, RecordContext
+from service.science.fitting.lsq import Block
+
+DEGREE = 3
+
+
+class Drift(Effect):
+    name = "drift"
+    signature = ("the per-cycle mean residual moves steadily with time over the whole record, "
+                 "independent of the drive level and of when the drive changed")
+
+    def blocks(self, ctx: RecordContext) -> list[Block]:
+        s = 2.0 * ctx.t_s / ctx.time_scale_s - 1.0
+        cols = np.column_stack([legendre.legval(s, np.eye(DEGREE + 1)[k]) for k in range(1, DEGREE + 1)])
+        return [Block.make("drift_legendre_um", cols)]

@@ -1,0 +1,90 @@
+"""Dynamics: a flexure resonance after the hysteresis — every column passes through
+ωn²/(s² + 2ζωn s + ωn²) (unit DC gain, bilinear with prewarping at fn). fn (Hz) and ζ come
+from a grid search refined locally; the weights stay linear."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import bilinear, lfilter
+
+from service.science.effects.base import Effect
+from service.science.effects.harmonics import projected_costs
+
+#: flexure resonances are lightly damped; a heavily damped 2nd-order lag would only mimic a delay
+ZETAS = (0.01, 0.03, 0.1, 0.3)
+MAX_ZETA = 0.5
+#: the harmonic search: resonance frequencies per decade and damping ratios of its coarse pass
+FN_PER_DECADE = 230  # 1 % steps
+COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
+
+
+def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: float) -> np.ndarray:
+    wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
+    b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
+    y0 = columns[:1]
+    return lfilter(b, a, columns - y0, axis=0) + y0
+
+
+def digital_response(frequency_hz: np.ndarray, fs_hz: float, fn_hz: np.ndarray, zeta: np.ndarray) -> np.ndarray:
+    """Steady-state response of ``resonance_filter`` at ``frequency_hz`` (broadcast over fn, ζ):
+    the bilinear map s = 2·fs·j·tan(πf/fs), with ωn prewarped as in the filter."""
+    s = 2j * fs_hz * np.tan(np.pi * frequency_hz / fs_hz)
+    wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)
+    return wn * wn / (s * s + 2.0 * zeta * wn * s + wn * wn)
+
+
+class Dynamics(Effect):
+    name = "dynamics"
+    stage = "transform"
+    signature = ("the residual grows steeply with drive frequency (about as f²) and is in phase with "
+                 "the acceleration of the output: a resonance above the drive band")
+
+    def grid(self, fs_hz, min_period_s, max_frequency_hz):
+        lo, hi = 1.5 * max_frequency_hz, 0.3 * fs_hz
+        return [{"fn_hz": float(f), "zeta": z} for f in np.logspace(np.log10(lo), np.log10(hi), 14) for z in ZETAS]
+
+    def apply(self, columns, fs_hz, theta):
+        return resonance_filter(columns, fs_hz, theta["fn_hz"], theta["zeta"])
+
+    def harmonic_search(self, data, fs_hz: float, max_frequency_hz: float) -> dict | None:
+        """Best (fn, ζ) against the periodic blocks' harmonics with every weight refitted per
+        candidate (variable projection), coarse then fine; None without enough harmonics.
+        A lightly damped mode is a narrow valley in fn that a coarse grid would step over."""
+        if data.empty or data.frequency_hz.size <= data.a.shape[1] + 2:
+            return None
+        lo, hi = 1.2 * max_frequency_hz, 0.3 * fs_hz
+        if hi <= lo:
+            return None
+        f = data.frequency_hz[None, :]
+
+        def best_of(fn, zeta):
+            fn, zeta = np.broadcast_arrays(fn, zeta)
+            costs = projected_costs(digital_response(f, fs_hz, fn.ravel()[:, None], zeta.ravel()[:, None]), data)
+            i = int(np.argmin(costs))
+            return float(fn.ravel()[i]), float(zeta.ravel()[i])
+
+        fn0, z0 = best_of(*np.meshgrid(np.geomspace(lo, hi, int(np.log10(hi / lo) * FN_PER_DECADE) + 2),
+                                       COARSE_ZETAS))
+        fn1, z1 = best_of(*np.meshgrid(fn0 * np.linspace(0.97, 1.03, 31), np.geomspace(z0 / 4, min(4 * z0, MAX_ZETA), 25)))
+        fn2, z2 = best_of(*np.meshgrid(fn1 * np.linspace(0.995, 1.005, 21), z1 * np.geomspace(0.85, 1.0 / 0.85, 15)))
+        return {"fn_hz": fn2, "zeta": min(z2, MAX_ZETA)}
+
+    def refine(self, theta, cost, fine: bool = False):
+        """Coordinate steps in fn and ζ while the exact cost falls (``fine``: only 0.3 % steps,
+        after the harmonic search)."""
+        best, best_cost = dict(theta), cost(theta)
+        for factor in ((1.003,) if fine else (1.025, 1.005)):
+            for _ in range(2):
+                improved = False
+                steps = (("fn_hz", factor), ("fn_hz", 1 / factor), ("zeta", factor**3), ("zeta", factor**-3))
+                for key, mult in steps:
+                    trial = dict(best, **{key: best[key] * mult})
+                    trial["zeta"] = float(np.clip(trial["zeta"], 0.003, MAX_ZETA))
+                    c = cost(trial)
+                    if c < best_cost:
+                        best, best_cost, improved = trial, c, True
+                if not improved:
+                    break
+        return best
+
+    def describe(self, theta, values):
+        return f"resonance {theta['fn_hz']:.4g} Hz, damping ratio {theta['zeta']:.3g}"

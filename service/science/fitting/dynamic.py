@@ -1,0 +1,87 @@
+"""The paper's procedures for the dynamic PI (§2.3): ω from the slowest loop, then α, β.
+
+Stage 1 fits a static PI (ω ≥ 0 and the offset) on the 1 Hz loop; stage 2 fits the eight
+rate parameters with ω fixed, either exactly (linear least squares) or by the paper's PSO.
+``DynamicPI.fit`` instead solves everything jointly, which is the optimum of both.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from service.science.models.base import Signal, equal_thresholds
+from service.science.models.data import Series, as_series_list
+from service.science.models.pi import DynamicPI, StaticPI
+from service.science.fitting.lsq import solve_blocks, stack_blocks
+from service.science.fitting.pso import PSOResult, pso_minimize
+
+RATE_BLOCKS = ("alpha_um_per_v2_s", "beta_um_per_v2_s2")
+#: Rows per chunk when scoring all particles (bounds the (rows, particles) temporary).
+PSO_CHUNK_ROWS = 16384
+
+
+def slowest_series(items: list[Series]) -> Series:
+    """The record with the longest dominant period (the paper's 1 Hz loop)."""
+    return max(items, key=lambda s: s.dominant_period_s)
+
+
+def rate_problem(data, static_data=None, n_operators: int = 10, fit_offset: bool = True):
+    """Stage 1 and the stage-2 regression: (model with ω and offset set; the α and β blocks; target).
+
+    The target is what the static part leaves unexplained over all records of ``data``.
+    """
+    items = as_series_list(data)
+    static_items = [slowest_series(items)] if static_data is None else as_series_list(static_data)
+    u_max = max(float(s.u_v.max()) for s in items + static_items)
+    static = StaticPI(thresholds_v=equal_thresholds(u_max, n_operators), fit_offset=fit_offset).fit(static_items)
+    model = DynamicPI.from_static(static)
+    blocks = stack_blocks([[b for b in model.blocks(Signal(s)) if b.name in RATE_BLOCKS] for s in items])
+    # in the static part's own direction (sign −1: the gauge reads against the drive)
+    target = static.sign * np.concatenate([s.require_x() - static.predict(s) for s in items])
+    return model, blocks, target
+
+
+def fit_dynamic_pi_two_stage(data, static_data=None, n_operators: int = 10, fit_offset: bool = True) -> DynamicPI:
+    """The paper's split: ω (and offset) on ``static_data`` (default: slowest record), then α, β
+    exactly by linear least squares on all records with ω fixed."""
+    model, blocks, target = rate_problem(data, static_data, n_operators, fit_offset)
+    solution = solve_blocks(blocks, target)
+    model.set_parameters(solution.values)
+    model.train_rms_um = solution.rms
+    return model
+
+
+def fit_dynamic_pi_pso(
+    data,
+    static_data=None,
+    n_operators: int = 10,
+    fit_offset: bool = True,
+    n_particles: int = 100,
+    n_iterations: int = 100,
+    seed: int = 0,
+    **pso_options,
+) -> tuple[DynamicPI, PSOResult]:
+    """The paper's identification: ω from the static fit, then α1..4, β1..4 by PSO (N=100,
+    M=100, w=0.5, c1=c2=2) minimising the RMS error over all records (eq. 12).
+
+    Particles start uniform in ±scale_j, scale_j = ‖target‖/‖column_j‖ (the value at which
+    parameter j alone would explain the whole residual).
+    """
+    model, blocks, target = rate_problem(data, static_data, n_operators, fit_offset)
+    a = np.hstack([b.columns for b in blocks])
+    norms = np.linalg.norm(a, axis=0)
+    scale = np.where(norms > 0, np.linalg.norm(target) / np.where(norms > 0, norms, 1.0), 1.0)
+
+    def rms_of_particles(x: np.ndarray) -> np.ndarray:
+        sq = np.zeros(x.shape[0])
+        for start in range(0, a.shape[0], PSO_CHUNK_ROWS):
+            rows = slice(start, start + PSO_CHUNK_ROWS)
+            err = target[rows, None] - a[rows] @ x.T  # every particle's prediction: one product
+            sq += np.einsum("ij,ij->j", err, err)
+        return np.sqrt(sq / a.shape[0])
+
+    result = pso_minimize(rms_of_particles, scale, n_particles=n_particles, n_iterations=n_iterations,
+                          seed=seed, **pso_options)
+    model.alpha_um_per_v2_s = result.x[:4].copy()
+    model.beta_um_per_v2_s2 = result.x[4:].copy()
+    model.train_rms_um = result.cost  # eq. 12 over all records
+    return model, result

@@ -1,0 +1,1 @@
+"""Security: API tokens, scopes and which addresses the service may listen on."""

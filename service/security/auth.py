@@ -1,0 +1,147 @@
+"""API tokens: issue, check and revoke; the bootstrap admin token.
+
+A token is ``evc_<43 url-safe characters>`` (32 random bytes). Only its SHA-256 is stored, with a
+name, one scope, an origin (bootstrap | cli | api), a creation time and a revoked flag. Scopes
+nest: read ⊂ operate ⊂ admin, so an admin token can do everything an operate token can.
+
+No web framework here: the FastAPI dependency is service/http/auth.py.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import secrets
+from pathlib import Path
+
+from service.science.errors import FieldError
+from service.store import Store, new_id, utc_now
+from service.store.files import write_bytes_atomic
+
+TOKEN_PREFIX = "evc_"
+SCOPES = ("read", "operate", "admin")
+ORIGINS = ("bootstrap", "cli", "api")
+BOOTSTRAP_FILE = "admin.token"
+
+
+class AuthError(Exception):
+    """A request without the right token: 401 (none, unknown or revoked) or 403 (scope too low).
+    ``field`` names where the token was looked for (authorization, token) or ``scope``."""
+
+    def __init__(self, status_code: int, detail: str, field: str = "authorization"):
+        super().__init__(detail)
+        self.status_code, self.detail, self.field = status_code, detail, field
+
+
+def hash_token(token: str) -> str:
+    """SHA-256 hex digest of a token's plaintext (what the store keeps)."""
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def scope_allows(granted: str, needed: str) -> bool:
+    """True if a token of scope ``granted`` may do what needs ``needed`` (read < operate < admin)."""
+    return SCOPES.index(granted) >= SCOPES.index(needed)
+
+
+def required_scope(method: str, path: str) -> str:
+    """The scope a request needs: admin under /api/admin, read for GET/HEAD/OPTIONS, else operate."""
+    if path == "/api/admin" or path.startswith("/api/admin/"):
+        return "admin"
+    return "read" if method.upper() in ("GET", "HEAD", "OPTIONS") else "operate"
+
+
+def issue(store: Store, name: str, scope: str, origin: str) -> tuple[str, dict]:
+    """Create a token; returns (plaintext, record). The plaintext is shown once and never stored."""
+    if scope not in SCOPES:
+        raise FieldError("scope", f"must be one of {', '.join(SCOPES)}, not {scope!r}")
+    if origin not in ORIGINS:
+        raise ValueError(f"origin must be one of {', '.join(ORIGINS)}, not {origin!r}")
+    name = (name or "").strip()
+    if not name:
+        raise FieldError("name", "a token needs a name (who or what uses it)")
+    plaintext = TOKEN_PREFIX + secrets.token_urlsafe(32)
+    row = {"id": new_id("tok"), "name": name, "scope": scope, "sha256": hash_token(plaintext),
+           "origin": origin, "revoked": False, "created_at": utc_now(), "revoked_at": None}
+    store.tokens.add(row)
+    return plaintext, public(row)
+
+
+def public(row: dict) -> dict:
+    """A token record as shown to users: no hash, and the scopes the token grants."""
+    record = {k: v for k, v in row.items() if k != "sha256"}
+    record["scopes"] = list(SCOPES[:SCOPES.index(row["scope"]) + 1])
+    return record
+
+
+def authenticate(store: Store, token: str | None) -> dict:
+    """The record of a valid token; AuthError(401) says why otherwise (missing, malformed,
+    unknown, revoked). The stored and presented hashes are compared in constant time."""
+    if not token:
+        raise AuthError(401, "missing API token: send the header 'Authorization: Bearer <token>' "
+                             "(create one with `evcbench token create`)")
+    if not token.startswith(TOKEN_PREFIX):
+        raise AuthError(401, f"malformed API token: tokens start with {TOKEN_PREFIX!r}")
+    row = store.tokens.by_hash(hash_token(token))  # by the sha256 itself: only a secret's hash is compared
+    reason = refusal(row)
+    if reason is not None:
+        raise AuthError(401, reason)
+    return public(row)
+
+
+def refusal(row: dict | None) -> str | None:
+    """Why a stored token row may not be used (unknown, revoked), in words, or None if it may."""
+    if row is None:
+        return "unknown API token"
+    if row["revoked"]:
+        return f"API token {row['id']} ({row['name']}) has been revoked"
+    return None
+
+
+def still_valid(store: Store, record: dict) -> str | None:
+    """Re-check a token that was valid when a long request (an event stream) began: why it no
+    longer is, or None. One indexed row read; ``record`` is what ``authenticate`` returned (an
+    ``id`` of None, as with auth off, is always valid)."""
+    if record.get("id") is None:
+        return None
+    row = store.tokens.get(record["id"])
+    return f"API token {record['id']} no longer exists" if row is None else refusal(row)
+
+
+def authorize(record: dict, needed: str) -> None:
+    """AuthError(403) naming the needed scope if ``record``'s scope is lower."""
+    if not scope_allows(record["scope"], needed):
+        raise AuthError(403, f"this request needs the '{needed}' scope; token {record['id']} "
+                             f"({record['name']}) has '{record['scope']}'", field="scope")
+
+
+def read_bootstrap_token(data_dir: str | Path) -> str | None:
+    """The service's bootstrap admin token from <data_dir>/admin.token, or None if unreadable."""
+    try:
+        return (Path(data_dir) / BOOTSTRAP_FILE).read_text().strip() or None
+    except OSError:
+        return None
+
+
+def ensure_bootstrap_token(store: Store, data_dir: Path) -> Path:
+    """Make sure <data_dir>/admin.token (mode 0600) holds a valid bootstrap admin token, so the
+    local CLI and dashboard work; a missing, unknown or revoked one is replaced. Returns the path."""
+    path = Path(data_dir) / BOOTSTRAP_FILE
+    try:
+        authenticate(store, read_bootstrap_token(data_dir) or "")
+        os.chmod(path, 0o600)
+        return path
+    except (OSError, AuthError):
+        pass
+    plaintext, _ = issue(store, "bootstrap admin", "admin", "bootstrap")
+    write_secret(path, plaintext)
+    return path
+
+
+def write_secret(path: Path, text: str) -> None:
+    """Write ``text`` + newline to ``path`` with mode 0600, atomically (the store's own atomic write:
+    its temporary file is created 0600 by mkstemp and renamed over any old file)."""
+    write_bytes_atomic(Path(path), (text + "\n").encode())
+
+
+def remote_tokens(store: Store) -> list[dict]:
+    """Active tokens made on purpose (cli or api), i.e. not the local bootstrap token."""
+    return [t for t in store.tokens.list() if not t["revoked"] and t["origin"] != "bootstrap"]
