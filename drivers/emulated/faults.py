@@ -51,6 +51,14 @@ class FaultUnavailable(ValueError):
     """The fault needs a part this bench does not have (e.g. a serial fault on an in-process bench)."""
 
 
+class FaultRequestError(ValueError):
+    """A bad fault request: ``field`` names the request field at fault (fault, axis, after_s), ``message`` says why."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field}: {message}")
+        self.field, self.message = field, message
+
+
 @dataclass
 class Fault:
     """One scheduled fault. ``fired_at_s`` is the session time it fired at (s), None while armed;
@@ -106,16 +114,16 @@ class FaultInjector:
     # ------------------------------------------------------------------ schedule
     def add(self, kind: str, axis: str | None = None, after_s: float = 0.0, source: str = "api",
             check_transport: bool = True) -> Fault:
-        """Schedule a fault; ValueError names a bad kind or axis, FaultUnavailable a missing part."""
+        """Schedule a fault; FaultRequestError names a bad kind, axis or time, FaultUnavailable a missing part."""
         if kind not in KINDS:
-            raise ValueError(f"fault: unknown fault {kind!r} (known: {', '.join(KINDS)})")
+            raise FaultRequestError("fault", f"unknown fault {kind!r} (known: {', '.join(KINDS)})")
         needs_axis, transport, _ = KINDS[kind]
         if needs_axis and axis not in AXES:
-            raise ValueError(f"axis: {kind} needs an axis, one of {', '.join(AXES)}; got {axis!r}")
+            raise FaultRequestError("axis", f"{kind} needs an axis, one of {', '.join(AXES)}; got {axis!r}")
         if not needs_axis:
             axis = None
         if not math.isfinite(after_s) or after_s < 0:
-            raise ValueError(f"after_s: must be a non-negative number of seconds, got {after_s!r}")
+            raise FaultRequestError("after_s", f"must be a non-negative number of seconds, got {after_s!r}")
         if check_transport and transport and transport not in self.transports:
             raise FaultUnavailable(f"fault: {kind} needs the {transport} transport, which this bench does not "
                                    f"have (use a wire bench such as default_wire)")

@@ -16,7 +16,7 @@ from fastapi import APIRouter, Depends, HTTPException
 from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.bench import Bench
-from drivers.emulated.faults import KINDS, FaultUnavailable
+from drivers.emulated.faults import KINDS, FaultRequestError, FaultUnavailable
 from service.http.deps import get_bench
 from service.science.errors import FieldError
 
@@ -47,9 +47,8 @@ def add_fault(body: FaultRequest, bench: Bench = Depends(get_bench)) -> dict:
         fault = injector.add(body.fault, body.axis, body.after_s)
     except FaultUnavailable as exc:
         raise HTTPException(409, detail=str(exc)) from None
-    except ValueError as exc:
-        field, _, msg = str(exc).partition(": ")
-        raise FieldError(field, msg) from None
+    except FaultRequestError as exc:
+        raise FieldError(exc.field, exc.message) from None
     return fault.as_dict()
 
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from drivers.bench import Bench
 from drivers.interfaces import LimitError
+from service.science.errors import FieldError
 
 
 #: A hysteresis-only feedforward ignores the flexure's dynamic gain (+13 % at 100 Hz on Z), so a demand
@@ -13,12 +14,13 @@ from drivers.interfaces import LimitError
 VOLTAGE_MARGIN = 1.2
 
 
-class ControlRefused(ValueError):
-    """The request cannot run on this bench; ``field`` names the request field at fault."""
+class ControlRefused(FieldError):
+    """The request cannot run on this bench: ``field`` names the request field at fault (as data),
+    ``reason`` (the FieldError's ``message``) says why."""
 
-    def __init__(self, field: str, reason: str):
-        super().__init__(reason)
-        self.field, self.reason = field, reason
+    @property
+    def reason(self) -> str:
+        return self.message
 
 
 def stepping_hook(bench: Bench):

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.science.errors import FieldError
+
 #: Longest run (s): 600 s at 20 kHz is 12 M samples per axis, about 0.5 GB of traces while it runs.
 MAX_DURATION_S = 600.0
 RAMP_PERIODS = 3  # raised-cosine start and stop ramps, in periods each
@@ -33,14 +35,14 @@ class Ellipse:
         c2, s2 = np.cos(th) ** 2, np.sin(th) ** 2
         det = c2 - s2
         if abs(det) < 1e-9:
-            raise ValueError("inclination_deg: 45° leaves the semi-axes undetermined by the ranges")
+            raise FieldError("inclination_deg", "45° leaves the semi-axes undetermined by the ranges")
         with np.errstate(over="ignore", invalid="ignore"):  # huge spans: refused just below
             a2 = (az * az * c2 - ay * ay * s2) / det
             b2 = (ay * ay * c2 - az * az * s2) / det
         if not (np.isfinite(a2) and np.isfinite(b2)):
-            raise ValueError(f"y_range_um: spans of {2 * ay:g} µm (Y) and {2 * az:g} µm (Z) are too large to sample")
+            raise FieldError("y_range_um", f"spans of {2 * ay:g} µm (Y) and {2 * az:g} µm (Z) are too large to sample")
         if a2 < 0 or b2 < 0 or (a2 < b2):
-            raise ValueError(f"inclination_deg: no ellipse inclined {self.inclination_deg:g}° to Z has "
+            raise FieldError("inclination_deg", f"no ellipse inclined {self.inclination_deg:g}° to Z has "
                              f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm")
         return float(np.sqrt(a2)), float(np.sqrt(b2))
 
@@ -50,20 +52,20 @@ class Ellipse:
 
 
 def validate(e: Ellipse) -> None:
-    """ValueError naming the field when the request makes no sense."""
+    """FieldError naming the field when the request makes no sense."""
     for name, (lo, hi) in (("y_range_um", e.y_range_um), ("z_range_um", e.z_range_um)):
         if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo or lo < 0:
-            raise ValueError(f"{name}: needs 0 <= min < max, got [{lo}, {hi}]")
+            raise FieldError(name, f"needs 0 <= min < max, got [{lo}, {hi}]")
     if not 0 < e.frequency_hz <= 1000:
-        raise ValueError(f"frequency_hz: must lie in (0, 1000] Hz, got {e.frequency_hz}")
+        raise FieldError("frequency_hz", f"must lie in (0, 1000] Hz, got {e.frequency_hz}")
     if not 1 <= e.cycles <= 10_000:
-        raise ValueError(f"cycles: must lie in 1–10000, got {e.cycles}")
+        raise FieldError("cycles", f"must lie in 1–10000, got {e.cycles}")
     duration_s = (e.cycles + 2 * RAMP_PERIODS) / e.frequency_hz
     if duration_s > MAX_DURATION_S:
-        raise ValueError(f"cycles: {e.cycles} cycles at {e.frequency_hz:g} Hz (with the start and stop ramps) "
+        raise FieldError("cycles", f"{e.cycles} cycles at {e.frequency_hz:g} Hz (with the start and stop ramps) "
                          f"last {duration_s:.3g} s; a trajectory may last at most {MAX_DURATION_S:g} s")
     if not -90 <= e.inclination_deg <= 90:
-        raise ValueError(f"inclination_deg: must lie in −90–90°, got {e.inclination_deg}")
+        raise FieldError("inclination_deg", f"must lie in −90–90°, got {e.inclination_deg}")
     e.semi_axes_um()
 
 
@@ -101,7 +103,7 @@ def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = RAMP_PERIOD
     validate(e)
     period = int(round(sample_rate_hz / e.frequency_hz))
     if abs(period * e.frequency_hz - sample_rate_hz) > 1e-6 * sample_rate_hz:
-        raise ValueError(f"frequency_hz: {e.frequency_hz:g} Hz is not a whole number of samples at "
+        raise FieldError("frequency_hz", f"{e.frequency_hz:g} Hz is not a whole number of samples at "
                          f"{sample_rate_hz:g} Hz")
     periods = 2 * ramp_periods + e.cycles
     n = periods * period
