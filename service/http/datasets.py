@@ -1,7 +1,7 @@
 """Datasets: import (multipart CSV, parsed as a stream), list, describe, and download (streamed)."""
 from __future__ import annotations
 
-from typing import BinaryIO, Iterator, Literal
+from typing import Iterator, Literal
 
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, UploadFile
 from fastapi.responses import StreamingResponse
@@ -10,10 +10,10 @@ from service.http.deps import get_store
 from service.runtime.bulk import iterate_bulk, run_bulk
 from service.science.data.export import (JSON_DEFAULT_MAX_POINTS, RowRange, csv_chunks, export_names, hdf5_chunks,
                                     json_chunks, json_stride, ndjson_chunks)
-from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ, parse_table, units_for
+from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ, units_for
 from service.science.errors import FieldError
-from service.science.data.segmentation import blocks_without_table
 from service.store import Store, StoredArrays
+from service.usecases.imports import import_table
 
 router = APIRouter(prefix="/datasets", tags=["datasets"])
 
@@ -71,19 +71,7 @@ async def import_dataset(
         raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
     options = {"filename": file.filename, "columns": columns, "axis": axis, "sample_rate_hz": sample_rate_hz,
                "delimiter": delimiter}
-    return await run_bulk(_import, store, file.file, name or file.filename or "imported", options)
-
-
-def _import(store: Store, handle: BinaryIO, name: str, options: dict) -> dict:
-    """Parse, validate and store (off the event loop)."""
-    handle.seek(0)
-    table = parse_table(handle, columns=options["columns"], axis=options["axis"],
-                        sample_rate_hz=options["sample_rate_hz"], delimiter=options["delimiter"])
-    blocks = blocks_without_table({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
-    row = store.add_dataset(table.arrays, {
-        "name": name, "source": "import", "axes": table.axes, "sample_rate_hz": table.sample_rate_hz,
-        "blocks": blocks, "units": units_for(table.arrays),
-        "plan": {"import": options, "drive_range_v": table.drive_range_v}})
+    row = await run_bulk(import_table, store, file.file, name or file.filename or "imported", options)
     return dataset_view(row)
 
 

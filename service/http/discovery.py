@@ -5,7 +5,7 @@ from fastapi import APIRouter, Depends, Query
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.http.deps import get_jobs, get_store
-from service.usecases.discover import diagnose_model, history, refined_effects
+from service.usecases.discover import diagnose_model, history, refine_params
 from service.runtime.jobs import JobManager
 from service.usecases.identify import identify
 from service.store import Store
@@ -35,15 +35,7 @@ def get_diagnosis(model_id: str, extra_datasets: list[str] = Query(default=[]),
 def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store),
            jobs: JobManager = Depends(get_jobs)) -> dict:
     """Queue a refit with another effect set on the same data; the new model's parent is ``model_id``."""
-    row = store.get_model(model_id)
-    effects = ["hysteresis"] + refined_effects(row, body.add, body.remove, body.effects)
-    datasets = list(row["datasets"]) + [d for d in body.datasets if d not in row["datasets"]]
-    params = {"axis": row["axis"], "datasets": datasets, "effects": effects, "model": "composite",
-              "n_operators": int(row["options"].get("n_operators", 10)), "parent_id": model_id}
-    if body.datasets:
-        from service.usecases.discover import load_records
-
-        load_records(store, body.datasets, row["axis"])  # FieldError naming datasets
+    params = refine_params(store, model_id, body.add, body.remove, body.effects, body.datasets)
     job = jobs.submit("refine", params, lambda ctx: identify(ctx, store, **params), needs_bench=False)
     return {"job_id": job["id"], "state": job["state"]}
 

@@ -7,11 +7,10 @@ from fastapi import APIRouter, Depends
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drivers.bench import Bench
-from service.usecases.acquire import run_sweep
 from service.http.deps import get_bench, get_jobs, get_store
 from service.runtime.jobs import JobManager
 from service.store import Store
-from service.usecases.plans import plan_for_bench, plan_from_dict
+from service.usecases.acquire import plan_sweep, run_sweep
 
 router = APIRouter(tags=["sweeps"])
 
@@ -69,10 +68,7 @@ def start_sweep(body: SweepRequest, bench: Bench = Depends(get_bench), store: St
     if the plan leaves the bench's voltage, current or slew limits: nothing is queued then."""
     values = body.model_dump()
     name = values.pop("name")
-    plan = plan_from_dict(values)
-    planned = plan_for_bench(plan, bench)
-    plan_dict = {**plan.to_dict(), "samples": planned.samples, "duration_s": planned.duration_s}
-    job = jobs.submit("sweep", plan_dict, lambda ctx: run_sweep(ctx, bench, store, planned, plan_dict, name),
-                      needs_bench=True)
+    planned, plan = plan_sweep(bench, values)
+    job = jobs.submit("sweep", plan, lambda ctx: run_sweep(ctx, bench, store, planned, plan, name), needs_bench=True)
     return {"job_id": job["id"], "state": job["state"], "samples": planned.samples,
             "duration_s": planned.duration_s, "blocks": planned.blocks}

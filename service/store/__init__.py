@@ -21,9 +21,11 @@ from sqlalchemy.engine import Engine
 from service import __version__
 from service.store import tables
 from service.store.files import IntegrityError, StoredArrays, open_arrays, read_arrays, write_arrays
+from service.store.rows import DatasetRow, JobRow, ModelRow
 from service.store.tokens import TokenRows
 
-__all__ = ["Store", "NotFoundError", "IntegrityError", "StoredArrays", "utc_now", "clean_json", "json_sha256"]
+__all__ = ["Store", "NotFoundError", "IntegrityError", "StoredArrays", "DatasetRow", "ModelRow", "JobRow", "utc_now",
+           "clean_json", "json_sha256"]
 
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 
@@ -117,7 +119,7 @@ class Store:
         self.engine.dispose()
 
     # ------------------------------------------------------------------ datasets
-    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict) -> dict:
+    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict) -> DatasetRow:
         """Store a dataset: arrays to a checksummed file, then its row. Returns the record.
 
         ``meta`` holds name, source, axes, sample_rate_hz, blocks and optionally plan, config,
@@ -144,10 +146,10 @@ class Store:
             raise
         return row
 
-    def get_dataset(self, dataset_id: str) -> dict:
+    def get_dataset(self, dataset_id: str) -> DatasetRow:
         return self._get(tables.datasets, dataset_id, "dataset")
 
-    def list_datasets(self) -> list[dict]:
+    def list_datasets(self) -> list[DatasetRow]:
         return self._list(tables.datasets)
 
     def load_arrays(self, dataset_id: str) -> dict[str, np.ndarray]:
@@ -162,7 +164,7 @@ class Store:
         return open_arrays(self.data_dir / record["file"], record["sha256"])
 
     # ------------------------------------------------------------------ models
-    def add_model(self, record: dict) -> dict:
+    def add_model(self, record: dict) -> ModelRow:
         """Store an identified model (axis, kind, effects, datasets, parameters, metrics, …)."""
         parameters = clean_json(record["parameters"])
         row = {
@@ -177,18 +179,18 @@ class Store:
             conn.execute(insert(tables.models).values(**row))
         return row
 
-    def get_model(self, model_id: str) -> dict:
+    def get_model(self, model_id: str) -> ModelRow:
         """The model's record; IntegrityError if its parameters no longer match their checksum."""
         row = self._get(tables.models, model_id, "model")
         if json_sha256(row["parameters"]) != row["parameters_sha256"]:
             raise IntegrityError(f"model {model_id}: parameters do not match their sha256")
         return row
 
-    def list_models(self) -> list[dict]:
+    def list_models(self) -> list[ModelRow]:
         return self._list(tables.models)
 
     # ------------------------------------------------------------------ jobs
-    def add_job(self, kind: str, params: dict | None, needs_bench: bool) -> dict:
+    def add_job(self, kind: str, params: dict | None, needs_bench: bool) -> JobRow:
         row = {"id": new_id("job"), "kind": kind, "needs_bench": needs_bench, "state": "queued",
                "progress": 0.0, "message": "queued", "params": clean_json(params), "result": None,
                "error": None, "created_at": utc_now(), "started_at": None, "finished_at": None}
@@ -211,20 +213,20 @@ class Store:
                          .where(tables.jobs.c.state.not_in(TERMINAL_STATES))
                          .values(progress=progress, message=message))
 
-    def get_job(self, job_id: str) -> dict:
+    def get_job(self, job_id: str) -> JobRow:
         return self._get(tables.jobs, job_id, "job")
 
-    def list_jobs(self, limit: int = 100) -> list[dict]:
+    def list_jobs(self, limit: int = 100) -> list[JobRow]:
         return self._list(tables.jobs, limit=limit, newest_first=True)
 
-    def unfinished_jobs(self) -> list[dict]:
+    def unfinished_jobs(self) -> list[JobRow]:
         """Jobs neither succeeded, failed nor cancelled (queued or running), oldest first."""
         query = (select(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
                  .order_by(tables.jobs.c.created_at, tables.jobs.c.id))
         with self.engine.connect() as conn:
             return [dict(row) for row in conn.execute(query).mappings()]
 
-    def datasets_of_job(self, job_id: str) -> list[dict]:
+    def datasets_of_job(self, job_id: str) -> list[DatasetRow]:
         """The datasets a job stored (normally none or one)."""
         query = select(tables.datasets).where(tables.datasets.c.job_id == job_id).order_by(tables.datasets.c.created_at)
         with self.engine.connect() as conn:

@@ -1,85 +1,50 @@
-"""Running a planned sweep on the bench and storing what it measured as one dataset.
+"""Sweeps: a characterisation plan checked against the bench, then run and recorded as one dataset.
 
-A cancelled or interrupted run keeps the samples taken so far: they are stored as a dataset
-marked ``partial`` (with the reason), and the bench leaves its output at 0 V either way. While the
-run goes on, its samples are also written in ~1 s fsync'ed chunks (service.store.chunks), so that
-a killed process loses at most the last second: service.runtime.recovery rebuilds a partial dataset from
-them at the next start.
+The run is recorded by service.usecases.recorder: a cancelled or interrupted sweep keeps the
+samples taken so far as a dataset marked ``partial`` (with the reason), a killed process loses at
+most the last second of them, and the bench leaves its output at 0 V either way.
 """
 from __future__ import annotations
 
-import numpy as np
-
-from drivers.bench import Bench, BenchRecord, RunInterrupted
-from service.science.data.datasets import units_for
-from service.runtime.jobs import JobContext, JobInterrupted
-from service.store import Store, utc_now
-from service.store.chunks import ChunkWriter
-from service.usecases.plans import PlannedSweep, trim_blocks
+from drivers.bench import Bench
+from service.runtime.jobs import JobContext
+from service.store import Store
+from service.usecases.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
+from service.usecases.recorder import Recorder, bench_snapshot, record_arrays
 
 
-def bench_snapshot(bench: Bench) -> dict:
-    """The full configuration of the bench: backend, every driver/emulator parameter, limits."""
-    return {"backend": bench.parts.backend, "parameters": bench.parts.config,
-            "limits": {axis: lim.as_dict() for axis, lim in bench.limits.items()},
-            "amplifier_gain_v_per_v": {a: amp.gain_v_per_v for a, amp in bench.parts.amplifiers.items()},
-            "sensor_scale_um_per_v": {a: s.scale_um_per_v for a, s in bench.parts.sensors.items()}}
-
-
-def record_arrays(record: BenchRecord, start: int = 0) -> dict[str, np.ndarray]:
-    """Rows ``start:`` of a bench record as dataset arrays: t_s, then u_<axis>_v and x_<axis>_um, then temp_c."""
-    arrays = {"t_s": np.arange(start, record.samples) / record.sample_rate_hz}
-    for axis in sorted(record.x_um):
-        arrays[f"u_{axis}_v"] = np.asarray(record.u_cmd_v[axis][start:], dtype=float)
-        arrays[f"x_{axis}_um"] = np.asarray(record.x_um[axis][start:], dtype=float)
-    for name, values in record.extra.items():
-        if name == "temp_c" and len(values) == record.samples:
-            arrays["temp_c"] = np.asarray(values[start:], dtype=float)
-    return arrays
+def plan_sweep(bench: Bench, values: dict) -> tuple[PlannedSweep, dict]:
+    """The sweep a request asks for (``SweepRequest`` fields but ``name``), sampled for this bench,
+    and its plan as stored (with ``samples`` and ``duration_s``). FieldError (422) names the field
+    if the plan leaves the bench's voltage, current or slew limits."""
+    plan = plan_from_dict(values)
+    planned = plan_for_bench(plan, bench)
+    return planned, {**plan.to_dict(), "samples": planned.samples, "duration_s": planned.duration_s}
 
 
 def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep, plan: dict,
               name: str | None = None) -> dict:
-    """Stream ``planned`` through the bench, store the record, return ``{"dataset_id", …}``.
-
-    On a stop (cancel, fault) the partial record is stored and JobInterrupted carries its id.
-    """
+    """Job body: stream ``planned`` through the bench, store the record, return
+    ``{"dataset_id", "samples", "partial"}``. On a stop (cancel, fault) the partial record is
+    stored and JobInterrupted carries that result."""
     duration = planned.duration_s
-    started_at = utc_now()
     meta = {"name": name or _default_name(plan), "source": "sweep", "axes": sorted(bench.axes),
             "sample_rate_hz": planned.sample_rate_hz, "blocks": planned.blocks, "plan": plan,
-            "config": bench_snapshot(bench), "job_id": ctx.job_id, "started_at": started_at}
-    chunks = ChunkWriter(store.data_dir, ctx.job_id, meta)
+            "config": bench_snapshot(bench)}
 
-    def on_block(record: BenchRecord, fraction: float) -> None:
-        chunks.append(record_arrays(record, start=chunks.rows_seen))  # the new rows only
+    def progress(fraction: float) -> None:
         ctx.progress(0.98 * fraction, f"sweeping: {fraction * duration:.1f} of {duration:.1f} s")
 
     ctx.progress(0.0, f"sweeping: 0 of {duration:.1f} s")
-    try:
-        try:
-            record = bench.run(planned.u_v, planned.sample_rate_hz, on_block=on_block,
-                               should_stop=lambda: ctx.cancelled)
-            reason, stopped = None, False
-        except RunInterrupted as exc:
-            record, reason, stopped = exc.record, exc.reason, exc.stopped
+    with Recorder(store, meta, ctx) as recorder:
+        record, stop = recorder.run(bench, planned.u_v, planned.sample_rate_hz, progress)
         if record.samples == 0:
-            raise JobInterrupted(f"{reason}; no samples were taken", None, cancelled=stopped)
-        arrays = record_arrays(record)
+            raise recorder.nothing_kept(f"{stop.reason}; no samples were taken", stop.cancelled)
         ctx.progress(0.99, "storing")
-        row = store.add_dataset(arrays, {
-            **meta, "axes": sorted(record.x_um), "sample_rate_hz": record.sample_rate_hz,
-            "blocks": trim_blocks(planned.blocks, record.samples, record.sample_rate_hz),
-            "units": units_for(arrays), "partial": reason is not None, "partial_reason": reason,
-            "finished_at": utc_now()})
-    finally:  # stored (or nothing to keep): the chunks are only for a process that dies mid-run
-        chunks.discard()
-    result = {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"],
-              **({"warnings": chunks.warnings()} if chunks.warnings() else {})}
-    if reason is not None:
-        raise JobInterrupted(f"{reason}: {row['samples']} samples kept as partial dataset {row['id']}", result,
-                             cancelled=stopped)
-    return result
+        row = recorder.keep(record_arrays(record), stop, axes=sorted(record.x_um),
+                            sample_rate_hz=record.sample_rate_hz,
+                            blocks=trim_blocks(planned.blocks, record.samples, record.sample_rate_hz))
+    return recorder.end(row, {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"]}, stop)
 
 
 def _default_name(plan: dict) -> str:

@@ -127,3 +127,17 @@ def history(store: Store, model_id: str) -> list[dict]:
                     "validation_rms_um": r["metrics"].get("validation_rms_um"), "created_at": r["created_at"]})
         prev = effects
     return out
+
+
+def refine_params(store: Store, model_id: str, add: str | None, remove: str | None, effects: list[str] | None,
+                  datasets: list[str]) -> dict:
+    """The identification a refine request asks for: the stored model's axis, datasets (plus
+    ``datasets``) and operators, with the effect set changed; ``parent_id`` is ``model_id``.
+    FieldError names ``add``, ``remove``, ``effects`` or ``datasets`` at fault."""
+    row = store.get_model(model_id)
+    chosen = ["hysteresis"] + refined_effects(row, add, remove, effects)
+    if datasets:
+        load_records(store, datasets, row["axis"])  # FieldError naming datasets
+    return {"axis": row["axis"], "datasets": list(row["datasets"]) + [d for d in datasets if d not in row["datasets"]],
+            "effects": chosen, "model": "composite", "n_operators": int(row["options"].get("n_operators", 10)),
+            "parent_id": model_id}

@@ -1,0 +1,96 @@
+"""Tracking: an ellipse and its controller checked against the bench, then run and recorded.
+
+The run is ``track_plan`` (service.science.control.session) executed by the bench (in the engine
+process by default) and recorded by service.usecases.recorder: measured and reference traces are
+chunked to disk period by period and stored as one dataset, partial with its reason when a trip
+or a stop ends the run early.
+"""
+from __future__ import annotations
+
+from drivers.bench import Bench
+from service.runtime.jobs import JobContext
+from service.science.control.feedforward import as_feedforward
+from service.science.control.loop import PIDGains, StopRequested, TrackRecord
+from service.science.control.session import SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
+from service.science.control.trajectory import RAMP_PERIODS, Ellipse
+from service.science.errors import FieldError
+from service.store import NotFoundError, Store
+from service.usecases.identify import load_model
+from service.usecases.recorder import Recorder, Stop, bench_snapshot
+
+def build_controller(store: Store, controller: dict) -> Controller:
+    """The controller a request describes (``ControllerRequest`` fields as a dict): stored models as
+    feedforward per axis, PID gains, ILC. FieldError names ``controller.feedforward_model_<axis>``
+    when a model is missing, cannot be rebuilt or has no inverse."""
+    models = {}
+    for ax in ("y", "z"):
+        model_id = controller.get(f"feedforward_model_{ax}")
+        if model_id is None:
+            continue
+        field = f"controller.feedforward_model_{ax}"
+        try:
+            models[ax] = as_feedforward(load_model(store.get_model(model_id)))
+        except NotFoundError:
+            raise FieldError(field, f"no model {model_id!r}") from None
+        except Exception as exc:  # a model that cannot be rebuilt or inverted
+            raise FieldError(field, f"model {model_id} cannot be used: {exc}") from None
+        if not callable(getattr(models[ax], "inverse", None)):
+            raise FieldError(field, f"model {model_id} has no inverse")
+    pid = None
+    if controller.get("pid") is not None:
+        p = controller["pid"]
+        pid = {ax: PIDGains(p[f"kp_{ax}"], p[f"ki_{ax}"], p[f"kd_{ax}"], p["tf_s"]) for ax in ("y", "z")}
+    return Controller(feedforward=models, pid=pid, ilc=controller["ilc"], ilc_gain=controller["ilc_gain"],
+                      ilc_harmonics=controller["ilc_harmonics"], allow_saturation=controller["allow_saturation"])
+
+
+def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: dict, mode: str) -> Controller:
+    """The controller of a tracking request after every check that would refuse it: the reference,
+    the feedforward models, the mode, the current, the resonance, the voltage and the stroke
+    (``session.plan``). FieldError (a ControlRefused among them) names the field; a failure that
+    names none (e.g. a model whose inverse breaks) is laid on ``body``."""
+    built = build_controller(store, controller)
+    try:
+        plan(bench, ellipse, built, mode)
+    except FieldError:
+        raise
+    except ValueError as exc:
+        raise FieldError("body", str(exc)) from None
+    return built
+
+
+def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse, controller: Controller,
+                   mode: str, params: dict, name: str | None) -> dict:
+    """Job body: track, report the error per period as progress, store measured and reference traces;
+    returns the metrics (``max_error_y_um``, ``max_error_z_um``, ``rms_error_um``,
+    ``relative_error_pct``, ``error_per_period_um``, …) and ``dataset_id``."""
+    total = ellipse.cycles + 2 * RAMP_PERIODS  # the steady cycles and both ramps
+    meta = {"name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
+            "axes": list(bench.axes), "sample_rate_hz": SAMPLE_RATE_HZ, "blocks": [], "plan": params,
+            "config": bench_snapshot(bench)}
+    with Recorder(store, meta, ctx) as recorder:
+        def on_period(p: int, arrays: dict, last_error_um: float | None) -> None:
+            recorder.append(arrays)
+            msg = f"period {p + 1}/{total}" + (f": error {last_error_um * 1e3:.1f} nm RMS"
+                                                if last_error_um is not None else "")
+            ctx.progress(min(0.97, (p + 1) / total), msg)
+
+        try:
+            result, rec, _ = recorder.execute(bench, track_plan, ellipse, controller, mode, on_event=on_period)
+        except StopRequested as exc:
+            raise recorder.nothing_kept(f"{exc.reason} while measuring the response for the ILC; nothing stored",
+                                        cancelled=True) from None
+        stop = tracking_stop(result, rec)
+        row = recorder.keep(trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, 0, rec.samples), stop)
+    result["dataset_id"] = row["id"]
+    return recorder.end(row, result, stop)
+
+
+def tracking_stop(result: dict, rec: TrackRecord) -> Stop | None:
+    """Why a tracking run ended early: a trip (a fault: the job fails) or a stop on request
+    (cancelled); None when it ran every period."""
+    if result["tripped"]:
+        return Stop(result["tripped"], message=f"tripped: {result['tripped']}")
+    if result["stopped"]:
+        return Stop(rec.stop_reason, cancelled=True, message=rec.stop_reason or "stopped on request")
+    return None
