@@ -1,6 +1,7 @@
 """Bench configurations: TOML files in fixtures/benches/, ``extends``, overrides, validation.
 
-A file may say ``extends = "base"`` and give only what differs. Overrides are a nested dict or
+A file may say ``extends = "base"`` and give only what differs; ``extends = ["creep", "bw_base"]``
+merges several parents left to right (a hidden effect on another hysteresis family). Overrides are a nested dict or
 dotted keys (``{"daq.latency.samples": 3}``); ``axes.*.…`` applies to both axes. Every leaf is
 checked against ``RULES``; a bad or unknown key raises ValueError naming it.
 """
@@ -48,6 +49,18 @@ RULES: dict[str, tuple] = {
     "axes.*.piezo.hysteresis.bias_center_v": ("num", -1000.0, 1000.0),
     "axes.*.piezo.hysteresis.bias_width_v": ("num", 0.5, 1e5),
     "axes.*.piezo.hysteresis.initial_state": ("str", ("virgin", "descended")),
+    "axes.*.piezo.hysteresis.family": ("str", ("preisach", "bouc_wen", "maxwell_slip")),
+    "axes.*.piezo.hysteresis.bouc_wen.hysteretic_gain": ("num", 0.01, 0.99),
+    "axes.*.piezo.hysteresis.bouc_wen.lag_saturation_v": ("num", 0.1, 200.0),
+    "axes.*.piezo.hysteresis.bouc_wen.gamma_over_beta": ("num", -0.9, 1.0),
+    "axes.*.piezo.hysteresis.bouc_wen.exponent": ("num", 1.0, 10.0),
+    "axes.*.piezo.hysteresis.bouc_wen.max_step_v": ("num", 0.001, 10.0),
+    "axes.*.piezo.hysteresis.maxwell_slip.elements": ("int", 2, 256),
+    "axes.*.piezo.hysteresis.maxwell_slip.threshold_median_v": ("num", 0.2, 80.0),
+    "axes.*.piezo.hysteresis.maxwell_slip.threshold_log_sigma": ("num", 0.0, 3.0),
+    "axes.*.piezo.hysteresis.maxwell_slip.slip_fraction": ("num", 0.01, 0.99),
+    "axes.*.piezo.hysteresis.maxwell_slip.elastic_fraction": ("num", 0.0, 0.9),
+    "axes.*.piezo.hysteresis.maxwell_slip.distribution_seed": ("int", 0, 2 ** 32 - 1),
     "axes.*.piezo.rate_dependence.relaxation_s": ("num", 0.0, 10.0),
     "axes.*.piezo.creep.rate_per_decade": ("num", 0.0, 0.5),
     "axes.*.piezo.creep.tau_min_s": ("num", 1e-5, 1e7),
@@ -69,7 +82,11 @@ RULES: dict[str, tuple] = {
 for _effect in EFFECTS:
     RULES[_effect + ".enabled"] = ("bool",)
     RULES[_effect + ".scale"] = ("num", 0.0, 1000.0)
-OPTIONAL = {"seed", "description", "daq.realtime"}
+FAMILY_KEY = "axes.*.piezo.hysteresis.family"
+#: the family's own table: required when the family is selected, ignored otherwise
+FAMILY_TABLES = {"bouc_wen": "axes.*.piezo.hysteresis.bouc_wen.", "maxwell_slip": "axes.*.piezo.hysteresis.maxwell_slip."}
+OPTIONAL = {"seed", "description", "daq.realtime", FAMILY_KEY,
+            *(k for k in RULES if any(k.startswith(prefix) for prefix in FAMILY_TABLES.values()))}
 CHECKED_ELSEWHERE = ("transport", "safety", "faults", "emulator")
 
 
@@ -110,12 +127,17 @@ def _load_file(path: Path, seen: tuple[Path, ...] = ()) -> dict:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path.name}: not valid TOML ({exc})") from None
     data.setdefault("name", path.stem)
-    parent = data.pop("extends", None)
-    if parent is None:
+    parents = data.pop("extends", None)
+    if parents is None:
         return data
-    if not isinstance(parent, str):
-        raise ValueError(f"extends: must be a bench name or path, got {parent!r}")
-    return deep_merge(_load_file(_resolve(parent, path.parent), seen + (path,)), data)
+    if isinstance(parents, str):
+        parents = [parents]
+    if not isinstance(parents, list) or not parents or not all(isinstance(p, str) for p in parents):
+        raise ValueError(f"extends: must be a bench name or path, or a list of them, got {parents!r}")
+    merged: dict = {}
+    for parent in parents:   # left to right: a later parent's values replace an earlier one's
+        merged = deep_merge(merged, _load_file(_resolve(parent, path.parent), seen + (path,)))
+    return deep_merge(merged, data)
 
 
 def _expand_overrides(overrides: dict) -> dict:
@@ -200,11 +222,29 @@ def validate(cfg: dict) -> dict:
         raise ValueError(f"daq.sample_rate_hz: {daq['sample_rate_hz']} exceeds daq.max_sample_rate_hz")
     for ax in AXES:
         c = cfg["axes"][ax]
+        _check_family(ax, c["piezo"]["hysteresis"], present)
         if c["piezo"]["creep"]["tau_min_s"] >= c["piezo"]["creep"]["tau_max_s"]:
             raise ValueError(f"axes.{ax}.piezo.creep.tau_min_s: must be below tau_max_s")
         if c["amplifier"]["output_max_v"] * daq["monitor_ratio_v_per_v"] > daq["range_v"]:
             raise ValueError(f"daq.monitor_ratio_v_per_v: monitor of axis {ax} would exceed ±{daq['range_v']} V")
     return cfg
+
+
+def _check_family(ax: str, hyst: dict, present: set) -> None:
+    """The selected family's table is complete and its branches rise with the drive."""
+    family = hyst.get("family", "preisach")
+    prefix = FAMILY_TABLES.get(family)
+    if prefix is None:
+        return
+    for rule_path in RULES:
+        if rule_path.startswith(prefix) and rule_path.replace("*", ax) not in present:
+            raise ValueError(f"{rule_path.replace('*', ax)}: missing (needed by family = {family!r})")
+    if family == "bouc_wen":
+        bw = hyst["bouc_wen"]
+        if bw["hysteretic_gain"] > (1.0 + bw["gamma_over_beta"]) / 2.0:   # slope 1 − 2A/(1 + γ/β) after a reversal
+            raise ValueError(f"axes.{ax}.piezo.hysteresis.bouc_wen.hysteretic_gain: {bw['hysteretic_gain']!r} exceeds "
+                             f"(1 + gamma_over_beta)/2 = {(1.0 + bw['gamma_over_beta']) / 2.0:g}: the strain would "
+                             "fall while the drive rises after a reversal")
 
 
 def load_config(name_or_path: str = "default", overrides: dict | None = None) -> dict:

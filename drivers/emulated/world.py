@@ -13,6 +13,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from drivers.emulated import kernels as K
+from drivers.emulated.tables import bouc_wen_coefficients, everett_table, slip_elements
 from drivers.emulated.pacing import Pacer
 from drivers.emulated.faults import WORLD_KINDS, FaultInjector
 from drivers.emulated.output_log import OutputLog
@@ -28,26 +29,6 @@ FAULT_KINDS = WORLD_KINDS  # the kinds inject_fault takes (faults.py)
 def _on(section: dict) -> float:
     """Effect size multiplier: 0 when disabled, else ``scale``."""
     return float(section["scale"]) if section["enabled"] else 0.0
-
-
-def everett_table(hyst: dict, lo_v: float, step_v: float, n: int, refine: int = 2) -> np.ndarray:
-    """Everett function F(alpha_i, beta_j) on an n×n grid for the density
-    mu = p(c)·q(b), c = (a-b)/2 (coercive, gamma k=2), b = (a+b)/2 (bias, Gaussian)."""
-    h = step_v / refine
-    centres = lo_v + (np.arange((n - 1) * refine) + 0.5) * h
-    al, be = np.meshgrid(centres, centres, indexing="ij")
-    c = 0.5 * (al - be)
-    b = 0.5 * (al + be)
-    c0 = float(hyst["coercive_mode_v"])
-    mu = (c / c0 ** 2) * np.exp(-c / c0) * np.exp(-0.5 * ((b - hyst["bias_center_v"]) / hyst["bias_width_v"]) ** 2)
-    mu = np.where(c > 0, mu, 0.0)
-    mu[np.diag_indices_from(mu)] *= 0.5          # diagonal cells are half inside the triangle
-    mass = mu * h * h
-    cum = np.cumsum(mass, axis=0)                 # alpha' <= alpha
-    cum = np.cumsum(cum[:, ::-1], axis=1)[:, ::-1]  # beta' >= beta
-    table = np.zeros((n, n))
-    table[1:, :n - 1] = cum[refine - 1::refine, ::refine]
-    return table
 
 
 class World:
@@ -159,18 +140,40 @@ class World:
             pa[a, K.P_GRID_LO_V] = lo
             pa[a, K.P_GRID_INV_STEP] = 1.0 / step
             pa[a, K.P_GRID_N] = n
-            self.tables.append(everett_table(hyst, lo, step, n))
+            self.tables.append(self._family_table(a, hyst, lo, step, n))
             rng_um = 10.0 * gauge["scale_um_per_v"]
             pa[a, K.S_V_PER_UM] = 1.0 / gauge["scale_um_per_v"]
             pa[a, K.S_RANGE_UM] = rng_um
             pa[a, K.S_NOISE_UM] = gauge["noise"]["rms_nm"] * 1e-3 * _on(gauge["noise"])
             pa[a, K.S_NL_UM] = gauge["nonlinearity"]["fraction_of_range"] * 2 * rng_um * _on(gauge["nonlinearity"])
-        self.ev = np.ascontiguousarray(np.stack(self.tables))
+        size = max(t.shape[0] for t in self.tables)
+        self.ev = np.zeros((2, size, size))
+        for a, table in enumerate(self.tables):
+            self.ev[a, :table.shape[0], :table.shape[1]] = table
         for a, ax in enumerate(AXES):  # switched strain for a virgin 0 -> reference_v excursion
             hyst = cfg["axes"][ax]["piezo"]["hysteresis"]
-            s0 = K.preisach_reset(self.pa, self.sa, self.tp, self.ps, self.ev, a, True, 0.0)
-            s1 = K.preisach_update(self.pa, self.sa, self.tp, self.ps, self.ev, a, float(hyst["reference_v"]))
+            s0 = K.switched_reset(self.pa, self.sa, self.tp, self.ps, self.ev, a, True, 0.0)
+            s1 = K.switched_update(self.pa, self.sa, self.tp, self.ps, self.ev, a, float(hyst["reference_v"]))
             pa[a, K.P_KSW_UM] = hyst["switched_um"] * _on(hyst) / (s1 - s0)
+
+    def _family_table(self, a: int, hyst: dict, lo_v: float, step_v: float, n: int) -> np.ndarray:
+        """Set axis ``a``'s family parameters; return its table (the Everett function for Preisach,
+        the elements' slip limits and weights in rows 0 and 1 for Maxwell-slip)."""
+        family = hyst.get("family", "preisach")
+        pa = self.pa
+        pa[a, K.P_FAMILY] = K.FAMILIES.index(family)
+        if family == "preisach":
+            return everett_table(hyst, lo_v, step_v, n)
+        if family == "bouc_wen":
+            (pa[a, K.P_BW_A], pa[a, K.P_BW_BETA], pa[a, K.P_BW_GAMMA], pa[a, K.P_BW_N],
+             pa[a, K.P_BW_STEP_V]) = bouc_wen_coefficients(hyst["bouc_wen"])
+            return np.zeros((2, 2))
+        limits_v, weights = slip_elements(hyst["maxwell_slip"])
+        pa[a, K.P_MS_N] = len(limits_v)
+        pa[a, K.P_MS_ELASTIC] = hyst["maxwell_slip"]["elastic_fraction"]
+        table = np.zeros((len(limits_v), len(limits_v)))
+        table[0], table[1] = limits_v, weights
+        return table
 
     def set_sample_rate(self, rate_hz: float) -> None:
         """Recompute every coefficient that depends on the sample period (exact discretisations)."""
@@ -226,7 +229,7 @@ class World:
         for a, ax in enumerate(AXES):
             hyst = self.config["axes"][ax]["piezo"]["hysteresis"]
             virgin = hyst["initial_state"] == "virgin"
-            self.pa[a, K.P_S0] = K.preisach_reset(self.pa, self.sa, self.tp, self.ps, self.ev, a, virgin,
+            self.pa[a, K.P_S0] = K.switched_reset(self.pa, self.sa, self.tp, self.ps, self.ev, a, virgin,
                                                   float(hyst["reference_v"]))
             self.sa[a, K.S_ENABLED] = 1.0
             self.sa[a, K.S_GOFF] = self.config["axes"][ax]["gauge"]["offset_um"]
