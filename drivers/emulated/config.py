@@ -1,7 +1,7 @@
 """Bench configurations: TOML files in fixtures/benches/, ``extends``, overrides, validation.
 
 A file may say ``extends = "base"`` and give only what differs; ``extends = ["creep", "bw_base"]``
-merges several parents left to right (a hidden effect on another hysteresis family). Overrides are a nested dict or
+stands on several parents (a hidden effect on another hysteresis family: see ``_chain``). Overrides are a nested dict or
 dotted keys (``{"daq.latency.samples": 3}``); ``axes.*.…`` applies to both axes. Every leaf is
 checked against ``RULES``; a bad or unknown key raises ValueError naming it.
 """
@@ -119,7 +119,10 @@ def deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
-def _load_file(path: Path, seen: tuple[Path, ...] = ()) -> dict:
+def _chain(path: Path, seen: tuple[Path, ...] = ()) -> list[tuple[Path, dict]]:
+    """The files ``path`` stands on, ancestors first, each once (its own values, ``extends`` removed).
+    Parents listed together are linearised left to right and an ancestor they share is applied
+    once, first: ``["creep", "bw_base"]`` is default, base, creep, bw_base."""
     if path in seen:
         raise ValueError(f"extends: cycle through {' -> '.join(p.stem for p in seen + (path,))}")
     try:
@@ -129,15 +132,24 @@ def _load_file(path: Path, seen: tuple[Path, ...] = ()) -> dict:
     data.setdefault("name", path.stem)
     parents = data.pop("extends", None)
     if parents is None:
-        return data
+        return [(path, data)]
     if isinstance(parents, str):
         parents = [parents]
     if not isinstance(parents, list) or not parents or not all(isinstance(p, str) for p in parents):
         raise ValueError(f"extends: must be a bench name or path, or a list of them, got {parents!r}")
+    chain: list[tuple[Path, dict]] = []
+    for parent in parents:
+        for item in _chain(_resolve(parent, path.parent), seen + (path,)):
+            if all(item[0] != done for done, _ in chain):
+                chain.append(item)
+    return chain + [(path, data)]
+
+
+def _load_file(path: Path) -> dict:
     merged: dict = {}
-    for parent in parents:   # left to right: a later parent's values replace an earlier one's
-        merged = deep_merge(merged, _load_file(_resolve(parent, path.parent), seen + (path,)))
-    return deep_merge(merged, data)
+    for _, data in _chain(path):
+        merged = deep_merge(merged, data)
+    return merged
 
 
 def _expand_overrides(overrides: dict) -> dict:
