@@ -49,6 +49,8 @@ _drop_stale_caches()
 def _bw_rate(h, sgn, a_gain, beta, gamma, n):
     """dh/d|u| of Bouc–Wen for a move of sign ``sgn`` (β, γ in 1/V^n)."""
     ah = abs(h)
+    if n == 1.0:                         # the usual piezo form: no powers
+        return sgn * a_gain - beta * h - gamma * sgn * ah
     pn = ah ** n
     return sgn * a_gain - beta * h * (pn / ah if ah > 0.0 else 0.0) - gamma * sgn * pn
 
