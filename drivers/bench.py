@@ -90,12 +90,19 @@ class _Acquired:
         self.bench, self.rate_hz, self.done = bench, rate_hz, 0
         self.u = {a: np.empty(n) for a in bench.axes}
         self.x = {a: np.empty(n) for a in bench.axes}
+        self.temp: np.ndarray | None = None    # °C per sample, where the DAQ has a thermometer
 
     def add(self, u_blocks: Mapping[str, np.ndarray], ai: np.ndarray) -> None:
         parts, k = self.bench.parts, len(ai)
         for a in self.bench.axes:
             self.u[a][self.done:self.done + k] = u_blocks[a]
             self.x[a][self.done:self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
+        reading = getattr(parts.daq, "temperature_c", None)   # optional: the block's temperatures (°C) or None
+        temp = reading() if callable(reading) else None
+        if temp is not None:
+            if self.temp is None:
+                self.temp = np.full(len(next(iter(self.x.values()))), np.nan)
+            self.temp[self.done:self.done + k] = temp
         self.done += k
 
     def last_x_um(self, k: int) -> dict[str, np.ndarray]:
@@ -103,8 +110,9 @@ class _Acquired:
         return {a: v[self.done - k:self.done] for a, v in self.x.items()}
 
     def record(self) -> BenchRecord:
+        extra = {} if self.temp is None else {"temp_c": self.temp[:self.done]}
         return BenchRecord(sample_rate_hz=self.rate_hz, u_cmd_v={a: v[:self.done] for a, v in self.u.items()},
-                           x_um={a: v[:self.done] for a, v in self.x.items()})
+                           x_um={a: v[:self.done] for a, v in self.x.items()}, extra=extra)
 
     def interrupted(self, reason: str, stopped: bool = False) -> RunInterrupted:
         record = self.record()

@@ -29,7 +29,8 @@ RULES: dict[str, tuple] = {
     "daq.max_sample_rate_hz": ("num", 1.0, 1e8), "daq.range_v": ("num", 0.1, 100.0),
     "daq.resolution_bits": ("int", 8, 24), "daq.monitor_ratio_v_per_v": ("num", 1e-4, 1.0),
     "daq.latency.samples": ("int", 0, 1000), "daq.realtime": ("bool",),
-    "ambient.temperature_c": ("num", -40.0, 100.0), "ambient.drift.rate_c_per_s": ("num", -1.0, 1.0),
+    "ambient.temperature_c": ("num", -40.0, 100.0), "ambient.thermometer": ("bool",),
+    "ambient.drift.rate_c_per_s": ("num", -1.0, 1.0),
     "ambient.drift.cycle_amplitude_c": ("num", 0.0, 20.0), "ambient.drift.cycle_period_s": ("num", 1.0, 1e7),
     "coupling.y_from_z": ("num", -0.5, 0.5), "coupling.z_from_y": ("num", -0.5, 0.5),
     "axes.*.amplifier.gain_v_per_v": ("num", 0.1, 1000.0),
@@ -84,8 +85,8 @@ for _effect in EFFECTS:
     RULES[_effect + ".scale"] = ("num", 0.0, 1000.0)
 FAMILY_KEY = "axes.*.piezo.hysteresis.family"
 #: the family's own table: required when the family is selected, ignored otherwise
-FAMILY_TABLES = {"bouc_wen": "axes.*.piezo.hysteresis.bouc_wen.", "maxwell_slip": "axes.*.piezo.hysteresis.maxwell_slip."}
-OPTIONAL = {"seed", "description", "daq.realtime", FAMILY_KEY,
+FAMILY_TABLES = {family: f"axes.*.piezo.hysteresis.{family}." for family in ("bouc_wen", "maxwell_slip")}
+OPTIONAL = {"seed", "description", "daq.realtime", "ambient.thermometer", FAMILY_KEY,
             *(k for k in RULES if any(k.startswith(prefix) for prefix in FAMILY_TABLES.values()))}
 CHECKED_ELSEWHERE = ("transport", "safety", "faults", "emulator")
 

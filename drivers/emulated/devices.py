@@ -50,6 +50,13 @@ class EmulatedDaq:
                              f"for {self.capabilities.ai_channels} AI channels")
         return actual
 
+    def temperature_c(self) -> np.ndarray | None:
+        """The stack thermometer's reading (°C) at each sample of the last block, or None where the
+        bench has none (``[ambient] thermometer``); Bench.run records it as ``temp_c``."""
+        if not self.world.config["ambient"].get("thermometer", False):
+            return None
+        return self.world.last_diag[:, K.D_TEMP_C].copy()
+
     def configure(self, sample_rate_hz: float) -> float:
         self._ensure_open()
         actual = self.coerce(sample_rate_hz)
