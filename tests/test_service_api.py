@@ -87,14 +87,18 @@ def test_sweep_identify_and_compare(service):
     assert m["validation_rms_um"] == pytest.approx(np.mean([b["validation"]["rms_um"] for b in blocks]))
     assert all(b["validation"]["samples"] == 20000 / b["frequency_hz"] for b in blocks)  # one held-out cycle
 
-    cmp = api.compare(model["id"], dataset_id)
+    cmp = api.compare(model["id"], dataset_id, max_points=ds["samples"])   # every sample
     x, x_hat, e = (np.array(cmp[k]) for k in ("x_measured_um", "x_predicted_um", "residual_um"))
-    assert len(x) == ds["samples"] and cmp["used_in_fit"]
+    assert len(x) == ds["samples"] and cmp["stride"] == 1 and cmp["used_in_fit"]
     np.testing.assert_allclose(e, x - x_hat, atol=1e-12)
     overall = cmp["metrics"]["overall"]
     assert overall["fit_pct"] > 90 and overall["max_abs_um"] >= overall["rms_um"] > 0
     assert cmp["metrics"]["validation_rms_um"] == pytest.approx(m["validation_rms_um"])
     assert len(api.compare(model["id"], dataset_id, max_points=1000)["t_s"]) <= 1000
+    default = api.compare(model["id"], dataset_id)   # decimated as a JSON download: ≤ 10 000 points per array
+    assert default["stride"] == -(-ds["samples"] // 10_000) and len(default["t_s"]) <= 10_000
+    assert default["x_measured_um"] == cmp["x_measured_um"][::default["stride"]]
+    assert default["metrics"] == cmp["metrics"]   # metrics always over every sample
 
     # a dataset the model never saw: every block row is unseen
     other = api.sweep(axes=["y"], frequencies_hz=[20], cycles=2)["result"]["dataset_id"]

@@ -231,7 +231,10 @@ class Client:
         return self._request("GET", "/api/models")
 
     def compare(self, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:
-        """Measured, predicted and residual arrays (unless ``arrays`` is False) and the metrics."""
+        """The metrics (over every sample) and, unless ``arrays`` is False, measured, predicted and
+        residual arrays decimated by the service to at most ``max_points`` points each (default: the
+        service's, 10 000, as ``dataset_data``; ``stride`` says by how much). For every sample pass
+        ``max_points`` of at least the dataset's ``samples``."""
         params = {"dataset": dataset_id, "arrays": arrays, **({"max_points": max_points} if max_points else {})}
         return self._request("GET", f"/api/models/{model_id}/compare", params=params)
 

@@ -13,23 +13,14 @@ samples so far are stored as a partial dataset and the output is at 0 V.
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, HTTPException
-from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.bench import Bench
 from drivers.emulated.faults import KINDS, FaultRequestError, FaultUnavailable
 from service.http.deps import get_bench
+from service.http.schemas.admin import Fault, FaultRequest, Faults, FaultsCleared
 from service.science.errors import FieldError
 
 router = APIRouter(prefix="/admin", tags=["admin"])
-
-
-class FaultRequest(BaseModel):
-    """One fault: its kind, the axis (sensor and amplifier faults) and when, in seconds."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    fault: str = Field(description=f"one of {', '.join(KINDS)}")
-    axis: str | None = Field(default=None, description="y or z, for sensor_* and amplifier_* faults")
-    after_s: float = Field(default=0.0, ge=0, le=1e6, description="emulated seconds into the bench session")
 
 
 def _injector(bench: Bench):
@@ -39,7 +30,7 @@ def _injector(bench: Bench):
     return world.faults
 
 
-@router.post("/faults", status_code=201)
+@router.post("/faults", status_code=201, response_model=Fault)
 def add_fault(body: FaultRequest, bench: Bench = Depends(get_bench)) -> dict:
     """Schedule a fault in the emulator (422 names a bad fault or axis; 409 if this bench cannot have it)."""
     injector = _injector(bench)
@@ -52,7 +43,7 @@ def add_fault(body: FaultRequest, bench: Bench = Depends(get_bench)) -> dict:
     return fault.as_dict()
 
 
-@router.get("/faults")
+@router.get("/faults", response_model=Faults)
 def list_faults(bench: Bench = Depends(get_bench)) -> dict:
     """The scheduled faults (armed or fired, with the session time they fired at) and the known kinds."""
     injector = _injector(bench)
@@ -60,7 +51,7 @@ def list_faults(bench: Bench = Depends(get_bench)) -> dict:
             "transports": sorted(injector.transports)}
 
 
-@router.delete("/faults")
+@router.delete("/faults", response_model=FaultsCleared)
 def clear_faults(bench: Bench = Depends(get_bench)) -> dict:
     """Remove every fault and clear latched device faults; ``notes`` says what cannot be undone."""
     injector = _injector(bench)

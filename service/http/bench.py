@@ -9,12 +9,13 @@ from fastapi import APIRouter, HTTPException, Query, Request
 
 from drivers.bench import BenchBusy
 
+from service.http.schemas.bench import BenchState, EmergencyStop, FaultsReset, LiveSignals
 from service.runtime.safe_shutdown import safe_state
 
 router = APIRouter(tags=["bench"])
 
 
-@router.get("/bench")
+@router.get("/bench", response_model=BenchState, response_model_exclude_unset=True)
 def bench_state(request: Request) -> dict:
     """The bench's devices, their present state and its hard limits (actuator volts, amperes, hertz)."""
     state = request.app.state
@@ -29,7 +30,7 @@ EMERGENCY_STOP = "emergency stop"
 _STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop")
 
 
-@router.post("/bench/stop")
+@router.post("/bench/stop", response_model=EmergencyStop)
 async def emergency_stop(request: Request) -> dict:
     """Emergency stop: drive every output to 0 V first (the bench engine aborts the running block, the
     loop writes 0 V within one control period, or 0 V is written from the engine's stop thread),
@@ -47,7 +48,7 @@ async def emergency_stop(request: Request) -> dict:
             "zero_after_request_ms": zero_ms, "zero_monotonic_s": stop.get("zero_monotonic_s")}
 
 
-@router.post("/bench/reset")
+@router.post("/bench/reset", response_model=FaultsReset)
 def reset_faults(request: Request) -> dict:
     """Clear latched amplifier faults (e.g. an over-current trip) and the watchdog's trip, with the
     outputs at 0 V, so jobs can run again. 409 while a job owns the bench. The answer lists what was
@@ -62,7 +63,7 @@ def reset_faults(request: Request) -> dict:
     return {**out, "output_v": state.bench.output_v()}
 
 
-@router.get("/bench/live")
+@router.get("/bench/live", response_model=LiveSignals, response_model_exclude_unset=True)
 def bench_live(request: Request, since: int | None = Query(default=None, ge=0, description=(
                    "cursor from the previous answer; omitted: the latest max_points samples")),
                max_points: int = Query(default=2000, ge=1, le=20_000)) -> dict:

@@ -7,6 +7,9 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Upload
 from fastapi.responses import StreamingResponse
 
 from service.http.deps import get_store
+from service.http.schemas.common import with_figures
+from service.http.schemas.datasets import Dataset, DatasetSummary
+from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
 from service.science.data.export import (JSON_DEFAULT_MAX_POINTS, RowRange, csv_chunks, export_names, hdf5_chunks,
                                     json_chunks, json_stride, ndjson_chunks)
@@ -25,13 +28,6 @@ MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "applica
 _RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
 
 
-def _with_figures(endpoint):
-    """Put the module's figures into the endpoint's docstring (shown in /docs): {rate_range},
-    {json_max_points}; literal braces are doubled."""
-    endpoint.__doc__ = endpoint.__doc__.format(rate_range=_RATE_TEXT, json_max_points=JSON_DEFAULT_MAX_POINTS)
-    return endpoint
-
-
 def dataset_view(row: dict, full: bool = True) -> dict:
     """A dataset record as the API shows it (units in the field names)."""
     view = {k: row[k] for k in SUMMARY_KEYS}
@@ -45,8 +41,8 @@ def dataset_view(row: dict, full: bool = True) -> dict:
     return view
 
 
-@router.post("", status_code=201)
-@_with_figures
+@router.post("", status_code=201, response_model=Dataset)
+@with_figures(rate_range=_RATE_TEXT, json_max_points=JSON_DEFAULT_MAX_POINTS)
 async def import_dataset(
     file: UploadFile = File(..., description="CSV (header t,u_y,x_y,… or u,x) or a headerless table"),
     name: str | None = Form(None, max_length=200),
@@ -75,21 +71,21 @@ async def import_dataset(
     return dataset_view(row)
 
 
-@router.get("")
+@router.get("", response_model=list[DatasetSummary])
 def list_datasets(store: Store = Depends(get_store)) -> list[dict]:
     """Every dataset, oldest first (summary fields)."""
     return [dataset_view(row, full=False) for row in store.list_datasets()]
 
 
-@router.get("/{dataset_id}")
+@router.get("/{dataset_id}", response_model=Dataset)
 def get_dataset(dataset_id: str, store: Store = Depends(get_store)) -> dict:
     """A dataset's metadata: block table, plan, bench configuration snapshot, units, drive range
     per axis (``drive_range_v``, volts, for imports), checksum."""
     return dataset_view(store.get_dataset(dataset_id))
 
 
-@router.get("/{dataset_id}/data", response_model=None)
-@_with_figures
+@router.get("/{dataset_id}/data", response_model=None, responses=DATASET_DOWNLOADS)
+@with_figures(rate_range=_RATE_TEXT, json_max_points=JSON_DEFAULT_MAX_POINTS)
 def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "hdf5"] = "json",
                      max_points: int | None = Query(None, ge=2, description="json: at most this many points per "
                                                     f"column (default {JSON_DEFAULT_MAX_POINTS})"),

@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
-from pydantic import BaseModel, ConfigDict, Field
 
 from service.http.deps import get_jobs, get_store
+from service.http.schemas.common import JobQueued
+from service.http.schemas.models import Diagnosis, History, RefineRequest
 from service.usecases.discover import diagnose_model, history, refine_params
 from service.runtime.jobs import JobManager
 from service.usecases.identify import identify
@@ -13,25 +14,14 @@ from service.store import Store
 router = APIRouter(prefix="/models", tags=["discovery"])
 
 
-class RefineRequest(BaseModel):
-    """Exactly one of: ``add`` an effect, ``remove`` one, or refit with ``effects``."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    add: str | None = None
-    remove: str | None = None
-    effects: list[str] | None = Field(default=None, max_length=20)
-    datasets: list[str] = Field(default=[], max_length=100, description="datasets to add to the fit")
-
-
-@router.get("/{model_id}/diagnosis")
+@router.get("/{model_id}/diagnosis", response_model=Diagnosis, response_model_exclude_unset=True)
 def get_diagnosis(model_id: str, extra_datasets: list[str] = Query(default=[]),
                   store: Store = Depends(get_store)) -> dict:
     """Residual RMS, noise floor, verdict, ranked candidates with evidence, failures, ambiguity."""
     return diagnose_model(store, model_id, extra_datasets)
 
 
-@router.post("/{model_id}/refine", status_code=202)
+@router.post("/{model_id}/refine", status_code=202, response_model=JobQueued)
 def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store),
            jobs: JobManager = Depends(get_jobs)) -> dict:
     """Queue a refit with another effect set on the same data; the new model's parent is ``model_id``."""
@@ -40,7 +30,7 @@ def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store)
     return {"job_id": job["id"], "state": job["state"]}
 
 
-@router.get("/{model_id}/history")
+@router.get("/{model_id}/history", response_model=History)
 def get_history(model_id: str, store: Store = Depends(get_store)) -> dict:
     """The lineage from the first model to this one, with train and validation RMS at each step."""
     return {"model_id": model_id, "steps": history(store, model_id)}

@@ -6,11 +6,12 @@ import time
 from fastapi import APIRouter, Request
 
 from service import __version__
+from service.http.schemas.bench import Health
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/health")
+@router.get("/health", response_model=Health)
 def health(request: Request) -> dict:
     """Liveness plus the software version and the bench backend."""
     state = request.app.state

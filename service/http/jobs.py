@@ -6,24 +6,26 @@ from fastapi.responses import StreamingResponse
 
 from service.http.auth import require_token, token_recheck
 from service.http.deps import get_jobs
+from service.http.schemas.common import Job
+from service.http.schemas.streams import JOB_EVENTS
 from service.runtime.jobs import JobManager
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
-@router.get("")
+@router.get("", response_model=list[Job])
 def list_jobs(limit: int = Query(100, ge=1, le=1000), jobs: JobManager = Depends(get_jobs)) -> list[dict]:
     """The newest jobs first: id, kind, state, progress (0..1), message, result, error, timestamps."""
     return jobs.list(limit)
 
 
-@router.get("/{job_id}")
+@router.get("/{job_id}", response_model=Job)
 def get_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
     """One job: ``state`` is queued | running | succeeded | failed | cancelled; ``progress`` 0..1."""
     return jobs.get(job_id)
 
 
-@router.get("/{job_id}/events")
+@router.get("/{job_id}/events", response_class=StreamingResponse, responses=JOB_EVENTS)
 async def job_events(job_id: str, request: Request, token: dict = Depends(require_token),
                      jobs: JobManager = Depends(get_jobs)) -> StreamingResponse:
     """Server-sent events: ``progress`` on every change (data: the job as JSON), then ``end``. If the
@@ -34,7 +36,7 @@ async def job_events(job_id: str, request: Request, token: dict = Depends(requir
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
-@router.delete("/{job_id}", status_code=202)
+@router.delete("/{job_id}", status_code=202, response_model=Job)
 def cancel_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
     """Cancel: a queued job is cancelled at once; a running sweep stops at its next block,
     leaves the output at 0 V and keeps the samples so far as a partial dataset."""

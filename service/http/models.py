@@ -4,30 +4,17 @@ Diagnosis, refine and history live in service.http.discovery under the same ``/m
 """
 from __future__ import annotations
 
-from typing import Literal
-
 from fastapi import APIRouter, Depends, Query
-from pydantic import BaseModel, ConfigDict, Field
 
 from service.http.deps import get_jobs, get_store
+from service.science.data.export import JSON_DEFAULT_MAX_POINTS
+from service.http.schemas.common import JobQueued, with_figures
+from service.http.schemas.models import Comparison, Model, ModelRequest
 from service.runtime.jobs import JobManager
 from service.usecases.identify import check_identify_request, compare, identify
 from service.store import Store
 
 router = APIRouter(prefix="/models", tags=["models"])
-
-
-class ModelRequest(BaseModel):
-    """Identify a model of one axis from stored datasets."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, protected_namespaces=())
-
-    axis: Literal["y", "z"]
-    datasets: list[str] = Field(min_length=1, max_length=100)
-    effects: list[str] = Field(default=["hysteresis"])
-    model: str = Field(default="static_pi", description="static_pi | dynamic_pi | grpi | composite "
-                                                        "(static PI + effects; implied by any effect beyond hysteresis)")
-    n_operators: int = Field(default=10, ge=1, le=100)
 
 
 def model_view(row: dict) -> dict:
@@ -39,7 +26,7 @@ def model_view(row: dict) -> dict:
             "created_at": row["created_at"]}
 
 
-@router.post("", status_code=202)
+@router.post("", status_code=202, response_model=JobQueued)
 def create_model(body: ModelRequest, store: Store = Depends(get_store), jobs: JobManager = Depends(get_jobs)) -> dict:
     """Queue an identification; the job's result is ``{"model_id", "train_rms_um", "validation_rms_um"}``.
     It fits on all but the last ⌈20 %⌉ cycles of every block and validates on those."""
@@ -49,23 +36,30 @@ def create_model(body: ModelRequest, store: Store = Depends(get_store), jobs: Jo
     return {"job_id": job["id"], "state": job["state"]}
 
 
-@router.get("")
+@router.get("", response_model=list[Model], response_model_exclude_unset=True)
 def list_models(store: Store = Depends(get_store)) -> list[dict]:
     """Every model, oldest first."""
     return [model_view(row) for row in store.list_models()]
 
 
-@router.get("/{model_id}")
+@router.get("/{model_id}", response_model=Model, response_model_exclude_unset=True)
 def get_model(model_id: str, store: Store = Depends(get_store)) -> dict:
     """A model: kind, effects, parameters (``model.to_dict()``) and train/held-out metrics."""
     return model_view(store.get_model(model_id))
 
 
-@router.get("/{model_id}/compare")
+@router.get("/{model_id}/compare", response_model=Comparison, response_model_exclude_unset=True)
+@with_figures(json_max_points=JSON_DEFAULT_MAX_POINTS)
 def compare_model(model_id: str, dataset: str = Query(..., description="dataset id"),
-                  max_points: int | None = Query(None, ge=2, description="decimate the arrays to about this many"),
+                  max_points: int | None = Query(None, ge=2, description=(
+                      f"at most this many points per array (default {JSON_DEFAULT_MAX_POINTS})")),
                   arrays: bool = Query(True, description="false: metrics only"),
                   store: Store = Depends(get_store)) -> dict:
     """Measured vs predicted displacement (µm), the residual, and RMS / max / fit % metrics over
-    all blocks and per block, split into training and held-out cycles."""
+    all blocks and per block, split into training and held-out cycles.
+
+    The arrays are every ``stride``-th sample, at most ``max_points`` per array: by default {json_max_points},
+    the decimation of ``GET /api/datasets/{{id}}/data``, so a long record is never built as JSON whole
+    (ask for ``max_points`` ≥ ``samples`` to get every sample). The metrics always use every sample.
+    """
     return compare(store, model_id, dataset, max_points, arrays)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.data.datasets import stored_sample_rate_hz
+from service.science.data.export import json_stride
 from service.science.errors import FieldError
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.store import NotFoundError, Store
@@ -108,8 +109,9 @@ def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None
     """Measured, predicted and residual displacement (µm) of a stored dataset, with metrics.
 
     Blocks of a dataset the model was fitted on report train and held-out figures; for any
-    other dataset the whole of every block is unseen data. ``max_points`` decimates the
-    returned arrays (never the metrics); ``arrays`` False leaves them out.
+    other dataset the whole of every block is unseen data. The returned arrays are every
+    ``stride``-th sample, at most ``max_points`` (default JSON_DEFAULT_MAX_POINTS, as a dataset's
+    JSON download) per array; the metrics use every sample. ``arrays`` False leaves them out.
     """
     model_row = store.get_model(model_id)
     axis = model_row["axis"]
@@ -131,7 +133,7 @@ def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None
     in_blocks = np.zeros(series.n_samples, dtype=bool)
     for s in splits:
         in_blocks[s.train[0]:s.held_out[1]] = True
-    stride = max(1, int(np.ceil(series.n_samples / max_points))) if max_points else 1
+    stride = json_stride(series.n_samples, max_points)
     signals = {} if not arrays else {
         "t_s": (np.arange(0, series.n_samples, stride) / row["sample_rate_hz"]).tolist(),
         "u_v": series.u_v[::stride].tolist(), "x_measured_um": series.x_um[::stride].tolist(),

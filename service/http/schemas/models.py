@@ -1,0 +1,157 @@
+"""Models: identification and refine requests, a model, a comparison, a diagnosis, a lineage."""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.http.schemas.common import OPEN
+
+
+class ModelRequest(BaseModel):
+    """Identify a model of one axis from stored datasets."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, protected_namespaces=())
+
+    axis: Literal["y", "z"]
+    datasets: list[str] = Field(min_length=1, max_length=100)
+    effects: list[str] = Field(default=["hysteresis"])
+    model: str = Field(default="static_pi", description="static_pi | dynamic_pi | grpi | composite "
+                                                        "(static PI + effects; implied by any effect beyond hysteresis)")
+    n_operators: int = Field(default=10, ge=1, le=100)
+
+
+class RefineRequest(BaseModel):
+    """Exactly one of: ``add`` an effect, ``remove`` one, or refit with ``effects``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    add: str | None = None
+    remove: str | None = None
+    effects: list[str] | None = Field(default=None, max_length=20)
+    datasets: list[str] = Field(default=[], max_length=100, description="datasets to add to the fit")
+
+
+class ModelMetrics(BaseModel):
+    """Train and held-out figures (µm): means over blocks, every frequency block counting equally."""
+
+    model_config = OPEN
+    train_rms_um: float | None = None
+    validation_rms_um: float | None = None
+    train_max_abs_um: float | None = None
+    validation_max_abs_um: float | None = None
+    per_dataset: list[dict[str, Any]] | None = None
+    held_out: str | None = Field(default=None, description="what was held out of the fit")
+
+
+class Model(BaseModel):
+    """An identified model: ``parameters`` is ``model.to_dict()``, checked by ``parameters_sha256``."""
+
+    model_config = ConfigDict(protected_namespaces=())
+    id: str
+    axis: str
+    kind: str = Field(description="static_pi | dynamic_pi | grpi | composite")
+    effects: list[str]
+    parent_id: str | None
+    datasets: list[str]
+    options: dict[str, Any] | None
+    parameters: dict[str, Any]
+    parameters_sha256: str
+    metrics: ModelMetrics
+    software_version: str
+    job_id: str | None
+    created_at: str
+
+
+class FitFigures(BaseModel):
+    model_config = OPEN
+    rms_um: float | None = None
+    max_abs_um: float | None = None
+    fit_pct: float | None = None
+    samples: int | None = None
+
+
+class ComparisonMetrics(BaseModel):
+    model_config = OPEN
+    overall: FitFigures = Field(description="over every sample inside a block")
+    train_rms_um: float | None
+    validation_rms_um: float | None
+    per_block: list[dict[str, Any]] = Field(description="per block: train and validation figures")
+
+
+class Comparison(BaseModel):
+    """Measured vs predicted displacement (µm) and the residual, every ``stride``-th sample (the
+    arrays are left out with ``arrays=false``), and the metrics over every sample."""
+
+    model_config = ConfigDict(protected_namespaces=())
+    model_id: str
+    dataset_id: str
+    axis: str
+    used_in_fit: bool
+    sample_rate_hz: float
+    samples: int
+    stride: int
+    t_s: list[float] | None = None
+    u_v: list[float] | None = None
+    x_measured_um: list[float] | None = None
+    x_predicted_um: list[float] | None = None
+    residual_um: list[float] | None = None
+    metrics: ComparisonMetrics
+
+
+class Candidate(BaseModel):
+    """A missing effect the residual points to, with the evidence in words."""
+
+    model_config = OPEN
+    effect: str
+    kind: str | None = Field(default=None, description="physical | capacity")
+    score: float | None = None
+    expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
+    evidence: str | None = None
+
+
+class Failure(BaseModel):
+    """Where the model fails: a place (block, drive range) and its residual."""
+
+    model_config = OPEN
+    where: str | None = None
+    text: str | None = None
+    rms_um: float | None = None
+
+
+class Diagnosis(BaseModel):
+    """DESIGN §5: residual vs noise floor, the verdict, ranked candidates (best first), failures."""
+
+    model_config = OPEN
+    model_id: str | None = None
+    axis: str | None = None
+    datasets: list[str] | None = None
+    effects: list[str] | None = None
+    residual_rms_um: float | None = None
+    train_rms_um: float | None = None
+    noise_floor_um: float | None = None
+    verdict: str | None = Field(default=None, description="missing_effect | complete")
+    verdict_text: str | None = None
+    candidates: list[Candidate] | None = None
+    failures: list[Failure] | None = None
+    ambiguity: dict[str, Any] | None = None
+
+
+class HistoryStep(BaseModel):
+    model_config = ConfigDict(protected_namespaces=())
+    model_id: str
+    parent_id: str | None
+    effects: list[str]
+    change: str | None = Field(description='what changed from the parent: "+creep", "-delay", "refit"')
+    datasets: list[str]
+    train_rms_um: float | None
+    validation_rms_um: float | None
+    created_at: str
+
+
+class History(BaseModel):
+    """The lineage from the first model to this one."""
+
+    model_config = ConfigDict(protected_namespaces=())
+    model_id: str
+    steps: list[HistoryStep]
