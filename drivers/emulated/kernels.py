@@ -166,16 +166,21 @@ def preisach_reset(pa, sa, tp, ps, ev, a, virgin, hist_max_v):
     return preisach_update(pa, sa, tp, ps, ev, a, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def switched_update(pa, sa, tp, ps, ev, a, u):
     """Move axis ``a``'s input to ``u`` (V); return the family's switched state (family units:
-    Preisach mass of up relays, else volts)."""
-    fam = pa[a, P_FAMILY]
-    if fam == FAM_PREISACH:
+    Preisach mass of up relays, else volts). Preisach's path is the call it always was."""
+    if pa[a, P_FAMILY] == FAM_PREISACH:
         return preisach_update(pa, sa, tp, ps, ev, a, u)
+    return _other_family_update(pa, sa, tp, ev, a, u)
+
+
+@njit(cache=True)
+def _other_family_update(pa, sa, tp, ev, a, u):
+    """``switched_update`` for Bouc–Wen and Maxwell-slip (families.py): volts."""
     du = u - sa[a, S_UCUR]
     sa[a, S_UCUR] = u
-    if fam == FAM_BOUC_WEN:
+    if pa[a, P_FAMILY] == FAM_BOUC_WEN:
         h = bouc_wen_step(sa[a, S_HV], du, pa[a, P_BW_A], pa[a, P_BW_BETA], pa[a, P_BW_GAMMA], pa[a, P_BW_N],
                           pa[a, P_BW_STEP_V])
         sa[a, S_HV] = h
