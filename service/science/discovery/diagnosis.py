@@ -1,11 +1,17 @@
-"""Which effect is missing: every candidate not in the model is fitted with it (training
-cycles) and scored on the held-out cycles; the verdict, the ambiguity between close
-candidates, and the experiment (a ready-to-POST sweep body) that separates them.
+"""Which effect is missing: every candidate not in the model is fitted with it (training cycles)
+and compared on the held-out cycles; the verdict, the ambiguity between close candidates, the
+effects the data cannot test, and the experiment (a ready-to-POST sweep body) for each.
 
-score = g · min(1, Δ/2σ) − 0.002·k, clipped to [0, 1], where g = (v₀² − v²)/(v₀² − σ²) is the
-validated fraction of the excess (above the noise floor σ) that the candidate removes, Δ = v₀ − v
-the held-out RMS drop (a drop smaller than 2σ counts proportionally less)
-and k its added parameters (Occam: the simpler of two equal explanations ranks first).
+Three kinds of candidate, three references:
+- a **physical** effect (rate dependence, creep, drift, delay, dynamics, coupling) is compared
+  with the model plus a flexible rate-independent base (finer operators and a non-symmetric loop
+  shape): what differs between frequencies, over time or with the other axis's independent motion
+  is physics, a loop shape the paper's PI cannot draw is not;
+- ``asymmetry`` (a loop that is not point-symmetric: electrostrictive or saturating) is compared
+  with the model plus finer operators, which draw any point-symmetric loop;
+- ``operators`` (capacity) is compared with the model itself, and is never physics.
+The claim rule and its false-claim basis: service/science/discovery/decision.py. Effects the data
+cannot test (service/science/discovery/identifiability.py) are listed apart, never claimed.
 """
 from __future__ import annotations
 
@@ -13,17 +19,16 @@ import numpy as np
 
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.composite import CompositeModel
+from service.science.discovery.decision import claimed, held_out_improvement, rule_text
+from service.science.discovery.identifiability import not_testable
 from service.science.discovery.noise import noise_floor
+from service.science.discovery.symmetry import asymmetry_test
 from service.science.effects import EFFECTS
 
-#: a score above this claims the effect is missing
-HIGH_SCORE = 0.45
-PARAMETER_PENALTY = 0.002
-#: with several effects missing, one removes only part of the excess: a drop of ≥ 2σ that removes at
-#: least this share of the excess is significant too (``significant``), and the verdict counts it
-SIGNIFICANT_SHARE = 0.25
-#: a held-out drop smaller than this many noise floors counts proportionally less (2-sigma rule)
+#: with the flexible base, a held-out drop smaller than this many noise floors is "at the noise floor"
 CLEAR_DROP_NOISE = 2.0
+#: the flexible rate-independent base that physical candidates must beat
+FLEXIBLE_BASE = ("operators", "asymmetry")
 
 
 def _fmt_nm(v_um) -> str:
@@ -55,8 +60,10 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
                 " over the run: drift")
     if name == "asymmetry":
         v = sig.get("even_fraction")
-        return (f"a parabola in the drive carries {100 * v:.0f} % of the loop residual (even, not point-symmetric): "
-                "asymmetry" if v is not None else "asymmetry")
+        shape = (f"a parabola in the drive carries {100 * v:.0f} % of the loop residual: " if v is not None else "")
+        return (shape + "the loop is not point-symmetric about its centre even with finer operators, which draw any "
+                "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
+                "not of time or rate (a gauge's own curvature would bend the output as a function of x instead)")
     if name == "cross_coupling":
         r = sig.get("coupling_r")
         return (f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling" if r is not None
@@ -68,50 +75,96 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
     return ""
 
 
-def score_candidate(v0: float, v: float, noise: float, added: int) -> float:
-    excess2 = max(v0**2 - noise**2, 1e-30)
-    gain = float(np.clip((v0**2 - v**2) / excess2, 0.0, 1.0))
-    clear = min(1.0, max(v0 - v, 0.0) / max(CLEAR_DROP_NOISE * noise, 1e-12))
-    return float(np.clip(gain * clear - PARAMETER_PENALTY * added, 0, 1))
+def _reference_for(name: str) -> tuple[str, ...]:
+    """What a candidate must beat: capacity the model itself; physics the flexible base."""
+    return () if EFFECTS[name].kind == "capacity" else tuple(e for e in FLEXIBLE_BASE if e != name)
+
+
+class _Fits:
+    """Composite fits of one diagnosis, each fitted once (warm-started at the model's transforms)."""
+
+    def __init__(self, records, model: CompositeModel):
+        self.records, self.model, self._cache = records, model, {}
+
+    def get(self, effects, theta: dict | None = None) -> tuple[CompositeModel, list[np.ndarray], float]:
+        """The model + ``effects``: fitted, its residuals and held-out RMS. ``theta`` fixes transforms
+        found by an earlier fit (a transform's search on the flexible base costs ten fits)."""
+        key = tuple(sorted(set(self.model.effects) | set(effects)))
+        if key not in self._cache:
+            m = self.model if set(key) == set(self.model.effects) else CompositeModel(
+                list(key), self.model.n_operators).fit(self.records, fixed_theta={**self.model.theta, **(theta or {})})
+            res = [r.x_um - m.predict(r) for r in self.records]
+            self._cache[key] = (m, res, m.evaluate(self.records)["validation_rms_um"])
+        return self._cache[key]
+
+
+def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, sig: dict, floor: dict) -> dict:
+    """One testable candidate: its test against its reference, the claim, and what adding it to
+    the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
+    eff = EFFECTS[name]
+    if name == "asymmetry":        # a property of the measured loop: tested without a model
+        test = asymmetry_test(records, noise)
+        reference, v_ref = (), v0
+        gain = (test["even_rms_um"] or 0.0) ** 2
+        how = (f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
+               f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
+               f"noise σ = {_fmt_nm(noise)})")
+    else:
+        reference = _reference_for(name)
+        _, res_ref, v_ref = fits.get(reference)
+        # a transform's parameters are searched once, on the model with it alone, then kept
+        theta = fits.get((name,))[0].theta if eff.stage == "transform" else None
+        _, res_trial, v_trial = fits.get(reference + (name,), theta)
+        test = held_out_improvement(records, res_ref, res_trial)
+        test["claimed"] = claimed(test, noise)
+        gain = test["gain_mse_um2"]
+        against = "the model" if not reference else "the model + " + " + ".join(reference)
+        how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm (p = "
+               f"{test['p']:.2g} over {test['segments']} held-out segments; {gain * 1e6:.3g} nm² of mean square "
+               f"against σ² = {noise**2 * 1e6:.3g} nm²)")
+    is_claimed = bool(test["claimed"])
+    v, added, fitted = v0, 0, ""
+    if is_claimed or eff.kind == "capacity":
+        own, _, v = fits.get((name,))          # what the user gets by adding it to this model
+        added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
+    removed = (v0**2 - v**2) / max(v0**2 - noise**2, 1e-30)
+    evidence = (f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
+                + (f". Added to this model: {v0:.4g} → {v:.4g} µm ({100 * removed:.0f} % of the excess above the "
+                   f"noise floor)" if v != v0 else ". Not claimed, so not fitted into this model")
+                + (f"; fitted {fitted}" if fitted else "") + ".")
+    return {"effect": name, "kind": eff.kind, "testable": True, "claimed": is_claimed, "high": is_claimed,
+            "significant": is_claimed,
+            "score": round(float(np.clip(gain / max(v_ref**2 - noise**2, 1e-30), 0, 1)), 4),
+            "p_value": test["p"], "gain_mse_um2": gain, "reference": list(reference), "reference_rms_um": v_ref,
+            "expected_rms_um": v, "excess_removed": round(float(removed), 4), "added_parameters": added,
+            "evidence": evidence, "signature": eff.signature}
 
 
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
     """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
     records = list(records)
     model = model or CompositeModel(effects, n_operators).fit(records)
-    preds = [model.predict(r) for r in records]
-    res = [r.x_um - p for r, p in zip(records, preds)]
+    fits = _Fits(records, model)
+    _, res, v0 = fits.get(())
+    preds = [r.x_um - e for r, e in zip(records, res)]
     ev = model.evaluate(records)
-    v0 = ev["validation_rms_um"]
     floor = noise_floor(records, res)
     noise = floor["noise_floor_um"] or 0.0
     sig = signatures(records, res, preds)
     k0 = model.n_parameters()
-    candidates = []
+    candidates, untestable = [], []
     for name, eff in EFFECTS.items():
         if name in model.effects:
             continue
-        trial = CompositeModel(model.effects + [name], model.n_operators).fit(records, fixed_theta=model.theta)
-        v = trial.evaluate(records)["validation_rms_um"]
-        score = score_candidate(v0, v, noise, trial.n_parameters() - k0)
-        removed = 100 * (v0**2 - v**2) / max(v0**2 - noise**2, 1e-30)
-        significant = bool(v0 - v >= CLEAR_DROP_NOISE * noise and removed >= 100 * SIGNIFICANT_SHARE)
-        fitted = trial.describe().get(name) or ""
-        evidence = (f"{_signature_words(name, sig, floor)}. With {name}, held-out RMS {v0:.4g} → {v:.4g} µm "
-                    f"({removed:.0f} % of the excess above the {noise:.3g} µm noise floor)"
-                    + (f"; fitted {fitted}" if fitted else "") + ".")
-        candidates.append({"effect": name, "kind": eff.kind, "score": round(score, 4), "expected_rms_um": v,
-                           "excess_removed": round(removed / 100, 4),
-                           "added_parameters": trial.n_parameters() - k0, "evidence": evidence,
-                           "significant": significant,
-                           "signature": eff.signature})
-    for c in candidates:
-        c["high"] = c["score"] >= HIGH_SCORE or c["significant"]
-    # Capacity can absorb any repeatable residual, physics included: a physical effect that is
-    # claimed ranks before it; otherwise the order is by score.
-    candidates.sort(key=lambda c: (not (c["kind"] == "physical" and c["high"]), -c["score"], c["expected_rms_um"]))
+        why_not = not_testable(name, records)
+        if why_not is not None:
+            untestable.append({**why_not, "kind": eff.kind, "testable": False, "claimed": False})
+            continue
+        candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor))
+    # claimed physics first (largest held-out gain first), then the rest by gain; capacity last
+    candidates.sort(key=lambda c: (c["kind"] == "capacity", not c["claimed"], -c["gain_mse_um2"]))
     physical = [c for c in candidates if c["kind"] == "physical"]
-    missing = bool(physical) and physical[0]["high"]
+    missing = bool(physical) and physical[0]["claimed"]
     repeatable = floor["repeatable_rms_um"]
     ratio = worst_repeatable_to_noise(floor["per_block"])
     # Both: every block's repeatable part within 2σ of its own noise, and the held-out residual
@@ -126,7 +179,8 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             "verdict": "missing_effect" if missing else "complete",
             "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio,
                                           held_out_ratio),
-            "candidates": candidates, "failures": worst, "signature": sig,
+            "candidates": candidates + untestable, "not_testable": untestable, "claim_rule": rule_text(noise),
+            "failures": worst, "signature": sig,
             "ambiguity": ambiguity(physical, records, noise), "noise": floor, "metrics": ev}
 
 
@@ -139,8 +193,8 @@ def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
 
 
 def helpful_capacity(candidates) -> list[dict]:
-    """Capacity candidates that remove a significant share of the excess on held-out data."""
-    return [c for c in candidates if c["kind"] == "capacity" and c["excess_removed"] >= SIGNIFICANT_SHARE]
+    """Capacity candidates whose held-out improvement over the model passes the claim rule."""
+    return [c for c in candidates if c["kind"] == "capacity" and c.get("claimed")]
 
 
 def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None,
@@ -148,8 +202,9 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor
     """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
     whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
     if missing:
-        return (f"missing effect: {physical[0]['effect']} (score {physical[0]['score']:.2f}); held-out RMS "
-                f"{v0:.4g} µm against a noise floor of {noise:.3g} µm")
+        return (f"missing effect: {physical[0]['effect']} (p = {physical[0]['p_value']:.2g}, held-out "
+                f"{_fmt_nm(physical[0]['reference_rms_um'])} → {_fmt_nm(physical[0]['expected_rms_um'])} with it); "
+                f"held-out RMS {v0:.4g} µm against a noise floor of {noise:.3g} µm")
     rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
     if at_floor:
         text = (f"complete: the remaining {_fmt_nm(v0)} is at the noise floor in every block (repeatable part "
@@ -205,13 +260,13 @@ def remaining_excess(candidate: dict, noise: float) -> float:
 
 
 def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
-    """Two leading candidates that explain the residual about equally well (scores within 0.1 and
-    the runner-up leaving less than twice the leader's unexplained excess), and the experiment."""
-    if len(physical) < 2 or physical[1]["score"] < 0.3:
+    """Two leading claimed candidates that explain the residual about equally well (the runner-up
+    leaving less than twice the leader's unexplained excess), and the experiment that separates them."""
+    if len(physical) < 2 or not (physical[0]["claimed"] and physical[1]["claimed"]):
         return None
     a, b = physical[0], physical[1]
     ratio = remaining_excess(b, noise) / remaining_excess(a, noise)
-    if a["score"] - b["score"] > 0.1 or ratio >= SEPARATED_EXCESS_RATIO:
+    if ratio >= SEPARATED_EXCESS_RATIO:
         return None
     why, body = SEPARATING.get(frozenset((a["effect"], b["effect"])),
                                ("a multi-frequency sine sweep with more cycles per frequency",
@@ -219,6 +274,6 @@ def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
     return {"effects": [a["effect"], b["effect"]], "excess_ratio": ratio,
             "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-                    f"(scores {a['score']:.2f} and {b['score']:.2f}; held-out {_fmt_nm(a['expected_rms_um'])} and "
+                    f"(held-out {_fmt_nm(a['expected_rms_um'])} and "
                     f"{_fmt_nm(b['expected_rms_um'])}); {why}",
             "experiment": {"axes": axes, **body}}

@@ -24,7 +24,7 @@ def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) ->
             row["noise_floor_um"] = nf
         steps.append({"effects": ["hysteresis"] + list(effects), "diagnosis": d, "per_block": per_block})
         if d["verdict"] == "missing_effect":
-            effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical")]
+            effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])]
             continue
         # complete as far as physics goes: more capacity if the model is not at the noise floor yet
         capacity = helpful_capacity(d["candidates"])     # diagnose() offers only effects not in the model

@@ -58,7 +58,8 @@ function separationSummary(before, after, experiment, datasetId) {
 export function renderDiagnosis(box, model, d, opts) {
   const { canRefine, onAdd, jobBox, extra = [], before = null, experiment = null, datasetId = null } = opts;
   const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
-  const candidates = d.candidates || [];
+  const candidates = (d.candidates || []).filter((c) => c.testable !== false);
+  const untestable = d.not_testable || [];
   box.innerHTML = `${before ? separationSummary(before, d, experiment, datasetId) : ''}
     <p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" data-extra-datasets="${esc(extra.join(','))}" class="${verdictClass}">
       ${d.verdict !== 'complete' ? 'Something is missing from the model.'
@@ -69,13 +70,25 @@ export function renderDiagnosis(box, model, d, opts) {
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
     <h3>Candidate effects, best first</h3>
     <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after (µm)</th><th>evidence</th><th></th></tr>
-    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}"${i === 0 ? ' class="best"' : ''}>
-      <td>${i + 1}</td><td>${esc(c.effect)}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmt(c.expected_rms_um)}</td>
+    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${i === 0 ? ' class="best"' : ''}>
+      <td>${i + 1}</td><td>${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmt(c.expected_rms_um)}</td>
       <td class="evidence">${describe(c.evidence)}</td>
       <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
     </table>
+    ${d.claim_rule ? `<p class="muted" id="claim-rule">Claim rule: ${esc(d.claim_rule)}.</p>` : ''}
+    ${untestable.length ? `<h3>Not testable with this data</h3><ul id="not-testable">${untestable.map((u) => `<li data-effect="${esc(u.effect)}">
+      <b>${esc(u.effect)}</b>: ${esc(u.reason)}. <button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>
+      <span class="muted">(${describe(u.experiment)})</span></li>`).join('')}</ul>` : ''}
     <div id="separate"></div>`;
   box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => onAdd(b.dataset.effect, extra)));
+  box.querySelectorAll('.run-test').forEach((b) => b.addEventListener('click', async () => {
+    const u = untestable.find((x) => x.effect === b.dataset.effect);
+    b.disabled = true;
+    const offer = { a: u.effect, b: u.effect, text: u.reason, body: u.experiment };
+    const found = await separate(jobBox, model, offer, extra, opts.signal);
+    if (found) renderDiagnosis(box, model, found.diagnosis, { ...opts, extra: found.extra });
+    else b.disabled = false;
+  }));
   const offered = separatingExperiment(d);
   if (!offered) return;
   const sep = box.querySelector('#separate');

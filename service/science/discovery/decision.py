@@ -1,0 +1,73 @@
+"""When a candidate effect is claimed: a held-out comparison with a stated false-claim basis.
+
+The comparison is between two fitted models, a *reference* and the reference plus the candidate,
+on the held-out cycles only (never fitted). Each held-out stretch is cut into segments of about
+an eighth of a cycle (a 64th of a non-periodic stretch); per segment, the improvement is the drop
+in mean squared residual. A candidate is **claimed** when both hold:
+
+1. **significance**: a one-sided Wilcoxon signed-rank test of the segment improvements gives
+   p < ``ALPHA`` (a candidate that only fits noise improves held-out segments as often, and by as
+   much, as it worsens them; ranks, not means, so that a real effect concentrated in the fast
+   blocks is not drowned by the variance of the slow ones);
+2. **size**: the mean held-out improvement is at least ``NOISE_MULTIPLE`` noise variances σ²
+   (σ: the noise floor measured from the data's own cycle-to-cycle scatter). An effect smaller
+   than the noise cannot be seen to fall and is not claimed.
+
+The reference is what keeps *systematic* misfit from being claimed: for a physical candidate it is
+the model plus a flexible rate-independent base (finer operators and a non-symmetric loop shape),
+so that a loop shape the paper's PI cannot draw is never called physics. The false-claim rate of
+this rule on clean benches of several hysteresis families is measured by
+``python -m service.reports.discovery_matrix`` and stated in docs/discovery.md.
+Pure numpy/scipy: no store, no HTTP.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+#: one-sided significance level of the held-out improvement (per candidate)
+ALPHA = 1e-3
+#: the improvement must be at least this many noise variances of held-out mean square
+NOISE_MULTIPLE = 1.0
+SEGMENTS_PER_CYCLE = 8
+SEGMENTS_PER_STRETCH = 64
+
+
+def _segments(rec, split) -> list[tuple[int, int]]:
+    a, b = split.held_out
+    period = rec.period_samples(split)
+    n = max(1, int(round((b - a) / (period / SEGMENTS_PER_CYCLE)))) if period else SEGMENTS_PER_STRETCH
+    n = min(n, max(1, (b - a) // 4))
+    edges = np.linspace(a, b, n + 1).round().astype(int)
+    return [(int(s), int(e)) for s, e in zip(edges[:-1], edges[1:]) if e > s]
+
+
+def held_out_improvement(records, res_ref, res_trial) -> dict:
+    """Segment-wise held-out improvement of a trial model over a reference (residuals per record,
+    µm): ``gain_mse_um2`` (mean over held-out stretches of the drop in mean square, every block
+    weighted alike), ``p`` (one-sided signed-rank) and ``segments``."""
+    diffs, per_stretch = [], []
+    for rec, r0, r1 in zip(records, res_ref, res_trial):
+        for s in rec.splits:
+            a, b = s.held_out
+            if b - a < 2:
+                continue
+            per_stretch.append(float(np.mean(r0[a:b] ** 2) - np.mean(r1[a:b] ** 2)))
+            diffs += [float(np.mean(r0[i:j] ** 2) - np.mean(r1[i:j] ** 2)) for i, j in _segments(rec, s)]
+    d = np.asarray(diffs)
+    d = d[d != 0.0]
+    if d.size < 2 or not per_stretch:
+        return {"gain_mse_um2": float(np.mean(per_stretch)) if per_stretch else 0.0, "p": 1.0, "segments": int(d.size)}
+    p = float(stats.wilcoxon(d, alternative="greater").pvalue)
+    return {"gain_mse_um2": float(np.mean(per_stretch)), "p": p, "segments": int(d.size)}
+
+
+def claimed(test: dict, noise_um: float) -> bool:
+    """The rule above: significant (p < ALPHA) and at least NOISE_MULTIPLE·σ² of held-out mean square."""
+    return bool(test["p"] < ALPHA and test["gain_mse_um2"] >= NOISE_MULTIPLE * noise_um**2)
+
+
+def rule_text(noise_um: float) -> str:
+    return (f"claimed when the held-out improvement over the reference is significant (one-sided signed-rank test over "
+            f"held-out segments, p < {ALPHA:g}) and at least {NOISE_MULTIPLE:g}σ² = "
+            f"{NOISE_MULTIPLE * noise_um**2 * 1e6:.3g} nm² of mean square")
