@@ -1,7 +1,7 @@
 """Datasets: import (multipart CSV, parsed as a stream), list, describe, and download (streamed)."""
 from __future__ import annotations
 
-from typing import Iterator, Literal
+from typing import Literal
 
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, UploadFile
 from fastapi.responses import StreamingResponse
@@ -11,11 +11,10 @@ from service.http.schemas.common import with_figures
 from service.http.schemas.datasets import Dataset, DatasetSummary
 from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
-from service.science.data.export import (JSON_DEFAULT_MAX_POINTS, RowRange, csv_chunks, export_names, hdf5_chunks,
-                                    json_chunks, json_stride, ndjson_chunks)
-from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ, units_for
-from service.science.errors import FieldError
-from service.store import Store, StoredArrays
+from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ
+from service.science.data.export import JSON_DEFAULT_MAX_POINTS
+from service.store import Store
+from service.usecases.exports import export_chunks
 from service.usecases.imports import import_table
 
 router = APIRouter(prefix="/datasets", tags=["datasets"])
@@ -107,35 +106,9 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
     the cut). The file is checked against its SHA-256 before the first byte is sent (500 if it
     does not match).
     """
-    row = store.get_dataset(dataset_id)
-    stop = row["samples"] if stop is None else min(stop, row["samples"])
-    if start >= stop:
-        raise FieldError("start", f"no samples in {start}:{stop}; the dataset has {row['samples']} (0-based)")
-    source = store.open_arrays(dataset_id)
-    view = source if (start, stop) == (0, row["samples"]) else RowRange(source, start, stop)
-    names = export_names(source)
-    meta = {"id": dataset_id, "sample_rate_hz": row["sample_rate_hz"], "units": units_for(names),
-            **({} if view is source else {"start": start, "stop": stop})}
-    headers = {"Content-Disposition": f'attachment; filename="{dataset_id}.{"h5" if format == "hdf5" else format}"'}
-    if format == "csv":
-        chunks = csv_chunks(view)
-    elif format == "ndjson":
-        chunks = ndjson_chunks(view, meta)
-    elif format == "hdf5":   # written to a temporary file on the first chunk, then sent
-        chunks = hdf5_chunks(view, {**meta, **{k: row[k] for k in (
-            "id", "name", "source", "sample_rate_hz", "blocks", "plan", "config", "units", "software_version",
-            "created_at", "partial", "sha256")}})
-    else:
-        stride = json_stride(view.length, max_points)
-        route = f"/api/datasets/{dataset_id}/data?format="
-        chunks = json_chunks(view, {**meta, "samples": row["samples"], "stride": stride, "decimated": stride > 1,
-                                    "full_resolution": {"csv": route + "csv", "ndjson": route + "ndjson"}},
-                             stride)
-        headers = {}
-    return StreamingResponse(iterate_bulk(_closing(source, chunks)), media_type=MEDIA_TYPES[format], headers=headers)
-
-
-def _closing(source: StoredArrays, chunks: Iterator[bytes]) -> Iterator[bytes]:
-    """``chunks``, closing ``source`` when they end (or the client goes away)."""
-    with source:
-        yield from chunks
+    route = f"/api/datasets/{dataset_id}/data?format="
+    chunks = export_chunks(store, dataset_id, format, start=start, stop=stop, max_points=max_points,
+                           full_resolution={"csv": route + "csv", "ndjson": route + "ndjson"})
+    suffix = "h5" if format == "hdf5" else format
+    headers = {} if format == "json" else {"Content-Disposition": f'attachment; filename="{dataset_id}.{suffix}"'}
+    return StreamingResponse(iterate_bulk(chunks), media_type=MEDIA_TYPES[format], headers=headers)
