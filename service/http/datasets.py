@@ -13,7 +13,7 @@ from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
 from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ
 from service.science.data.export import JSON_DEFAULT_MAX_POINTS
-from service.store import Store
+from service.store import DatasetRow, Store
 from service.usecases.exports import export_chunks
 from service.usecases.imports import import_table
 
@@ -27,7 +27,7 @@ MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "applica
 _RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
 
 
-def dataset_view(row: dict, full: bool = True) -> dict:
+def dataset_view(row: DatasetRow, full: bool = True) -> dict:
     """A dataset record as the API shows it (units in the field names)."""
     view = {k: row[k] for k in SUMMARY_KEYS}
     view["duration_s"] = row["samples"] / row["sample_rate_hz"]

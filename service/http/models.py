@@ -12,12 +12,12 @@ from service.http.schemas.common import JobQueued, with_figures
 from service.http.schemas.models import Comparison, Model, ModelRequest
 from service.runtime.jobs import JobManager
 from service.usecases.identify import check_identify_request, compare, identify
-from service.store import Store
+from service.store import ModelRow, Store
 
 router = APIRouter(prefix="/models", tags=["models"])
 
 
-def model_view(row: dict) -> dict:
+def model_view(row: ModelRow) -> dict:
     """A model record as the API shows it (units in the field names of parameters and metrics)."""
     return {"id": row["id"], "axis": row["axis"], "kind": row["kind"], "effects": row["effects"],
             "parent_id": row["parent_id"], "datasets": row["datasets"], "options": row["options"],
