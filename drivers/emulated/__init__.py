@@ -7,7 +7,9 @@
     bench.parts.world.output_log.last()                            # what the amplifiers got (output_log.py)
 
 Configurations live in fixtures/benches/ (``list_benches()``); ``load_config`` resolves
-``extends`` and overrides. Every effect is switchable and scalable there.
+``extends`` and overrides. Every effect is switchable and scalable there, and the hysteresis
+family is chosen per axis (``[axes.<axis>.piezo.hysteresis] family``: preisach, the default,
+bouc_wen or maxwell_slip; clean benches base, bw_base, ms_base and their hidden-effect variants).
 """
 from __future__ import annotations
 
