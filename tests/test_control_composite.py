@@ -1,4 +1,4 @@
-"""Feedforward from a discovery composite model (service.science.control.composite_ff): its inverse is exact
+"""Feedforward from a discovery composite model (CompositeModel.inverse): its inverse is exact
 on the model itself, it beats the paper's static-PI feedforward on case 2, and a range beyond the
 stroke is refused with the reason (or run clamped, with the reason as a warning)."""
 from __future__ import annotations
@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from drivers.emulated import open_bench
-from service.science.control.composite_ff import predict_um
 from service.science.control.feedforward import identify, identify_composite, identify_composite_for
 from service.science.control.safety import ControlRefused
 from service.science.control.session import TUNED_PID, Controller, plan, track
@@ -35,9 +34,9 @@ def test_composite_inverse_is_exact_on_the_model(composite):
     steady = ref.steady
     for i, axis in enumerate("yz"):
         u = composite[axis].inverse(ref.x_um[:, i], sample_rate_hz=FS)
-        x = predict_um(composite[axis].model, u, FS)
+        x = composite[axis].predict(u, sample_rate_hz=FS)
         assert np.max(np.abs(x[steady] - ref.x_um[steady, i])) < 0.005          # µm
-        assert "dynamics" in composite[axis].effects
+        assert "dynamics" in composite[axis].effects and composite[axis].judges_stroke
 
 
 def test_composite_feedforward_beats_static_pi_on_case2(bench, composite):

@@ -79,13 +79,22 @@ def bench():
 
 
 class _Linear:
-    """A stand-in feedforward model (V = x / gain) for the voltage check."""
+    """A stand-in feedforward model (x = gain · V) for the voltage check: the contract's members
+    that control uses (service.science.models.contract)."""
+
+    judges_stroke = False
 
     def __init__(self, um_per_v):
         self.k = um_per_v
 
-    def inverse(self, x_ref_um, sample_rate_hz=None):
+    def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None):
         return np.asarray(x_ref_um) / self.k
+
+    def predict(self, drive, sample_rate_hz=None):
+        return self.k * np.asarray(drive)
+
+    def stack_demand_um(self, x_ref_um, sample_rate_hz=None):
+        return np.asarray(x_ref_um, dtype=float)
 
 
 def test_safety_refusals_say_why(bench):

@@ -10,7 +10,7 @@ import pytest
 from realdata import REAL_DIR, requires_real_data
 from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.noise import repeatability
-from service.science.discovery.records import Record
+from service.science.data.record import Record
 from service.science.data.signals import dominant_period_samples
 
 PERIOD = 200.0          # samples per cycle
@@ -53,7 +53,7 @@ def test_noise_counts_only_cycles_whose_drive_repeated():
 @requires_real_data
 def test_real_bursts_with_a_hold_get_the_same_noise_floor_as_the_steady_file():
     data = np.loadtxt(REAL_DIR / "yan9a-dbo" / "Test_Vi_Do_Di.dat")[:11152]   # before the authors' inverse
-    record = Record("Test_Vi_Do_Di", data[:, 0], data[:, 4], 200.0)
+    record = Record(data[:, 0], data[:, 4], 200.0, label="Test_Vi_Do_Di", hold_out=True)
     assert abs(record.period_samples(record.splits[0]) / 200.0 - 1) < 0.01
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -74,7 +74,7 @@ def test_the_diagnosis_does_not_depend_on_the_drives_origin_or_units_or_the_gaug
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for drive, response in ((u, x), (u - 1.8, x), (u - 4.0, x), (1000 * u, x), (u, -x)):
-            d = diagnose([Record("variant", drive, response, 200.0)])
+            d = diagnose([Record(drive, response, 200.0, label="variant", hold_out=True)])
             results.append((d["residual_rms_um"], d["noise_floor_um"], {c["effect"]: c["score"] for c in d["candidates"]},
                             [c["effect"] for c in d["candidates"]]))
     rms, floor, scores, order = results[0]

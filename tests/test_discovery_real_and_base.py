@@ -35,7 +35,7 @@ def test_base_bench_claims_no_physical_effect(axis):
 @requires_real_data
 def test_real_data_discovery_reaches_three_noise_floors():
     data = np.loadtxt(REAL)
-    record = Record("Model_Vi_Do", data[:, 0], data[:, 4], 200.0)
+    record = Record(data[:, 0], data[:, 4], 200.0, label="Model_Vi_Do", hold_out=True)
     effects, steps = [], []
     for _ in range(6):
         d = diagnose([record], effects)

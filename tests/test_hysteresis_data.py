@@ -1,8 +1,9 @@
-"""Series validation and the signal helpers it relies on."""
+"""Record validation and the signal helpers it relies on."""
 import numpy as np
 import pytest
 
-from service.science.models import Series, StaticPI
+from service.science.data.record import Record
+from service.science.models import StaticPI
 from service.science.data.signals import biased_sine, dominant_period_samples, multi_sine, savgol_derivatives
 
 FS = 20_000.0
@@ -16,44 +17,44 @@ def test_nan_is_named_with_count_and_samples():
     u = sine_u()
     u[[10, 11, 12]] = np.nan
     with pytest.raises(ValueError, match=r"u_v contains 3 NaN values at samples 10, 11, 12"):
-        Series(u, np.zeros(u.size), FS)
+        Record(u, np.zeros(u.size), FS)
     x = np.zeros(u.size)
     x[7] = np.inf
     with pytest.raises(ValueError, match=r"x_um contains 1 infinite value at sample 7"):
-        Series(sine_u(), x, FS)
+        Record(sine_u(), x, FS)
 
 
 def test_length_mismatch_names_both_arrays():
     with pytest.raises(ValueError, match=r"u_v has 1000 samples but x_um has 999"):
-        Series(sine_u(1000), np.zeros(999), FS)
+        Record(sine_u(1000), np.zeros(999), FS)
     with pytest.raises(ValueError, match=r"u_v has 1000 samples but du_v_per_s has 10"):
-        Series(sine_u(1000), None, FS, du_v_per_s=np.zeros(10), ddu_v_per_s2=np.zeros(1000))
+        Record(sine_u(1000), None, FS, du_v_per_s=np.zeros(10), ddu_v_per_s2=np.zeros(1000))
 
 
 def test_constant_input_excites_no_hysteresis():
     with pytest.raises(ValueError, match=r"u_v is constant \(60 V\): it excites no hysteresis"):
-        Series(np.full(500, 60.0), np.zeros(500), FS)
+        Record(np.full(500, 60.0), np.zeros(500), FS)
 
 
 def test_too_few_samples_per_cycle_says_how_many():
     u = sine_u(n=400, cycles=40)  # 10 samples per cycle
     with pytest.raises(ValueError, match=r"u_v has only 10\.0 samples per cycle.*at least 20"):
-        Series(u, np.zeros(u.size), FS)
-    assert Series(sine_u(n=1000, cycles=40), None, FS).period_samples == pytest.approx(25.0, abs=0.1)
+        Record(u, np.zeros(u.size), FS)
+    assert Record(sine_u(n=1000, cycles=40), None, FS).period_samples() == pytest.approx(25.0, abs=0.1)
 
 
 @pytest.mark.parametrize("rate", [0.0, -5.0, float("nan"), "fast"])
 def test_sample_rate_must_be_positive(rate):
     with pytest.raises(ValueError, match="sample_rate_hz"):
-        Series(sine_u(), None, rate)
+        Record(sine_u(), None, rate)
 
 
 def test_fit_requires_a_displacement_and_label_appears():
-    s = Series(sine_u(), None, FS, label="10 Hz")
-    with pytest.raises(ValueError, match=r"series '10 Hz' has no x_um"):
+    s = Record(sine_u(), None, FS, label="10 Hz")
+    with pytest.raises(ValueError, match=r"record '10 Hz' has no x_um"):
         StaticPI().fit(s)
-    with pytest.raises(ValueError, match=r"series 'bad': u_v contains"):
-        Series(np.array([1.0, np.nan, 3.0] * 100), None, FS, label="bad")
+    with pytest.raises(ValueError, match=r"record 'bad': u_v contains"):
+        Record(np.array([1.0, np.nan, 3.0] * 100), None, FS, label="bad")
 
 
 def test_dominant_period_from_turning_points_ignores_noise():
@@ -72,13 +73,13 @@ def test_savgol_derivatives_track_the_analytic_ones():
         assert np.max(np.abs(d2 - w.d2_per_s2)) < 1e-2 * np.max(np.abs(w.d2_per_s2))
 
 
-def test_series_uses_given_derivatives_else_estimates():
+def test_record_uses_given_derivatives_else_estimates():
     w = multi_sine([10.0, 40.0], [40.0, 10.0], FS, 0.3)
-    exact = Series.from_waveform(w)
+    exact = Record.from_waveform(w)
     assert exact.analytic_derivatives and exact.derivatives()[0] is not None
     np.testing.assert_array_equal(exact.derivatives()[1], w.d2_per_s2)
-    estimated = Series(w.value, None, FS)
+    estimated = Record(w.value, None, FS)
     assert not estimated.analytic_derivatives
     assert np.max(np.abs(estimated.derivatives()[0] - w.d1_per_s)) < 1e-3 * np.max(np.abs(w.d1_per_s))
     with pytest.raises(ValueError, match="both du_v_per_s and ddu_v_per_s2"):
-        Series(w.value, None, FS, du_v_per_s=w.d1_per_s)
+        Record(w.value, None, FS, du_v_per_s=w.d1_per_s)

@@ -4,6 +4,7 @@ import pytest
 from scipy.signal import lfilter
 
 from service.perf.identification import lagged_pi_loops, static_truth
+from service.science.data.record import Record
 from service.science.models import GRPI, DynamicPI, StaticPI
 from service.science.models.inverse import analytic_inverse_parameters, numerical_inverse
 from service.science.data.signals import biased_sine, multi_sine
@@ -82,8 +83,9 @@ def test_dynamic_inverse_solver_is_exact_for_its_derivatives(lag_models, f):
     _, dynamic, _ = lag_models
     drive = biased_sine(f, 3, FS, 5.0, 110.0)
     x_ref = biased_sine(f, 3, FS, 1.0, 5.5).value
-    u = dynamic.inverse(x_ref, FS, drive.d1_per_s, drive.d2_per_s2)
-    assert np.max(np.abs(dynamic.predict(u, FS, drive.d1_per_s, drive.d2_per_s2) - x_ref)) < 1 * NM
+    u = dynamic.inverse(x_ref, sample_rate_hz=FS, du_v_per_s=drive.d1_per_s, ddu_v_per_s2=drive.d2_per_s2)
+    given = Record(u, None, FS, du_v_per_s=drive.d1_per_s, ddu_v_per_s2=drive.d2_per_s2)
+    assert np.max(np.abs(dynamic.predict(given) - x_ref)) < 1 * NM
 
 
 def test_dynamic_inverse_round_trip_with_estimated_derivatives(lag_models):
@@ -97,7 +99,7 @@ def test_dynamic_inverse_round_trip_with_estimated_derivatives(lag_models):
     _, dynamic, _ = lag_models
     for f, bound in ((1.0, 5 * NM), (10.0, 50 * NM)):
         x_ref = biased_sine(f, 5, FS, 1.0, 5.5).value
-        assert np.max(np.abs(dynamic.predict(dynamic.inverse(x_ref, FS), FS) - x_ref)) < bound, f
+        assert np.max(np.abs(dynamic.predict(dynamic.inverse(x_ref, sample_rate_hz=FS), FS) - x_ref)) < bound, f
 
 
 def test_grpi_inverse_round_trip(lag_models):
@@ -108,7 +110,7 @@ def test_grpi_inverse_round_trip(lag_models):
     _, _, grpi = lag_models
     for f, bound in ((1.0, 1e-4), (10.0, 5e-3), (100.0, 0.2)):
         x_ref = biased_sine(f, 5, FS, 1.0, 5.5).value
-        assert np.max(np.abs(grpi.predict(grpi.inverse(x_ref, FS), FS) - x_ref)) < bound, f
+        assert np.max(np.abs(grpi.predict(grpi.inverse(x_ref, sample_rate_hz=FS), FS) - x_ref)) < bound, f
 
 
 def test_rate_dependent_feedforward_beats_static_on_the_lag_plant(lag_models):
@@ -127,7 +129,7 @@ def test_rate_dependent_feedforward_beats_static_on_the_lag_plant(lag_models):
             return float(np.sqrt(np.mean((lag_plant(u) - x_ref)[steady] ** 2)))
 
         e_static = rms(static.inverse(x_ref, method="numerical"))
-        e_dynamic, e_grpi = rms(dynamic.inverse(x_ref, FS)), rms(grpi.inverse(x_ref, FS))
+        e_dynamic, e_grpi = rms(dynamic.inverse(x_ref, sample_rate_hz=FS)), rms(grpi.inverse(x_ref, sample_rate_hz=FS))
         assert e_dynamic < e_static / 1.8, f
         assert e_grpi < e_static / 5.0, f
 

@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from service.perf.identification import lagged_pi_loops
-from service.science.models import GRPI, MODEL_REGISTRY, DynamicPI, Series, StaticPI, model_from_dict
+from service.science.data.record import Record
+from service.science.models import GRPI, PAPER_MODELS, DynamicPI, StaticPI
+from service.science.models.registry import MODELS, model_from_dict
 from service.science.fitting.pi_family import fit_metrics
 from service.science.data.signals import biased_sine, multi_sine
 from pi_truths import FS, WEIGHTS, dynamic_truth, grpi_truth, static_truth
@@ -15,7 +17,7 @@ def loops(frequencies=(1.0, 10.0, 50.0, 100.0), cycles=5, analytic=True):
     out = []
     for f in frequencies:
         w = biased_sine(f, cycles, FS)
-        s = Series.from_waveform(w, label=f"{f:g} Hz") if analytic else Series(w.value, None, FS, label=f"{f:g} Hz")
+        s = Record.from_waveform(w, label=f"{f:g} Hz") if analytic else Record(w.value, None, FS, label=f"{f:g} Hz")
         out.append(s)
     return out
 
@@ -25,13 +27,14 @@ def record(truth, drives):
 
 
 def test_registry_names():
-    assert MODEL_REGISTRY == {"static_pi": StaticPI, "dynamic_pi": DynamicPI, "grpi": GRPI}
+    assert PAPER_MODELS == {"static_pi": StaticPI, "dynamic_pi": DynamicPI, "grpi": GRPI}
+    assert set(MODELS) == set(PAPER_MODELS) | {"composite"}
 
 
 def test_static_pi_recovers_weights_and_offset():
     truth = static_truth()
-    drives = [Series.from_waveform(biased_sine(1.0, 3, FS)),
-              Series.from_waveform(multi_sine([2.0, 9.0], [40.0, 12.0], FS, 1.0))]
+    drives = [Record.from_waveform(biased_sine(1.0, 3, FS)),
+              Record.from_waveform(multi_sine([2.0, 9.0], [40.0, 12.0], FS, 1.0))]
     model = StaticPI().fit(record(truth, drives))
     np.testing.assert_array_equal(model.thresholds_v, truth.thresholds_v)  # 0, 6, …, 54 V from max(u)=120
     np.testing.assert_allclose(model.weights_um_per_v, WEIGHTS, rtol=1e-6)
@@ -82,19 +85,20 @@ def test_json_round_trip_gives_identical_predictions(truth_fn):
     text = json.dumps(model.to_dict())
     again = model_from_dict(json.loads(text))
     assert type(again) is type(model)
-    s = Series(multi_sine([7.0, 31.0], [35.0, 9.0], FS, 0.4).value, None, FS)
+    s = Record(multi_sine([7.0, 31.0], [35.0, 9.0], FS, 0.4).value, None, FS)
     np.testing.assert_array_equal(again.predict(s), model.predict(s))
     assert again.to_dict() == model.to_dict()
 
 
-@pytest.mark.parametrize("name", sorted(MODEL_REGISTRY))
+@pytest.mark.parametrize("name", sorted(PAPER_MODELS))
 def test_a_negative_or_bipolar_drive_counts_the_operators_from_its_lowest_volt(name):
     """Measured data may come from a bipolar amplifier: the operators count from the lowest drive,
     so a record shifted by −150 V (−150…−30 V) fits exactly like the same loop at 0…120 V."""
     truth = static_truth()
-    drives = [Series.from_waveform(biased_sine(1.0, 3, FS)), Series.from_waveform(biased_sine(10.0, 3, FS))]
-    shifted = [Series(s.u_v - 150.0, truth.predict(s), FS, *s.derivatives()) for s in drives]
-    model = MODEL_REGISTRY[name]().fit(shifted)
+    drives = [Record.from_waveform(biased_sine(1.0, 3, FS)), Record.from_waveform(biased_sine(10.0, 3, FS))]
+    shifted = [Record(s.u_v - 150.0, truth.predict(s), FS, du_v_per_s=s.derivatives()[0],
+                      ddu_v_per_s2=s.derivatives()[1]) for s in drives]
+    model = PAPER_MODELS[name]().fit(shifted)
     assert model.u_origin_v == -150.0
     np.testing.assert_array_equal(model.thresholds_v, truth.thresholds_v)     # 0, 6, …, 54 V above −150 V
     assert model.train_rms_um < 1e-6
@@ -104,7 +108,7 @@ def test_a_negative_or_bipolar_drive_counts_the_operators_from_its_lowest_volt(n
         np.testing.assert_allclose(model.weights_um_per_v, WEIGHTS, rtol=1e-6)
         u_back = model.inverse(truth.predict(drives[0]), method="numerical", u_limits_v=(-150.0, -30.0))
         np.testing.assert_allclose(u_back, drives[0].u_v - 150.0, atol=1e-6)
-        bipolar = Series(2.5 * drives[0].u_v - 150.0, truth.predict(drives[0]), FS)   # −150…+150 V
+        bipolar = Record(2.5 * drives[0].u_v - 150.0, truth.predict(drives[0]), FS)   # −150…+150 V
         assert StaticPI().fit(bipolar).thresholds_v[-1] == pytest.approx(135.0)   # 0…135 V above −150 V
 
 
@@ -139,7 +143,7 @@ def test_static_pi_on_real_micromanipulator_needs_the_offset():
     Measured: fit 97.1 % (RMS 0.46 µm) with the offset; without it the fit is meaningless.
     """
     raw = np.loadtxt(REAL)
-    s = Series(raw[:, 0], raw[:, 4], 200.0, label="yan9a")
+    s = Record(raw[:, 0], raw[:, 4], 200.0, label="yan9a")
     with_offset = fit_metrics(s.x_um, StaticPI().fit(s).predict(s))
     without = fit_metrics(s.x_um, StaticPI(fit_offset=False).fit(s).predict(s))
     assert with_offset["fit_percent"] > 96.0

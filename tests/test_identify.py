@@ -4,8 +4,9 @@ import pytest
 from scipy.optimize import lsq_linear
 
 from service.perf.identification import run_identification_benchmark
-from service.science.models import GRPI, DynamicPI, Series, StaticPI, equal_thresholds
-from service.science.models.base import Signal
+from service.science.data.record import Record
+from service.science.models import GRPI, DynamicPI, StaticPI, equal_thresholds
+from service.science.models.contract import Drive
 from service.science.fitting.pi_family import (
     Block,
     evaluate,
@@ -23,7 +24,7 @@ from pi_truths import FS, WEIGHTS, dynamic_truth
 @pytest.fixture(scope="module")
 def dynamic_data():
     truth = dynamic_truth()
-    drives = [Series.from_waveform(biased_sine(f, 2, FS), label=f"{f:g} Hz") for f in (1.0, 10.0, 50.0, 100.0)]
+    drives = [Record.from_waveform(biased_sine(f, 2, FS), label=f"{f:g} Hz") for f in (1.0, 10.0, 50.0, 100.0)]
     return truth, [s.with_x(truth.predict(s)) for s in drives]
 
 
@@ -69,7 +70,7 @@ def test_zero_weight_rows_are_ignored_by_the_fit(model_cls):
     """Corrupt the second half of the record, weight it 0: the truth comes back exactly."""
     truth = StaticPI(thresholds_v=equal_thresholds(120.0, 10))
     truth.weights_um_per_v, truth.offset_um = WEIGHTS.copy(), 0.3
-    drive = Series.from_waveform(biased_sine(10.0, 4, FS))
+    drive = Record.from_waveform(biased_sine(10.0, 4, FS))
     x = truth.predict(drive)
     half = drive.n_samples // 2
     x[half:] += 0.5 * np.sin(np.arange(drive.n_samples - half) / 50.0)
@@ -85,7 +86,7 @@ def test_an_appended_effect_block_is_fitted_jointly_with_the_hysteresis():
     """Static PI + a sensor drift of 0.05 µm/s: the drift column recovers both exactly."""
     truth = StaticPI(thresholds_v=equal_thresholds(120.0, 10))
     truth.weights_um_per_v, truth.offset_um = WEIGHTS.copy(), 0.3
-    drive = Series.from_waveform(biased_sine(1.0, 4, FS))
+    drive = Record.from_waveform(biased_sine(1.0, 4, FS))
     series = drive.with_x(truth.predict(drive) + 0.05 * drive.t_s)
     model = StaticPI(thresholds_v=truth.thresholds_v)
     blocks = model.design_blocks(series) + [Block.make("drift_um_per_s", series.t_s)]
@@ -127,7 +128,7 @@ def test_pso_minimises_a_quadratic():
 def test_pso_recovers_alpha_beta_from_noise_free_data(dynamic_data):
     """ω fixed at the truth: PSO finds α1..4, β1..4 to 1e-2 relative (measured ≤ 2.1e-3, seeds 0 and 1)."""
     truth, data = dynamic_data
-    rate = stack_blocks([[b for b in truth.blocks(Signal(s)) if b.name != "weights_um_per_v" and b.name != "offset_um"]
+    rate = stack_blocks([[b for b in truth.blocks(Drive.of(s)) if b.name != "weights_um_per_v" and b.name != "offset_um"]
                          for s in data])
     a = np.hstack([b.columns for b in rate])
     static_part = DynamicPI.from_static(truth)

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.science.models import MODEL_REGISTRY, Series
+from service.science.data.record import Record
+from service.science.models import PAPER_MODELS
 from service.science.fitting.validation import evaluate_record, fit_on_training_rows, metrics, split_blocks, training_mask
 
 
@@ -65,15 +66,15 @@ def _loops(fs=2000.0, f=5.0, cycles=10):
     return u, x, fs, [_block(0, 0, len(u), f=f, cycles=cycles)]
 
 
-@pytest.mark.parametrize("name", sorted(MODEL_REGISTRY))
+@pytest.mark.parametrize("name", sorted(PAPER_MODELS))
 def test_held_out_rows_do_not_influence_the_fit(name):
     u, x, fs, blocks = _loops()
     splits = split_blocks(blocks, len(u), fs)
     mask = training_mask(splits, len(u))
     spoiled = x.copy()
     spoiled[~mask] += 50.0  # garbage where the fit must not look
-    clean = fit_on_training_rows(MODEL_REGISTRY[name](n_operators=6), [Series(u, x, fs)], [mask])
-    dirty = fit_on_training_rows(MODEL_REGISTRY[name](n_operators=6), [Series(u, spoiled, fs)], [mask])
-    np.testing.assert_allclose(dirty.predict(Series(u, x, fs)), clean.predict(Series(u, x, fs)), atol=1e-6)
-    held = evaluate_record(x, clean.predict(Series(u, x, fs)), splits)
+    clean = fit_on_training_rows(PAPER_MODELS[name](n_operators=6), [Record(u, x, fs)], [mask])
+    dirty = fit_on_training_rows(PAPER_MODELS[name](n_operators=6), [Record(u, spoiled, fs)], [mask])
+    np.testing.assert_allclose(dirty.predict(Record(u, x, fs)), clean.predict(Record(u, x, fs)), atol=1e-6)
+    held = evaluate_record(x, clean.predict(Record(u, x, fs)), splits)
     assert held["validation_rms_um"] < 0.1  # and the model is a reasonable one

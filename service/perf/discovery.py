@@ -15,7 +15,7 @@ def run_discovery_benchmark() -> dict:
     t0 = time.perf_counter()
     records = sweep_records("default", seed=0, frequencies_hz=(1.0, 10.0, 50.0, 100.0), cycles=5)
     sweep_s = time.perf_counter() - t0
-    out = {"sweep_s": sweep_s, "samples": records["y"].n, "per_axis": {}}
+    out = {"sweep_s": sweep_s, "samples": records["y"].n_samples, "per_axis": {}}
     for axis, rec in records.items():
         t = time.perf_counter()
         model = CompositeModel([]).fit([rec])

@@ -5,7 +5,7 @@
 Ground truth: a dynamic PI with the paper's Y-axis weights (Table 2) and rate parameters
 (Table 4, read with u̇ in V/ms and ü in V/ms², i.e. ×1e-3 and ×1e-6 in SI), driven by a
 0–120 V biased sine at 1/10/50/100 Hz (5 cycles, 20 kHz), plus Gaussian sensor noise.
-Both fits start from the same Series; numba kernels are compiled in a warm-up first.
+Both fits start from the same Records; numba kernels are compiled in a warm-up first.
 On a shared machine, OpenBLAS's threads contend with other work and slow the small
 factorisations of the LS far more than the PSO's products: compare runs with the same
 ``OPENBLAS_NUM_THREADS`` (reported in the result).
@@ -20,7 +20,9 @@ import time
 import numpy as np
 from scipy.signal import lfilter
 
-from service.science.models import DynamicPI, Series, StaticPI, equal_thresholds
+from service.science.data.record import Record
+from service.science.models import DynamicPI, StaticPI, equal_thresholds
+from service.science.fitting.metrics import rms
 from service.science.fitting.pi_family import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, fit_metrics
 from service.science.data.signals import biased_sine
 
@@ -50,18 +52,18 @@ def ground_truth() -> DynamicPI:
     return model
 
 
-def paper_drives() -> list[Series]:
+def paper_drives() -> list[Record]:
     """The paper's four loops as commanded (exact derivatives attached), no displacement."""
-    return [Series.from_waveform(biased_sine(f, CYCLES, SAMPLE_RATE_HZ), label=f"{f:g} Hz") for f in FREQUENCIES_HZ]
+    return [Record.from_waveform(biased_sine(f, CYCLES, SAMPLE_RATE_HZ), label=f"{f:g} Hz") for f in FREQUENCIES_HZ]
 
 
-def synthetic_loops(truth: DynamicPI, seed: int = 0, noise_rms_um: float = NOISE_RMS_UM) -> list[Series]:
+def synthetic_loops(truth: DynamicPI, seed: int = 0, noise_rms_um: float = NOISE_RMS_UM) -> list[Record]:
     """Noisy records of ``truth`` for the paper's four loops (commanded derivatives attached)."""
     rng = np.random.default_rng(seed)
     return [d.with_x(truth.predict(d) + rng.normal(0.0, noise_rms_um, d.n_samples)) for d in paper_drives()]
 
 
-def lagged_pi_loops(tau_s: float = 3e-4, seed: int = 0, noise_rms_um: float = 0.0) -> list[Series]:
+def lagged_pi_loops(tau_s: float = 3e-4, seed: int = 0, noise_rms_um: float = 0.0) -> list[Record]:
     """Rate dependence NOT of the dynamic-PI form: the static PI driven through a first-order
     lag y_k = a·y_{k−1} + (1−a)·u_k, a = exp(−T/``tau_s``) (at rest at 0 V), same four loops."""
     pi = static_truth()
@@ -79,8 +81,7 @@ def _timed(fn):
 
 def _overall_rms(model, data) -> float:
     """RMS over all samples of all records (the paper's eq. 12)."""
-    measured = np.concatenate([s.x_um for s in data])
-    return fit_metrics(measured, np.concatenate([model.predict(s) for s in data]))["rms_um"]
+    return rms(np.concatenate([s.x_um - model.predict(s) for s in data]))
 
 
 def run_identification_benchmark(seed: int = 0, repeats: int = 3) -> dict:

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from service.science.data import signals
+from service.science.fitting.metrics import rms
 from service.science.models.kernels import play_operators as play_outputs
 
 SAMPLE_RATE_HZ = 20000.0
@@ -43,10 +44,6 @@ def fit_static_pi(u: np.ndarray, x: np.ndarray, thresholds: np.ndarray = THRESHO
 
 def predict_static_pi(u: np.ndarray, w: np.ndarray, c: float, thresholds: np.ndarray = THRESHOLDS_V) -> np.ndarray:
     return play_outputs(np.ascontiguousarray(u, dtype=float), np.asarray(thresholds, dtype=float)) @ w + c
-
-
-def rms(e: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(e))))
 
 
 def biased_sine(frequency_hz: float, cycles: int = CYCLES, fs: float = SAMPLE_RATE_HZ,

@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from service.reports.calibration import CYCLES, FREQUENCIES_HZ, SAMPLE_RATE_HZ, run_loops
-from service.science.models import GRPI, Series, StaticPI
+from service.science.data.record import Record
+from service.science.fitting.metrics import rms
+from service.science.models import GRPI, StaticPI
 from service.science.fitting.pi_family import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, identify
 from service.science.data.signals import biased_sine
 
@@ -56,24 +58,25 @@ def _switched_off(paths: tuple[str, ...]) -> dict:
     return overrides
 
 
-def sweep_series(bench_name: str = "default", seed: int = 0, overrides: dict | None = None) -> dict[str, list[Series]]:
-    """Per axis, one Series per frequency, with the commanded waveform's exact derivatives."""
+def sweep_series(bench_name: str = "default", seed: int = 0, overrides: dict | None = None) -> dict[str, list[Record]]:
+    """Per axis, one Record per frequency, with the commanded waveform's exact derivatives."""
     loops = run_loops(bench_name, seed=seed, overrides=overrides)
-    out: dict[str, list[Series]] = {}
+    out: dict[str, list[Record]] = {}
     for axis, by_frequency in loops.items():
         out[axis] = []
         for f_hz in FREQUENCIES_HZ:
             u_v, x_um = by_frequency[f_hz]
             wave = biased_sine(f_hz, CYCLES, SAMPLE_RATE_HZ)
-            out[axis].append(Series(u_v, x_um, SAMPLE_RATE_HZ, wave.d1_per_s, wave.d2_per_s2, label=f"{f_hz:g} Hz"))
+            out[axis].append(Record(u_v, x_um, SAMPLE_RATE_HZ, du_v_per_s=wave.d1_per_s, ddu_v_per_s2=wave.d2_per_s2,
+                                    label=f"{f_hz:g} Hz"))
     return out
 
 
-def _rms(model, series: Series) -> float:
-    return float(np.sqrt(np.mean((series.x_um - model.predict(series)) ** 2)))
+def _rms(model, record: Record) -> float:
+    return rms(record.x_um - model.predict(record))
 
 
-def identify_axis(loops: list[Series], seed: int = 0, with_pso: bool = True) -> dict:
+def identify_axis(loops: list[Record], seed: int = 0, with_pso: bool = True) -> dict:
     """Fit every model of the table to one axis's loops; returns RMS per model per frequency."""
     one_hz = loops[0]
     timings: dict[str, float] = {}

@@ -109,7 +109,7 @@ def main(argv=None) -> dict:
     for case, ell in CASES.items():
         ell = Ellipse(ell.y_range_um, ell.z_range_um, ell.inclination_deg, ell.frequency_hz, args.cycles)
         composite = identify_composite_for(bench, ell)
-        fits[case] = {ax: {"fit_range_v": m.fit_range_v, **m.model.describe()} for ax, m in composite.items()}
+        fits[case] = {ax: {"fit_range_v": m.fit_range_v, **m.describe()} for ax, m in composite.items()}
         for name, ctl in controllers(static, composite).items():
             t0 = time.perf_counter()
             result, rec, ref = run_row(bench, ell, ctl)
@@ -162,7 +162,7 @@ def write_markdown(path: Path, rows: dict, noise: float, args, bench_json: dict 
         "`POST /api/trajectories` and `evcbench bench control`.", "",
         "**Feedforward.** *static PI⁻¹*: the paper's static PI (10 operators, thresholds 0–54 V) fitted on "
         "the bench's 0–120 V 1 Hz loop, inverted exactly. *composite⁻¹* "
-        "(`service/science/control/composite_ff.py`): a discovery composite model, hysteresis + delay + flexure "
+        "(`CompositeModel.inverse`, `service/science/discovery/composite_inverse.py`): a discovery composite model, hysteresis + delay + flexure "
         "dynamics (`service/science/discovery/composite.py`, harmonic search for the resonance), fitted on "
         "1/10/50/100 Hz sine sweeps over the voltage span the case needs (±5 V; found from a first 0–120 V "
         "fit): the transforms are inverted per harmonic of the reference, then the PI by the exact "
@@ -262,7 +262,7 @@ NOTES = """
 
 - `service/science/control/trajectory.py`: the ellipse (range or amplitude form, inclination of the long axis to Z)
   with raised-cosine start/stop ramps of 3 periods on centre and amplitude.
-- `service/science/control/feedforward.py`, `service/science/control/composite_ff.py`: inverse-model feedforward from a
+- `service/science/control/feedforward.py`, `service/science/discovery/composite_inverse.py`: inverse-model feedforward from a
   static PI or a discovery composite model (stored composite model ids work as `feedforward_model_y/z`).
 - `service/science/control/kernels.py`: numba PID (eq. 19, filtered derivative, conditional-integration
   anti-windup, integral bounded by the voltage span), the clamp to 0–120 V and to the slew/current step,

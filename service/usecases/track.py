@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
-from service.science.control.feedforward import as_feedforward
 from service.science.control.loop import PIDGains, StopRequested, TrackRecord
 from service.science.control.session import SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse
@@ -21,7 +20,7 @@ from service.usecases.recorder import Recorder, Stop, bench_snapshot
 def build_controller(store: Store, controller: dict) -> Controller:
     """The controller a request describes (``ControllerRequest`` fields as a dict): stored models as
     feedforward per axis, PID gains, ILC. FieldError names ``controller.feedforward_model_<axis>``
-    when a model is missing, cannot be rebuilt or has no inverse."""
+    when a model is missing or cannot be rebuilt (every model inverts itself: service.science.models.contract)."""
     models = {}
     for ax in ("y", "z"):
         model_id = controller.get(f"feedforward_model_{ax}")
@@ -29,13 +28,11 @@ def build_controller(store: Store, controller: dict) -> Controller:
             continue
         field = f"controller.feedforward_model_{ax}"
         try:
-            models[ax] = as_feedforward(load_model(store.get_model(model_id)))
+            models[ax] = load_model(store.get_model(model_id))
         except NotFoundError:
             raise FieldError(field, f"no model {model_id!r}") from None
         except Exception as exc:  # a model that cannot be rebuilt or inverted
             raise FieldError(field, f"model {model_id} cannot be used: {exc}") from None
-        if not callable(getattr(models[ax], "inverse", None)):
-            raise FieldError(field, f"model {model_id} has no inverse")
     pid = None
     if controller.get("pid") is not None:
         p = controller["pid"]

@@ -1,19 +1,26 @@
 """Inverse-model feedforward: identify hysteresis models on the bench by sine sweeps, invert them.
 
-Any object with ``inverse(x_ref_um, sample_rate_hz=...) -> u_v`` is a feedforward model.
+A feedforward model is any model of the contract (service.science.models.contract): its
+``inverse`` gives the drive, its ``predict`` checks that the inverse converged, its
+``stack_demand_um`` and ``judges_stroke`` serve the stroke check (service.science.control.safety).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from drivers.bench import Bench
-from service.science.models import DynamicPI, Series, StaticPI
+from service.science.data.record import Record
+from service.science.fitting.metrics import rms
+from service.science.models import PAPER_MODELS, HysteresisModel
 
 SWEEP_FREQUENCIES_HZ = (1.0, 10.0, 50.0, 100.0)
+#: the loops the paper identifies each of its models on: the static PI on the 1 Hz loop (eq. 9's QP),
+#: the rate-dependent ones on all four
+PAPER_LOOPS_HZ = {"static_pi": (1.0,), "dynamic_pi": SWEEP_FREQUENCIES_HZ, "grpi": SWEEP_FREQUENCIES_HZ}
 
 
-def sweep_series(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 3,
-                 sample_rate_hz: float = 20_000.0, v_max: float = 120.0) -> list[Series]:
+def sine_loops(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 3,
+               sample_rate_hz: float = 20_000.0, v_max: float = 120.0) -> list[Record]:
     """0–v_max biased sines on one axis, one bench run per frequency (each from rest)."""
     out = []
     for f in frequencies_hz:
@@ -22,18 +29,16 @@ def sweep_series(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, c
         t = np.arange(n) / sample_rate_hz
         u = 0.5 * v_max * (1 - np.cos(2 * np.pi * f * t))
         rec = bench.run({axis: u}, sample_rate_hz)
-        out.append(Series(u, rec.x_um[axis], sample_rate_hz, label=f"{axis} {f:g} Hz"))
+        out.append(Record(u, rec.x_um[axis], sample_rate_hz, label=f"{axis} {f:g} Hz"))
     return out
 
 
-def identify(bench: Bench, axis: str, kind: str = "dynamic_pi", **sweep) -> StaticPI | DynamicPI:
-    """Fit a static PI (1 Hz loop) or dynamic PI (1/10/50/100 Hz loops) on measured sweeps."""
-    if kind == "static_pi":
-        return StaticPI().fit(sweep_series(bench, axis, **{"frequencies_hz": (1.0,), **sweep}))
-    series = sweep_series(bench, axis, **sweep)
-    if kind == "dynamic_pi":
-        return DynamicPI().fit(series)
-    raise ValueError(f"kind: unknown model {kind!r}; use 'static_pi' or 'dynamic_pi'")
+def identify(bench: Bench, axis: str, kind: str = "dynamic_pi", **sweep) -> HysteresisModel:
+    """Fit one of the paper's models on measured sweeps of the loops it is identified on
+    (PAPER_LOOPS_HZ: the static PI on 1 Hz, the dynamic PI and GRPI on 1/10/50/100 Hz)."""
+    if kind not in PAPER_MODELS:
+        raise ValueError(f"kind: unknown model {kind!r}; use one of {', '.join(PAPER_MODELS)}")
+    return PAPER_MODELS[kind]().fit(sine_loops(bench, axis, **{"frequencies_hz": PAPER_LOOPS_HZ[kind], **sweep}))
 
 
 def feedforward_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, v_limits=(0.0, 120.0)) -> np.ndarray:
@@ -49,17 +54,13 @@ def feedforward_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, v_limits=(
 INVERSE_TOLERANCE_SHARE = 0.05
 
 
-def inverse_miss_um(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rate_hz: float,
-                    steady: slice) -> float | None:
+def inverse_miss_um(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rate_hz: float, steady: slice) -> float:
     """RMS (µm) by which the model's own prediction of its feedforward drive ``u_v`` misses the
-    reference over ``steady`` (None if the model cannot predict): a check that the inverse converged.
-    The paper's dynamic PI inverse does not at 50–100 Hz (its segment-switched weights make the
-    answer step; see service/science/models/inverse.py)."""
-    predict = getattr(model, "predict", None)
-    if predict is None:
-        return None
-    back = np.asarray(predict(np.asarray(u_v, dtype=float), sample_rate_hz), dtype=float)
-    return float(np.sqrt(np.mean((back[steady] - np.asarray(x_ref_um)[steady]) ** 2)))
+    reference over ``steady``: a check that the inverse converged. The paper's dynamic PI inverse
+    does not at 50–100 Hz (its segment-switched weights make the answer step; see
+    service/science/models/inverse.py)."""
+    back = np.asarray(model.predict(np.asarray(u_v, dtype=float), sample_rate_hz=sample_rate_hz), dtype=float)
+    return rms(back[steady] - np.asarray(x_ref_um)[steady])
 
 
 #: the composite model used as feedforward: hysteresis + delay + flexure dynamics. On the default
@@ -72,8 +73,8 @@ COMPOSITE_EFFECTS = ("delay", "dynamics")
 def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequencies_hz=SWEEP_FREQUENCIES_HZ,
                        cycles: int = 5, n_operators: int = 10, v_range=(0.0, 120.0)):
     """Fit a discovery composite model (hysteresis + ``effects``) on a 0–120 V sine sweep of one axis
-    between ``v_range`` (V) run on ``bench`` (the discovery path: service.usecases.plans plan, service.science.discovery records and fit);
-    returns it wrapped as a feedforward model."""
+    between ``v_range`` (V) run on ``bench`` (the discovery path: service.usecases.plans plan,
+    service.science.discovery records and fit)."""
     from service.science.discovery.composite import fit_composite
     from service.science.discovery.records import _arrays, records_from_arrays
     from service.usecases.plans import SinePlan, plan_for_bench, trim_blocks
@@ -83,25 +84,16 @@ def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequ
     rec = bench.run(planned.u_v, planned.sample_rate_hz)
     blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
     (record,) = records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, (axis,), f"{axis}:")
-    return as_feedforward(fit_composite([record], list(effects), n_operators))
-
-
-def as_feedforward(model):
-    """A stored model object as a feedforward model: composite models get their harmonic/fixed-point
-    inverse (service.science.control.composite_ff); hysteresis models already have ``inverse``."""
-    if getattr(model, "name", None) == "composite":
-        from service.science.control.composite_ff import CompositeFeedforward
-
-        return CompositeFeedforward(model)
-    return model
+    return fit_composite([record], list(effects), n_operators)
 
 
 def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, margin_v: float = 5.0,
                            sample_rate_hz: float = 20_000.0) -> dict:
     """Composite feedforward models per axis fitted on the voltages ``ellipse`` needs: a full-range
     (0–120 V) fit gives the drive span of the reference's steady part, then each axis is swept again
-    over that span ± ``margin_v`` (V) and refitted. The stack's minor loops inside the span differ
-    from the major loop's branches (Preisach memory), which a PI fitted on 0–120 V cannot capture."""
+    over that span ± ``margin_v`` (V) and refitted (each model's ``fit_range_v`` says the span). The
+    stack's minor loops inside the span differ from the major loop's branches (Preisach memory),
+    which a PI fitted on 0–120 V cannot capture."""
     from service.science.control.trajectory import reference
 
     ref = reference(ellipse, sample_rate_hz)

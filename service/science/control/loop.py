@@ -20,6 +20,7 @@ from service.science.control import kernels as CK
 from service.science.control.ilc import HarmonicILC
 from service.science.control.safety import stepping_hook
 from service.science.control.trajectory import Reference
+from service.science.fitting.metrics import rms
 
 QUEUED_BLOCKS = 2   # buffered streaming: blocks in flight ahead of the one being measured
 SETTLE_S = 0.05     # 0 V held before each run so earlier motion has died out
@@ -114,7 +115,7 @@ class Tracker:
             self.ilc.update(err, base_v=base, limits_v=self._ilc_limits, applied_v=applied)
             rec.error_per_period_um.append(self.ilc.history_um[-1])
         else:
-            rec.error_per_period_um.append(float(np.sqrt(np.mean(err ** 2))))
+            rec.error_per_period_um.append(rms(err))
 
     def run(self, on_period: Callable[[int, TrackRecord], None] | None = None,
             should_stop: Callable[[], bool] | None = None) -> TrackRecord:

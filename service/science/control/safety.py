@@ -86,13 +86,10 @@ STROKE_TOLERANCE_V = 1.0
 
 def model_stroke_um(model, sample_rate_hz: float, v_max: float = 120.0) -> float:
     """The stack's displacement (µm) at ``v_max`` reached quasi-statically (0 → v_max in 0.5 s), as the
-    feedforward model predicts it (NaN for a model without ``predict``)."""
-    predict = getattr(model, "predict", None)
-    if predict is None:
-        return float("nan")
+    feedforward model predicts it."""
     n = int(sample_rate_hz / 2)
     slow = 0.5 * v_max * (1 - np.cos(np.pi * np.arange(n) / n))
-    return float(np.max(predict(slow, sample_rate_hz=sample_rate_hz)))
+    return float(np.max(model.predict(slow, sample_rate_hz=sample_rate_hz)))
 
 
 def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: np.ndarray, u_ff_v: np.ndarray,
@@ -104,9 +101,9 @@ def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: n
 
     What the stack must deliver is the reference seen through the inverse of the model's linear
     transforms (``stack_demand_um``: a flexure mode above the drive frequency amplifies the
-    fundamental, so the stack needs less than the reference). Only a model with those dynamics can
-    judge that, so only its verdict is a refusal; a hysteresis-only model ignores the mode's gain
-    (+13 % at 100 Hz on Z here) and its verdict is a warning."""
+    fundamental, so the stack needs less than the reference). Only a model with those dynamics
+    (``judges_stroke``) can judge that, so only its verdict is a refusal; a hysteresis-only model
+    ignores the mode's gain (+13 % at 100 Hz on Z here) and its verdict is a warning."""
     refusals, warnings = {}, []
     for i, axis in enumerate(bench.axes):
         u = u_ff_v[steady, i]
@@ -115,15 +112,14 @@ def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: n
         if model is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= v_min - STROKE_TOLERANCE_V):
             continue
         lo, hi = ranges_um[axis]
-        demand = getattr(model, "stack_demand_um", None)
-        need = float(np.max((demand(x_ref_um[:, i], sample_rate_hz) if demand else x_ref_um[:, i])[steady]))
-        via = (f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)" if demand else
-               " (by a model without flexure dynamics, which overstates the voltage near a resonance)")
+        need = float(np.max(model.stack_demand_um(x_ref_um[:, i], sample_rate_hz)[steady]))
+        via = (f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)" if model.judges_stroke
+               else " (by a model without flexure dynamics, which overstates the voltage near a resonance)")
         text = (f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {hi:g} µm{via}: "
                 f"{np.min(u):.1f}–{np.max(u):.1f} V by the feedforward model; the axis reaches "
                 f"{model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at {v_max:g} V, so the range is beyond "
                 f"the stroke")
-        if demand:
+        if model.judges_stroke:
             refusals[axis] = text
         else:
             warnings.append(text)

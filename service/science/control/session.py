@@ -14,6 +14,7 @@ from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
 from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, TrackRecord, Tracker
 from service.science.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
 from service.science.control.trajectory import Ellipse, Reference, reference
+from service.science.fitting.metrics import rms
 
 SAMPLE_RATE_HZ = 20_000.0
 PAPER_PID = {"y": PIDGains(kp=50.0, ki=300.0, kd=0.06), "z": PIDGains(kp=70.0, ki=450.0, kd=0.08)}
@@ -26,7 +27,7 @@ ILC_PID = {"y": PIDGains(kp=0.5, ki=300.0, kd=0.005, tf_s=2e-4), "z": PIDGains(k
 
 @dataclass
 class Controller:
-    """Feedforward models per axis (objects with ``inverse``; None = no FF), PID gains per axis
+    """Feedforward models per axis (models of service.science.models.contract; None = no FF), PID gains per axis
     (None = no PID), ILC on/off with its gain, harmonics and the periods it may learn for."""
 
     feedforward: dict[str, object] = field(default_factory=dict)
@@ -74,9 +75,7 @@ def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
     pp = np.ptp(ref.steady_period(), axis=0)
     mx = np.max(np.abs(e), axis=0)
     return {"max_error_y_um": float(mx[0]), "max_error_z_um": float(mx[1]),
-            "rms_error_um": float(np.sqrt(np.mean(e ** 2))),
-            "rms_error_y_um": float(np.sqrt(np.mean(e[:, 0] ** 2))),
-            "rms_error_z_um": float(np.sqrt(np.mean(e[:, 1] ** 2))),
+            "rms_error_um": rms(e), "rms_error_y_um": rms(e[:, 0]), "rms_error_z_um": rms(e[:, 1]),
             "relative_error_pct": float(100 * np.max(mx / pp)), "evaluated_periods": int((end - start) // ref.period),
             "command_max_v": {a: float(np.max(rec.u_v[start:end, i])) for i, a in enumerate("yz")},
             "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= 119.999) | (rec.u_v[start:end] <= 1e-3)))}
@@ -87,7 +86,7 @@ def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequ
     """Refuse a feedforward drive the model itself says misses the reference (a diverged inverse)."""
     miss = inverse_miss_um(model, u_v, x_ref_um, SAMPLE_RATE_HZ, steady)
     span = float(np.ptp(x_ref_um[steady]))
-    if miss is not None and miss > INVERSE_TOLERANCE_SHARE * span:
+    if miss > INVERSE_TOLERANCE_SHARE * span:
         name = type(model).__name__
         raise ControlRefused(f"controller.feedforward_model_{axis}", (
             f"the {name} model's inverse does not converge at {frequency_hz:g} Hz: its own prediction of the "

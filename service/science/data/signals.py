@@ -182,6 +182,30 @@ def savgol_derivatives(
     return d1, d2
 
 
+def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float,
+                      blocks: Sequence[dict] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """u̇ (V/s) and ü (V/s²) of a drive: the one estimator every model and record uses.
+
+    Without ``blocks``: :func:`savgol_derivatives` over the whole drive (window from its dominant
+    period). With a block table: Savitzky–Golay within each block over a window set by that
+    block's own period (its frequency, else the block's dominant period), central differences
+    outside the blocks.
+    """
+    u_v = np.asarray(u_v, dtype=float)
+    if blocks is None:
+        return savgol_derivatives(u_v, sample_rate_hz)
+    du = np.gradient(u_v, 1.0 / sample_rate_hz)
+    ddu = np.gradient(du, 1.0 / sample_rate_hz)
+    for block in blocks:
+        start, stop = int(block["start"]), min(int(block["stop"]), len(u_v))
+        f_hz = block.get("frequency_hz")
+        if stop - start < 8:
+            continue
+        period = sample_rate_hz / f_hz if f_hz else None
+        du[start:stop], ddu[start:stop] = savgol_derivatives(u_v[start:stop], sample_rate_hz, period)
+    return du, ddu
+
+
 def sensitivity_sign(u_v: np.ndarray, x_um: np.ndarray) -> float:
     """+1 if the displacement rises with the drive (least-squares slope ≥ 0), −1 if the gauge reads
     the other way (mounted on the far side, or a negative scale). Hysteresis operators' weights are

@@ -5,37 +5,59 @@ effect columns are additive regressors and T are transforms (delay, resonance) w
 nonlinear parameters. The weights c solve one bounded least-squares problem on the training
 rows; each transform's parameters are found by an outer search on the current prediction
 (separable least squares: linear weights exact, nonlinear ones searched), alternated twice.
+
+It satisfies the model contract (service.science.models.contract): configuration in the constructor,
+``fit(records)``, ``predict(drive)``, ``inverse`` (service.science.discovery.composite_inverse), the
+stroke check's ``stack_demand_um`` and JSON round trips.
 """
 from __future__ import annotations
 
+import copy
 from typing import Sequence
 
 import numpy as np
 
+from service.science.data.record import Record, as_record_list, finite_array
+from service.science.data.signals import sensitivity_sign
+from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIXED_POINT_ITERATIONS,
+                                                         composite_inverse, invert_transforms)
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
-from service.science.models.base import equal_thresholds
-from service.science.data.signals import sensitivity_sign
-from service.science.models.kernels import play_operators
 from service.science.fitting.lsq import Block, solve_blocks
-from service.science.discovery.records import Record
-from service.science.fitting.validation import evaluate_record, mean_of
+from service.science.fitting.metrics import rms
+from service.science.fitting.validation import evaluate_records, mean_of
+from service.science.models.base import equal_thresholds
+from service.science.models.contract import Drive, split_stored
+from service.science.models.kernels import play_operators
 
 OUTER_ITERATIONS = 2
 
 
+#: what an identification of a composite holds out (the stored metrics say it in words)
+HELD_OUT_NOTE = ("last ceil(20 %) of the full cycles of every block; means are over blocks. "
+                 "held_out_frequencies: each frequency left out of the fit in turn")
+
+
 class CompositeModel:
-    """``effects`` names (registry order is applied), ``n_operators`` base play operators."""
+    """Configuration: ``effects`` names (registry order is applied; 'hysteresis' is the base),
+    ``n_operators`` base play operators, ``fixed_theta`` transform parameters kept as given (only
+    the others are searched), ``exclude_frequency_hz`` blocks left out of the fit, ``warm_theta`` a
+    parent model's transform parameters (the fit also tries them kept and keeps the better).
+    Learned state: ``thresholds_v``, ``scales``, ``theta``, ``coef``, ``sign``, ``train_rms_um``."""
 
     name = "composite"
+    judges_stroke = True     #: it models the flexure after the stack: its stroke verdict is a refusal
 
-    def __init__(self, effects: Sequence[str] = (), n_operators: int = 10):
+    def __init__(self, effects: Sequence[str] = (), n_operators: int = 10, *, fixed_theta: dict | None = None,
+                 exclude_frequency_hz: float | None = None, warm_theta: dict | None = None):
         unknown = [e for e in effects if e not in EFFECTS and e != "hysteresis"]
         if unknown:
             raise ValueError(f"unknown effects {unknown}; known: {', '.join(EFFECTS)}")
-        self.effects = ordered(effects)
-        self.n_operators = int(n_operators)
+        self._config = {"effects": ordered(effects), "n_operators": int(n_operators),
+                        "fixed_theta": copy.deepcopy(fixed_theta) or None,
+                        "exclude_frequency_hz": None if exclude_frequency_hz is None else float(exclude_frequency_hz),
+                        "warm_theta": copy.deepcopy(warm_theta) or None}
         self.thresholds_v = None
         self.theta: dict[str, dict] = {}
         self.coef: dict[str, np.ndarray] | None = None
@@ -43,17 +65,46 @@ class CompositeModel:
         self.train_rms_um = None
         self.sign = 1.0          #: −1 when the gauge reads against the drive (see sensitivity_sign)
 
+    # -- configuration ------------------------------------------------------------------
+    def get_config(self) -> dict:
+        """The constructor's arguments (JSON types); ``fit`` never changes them."""
+        return copy.deepcopy(self._config)
+
+    @property
+    def effects(self) -> list[str]:
+        """The effects beyond hysteresis, in registry order."""
+        return list(self._config["effects"])
+
+    @property
+    def n_operators(self) -> int:
+        return self._config["n_operators"]
+
+    @property
+    def is_fitted(self) -> bool:
+        return self.coef is not None
+
+    @classmethod
+    def for_effects(cls, effects: Sequence[str], n_operators: int = 10, parent=None) -> "CompositeModel":
+        """Hysteresis + ``effects``, warm-started at ``parent``'s transforms when it has any."""
+        warm = parent.as_composite().theta if parent is not None else None
+        return cls(effects, n_operators, warm_theta=warm)
+
+    def as_composite(self) -> "CompositeModel":
+        """Discovery starts from the model itself."""
+        return self
+
     # -- design -------------------------------------------------------------------------
     @property
     def transforms(self) -> list[str]:
         return [e for e in self.effects if EFFECTS[e].stage == "transform"]
 
-    def _context(self, rec: Record) -> RecordContext:
-        return self.context(rec.u_v, rec.fs_hz, rec.du, rec.ddu, rec.u_other_v, rec.x_other_um)
+    def _context(self, drive: Drive) -> RecordContext:
+        du, ddu = drive.derivatives()
+        return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um)
 
-    def context(self, u_v: np.ndarray, fs_hz: float, du: np.ndarray, ddu: np.ndarray,
+    def context(self, u_v: np.ndarray, sample_rate_hz: float, du: np.ndarray, ddu: np.ndarray,
                 u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None) -> RecordContext:
-        """What the effects see of a drive ``u_v`` (V) at ``fs_hz``, with this model's thresholds and
+        """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
         origin = self.u_origin_v
         u_v = u_v - origin
@@ -64,21 +115,21 @@ class CompositeModel:
         if time_scale_s is None:
             raise ValueError("this composite model was stored before its time scale was kept: refit it "
                              "(POST /api/models/{id}/refine with its own effects)")
-        return RecordContext(u_v, fs_hz, p, du, ddu, u_other_v, p_other, self.scales["min_period_s"],
+        return RecordContext(u_v, sample_rate_hz, p, du, ddu, u_other_v, p_other, self.scales["min_period_s"],
                              1.0 / self.scales["min_period_s"], self.scales["u_scale_v"], time_scale_s, x_other_um)
 
-    def raw_blocks(self, rec: Record) -> list[Block]:
-        """Hysteresis, offset and additive effect blocks of one record (before transforms)."""
-        ctx = self._context(rec)
-        out = [Block.make("weights_um_per_v", ctx.p, lower=0.0), Block.make("offset_um", np.ones(rec.n))]
+    def raw_blocks(self, drive: Drive) -> list[Block]:
+        """Hysteresis, offset and additive effect blocks of one drive (before transforms)."""
+        ctx = self._context(drive)
+        out = [Block.make("weights_um_per_v", ctx.p, lower=0.0), Block.make("offset_um", np.ones(ctx.n))]
         for name in self.effects:
             out += EFFECTS[name].blocks(ctx)
         return out
 
-    def _transform(self, columns: np.ndarray, fs_hz: float, theta: dict, skip: str | None = None) -> np.ndarray:
+    def _transform(self, columns: np.ndarray, sample_rate_hz: float, theta: dict, skip: str | None = None) -> np.ndarray:
         for name in self.transforms:
             if name != skip and name in theta:
-                columns = EFFECTS[name].apply(columns, fs_hz, theta[name])
+                columns = EFFECTS[name].apply(columns, sample_rate_hz, theta[name])
         return columns
 
     # -- fitting ------------------------------------------------------------------------
@@ -95,24 +146,39 @@ class CompositeModel:
         self.thresholds_v = equal_thresholds(u_max, n)
         self.scales = {"u_origin_v": origin, "u_scale_v": max(float(np.max(np.abs(r.u_v - origin))) for r in records),
                        "min_period_s": min(r.min_period_s() for r in records),
-                       "time_scale_s": max(r.n / r.fs_hz for r in records)}
+                       "time_scale_s": max(r.n_samples / r.sample_rate_hz for r in records)}
 
-    def fit(self, records: Sequence[Record], fixed_theta: dict | None = None,
+    def fit(self, records, fixed_theta: dict | None = None,
             exclude_frequency_hz: float | None = None) -> "CompositeModel":
-        """Fit on the training rows of ``records`` (decimated slow cycles). Transforms named in
-        ``fixed_theta`` keep those parameters (a warm start: only the others are searched)."""
-        fixed_theta = fixed_theta or {}
-        records = list(records)
+        """Fit on the training rows of ``records`` (every block's, decimated; held-out cycles left
+        out when a record holds them out); returns self. ``fixed_theta`` and
+        ``exclude_frequency_hz`` override the configuration's for this fit only (kept for callers
+        that predate the contract: give them to the constructor)."""
+        records = as_record_list(records)
+        fixed = self._config["fixed_theta"] if fixed_theta is None else fixed_theta
+        exclude = self._config["exclude_frequency_hz"] if exclude_frequency_hz is None else exclude_frequency_hz
+        self._fit(records, fixed or {}, exclude)
+        warm = {k: v for k, v in (self._config["warm_theta"] or {}).items() if k in self.transforms}
+        if warm:
+            kept = CompositeModel(self.effects, self.n_operators, exclude_frequency_hz=exclude)
+            kept._fit(records, warm, exclude)
+            if kept.train_rms_um < self.train_rms_um:
+                for key in ("thresholds_v", "scales", "theta", "coef", "train_rms_um", "sign", "_fs"):
+                    setattr(self, key, getattr(kept, key))
+        return self
+
+    def _fit(self, records: list[Record], fixed_theta: dict, exclude_frequency_hz: float | None) -> None:
+        """Transforms named in ``fixed_theta`` keep those parameters (only the others are searched)."""
         self._setup(records)
-        self._fs = records[0].fs_hz
-        raw = [self.raw_blocks(r) for r in records]
+        self._fs = records[0].sample_rate_hz
+        raw = [self.raw_blocks(Drive.of(r)) for r in records]
         names = [b.name for b in raw[0]]
         widths = [b.width for b in raw[0]]
         lower = [b.lower for b in raw[0]]
         upper = [b.upper for b in raw[0]]
         a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
         rows = [r.fit_rows(exclude_frequency_hz) for r in records]
-        target = np.concatenate([r.x_um[i] for r, i in zip(records, rows)])
+        target = np.concatenate([r.require_x()[i] for r, i in zip(records, rows)])
         self.sign = sensitivity_sign(np.concatenate([r.u_v[i] for r, i in zip(records, rows)]), target)
         target = self.sign * target    # fitted in the actuator's own direction (bounded weights ≥ 0)
 
@@ -122,12 +188,12 @@ class CompositeModel:
             parts = []
             for k, r in enumerate(records):
                 if exact is None:
-                    parts.append(self._transform(a_raw[k], r.fs_hz, theta)[rows[k]])
+                    parts.append(self._transform(a_raw[k], r.sample_rate_hz, theta)[rows[k]])
                 else:
                     if k not in cache:
-                        cache[k] = self._transform(a_raw[k], r.fs_hz, theta, skip=exact)
+                        cache[k] = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=exact)
                     base = cache[k]
-                    parts.append(EFFECTS[exact].apply_rows(base, r.fs_hz, theta[exact], rows[k]))
+                    parts.append(EFFECTS[exact].apply_rows(base, r.sample_rate_hz, theta[exact], rows[k]))
             a = np.vstack(parts)
             splits = np.cumsum([0] + widths)
             blocks = [Block(nm, (a[:, splits[j]:splits[j + 1]],), lower[j], upper[j]) for j, nm in enumerate(names)]
@@ -147,7 +213,7 @@ class CompositeModel:
                     best = self._harmonic_search(name, a_raw, records, theta)
                     exact_cost = lambda th: solve({**theta, name: th}).rms  # noqa: E731
                     if best is None:
-                        z = [self._transform(a_raw[k] @ sol.coef, r.fs_hz, theta, skip=name)
+                        z = [self._transform(a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
                              for k, r in enumerate(records)]
                         best = self._search(name, z, records, rows, target)
                         best = EFFECTS[name].refine(best, exact_cost) if last else best
@@ -159,7 +225,6 @@ class CompositeModel:
         splits = np.cumsum([0] + widths)
         self.coef = {nm: sol.coef[splits[j]:splits[j + 1]].copy() for j, nm in enumerate(names)}
         self.train_rms_um = sol.rms
-        return self
 
     def _identity_theta(self, name: str) -> dict:
         return {"delay_s": 0.0} if name == "delay" else {"fn_hz": 1e12, "zeta": 1.0}
@@ -170,8 +235,8 @@ class CompositeModel:
         eff = EFFECTS[name]
         if not hasattr(eff, "harmonic_search"):
             return None
-        columns = [self._transform(a, r.fs_hz, theta, skip=name) for a, r in zip(a_raw, records)]
-        return eff.harmonic_search(harmonic_data(records, columns), records[0].fs_hz,
+        columns = [self._transform(a, r.sample_rate_hz, theta, skip=name) for a, r in zip(a_raw, records)]
+        return eff.harmonic_search(harmonic_data(records, columns), records[0].sample_rate_hz,
                                    1.0 / self.scales["min_period_s"])
 
     def _search(self, name, z, records, rows, target) -> dict:
@@ -179,39 +244,69 @@ class CompositeModel:
         eff = EFFECTS[name]
 
         def cost(th):
-            col = np.concatenate([eff.apply(zk[:, None], r.fs_hz, th)[rows[k], 0] for k, (zk, r) in
+            col = np.concatenate([eff.apply(zk[:, None], r.sample_rate_hz, th)[rows[k], 0] for k, (zk, r) in
                                   enumerate(zip(z, records))])
             a = np.column_stack([col, np.ones_like(col)])
             coef, *_ = np.linalg.lstsq(a, target, rcond=None)
             return float(np.sum((target - a @ coef) ** 2))
 
-        return self._grid_refine(name, cost, records[0].fs_hz)
+        return self._grid_refine(name, cost, records[0].sample_rate_hz)
 
-    def _grid_refine(self, name, cost, fs_hz=None) -> dict:
+    def _grid_refine(self, name, cost, sample_rate_hz=None) -> dict:
         eff = EFFECTS[name]
-        fs = fs_hz or self._fs
+        fs = sample_rate_hz or self._fs
         grid = eff.grid(fs, self.scales["min_period_s"], 1.0 / self.scales["min_period_s"])
         costs = [cost(th) for th in grid]
         return eff.refine(grid[int(np.argmin(costs))], cost)
 
-    # -- prediction and validation ----------------------------------------------------------
-    def predict(self, rec: Record) -> np.ndarray:
+    # -- prediction, inversion and validation ------------------------------------------------
+    def _require_fitted(self):
         if self.coef is None:
             raise RuntimeError("composite model is not fitted")
-        blocks = self.raw_blocks(rec)
+
+    def predict(self, drive, sample_rate_hz: float | None = None) -> np.ndarray:
+        """Displacement (µm) for a drive: a Record (its rates, other-axis drive and displacement are
+        used) or an array of V at ``sample_rate_hz`` (other axis unknown: no coupling), from rest."""
+        self._require_fitted()
+        d = Drive.of(drive, sample_rate_hz)
+        blocks = self.raw_blocks(d)
         a = np.hstack([b.columns for b in blocks])
         c = np.concatenate([self.coef[b.name] for b in blocks])
-        return self.sign * (self._transform(a, rec.fs_hz, self.theta) @ c)
+        return self.sign * (self._transform(a, d.require_rate(), self.theta) @ c)
 
-    def evaluate(self, records: Sequence[Record]) -> dict:
-        """Train/held-out metrics per dataset and their means over blocks (service.science.fitting.validation)."""
-        per, blocks = [], []
-        for r in records:
-            fig = evaluate_record(r.x_um, self.predict(r), r.splits)
-            per.append({"dataset_id": r.label, **fig})
-            blocks += fig["blocks"]
-        return {"train_rms_um": mean_of(blocks, "train"), "validation_rms_um": mean_of(blocks, "validation"),
-                "per_dataset": per}
+    def inverse(self, x_ref_um, *, sample_rate_hz: float | None = None, u_limits_v=None,
+                iterations: int = FIXED_POINT_ITERATIONS) -> np.ndarray:
+        """The drive (V) whose prediction follows the planned reference ``x_ref_um`` (µm; starts and
+        ends at rest), the PI inverse searched within ``u_limits_v`` (V; None: −60…180 V, beyond the
+        stack's range so that a safety check sees what is needed). service.science.discovery.composite_inverse."""
+        self._require_fitted()
+        if not sample_rate_hz:
+            raise ValueError("sample_rate_hz is needed to invert a composite model's dynamics")
+        return composite_inverse(self, finite_array("x_ref_um", x_ref_um), float(sample_rate_hz), iterations,
+                                 COMPOSITE_LIMITS_V if u_limits_v is None else u_limits_v)
+
+    def stack_demand_um(self, x_ref_um, sample_rate_hz: float | None = None) -> np.ndarray:
+        """What the stack (hysteresis and additive effects) must deliver before the model's linear
+        transforms for the output to follow the planned reference ``x_ref_um`` (µm)."""
+        if not sample_rate_hz:
+            raise ValueError("sample_rate_hz is needed to undo a composite model's dynamics")
+        return invert_transforms(self, np.asarray(x_ref_um, dtype=float), float(sample_rate_hz))
+
+    def evaluate(self, records) -> dict:
+        """Train/held-out metrics per dataset over every block (also those that drive only the other
+        axis) and their means over blocks (service.science.fitting.validation)."""
+        records = as_record_list(records)
+        return evaluate_records(records, [self.predict(r) for r in records])
+
+    def validate(self, records) -> dict:
+        """``evaluate``, the held-out frequencies (each left out of a refit in turn) and the mean over
+        blocks of the largest train and held-out error (µm)."""
+        records = as_record_list(records)
+        ev = self.evaluate(records)
+        ev["held_out_frequencies"] = held_out_frequency_metrics(records, self.effects, self.n_operators, self.theta)
+        blocks = [b for d in ev["per_dataset"] for b in d["blocks"]]
+        return {**ev, "train_max_abs_um": mean_of(blocks, "train", "max_abs_um"),
+                "validation_max_abs_um": mean_of(blocks, "validation", "max_abs_um"), "held_out": HELD_OUT_NOTE}
 
     def n_parameters(self) -> int:
         return int(sum(v.size for v in (self.coef or {}).values()) + sum(len(t) for t in self.theta.values()))
@@ -222,14 +317,16 @@ class CompositeModel:
 
     # -- serialisation -----------------------------------------------------------------------
     def to_dict(self) -> dict:
-        return {"model": self.name, "effects": ["hysteresis"] + self.effects, "n_operators": self.n_operators,
-                "thresholds_v": self.thresholds_v.tolist(), "scales": self.scales,
+        """``{"model", "config", **learned state}``, JSON-serialisable (floats round-trip exactly)."""
+        self._require_fitted()
+        return {"model": self.name, "config": self.get_config(), "thresholds_v": self.thresholds_v.tolist(), "scales": self.scales,
                 "theta": self.theta, "coef": {k: v.tolist() for k, v in self.coef.items()},
                 "train_rms_um": self.train_rms_um, "sign": self.sign}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CompositeModel":
-        m = cls(d["effects"], d["n_operators"])
+        config, d = split_stored(d, cls.name, ("effects", "n_operators"))
+        m = cls(**config)
         m.thresholds_v = np.asarray(d["thresholds_v"], dtype=float)
         m.scales, m.theta = dict(d["scales"]), {k: dict(v) for k, v in d["theta"].items()}
         m.coef = {k: np.asarray(v, dtype=float) for k, v in d["coef"].items()}
@@ -241,12 +338,7 @@ class CompositeModel:
 def fit_composite(records, effects, n_operators: int = 10, warm_theta: dict | None = None) -> CompositeModel:
     """Fit ``hysteresis + effects``; with ``warm_theta`` (a parent model's transform parameters)
     also fit with those kept and return whichever of the two fits the training rows better."""
-    full = CompositeModel(effects, n_operators).fit(records)
-    warm = {k: v for k, v in (warm_theta or {}).items() if k in full.transforms}
-    if not warm:
-        return full
-    kept = CompositeModel(effects, n_operators).fit(records, fixed_theta=warm)
-    return kept if kept.train_rms_um < full.train_rms_um else full
+    return CompositeModel(effects, n_operators, warm_theta=warm_theta).fit(records)
 
 
 def held_out_frequency_metrics(records, effects, n_operators: int = 10, theta: dict | None = None) -> dict:
@@ -257,12 +349,11 @@ def held_out_frequency_metrics(records, effects, n_operators: int = 10, theta: d
     if len(freqs) < 2:
         return {"validation_rms_um": None, "per_frequency": [], "note": "fewer than two frequencies"}
     for f in freqs:
-        m = CompositeModel(effects, n_operators).fit(records, fixed_theta=theta, exclude_frequency_hz=f)
+        m = CompositeModel(effects, n_operators, fixed_theta=theta, exclude_frequency_hz=f).fit(records)
         errs = []
         for r in records:
             res = r.x_um - m.predict(r)
-            errs += [float(np.sqrt(np.mean(res[s.train[0]:s.held_out[1]] ** 2))) for s in r.splits
-                     if s.block.get("frequency_hz") == f]
+            errs += [rms(res[s.train[0]:s.held_out[1]]) for s in r.splits if s.block.get("frequency_hz") == f]
         per.append({"frequency_hz": f, "validation_rms_um": float(np.mean(errs))})
     return {"validation_rms_um": float(np.mean([p["validation_rms_um"] for p in per])), "per_frequency": per}
 

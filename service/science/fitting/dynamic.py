@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.science.models.base import Signal, equal_thresholds
-from service.science.models.data import Series, as_series_list
+from service.science.data.record import Record, as_record_list
+from service.science.models.base import equal_thresholds
+from service.science.models.contract import Drive
 from service.science.models.pi import DynamicPI, StaticPI
 from service.science.fitting.lsq import solve_blocks, stack_blocks
 from service.science.fitting.pso import PSOResult, pso_minimize
@@ -19,7 +20,7 @@ RATE_BLOCKS = ("alpha_um_per_v2_s", "beta_um_per_v2_s2")
 PSO_CHUNK_ROWS = 16384
 
 
-def slowest_series(items: list[Series]) -> Series:
+def slowest_record(items: list[Record]) -> Record:
     """The record with the longest dominant period (the paper's 1 Hz loop)."""
     return max(items, key=lambda s: s.dominant_period_s)
 
@@ -29,12 +30,12 @@ def rate_problem(data, static_data=None, n_operators: int = 10, fit_offset: bool
 
     The target is what the static part leaves unexplained over all records of ``data``.
     """
-    items = as_series_list(data)
-    static_items = [slowest_series(items)] if static_data is None else as_series_list(static_data)
+    items = as_record_list(data)
+    static_items = [slowest_record(items)] if static_data is None else as_record_list(static_data)
     u_max = max(float(s.u_v.max()) for s in items + static_items)
     static = StaticPI(thresholds_v=equal_thresholds(u_max, n_operators), fit_offset=fit_offset).fit(static_items)
     model = DynamicPI.from_static(static)
-    blocks = stack_blocks([[b for b in model.blocks(Signal(s)) if b.name in RATE_BLOCKS] for s in items])
+    blocks = stack_blocks([[b for b in model.blocks(Drive.of(s)) if b.name in RATE_BLOCKS] for s in items])
     # in the static part's own direction (sign −1: the gauge reads against the drive)
     target = static.sign * np.concatenate([s.require_x() - static.predict(s) for s in items])
     return model, blocks, target

@@ -35,7 +35,8 @@ class BlockSplit:
 def split_blocks(blocks: Sequence[dict], samples: int, sample_rate_hz: float, axis: str | None = None,
                  fraction: float = HELD_OUT_FRACTION) -> list[BlockSplit]:
     """Train/held-out ranges per block. Blocks that drive other axes only are skipped when
-    ``axis`` is given; an empty block table means one block over the whole record."""
+    ``axis`` is given; an empty block table means one block over the whole record. With
+    ``fraction`` 0 nothing is held out: a block's whole cycles (or all its samples) train."""
     if not blocks:
         blocks = [{"index": 0, "start": 0, "stop": samples, "kind": "imported", "frequency_hz": None,
                    "cycles": None}]
@@ -53,12 +54,12 @@ def split_blocks(blocks: Sequence[dict], samples: int, sample_rate_hz: float, ax
         else:
             full = 0
         if full >= 1:
-            held = max(1, math.ceil(fraction * full - 1e-9))
+            held = max(1, math.ceil(fraction * full - 1e-9)) if fraction > 0 else 0
             cut = start + int(round((full - held) * period))
             end = min(stop, start + int(round(full * period)))
             out.append(BlockSplit(block, (start, cut), (cut, end)))
         else:
-            cut = stop - max(1, math.ceil(fraction * (stop - start)))
+            cut = stop - (max(1, math.ceil(fraction * (stop - start))) if fraction > 0 else 0)
             out.append(BlockSplit(block, (start, cut), (cut, stop)))
     return out
 
@@ -103,6 +104,24 @@ def evaluate_record(x_um: np.ndarray, x_hat_um: np.ndarray, splits: Sequence[Blo
                           "train": train, "validation": held})
     return {"train_rms_um": mean_of(per_block, "train"), "validation_rms_um": mean_of(per_block, "validation"),
             "blocks": per_block}
+
+
+def evaluate_records(records: Sequence, predictions: Sequence[np.ndarray], own_axis_only: bool = False) -> dict:
+    """Per-record ``evaluate_record`` (labelled ``dataset_id``) over each record's block splits
+    (``own_axis_only``: the blocks that drive its axis), and train/held-out means over all blocks."""
+    per, blocks = [], []
+    for r, x_hat in zip(records, predictions):
+        fig = evaluate_record(r.x_um, x_hat, r.splits_of(own_axis_only))
+        per.append({"dataset_id": r.label, **fig})
+        blocks += fig["blocks"]
+    return {"train_rms_um": mean_of(blocks, "train"), "validation_rms_um": mean_of(blocks, "validation"),
+            "per_dataset": per}
+
+
+def max_of(per_block: Sequence[dict], part: str) -> float | None:
+    """Largest absolute error (µm) over blocks of ``part`` (train or validation); None if none has it."""
+    values = [b[part]["max_abs_um"] for b in per_block if b[part]["max_abs_um"] is not None]
+    return float(max(values)) if values else None
 
 
 def mean_of(per_block: Sequence[dict], part: str, key: str = "rms_um") -> float | None:

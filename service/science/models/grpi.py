@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.science.models.base import HysteresisModel, Signal
+from service.science.models.base import HysteresisModel
+from service.science.models.contract import Drive
 from service.science.models.inverse import numerical_inverse
 from service.science.models.kernels import envelope_play_operators, grpi_envelopes
 from service.science.fitting.lsq import Block, separable_least_squares, stack_blocks
@@ -36,22 +37,22 @@ class GRPI(HysteresisModel):
     def envelope(self) -> tuple[float, float, float, float]:
         return tuple(getattr(self, k) for k in ENVELOPE_NAMES)
 
-    def operator_outputs(self, signal: Signal, envelope=None) -> np.ndarray:
+    def operator_outputs(self, drive: Drive, envelope=None) -> np.ndarray:
         """Rate-dependent play-operator outputs (n, n_operators) in V."""
         a1, a2, b1, b2 = self.envelope if envelope is None else envelope
-        du, _ = signal.derivatives()
-        h_l, h_r = grpi_envelopes(self.operator_input(signal.u_v), du, a1, a2, b1, b2)
+        du, _ = drive.derivatives()
+        h_l, h_r = grpi_envelopes(self.operator_input(drive.u_v), du, a1, a2, b1, b2)
         return envelope_play_operators(h_l, h_r, self.thresholds_v)
 
-    def blocks(self, signal: Signal, envelope=None) -> list[Block]:
-        p = self.operator_outputs(signal, envelope)
+    def blocks(self, drive: Drive, envelope=None) -> list[Block]:
+        p = self.operator_outputs(drive, envelope)
         return [Block.make("weights_um_per_v", p, lower=0.0)] + self._offset_blocks(p.shape[0])
 
     def fit(self, data, row_weights=None) -> "GRPI":
         """Weights by bounded LS inside a least-squares search over (a1, a2, b1, b2);
         ``row_weights`` as in :meth:`HysteresisModel.fit`."""
         items, target, row_weights = self._prepare(data, row_weights)
-        signals = [Signal(s) for s in items]
+        signals = [Drive.of(s) for s in items]
         speed = max(float(np.max(np.abs(s.derivatives()[0]))) for s in signals)
         span = max(float(np.ptp(s.u_v)) for s in signals)
         a_scale = span / speed if speed > 0 else 1.0  # a2|u̇| of order the drive span at scale 1
@@ -68,8 +69,7 @@ class GRPI(HysteresisModel):
         self.fit_report = {"nfev": sol.nfev, "njev": sol.njev, "message": sol.message}
         return self
 
-    def inverse(self, x_ref_um, sample_rate_hz: float, du_v_per_s=None, refinements: int = 0,
-                u_limits_v=(-np.inf, np.inf)):
+    def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None, du_v_per_s=None, refinements: int = 0):
         """Voltage (V) for ``x_ref_um``; |u̇| as in :func:`numerical_inverse`."""
         self._require_fitted()
         u_v = numerical_inverse(self.in_model_direction(x_ref_um), self.thresholds_v,

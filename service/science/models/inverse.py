@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from service.science.models.data import finite_array
+from service.science.data.record import finite_array
 from service.science.models.kernels import dynamic_weight_shift, gpi_step, play_operators
-from service.science.data.signals import savgol_derivatives
+from service.science.data.signals import drive_derivatives
 
 
 def analytic_inverse_parameters(thresholds_v, weights_um_per_v) -> tuple[np.ndarray, np.ndarray]:
@@ -180,9 +180,9 @@ def numerical_inverse(
     if du_v_per_s is None:
         zeros = np.zeros(x.size)
         u = solve((a1, 0.0, b1, 0.0), np.zeros(4), np.zeros(4), zeros, zeros)
-        du, ddu = savgol_derivatives(u, float(sample_rate_hz))
+        du, ddu = drive_derivatives(u, float(sample_rate_hz))
     u = solve((a1, a2, b1, b2), alpha, beta, du, ddu)
     for _ in range(int(refinements)):
-        du, ddu = savgol_derivatives(u, float(sample_rate_hz))
+        du, ddu = drive_derivatives(u, float(sample_rate_hz))
         u = solve((a1, a2, b1, b2), alpha, beta, du, ddu)
     return u

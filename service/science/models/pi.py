@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.science.models.base import HysteresisModel, Signal
+from service.science.models.base import HysteresisModel
+from service.science.models.contract import Drive
 from service.science.models.inverse import analytic_pi_inverse, numerical_inverse
 from service.science.models.kernels import play_operators, segment_index
 from service.science.fitting.lsq import Block
@@ -21,11 +22,21 @@ class StaticPI(HysteresisModel):
     name = "static_pi"
     _param_names = ("weights_um_per_v", "offset_um")
 
-    def blocks(self, signal: Signal) -> list[Block]:
-        p = play_operators(self.operator_input(signal.u_v), self.thresholds_v)
+    def blocks(self, drive: Drive) -> list[Block]:
+        p = play_operators(self.operator_input(drive.u_v), self.thresholds_v)
         return [Block.make("weights_um_per_v", p, lower=0.0)] + self._offset_blocks(p.shape[0])
 
-    def inverse(self, x_ref_um, sample_rate_hz=None, method: str = "analytic", u_limits_v=(-np.inf, np.inf)):
+    @classmethod
+    def for_effects(cls, effects, n_operators: int = 10, parent=None):
+        """A static PI for 'hysteresis' alone; with further effects, the composite model (whose
+        base is this static PI) of ``hysteresis + effects``."""
+        if set(effects) - {"hysteresis"}:
+            from service.science.discovery.composite import CompositeModel
+
+            return CompositeModel.for_effects(effects, n_operators, parent)
+        return cls(n_operators=n_operators)
+
+    def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None, method: str = "analytic"):
         """Voltage (V) that makes the model output ``x_ref_um`` from relaxed operators.
 
         ``method="analytic"`` is eq. 14–17 (needs ω_1 > 0; ignores ``u_limits_v``);
@@ -62,6 +73,7 @@ class DynamicPI(HysteresisModel):
 
     name = "dynamic_pi"
     rate_dependent = True
+    described_effects = ("hysteresis", "rate_dependence")
     _param_names = ("weights_um_per_v", "alpha_um_per_v2_s", "beta_um_per_v2_s2", "offset_um")
 
     def __init__(self, n_operators: int = 10, thresholds_v=None, fit_offset: bool = True):
@@ -69,9 +81,9 @@ class DynamicPI(HysteresisModel):
         self.alpha_um_per_v2_s = np.zeros(4)
         self.beta_um_per_v2_s2 = np.zeros(4)
 
-    def blocks(self, signal: Signal) -> list[Block]:
-        p = play_operators(self.operator_input(signal.u_v), self.thresholds_v)
-        du, ddu = signal.derivatives()
+    def blocks(self, drive: Drive) -> list[Block]:
+        p = play_operators(self.operator_input(drive.u_v), self.thresholds_v)
+        du, ddu = drive.derivatives()
         col_a, col_b = segment_columns(du, ddu, p.sum(axis=1))
         return [
             Block.make("weights_um_per_v", p, lower=0.0),
@@ -89,12 +101,13 @@ class DynamicPI(HysteresisModel):
         model.u_origin_v = static.u_origin_v
         return model
 
-    def inverse(self, x_ref_um, sample_rate_hz: float, du_v_per_s=None, ddu_v_per_s2=None,
-                refinements: int = 0, u_limits_v=(-np.inf, np.inf)):
+    def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None, du_v_per_s=None, ddu_v_per_s2=None,
+                refinements: int = 0):
         """Voltage (V) for reference ``x_ref_um`` sampled at ``sample_rate_hz``.
 
-        u̇, ü are the given ones, else those of the static inverse of the reference
-        (see :func:`numerical_inverse`); ``refinements`` re-solves with the answer's own.
+        u̇, ü of the answer are ``du_v_per_s``/``ddu_v_per_s2`` when known (a planned waveform),
+        else those of the static inverse of the reference (see :func:`numerical_inverse`);
+        ``refinements`` re-solves with the answer's own.
         """
         self._require_fitted()
         return numerical_inverse(
