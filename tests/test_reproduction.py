@@ -1,11 +1,14 @@
 """The paper's models on the emulated bench: dynamic PI beats static PI where the physics is rate dependent."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
+from service.reports.calibration import FREQUENCIES_HZ
+from service.reports.reproduction import MODEL_COLUMNS, PAPER_TABLE6_UM, render_markdown, sweep_series
 from service.science.models import DynamicPI, StaticPI
-from service.reports.reproduction import render_markdown, sweep_series
 
 
 def _mean_rms(model, loops) -> float:
@@ -35,10 +38,39 @@ def test_dynamic_pi_gains_nothing_on_rate_independent_emulated_data():
         assert dynamic <= static + 1e-12 and static / dynamic < 1.1, (axis, static, dynamic)
 
 
+def _table_figures(markdown: str) -> dict:
+    """The figures of the first Markdown table in ``markdown``: {(axis, frequency Hz): {column
+    heading: the numbers in that cell}}; the formatting (widths, separators, digits) is not read."""
+    lines = [line for line in markdown.splitlines() if line.startswith("|")]
+    heading = [cell.strip() for cell in lines[0].strip("|").split("|")]
+    figures = {}
+    for line in lines[2:]:
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        key = (cells[0].lower(), float(re.search(NUMBER, cells[1]).group()))
+        figures[key] = {h: tuple(float(x) for x in re.findall(NUMBER, c)) for h, c in zip(heading[2:], cells[2:])}
+    return figures
+
+
+NUMBER = r"-?\d+(?:\.\d+)?"
+#: Each fitted model and the words of its column's heading.
+HEADINGS = {"dynamic_joint": "exact LS", "dynamic_two_stage": "two-stage", "dynamic_pso": "PSO", "grpi": "GRPI",
+            "static": "static PI"}
+
+
 def test_reproduction_table_has_every_model_and_the_papers_figures():
-    fake = {axis: {"rms_um": {m: {f"{f:g} Hz": 0.1 for f in (1.0, 10.0, 50.0, 100.0)}
-                              for m in ("dynamic_joint", "dynamic_two_stage", "dynamic_pso", "grpi", "static")},
-                   "fit_s": {"static": 0.01}} for axis in ("y", "z")}
-    text = render_markdown(fake)
-    assert "| Y | 10 Hz | 0.1000 | 0.1000 | 0.1000 | 0.1000 | 0.1000 | 0.0586 / 0.0933 / 0.0991 |" in text
-    assert "| Z | 100 Hz |" in text and "0.1039 / 0.1326 / 0.1513" in text
+    """Each model's RMS sits in its own column at its axis and frequency (4 decimals, as stated in
+    the table), and the paper's Table 6 figures beside them where the paper has them."""
+    def figure(axis, model, f_hz):        # a different figure in every cell
+        return round(0.01 * (1 + MODEL_COLUMNS.index(model)) + f_hz / 10_000 + (0.5 if axis == "z" else 0.0), 4)
+
+    result = {axis: {"rms_um": {m: {f"{f:g} Hz": figure(axis, m, f) for f in FREQUENCIES_HZ} for m in MODEL_COLUMNS},
+                     "fit_s": {"static": 0.01}} for axis in ("y", "z")}
+    figures = _table_figures(render_markdown(result))
+    assert set(figures) == {(axis, f) for axis in ("y", "z") for f in FREQUENCIES_HZ}
+    for (axis, f_hz), row in figures.items():
+        for model, words in HEADINGS.items():
+            [column] = [h for h in row if words in h and not h.startswith("paper")]
+            assert row[column] == pytest.approx((figure(axis, model, f_hz),), abs=5e-5), (axis, f_hz, model)
+        [paper] = [h for h in row if h.startswith("paper")]
+        expected = PAPER_TABLE6_UM[axis].get(f_hz, ())
+        assert row[paper] == pytest.approx(expected, abs=5e-5), (axis, f_hz)
