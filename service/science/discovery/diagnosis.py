@@ -63,7 +63,8 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
         shape = (f"a parabola in the drive carries {100 * v:.0f} % of the loop residual: " if v is not None else "")
         return (shape + "the loop is not point-symmetric about its centre even with finer operators, which draw any "
                 "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
-                "not of time or rate (a gauge's own curvature would bend the output as a function of x instead)")
+                "not of time or rate (a gauge's own curvature would bend the output as a function of x instead): "
+                "asymmetry")
     if name == "cross_coupling":
         r = sig.get("coupling_r")
         return (f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling" if r is not None
