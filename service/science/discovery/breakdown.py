@@ -5,17 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.fitting.metrics import rms
 from service.science.models.kernels import segment_index
 
 SEGMENTS = ("rising, accelerating", "rising, decelerating", "falling, accelerating", "falling, decelerating")
 
 
-def _rms(x) -> float:
-    return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0
-
-
 def _held_rows(rec) -> np.ndarray:
-    mask = np.zeros(rec.n, dtype=bool)
+    mask = np.zeros(rec.n_samples, dtype=bool)
     for s in rec.splits:
         mask[s.held_out[0]:s.held_out[1]] = True
     return mask
@@ -26,22 +23,22 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
     places = []
     for rec, res in zip(records, residuals):
         held = _held_rows(rec)
-        seg = segment_index(np.ascontiguousarray(rec.du), np.ascontiguousarray(rec.ddu))
+        seg = segment_index(np.ascontiguousarray(rec.du_v_per_s), np.ascontiguousarray(rec.ddu_v_per_s2))
         for s in rec.splits:
             rows = slice(*s.held_out)
             f = s.block.get("frequency_hz")
             where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
-            places.append((f"{rec.label} {where}", _rms(res[rows]), "frequency"))
+            places.append((f"{rec.label} {where}", rms(res[rows]), "frequency"))
         for k, name in enumerate(SEGMENTS):
             m = held & (seg == k)
-            places.append((f"{rec.label} {name} branch", _rms(res[m]), "branch"))
-        speed = np.abs(rec.du)
+            places.append((f"{rec.label} {name} branch", rms(res[m]), "branch"))
+        speed = np.abs(rec.du_v_per_s)
         slow = held & (speed < 0.1 * np.percentile(speed[held], 95))
-        places.append((f"{rec.label} turning points (|u̇| < 10 % of its peak)", _rms(res[slow]), "turning points"))
+        places.append((f"{rec.label} turning points (|u̇| < 10 % of its peak)", rms(res[slow]), "turning points"))
         lo, hi = np.percentile(rec.u_v[held], [33, 67])
         for name, m in (("low third of the drive", rec.u_v < lo), ("top third of the drive", rec.u_v > hi)):
             bound = f"u {'<' if 'low' in name else '>'} {lo if 'low' in name else hi:.3g} V"
-            places.append((f"{rec.label} {name} ({bound})", _rms(res[held & m]), "amplitude"))
+            places.append((f"{rec.label} {name} ({bound})", rms(res[held & m]), "amplitude"))
     places.sort(key=lambda p: -p[1])
     return [{"where": w, "rms_um": round(v, 6), "by": by,
              "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"} for w, v, by in places[:top]]
@@ -51,8 +48,8 @@ def signatures(records, residuals, predictions) -> dict:
     """Numbers the evidence strings quote, from the current model's residual on every block."""
     lags, rms_f, trend, logslope, even, coupling, rate_r = [], [], [], [], [], [], []
     for rec, res, pred in zip(records, residuals, predictions):
-        dpred = np.gradient(pred, 1.0 / rec.fs_hz)
-        s_rate = rec.du * (rec.u_v - rec.u_v.min())
+        dpred = np.gradient(pred, 1.0 / rec.sample_rate_hz)
+        s_rate = rec.du_v_per_s * (rec.u_v - rec.u_v.min())
         for s in rec.splits:
             a, b = s.train[0], s.held_out[1]
             r, d = res[a:b] - res[a:b].mean(), dpred[a:b]
@@ -61,19 +58,19 @@ def signatures(records, residuals, predictions) -> dict:
             if moves and np.dot(d, d) > 0:
                 design = np.column_stack([np.ones(b - a), pred[a:b], d])  # r ≈ c + g·x̂ − τ·dx̂/dt
                 lags.append((f, float(-np.linalg.lstsq(design, res[a:b], rcond=None)[0][2]), float(np.dot(d, d))))
-                rms_f.append((f, _rms(r)))
+                rms_f.append((f, rms(r)))
                 if np.std(s_rate[a:b]) > 0 and np.std(r) > 0:
                     rate_r.append(abs(float(np.corrcoef(r, s_rate[a:b])[0, 1])))
                 u = rec.u_v[a:b]
                 centre = 0.5 * (u.max() + u.min())
                 uu = (u - centre) / max(0.5 * np.ptp(u), 1e-9)
                 c = np.polyfit(uu, r, 2)
-                even.append(float(np.sqrt(np.mean((c[0] * (uu**2 - np.mean(uu**2))) ** 2)) / max(_rms(r), 1e-300)))
+                even.append(float(np.sqrt(np.mean((c[0] * (uu**2 - np.mean(uu**2))) ** 2)) / max(rms(r), 1e-300)))
                 period = int(round(rec.period_samples(s) or (b - a)))
                 n_cyc = (b - a) // max(period, 1)
                 if n_cyc >= 2:
                     means = res[a:a + n_cyc * period].reshape(n_cyc, period).mean(axis=1)
-                    tc = (np.arange(n_cyc) + 0.5) * period / rec.fs_hz
+                    tc = (np.arange(n_cyc) + 0.5) * period / rec.sample_rate_hz
                     trend.append(float(np.polyfit(tc, means, 1)[0]))
                     logslope.append(float(np.polyfit(np.log10(tc), means, 1)[0]))
             elif rec.u_other_v is not None and np.ptp(rec.u_other_v[a:b]) > 1e-6 and np.std(r) > 0:

@@ -39,7 +39,7 @@ def drive_rates_hz(records) -> list[float]:
                 continue
             period = r.period_samples(s)
             if period:
-                rates.append(r.fs_hz / period)
+                rates.append(r.sample_rate_hz / period)
     distinct: list[float] = []
     for f in sorted(rates):
         if not distinct or f > distinct[-1] * 1.05:
@@ -56,7 +56,7 @@ def other_axis_independence(records) -> float | None:
         if r.u_other_v is None:
             continue
         seen = True
-        a = np.column_stack([r.u_v, np.ones(r.n)])
+        a = np.column_stack([r.u_v, np.ones(r.n_samples)])
         coef, *_ = np.linalg.lstsq(a, r.u_other_v, rcond=None)
         rest = r.u_other_v - a @ coef
         centred = r.u_other_v - r.u_other_v.mean()

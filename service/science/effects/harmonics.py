@@ -57,8 +57,8 @@ def harmonic_data(records, columns) -> HarmonicData:
             ac, xc = mean_cycle(a[lo:hi], m), mean_cycle(rec.x_um[lo:hi], m)
             if ac is None:
                 continue
-            f0 = rec.fs_hz / m
-            k_max = min(HARMONICS_PER_BLOCK, m // 2 - 1, int(MAX_HARMONIC_FRACTION_OF_FS * rec.fs_hz / f0))
+            f0 = rec.sample_rate_hz / m
+            k_max = min(HARMONICS_PER_BLOCK, m // 2 - 1, int(MAX_HARMONIC_FRACTION_OF_FS * rec.sample_rate_hz / f0))
             if k_max < 1:
                 continue
             freqs.append(f0 * np.arange(1, k_max + 1))
