@@ -250,7 +250,11 @@ def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
     """Stack strain (µm): reversible + relaxing switched part (the axis's family) + electrostriction,
     temperature-scaled, plus creep (first-order modes with log-spaced time constants)."""
     if pa[a, P_HYST_ON] > 0.5:
-        xeq = pa[a, P_KSW_UM] * (switched_update(pa, sa, tp, ps, ev, a, u) - pa[a, P_S0])
+        # Bouc–Wen and Maxwell-slip switch on the amplifier's noise-free output: a Duhem-type law
+        # takes every mV reversal of the output noise as a new branch and drifts at rest (2 mV rms
+        # at 20 kHz is 56 V/s of path), which no stack does; Preisach's relays ignore such dither.
+        u_sw = u if pa[a, P_FAMILY] == FAM_PREISACH else sa[a, S_VOUT]
+        xeq = pa[a, P_KSW_UM] * (switched_update(pa, sa, tp, ps, ev, a, u_sw) - pa[a, P_S0])
     else:
         xeq = pa[a, P_LIN_UM_PER_V] * u
     inv_sat = pa[a, P_SAT_INV]
