@@ -1,9 +1,9 @@
 """When a candidate effect is claimed: a held-out comparison with a stated false-claim basis.
 
 The comparison is between two fitted models, a *reference* and the reference plus the candidate,
-on the held-out cycles only (never fitted), each block's residual less its training-rows mean (the
-vertical position of a block's loop is history the base may get wrong; what a candidate must
-explain is what changes within the block). Each held-out stretch is cut into segments of about
+on the held-out cycles only (never fitted), each block's residual less its mean over the last
+training cycle (the vertical position of a block's loop is history the base may get wrong; what a
+candidate must explain is what changes after the training cycles). Each held-out stretch is cut into segments of about
 an eighth of a cycle (a 64th of a non-periodic stretch); per segment, the improvement is the drop
 in mean squared residual. A candidate is **claimed** when both hold:
 
@@ -44,15 +44,18 @@ def _segments(rec, split) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(edges[:-1], edges[1:]) if e > s]
 
 
-def _offset_free(residual: np.ndarray, split) -> np.ndarray:
-    """The residual less its mean over the block's training rows: where the loop sits vertically in
-    one block is history the base may get wrong (a Bouc–Wen or Maxwell-slip stack has no wiping-out
-    memory, so it comes to rest elsewhere than a Preisach model predicts); a candidate must explain
-    what changes *within* the block — the held-out cycles come after the training ones."""
+def _offset_free(residual: np.ndarray, rec, split) -> np.ndarray:
+    """The residual less its mean over the block's last training cycle (the last fifth of the
+    training rows of a non-periodic block): where the loop sits vertically in one block is history
+    the base may get wrong (a Bouc–Wen or Maxwell-slip stack has no wiping-out memory, so it comes to
+    rest elsewhere than a Preisach model predicts); a candidate must explain what changes *after*
+    the training cycles — the held-out ones come last."""
     out = residual.copy()
-    a, b = split.train
-    if b > a:
-        out[a:split.held_out[1]] -= float(np.mean(residual[a:b]))
+    a, cut = split.train
+    period = rec.period_samples(split)
+    start = max(a, cut - int(round(period)) if period else cut - (cut - a) // 5)
+    if cut > start:
+        out[a:split.held_out[1]] -= float(np.mean(residual[start:cut]))
     return out
 
 
@@ -66,7 +69,7 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
             a, b = s.held_out
             if b - a < 2:
                 continue
-            e0, e1 = _offset_free(r0, s), _offset_free(r1, s)
+            e0, e1 = _offset_free(r0, rec, s), _offset_free(r1, rec, s)
             per_stretch.append(float(np.mean(e0[a:b] ** 2) - np.mean(e1[a:b] ** 2)))
             diffs += [float(np.mean(e0[i:j] ** 2) - np.mean(e1[i:j] ** 2)) for i, j in _segments(rec, s)]
     d = np.asarray(diffs)
