@@ -159,7 +159,10 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             continue
         why_not = not_testable(name, records)
         if why_not is not None:
-            untestable.append({**why_not, "kind": eff.kind, "testable": False, "claimed": False})
+            untestable.append({**why_not, "kind": eff.kind, "testable": False, "claimed": False, "high": False,
+                               "significant": False, "score": 0.0, "p_value": 1.0, "gain_mse_um2": 0.0,
+                               "expected_rms_um": v0, "excess_removed": 0.0, "added_parameters": 0,
+                               "evidence": f"not testable: {why_not['reason']}", "signature": eff.signature})
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor))
     # claimed physics first (largest held-out gain first), then the rest by gain; capacity last
