@@ -59,7 +59,7 @@ class Record:
 
     def __init__(self, u_v, x_um, sample_rate_hz: float, *, du_v_per_s=None, ddu_v_per_s2=None,
                  label: str = "", blocks: list | None = None, axis: str | None = None, u_other_v=None,
-                 x_other_um=None, hold_out: bool = False):
+                 x_other_um=None, hold_out: bool = False, temp_c=None):
         where = f"record '{label}': " if label else ""
         try:
             fs = float(sample_rate_hz)
@@ -70,7 +70,7 @@ class Record:
         u = finite_array("u_v", u_v, label)
         arrays = {}
         for name, values in (("x_um", x_um), ("du_v_per_s", du_v_per_s), ("ddu_v_per_s2", ddu_v_per_s2),
-                             ("u_other_v", u_other_v), ("x_other_um", x_other_um)):
+                             ("u_other_v", u_other_v), ("x_other_um", x_other_um), ("temp_c", temp_c)):
             arrays[name] = None if values is None else finite_array(name, values, label)
             if arrays[name] is not None and arrays[name].size != u.size:
                 raise ValueError(f"{where}u_v has {u.size} samples but {name} has {arrays[name].size}")
@@ -85,6 +85,7 @@ class Record:
                 f"{period / fs * 1e3:.4g} ms at {fs:g} Hz); at least {MIN_SAMPLES_PER_CYCLE} are needed")
         self.u_v, self.x_um, self.sample_rate_hz, self.label = u, arrays["x_um"], fs, str(label)
         self.u_other_v, self.x_other_um = arrays["u_other_v"], arrays["x_other_um"]
+        self.temp_c = arrays["temp_c"]          #: the stack's temperature (°C) where a thermometer read it
         self.axis, self.hold_out = axis, bool(hold_out)
         self._table = list(blocks) if blocks else None
         self._dominant_period = period

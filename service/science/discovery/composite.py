@@ -100,10 +100,12 @@ class CompositeModel:
 
     def _context(self, drive: Drive) -> RecordContext:
         du, ddu = drive.derivatives()
-        return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um)
+        return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um,
+                            getattr(drive, "temp_c", None))
 
     def context(self, u_v: np.ndarray, sample_rate_hz: float, du: np.ndarray, ddu: np.ndarray,
-                u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None) -> RecordContext:
+                u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None,
+                temp_c: np.ndarray | None = None) -> RecordContext:
         """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
         origin = self.u_origin_v
@@ -115,8 +117,11 @@ class CompositeModel:
         if time_scale_s is None:
             raise ValueError("this composite model was stored before its time scale was kept: refit it "
                              "(POST /api/models/{id}/refine with its own effects)")
+        temp_ref = self.scales.get("temp_ref_c")
+        temp_dev = None if temp_c is None or temp_ref is None else np.asarray(temp_c, dtype=float) - temp_ref
         return RecordContext(u_v, sample_rate_hz, p, du, ddu, u_other_v, p_other, self.scales["min_period_s"],
-                             1.0 / self.scales["min_period_s"], self.scales["u_scale_v"], time_scale_s, x_other_um)
+                             1.0 / self.scales["min_period_s"], self.scales["u_scale_v"], time_scale_s, x_other_um,
+                             temp_dev)
 
     def raw_blocks(self, drive: Drive) -> list[Block]:
         """Hysteresis, offset and additive effect blocks of one drive (before transforms)."""
@@ -147,6 +152,9 @@ class CompositeModel:
         self.scales = {"u_origin_v": origin, "u_scale_v": max(float(np.max(np.abs(r.u_v - origin))) for r in records),
                        "min_period_s": min(r.min_period_s() for r in records),
                        "time_scale_s": max(r.n_samples / r.sample_rate_hz for r in records)}
+        temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
+        if temps:
+            self.scales["temp_ref_c"] = float(np.mean(np.concatenate(temps)))
 
     def fit(self, records, fixed_theta: dict | None = None,
             exclude_frequency_hz: float | None = None) -> "CompositeModel":

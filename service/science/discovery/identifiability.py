@@ -13,6 +13,7 @@ body that would test it, and it is never claimed. The rules, in words:
   apart needs a hold after a step (creep relaxes and reverses with the step, drift does not),
   which the ambiguity report asks for.
 - ``asymmetry``: a drive that spans a range (any loop).
+- ``temperature``: a ``temp_c`` column that varies by at least MIN_TEMPERATURE_SPAN_K.
 Pure numpy: no store, no HTTP.
 """
 from __future__ import annotations
@@ -28,6 +29,8 @@ MIN_RATE_RATIO = 2.0
 INDEPENDENT_SHARE = 0.05
 
 RATE_EFFECTS = ("rate_dependence", "delay", "dynamics")
+#: a temperature effect needs the recorded temperature to span at least this much (K)
+MIN_TEMPERATURE_SPAN_K = 0.5
 
 
 def drive_rates_hz(records) -> list[float]:
@@ -91,6 +94,17 @@ def not_testable(effect: str, records) -> dict | None:
                               "drive is independent of this axis's): collinear drives make coupling "
                               "indistinguishable from more hysteresis; drive each axis alone",
                     "experiment": {"axes": sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP, "together": False}}
+        return None
+    if effect == "temperature":
+        temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
+        span = float(np.ptp(np.concatenate(temps))) if temps else 0.0
+        if span < MIN_TEMPERATURE_SPAN_K:
+            seen = f"it spans {span:.2f} K" if temps else "the record has no temp_c column"
+            return {"effect": effect,
+                    "reason": f"a temperature effect needs a temp_c column that varies by at least "
+                              f"{MIN_TEMPERATURE_SPAN_K:g} K ({seen}): record the stack's temperature over a run "
+                              "long enough for it to change",
+                    "experiment": {"axes": axes, "waveform": "sine", "frequencies_hz": [1.0], "cycles": 60}}
         return None
     if effect in RATE_EFFECTS:
         rates = drive_rates_hz(records)

@@ -17,7 +17,7 @@ def record_for_axis(label: str, arrays: dict, sample_rate_hz: float, blocks: lis
     u_other = arrays[f"u_{other[0]}_v"] if other else None
     x_other = arrays.get(f"x_{other[0]}_um") if other else None
     return Record(arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], sample_rate_hz, label=label, blocks=blocks,
-                  axis=axis, u_other_v=u_other, x_other_um=x_other, hold_out=True)
+                  axis=axis, u_other_v=u_other, x_other_um=x_other, hold_out=True, temp_c=arrays.get("temp_c"))
 
 
 def records_from_arrays(arrays: dict, sample_rate_hz: float, blocks: list, axes, label: str = "") -> list[Record]:
@@ -50,4 +50,7 @@ def _arrays(rec) -> dict:
     for axis in rec.x_um:
         out[f"u_{axis}_v"] = np.asarray(rec.u_cmd_v[axis], dtype=float)
         out[f"x_{axis}_um"] = np.asarray(rec.x_um[axis], dtype=float)
+    temp = rec.extra.get("temp_c") if getattr(rec, "extra", None) else None
+    if temp is not None and len(temp) == rec.samples:
+        out["temp_c"] = np.asarray(temp, dtype=float)
     return out

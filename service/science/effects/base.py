@@ -24,7 +24,8 @@ class RecordContext:
     ``u_other_v`` the other axis's drive (or None), ``min_period_s`` the shortest drive period
     over the data set, ``time_scale_s`` the longest record's duration over the data set (so that
     time-based columns mean the same seconds in every record, whatever its length), ``x_other_um``
-    the other axis's measured displacement (µm; None when not measured, e.g. in a feedforward inverse).
+    the other axis's measured displacement (µm; None when not measured, e.g. in a feedforward inverse),
+    ``temp_dev_k`` the temperature less its mean over the data set (K; None without a thermometer).
     """
 
     u_v: np.ndarray
@@ -39,6 +40,8 @@ class RecordContext:
     u_scale_v: float
     time_scale_s: float
     x_other_um: np.ndarray | None = None
+    #: the stack's temperature less the data set's mean (K), where the records carry temp_c
+    temp_dev_k: np.ndarray | None = None
     cache: dict = field(default_factory=dict)
 
     @property
