@@ -40,17 +40,44 @@ def authed_client(app: FastAPI, scope: str = "admin", **kwargs) -> TestClient:
     return client
 
 
+ENDED = ("succeeded", "failed", "cancelled")
+
+
 def job_ended(job: dict) -> bool:
-    return job["state"] in ("succeeded", "failed", "cancelled")
+    return job["state"] in ENDED
 
 
-def wait_job(http, job_id: str, until=job_ended, timeout_s: float = 120.0, headers: dict | None = None,
+def job_running(progress: float = 0.0, message: str | None = None):
+    """``until`` for wait_job: the job runs, has reached ``progress`` (and its message contains
+    ``message``). A job that ends first fails the wait at once, naming its state."""
+    def until(job: dict) -> bool:
+        assert job["state"] in ("queued", "running"), f"job {job.get('id')} ended before it ran far enough: {job}"
+        return (job["state"] == "running" and job["progress"] >= progress
+                and (message is None or message in (job.get("message") or "")))
+    return until
+
+
+def _reader(source, headers: dict | None):
+    """``job_id -> job dict`` for ``source``: a callable (JobManager.get, Client.job, ...) is used as
+    it is; anything else is an HTTP client on the service root (TestClient, httpx.Client)."""
+    if callable(source) and not hasattr(source, "get"):
+        return source
+    return lambda job_id: source.get(f"/api/jobs/{job_id}", headers=headers).json()
+
+
+def wait_job(source, job_id: str, until=job_ended, timeout_s: float = 120.0, headers: dict | None = None,
              poll_s: float = 0.02) -> dict:
-    """Poll ``GET /api/jobs/{job_id}`` on ``http`` (a TestClient or an httpx client on the service
-    root) until ``until(job)``; the job, or AssertionError naming its last state after ``timeout_s``."""
+    """The one job poller of the tests: read the job from ``source`` until ``until(job)``; the job,
+    or AssertionError naming its last state after ``timeout_s``.
+
+    ``source`` is an HTTP client on the service root (a TestClient or an httpx client: ``GET
+    /api/jobs/{job_id}``, with ``headers`` if given) or a callable ``job_id -> job`` (the in-process
+    ``JobManager.get``, the Python client's ``Client.job``, a lambda on a client with another root).
+    ``until`` may raise to fail fast (``job_running`` does when the job ends first)."""
+    read = _reader(source, headers)
     deadline = time.monotonic() + timeout_s
     while True:
-        job = http.get(f"/api/jobs/{job_id}", headers=headers).json()
+        job = read(job_id)
         if until(job):
             return job
         assert time.monotonic() < deadline, f"job {job_id} still {job.get('state')} after {timeout_s:g} s: {job}"

@@ -5,7 +5,89 @@ In-process apps (``create_app`` under TestClient) keep the bench in the test's o
 log). Services started as real processes (tests/live_server.py, service_load.spawn_service) run
 the product's default, the bench engine in its own process; tests/test_engine_process.py drives
 that path through the API as well.
+
+Shared here, once per session (per xdist worker):
+
+- ``sweeps``: emulator sweeps (``sweep_records``) that several files ask for with the same
+  arguments; each test gets its own copy.
+- ``postgres_url``: a private PostgreSQL cluster (tests/pg_server.py) for the store tests.
+
+Markers (pyproject.toml): ``slow``, ``realtime``, ``browser``, ``postgres``; ``make test-fast``
+leaves out all four. ``make test`` runs everything on every core (pytest-xdist, ``--dist
+loadgroup``): tests that share an expensive module fixture carry an ``xdist_group`` so that one
+worker builds it, and ``pytest_collection_modifyitems`` below puts the long tests first so that
+the workers finish together.
 """
+from __future__ import annotations
+
+import copy
+import json
 import os
+from pathlib import Path
+
+import pytest
 
 os.environ.setdefault("EVCBENCH_ENGINE", "inline")
+
+# Each xdist worker (and the services its tests start, which inherit the variable) compiles into a
+# numba cache of its own: two processes saving two signatures of one function at the same time can
+# leave the cache index naming the other one's machine code. A single process keeps numba's default.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "numba"
+                                                 / os.environ["PYTEST_XDIST_WORKER"]))
+
+#: Run order under xdist: the marks of a test, heaviest first (a test's weight is its heaviest mark's).
+WEIGHTS = {"slow": 3, "browser": 2, "realtime": 2, "postgres": 1}
+
+
+def _weight(item: pytest.Item) -> int:
+    return max((w for mark, w in WEIGHTS.items() if item.get_closest_marker(mark)), default=0)
+
+
+@pytest.hookimpl(tryfirst=True)      # before xdist reads the groups (it appends them to the node ids)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The PostgreSQL tests share one worker (one cluster); the slow tests go first, then the
+    real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together.
+    A group (xdist_group) stays together, at the place of its heaviest test, so that its module
+    fixtures are built once."""
+    for item in items:
+        if item.get_closest_marker("postgres"):
+            item.add_marker(pytest.mark.xdist_group("postgres"))
+    units: dict[str, list[int]] = {}
+    for index, item in enumerate(items):
+        group = item.get_closest_marker("xdist_group")
+        units.setdefault(f"group:{group.args[0]}" if group else item.nodeid, []).append(index)
+    order = sorted(units.values(), key=lambda unit: (-max(_weight(items[i]) for i in unit), unit[0]))
+    items[:] = [items[i] for unit in order for i in unit]
+
+
+@pytest.fixture(scope="session")
+def sweeps():
+    """``sweeps(bench, seed=0, **plan) -> {axis: Record}``: ``sweep_records`` of
+    service.science.discovery.records (a standard characterisation of an emulated bench unless
+    ``plan`` says otherwise), run once per session for each set of arguments. Every call returns a
+    deep copy, so a test that changes its records changes no other test's."""
+    from service.science.discovery.records import sweep_records
+
+    done: dict[str, dict] = {}
+
+    def sweep(bench: str, seed: int = 0, **plan) -> dict:
+        key = json.dumps([bench, seed, plan], sort_keys=True, default=repr)
+        if key not in done:
+            done[key] = sweep_records(bench, seed, **plan)
+        return copy.deepcopy(done[key])
+
+    return sweep
+
+
+@pytest.fixture(scope="session")
+def postgres_url():
+    """A private PostgreSQL cluster for the session (each xdist worker that asks starts its own, in
+    its own temp dir on a free port). If it cannot start, the tests error (loudly), unless
+    EVCBENCH_SKIP_POSTGRES=1 asks to skip them."""
+    from pg_server import postgres_server
+
+    if os.environ.get("EVCBENCH_SKIP_POSTGRES") == "1":
+        pytest.skip("EVCBENCH_SKIP_POSTGRES=1: PostgreSQL store tests skipped on request")
+    with postgres_server() as url:
+        yield url

@@ -1,4 +1,5 @@
-"""``evcbench serve`` as a real process on a free loopback port, for end-to-end and browser tests."""
+"""``evcbench serve`` as a real process on a free loopback port, for end-to-end and browser tests
+(its own data dir and log under the test's tmp_path, so xdist workers never share one)."""
 from __future__ import annotations
 
 import signal
@@ -19,7 +20,15 @@ class Server:
     def __init__(self, data_dir: Path, log: Path, bench: str = "default", seed: int = 1):
         self.log = log
         self.data_dir = Path(data_dir)
-        self.proc, self.url = spawn_service(self.data_dir, bench, log, seed=seed)
+        for attempt in range(3):
+            try:
+                self.proc, self.url = spawn_service(self.data_dir, bench, log, seed=seed)
+                break
+            except RuntimeError as exc:
+                # The free port is found by binding port 0 and closing it: under pytest-xdist another
+                # worker's service may take it before this one binds. Another free port then.
+                if attempt == 2 or "address already in use" not in str(exc).lower():
+                    raise
         self.port = httpx.URL(self.url).port
         self.token = read_bootstrap_token(self.data_dir)
 

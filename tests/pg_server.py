@@ -56,7 +56,6 @@ def postgres_server() -> Iterator[str]:
         shutil.chown(root, user="postgres", group=None)
         as_user = [runuser, "-u", "postgres", "--"]
     data, log = root / "data", root / "server.log"
-    port = free_port()
 
     def run(*cmd: str) -> None:
         result = subprocess.run([*as_user, *cmd], capture_output=True, text=True, timeout=120, cwd=root)
@@ -68,8 +67,17 @@ def postgres_server() -> Iterator[str]:
     started = False
     try:
         run(str(bin_dir / "initdb"), "-D", str(data), "-U", "evc", "--auth=trust", "-E", "UTF8", "--no-sync")
-        options = f"-p {port} -k {root} -c listen_addresses=127.0.0.1 -c fsync=off"
-        run(str(bin_dir / "pg_ctl"), "-D", str(data), "-o", options, "-l", str(log), "-w", "-t", "60", "start")
+        for attempt in range(3):
+            # A port found free may be taken before the server binds it (another xdist worker's
+            # cluster or service): then another one.
+            port = free_port()
+            options = f"-p {port} -k {root} -c listen_addresses=127.0.0.1 -c fsync=off"
+            try:
+                run(str(bin_dir / "pg_ctl"), "-D", str(data), "-o", options, "-l", str(log), "-w", "-t", "60", "start")
+                break
+            except PostgresUnavailable as exc:
+                if attempt == 2 or "already in use" not in str(exc):
+                    raise
         started = True
         run(str(bin_dir / "createdb") if (bin_dir / "createdb").exists() else "createdb",
             "-h", "127.0.0.1", "-p", str(port), "-U", "evc", "evcbench")

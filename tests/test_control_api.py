@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 import dataclasses
-import time
 
 import pytest
 
-from api_client import authed_client
+from api_client import authed_client, job_ended, wait_job
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
 
@@ -26,16 +25,15 @@ def http(tmp_path_factory):
 
 
 def _wait(http, job_id, timeout_s=120.0):
-    deadline = time.monotonic() + timeout_s
+    """The ended job and every message it showed on the way (read by the one poller, wait_job)."""
     seen = set()
-    while time.monotonic() < deadline:
-        job = http.get(f"/api/jobs/{job_id}").json()
+
+    def ended(job):
         if job.get("message"):
             seen.add(job["message"])
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job, seen
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not finish")
+        return job_ended(job)
+
+    return wait_job(http, job_id, until=ended, timeout_s=timeout_s, poll_s=0.05), seen
 
 
 def test_refusals_name_the_field_and_reason(http):
@@ -62,6 +60,7 @@ def test_refusals_name_the_field_and_reason(http):
     assert http.get("/api/jobs").json() == [] or all(j["kind"] != "trajectory" for j in http.get("/api/jobs").json())
 
 
+@pytest.mark.slow
 def test_buffered_ilc_job_reports_error_per_period_and_stores_traces(http):
     body = {"shape": "ellipse", "amplitude_y_um": 4, "amplitude_z_um": 8, "inclination_deg": 20,
             "frequency_hz": 100, "cycles": 25, "mode": "buffered", "controller": {"ilc": True}}
@@ -83,6 +82,7 @@ def test_buffered_ilc_job_reports_error_per_period_and_stores_traces(http):
     assert "ref_y_um" in text and "x_z_um" in text
 
 
+@pytest.mark.slow
 def test_point_by_point_pid_job(http):
     body = {**BASE, "cycles": 5, "controller": {"pid": {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1,
                                                        "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4}}}
@@ -95,6 +95,7 @@ def test_point_by_point_pid_job(http):
     assert len(res["error_per_period_um"]) == 5 and res["error_per_period_um"][-1] < res["error_per_period_um"][0]
 
 
+@pytest.mark.slow
 def test_composite_model_ids_as_feedforward_and_stroke_refusal(http):
     """A discovery composite model (hysteresis + delay + dynamics) stored by POST /api/models is usable
     as feedforward_model_y/z (DESIGN.md §5); a Z range beyond its stroke is refused with the reason."""
@@ -124,6 +125,7 @@ def test_composite_model_ids_as_feedforward_and_stroke_refusal(http):
     assert job["result"]["tripped"] is None and job["result"]["relative_error_pct"] < 6.2
 
 
+@pytest.mark.slow
 def test_a_feedforward_model_whose_inverse_diverges_is_refused_before_the_bench_moves(http):
     """The paper's dynamic PI, fitted on 1/10/50/100 Hz, has an inverse that does not converge at
     100 Hz; a static PI from the same sweep is accepted. The refusal names the field and the miss."""

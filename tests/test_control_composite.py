@@ -16,6 +16,9 @@ CASE1 = Ellipse((1, 6), (1, 11), 0.0, 100.0, 30)
 CASE2 = Ellipse((1, 5), (1, 9), 20.0, 100.0, 30)
 FS = 20_000.0
 
+#: One worker runs the file: the composite feedforward models are a module fixture.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("control_composite")]
+
 
 @pytest.fixture(scope="module")
 def bench():

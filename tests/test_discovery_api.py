@@ -10,6 +10,8 @@ from api_client import authed_client, wait_job
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
 
+pytestmark = pytest.mark.slow      # sweeps, identifications and diagnoses through the API
+
 
 def _wait(http, job_id, timeout_s=120.0) -> dict:
     job = wait_job(http, job_id, timeout_s=timeout_s)

@@ -9,13 +9,16 @@ from __future__ import annotations
 import re
 import warnings
 
-from service.science.discovery.records import sweep_records
+import pytest
+
 from service.science.discovery.loop import discovery_run
 
+pytestmark = pytest.mark.slow      # the longest test: a whole discovery run on the default bench
 
-def test_default_bench_discovery_converges():
+
+def test_default_bench_discovery_converges(sweeps):
     warnings.simplefilter("ignore")
-    record = sweep_records("default", seed=0)["y"]
+    record = sweeps("default", seed=0)["y"]
     steps = discovery_run([record])
     rms = [s["diagnosis"]["residual_rms_um"] for s in steps]
     assert steps[-1]["diagnosis"]["verdict"] == "complete"

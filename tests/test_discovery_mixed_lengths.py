@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.records import sweep_records
 
 
-def test_creep_columns_do_not_depend_on_each_records_length():
-    short = sweep_records("creep", seed=0, frequencies_hz=(50.0,), cycles=3, axes=("y",))["y"]
-    long = sweep_records("creep", seed=1, frequencies_hz=(10.0, 50.0), cycles=5, axes=("y",))["y"]
+def test_creep_columns_do_not_depend_on_each_records_length(sweeps):
+    short = sweeps("creep", seed=0, frequencies_hz=(50.0,), cycles=3, axes=("y",))["y"]
+    long = sweeps("creep", seed=1, frequencies_hz=(10.0, 50.0), cycles=5, axes=("y",))["y"]
     assert long.n > 2 * short.n
     model = CompositeModel(["creep"]).fit([short, long])
     assert model.scales["time_scale_s"] == long.n / long.fs_hz

@@ -8,16 +8,17 @@ import warnings
 import pytest
 
 from service.science.discovery.diagnosis import SEPARATING, diagnose
-from service.science.discovery.records import sweep_records
 
 STEP_HOLD = {"axes": ["y"], **SEPARATING[frozenset(("creep", "drift"))][1]}
 
+pytestmark = pytest.mark.slow      # diagnoses of two records each
+
 
 @pytest.mark.parametrize("bench", ["drift", "creep"])
-def test_separating_experiment_keeps_the_hidden_effect_first(bench):
+def test_separating_experiment_keeps_the_hidden_effect_first(bench, sweeps):
     warnings.simplefilter("ignore")
-    sine = sweep_records(bench, seed=0, axes=("y",))["y"]
-    steps = sweep_records(bench, seed=1, plan=STEP_HOLD)["y"]
+    sine = sweeps(bench, seed=0, axes=("y",))["y"]
+    steps = sweeps(bench, seed=1, plan=STEP_HOLD)["y"]
     assert abs(steps.n / steps.fs_hz - sine.n / sine.fs_hz) > 1.0  # really of different lengths
     d = diagnose([sine, steps])
     ranked = [(c["effect"], round(c["score"], 2)) for c in d["candidates"]]

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from service.science.discovery.diagnosis import diagnose
-from service.science.discovery.records import Record, sweep_records
+from service.science.discovery.records import Record
 from realdata import MODEL_VI_DO as REAL, requires_real_data
+
+pytestmark = pytest.mark.slow      # a diagnosis takes seconds
 
 
 
@@ -21,8 +23,8 @@ def _quiet():
 
 
 @pytest.mark.parametrize("axis", ["y", "z"])
-def test_base_bench_claims_no_physical_effect(axis):
-    record = sweep_records("base", seed=0)[axis]
+def test_base_bench_claims_no_physical_effect(axis, sweeps):
+    record = sweeps("base", seed=0)[axis]
     d = diagnose([record])
     assert d["verdict"] == "complete", d["verdict_text"]  # no physical effect is missing
     assert ("NOT at the noise floor" in d["verdict_text"]) == (not d["at_noise_floor"])

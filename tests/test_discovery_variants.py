@@ -4,6 +4,7 @@ effect first; refining with it must cut the held-out RMS by at least half and th
 must not propose it again."""
 from __future__ import annotations
 
+import copy
 import re
 import warnings
 
@@ -11,7 +12,6 @@ import pytest
 
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.diagnosis import diagnose
-from service.science.discovery.records import sweep_records
 
 #: Known gap (issue 5), Z only: after `dynamics` is added on the dynamics bench, the 10-operator PI's
 #: loop-shape error (≈15 nm at 1 Hz, the continuous Preisach density a PI cannot follow) has a 3rd
@@ -22,6 +22,8 @@ DYNAMICS_INCOMPLETE_Z = pytest.mark.xfail(strict=True, reason="on Z the PI's loo
                                           "291 Hz mode at 100 Hz, is claimed by rate_dependence after the refine")
 VARIANTS = ["creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence"]
 
+pytestmark = pytest.mark.slow      # a diagnosis takes seconds
+
 
 @pytest.fixture(autouse=True)
 def _quiet():
@@ -30,28 +32,41 @@ def _quiet():
         yield
 
 
-@pytest.mark.parametrize("bench", VARIANTS)
-def test_hidden_effect_is_found_and_fixed(bench):
-    record = sweep_records(bench, seed=0)["y"]
-    _found_and_fixed(bench, record)
+def _shared(bench: str) -> pytest.MarkDecorator:
+    """Tests that read the same diagnoses of ``bench`` run on one xdist worker, which computes them once."""
+    return pytest.mark.xdist_group(f"variants-{bench}")
 
 
-@pytest.mark.parametrize("bench", ["creep", "dynamics", "cross_coupling", "asymmetry", "drift", "delay"])
-def test_hidden_effect_is_found_on_z(bench):
-    _found_and_fixed(bench, sweep_records(bench, seed=0)["z"])
+SHARED = {"dynamics", "delay", "drift"}       # their diagnoses are read by more than one test below
 
 
+def _benches(names):
+    return [pytest.param(b, marks=_shared(b)) if b in SHARED else b for b in names]
+
+
+@pytest.mark.parametrize("bench", _benches(VARIANTS))
+def test_hidden_effect_is_found_and_fixed(bench, sweeps):
+    _found_and_fixed(sweeps, bench, "y")
+
+
+@pytest.mark.parametrize("bench", _benches(["creep", "dynamics", "cross_coupling", "asymmetry", "drift", "delay"]))
+def test_hidden_effect_is_found_on_z(bench, sweeps):
+    _found_and_fixed(sweeps, bench, "z")
+
+
+@_shared("dynamics")
 @pytest.mark.parametrize("axis", ["y", pytest.param("z", marks=DYNAMICS_INCOMPLETE_Z)])
-def test_nothing_physical_is_left_after_adding_dynamics(axis):
-    _found_and_fixed("dynamics", sweep_records("dynamics", seed=0)[axis], expect_complete=True)
+def test_nothing_physical_is_left_after_adding_dynamics(axis, sweeps):
+    _found_and_fixed(sweeps, "dynamics", axis, expect_complete=True)
 
 
-def test_ambiguity_names_a_runnable_experiment():
+@_shared("delay")
+def test_ambiguity_names_a_runnable_experiment(sweeps):
     from drivers.emulated import open_bench
     from service.http.sweeps import SweepRequest
     from service.usecases.plans import plan_for_bench, plan_from_dict
 
-    d = diagnose([sweep_records("delay", seed=0)["y"]])
+    d = _first_diagnosis(sweeps, "delay", "y")
     assert d["candidates"][0]["effect"] == "delay"
     amb = d["ambiguity"]
     assert amb and set(amb["effects"]) == {"delay", "rate_dependence"} and "higher-frequency" in amb["text"]
@@ -59,19 +74,41 @@ def test_ambiguity_names_a_runnable_experiment():
     assert plan_for_bench(plan_from_dict(body), open_bench("delay", 0)).samples > 0
 
 
-def test_creep_and_drift_are_not_confused_on_a_sine_sweep():
+@_shared("drift")
+def test_creep_and_drift_are_not_confused_on_a_sine_sweep(sweeps):
     """Creep is bounded to relax in the direction of the drive change, so it cannot pose as a
     drift of the lab: the drift bench's diagnosis is not ambiguous between them."""
-    d = diagnose([sweep_records("drift", seed=0)["y"]])
+    d = _first_diagnosis(sweeps, "drift", "y")
     scores = {c["effect"]: c["score"] for c in d["candidates"]}
     assert d["candidates"][0]["effect"] == "drift" and scores["drift"] - scores["creep"] > 0.3, scores
 
 
-def _found_and_fixed(bench, record, expect_complete: bool | None = None):
+#: Per worker, what several tests read: the diagnosis of the hysteresis-only model of a standard
+#: sweep (bench, axis), and the refined model's held-out RMS and diagnosis. Each test gets a copy.
+_FIRST: dict[tuple[str, str], dict] = {}
+_REFINED: dict[tuple[str, str], tuple[float, dict]] = {}
+
+
+def _first_diagnosis(sweeps, bench: str, axis: str) -> dict:
+    if (bench, axis) not in _FIRST:
+        _FIRST[bench, axis] = diagnose([sweeps(bench, seed=0)[axis]])
+    return copy.deepcopy(_FIRST[bench, axis])
+
+
+def _refined(sweeps, bench: str, axis: str) -> tuple[float, dict]:
+    """The held-out RMS of the model refined with ``bench``'s effect, and its diagnosis."""
+    if (bench, axis) not in _REFINED:
+        record = sweeps(bench, seed=0)[axis]
+        refined = CompositeModel([bench]).fit([record])
+        _REFINED[bench, axis] = (refined.evaluate([record])["validation_rms_um"], diagnose([record], model=refined))
+    return copy.deepcopy(_REFINED[bench, axis])
+
+
+def _found_and_fixed(sweeps, bench, axis, expect_complete: bool | None = None):
     """Ranked first, error halved by the refine, and (unless a known gap) nothing physical left."""
     if expect_complete is None:
         expect_complete = bench != "dynamics"
-    first = diagnose([record])
+    first = _first_diagnosis(sweeps, bench, axis)
     assert first["verdict"] == "missing_effect", first["verdict_text"]
     top = first["candidates"][0]
     assert top["effect"] == bench, [(c["effect"], c["score"]) for c in first["candidates"]]
@@ -80,10 +117,8 @@ def _found_and_fixed(bench, record, expect_complete: bool | None = None):
     assert re.search(r"\d", top["evidence"]) and bench.replace("_", "-") in top["evidence"].replace("_", "-"), \
         top["evidence"]
     before = first["residual_rms_um"]
-    refined = CompositeModel([bench]).fit([record])
-    after = refined.evaluate([record])["validation_rms_um"]
+    after, second = _refined(sweeps, bench, axis)
     assert after <= 0.5 * before, (before, after)
-    second = diagnose([record], model=refined)
     # With the one hidden effect in the model, nothing physical is left to claim.
     claimed = [(c["effect"], round(c["score"], 2)) for c in second["candidates"] if c["kind"] == "physical" and c["high"]]
     if expect_complete:

@@ -13,6 +13,9 @@ import pytest
 
 from service.reports.calibration import PAPER, THRESHOLDS_V, VARIANTS, measure_calibration, play_outputs, sweep_pi_rms
 
+#: One worker runs the file: its calibration and base-bench sweeps are module fixtures.
+pytestmark = pytest.mark.xdist_group("emulator_calibration")
+
 
 def play_reference(u: np.ndarray, r: float, y0: float = 0.0) -> np.ndarray:
     """Numpy reference: y_k = max(u_k − r, min(u_k + r, y_{k−1}))."""

@@ -17,7 +17,10 @@ import pytest
 
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
-from tests.api_client import authed_client, wait_job
+from api_client import authed_client, job_running, wait_job
+
+#: The real-time paced bench in its engine process, a module fixture: one worker runs the file.
+pytestmark = [pytest.mark.realtime, pytest.mark.xdist_group("engine_process")]
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +53,7 @@ def test_sweep_through_the_engine_stores_every_sample(http):
 
 def test_stop_during_a_realtime_sweep_reaches_0v_in_the_engine(http):
     job = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 20}).json()
-    wait_job(http, job["job_id"], until=lambda j: j["state"] == "running" and j["progress"] > 0.02, timeout_s=60)
+    wait_job(http, job["job_id"], until=job_running(0.02), timeout_s=60)
     answer = http.post("/api/bench/stop").json()
     assert answer["stopped"] and answer["cancelled_job_id"] == job["job_id"]
     assert answer["loop_answered"] is True
@@ -68,8 +71,7 @@ def test_trajectory_and_cancel_through_the_engine(http):
             "controller": {"pid": None, "ilc": False}}
     job = http.post("/api/trajectories", json=body).json()
     assert "job_id" in job, job
-    wait_job(http, job["job_id"], until=lambda j: j["state"] == "running" and "period" in (j["message"] or ""),
-             timeout_s=120)
+    wait_job(http, job["job_id"], until=job_running(message="period"), timeout_s=120)
     http.delete(f"/api/jobs/{job['job_id']}")
     done = wait_job(http, job["job_id"], timeout_s=60)
     assert done["state"] == "cancelled", done

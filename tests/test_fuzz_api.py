@@ -25,6 +25,9 @@ from api_client import bearer
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
 
+#: About a minute; one worker runs the whole file (its module app, and the summary it writes at the end).
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("fuzz")]
+
 MAX_EXAMPLES = 80
 SUMMARY = Path(__file__).resolve().parent / "artifacts" / "fuzz_summary.json"
 #: (method path) -> Counter of status codes, written to SUMMARY at the end (the figures of a run)

@@ -11,7 +11,9 @@ import sys
 import time
 
 import httpx
+import pytest
 
+from api_client import job_running, wait_job
 from live_server import ROOT, Server
 
 SAMPLE_RATE_HZ = 20_000.0
@@ -24,17 +26,7 @@ def _store_check(data_dir, *flags) -> tuple[int, dict]:
     return proc.returncode, json.loads(proc.stdout)
 
 
-def _wait_running(client: httpx.Client, job_id: str, timeout_s: float = 60.0) -> float:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = client.get(f"/api/jobs/{job_id}").json()
-        if job["state"] == "running":
-            return time.monotonic()
-        assert job["state"] == "queued", job
-        time.sleep(0.02)
-    raise AssertionError(f"job {job_id} did not start")
-
-
+@pytest.mark.realtime
 def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
     data_dir = tmp_path / "store"
     server = Server(data_dir, tmp_path / "serve1.log", bench="default_realtime")
@@ -45,7 +37,8 @@ def test_kill_9_during_a_sweep_keeps_the_samples_as_a_partial_dataset(tmp_path):
             assert r.status_code == 202, r.text
             job_id = r.json()["job_id"]
             assert r.json()["duration_s"] > 30
-            started = _wait_running(client, job_id)
+            wait_job(client, job_id, until=job_running(), timeout_s=60)
+            started = time.monotonic()
             time.sleep(4.5)
             elapsed_s = time.monotonic() - started
             chunks = sorted((data_dir / "partial" / job_id).glob("chunk_*.npz"))
@@ -176,10 +169,7 @@ def test_a_finished_sweep_leaves_no_chunks(tmp_path):
     with authed_client(create_app(Settings(data_dir=tmp_path, bench="default", seed=1))) as client:
         r = client.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [20.0], "cycles": 40})
         job_id = r.json()["job_id"]
-        deadline = time.monotonic() + 120
-        while (job := client.get(f"/api/jobs/{job_id}").json())["state"] in ("queued", "running"):
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+        job = wait_job(client, job_id, poll_s=0.05)
         assert job["state"] == "succeeded" and job["result"]["partial"] is False
         assert client.get(f"/api/datasets/{job['result']['dataset_id']}").json()["partial"] is False
     assert not (tmp_path / "partial" / job_id).exists()

@@ -221,6 +221,7 @@ def test_a_store_opened_with_the_wrong_database_loses_no_array(tmp_path, capsys)
     assert code == 0 and report["counts"]["quarantine_files"] == 0
 
 
+@pytest.mark.realtime
 def test_kill_9_of_the_service_mid_import_is_clean_after_the_next_start(tmp_path, monkeypatch):
     """A real ``evcbench serve``: an import is SIGKILLed while its array file is being written (a
     start-up hook holds the write there); the next start clears the temporary file and logs it."""

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from api_client import authed_client, wait_job
+from api_client import authed_client, job_running, wait_job
 from drivers.emulated import open_bench
 from drivers.watchdog import SafetyConfig, Watchdog
 from live_server import ROOT, Server
@@ -172,7 +172,7 @@ def test_emergency_stop_preempts_a_sweep_within_one_block(service):
     app, http, stops = service
     job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
     queued_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
-    wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    wait_job(http, job_id, until=job_running(0.01))
     answer = http.post("/api/bench/stop")
     assert answer.status_code == 200 and answer.json()["cancelled_job_id"] == job_id
     assert answer.json()["cancelled_queued_job_ids"] == [queued_id]    # the bench stays still
@@ -189,7 +189,7 @@ def test_emergency_stop_preempts_a_point_by_point_trajectory_within_one_period(s
     started = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 3000})
     assert started.status_code == 202
     job_id = started.json()["job_id"]
-    wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    wait_job(http, job_id, until=job_running(0.01))
     answer = http.post("/api/bench/stop")
     assert answer.status_code == 200 and answer.json()["cancelled_job_id"] == job_id
     job = _assert_stopped(app, http, job_id, stops, max_samples=PERIOD)
@@ -212,6 +212,7 @@ def test_sensor_loss_during_a_trajectory_trips_to_zero_volts_within_one_period(s
     assert ds["samples"] == int(0.3 * FS) - int(0.05 * FS) + PERIOD    # to the end of the fault's period
 
 
+@pytest.mark.realtime
 def test_sigterm_drives_a_live_service_to_zero_volts_and_cancels_its_job(tmp_path: Path):
     log = tmp_path / "output.jsonl"
     bench = tmp_path / "sigterm.toml"
@@ -222,7 +223,7 @@ def test_sigterm_drives_a_live_service_to_zero_volts_and_cancels_its_job(tmp_pat
     import httpx
     with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as http:
         job_id = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 5000}).json()["job_id"]
-        wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+        wait_job(http, job_id, until=job_running(0.01))
     assert server.stop(), (tmp_path / "server.log").read_text()[-3000:]
     entries = [json.loads(line) for line in log.read_text().splitlines()]
     drive = [i for i, e in enumerate(entries) if e["event"] == "period"]
@@ -308,7 +309,7 @@ def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
     server = FakeServer()
     install(server, app)
     job_id = http.post("/api/sweeps", json=LONG_SWEEP).json()["job_id"]
-    wait_job(http, job_id, until=lambda j: j["state"] == "running" and j["progress"] >= 0.01)
+    wait_job(http, job_id, until=job_running(0.01))
     server.handle_exit(signal.SIGINT, None)
     assert calls == [(signal.SIGINT, False)]          # uvicorn's handler ran after the loop had stopped
     job = wait_job(http, job_id)

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import hashlib
 import io
-import time
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
-from api_client import authed_client
+from api_client import authed_client, job_running, wait_job
 from service.runtime.app import create_app
 from service.frontends.client import ApiError, Client
 from service.runtime.settings import Settings
@@ -32,27 +31,6 @@ def service(tmp_path):
     app, http, api = _service(tmp_path)
     with http:
         yield app, api
-
-
-def _wait_state(api: Client, job_id: str, states, timeout_s=60.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = api.job(job_id)
-        if job["state"] in states:
-            return job
-        time.sleep(0.02)
-    raise AssertionError(f"job {job_id} never reached {states}: {job}")
-
-
-def _wait_progress(api: Client, job_id: str, fraction: float) -> dict:
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        job = api.job(job_id)
-        if job["state"] == "running" and job["progress"] >= fraction:
-            return job
-        assert job["state"] in ("queued", "running"), job
-        time.sleep(0.01)
-    raise AssertionError("the sweep made no progress")
 
 
 def test_sweep_identify_and_compare(service):
@@ -184,6 +162,7 @@ def _fill(value, ids: dict):
     return value
 
 
+@pytest.mark.xdist_group("service_api_stocked")   # one worker builds the module's `stocked` service
 @pytest.mark.parametrize("request_, status, field", BAD_REQUESTS)
 def test_bad_input_names_the_field_and_changes_nothing(stocked, request_, status, field):
     http, api, data_dir, ids = stocked
@@ -201,14 +180,14 @@ def test_cancelled_sweep_keeps_partial_data_and_leaves_zero_volts(service):
     app, api = service
     first = api.start_sweep(**LONG)
     second = api.start_sweep(**SHORT)
-    _wait_progress(api, first["job_id"], 0.02)
+    wait_job(api.job, first["job_id"], until=job_running(0.02))
     assert api.job(second["job_id"])["state"] == "queued"  # one owner of the bench at a time
     assert api.bench()["running_job_id"] == first["job_id"]
 
     cancelled = api.cancel(second["job_id"])  # queued: cancelled at once, never started
     assert cancelled["state"] == "cancelled" and cancelled["started_at"] is None
     api.cancel(first["job_id"])
-    job = _wait_state(api, first["job_id"], ("cancelled", "failed", "succeeded"))
+    job = wait_job(api.job, first["job_id"])
     assert job["state"] == "cancelled" and job["error"] is None
     assert all(abs(v) < 0.05 for v in app.state.bench.output_v().values())
 
@@ -223,10 +202,10 @@ def test_cancelled_sweep_keeps_partial_data_and_leaves_zero_volts(service):
 def test_emergency_stop_cancels_the_bench_job(service):
     app, api = service
     started = api.start_sweep(**LONG)
-    _wait_progress(api, started["job_id"], 0.01)
+    wait_job(api.job, started["job_id"], until=job_running(0.01))
     answer = api.stop_bench()
     assert answer["cancelled_job_id"] == started["job_id"]
-    job = _wait_state(api, started["job_id"], ("cancelled", "failed", "succeeded"))
+    job = wait_job(api.job, started["job_id"])
     assert job["state"] == "cancelled" and api.dataset(job["result"]["dataset_id"])["partial"]
     assert all(abs(v) < 0.05 for v in app.state.bench.output_v().values())
     assert api.sweep(**SHORT)["state"] == "succeeded"  # the bench works again afterwards
@@ -235,10 +214,10 @@ def test_emergency_stop_cancels_the_bench_job(service):
 def test_a_device_fault_fails_the_sweep_but_keeps_its_samples(service):
     app, api = service
     started = api.start_sweep(**LONG)
-    _wait_progress(api, started["job_id"], 0.01)
+    wait_job(api.job, started["job_id"], until=job_running(0.01))
     app.state.bench.parts.world.inject_fault("sensor_dropout", "y")
     try:
-        job = _wait_state(api, started["job_id"], ("cancelled", "failed", "succeeded"))
+        job = wait_job(api.job, started["job_id"])
     finally:
         app.state.bench.parts.world.clear_faults()
     assert job["state"] == "failed" and "sensor y" in job["error"]
@@ -263,7 +242,7 @@ def test_reset_clears_a_latched_amplifier_fault_so_the_bench_runs_again(service)
 def test_reset_is_refused_while_a_job_owns_the_bench(service):
     app, api = service
     started = api.start_sweep(**LONG)
-    _wait_progress(api, started["job_id"], 0.01)
+    wait_job(api.job, started["job_id"], until=job_running(0.01))
     with pytest.raises(ApiError) as exc:
         api.reset_bench()
     assert exc.value.status_code == 409 and started["job_id"] in exc.value.detail
@@ -286,12 +265,12 @@ def test_identification_runs_beside_a_bench_job(service):
     _, api = service
     dataset_id = api.sweep(**SHORT)["result"]["dataset_id"]
     sweep = api.start_sweep(**LONG)
-    _wait_progress(api, sweep["job_id"], 0.01)
+    wait_job(api.job, sweep["job_id"], until=job_running(0.01))
     model = api.identify("y", [dataset_id])
     assert api.job(sweep["job_id"])["state"] == "running"  # the identification did not wait for it
     assert model["metrics"]["validation_rms_um"] > 0
     api.cancel(sweep["job_id"])
-    _wait_state(api, sweep["job_id"], ("cancelled",))
+    assert wait_job(api.job, sweep["job_id"])["state"] == "cancelled"
 
 
 @requires_real_data

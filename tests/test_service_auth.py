@@ -29,7 +29,6 @@ from service.frontends.client import Client, resolve_token
 from service.runtime.settings import Settings
 from service.store import Store, tables
 from service.store.tokens import tokens as token_table
-from test_service_store import postgres_url  # noqa: F401  (the session's PostgreSQL fixture)
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP = {"axes": ["y"], "frequencies_hz": [20], "cycles": 1, "settle_s": 0.0}
@@ -218,6 +217,7 @@ def _sse_events(lines):
             event, data = "message", []
 
 
+@pytest.mark.realtime
 def test_a_revoked_tokens_open_event_stream_ends_with_an_error(tmp_path):
     """A real server and a sweep paced to real time (60 s of plan): the stream of a read token ends
     with ``event: error`` once the token is revoked, long before the job ends."""
@@ -254,7 +254,8 @@ def test_auth_off_is_open_and_loopback_only(tmp_path):
         Settings(data_dir=tmp_path, auth="maybe")
 
 
-def test_tokens_on_postgresql(postgres_url, tmp_path):  # noqa: F811
+@pytest.mark.postgres
+def test_tokens_on_postgresql(postgres_url, tmp_path):
     store = Store(postgres_url, tmp_path)
     try:
         plaintext, record = auth.issue(store, "pg", "operate", "cli")

@@ -3,12 +3,11 @@ one more submission is refused (QueueFull, HTTP 429 with Retry-After) and stores
 from __future__ import annotations
 
 import threading
-import time
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from api_client import authed_client, wait_job
+from api_client import authed_client, job_running, wait_job
 from service.runtime.app import create_app
 from service.runtime.jobs import JobManager, QueueFull
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, Settings
@@ -24,27 +23,12 @@ def store(tmp_path):
     s.close()
 
 
-def _ended(manager: JobManager, job_id: str, timeout_s: float = 30.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while (job := manager.get(job_id))["state"] in ("queued", "running"):
-        assert time.monotonic() < deadline, job
-        time.sleep(0.005)
-    return job
-
-
-def _wait_running(manager: JobManager, job_id: str) -> None:
-    deadline = time.monotonic() + 30
-    while manager.get(job_id)["state"] != "running":
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
-
-
 def test_each_queue_refuses_beyond_its_limit_and_stores_nothing(store):
     manager = JobManager(store, workers=1, max_queued_bench_jobs=2, max_queued_compute_jobs=1)
     bench_gate, compute_gate = threading.Event(), threading.Event()
     try:
         holder = manager.submit("sweep", None, lambda ctx: {"held": bench_gate.wait(10)}, needs_bench=True)
-        _wait_running(manager, holder["id"])
+        wait_job(manager.get, holder["id"], until=job_running())
         queued = [manager.submit("sweep", {"k": k}, lambda ctx: {}, needs_bench=True)["id"] for k in range(2)]
         jobs_before = len(store.list_jobs(limit=None))
         with pytest.raises(QueueFull) as info:
@@ -55,7 +39,7 @@ def test_each_queue_refuses_beyond_its_limit_and_stores_nothing(store):
 
         # the compute queue is counted apart: one running, one queued, the next refused
         busy = manager.submit("identify", None, lambda ctx: {"held": compute_gate.wait(10)}, needs_bench=False)
-        _wait_running(manager, busy["id"])
+        wait_job(manager.get, busy["id"], until=job_running())
         waiting = manager.submit("identify", None, lambda ctx: {}, needs_bench=False)
         with pytest.raises(QueueFull) as info:
             manager.submit("identify", None, lambda ctx: {}, needs_bench=False)
@@ -66,10 +50,10 @@ def test_each_queue_refuses_beyond_its_limit_and_stores_nothing(store):
         queued.append(manager.submit("sweep", {"k": 3}, lambda ctx: {}, needs_bench=True)["id"])
         bench_gate.set()
         compute_gate.set()
-        assert [_ended(manager, i)["state"] for i in queued[1:]] == ["succeeded", "succeeded"]
-        assert _ended(manager, waiting["id"])["state"] == "succeeded"
+        assert [wait_job(manager.get, i)["state"] for i in queued[1:]] == ["succeeded", "succeeded"]
+        assert wait_job(manager.get, waiting["id"])["state"] == "succeeded"
         again = [manager.submit("sweep", None, lambda ctx: {}, needs_bench=True)["id"] for _ in range(2)]
-        assert [_ended(manager, i)["state"] for i in again] == ["succeeded", "succeeded"]
+        assert [wait_job(manager.get, i)["state"] for i in again] == ["succeeded", "succeeded"]
     finally:
         bench_gate.set()
         compute_gate.set()
@@ -88,7 +72,7 @@ def test_concurrent_submissions_never_overfill_the_queue(store):
 
     try:
         holder = manager.submit("sweep", None, lambda ctx: {"held": gate.wait(20)}, needs_bench=True)
-        _wait_running(manager, holder["id"])
+        wait_job(manager.get, holder["id"], until=job_running())
         with ThreadPoolExecutor(8) as pool:                   # 200 submissions from 8 threads at once
             states = list(pool.map(submit, range(200)))
         assert states.count("queued") == 16 and states.count("refused") == 184
@@ -102,7 +86,7 @@ def test_a_full_bench_queue_answers_429_with_retry_after_and_accepts_again_once_
     with authed_client(create_app(Settings(data_dir=tmp_path, bench="default", seed=1))) as http:
         jobs, store, gate = http.app.state.jobs, http.app.state.store, threading.Event()
         holder = jobs.submit("hold", None, lambda ctx: {"held": gate.wait(60)}, needs_bench=True)  # the bench is busy
-        _wait_running(jobs, holder["id"])
+        wait_job(jobs.get, holder["id"], until=job_running())
         try:
             accepted = []
             for _ in range(MAX_QUEUED_BENCH_JOBS):

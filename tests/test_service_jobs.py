@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from api_client import wait_job
 from service.security import auth
 from service.runtime import jobs as jobs_module
 from service.runtime.jobs import JobInterrupted, JobManager
@@ -21,16 +22,6 @@ def store(tmp_path):
     s = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
     yield s
     s.close()
-
-
-def _wait(manager: JobManager, job_id: str, timeout_s: float = 10.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = manager.get(job_id)
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.005)
-    raise AssertionError(f"job {job_id} still {job['state']}")
 
 
 def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
@@ -57,10 +48,10 @@ def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
         ids = [manager.submit("sweep", {"n": k}, bench_job(f"b{k}"), needs_bench=True)["id"] for k in range(3)]
         side = manager.submit("identify", None, lambda ctx: {"beside": manager.running_bench_job}, needs_bench=False)
         # the identification finishes while the first bench job still holds the bench
-        assert _wait(manager, side["id"])["result"] == {"beside": ids[0]}
+        assert wait_job(manager.get, side["id"])["result"] == {"beside": ids[0]}
         assert [manager.get(i)["state"] for i in ids] == ["running", "queued", "queued"]
         bench_free.set()
-        jobs = [_wait(manager, i) for i in ids]
+        jobs = [wait_job(manager.get, i) for i in ids]
     finally:
         manager.shutdown()
     assert [j["state"] for j in jobs] == ["succeeded"] * 3 and order == ["b0", "b1", "b2"] and peak[0] == 1
@@ -84,7 +75,7 @@ def test_cancel_queued_and_running_jobs(store):
         assert started.wait(5)
         assert manager.cancel(queued["id"])["state"] == "cancelled"  # at once
         assert manager.cancel(running["id"])["message"] == "cancel requested"
-        job = _wait(manager, running["id"])
+        job = wait_job(manager.get, running["id"])
         assert (job["state"], job["result"], job["error"]) == ("cancelled", {"dataset_id": "ds_partial"}, None)
         assert "12 samples kept" in job["message"]
         time.sleep(0.05)
@@ -103,8 +94,8 @@ def test_failures_are_recorded_and_the_worker_lives_on(store):
     try:
         failed = manager.submit("sweep", None, broken, needs_bench=True)
         after = manager.submit("sweep", None, lambda ctx: {"ok": True}, needs_bench=True)
-        assert _wait(manager, failed["id"])["error"] == "u_y spans −3–130 V"
-        assert _wait(manager, after["id"])["state"] == "succeeded"
+        assert wait_job(manager.get, failed["id"])["error"] == "u_y spans −3–130 V"
+        assert wait_job(manager.get, after["id"])["state"] == "succeeded"
     finally:
         manager.shutdown()
 

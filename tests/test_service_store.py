@@ -2,26 +2,13 @@
 atomic files, and nothing altered by a failed write."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 from sqlalchemy import text, update
 
-from pg_server import postgres_server
 from service.runtime.recovery import INTERRUPTED, recover
 from service.store import IntegrityError, NotFoundError, Store, tables
 from service.store.files import file_sha256, open_arrays, read_arrays, write_arrays
-
-
-@pytest.fixture(scope="session")
-def postgres_url():
-    """A private PostgreSQL cluster for the session. If it cannot start, the tests error (loudly),
-    unless EVCBENCH_SKIP_POSTGRES=1 asks to skip them."""
-    if os.environ.get("EVCBENCH_SKIP_POSTGRES") == "1":
-        pytest.skip("EVCBENCH_SKIP_POSTGRES=1: PostgreSQL store tests skipped on request")
-    with postgres_server() as url:
-        yield url
 
 
 def _open(backend: str, request, directory) -> Store:
@@ -30,7 +17,7 @@ def _open(backend: str, request, directory) -> Store:
     return Store(request.getfixturevalue("postgres_url"), directory)
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
+@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
 def store(request, tmp_path):
     s = _open(request.param, request, tmp_path)
     yield s
@@ -133,6 +120,7 @@ def test_sqlite_runs_in_wal_mode(tmp_path):
     s.close()
 
 
+@pytest.mark.postgres
 def test_both_backends_store_the_same_records(request, tmp_path):
     """The same writes on SQLite and PostgreSQL read back identically (ids and times aside)."""
     results = []
@@ -184,6 +172,7 @@ def test_arrays_open_lazily_memory_mapped_or_a_range_at_a_time(tmp_path, legacy)
         open_arrays(path, digest)
 
 
+@pytest.mark.postgres
 def test_the_service_runs_on_postgresql(postgres_url, tmp_path):
     """The whole service with its metadata in PostgreSQL: a sweep (with its nested bench
     configuration), an identification, and a restart that finds both unchanged."""

@@ -8,16 +8,18 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from api_client import job_running, wait_job
 from service.frontends.client import Client
 from live_server import Server
 from realdata import MODEL_VI_DO as REAL
 
 ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.realtime      # a live `evcbench serve`
 
 
 def _cli(server: Server, *args: str) -> subprocess.CompletedProcess:
@@ -83,9 +85,7 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
 
             # --- SIGTERM while a sweep runs: the partial record is kept
             long = api.start_sweep(axes=["y"], frequencies_hz=[0.5], cycles=100)
-            deadline = time.monotonic() + 60
-            while api.job(long["job_id"])["progress"] < 0.01 and time.monotonic() < deadline:
-                time.sleep(0.02)
+            wait_job(api.job, long["job_id"], until=job_running(0.01), timeout_s=60)
             before = _state(api, data_dir)
         assert server.stop()
     finally:

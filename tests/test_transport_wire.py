@@ -12,7 +12,7 @@ from drivers.bench import RunInterrupted
 from drivers.composed import check_transport, open_configured
 from drivers.emulated import kernels as K
 from drivers.emulated import open_bench
-from api_client import authed_client
+from api_client import authed_client, job_running, wait_job
 from service.runtime.app import create_app
 from service.frontends.client import Client
 from service.runtime.settings import Settings
@@ -156,14 +156,9 @@ def test_the_service_fails_a_sweep_whose_port_is_unplugged_and_keeps_its_samples
     app, http, api = _served(tmp_path, "default_wire")
     with http:
         started = api.start_sweep(axes=["y"], frequencies_hz=[1.0], cycles=20)
-        deadline = time.monotonic() + 30
-        while api.job(started["job_id"])["progress"] < 0.02:
-            assert time.monotonic() < deadline and api.job(started["job_id"])["state"] in ("queued", "running")
-            time.sleep(0.01)
+        wait_job(api.job, started["job_id"], until=job_running(0.02), timeout_s=30, poll_s=0.01)
         app.state.bench.parts.daq.emulators["serial"].unplug()
-        while (job := api.job(started["job_id"]))["state"] in ("queued", "running"):
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
+        job = wait_job(api.job, started["job_id"], timeout_s=30, poll_s=0.01)
         # the unplug races the per-block status queries: whichever axis asks first reports it
         assert job["state"] == "failed" and re.match(r"amplifier [yz]: serial: MDT693B: serial port \S+ lost",
                                                      job["error"]), job["error"]

@@ -9,6 +9,9 @@ import pytest
 from live_server import Server
 from test_web_dashboard import ARTIFACTS, CHROMIUM, CHROMIUM_ARGS, sync_api  # skips with the dashboard tests
 
+#: A live service, a module fixture: one worker runs the file.
+pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_auth")]
+
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):

@@ -15,13 +15,16 @@ import json
 import math
 import re
 import os
-import time
 from pathlib import Path
 
 import httpx
 import pytest
+from api_client import wait_job
 from live_server import Server
 from realdata import MODEL_VI_DO as REAL, requires_real_data
+
+#: Live services and one browser, module fixtures: one worker runs the file.
+pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_dashboard")]
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "tests" / "artifacts"
@@ -104,14 +107,9 @@ def shot(page, name: str) -> Path:
     return path
 
 
-def wait_job(server, job_id: str, timeout_s: float = 120) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        job = server["api"].get(f"/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job
-        assert time.monotonic() < deadline, f"job {job_id} still {job['state']}"
-        time.sleep(0.1)
+def job_of(server):
+    """``job_id -> job`` through the server's API client (rooted at /api), for wait_job."""
+    return lambda job_id: server["api"].get(f"/jobs/{job_id}").json()
 
 
 def run_sweep_in_browser(page, server, frequencies: str = "10,50,100", cycles: int = 3, axes=("y",)) -> str:
@@ -298,11 +296,11 @@ def test_discovery_story_in_the_browser(page, server):
 def test_trajectory_with_ilc_error_falls_on_screen(page, server):
     api = server["api"]
     sweep = api.post("/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [10, 50, 100], "cycles": 3}).json()
-    dataset_id = wait_job(server, sweep["job_id"])["result"]["dataset_id"]
+    dataset_id = wait_job(job_of(server), sweep["job_id"])["result"]["dataset_id"]
     models = {}
     for axis in ("y", "z"):
         job = api.post("/models", json={"axis": axis, "datasets": [dataset_id], "model": "static_pi"}).json()
-        models[axis] = wait_job(server, job["job_id"])["result"]["model_id"]
+        models[axis] = wait_job(job_of(server), job["job_id"])["result"]["model_id"]
     goto(page, server, "trajectories")
     page.select_option("#traj-preset", "case1")
     page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
@@ -347,7 +345,7 @@ def test_live_chart_shows_points_during_a_job(page, server):
     assert "u_y (V)" in labels and "x_y (µm)" in labels and "time in run (s)" in labels
     # (No "still growing" check: the emulator streams this 80 s sweep in about a second.)
     shot(page, "bench_live")
-    assert wait_job(server, job["job_id"])["state"] == "succeeded"
+    assert wait_job(job_of(server), job["job_id"])["state"] == "succeeded"
 
 
 def test_errors_are_shown_in_words(page, server):
@@ -389,7 +387,7 @@ def test_separate_two_look_alike_effects(page, delay_server):
     # the characterisation discovery asks for: both axes one after the other (DESIGN §5)
     job = server["api"].post("/sweeps", json={"axes": ["y", "z"], "together": False, "waveform": "sine",
                                               "frequencies_hz": [1, 10, 50, 100], "cycles": 5}).json()
-    dataset_id = wait_job(server, job["job_id"])["result"]["dataset_id"]
+    dataset_id = wait_job(job_of(server), job["job_id"])["result"]["dataset_id"]
     goto(page, server, f"models?dataset={dataset_id}")
     page.select_option("#identify-datasets", [dataset_id])
     page.click("#identify-start")
@@ -425,7 +423,7 @@ def test_a_latched_amplifier_fault_is_reset_from_the_bench_page(page, server):
     api = server["api"]
     assert api.post("/admin/faults", json={"fault": "amplifier_overcurrent", "axis": "z", "after_s": 0.05}).status_code == 201
     job = api.post("/sweeps", json={"axes": ["z"], "frequencies_hz": [50], "cycles": 20}).json()
-    ended = wait_job(server, job["job_id"])
+    ended = wait_job(job_of(server), job["job_id"])
     assert ended["state"] == "failed" and "amplifier z: over-current" in ended["error"]
     goto(page, server, "bench")
     page.wait_for_selector("#fault-actions:not([hidden])")
@@ -438,4 +436,4 @@ def test_a_latched_amplifier_fault_is_reset_from_the_bench_page(page, server):
     assert not bench["amplifiers"]["z"]["fault"] and abs(bench["amplifiers"]["z"]["output_v"]) < 0.05
     assert api.delete("/admin/faults").status_code == 200
     again = api.post("/sweeps", json={"axes": ["z"], "frequencies_hz": [50], "cycles": 3}).json()
-    assert wait_job(server, again["job_id"])["state"] == "succeeded"
+    assert wait_job(job_of(server), again["job_id"])["state"] == "succeeded"
