@@ -1,5 +1,6 @@
 # EVC Bench — the two commands a lab member needs: `make run` and `make test`.
-# Each does its own set-up on a fresh machine (virtualenv and packages).
+# Each does its own set-up on a fresh machine (virtualenv and packages). `make test-fast` is the
+# edit loop: the tests that are neither slow, real-time, browser nor PostgreSQL ones.
 
 PYTHON ?= python3
 VENV   := .venv
@@ -10,7 +11,14 @@ WEB_STAMP := web/node_modules/.package-lock.json
 # One BLAS thread: the least-squares solves are small and a 2-core lab PC thrashes with more.
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: run test install clean browser
+# Every core works (pytest-xdist): a group of tests that shares an expensive module fixture
+# (xdist_group) runs on one worker, the rest test by test; tests/conftest.py puts the long tests
+# first (--no-loadscope-reorder keeps that order) so that the workers finish together.
+PYTEST_WORKERS ?= auto
+PYTEST_XDIST   := -n $(PYTEST_WORKERS) --dist loadgroup --no-loadscope-reorder
+FAST_TESTS     := not slow and not realtime and not browser and not postgres
+
+.PHONY: run test test-fast install clean browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -39,7 +47,11 @@ run: $(STAMP) $(WEB_STAMP)
 test: $(STAMP) $(WEB_STAMP)
 	bash tests/setup/install_postgres.sh
 	bash tests/setup/install_browser.sh
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(PYTEST_XDIST)
+
+## The edit loop: the same, less the tests marked slow, realtime, browser or postgres (pyproject.toml).
+test-fast: $(STAMP)
+	$(PY) -m pytest -q $(PYTEST_XDIST) -m "$(FAST_TESTS)"
 
 clean:
 	rm -rf $(VENV) var .pytest_cache tests/artifacts web/node_modules
