@@ -12,6 +12,9 @@ from service.science.control.trajectory import Ellipse
 
 CASE2 = dict(y_range_um=(1, 5), z_range_um=(1, 9), inclination_deg=20.0, frequency_hz=100.0)
 
+#: One worker runs the file: the bench and its identified models are a module fixture.
+pytestmark = pytest.mark.xdist_group("control_loop")
+
 
 @pytest.fixture(scope="module")
 def bench_models():
@@ -21,6 +24,7 @@ def bench_models():
     bench.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pid", [None, ILC_PID], ids=["ff+ilc", "ff+pid+ilc"])
 def test_ilc_converges_point_by_point(bench_models, pid):
     bench, models = bench_models

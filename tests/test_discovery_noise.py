@@ -50,6 +50,7 @@ def test_noise_counts_only_cycles_whose_drive_repeated():
     assert abs(fallback["noise_um"] / sigma - 1) < 0.15
 
 
+@pytest.mark.slow
 @requires_real_data
 def test_real_bursts_with_a_hold_get_the_same_noise_floor_as_the_steady_file():
     data = np.loadtxt(REAL_DIR / "yan9a-dbo" / "Test_Vi_Do_Di.dat")[:11152]   # before the authors' inverse
@@ -63,6 +64,7 @@ def test_real_bursts_with_a_hold_get_the_same_noise_floor_as_the_steady_file():
     assert d["held_out_to_noise"] > 3
 
 
+@pytest.mark.slow
 @requires_real_data
 def test_the_diagnosis_does_not_depend_on_the_drives_origin_or_units_or_the_gauges_sign():
     """Other labs' files: a bipolar or negative amplifier input, millivolts, a gauge reading against

@@ -13,8 +13,9 @@ import pytest
 
 from service.reports.calibration import PAPER, THRESHOLDS_V, VARIANTS, measure_calibration, play_outputs, sweep_pi_rms
 
-#: One worker runs the file: its calibration and base-bench sweeps are module fixtures.
-pytestmark = pytest.mark.xdist_group("emulator_calibration")
+#: Emulator sweeps of every bench; one worker runs the file: its calibration and base-bench sweeps are
+#: module fixtures.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("emulator_calibration")]
 
 
 def play_reference(u: np.ndarray, r: float, y0: float = 0.0) -> np.ndarray:

@@ -125,6 +125,7 @@ def test_pso_minimises_a_quadratic():
     np.testing.assert_array_equal(again.x, res.x)  # seeded
 
 
+@pytest.mark.slow
 def test_pso_recovers_alpha_beta_from_noise_free_data(dynamic_data):
     """ω fixed at the truth: PSO finds α1..4, β1..4 to 1e-2 relative (measured ≤ 2.1e-3, seeds 0 and 1)."""
     truth, data = dynamic_data
@@ -139,6 +140,7 @@ def test_pso_recovers_alpha_beta_from_noise_free_data(dynamic_data):
     np.testing.assert_allclose(res.x, theta, rtol=1e-2)
 
 
+@pytest.mark.slow
 def test_paper_pso_reaches_the_two_stage_optimum(dynamic_data):
     """Same problem (ω from the 1 Hz loop): PSO's RMS equals the exact stage-2 LS to 1e-4 relative."""
     _, data = dynamic_data

@@ -270,6 +270,7 @@ def test_tokens_on_postgresql(postgres_url, tmp_path):
 
 
 # ---------------------------------------------------------------------- CLI, bind rule, client
+@pytest.mark.slow      # several `evcbench` processes
 def test_cli_create_use_list_revoke(tmp_path):
     out = _cli("token", "create", "--name", "lab pc", "--scope", "operate", "--data-dir", str(tmp_path))
     plaintext = out.stdout.strip()
@@ -288,6 +289,7 @@ def test_cli_create_use_list_revoke(tmp_path):
     assert _cli("token", "revoke", "tok_nope", "--data-dir", str(tmp_path), check=False).returncode == 2
 
 
+@pytest.mark.slow      # several `evcbench` processes
 def test_serve_refuses_a_non_loopback_bind_without_a_token(tmp_path):
     for extra, reason in (((), "no API token exists besides the local bootstrap one"),
                           (("--auth", "off"), "allowed only on loopback")):
