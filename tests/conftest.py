@@ -46,13 +46,15 @@ def _weight(item: pytest.Item) -> int:
 
 @pytest.hookimpl(tryfirst=True)      # before xdist reads the groups (it appends them to the node ids)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The PostgreSQL tests share one worker (one cluster); the slow tests go first, then the
-    real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together.
+    """The PostgreSQL tests share one worker (one cluster). Under xdist the slow tests go first,
+    then the real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together.
     A group (xdist_group) stays together, at the place of its heaviest test, so that its module
     fixtures are built once."""
     for item in items:
         if item.get_closest_marker("postgres"):
             item.add_marker(pytest.mark.xdist_group("postgres"))
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return                            # one process: the files' own order
     units: dict[str, list[int]] = {}
     for index, item in enumerate(items):
         group = item.get_closest_marker("xdist_group")
