@@ -196,9 +196,11 @@ def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
     return max(ratios) if ratios else None
 
 
-def helpful_capacity(candidates) -> list[dict]:
-    """Capacity candidates whose held-out improvement over the model passes the claim rule."""
-    return [c for c in candidates if c["kind"] == "capacity" and c.get("claimed")]
+def helpful_capacity(candidates, residual_rms_um: float | None = None) -> list[dict]:
+    """Capacity candidates that lower the held-out RMS: those the claim rule passes, and (given the
+    model's ``residual_rms_um``) any whose held-out RMS is lower — capacity is validated, not claimed."""
+    return [c for c in candidates if c["kind"] == "capacity" and (
+        c.get("claimed") or (residual_rms_um is not None and c["expected_rms_um"] < residual_rms_um))]
 
 
 def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None,

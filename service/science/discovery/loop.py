@@ -27,7 +27,7 @@ def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) ->
             effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])]
             continue
         # complete as far as physics goes: more capacity if the model is not at the noise floor yet
-        capacity = helpful_capacity(d["candidates"])     # diagnose() offers only effects not in the model
+        capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])   # only effects not in the model
         if d["at_noise_floor"] or not capacity:
             break
         effects = effects + [capacity[0]["effect"]]

@@ -35,6 +35,11 @@ def even_part(rec, split) -> tuple[np.ndarray, int] | None:
     mat = cycles_matrix(rec.x_um[a:b], period)
     if mat is None or mat.shape[0] < MIN_CYCLES:
         return None
+    # a slow trend over the block (creep, drift) is not a loop shape: x(t) + x(t + T/2) grows with it,
+    # so the cycle means' linear trend is taken out, sample by sample, before the mean cycle
+    k = np.arange(mat.shape[0])[:, None] + np.arange(mat.shape[1])[None, :] / mat.shape[1]
+    slope = float(np.polyfit(np.arange(mat.shape[0]), mat.mean(axis=1), 1)[0])
+    mat = mat - slope * k
     mean = mat.mean(axis=0)
     m = mean.size - mean.size % 2
     if m < 8:
