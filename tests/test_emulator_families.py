@@ -141,14 +141,16 @@ def clean_pi_rms():
     return {family: sweep_pi_rms(CLEAN[family]) for family in FAMILIES}
 
 
-def test_static_pi_fits_preisach_best(clean_pi_rms):
+def test_static_pi_misfit_per_family(clean_pi_rms):
     """Static-PI RMS left on each clean bench's characterisation sweep (sweep_pi_rms: 1, 10, 50,
-    100 Hz, each axis alone). Measured, both axes: Preisach 0.0102 µm, Bouc–Wen 0.0202 µm (2.0×),
-    Maxwell-slip 0.0113 µm (1.1×, its smooth elements with spread slip limits are the nearest to a
-    PI). The fitted family is wrong on these benches; 3 nm of that is gauge noise."""
+    100 Hz, each axis alone). Measured, both axes, with the non-Preisach families switching on the
+    amplifier's noise-free output: Preisach 0.0102 µm, Bouc–Wen about 2× that, Maxwell-slip 0.0089 µm
+    (its smooth elements with spread slip limits are the nearest to a PI: the static PI fits it as
+    well as Preisach; its loop is still not a PI loop, test_family_loop_shape_differs_from_preisach).
+    3 nm of each figure is gauge noise."""
     base = clean_pi_rms["preisach"]["both"]
     assert clean_pi_rms["bouc_wen"]["both"] > 1.6 * base
-    assert clean_pi_rms["maxwell_slip"]["both"] > 1.05 * base
+    assert 0.6 * base < clean_pi_rms["maxwell_slip"]["both"] < 1.4 * base
 
 
 @pytest.mark.slow

@@ -267,7 +267,11 @@ def test_discovery_story_in_the_browser(page, server):
     diagnosis = server["api"].get(f"/models/{model_id}/diagnosis").json()
     shown = [page.locator("#candidates tr[data-effect]").nth(i).get_attribute("data-effect")
              for i in range(page.locator("#candidates tr[data-effect]").count())]
-    assert shown == [c["effect"] for c in diagnosis["candidates"]]
+    assert shown == [c["effect"] for c in diagnosis["candidates"] if c.get("testable", True)]
+    # what this data cannot test is listed apart, each with the sweep that would test it
+    untestable = [c["effect"] for c in diagnosis["not_testable"]]
+    assert page.locator("#not-testable li").count() == len(untestable)
+    assert page.locator("#not-testable .run-test").count() == len(untestable)
     assert shown[0] == HIDDEN, f"the diagnosis ranks {shown} on the {HIDDEN} bench"
     assert page.get_attribute("#diagnosis-verdict", "data-verdict") == diagnosis["verdict"]
     history = json.loads(page.get_attribute("#history-chart", "data-values"))
