@@ -53,7 +53,7 @@ def write_import_csv(path: Path, megabytes: float) -> Path:
     return path
 
 
-def _download_loop(url: str, headers: dict, dataset_id: str, stop, results) -> None:
+def _download_loop(url: str, headers: dict, dataset_id: str, stop, results, flowing=None) -> None:
     """One client (its own process) downloading the dataset's full-resolution CSV until ``stop``."""
     done, received = 0, 0
     with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
@@ -61,6 +61,8 @@ def _download_loop(url: str, headers: dict, dataset_id: str, stop, results) -> N
             with c.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "csv"}) as r:
                 for chunk in r.iter_bytes():
                     received += len(chunk)
+                    if flowing is not None:
+                        flowing.set()
                     if stop.is_set():
                         break
             done += 1
@@ -82,12 +84,13 @@ def _start_load(url: str, headers: dict, dataset_id: str, csv_path: Path):
     """The four downloaders and the importer, each in its own process like a real client (so this
     process, which presses the stop and times it, shares no interpreter lock with them)."""
     ctx = multiprocessing.get_context("spawn")
-    stop, results = ctx.Event(), ctx.Queue()
-    procs = [ctx.Process(target=_download_loop, args=(url, headers, dataset_id, stop, results), daemon=True)
+    stop, results, flowing = ctx.Event(), ctx.Queue(), ctx.Event()
+    procs = [ctx.Process(target=_download_loop, args=(url, headers, dataset_id, stop, results, flowing), daemon=True)
              for _ in range(DOWNLOADERS)]
     procs.append(ctx.Process(target=_upload_loop, args=(url, headers, str(csv_path), stop, results), daemon=True))
     for p in procs:
         p.start()
+    flowing.wait(120)      # the stops are pressed under load: wait until downloaded bytes flow
     return procs, stop, results
 
 
