@@ -60,13 +60,14 @@ def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
 
 def test_cancel_queued_and_running_jobs(store):
     manager = JobManager(store)
-    started = threading.Event()
+    started, answered = threading.Event(), threading.Event()
 
     def cancellable(ctx):
         ctx.progress(0.5, "working")
         started.set()
         while not ctx.cancelled:
             time.sleep(0.005)
+        answered.wait(5)       # the job ends once the cancel has answered (else, on a busy machine, before)
         raise JobInterrupted("stopped on request: 12 samples kept", {"dataset_id": "ds_partial"})
 
     try:
@@ -75,6 +76,7 @@ def test_cancel_queued_and_running_jobs(store):
         assert started.wait(5)
         assert manager.cancel(queued["id"])["state"] == "cancelled"  # at once
         assert manager.cancel(running["id"])["message"] == "cancel requested"
+        answered.set()
         job = wait_job(manager.get, running["id"])
         assert (job["state"], job["result"], job["error"]) == ("cancelled", {"dataset_id": "ds_partial"}, None)
         assert "12 samples kept" in job["message"]
