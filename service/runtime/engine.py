@@ -103,21 +103,56 @@ def _parts(facts: dict, command: _Channel) -> SimpleNamespace:
         world=SimpleNamespace(faults=_RemoteFaults(command)) if facts["emulated"] else None)
 
 
+#: the arrays of a BenchRecord that hold one value per sample, by field name
+_ROW_FIELDS = ("u_cmd_v", "x_um", "extra")
+
+
+def _rows_from(record: BenchRecord, start: int) -> dict[tuple[str, str], np.ndarray]:
+    """The record's rows ``start:`` as ``{(field, name): values}``: views, and the pipe pickles
+    only the rows a view shows."""
+    return {(field, name): values[start:] for field in _ROW_FIELDS for name, values in getattr(record, field).items()}
+
+
 def run_buffered(bench, emit, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, block_samples: int):
     """The plan behind ``EngineBench.run`` (runs in the engine): ``Bench.run``, sending each block's
-    new rows as an event; returns ``("done", record)`` or ``("interrupted", reason, stopped, record)``."""
+    new rows as the event ``("block", start, rows, fraction)``. Returns what no event carried:
+    ``(start, rows, sample_rate_hz, ending)``, ``ending`` None or ``(reason, stopped)`` of a
+    RunInterrupted. Every row crosses the pipe once."""
     sent = 0
 
     def on_block(record: BenchRecord, fraction: float) -> None:
         nonlocal sent
-        emit("block", sent, {a: record.u_cmd_v[a][sent:].copy() for a in record.u_cmd_v},
-             {a: record.x_um[a][sent:].copy() for a in record.x_um}, fraction)
+        emit("block", sent, _rows_from(record, sent), fraction)
         sent = record.samples
 
     try:
-        return ("done", bench.run(u_v, sample_rate_hz, block_samples=block_samples, on_block=on_block))
+        record, ending = bench.run(u_v, sample_rate_hz, block_samples=block_samples, on_block=on_block), None
     except RunInterrupted as exc:
-        return ("interrupted", exc.reason, exc.stopped, exc.record)
+        record, ending = exc.record, (exc.reason, exc.stopped)
+    return sent, _rows_from(record, sent), record.sample_rate_hz, ending
+
+
+class _Assembled:
+    """A run's record put together in the web process from the rows the engine sends, in
+    preallocated arrays (``n`` samples each), so each block costs O(block), never O(run)."""
+
+    def __init__(self, n: int):
+        self.n, self.done = n, 0
+        self.arrays: dict[tuple[str, str], np.ndarray] = {}
+
+    def add(self, start: int, rows: dict[tuple[str, str], np.ndarray]) -> None:
+        for key, values in rows.items():
+            if key not in self.arrays:
+                self.arrays[key] = np.full(self.n, np.nan)
+            self.arrays[key][start:start + len(values)] = values
+            self.done = start + len(values)
+
+    def record(self, sample_rate_hz: float, reason: str | None = None) -> BenchRecord:
+        """The record so far (views); ``reason`` marks it partial."""
+        fields = {field: {} for field in _ROW_FIELDS}
+        for (field, name), values in self.arrays.items():
+            fields[field][name] = values[:self.done]
+        return BenchRecord(sample_rate_hz, partial=reason is not None, reason=reason, **fields)
 
 
 class EngineBench(LimitsMixin):
@@ -229,27 +264,21 @@ class EngineBench(LimitsMixin):
             should_stop: Callable[[], bool] | None = None) -> BenchRecord:
         """``Bench.run`` in the engine: ``on_block`` sees the record so far here, as it would there."""
         self.check_waveform(u_v, sample_rate_hz)
-        n = len(np.asarray(next(iter(u_v.values()))))
-        u = {a: np.empty(n) for a in self.axes}
-        x = {a: np.empty(n) for a in self.axes}
-        done = [0]
+        assembled = _Assembled(len(np.asarray(next(iter(u_v.values())))))
 
-        def on_event(kind, start, u_rows, x_rows, fraction) -> None:
-            k = len(next(iter(x_rows.values())))
-            for a in self.axes:
-                u[a][start:start + k], x[a][start:start + k] = u_rows[a], x_rows[a]
-            done[0] = start + k
+        def on_event(kind, start, rows, fraction) -> None:
+            assembled.add(start, rows)
             if on_block is not None:
-                on_block(BenchRecord(sample_rate_hz, {a: v[:done[0]] for a, v in u.items()},
-                                     {a: v[:done[0]] for a, v in x.items()}), fraction)
+                on_block(assembled.record(sample_rate_hz), fraction)
 
         u_plain = {a: np.asarray(v, dtype=float) for a, v in u_v.items()}
-        out = self.execute(run_buffered, u_plain, float(sample_rate_hz), int(block_samples),
-                           on_event=on_event, should_stop=should_stop)
-        if out[0] == "done":
-            return out[1]
-        _, reason, stopped, record = out
-        raise RunInterrupted(reason, record, stopped=stopped)
+        start, rows, actual_hz, ending = self.execute(run_buffered, u_plain, float(sample_rate_hz), int(block_samples),
+                                                      on_event=on_event, should_stop=should_stop)
+        assembled.add(start, rows)
+        if ending is None:
+            return assembled.record(actual_hz)
+        reason, stopped = ending
+        raise RunInterrupted(reason, assembled.record(actual_hz, reason), stopped=stopped)
 
     # ------------------------------------------------------------------ life
     def close(self, timeout_s: float = 10.0) -> None:
