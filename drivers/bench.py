@@ -87,9 +87,11 @@ class _Acquired:
     record so far cost O(block), never O(run) (a long sweep must not look like a stalled loop)."""
 
     def __init__(self, bench: "Bench", n: int, rate_hz: float):
-        self.bench, self.rate_hz, self.done = bench, rate_hz, 0
+        self.bench, self.n, self.rate_hz, self.done = bench, n, rate_hz, 0
         self.u = {a: np.empty(n) for a in bench.axes}
         self.x = {a: np.empty(n) for a in bench.axes}
+        reading = getattr(bench.parts.daq, "temperature_c", None)   # optional (drivers.interfaces.Daq)
+        self._temperature_c = reading if callable(reading) else None
         self.temp: np.ndarray | None = None    # °C per sample, where the DAQ has a thermometer
 
     def add(self, u_blocks: Mapping[str, np.ndarray], ai: np.ndarray) -> None:
@@ -97,11 +99,10 @@ class _Acquired:
         for a in self.bench.axes:
             self.u[a][self.done:self.done + k] = u_blocks[a]
             self.x[a][self.done:self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
-        reading = getattr(parts.daq, "temperature_c", None)   # optional: the block's temperatures (°C) or None
-        temp = reading() if callable(reading) else None
+        temp = self._temperature_c() if self._temperature_c is not None else None
         if temp is not None:
             if self.temp is None:
-                self.temp = np.full(len(next(iter(self.x.values()))), np.nan)
+                self.temp = np.full(self.n, np.nan)
             self.temp[self.done:self.done + k] = temp
         self.done += k
 

@@ -84,7 +84,9 @@ class Daq(Protocol):
         counts its scheduled faults' ``after_s`` from there); real DAQs need not have it.
         Optional: ``abort()``, called from any thread by a stop: the running buffered write ends
         without playing the rest of its block (it returns or raises ``OutputAborted``), so the
-        writing loop reaches 0 V within a fraction of a block rather than after it."""
+        writing loop reaches 0 V within a fraction of a block rather than after it.
+        Optional: ``temperature_c()``, the stack's temperature (°C) at each sample of the last
+        ``write_read`` block, or None without a thermometer; ``Bench.run`` records it as ``temp_c``."""
 
     def close(self) -> None: ...
 

@@ -33,6 +33,8 @@ class EmulatedDaq:
         self._closed = False
         #: set by ``abort`` (a stop): buffered writes are refused until the next session begins
         self._aborted = threading.Event()
+        self._thermometer = bool(world.config["ambient"].get("thermometer", False))
+        self._block_temp_c: np.ndarray | None = None
 
     @property
     def sample_rate_hz(self) -> float:
@@ -51,11 +53,9 @@ class EmulatedDaq:
         return actual
 
     def temperature_c(self) -> np.ndarray | None:
-        """The stack thermometer's reading (°C) at each sample of the last block, or None where the
-        bench has none (``[ambient] thermometer``); Bench.run records it as ``temp_c``."""
-        if not self.world.config["ambient"].get("thermometer", False):
-            return None
-        return self.world.last_diag[:, K.D_TEMP_C].copy()
+        """The stack thermometer's reading (°C) at each sample of the last buffered block, or None
+        where the bench has none (``[ambient] thermometer``); Bench.run records it as ``temp_c``."""
+        return self._block_temp_c
 
     def configure(self, sample_rate_hz: float) -> float:
         self._ensure_open()
@@ -82,17 +82,25 @@ class EmulatedDaq:
         self._check_ao(ao)
         if self._aborted.is_set():
             raise OutputAborted("the output was stopped; nothing was written")
-        faults, parts = self.world.faults, []
+        faults, parts, temps = self.world.faults, [], []
+
+        def play(block: np.ndarray) -> None:
+            parts.append(self.world.run(block))
+            if self._thermometer:
+                temps.append(self.world.last_diag[:, K.D_TEMP_C])
+
         while True:
             k = faults.samples_until_due(len(ao))
             if k is None:
                 break
             if k:
-                parts.append(self.world.run(ao[:k]))
+                play(ao[:k])
                 ao = ao[k:]
             faults.fire_due()
-        parts.append(self.world.run(ao))
+        play(ao)
         self.world.output_log.record("block")
+        if self._thermometer:   # the whole block's, also when a fault cut it in two
+            self._block_temp_c = np.concatenate(temps)
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def begin_session(self) -> None:
