@@ -12,6 +12,9 @@ Shared here, once per session (per xdist worker):
   arguments; each test gets its own copy.
 - ``postgres_url``: a private PostgreSQL cluster (tests/pg_server.py) for the store tests.
 
+Per test: ``store``, a fresh SQLite store in the test's tmp_path (a file that defines its own
+``store``, e.g. tests/test_service_store.py's SQLite-and-PostgreSQL one, overrides it).
+
 Markers (pyproject.toml): ``slow``, ``realtime``, ``browser``, ``postgres``; ``make test-fast``
 leaves out all four. ``make test`` runs everything on every core (pytest-xdist, ``--dist
 loadgroup``): tests that share an expensive module fixture carry an ``xdist_group`` so that one
@@ -80,6 +83,16 @@ def sweeps():
         return copy.deepcopy(done[key])
 
     return sweep
+
+
+@pytest.fixture
+def store(tmp_path):
+    """A fresh SQLite store (metadata and arrays) in the test's own tmp_path, closed afterwards."""
+    from service.store import Store
+
+    s = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
+    yield s
+    s.close()
 
 
 @pytest.fixture(scope="session")

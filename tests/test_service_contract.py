@@ -45,13 +45,6 @@ class _Ctx:
 
 
 @pytest.fixture
-def store(tmp_path):
-    s = Store(f"sqlite:///{tmp_path / 'meta.sqlite'}", tmp_path)
-    yield s
-    s.close()
-
-
-@pytest.fixture
 def bench():
     b = open_bench("default", seed=2)
     yield b

@@ -11,16 +11,8 @@ from api_client import authed_client, job_running, wait_job
 from service.runtime.app import create_app
 from service.runtime.jobs import JobManager, QueueFull
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, Settings
-from service.store import Store
 
 TINY_SWEEP = {"axes": ["y"], "frequencies_hz": [50.0], "cycles": 2, "settle_s": 0.0, "sample_rate_hz": 5000.0}
-
-
-@pytest.fixture
-def store(tmp_path):
-    s = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
-    yield s
-    s.close()
 
 
 def test_each_queue_refuses_beyond_its_limit_and_stores_nothing(store):

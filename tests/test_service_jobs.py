@@ -14,14 +14,7 @@ from service.security import auth
 from service.runtime import jobs as jobs_module
 from service.runtime.jobs import JobInterrupted, JobManager
 from service.runtime.recovery import recover
-from service.store import Store, utc_now
-
-
-@pytest.fixture
-def store(tmp_path):
-    s = Store(f"sqlite:///{tmp_path}/evcbench.db", tmp_path)
-    yield s
-    s.close()
+from service.store import utc_now
 
 
 def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
