@@ -98,12 +98,15 @@ def test_failures_are_recorded_and_the_worker_lives_on(store):
 def test_sse_streams_progress_then_the_end(store):
     manager = JobManager(store)
     gate = threading.Event()
+    carried = {k: threading.Event() for k in (1, 2, 3)}      # the stream has carried "step k"
 
     def job(ctx):
         gate.wait(5)
         for k in range(1, 4):
             ctx.progress(k / 4, f"step {k}")
-            time.sleep(0.15)
+            # the next step only once the stream showed this one: a busy machine cannot merge them
+            if not carried[k].wait(30):
+                raise RuntimeError(f"the stream never carried step {k}")
         return {"done": True}
 
     async def collect(job_id):
@@ -112,13 +115,20 @@ def test_sse_streams_progress_then_the_end(store):
             events.append(text)
             if len(events) == 1:
                 gate.set()
+            for k, seen in carried.items():
+                if f'"message": "step {k}"' in text:
+                    seen.set()
         return events
 
     try:
         submitted = manager.submit("identify", None, job, needs_bench=False)
         events = asyncio.run(collect(submitted["id"]))
         assert events[-1].startswith("event: end\n") and '"state": "succeeded"' in events[-1]
-        assert sum(e.startswith("event: progress") for e in events) >= 3
+        progress = [json.loads(e.split("data: ", 1)[1]) for e in events[:-1]]
+        assert all(e.startswith("event: progress\n") for e in events[:-1])
+        steps = [p["message"] for p in progress if p["message"].startswith("step")]
+        assert [m for i, m in enumerate(steps) if i == 0 or steps[i - 1] != m] == ["step 1", "step 2", "step 3"]
+        assert [p["progress"] for p in progress if p["message"] == "step 2"][0] == 0.5
         # subscribing after the end gives the end at once
         assert asyncio.run(collect(submitted["id"])) == [events[-1]]
     finally:
