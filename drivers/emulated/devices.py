@@ -84,7 +84,7 @@ class EmulatedDaq:
             raise OutputAborted("the output was stopped; nothing was written")
         faults, parts, temps = self.world.faults, [], []
 
-        def play(block: np.ndarray) -> None:
+        def run_part(block: np.ndarray) -> None:
             parts.append(self.world.run(block))
             if self._thermometer:
                 temps.append(self.world.last_diag[:, K.D_TEMP_C])
@@ -94,10 +94,10 @@ class EmulatedDaq:
             if k is None:
                 break
             if k:
-                play(ao[:k])
+                run_part(ao[:k])
                 ao = ao[k:]
             faults.fire_due()
-        play(ao)
+        run_part(ao)
         self.world.output_log.record("block")
         if self._thermometer:   # the whole block's, also when a fault cut it in two
             self._block_temp_c = np.concatenate(temps)
