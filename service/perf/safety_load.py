@@ -16,8 +16,11 @@ Figures, side by side in one run:
 """
 from __future__ import annotations
 
-import multiprocessing
+import json
+import os
 import random
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -53,56 +56,31 @@ def write_import_csv(path: Path, megabytes: float) -> Path:
     return path
 
 
-def _download_loop(url: str, headers: dict, dataset_id: str, stop, results, flowing=None) -> None:
-    """One client (its own process) downloading the dataset's full-resolution CSV until ``stop``."""
-    done, received = 0, 0
-    with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
-        while not stop.is_set():
-            with c.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "csv"}) as r:
-                for chunk in r.iter_bytes():
-                    received += len(chunk)
-                    if flowing is not None:
-                        flowing.set()
-                    if stop.is_set():
-                        break
-            done += 1
-    results.put({"downloads": done, "download_bytes": received})
-
-
-def _upload_loop(url: str, headers: dict, csv_path: str, stop, results) -> None:
-    """One client (its own process) importing the CSV at ``csv_path`` over and over until ``stop``."""
-    done, statuses = 0, set()
-    with httpx.Client(base_url=url, headers=headers, timeout=600) as c:
-        while not stop.is_set():
-            with open(csv_path, "rb") as f:
-                statuses.add(c.post("/api/datasets", files={"file": ("load.csv", f, "text/csv")}).status_code)
-            done += 1
-    results.put({"imports": done, "import_status": statuses})
-
-
-def _start_load(url: str, headers: dict, dataset_id: str, csv_path: Path):
-    """The four downloaders and the importer, each in its own process like a real client (so this
-    process, which presses the stop and times it, shares no interpreter lock with them)."""
-    ctx = multiprocessing.get_context("spawn")
-    stop, results, flowing = ctx.Event(), ctx.Queue(), ctx.Event()
-    procs = [ctx.Process(target=_download_loop, args=(url, headers, dataset_id, stop, results, flowing), daemon=True)
+def _start_load(url: str, token: str, dataset_id: str, csv_path: Path) -> list[subprocess.Popen]:
+    """The four downloaders and the importer, each a process of its own like a real client (so this
+    process, which presses the stop and times it, shares no interpreter lock with them); returns
+    once the first downloaded bytes flow, so the stops are pressed under load."""
+    env = {**os.environ, "EVCBENCH_TOKEN": token}
+    cmd = [sys.executable, "-m", "service.perf.load_client"]
+    procs = [subprocess.Popen([*cmd, "download", url, dataset_id], stdout=subprocess.PIPE, text=True, env=env)
              for _ in range(DOWNLOADERS)]
-    procs.append(ctx.Process(target=_upload_loop, args=(url, headers, str(csv_path), stop, results), daemon=True))
+    procs.append(subprocess.Popen([*cmd, "upload", url, str(csv_path)], stdout=subprocess.PIPE, text=True, env=env))
+    procs[0].stdout.readline()      # "flowing" (or "" if the client died: its counts will say so)
+    return procs
+
+
+def _stop_load(procs: list[subprocess.Popen]) -> dict:
+    """SIGTERM every client; sum the counts each prints as its last line."""
     for p in procs:
-        p.start()
-    flowing.wait(120)      # the stops are pressed under load: wait until downloaded bytes flow
-    return procs, stop, results
-
-
-def _stop_load(procs, stop, results) -> dict:
-    stop.set()
+        p.terminate()
     counts = {"downloads": 0, "download_bytes": 0, "imports": 0, "import_status": set()}
-    for _ in procs:
-        part = results.get(timeout=300)
-        for key, value in part.items():
-            counts[key] = counts[key] | value if key == "import_status" else counts[key] + value
     for p in procs:
-        p.join(30)
+        out, _ = p.communicate(timeout=300)
+        lines = [line for line in out.splitlines() if line.startswith("{")]
+        if not lines:
+            raise RuntimeError(f"load client {p.args[3:]} ended with {p.returncode} and no counts")
+        for key, value in json.loads(lines[-1]).items():
+            counts[key] = counts[key] | set(value) if key == "import_status" else counts[key] + value
     return counts
 
 
@@ -149,14 +127,15 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
         tmp = Path(tmp)
         proc, url = spawn_service(tmp / "data", "default_realtime", tmp / "service.log")
         try:
-            headers = {"Authorization": f"Bearer {read_bootstrap_token(tmp / 'data')}"}
+            token = read_bootstrap_token(tmp / "data")
+            headers = {"Authorization": f"Bearer {token}"}
             with httpx.Client(base_url=url, headers=headers, timeout=600) as client:
                 engine_pid = client.get("/api/bench").json()["engine"]["pid"]
                 seeded = client.post("/api/sweeps", json=SWEEP).json()
                 dataset_id = _wait(client, seeded["job_id"], ("succeeded",))["result"]["dataset_id"]
                 idle = [_press(client, rng) for _ in range(max(3, presses // 3))]
                 csv_path = write_import_csv(tmp / "load.csv", import_mb)
-                load = _start_load(url, headers, dataset_id, csv_path)
+                load = _start_load(url, token, dataset_id, csv_path)
                 try:
                     time.sleep(2.0)
                     loaded = [_press(client, rng) for _ in range(presses)]
@@ -165,7 +144,7 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                     swept = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
                     after = client.get("/api/bench").json()
                 finally:
-                    counts = _stop_load(*load)
+                    counts = _stop_load(load)
                 trip = after["safety"].get("watchdog_last_trip")
                 return {
                     "stop_idle": _summary(idle), "stop_under_load": _summary(loaded),
