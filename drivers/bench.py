@@ -315,7 +315,8 @@ class Bench(LimitsMixin):
         0 V (a buffered block waiting for its slot ends at once; compiled loops check the flag every
         ≤ 50 samples), and write 0 V here if it has not within ``wait_s`` (default ``[safety]
         stop_wait_s``) or if no loop runs. Returns True if a running loop answered. ``last_stop``
-        keeps the request's and the 0 V write's ``time.monotonic()`` (s) for latency figures."""
+        keeps the request's and the 0 V write's ``time.monotonic()`` (s) for latency figures, and
+        the amplifier outputs read after it (``output_v``, actuator volts)."""
         requested_s = time.monotonic()
         running = self.running
         self.request_stop(reason)
@@ -331,7 +332,7 @@ class Bench(LimitsMixin):
         if zero_s is None or zero_s < requested_s:
             zero_s = self.last_zero_monotonic_s
         self.last_stop = {"reason": reason, "requested_monotonic_s": requested_s, "zero_monotonic_s": zero_s,
-                          "loop_answered": running and answered}
+                          "loop_answered": running and answered, "output_v": self.output_v()}
         return running and answered
 
     def _on_watchdog_trip(self, reason: str) -> None:

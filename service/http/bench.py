@@ -39,13 +39,9 @@ async def emergency_stop(request: Request) -> dict:
     submitted afterwards run normally. ``zero_after_request_ms`` is the engine's measured time from
     receiving the stop to the 0 V write."""
     out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, safe_state, request.app, EMERGENCY_STOP)
-    stop = out.get("stop") or {}
-    zero_ms = None
-    if stop.get("zero_monotonic_s") is not None and stop.get("requested_monotonic_s") is not None:
-        zero_ms = round(max(0.0, stop["zero_monotonic_s"] - stop["requested_monotonic_s"]) * 1e3, 3)
-    return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids",
-                                                    "loop_answered", "output_v")},
-            "zero_after_request_ms": zero_ms, "zero_monotonic_s": stop.get("zero_monotonic_s")}
+    return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids", "loop_answered",
+                                                    "output_v", "zero_after_request_ms")},
+            "zero_monotonic_s": out["stop"]["zero_monotonic_s"]}
 
 
 @router.post("/bench/reset", response_model=FaultsReset)

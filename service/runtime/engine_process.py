@@ -53,8 +53,8 @@ def _stop_command(bench: Bench, message: tuple) -> dict:
     if op == "request_stop":
         bench.request_stop(reason)
         return {"requested": True}
-    answered = bench.stop(reason, wait_s=message[2])
-    return {**(bench.last_stop or {}), "loop_answered": answered, "output_v": bench.output_v()}
+    bench.stop(reason, wait_s=message[2])
+    return bench.last_stop
 
 
 def _faults(bench: Bench):

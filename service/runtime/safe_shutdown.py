@@ -29,18 +29,22 @@ def safe_state(app: Any, reason: str) -> dict:
     written from here), then the bench jobs queued are cancelled and the running bench job is
     cancelled with ``reason``: nothing that touches the store comes before the 0 V. Used by the
     emergency stop and the signal handlers; safe to call more than once and before the app has
-    started (then there is nothing to stop). ``stop`` holds the bench's latency figures."""
+    started (then there is nothing to stop). ``stop`` holds the bench's figures (``Bench.last_stop``),
+    ``zero_after_request_ms`` the time from the stop reaching the bench to its 0 V write (ms)."""
     state = getattr(app, "state", None)
     bench, jobs = getattr(state, "bench", None), getattr(state, "jobs", None)
     out: dict = {"reason": reason, "cancelled_job_id": None, "cancelled_queued_job_ids": []}
     if bench is not None:
         running = jobs.running_bench_job if jobs is not None else None
         out["loop_answered"] = bench.stop(reason)
-        out["stop"] = dict(getattr(bench, "last_stop", None) or {})
+        out["stop"] = stop = dict(bench.last_stop)
         if jobs is not None:
             out["cancelled_queued_job_ids"] = jobs.cancel_queued_bench_jobs(reason)
             out["cancelled_job_id"] = jobs.cancel_running_bench_job(reason) or running
-        out["output_v"] = out["stop"].get("output_v") or bench.output_v()
+        out["output_v"] = stop["output_v"]
+        out["zero_after_request_ms"] = (
+            None if stop["zero_monotonic_s"] is None
+            else round(max(0.0, stop["zero_monotonic_s"] - stop["requested_monotonic_s"]) * 1e3, 3))
     log.warning("%s: outputs at 0 V, running job %s cancelled", reason, out["cancelled_job_id"])
     return out
 
