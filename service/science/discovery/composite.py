@@ -13,6 +13,8 @@ stroke check's ``stack_demand_um`` and JSON round trips.
 from __future__ import annotations
 
 import copy
+import threading
+from collections import OrderedDict
 from typing import Sequence
 
 import numpy as np
@@ -37,6 +39,34 @@ OUTER_ITERATIONS = 2
 #: what an identification of a composite holds out (the stored metrics say it in words)
 HELD_OUT_NOTE = ("last ceil(20 %) of the full cycles of every block; means are over blocks. "
                  "held_out_frequencies: each frequency left out of the fit in turn")
+
+
+class _PlayOutputsMemo:
+    """The play operators' outputs of the last few drives: a diagnosis fits a dozen models on the
+    same records with the same thresholds, and each fit would otherwise replay every operator over
+    every sample. Keyed by the drive array's identity (a reference is held, so the id stays its
+    own), the origin (V) and the thresholds (V); bounded to ``size`` entries (each n × p floats)."""
+
+    def __init__(self, size: int = 6):
+        self.size, self._entries, self._lock = size, OrderedDict(), threading.Lock()
+
+    def outputs(self, u_v: np.ndarray, origin_v: float, thresholds_v: np.ndarray) -> np.ndarray:
+        key = (id(u_v), u_v.shape, float(origin_v), np.asarray(thresholds_v, dtype=float).tobytes())
+        with self._lock:
+            hit = self._entries.get(key)
+            if hit is not None and hit[0] is u_v:
+                self._entries.move_to_end(key)
+                return hit[1]
+        p = play_operators(u_v - origin_v, thresholds_v)
+        p.flags.writeable = False          # shared between fits: nobody may change it in place
+        with self._lock:
+            self._entries[key] = (u_v, p)
+            while len(self._entries) > self.size:
+                self._entries.popitem(last=False)
+        return p
+
+
+_PLAY_MEMO = _PlayOutputsMemo()
 
 
 class CompositeModel:
@@ -109,10 +139,10 @@ class CompositeModel:
         """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
         origin = self.u_origin_v
+        p = _PLAY_MEMO.outputs(u_v, origin, self.thresholds_v)
+        p_other = None if u_other_v is None else _PLAY_MEMO.outputs(u_other_v, origin, self.thresholds_v)
         u_v = u_v - origin
         u_other_v = None if u_other_v is None else u_other_v - origin
-        p = play_operators(u_v, self.thresholds_v)
-        p_other = None if u_other_v is None else play_operators(u_other_v, self.thresholds_v)
         time_scale_s = self.scales.get("time_scale_s")
         if time_scale_s is None:
             raise ValueError("this composite model was stored before its time scale was kept: refit it "
@@ -184,24 +214,35 @@ class CompositeModel:
         widths = [b.width for b in raw[0]]
         lower = [b.lower for b in raw[0]]
         upper = [b.upper for b in raw[0]]
-        a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
         rows = [r.fit_rows(exclude_frequency_hz) for r in records]
         target = np.concatenate([r.require_x()[i] for r, i in zip(records, rows)])
         self.sign = sensitivity_sign(np.concatenate([r.u_v[i] for r, i in zip(records, rows)]), target)
+        if self.transforms:   # the transforms (filters, delays) need every sample of every column
+            a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
+        else:                 # only the training rows are ever read
+            a_raw = [np.hstack([b.columns[i] for b in blocks]) for blocks, i in zip(raw, rows)]
+            rows = [slice(None)] * len(records)
         target = self.sign * target    # fitted in the actuator's own direction (bounded weights ≥ 0)
 
+        row_local = next((n for n in self.transforms if EFFECTS[n].row_local), None)
+
         def solve(theta, exact: str | None = None):
-            """Weights for ``theta``; ``exact`` names a row-local transform applied at the rows only
-            (after the others, which commute with it)."""
+            """Weights for ``theta``. A row-local transform (a delay) is applied at the training rows
+            only, after the others (which commute with it); ``exact`` names one being searched, whose
+            input columns are then cached across the search."""
             parts = []
             for k, r in enumerate(records):
-                if exact is None:
+                local = exact or (row_local if row_local in theta else None)
+                if local is None:
                     parts.append(self._transform(a_raw[k], r.sample_rate_hz, theta)[rows[k]])
+                    continue
+                if exact is None:
+                    base = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=local)
                 else:
                     if k not in cache:
                         cache[k] = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=exact)
                     base = cache[k]
-                    parts.append(EFFECTS[exact].apply_rows(base, r.sample_rate_hz, theta[exact], rows[k]))
+                parts.append(EFFECTS[local].apply_rows(base, r.sample_rate_hz, theta[local], rows[k]))
             a = np.vstack(parts)
             splits = np.cumsum([0] + widths)
             blocks = [Block(nm, (a[:, splits[j]:splits[j + 1]],), lower[j], upper[j]) for j, nm in enumerate(names)]
@@ -277,10 +318,10 @@ class CompositeModel:
         used) or an array of V at ``sample_rate_hz`` (other axis unknown: no coupling), from rest."""
         self._require_fitted()
         d = Drive.of(drive, sample_rate_hz)
-        blocks = self.raw_blocks(d)
-        a = np.hstack([b.columns for b in blocks])
-        c = np.concatenate([self.coef[b.name] for b in blocks])
-        return self.sign * (self._transform(a, d.require_rate(), self.theta) @ c)
+        # the transforms (resonance filter, delay) are linear and act on every column alike, so the
+        # weighted sum is formed first and transformed once: one column filtered, not every column
+        stack_um = sum(b.columns @ self.coef[b.name] for b in self.raw_blocks(d))
+        return self.sign * self._transform(stack_um[:, None], d.require_rate(), self.theta)[:, 0]
 
     def inverse(self, x_ref_um, *, sample_rate_hz: float | None = None, u_limits_v=None,
                 iterations: int = FIXED_POINT_ITERATIONS) -> np.ndarray:

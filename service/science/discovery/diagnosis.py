@@ -24,6 +24,7 @@ from service.science.discovery.identifiability import not_testable
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.symmetry import asymmetry_test
 from service.science.effects import EFFECTS
+from service.science.fitting.validation import evaluate_records
 
 #: with the flexible base, a held-out drop smaller than this many noise floors is "at the noise floor"
 CLEAR_DROP_NOISE = 2.0
@@ -94,8 +95,9 @@ class _Fits:
         if key not in self._cache:
             m = self.model if set(key) == set(self.model.effects) else CompositeModel(
                 list(key), self.model.n_operators).fit(self.records, fixed_theta={**self.model.theta, **(theta or {})})
-            res = [r.x_um - m.predict(r) for r in self.records]
-            self._cache[key] = (m, res, m.evaluate(self.records)["validation_rms_um"])
+            preds = [m.predict(r) for r in self.records]
+            held_out_um = evaluate_records(self.records, preds)["validation_rms_um"]
+            self._cache[key] = (m, [r.x_um - p for r, p in zip(self.records, preds)], held_out_um)
         return self._cache[key]
 
 
@@ -148,7 +150,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     fits = _Fits(records, model)
     _, res, v0 = fits.get(())
     preds = [r.x_um - e for r, e in zip(records, res)]
-    ev = model.evaluate(records)
+    ev = evaluate_records(records, preds)
     floor = noise_floor(records, res)
     noise = floor["noise_floor_um"] or 0.0
     sig = signatures(records, res, preds)
