@@ -159,10 +159,11 @@ def test_the_rate_a_time_column_implies_is_bounded_too():
         assert info.value.field == "t" and "outside 1 Hz–10 MHz" in info.value.message
 
 
-def _bipolar_csv(n: int = 8000, fs_hz: float = 2000.0) -> bytes:
-    """A pandas export of a ±150 V record: an unnamed index column, an empty column, a text column."""
+def _bipolar_csv(n: int = 8000, fs_hz: float = 2000.0, rest_s: float = 0.0) -> bytes:
+    """A pandas export of a ±150 V record: an unnamed index column, an empty column, a text column
+    (and a rest at 0 V of ``rest_s`` before the 5 Hz excitation)."""
     t = np.arange(n) / fs_hz
-    u = 150 * np.sin(2 * np.pi * 5 * t)
+    u = np.where(t < rest_s, 0.0, 150 * np.sin(2 * np.pi * 5 * (t - rest_s)))
     x = np.zeros(n)
     state = 0.0
     for k in range(n):                                 # a backlash loop, 4 µm wide
@@ -185,6 +186,20 @@ def test_a_bipolar_record_beyond_the_bench_limits_imports_and_is_modelled(servic
         assert api.model(model_id)["metrics"]["validation_rms_um"] < 0.5       # on a 15 µm stroke
         diagnosis = http.get(f"/api/models/{model_id}/diagnosis")
         assert diagnosis.status_code == 200 and diagnosis.json()["verdict"] in ("complete", "missing_effect")
+
+
+def test_a_rest_before_the_excitation_is_trimmed_from_the_block_and_reported(service):
+    """A 1.5 s rest at 0 V before 2.5 s of a 5 Hz sine: the block is the oscillation alone (its
+    cycles are the drive's own, the last of them held out) and the rest's length is reported."""
+    _, http, api = service
+    ds = api.import_dataset(_bipolar_csv(n=8000, fs_hz=2000.0, rest_s=1.5), filename="rest_first.csv")
+    (block,) = api.dataset(ds["id"])["blocks"]
+    assert block["frequency_hz"] == pytest.approx(5.0, rel=1e-6)
+    assert block["start"] >= 1.5 * 2000 and block["stop"] <= 8000 and block["cycles"] >= 11
+    # the block starts at the first whole cycle it can time: within one 0.2 s period of the rest's end
+    assert 1.5 - 1e-3 <= block["trimmed"]["before_s"] <= 1.5 + 0.2 + 1e-3 and block["trimmed"]["after_s"] < 0.2
+    model_id = api.identify("y", [ds["id"]], model="static_pi")["id"]
+    assert api.model(model_id)["metrics"]["validation_rms_um"] < 0.5
 
 
 def test_the_default_json_download_is_bounded_and_names_the_streaming_routes(service):

@@ -93,7 +93,9 @@ def detect_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> lis
 def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict]:
     """The block table of a record that came without one: its steady stretches when there are several
     (a sweep over frequencies or axes, bursts between holds); else one block over the whole record,
-    with the frequency and whole cycles of its one steady oscillation if it has one."""
+    with the frequency and whole cycles of its one steady oscillation if it has one; and if a rest
+    of more than one period comes before or after that oscillation, the block is the oscillation
+    alone and ``trimmed`` says how long the rest was (s) before and after it."""
     blocks = detect_blocks(drives_v, sample_rate_hz)
     if len(blocks) >= 2:
         return blocks
@@ -101,6 +103,16 @@ def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float)
     whole = {"index": 0, "start": 0, "stop": n, "kind": "imported", "frequency_hz": None, "cycles": None,
              "axes": list(drives_v)}
     if blocks:
-        f = float(blocks[0]["frequency_hz"])
-        whole.update(frequency_hz=f, cycles=int(np.floor(n * f / sample_rate_hz + 1e-9)), axes=blocks[0]["axes"])
+        run = blocks[0]
+        f = float(run["frequency_hz"])
+        period = sample_rate_hz / f
+        before, after = int(run["start"]), n - int(run["stop"])
+        if max(before, after) > period:   # a rest (or a ramp) around the excitation: the block is the
+            # steady oscillation alone, so its cycles and held-out cycles are the drive's own; the
+            # rest stays in the record (the model runs through it) and is reported
+            return [{**whole, "start": int(run["start"]), "stop": int(run["stop"]), "frequency_hz": f,
+                     "cycles": int(run["cycles"]), "axes": run["axes"],
+                     "trimmed": {"before_s": before / sample_rate_hz, "after_s": after / sample_rate_hz,
+                                 "why": "not steady oscillation (a rest or a ramp): outside the block"}}]
+        whole.update(frequency_hz=f, cycles=int(np.floor(n * f / sample_rate_hz + 1e-9)), axes=run["axes"])
     return [whole]
