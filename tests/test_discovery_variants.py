@@ -26,7 +26,7 @@ DYNAMICS_INCOMPLETE_Z = pytest.mark.xfail(strict=True, reason="on Z the PI's loo
 #: so after the refine they are claimed too. Strict: this turns red once the library models the relaxation.
 RELAXATION_LAG_Y = pytest.mark.xfail(strict=True, reason="after rate_dependence, the relaxation's remaining lag "
                                      "is claimed by delay and dynamics")
-VARIANTS = ["creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence"]
+VARIANTS = ["creep", "dynamics", "delay", "cross_coupling", "asymmetry", "drift", "rate_dependence", "sensor_nonlinearity"]
 #: the Y cases with a known gap
 KNOWN_GAPS_Y = {"rate_dependence": RELAXATION_LAG_Y}
 

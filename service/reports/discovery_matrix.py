@@ -25,7 +25,8 @@ from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.records import sweep_records
 
-EFFECTS = ("rate_dependence", "creep", "dynamics", "delay", "cross_coupling", "drift", "asymmetry")
+EFFECTS = ("rate_dependence", "creep", "dynamics", "delay", "cross_coupling", "drift", "asymmetry",
+           "sensor_nonlinearity")
 FAMILIES = {"preisach": "", "bouc_wen": "bw_", "maxwell_slip": "ms_"}
 SEVERAL = {"two_rate_dependence_creep": ("rate_dependence", "creep"), "two_dynamics_drift": ("dynamics", "drift"),
            "two_delay_cross_coupling": ("delay", "cross_coupling"), "two_asymmetry_creep": ("asymmetry", "creep"),

@@ -13,8 +13,6 @@ stroke check's ``stack_demand_um`` and JSON round trips.
 from __future__ import annotations
 
 import copy
-import threading
-from collections import OrderedDict
 from typing import Sequence
 
 import numpy as np
@@ -23,15 +21,16 @@ from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import sensitivity_sign
 from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIXED_POINT_ITERATIONS,
                                                          composite_inverse, invert_transforms)
+from service.science.discovery.play_memo import PLAY_OUTPUTS
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
+from service.science.effects.sensor_nonlinearity import OUTPUT_ROUNDS
 from service.science.fitting.lsq import Block, solve_blocks
 from service.science.fitting.metrics import rms
 from service.science.fitting.validation import evaluate_records, mean_of
 from service.science.models.base import equal_thresholds
 from service.science.models.contract import Drive, split_stored
-from service.science.models.kernels import play_operators
 
 OUTER_ITERATIONS = 2
 
@@ -39,34 +38,6 @@ OUTER_ITERATIONS = 2
 #: what an identification of a composite holds out (the stored metrics say it in words)
 HELD_OUT_NOTE = ("last ceil(20 %) of the full cycles of every block; means are over blocks. "
                  "held_out_frequencies: each frequency left out of the fit in turn")
-
-
-class _PlayOutputsMemo:
-    """The play operators' outputs of the last few drives: a diagnosis fits a dozen models on the
-    same records with the same thresholds, and each fit would otherwise replay every operator over
-    every sample. Keyed by the drive array's identity (a reference is held, so the id stays its
-    own), the origin (V) and the thresholds (V); bounded to ``size`` entries (each n × p floats)."""
-
-    def __init__(self, size: int = 6):
-        self.size, self._entries, self._lock = size, OrderedDict(), threading.Lock()
-
-    def outputs(self, u_v: np.ndarray, origin_v: float, thresholds_v: np.ndarray) -> np.ndarray:
-        key = (id(u_v), u_v.shape, float(origin_v), np.asarray(thresholds_v, dtype=float).tobytes())
-        with self._lock:
-            hit = self._entries.get(key)
-            if hit is not None and hit[0] is u_v:
-                self._entries.move_to_end(key)
-                return hit[1]
-        p = play_operators(u_v - origin_v, thresholds_v)
-        p.flags.writeable = False          # shared between fits: nobody may change it in place
-        with self._lock:
-            self._entries[key] = (u_v, p)
-            while len(self._entries) > self.size:
-                self._entries.popitem(last=False)
-        return p
-
-
-_PLAY_MEMO = _PlayOutputsMemo()
 
 
 class CompositeModel:
@@ -139,8 +110,8 @@ class CompositeModel:
         """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
         origin = self.u_origin_v
-        p = _PLAY_MEMO.outputs(u_v, origin, self.thresholds_v)
-        p_other = None if u_other_v is None else _PLAY_MEMO.outputs(u_other_v, origin, self.thresholds_v)
+        p = PLAY_OUTPUTS.outputs(u_v, origin, self.thresholds_v)
+        p_other = None if u_other_v is None else PLAY_OUTPUTS.outputs(u_other_v, origin, self.thresholds_v)
         u_v = u_v - origin
         u_other_v = None if u_other_v is None else u_other_v - origin
         time_scale_s = self.scales.get("time_scale_s")
@@ -226,10 +197,12 @@ class CompositeModel:
 
         row_local = next((n for n in self.transforms if EFFECTS[n].row_local), None)
 
-        def solve(theta, exact: str | None = None):
-            """Weights for ``theta``. A row-local transform (a delay) is applied at the training rows
-            only, after the others (which commute with it); ``exact`` names one being searched, whose
-            input columns are then cached across the search."""
+        splits = np.cumsum([0] + widths)
+
+        def design(theta, exact: str | None = None) -> np.ndarray:
+            """The training rows' columns for ``theta``. A row-local transform (a delay) is applied
+            at those rows only, after the others (which commute with it); ``exact`` names one being
+            searched, whose input columns are then cached across the search."""
             parts = []
             for k, r in enumerate(records):
                 local = exact or (row_local if row_local in theta else None)
@@ -243,10 +216,15 @@ class CompositeModel:
                         cache[k] = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=exact)
                     base = cache[k]
                 parts.append(EFFECTS[local].apply_rows(base, r.sample_rate_hz, theta[local], rows[k]))
-            a = np.vstack(parts)
-            splits = np.cumsum([0] + widths)
+            return np.vstack(parts)
+
+        def solve_design(a: np.ndarray, extra: Block | None = None):
             blocks = [Block(nm, (a[:, splits[j]:splits[j + 1]],), lower[j], upper[j]) for j, nm in enumerate(names)]
-            return solve_blocks(blocks, target)
+            return solve_blocks(blocks + ([extra] if extra is not None else []), target)
+
+        def solve(theta, exact: str | None = None):
+            """Weights for ``theta`` (see ``design``)."""
+            return solve_design(design(theta, exact))
 
         theta = {name: dict(fixed_theta.get(name) or self._identity_theta(name)) for name in self.transforms}
         free = [name for name in self.transforms if name not in fixed_theta]
@@ -271,9 +249,45 @@ class CompositeModel:
                     theta[name] = best
             sol = solve(theta)
         self.theta = theta
-        splits = np.cumsum([0] + widths)
-        self.coef = {nm: sol.coef[splits[j]:splits[j + 1]].copy() for j, nm in enumerate(names)}
-        self.train_rms_um = sol.rms
+        coef, train_rms = sol.coef, sol.rms
+        gauge = self._output_effect()
+        if gauge is not None:   # the gauge's bow of the output, by alternating least squares
+            a = design(theta)
+            self.scales["x_mid_um"] = float(0.5 * (target.max() + target.min()))
+            self.scales["x_half_um"] = float(0.5 * (target.max() - target.min()))
+            mid, half = self.scales["x_mid_um"], self.scales["x_half_um"]
+            z = a @ sol.coef
+            width = gauge.columns(z[:1], mid, half).shape[1]
+            coef = np.append(sol.coef, np.zeros(width))       # no bow at all, unless a round beats it
+            for _ in range(OUTPUT_ROUNDS):
+                sol = solve_design(a, Block.make(gauge.block_name, gauge.columns(z, mid, half)))
+                z = a @ sol.coef[:splits[-1]]         # the output before the gauge with the new weights,
+                err = rms(target - z - gauge.columns(z, mid, half) @ sol.coef[splits[-1]:])  # read as predict does
+                if err < train_rms:
+                    coef, train_rms = sol.coef, err
+            names = names + [gauge.block_name]
+            splits = np.append(splits, splits[-1] + width)
+        self.coef = {nm: coef[splits[j]:splits[j + 1]].copy() for j, nm in enumerate(names)}
+        self.train_rms_um = train_rms
+
+    def _output_effect(self):
+        """The effect that maps the model's output (the gauge's bow), or None."""
+        return next((EFFECTS[e] for e in self.effects if EFFECTS[e].stage == "output"), None)
+
+    def gauge_output(self, z_um: np.ndarray) -> np.ndarray:
+        """What the gauge reads (µm, the model's own direction) for the output ``z_um`` before it."""
+        gauge = self._output_effect()
+        if gauge is None:
+            return z_um
+        bow = gauge.columns(z_um, self.scales["x_mid_um"], self.scales["x_half_um"])
+        return z_um + bow @ self.coef[gauge.block_name]
+
+    def undo_gauge(self, x_um: np.ndarray) -> np.ndarray:
+        """The output before the gauge (µm, the model's own direction) that reads ``x_um``."""
+        gauge = self._output_effect()
+        if gauge is None:
+            return x_um
+        return gauge.invert(x_um, self.coef[gauge.block_name], self.scales["x_mid_um"], self.scales["x_half_um"])
 
     def _identity_theta(self, name: str) -> dict:
         return {"delay_s": 0.0} if name == "delay" else {"fn_hz": 1e12, "zeta": 1.0}
@@ -321,7 +335,7 @@ class CompositeModel:
         # the transforms (resonance filter, delay) are linear and act on every column alike, so the
         # weighted sum is formed first and transformed once: one column filtered, not every column
         stack_um = sum(b.columns @ self.coef[b.name] for b in self.raw_blocks(d))
-        return self.sign * self._transform(stack_um[:, None], d.require_rate(), self.theta)[:, 0]
+        return self.sign * self.gauge_output(self._transform(stack_um[:, None], d.require_rate(), self.theta)[:, 0])
 
     def inverse(self, x_ref_um, *, sample_rate_hz: float | None = None, u_limits_v=None,
                 iterations: int = FIXED_POINT_ITERATIONS) -> np.ndarray:
@@ -339,7 +353,8 @@ class CompositeModel:
         transforms for the output to follow the planned reference ``x_ref_um`` (µm)."""
         if not sample_rate_hz:
             raise ValueError("sample_rate_hz is needed to undo a composite model's dynamics")
-        return invert_transforms(self, np.asarray(x_ref_um, dtype=float), float(sample_rate_hz))
+        x_um = self.sign * self.undo_gauge(self.sign * np.asarray(x_ref_um, dtype=float))
+        return invert_transforms(self, x_um, float(sample_rate_hz))
 
     def evaluate(self, records) -> dict:
         """Train/held-out metrics per dataset over every block (also those that drive only the other

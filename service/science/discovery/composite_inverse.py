@@ -72,6 +72,7 @@ def composite_inverse(model, x_ref_um: np.ndarray, sample_rate_hz: float, iterat
     """The drive (V) whose model output follows ``x_ref_um`` (see the module docstring), the inner PI
     inverse searched within ``u_limits_v`` (V)."""
     x = model.sign * np.asarray(x_ref_um, dtype=float)    # in the model's own direction (fitted to sign·x)
+    x = model.undo_gauge(x)                                # what the flexure must do for the gauge to read it
     w = invert_transforms(model, x, sample_rate_hz)
     weights = model.coef["weights_um_per_v"]
     offset = float(model.coef["offset_um"][0])

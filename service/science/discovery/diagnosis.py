@@ -66,6 +66,10 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
                 "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
                 "not of time or rate (a gauge's own curvature would bend the output as a function of x instead): "
                 "asymmetry")
+    if name == "sensor_nonlinearity":
+        return ("the loop's bow follows the measured position x rather than the drive: the gauge's own curvature "
+                "(an unlinearised capacitance probe, a tilted target) — a property of the measurement, not of the "
+                "stack: sensor_nonlinearity")
     if name == "cross_coupling":
         r = sig.get("coupling_r")
         return (f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling" if r is not None
@@ -105,27 +109,24 @@ def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, s
     """One testable candidate: its test against its reference, the claim, and what adding it to
     the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
     eff = EFFECTS[name]
-    if name == "asymmetry":        # a property of the measured loop: tested without a model
-        test = asymmetry_test(records, noise)
-        reference, v_ref = (), v0
-        gain = (test["even_rms_um"] or 0.0) ** 2
-        how = (f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
-               f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
-               f"noise σ = {_fmt_nm(noise)})")
-    else:
-        reference = _reference_for(name)
-        _, res_ref, v_ref = fits.get(reference)
-        # a transform's parameters are searched once, on the model with it alone, then kept
-        theta = fits.get((name,))[0].theta if eff.stage == "transform" else None
-        _, res_trial, v_trial = fits.get(reference + (name,), theta)
-        test = held_out_improvement(records, res_ref, res_trial)
-        test["claimed"] = claimed(test, noise)
-        gain = test["gain_mse_um2"]
-        against = "the model" if not reference else "the model + " + " + ".join(reference)
-        how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm (p = "
-               f"{test['p']:.2g} over {test['segments']} held-out segments; {gain * 1e6:.3g} nm² of mean square "
-               f"against σ² = {noise**2 * 1e6:.3g} nm²)")
-    is_claimed = bool(test["claimed"])
+    reference = _reference_for(name)
+    _, res_ref, v_ref = fits.get(reference)
+    # a transform's parameters are searched once, on the model with it alone, then kept
+    theta = fits.get((name,))[0].theta if eff.stage == "transform" else None
+    _, res_trial, v_trial = fits.get(reference + (name,), theta)
+    test = held_out_improvement(records, res_ref, res_trial)
+    against = "the model" if not reference else "the model + " + " + ".join(reference)
+    how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm (p = "
+           f"{test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² of mean "
+           f"square against σ² = {noise**2 * 1e6:.3g} nm²)")
+    return _entry(name, fits, noise, v0, k0, sig, floor, claimed(test, noise), test["p"], test["gain_mse_um2"],
+                  reference, v_ref, how)
+
+
+def _entry(name, fits: "_Fits", noise, v0, k0, sig, floor, is_claimed: bool, p_value: float, gain: float,
+           reference: tuple, v_ref: float, how: str) -> dict:
+    """A candidate's row: the claim, its evidence in words, and what adding it to this model gives."""
+    eff = EFFECTS[name]
     v, added, fitted = v0, 0, ""
     if is_claimed or eff.kind == "capacity":
         own, _, v = fits.get((name,))          # what the user gets by adding it to this model
@@ -135,12 +136,59 @@ def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, s
                 + (f". Added to this model: {v0:.4g} → {v:.4g} µm ({100 * removed:.0f} % of the excess above the "
                    f"noise floor)" if v != v0 else ". Not claimed, so not fitted into this model")
                 + (f"; fitted {fitted}" if fitted else "") + ".")
-    return {"effect": name, "kind": eff.kind, "testable": True, "claimed": is_claimed, "high": is_claimed,
-            "significant": is_claimed,
+    return {"effect": name, "kind": eff.kind, "testable": True, "claimed": bool(is_claimed), "high": bool(is_claimed),
+            "significant": bool(is_claimed),
             "score": round(float(np.clip(gain / max(v_ref**2 - noise**2, 1e-30), 0, 1)), 4),
-            "p_value": test["p"], "gain_mse_um2": gain, "reference": list(reference), "reference_rms_um": v_ref,
+            "p_value": p_value, "gain_mse_um2": gain, "reference": list(reference), "reference_rms_um": v_ref,
             "expected_rms_um": v, "excess_removed": round(float(removed), 4), "added_parameters": added,
             "evidence": evidence, "signature": eff.signature}
+
+
+#: the loop-shape pair: a stack that is not point-symmetric, and a gauge that bows what it reads
+LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
+
+
+def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple[list[dict], dict | None]:
+    """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
+    point-symmetric is tested without a model (a point-symmetric stack of any family has no even
+    part; symmetry.py); if it is not, the stack's asymmetry (a function of the drive and the loop's
+    state) and the gauge's curvature (a function of x) are fitted head to head, each on the model:
+    the one that fits the held-out cycles significantly better (the claim rule's p) is claimed; if
+    neither does, the better one is claimed and the pair is returned as an ambiguity."""
+    test = asymmetry_test(records, noise)
+    even2 = (test["even_rms_um"] or 0.0) ** 2
+    shape = (f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
+             f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
+             f"noise σ = {_fmt_nm(noise)})")
+    if not test["claimed"]:
+        gauge = (shape + "; a gauge's bow would show there, so there is none to see (its S-bend alone is a loop "
+                 "shape the flexible base draws)")
+        return [_entry("asymmetry", fits, noise, v0, k0, sig, floor, False, test["p"], even2, (), v0, shape),
+                _entry("sensor_nonlinearity", fits, noise, v0, k0, sig, floor, False, 1.0, 0.0, (), v0, gauge)], None
+    _, res_a, v_a = fits.get(("asymmetry",))
+    _, res_s, v_s = fits.get(("sensor_nonlinearity",))
+    gauge_better = held_out_improvement(records, res_a, res_s)
+    stack_better = held_out_improvement(records, res_s, res_a)
+    if claimed(gauge_better, 0.0) or claimed(stack_better, 0.0):
+        winner, separated = ("sensor_nonlinearity" if claimed(gauge_better, 0.0) else "asymmetry"), True
+    else:
+        winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
+    h2h = (f"head to head on the model, the stack's asymmetry leaves {v_a:.4g} µm held out and the gauge's "
+           f"curvature {v_s:.4g} µm (p = {stack_better['p']:.2g} that the stack fits better, "
+           f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)")
+    rows = [_entry(name, fits, noise, v0, k0, sig, floor, name == winner,
+                   test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
+                   even2 if name == winner else 0.0,
+                   (), v0, f"{shape}; {h2h}") for name in LOOP_SHAPE]
+    if separated:
+        return rows, None
+    other = next(n for n in LOOP_SHAPE if n != winner)
+    why, body = SEPARATING[frozenset(LOOP_SHAPE)]
+    axes = sorted({r.axis for r in records if r.axis}) or ["y"]
+    return rows, {"effects": [winner, other], "excess_ratio": None,
+                  "text": (f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
+                           f"(held-out {_fmt_nm(min(v_a, v_s))} and {_fmt_nm(max(v_a, v_s))}); {why}"),
+                  "experiment": {"axes": axes, **body}}
 
 
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
@@ -155,7 +203,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     noise = floor["noise_floor_um"] or 0.0
     sig = signatures(records, res, preds)
     k0 = model.n_parameters()
-    candidates, untestable = [], []
+    candidates, untestable, shape_ambiguity = [], [], None
     for name, eff in EFFECTS.items():
         if name in model.effects:
             continue
@@ -165,6 +213,11 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                                "significant": False, "score": 0.0, "p_value": 1.0, "gain_mse_um2": 0.0,
                                "expected_rms_um": v0, "excess_removed": 0.0, "added_parameters": 0,
                                "evidence": f"not testable: {why_not['reason']}", "signature": eff.signature})
+            continue
+        if name in LOOP_SHAPE and not set(LOOP_SHAPE) & set(model.effects):
+            if name == LOOP_SHAPE[0]:        # the pair is weighed together, once
+                pair, shape_ambiguity = _loop_shape_pair(fits, records, noise, v0, k0, sig, floor)
+                candidates += pair
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor))
     # claimed physics first (largest held-out gain first), then the rest by gain; capacity last
@@ -187,7 +240,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                                           held_out_ratio),
             "candidates": candidates + untestable, "not_testable": untestable, "claim_rule": rule_text(noise),
             "failures": worst, "signature": sig,
-            "ambiguity": ambiguity(physical, records, noise), "noise": floor, "metrics": ev}
+            "ambiguity": ambiguity(physical, records, noise) or shape_ambiguity, "noise": floor, "metrics": ev}
 
 
 def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
@@ -239,6 +292,13 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor
 
 #: pairs of effects that look alike on a sine sweep, and the experiment that separates them
 SEPARATING = {
+    frozenset(LOOP_SHAPE): ("on a quasi-static loop x is itself a function of the drive and the loop's state, so "
+                            "a gauge's bow and a stack's asymmetry bend it alike; they part where x at one drive "
+                            "differs (the branches' width, higher rates), so more cycles at more rates give the "
+                            "head-to-head its power. An independent measurement of x (a second gauge, an "
+                            "interferometer) settles it", {"waveform": "sine",
+                                                          "frequencies_hz": [1.0, 10.0, 50.0, 100.0, 200.0],
+                                                          "cycles": 10}),
     frozenset(("creep", "drift")): ("a step-hold sweep up and down: creep relaxes logarithmically after each "
                                     "step and reverses when the drive steps down; drift keeps its direction "
                                     "and pace regardless of the steps",

@@ -11,12 +11,13 @@ from service.science.effects.drift import Drift
 from service.science.effects.dynamics import Dynamics
 from service.science.effects.operators import Operators
 from service.science.effects.rate_dependence import RateDependence
+from service.science.effects.sensor_nonlinearity import SensorNonlinearity
 from service.science.effects.temperature import Temperature
 
-#: name -> effect, in application order (additive regressors, then transforms)
+#: name -> effect, in application order (additive regressors, then transforms, then the gauge)
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
     RateDependence(), Creep(), Asymmetry(), CrossCoupling(), Drift(), Temperature(), Delay(), Dynamics(),
-    Operators())}
+    SensorNonlinearity(), Operators())}
 
 #: every name a model may list (``hysteresis`` is the base and always first)
 EFFECT_NAMES = ("hysteresis",) + tuple(EFFECTS)

@@ -1,9 +1,10 @@
 """The effect contract: what every physical effect (and the capacity candidate) provides.
 
-An effect acts on the composite model's design in one of three places (``stage``):
+An effect acts on the composite model's design in one of four places (``stage``):
 - ``additive``: extra regressor columns (weights by least squares);
 - ``transform``: a linear operator applied to every column (delay, flexure dynamics) whose few
   nonlinear parameters are found by a 1-D/2-D outer search;
+- ``output``: a static map of the model's output (the gauge's own curvature, sensor_nonlinearity.py);
 - ``capacity``: a change of the hysteresis basis itself (more play operators).
 """
 from __future__ import annotations
