@@ -26,11 +26,11 @@ QUERY_TOKEN_PATH = re.compile(r"^/api/jobs/[^/]+/events$")
 #: When auth is off every request acts with this record.
 AUTH_OFF = {"id": None, "name": "auth off", "scope": "admin", "origin": None, "scopes": ["read", "operate", "admin"]}
 
-_bearer = HTTPBearer(auto_error=False, description="An API token: `evcbench token create`, or "
+BEARER = HTTPBearer(auto_error=False, description="An API token: `evcbench token create`, or "
                                                    "<data_dir>/admin.token on the service's machine")
 
 
-def require_token(request: Request, credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> dict:
+def require_token(request: Request, credentials: HTTPAuthorizationCredentials | None = Depends(BEARER)) -> dict:
     """The caller's token record; AuthError (401/403) if it may not make this request."""
     if request.app.state.settings.auth == "off":
         return AUTH_OFF
@@ -49,6 +49,8 @@ def require_token(request: Request, credentials: HTTPAuthorizationCredentials | 
 
 #: Pass to include_router(dependencies=…) for every router that needs a token.
 REQUIRE_TOKEN = [Depends(require_token)]
+#: The refusals a route that checks its token itself documents (``responses=``).
+AUTH_ERRORS = {401: {"description": "no, unknown or revoked token"}, 403: {"description": "scope too low"}}
 
 
 def token_recheck(request: Request, record: dict) -> Callable[[], str | None] | None:

@@ -5,10 +5,12 @@ from __future__ import annotations
 import asyncio
 from concurrent.futures import ThreadPoolExecutor
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi.security import HTTPAuthorizationCredentials
 
 from drivers.bench import BenchBusy
 
+from service.http.auth import AUTH_ERRORS, BEARER, require_token
 from service.http.schemas.bench import BenchState, EmergencyStop, FaultsReset, LiveSignals
 from service.runtime.safe_shutdown import safe_state
 
@@ -30,15 +32,26 @@ EMERGENCY_STOP = "emergency stop"
 _STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop")
 
 
-@router.post("/bench/stop", response_model=EmergencyStop)
-async def emergency_stop(request: Request) -> dict:
+#: The stop's own router: its token is checked on the stop's thread (require_token inside the
+#: handler), not by a router dependency, which FastAPI runs on the request thread pool that a busy
+#: service's downloads and imports hold (app.py mounts it without the router-level check).
+stop_router = APIRouter(tags=["bench"])
+
+
+def _authorized_stop(request: Request, credentials: HTTPAuthorizationCredentials | None) -> dict:
+    require_token(request, credentials)          # 401/403 as every route: nothing moves without a token
+    return safe_state(request.app, EMERGENCY_STOP)
+
+
+@stop_router.post("/bench/stop", response_model=EmergencyStop, responses=AUTH_ERRORS)
+async def emergency_stop(request: Request, credentials: HTTPAuthorizationCredentials | None = Depends(BEARER)) -> dict:
     """Emergency stop: drive every output to 0 V first (the bench engine aborts the running block, the
     loop writes 0 V within one control period, or 0 V is written from the engine's stop thread),
     then cancel the job that owns the bench with the reason "emergency stop" (its samples so far are
     kept as a partial dataset) and the bench jobs queued behind it, so the bench stays still. Jobs
     submitted afterwards run normally. ``zero_after_request_ms`` is the engine's measured time from
-    receiving the stop to the 0 V write."""
-    out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, safe_state, request.app, EMERGENCY_STOP)
+    receiving the stop to the 0 V write. Needs an ``operate`` token, checked on the stop's own thread."""
+    out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, _authorized_stop, request, credentials)
     return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids", "loop_answered",
                                                     "output_v", "zero_after_request_ms")},
             "zero_monotonic_s": out["stop"]["zero_monotonic_s"]}
