@@ -110,12 +110,13 @@ def test_a_stalled_tracking_loop_is_tripped_to_zero_volts_by_the_watchdog():
     bench = open_bench("default", seed=3, overrides={"safety": {"watchdog_min_s": 0.2},
                                                      "faults": {"loop_stall": {"after_s": 0.25}}})
     try:
-        t0 = time.monotonic()
         result, rec, ref = track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, 40), Controller(pid=TUNED_PID))
         assert result["tripped"].startswith("watchdog: no sample written for")
         assert "max(4 periods of 10.0 ms, 0.2 s)" in result["tripped"]
         trip = bench.watchdog.last_trip
-        assert trip["timeout_s"] == 0.2 and 0.2 <= trip["stalled_s"] < 1.2 and time.monotonic() - t0 < 30
+        # the gap the watchdog reports is at least its limit (how much more depends on how busy the
+        # machine is when its thread wakes: a figure, not a bound)
+        assert trip["timeout_s"] == 0.2 and trip["stalled_s"] >= 0.2
         # the stall began at the start of the period holding t = 0.25 s; nothing was written after it
         assert rec.samples == int(0.25 * FS) - int(0.05 * FS)      # session time minus the 50 ms settle
         last = bench.parts.world.output_log.last()

@@ -104,7 +104,7 @@ def test_can_bus_off_stops_the_run_with_the_reason_and_keeps_the_data():
     try:
         t0 = time.monotonic()
         reason, record = _run_with_fault(bench, lambda: nodes.inject("bus_off"))
-        assert time.monotonic() - t0 < 5
+        assert time.monotonic() - t0 < 60      # a hang guard (the driver's timeouts are ~1 s), not a figure
         assert record.samples == BLOCK           # the block whose positions never arrived is dropped
         assert reason.startswith("daq: CAN virtual:evc-emulated-") and "bus-off" in reason
         assert "bus-off" in bench.parts.sensors["y"].status().reason
