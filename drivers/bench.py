@@ -4,9 +4,11 @@ Chain per axis: actuator volts ``u_v`` → DAQ volts (÷ amplifier gain) → DAQ
 → piezo → gauge → DAQ AI volts → micrometres (× gauge scale).
 
 Safety, in order of defence:
-1. ``check_waveform`` refuses a whole plan that leaves 0–120 V, or whose rate of change
-   exceeds the slew limit or the amplifier's current limit into the stack capacitance.
-2. Every command that reaches the DAQ is clamped to 0–120 V and rate-limited.
+1. ``check_waveform`` refuses a whole plan that leaves the axis's voltage range (the stack's
+   rating from the bench config, within the amplifier's output: 0–150 V on the default bench), or
+   whose rate of change exceeds the slew limit or the amplifier's current limit into the stack
+   capacitance.
+2. Every command that reaches the DAQ is clamped to that range and rate-limited.
 3. Every run happens inside ``session()``, which guarantees 0 V on exit, arms the watchdog
    (drivers/watchdog.py: 0 V when no sample is written for N periods) and carries the stop
    flag that ``stop()`` raises; loops check it every block (buffered) or every ≤ 50 samples
@@ -24,7 +26,7 @@ from typing import Callable, Iterator, Mapping
 import numpy as np
 
 from drivers.interfaces import AxisLimits, BenchParts, DriverError, LimitError, NotSupportedError
-from drivers.limits import ACTUATOR_V_MAX, ACTUATOR_V_MIN, LimitsMixin
+from drivers.limits import LimitsMixin, stack_rating_v
 from drivers.live import LiveMonitor
 from drivers.watchdog import SafetyConfig, Watchdog
 
@@ -124,16 +126,21 @@ class _Acquired:
 class Bench(LimitsMixin):
     """A two-axis piezo bench behind driver interfaces. Thread-safe: one run at a time."""
 
-    def __init__(self, parts: BenchParts, v_min_v: float = ACTUATOR_V_MIN, v_max_v: float = ACTUATOR_V_MAX):
-        if v_min_v < ACTUATOR_V_MIN or v_max_v > ACTUATOR_V_MAX or v_min_v >= v_max_v:
-            raise LimitError(f"actuator range {v_min_v}–{v_max_v} V is outside the stack's 0–120 V")
+    def __init__(self, parts: BenchParts, v_min_v: float | None = None, v_max_v: float | None = None):
+        """``v_min_v``/``v_max_v`` (V) narrow the range further; they may not widen the stack's rating."""
         self.parts = parts
         self.axes: tuple[str, ...] = tuple(sorted(parts.amplifiers))
         self.limits: dict[str, AxisLimits] = {}
         for axis, amp in parts.amplifiers.items():
+            rated_min_v, rated_max_v = stack_rating_v(parts.config, axis)
+            lo = rated_min_v if v_min_v is None else v_min_v
+            hi = rated_max_v if v_max_v is None else v_max_v
+            if lo < rated_min_v or hi > rated_max_v or lo >= hi:
+                raise LimitError(f"actuator range {lo:g}–{hi:g} V is outside the {axis} stack's rating "
+                                 f"{rated_min_v:g}–{rated_max_v:g} V")
             self.limits[axis] = AxisLimits(
-                v_min_v=max(v_min_v, amp.output_limits_v[0]),
-                v_max_v=min(v_max_v, amp.output_limits_v[1]),
+                v_min_v=max(lo, amp.output_limits_v[0]),
+                v_max_v=min(hi, amp.output_limits_v[1]),
                 slew_limit_v_per_s=amp.slew_limit_v_per_s,
                 current_limit_a=amp.current_limit_a,
                 capacitance_f=amp.load_capacitance_f,

@@ -2,7 +2,7 @@
 
 Units live in names: ``_v`` volts, ``_um`` micrometres, ``_hz`` hertz, ``_s`` seconds,
 ``_a`` amperes, ``_f`` farads. ``daq_`` marks a voltage at the DAQ terminals (±10 V);
-every other voltage is at the actuator (0–120 V).
+every other voltage is at the actuator (within the stack's rating, 0–150 V on the default bench).
 
 This module imports nothing from ``service``: drivers know no service.
 """
@@ -46,6 +46,8 @@ class DaqCapabilities:
     timebase_hz: float
     max_sample_rate_hz: float
     point_by_point_reason: str | None = None
+    #: samples from an AO write to the AI sample that sees its effect, beyond the sample itself
+    latency_samples: int = 0
 
     def as_dict(self) -> dict:
         return asdict(self)

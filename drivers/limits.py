@@ -8,14 +8,23 @@ import numpy as np
 
 from drivers.interfaces import LimitError
 
-ACTUATOR_V_MIN = 0.0
-ACTUATOR_V_MAX = 120.0
+#: the paper's identification range (V): a bench config without a stack rating keeps it
+PAPER_V_MIN = 0.0
+PAPER_V_MAX = 120.0
 # A sampled waveform's finite-difference slope overshoots the analytic one by rounding
 # and quantisation; allow this relative margin before calling it a limit violation.
 _RATE_CHECK_MARGIN = 1.02
 # A non-resonant device works below its first resonance; a sine above this fraction of it
 # rings the flexure (and its harmonics sit on the mode), so it is refused.
 RESONANCE_FRACTION = 0.5
+
+
+def stack_rating_v(config: dict, axis: str) -> tuple[float, float]:
+    """(min, max) V the axis's stack is rated for: ``[axes.<axis>.piezo] rated_min_v, rated_max_v``
+    of the bench config (0–150 V for the default bench's PTJ150 on a PZD350); a config without
+    them (a bare test rig) is held to the paper's 0–120 V."""
+    piezo = config.get("axes", {}).get(axis, {}).get("piezo", {})
+    return float(piezo.get("rated_min_v", PAPER_V_MIN)), float(piezo.get("rated_max_v", PAPER_V_MAX))
 
 
 class LimitsMixin:

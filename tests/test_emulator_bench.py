@@ -31,7 +31,7 @@ def test_open_bench_composes_protocol_devices():
     assert p.daq.capabilities.ai_channels == 4 and p.daq.capabilities.resolution_bits == 16
     assert p.sensors["y"].range_um == (-10.0, 10.0) and p.sensors["z"].range_um == (-20.0, 20.0)
     d = bench.describe()
-    assert d["limits"]["y"]["max_frequency_hz_at_full_range"] == pytest.approx(294.7, abs=0.1)
+    assert d["limits"]["y"]["max_frequency_hz_at_full_range"] == pytest.approx(235.8, abs=0.1)   # 150 Vpp at 200 mA
 
 
 def test_bench_list_and_extends():
@@ -125,12 +125,32 @@ def test_point_by_point_runs_the_same_kernel_as_buffered():
 # ---------------------------------------------------------------------------------- limits
 def test_overvoltage_request_is_refused_with_reason():
     bench = open_bench("default", seed=0)
-    u = biased_sine(10, cycles=1, v_max=150.0)
-    with pytest.raises(LimitError, match=r"150\.0 V.*0–120 V"):
+    u = biased_sine(10, cycles=1, v_max=151.0)
+    with pytest.raises(LimitError, match=r"151\.0 V.*0–150 V"):
         bench.run({"y": u}, FS)
     assert bench.parts.world.time_s == 0.0                          # nothing was written
     with pytest.raises(LimitError, match="mA"):
         bench.check_sine("z", 120.0, 300.0)
+
+
+def test_stack_rating_is_the_limit_and_the_stack_moves_on_to_150_v():
+    """The default bench's limit is its PTJ150 stacks' 0–150 V rating (bench config): 140 V is
+    accepted; the emulated stack keeps extending beyond the paper's 120 V (no clamp); 151 V is refused."""
+    bench = open_bench("default", seed=0)
+    assert {a: (lim.v_min_v, lim.v_max_v) for a, lim in bench.limits.items()} == {"y": (0.0, 150.0), "z": (0.0, 150.0)}
+    ramp = np.linspace(0.0, 1.0, 20_000)
+    bench.check_waveform({"y": 140.0 * ramp, "z": 140.0 * ramp}, FS)
+    with pytest.raises(LimitError, match=r"151\.0 V; the actuator limit is 0–150 V"):
+        bench.check_waveform({"y": 151.0 * ramp}, FS)
+    top = {}
+    for v_top in (120.0, 130.0, 140.0, 150.0):
+        b = open_bench("default", seed=0)
+        rec = b.run({"y": v_top * ramp, "z": v_top * ramp}, FS)
+        top[v_top] = [float(np.mean(rec.x_um[a][-400:])) for a in ("y", "z")]
+    for axis in (0, 1):
+        strokes = [top[v][axis] for v in (120.0, 130.0, 140.0, 150.0)]
+        assert all(b - a > 0.15 for a, b in zip(strokes, strokes[1:])), strokes   # monotone, no clamp at 120 V
+    assert top[140.0][0] > top[120.0][0] + 0.5 and top[140.0][1] > top[120.0][1] + 0.8
 
 
 def test_output_never_exceeds_120_v_in_normal_runs():

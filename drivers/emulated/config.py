@@ -43,6 +43,8 @@ RULES: dict[str, tuple] = {
     "axes.*.amplifier.overcurrent_reset_s": ("num", 1e-5, 10.0),
     "axes.*.amplifier.bandwidth.bandwidth_hz": ("num", 1.0, 1e8),
     "axes.*.amplifier.noise.rms_v": ("num", 0.0, 10.0),
+    "axes.*.piezo.rated_min_v": ("num", -1000.0, 0.0),
+    "axes.*.piezo.rated_max_v": ("num", 1.0, 1000.0),
     "axes.*.piezo.reversible_um_per_v": ("num", 0.0, 10.0),
     "axes.*.piezo.hysteresis.switched_um": ("num", 0.0, 1000.0),
     "axes.*.piezo.hysteresis.reference_v": ("num", 1.0, 1000.0),
@@ -236,6 +238,8 @@ def validate(cfg: dict) -> dict:
     for ax in AXES:
         c = cfg["axes"][ax]
         _check_family(ax, c["piezo"]["hysteresis"], present)
+        if c["piezo"]["rated_min_v"] >= c["piezo"]["rated_max_v"]:
+            raise ValueError(f"axes.{ax}.piezo.rated_min_v: must be below rated_max_v")
         if c["piezo"]["creep"]["tau_min_s"] >= c["piezo"]["creep"]["tau_max_s"]:
             raise ValueError(f"axes.{ax}.piezo.creep.tau_min_s: must be below tau_max_s")
         if c["amplifier"]["output_max_v"] * daq["monitor_ratio_v_per_v"] > daq["range_v"]:

@@ -29,7 +29,7 @@ class EmulatedDaq:
             buffered=True, point_by_point=True, ao_channels=2, ai_channels=4,
             ao_range_v=(-world.range_v, world.range_v), ai_range_v=(-world.range_v, world.range_v),
             resolution_bits=world.bits, timebase_hz=self.timebase_hz,
-            max_sample_rate_hz=float(daq["max_sample_rate_hz"]))
+            max_sample_rate_hz=float(daq["max_sample_rate_hz"]), latency_samples=world.latency)
         self._closed = False
         #: set by ``abort`` (a stop): buffered writes are refused until the next session begins
         self._aborted = threading.Event()

@@ -385,9 +385,10 @@ def run_idle(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, max_n, thr
 
 @njit(cache=True, nogil=True)
 def run_closed_loop(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, n, ref_um, kp, ki,
-                    um_per_v, gain, out, diag):
+                    um_per_v, gain, v_lo, v_hi, out, diag):
     """Causal point-by-point loop: each AO sample is computed from the previous AI sample
-    (PI control of both axes towards ``ref_um[k, axis]``), as a real-time target would."""
+    (PI control of both axes towards ``ref_um[k, axis]``), as a real-time target would; the command
+    is held within ``v_lo[axis]``–``v_hi[axis]`` (V, the stack's rating)."""
     dt = pg[G_DT_S]
     integ0 = 0.0
     integ1 = 0.0
@@ -398,8 +399,8 @@ def run_closed_loop(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, n, 
         e1 = ref_um[k, 1] - last1 * um_per_v[1]
         integ0 += ki * e0 * dt
         integ1 += ki * e1 * dt
-        u0 = min(max(kp * e0 + integ0, 0.0), 120.0)
-        u1 = min(max(kp * e1 + integ1, 0.0), 120.0)
+        u0 = min(max(kp * e0 + integ0, v_lo[0]), v_hi[0])
+        u1 = min(max(kp * e1 + integ1, v_lo[1]), v_hi[1])
         world_sample(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, u0 / gain[0], u1 / gain[1],
                      noise, n0 + k, out, k, diag)
         last0 = out[k, 0]

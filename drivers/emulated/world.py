@@ -18,6 +18,7 @@ from drivers.emulated.pacing import Pacer
 from drivers.emulated.faults import WORLD_KINDS, FaultInjector
 from drivers.emulated.output_log import OutputLog
 from drivers.interfaces import OutputAborted
+from drivers.limits import stack_rating_v
 
 AXES = ("y", "z")
 NOISE_CHUNK = 1 << 16       # samples of noise generated at a time
@@ -310,7 +311,9 @@ class World:
         self._ensure_noise(n)
         um_per_v = np.array([self.config["axes"][ax]["gauge"]["scale_um_per_v"] for ax in AXES], dtype=float)
         gain = self.pa[:, K.A_GAIN].copy()
-        K.run_closed_loop(*self._kernel_args(), self._noise, self._cursor, n, ref, kp, ki, um_per_v, gain, out, diag)
+        rating = np.array([stack_rating_v(self.config, ax) for ax in AXES])
+        K.run_closed_loop(*self._kernel_args(), self._noise, self._cursor, n, ref, kp, ki, um_per_v, gain,
+                          rating[:, 0].copy(), rating[:, 1].copy(), out, diag)
         self._cursor += n
         self.last_diag = diag
         return out

@@ -29,7 +29,7 @@ class ControllerRequest(BaseModel):
     ilc: bool = False
     ilc_gain: float = Field(default=0.2, gt=0, le=1)
     ilc_harmonics: int = Field(default=20, ge=1, le=50)
-    #: run a range beyond the axis's stroke anyway, commands clamped at 0/120 V (the refusal becomes a warning)
+    #: run a range beyond the axis's stroke anyway, commands clamped at the axis's voltage limits (the refusal becomes a warning)
     allow_saturation: bool = False
 
 

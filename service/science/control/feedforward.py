@@ -41,8 +41,9 @@ def identify(bench: Bench, axis: str, kind: str = "dynamic_pi", **sweep) -> Hyst
     return PAPER_MODELS[kind]().fit(sine_loops(bench, axis, **{"frequencies_hz": PAPER_LOOPS_HZ[kind], **sweep}))
 
 
-def feedforward_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, v_limits=(0.0, 120.0)) -> np.ndarray:
-    """The model's inverse for the reference (V), clipped to the actuator range; 0 V where x_ref = 0."""
+def feedforward_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, v_limits=(-np.inf, np.inf)) -> np.ndarray:
+    """The model's inverse for the reference (V), clipped to ``v_limits`` (V; none by default: the
+    safety checks judge a demand beyond the actuator's limits)."""
     u = np.asarray(model.inverse(np.asarray(x_ref_um, dtype=float), sample_rate_hz=sample_rate_hz), dtype=float)
     if u.shape != np.shape(x_ref_um) or not np.all(np.isfinite(u)):
         raise ValueError("feedforward model returned a voltage of the wrong shape or non-finite values")
@@ -72,8 +73,8 @@ COMPOSITE_EFFECTS = ("delay", "dynamics")
 
 def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequencies_hz=SWEEP_FREQUENCIES_HZ,
                        cycles: int = 5, n_operators: int = 10, v_range=(0.0, 120.0)):
-    """Fit a discovery composite model (hysteresis + ``effects``) on a 0–120 V sine sweep of one axis
-    between ``v_range`` (V) run on ``bench`` (the discovery path: service.usecases.plans plan,
+    """Fit a discovery composite model (hysteresis + ``effects``) on a sine sweep of one axis
+    between ``v_range`` (V, the paper's 0–120 V by default) run on ``bench`` (the discovery path: service.usecases.plans plan,
     service.science.discovery records and fit)."""
     from service.science.discovery.composite import fit_composite
     from service.science.discovery.records import _arrays, records_from_arrays
@@ -102,7 +103,8 @@ def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, mar
     for i, axis in enumerate(bench.axes):
         full = identify_composite(bench, axis, effects)
         u = full.inverse(ref.x_um[steady, i], sample_rate_hz=sample_rate_hz)
-        span = (max(0.0, float(np.min(u)) - margin_v), min(120.0, float(np.max(u)) + margin_v))
+        lim = bench.limits[axis]
+        span = (max(lim.v_min_v, float(np.min(u)) - margin_v), min(lim.v_max_v, float(np.max(u)) + margin_v))
         out[axis] = identify_composite(bench, axis, effects, v_range=span)
         out[axis].fit_range_v = span
     return out

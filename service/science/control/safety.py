@@ -10,7 +10,7 @@ from service.science.errors import FieldError
 
 
 #: A hysteresis-only feedforward ignores the flexure's dynamic gain (+13 % at 100 Hz on Z), so a demand
-#: up to this factor beyond 0–120 V is clipped (feedback/ILC make up the rest); beyond it, refused.
+#: up to this factor beyond the axis's voltage limit is clipped (feedback/ILC make up the rest); beyond it, refused.
 VOLTAGE_MARGIN = 1.2
 
 
@@ -55,8 +55,9 @@ def check_mode(bench: Bench, mode: str, pid: bool) -> None:
 
 
 def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | None, frequency_hz: float,
-                     v_max: float = 120.0, steady: slice = slice(None)) -> None:
-    """Refuse a reference outside the sensor range, a feedforward beyond 0–``v_max`` V, or a drive whose
+                     steady: slice = slice(None)) -> None:
+    """Refuse a reference outside the sensor range, a feedforward beyond the axis's voltage limits
+    (``bench.limits``, the stack's rating), or a drive whose
     current, slew or frequency the amplifier and flexure cannot take (Bench.check_sine, at the
     feedforward's Vpp or, without one, the full range). Voltages are checked over ``steady`` samples
     (the start ramp may ask for less than 0 V near 0 µm; the clamp holds it at 0 V)."""
@@ -66,12 +67,14 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
         top = float(np.max(x_ref_um[:, i]))
         if not (top <= 0.95 * hi and float(np.min(x_ref_um[:, i])) >= lo):  # NaN fails too
             raise ControlRefused(field, f"{axis} reference reaches {top:.2f} µm; the gauge reads {lo:g}–{hi:g} µm")
-        vpp = bench.limits[axis].v_max_v - bench.limits[axis].v_min_v
+        v_min, v_max = bench.limits[axis].v_min_v, bench.limits[axis].v_max_v
+        vpp = v_max - v_min
         if u_ff_v is not None:
             u = u_ff_v[steady, i]
-            if np.max(u) > v_max * VOLTAGE_MARGIN or np.min(u) < -v_max * (VOLTAGE_MARGIN - 1):
+            slack = vpp * (VOLTAGE_MARGIN - 1)
+            if np.max(u) > v_max + slack or np.min(u) < v_min - slack:
                 raise ControlRefused(field, f"{axis} reference needs {np.min(u):.1f}–{np.max(u):.1f} V by the "
-                                     f"feedforward model; the actuator limit is 0–{v_max:g} V")
+                                     f"feedforward model; the actuator limit is {v_min:g}–{v_max:g} V")
             vpp = max(float(np.ptp(u)), 1.0)
         try:
             bench.check_sine(axis, vpp, frequency_hz)
@@ -84,7 +87,7 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
 STROKE_TOLERANCE_V = 1.0
 
 
-def model_stroke_um(model, sample_rate_hz: float, v_max: float = 120.0) -> float:
+def model_stroke_um(model, sample_rate_hz: float, v_max: float) -> float:
     """The stack's displacement (µm) at ``v_max`` reached quasi-statically (0 → v_max in 0.5 s), as the
     feedforward model predicts it."""
     n = int(sample_rate_hz / 2)

@@ -35,7 +35,7 @@ class Controller:
     ilc: bool = False
     ilc_gain: float = 0.2
     ilc_harmonics: int = 20
-    #: run a range beyond the stroke anyway (commands clamped at 0/120 V; the reason becomes a warning)
+    #: run a range beyond the stroke anyway (commands clamped at the axis's limits; the reason becomes a warning)
     allow_saturation: bool = False
 
 
@@ -66,9 +66,10 @@ def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarr
     return np.stack([g for g, _ in fits]), np.array([var for _, var in fits])
 
 
-def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
+def metrics(rec: TrackRecord, ref: Reference, v_limits: np.ndarray, eval_periods: int = 5) -> dict:
     """Max error per axis, RMS and relative error (max over axes of max|e| / reference p-p) over the
-    last ``eval_periods`` steady periods."""
+    last ``eval_periods`` steady periods; ``command_at_limit_pct``: the share of commands at the
+    axes' voltage limits ``v_limits`` (2, 2) [[min, max] V per axis]."""
     end = (ref.ramp_periods + ref.cycles) * ref.period
     start = max(ref.ramp_periods * ref.period, end - eval_periods * ref.period)
     e = ref.x_um[start:end] - rec.x_um[start:end]
@@ -78,7 +79,7 @@ def metrics(rec: TrackRecord, ref: Reference, eval_periods: int = 5) -> dict:
             "rms_error_um": rms(e), "rms_error_y_um": rms(e[:, 0]), "rms_error_z_um": rms(e[:, 1]),
             "relative_error_pct": float(100 * np.max(mx / pp)), "evaluated_periods": int((end - start) // ref.period),
             "command_max_v": {a: float(np.max(rec.u_v[start:end, i])) for i, a in enumerate("yz")},
-            "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= 119.999) | (rec.u_v[start:end] <= 1e-3)))}
+            "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= v_limits[:, 1] - 1e-3) | (rec.u_v[start:end] <= v_limits[:, 0] + 1e-3)))}
 
 
 def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequency_hz: float,
@@ -118,7 +119,7 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
                                      steady=steady)
         if reasons and not controller.allow_saturation:
             raise ControlRefused(f"{next(iter(reasons))}_range_um", "; ".join(reasons.values()) + " (set "
-                                 "controller.allow_saturation to run it with the command clamped at 0/120 V)")
+                                 "controller.allow_saturation to run it with the command clamped at the axis's voltage limits)")
         if warnings is not None:
             warnings.extend([*reasons.values(), *soft])
         lims = [bench.limits[axis] for axis in bench.axes]
@@ -151,7 +152,8 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
               "error_per_period_um": rec.error_per_period_um, "ilc_stop_reason": rec.ilc_stop_reason,
               "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings}
     if rec.tripped is None and not rec.stopped:
-        result.update(metrics(rec, ref))
+        lims = np.array([[bench.limits[a].v_min_v, bench.limits[a].v_max_v] for a in bench.axes])
+        result.update(metrics(rec, ref, lims))
     return result, rec, ref
 
 

@@ -20,8 +20,8 @@ export async function enter(root) {
         <label>waveform <select name="waveform"><option>sine</option><option>step</option><option>chirp</option><option>multisine</option></select></label>
         <label>frequencies (Hz, comma-separated) <input name="frequencies" value="1,10,50,100" size="16"></label>
         <label>cycles per frequency <input name="cycles" type="number" min="1" step="1" value="5"></label>
-        <label>V min (V) <input name="v_min" type="number" step="any" min="0" max="120" value="0"></label>
-        <label>V max (V) <input name="v_max" type="number" step="any" min="0" max="120" value="120"></label>
+        <label>V min (V) <input name="v_min" type="number" step="any" min="0" value="0" title="the bench's limits (GET /api/bench) bound it"></label>
+        <label>V max (V) <input name="v_max" type="number" step="any" min="0" value="120" title="the paper's 0–120 V by default; up to the bench's limit (150 V on the default bench)"></label>
         <label>name <input name="name" placeholder="(automatic)" size="14"></label>
         <button class="primary" type="submit" id="sweep-start">Start sweep</button>
       </form>

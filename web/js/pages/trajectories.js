@@ -43,7 +43,7 @@ export async function enter(root) {
         <label>PID <select name="pid"><option value="">none</option><option value="tuned">tuned for this bench</option>
           <option value="paper">paper gains (Y 50/300/0.06, Z 70/450/0.08)</option></select></label>
         <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
-        <label class="check" title="run a range beyond the axis's stroke with the command clamped at 0/120 V"><input type="checkbox" name="allow_saturation">allow saturation</label>
+        <label class="check" title="run a range beyond the axis's stroke with the command clamped at the axis's voltage limits"><input type="checkbox" name="allow_saturation">allow saturation</label>
         <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
       </form>
       <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div>
