@@ -9,7 +9,7 @@ import pytest
 from drivers.emulated import open_bench
 from service.science.control.feedforward import identify, identify_composite, identify_composite_for
 from service.science.control.safety import ControlRefused
-from service.science.control.session import TUNED_PID, Controller, plan, track
+from service.science.control.session import SCANNED_PID, Controller, plan, track
 from service.science.control.trajectory import Ellipse, reference
 
 CASE1 = Ellipse((1, 6), (1, 11), 0.0, 100.0, 30)
@@ -46,7 +46,7 @@ def test_composite_feedforward_beats_static_pi_on_case2(bench, composite):
     static = {ax: identify(bench, ax, "static_pi") for ax in bench.axes}
     res = {}
     for name, ff in (("static", static), ("composite", composite)):
-        res[name], _, _ = track(bench, CASE2, Controller(feedforward=ff, pid=TUNED_PID))
+        res[name], _, _ = track(bench, CASE2, Controller(feedforward=ff, pid=SCANNED_PID))
         assert res[name]["tripped"] is None
     # FF + tuned PID (row c' of docs/tracking.md): at least 2× lower RMS and max error, and ≤ 3 %
     assert res["composite"]["rms_error_um"] < 0.5 * res["static"]["rms_error_um"]

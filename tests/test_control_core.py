@@ -11,7 +11,7 @@ from drivers.emulated import open_bench
 from service.science.control import kernels as CK
 from service.science.control.loop import PIDGains
 from service.science.control.safety import ControlRefused, available_modes
-from service.science.control.session import TUNED_PID, Controller, plan
+from service.science.control.session import SCANNED_PID, Controller, plan
 from service.science.control.trajectory import Ellipse, reference
 
 DT = 1 / 20_000
@@ -98,7 +98,7 @@ class _Linear:
 
 
 def test_safety_refusals_say_why(bench):
-    ctl = Controller(pid=TUNED_PID)
+    ctl = Controller(pid=SCANNED_PID)
     with pytest.raises(ControlRefused, match="needs 271 mA; the amplifier's limit is 200 mA") as exc:
         plan(bench, Ellipse((1, 6), (1, 11), 0, 400.0, 4), ctl, "point_by_point")
     assert exc.value.field == "frequency_hz"
@@ -129,7 +129,7 @@ def test_modes_follow_the_daq_capabilities(bench):
     try:
         assert daq.stepping_hook() is None
         with pytest.raises(ControlRefused, match="USB X Series: buffered streaming only") as exc:
-            plan(bench, ellipse, Controller(pid=TUNED_PID), "point_by_point")
+            plan(bench, ellipse, Controller(pid=SCANNED_PID), "point_by_point")
         assert exc.value.field == "mode"
     finally:
         daq.capabilities = original

@@ -7,7 +7,7 @@ import pytest
 
 from drivers.emulated import open_bench
 from service.science.control.feedforward import identify
-from service.science.control.session import ILC_PID, PAPER_PID, TUNED_PID, Controller, track
+from service.science.control.session import ILC_PID, PAPER_PID, SCANNED_PID, Controller, track
 from service.science.control.trajectory import Ellipse
 
 CASE2 = dict(y_range_um=(1, 5), z_range_um=(1, 9), inclination_deg=20.0, frequency_hz=100.0)
@@ -57,7 +57,7 @@ def test_sensor_dropout_trips_to_zero_volts_within_one_period(bench_models):
             injected["sample"] = (p + 1) * 200
 
     try:
-        result, rec, ref = track(bench, Ellipse(**CASE2, cycles=20), Controller(feedforward=models, pid=TUNED_PID),
+        result, rec, ref = track(bench, Ellipse(**CASE2, cycles=20), Controller(feedforward=models, pid=SCANNED_PID),
                                  on_period=on_period)
     finally:
         out_v = bench.output_v()
@@ -81,5 +81,5 @@ def test_ringing_left_from_a_trip_does_not_trip_the_next_run(bench_models):
 
     bench, models = bench_models
     bench.parts.world.sa[0, K.S_FV] = 3e5        # µm/s: Y rings at ≈100 µm, decaying in ≈7 ms
-    result, _, _ = track(bench, Ellipse(**CASE2, cycles=5), Controller(feedforward=models, pid=TUNED_PID))
+    result, _, _ = track(bench, Ellipse(**CASE2, cycles=5), Controller(feedforward=models, pid=SCANNED_PID))
     assert result["tripped"] is None, result["tripped"]

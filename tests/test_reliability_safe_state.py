@@ -18,7 +18,7 @@ from drivers.emulated import open_bench
 from drivers.watchdog import SafetyConfig, Watchdog
 from live_server import ROOT, Server
 from service.runtime.app import create_app
-from service.science.control.session import TUNED_PID, Controller, track
+from service.science.control.session import SCANNED_PID, Controller, track
 from service.science.control.trajectory import Ellipse
 from service.runtime.settings import Settings
 from service.store import Store
@@ -110,7 +110,7 @@ def test_a_stalled_tracking_loop_is_tripped_to_zero_volts_by_the_watchdog():
     bench = open_bench("default", seed=3, overrides={"safety": {"watchdog_min_s": 0.2},
                                                      "faults": {"loop_stall": {"after_s": 0.25}}})
     try:
-        result, rec, ref = track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, 40), Controller(pid=TUNED_PID))
+        result, rec, ref = track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, 40), Controller(pid=SCANNED_PID))
         assert result["tripped"].startswith("watchdog: no sample written for")
         assert "max(4 periods of 10.0 ms, 0.2 s)" in result["tripped"]
         trip = bench.watchdog.last_trip
@@ -284,7 +284,7 @@ def test_a_stop_during_the_ilc_response_measurement_ends_the_whole_experiment():
     bench.session = session
     try:
         with pytest.raises(StopRequested, match="emergency stop"):
-            track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, 20), Controller(pid=TUNED_PID, ilc=True))
+            track(bench, Ellipse((1, 6), (1, 11), 0.0, 100.0, 20), Controller(pid=SCANNED_PID, ilc=True))
         assert len(sessions) == 1                                   # the tracking session never opened
         drive = [e for e in bench.parts.world.output_log.entries() if e["event"] in ("block", "period")]
         assert all(max(abs(v) for v in e["daq_ao_v"].values()) == 0.0 for e in drive)   # settle only: 0 V

@@ -46,10 +46,10 @@ def _sweep(bench, seconds: float) -> None:
 
 
 def _trajectory(bench, cycles: int) -> None:
-    from service.science.control.session import TUNED_PID, Controller, track
+    from service.science.control.session import SCANNED_PID, Controller, track
     from service.science.control.trajectory import Ellipse
 
-    track(bench, Ellipse((1, 6), (1, 11), 0.0, TRAJECTORY_HZ, cycles), Controller(pid=TUNED_PID))
+    track(bench, Ellipse((1, 6), (1, 11), 0.0, TRAJECTORY_HZ, cycles), Controller(pid=SCANNED_PID))
 
 
 def _zero_after(world, t_s: float) -> float:

@@ -39,14 +39,14 @@ import httpx
 import numpy as np
 
 from service.security.auth import read_bootstrap_token
-from service.science.control.session import TUNED_PID
+from service.science.control.session import SCANNED_PID
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = "default_realtime"
 FREQUENCY_HZ = 100.0
-#: PID without a feedforward model (service.science.control.session.TUNED_PID): tracks the ellipse stably.
-PID = {**{f"{gain}_{axis}": getattr(TUNED_PID[axis], gain) for axis in TUNED_PID for gain in ("kp", "ki", "kd")},
-       "tf_s": TUNED_PID["y"].tf_s}
+#: PID without a feedforward model (service.science.control.session.SCANNED_PID): tracks the ellipse stably.
+PID = {**{f"{gain}_{axis}": getattr(SCANNED_PID[axis], gain) for axis in SCANNED_PID for gain in ("kp", "ki", "kd")},
+       "tf_s": SCANNED_PID["y"].tf_s}
 ELLIPSE = {"shape": "ellipse", "amplitude_y_um": 5.0, "amplitude_z_um": 10.0, "frequency_hz": FREQUENCY_HZ,
            "mode": "point_by_point", "controller": {"pid": PID}}
 

@@ -22,7 +22,7 @@ import numpy as np
 from drivers.emulated import open_bench
 from service.science.control.feedforward import identify, identify_composite_for
 from service.science.control.safety import ControlRefused
-from service.science.control.session import ILC_PID, PAPER_PID, TUNED_PID, Controller, track
+from service.science.control.session import ILC_PID, PAPER_PID, SCANNED_PID, Controller, track
 from service.science.control.stability import delay_margin
 from service.science.control.trajectory import Ellipse
 
@@ -35,12 +35,12 @@ PAPER_AXES = {"y": (0.053, 482.6), "z": (0.077, 290.7)}
 
 def controllers(static, composite) -> dict[str, Controller]:
     """The four controllers of issue #6 (a–d) and the variants the findings need (primed rows)."""
-    return {"a PID only (tuned)": Controller(pid=TUNED_PID),
+    return {"a PID only (tuned)": Controller(pid=SCANNED_PID),
             "b FF only (static PI⁻¹)": Controller(feedforward=static),
             "b' FF only (composite⁻¹)": Controller(feedforward=composite),
             "c FF + PID, paper gains": Controller(feedforward=composite, pid=PAPER_PID),
-            "c' FF + PID, tuned gains": Controller(feedforward=composite, pid=TUNED_PID),
-            "c'' FF (static PI⁻¹) + PID, tuned gains": Controller(feedforward=static, pid=TUNED_PID),
+            "c' FF + PID, tuned gains": Controller(feedforward=composite, pid=SCANNED_PID),
+            "c'' FF (static PI⁻¹) + PID, tuned gains": Controller(feedforward=static, pid=SCANNED_PID),
             "d FF + PID + ILC": Controller(feedforward=composite, pid=ILC_PID, ilc=True),
             "d' FF + ILC": Controller(feedforward=composite, ilc=True)}
 
@@ -227,7 +227,7 @@ def write_markdown(path: Path, rows: dict, noise: float, args, bench_json: dict 
               "an assumed damping ratio of 0.05. A loop sampled at 20 kHz has at least 75 µs of delay (one "
               "sample of latency plus half a sample of hold); the paper's USB DAQ in a LabVIEW loop has ~1 ms.", "",
               "| gains | axis | crossover (Hz) | phase margin without delay (°) | delay margin (µs) |", "|---|---|---|---|---|"]
-    for label, gains in (("paper", PAPER_PID), ("tuned (rows c')", TUNED_PID)):
+    for label, gains in (("paper", PAPER_PID), ("tuned (rows c')", SCANNED_PID)):
         for axis, (g, fn) in PAPER_AXES.items():
             m = delay_margin(gains[axis].kp, gains[axis].ki, gains[axis].kd, g, fn, 0.05)
             lines.append(f"| {label} | {axis.upper()} | {m.crossover_hz:.0f} | {m.phase_margin_deg:.1f} | "

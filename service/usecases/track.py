@@ -10,17 +10,21 @@ from __future__ import annotations
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
 from service.science.control.loop import PIDGains, StopRequested, TrackRecord
-from service.science.control.session import SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
+from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
+                                             track_plan)
+from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse
 from service.science.errors import FieldError
 from service.store import NotFoundError, Store
 from service.usecases.identify import load_model
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
-def build_controller(store: Store, controller: dict) -> Controller:
+def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz: float) -> Controller:
     """The controller a request describes (``ControllerRequest`` fields as a dict): stored models as
-    feedforward per axis, PID gains, ILC. FieldError names ``controller.feedforward_model_<axis>``
-    when a model is missing or cannot be rebuilt (every model inverts itself: service.science.models.contract)."""
+    feedforward per axis, PID gains (chosen and predicted by service.science.control.tuning.choose_pid
+    on the bench's plant, for a trajectory at ``frequency_hz``), ILC. FieldError names
+    ``controller.feedforward_model_<axis>`` when a model is missing or cannot be rebuilt (every model
+    inverts itself: service.science.models.contract), ``controller.pid`` when the gains are refused."""
     models = {}
     for ax in ("y", "z"):
         model_id = controller.get(f"feedforward_model_{ax}")
@@ -33,12 +37,19 @@ def build_controller(store: Store, controller: dict) -> Controller:
             raise FieldError(field, f"no model {model_id!r}") from None
         except Exception as exc:  # a model that cannot be rebuilt or inverted
             raise FieldError(field, f"model {model_id} cannot be used: {exc}") from None
-    pid = None
-    if controller.get("pid") is not None:
-        p = controller["pid"]
-        pid = {ax: PIDGains(p[f"kp_{ax}"], p[f"ki_{ax}"], p[f"kd_{ax}"], p["tf_s"]) for ax in ("y", "z")}
+    pid, report = None, None
+    spec = controller.get("pid")
+    if spec is not None:
+        if isinstance(spec, dict):
+            spec = {ax: (spec[f"kp_{ax}"], spec[f"ki_{ax}"], spec[f"kd_{ax}"], spec["tf_s"]) for ax in ("y", "z")}
+        plants = bench_plants(bench, models, SAMPLE_RATE_HZ)
+        gains, report, warnings = choose_pid(spec, plants, {"tuned": TUNED_PID, "paper": PAPER_PID},
+                                             frequency_hz=frequency_hz, force=controller.get("force", False))
+        report["warnings"] = warnings
+        pid = {ax: PIDGains(*g) for ax, g in gains.items()}
     return Controller(feedforward=models, pid=pid, ilc=controller["ilc"], ilc_gain=controller["ilc_gain"],
-                      ilc_harmonics=controller["ilc_harmonics"], allow_saturation=controller["allow_saturation"])
+                      ilc_harmonics=controller["ilc_harmonics"], allow_saturation=controller["allow_saturation"],
+                      pid_report=report)
 
 
 def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: dict, mode: str) -> Controller:
@@ -46,7 +57,7 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
     the feedforward models, the mode, the current, the resonance, the voltage and the stroke
     (``session.plan``). FieldError (a ControlRefused among them) names the field; a failure that
     names none (e.g. a model whose inverse breaks) is laid on ``body``."""
-    built = build_controller(store, controller)
+    built = build_controller(bench, store, controller, ellipse.frequency_hz)
     try:
         plan(bench, ellipse, built, mode)
     except FieldError:

@@ -25,7 +25,14 @@ class ControllerRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     feedforward_model_y: str | None = None
     feedforward_model_z: str | None = None
-    pid: PIDRequest | None = None
+    pid: PIDRequest | Literal["auto", "tuned", "paper"] | None = Field(default=None, description=(
+        '"auto": tuned per axis on the plant identified on the bench (the feedforward model\'s largest '
+        'slope, the flexure mode, the loop delay) for a 60° phase margin, 6 dB gain margin and a delay '
+        'margin of 3× the loop delay; "tuned": what auto gives on the default bench; "paper": the '
+        "paper's gains, refused (422 with their predicted margins) unless force; or explicit gains, "
+        "refused when predicted unstable. The result's pid reports the gains and predicted margins."))
+    #: run a PID refused by its predicted margins anyway (the divergence watch still trips it to 0 V)
+    force: bool = False
     ilc: bool = False
     ilc_gain: float = Field(default=0.2, gt=0, le=1)
     ilc_harmonics: int = Field(default=20, ge=1, le=50)

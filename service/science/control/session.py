@@ -18,9 +18,10 @@ from service.science.fitting.metrics import rms
 
 SAMPLE_RATE_HZ = 20_000.0
 PAPER_PID = {"y": PIDGains(kp=50.0, ki=300.0, kd=0.06), "z": PIDGains(kp=70.0, ki=450.0, kd=0.08)}
-#: Gains tuned on the emulated default bench by a scan (kd damps the 291 Hz Z mode; the paper's loop
-#: gain of ~4 V/µm × 0.09 µm/V makes that mode unstable here, and the divergence watch trips it).
-TUNED_PID = {"y": PIDGains(kp=1.0, ki=300.0, kd=0.01, tf_s=2e-4), "z": PIDGains(kp=1.0, ki=300.0, kd=0.01, tf_s=2e-4)}
+#: Gains chosen on the emulated default bench by a tracking scan (issue 6; kd damps the 291 Hz Z mode;
+#: the paper's loop gain of ~4 V/µm × 0.09 µm/V makes that mode unstable here, and the divergence
+#: watch trips it). The report's rows use them; a request's "tuned" preset is service.science.control.tuning's.
+SCANNED_PID = {"y": PIDGains(kp=1.0, ki=300.0, kd=0.01, tf_s=2e-4), "z": PIDGains(kp=1.0, ki=300.0, kd=0.01, tf_s=2e-4)}
 #: A gentler PID under ILC: it damps the flexure modes and rejects drift; the ILC does the tracking.
 ILC_PID = {"y": PIDGains(kp=0.5, ki=300.0, kd=0.005, tf_s=2e-4), "z": PIDGains(kp=0.5, ki=300.0, kd=0.005, tf_s=2e-4)}
 
@@ -35,6 +36,8 @@ class Controller:
     ilc: bool = False
     ilc_gain: float = 0.2
     ilc_harmonics: int = 20
+    #: the PID's choice and predicted margins (service.science.control.tuning.choose_pid), for the result
+    pid_report: dict | None = None
     #: run a range beyond the stroke anyway (commands clamped at the axis's limits; the reason becomes a warning)
     allow_saturation: bool = False
 
@@ -150,7 +153,8 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
               "loop_wall_s": wall, "loop_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / wall,
               "loop_cpu_s": cpu, "loop_cpu_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / max(cpu, 1e-9),
               "error_per_period_um": rec.error_per_period_um, "ilc_stop_reason": rec.ilc_stop_reason,
-              "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings}
+              "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings,
+              "pid": controller.pid_report}
     if rec.tripped is None and not rec.stopped:
         lims = np.array([[bench.limits[a].v_min_v, bench.limits[a].v_max_v] for a in bench.axes])
         result.update(metrics(rec, ref, lims))
