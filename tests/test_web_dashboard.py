@@ -188,6 +188,20 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     shot(page, "trajectories")
 
 
+def test_trajectory_pid_select_offers_auto_tuned_paper_and_custom(page, server):
+    goto(page, server, "trajectories")
+    options = page.eval_on_selector_all("#traj-pid option", "els => els.map((e) => e.value)")
+    assert options == ["", "auto", "tuned", "paper", "custom"]
+    assert not page.is_visible("#traj-form input[name=kp_z]")
+    page.select_option("#traj-pid", "custom")
+    assert page.is_visible("#traj-form input[name=kp_z]")
+    page.select_option("#traj-pid", "paper")              # refused before anything runs (issue 19 §2)
+    page.click("#traj-start")
+    page.wait_for_function("() => document.querySelector('#traj-error').textContent.includes('paper')")
+    assert all("422" in e for e in page.console_errors)    # the browser logs the refusal it was meant to get
+    page.console_errors.clear()
+
+
 @requires_real_data
 def test_import_headerless_file_with_column_mapping(page, server):
     goto(page, server, "datasets")

@@ -14,10 +14,11 @@ const PAPER = {
   case2: { label: 'paper case 2 (20°, Y 1–5 µm, Z 1–9 µm)', max_error_y_um: 0.154, max_error_z_um: 0.252, relative_error_pct: 6.2,
            form: { min_y_um: 1, amplitude_y_um: 4, min_z_um: 1, amplitude_z_um: 8, inclination_deg: 20 } },
 };
-// PID gains per axis (kp V/µm, ki V/(µm·s), kd V·s/µm): the paper's, and ones that are stable on the
-// emulated bench (the paper's loop gain rings its 291 Hz flexure mode there).
-const PID = { paper: { kp_y: 50, ki_y: 300, kd_y: 0.06, kp_z: 70, ki_z: 450, kd_z: 0.08 },
-              tuned: { kp_y: 2, ki_y: 600, kd_y: 0, kp_z: 1.5, ki_z: 600, kd_z: 0 } };
+// PID: "auto" (the service tunes each axis on the plant identified on the bench, for a 60° phase
+// margin), "tuned" (what auto gives on the default bench), "paper" (refused with its predicted
+// margins unless forced), or custom gains per axis (kp V/µm, ki V/(µm·s), kd V·s/µm), refused when
+// predicted unstable. The result reports the gains and their predicted margins.
+const GAINS = ['kp_y', 'ki_y', 'kd_y', 'kp_z', 'ki_z', 'kd_z'];
 
 export async function enter(root) {
   controller = new AbortController();
@@ -40,13 +41,18 @@ export async function enter(root) {
         <label>periods <input name="cycles" type="number" step="1" min="1" value="50"></label>
         <label>feedforward model Y <select name="feedforward_model_y">${options('y')}</select></label>
         <label>feedforward model Z <select name="feedforward_model_z">${options('z')}</select></label>
-        <label>PID <select name="pid"><option value="">none</option><option value="tuned">tuned for this bench</option>
-          <option value="paper">paper gains (Y 50/300/0.06, Z 70/450/0.08)</option></select></label>
+        <label>PID <select name="pid" id="traj-pid"><option value="">none</option>
+          <option value="auto">auto (tuned on this bench's identified plant)</option>
+          <option value="tuned">tuned (auto on the default bench)</option>
+          <option value="paper">paper gains (Y 50/300/0.06, Z 70/450/0.08)</option>
+          <option value="custom">custom…</option></select></label>
+        <span id="traj-gains" hidden>${GAINS.map((g) => `<label>${g} <input name="${g}" type="number" step="any" min="0" value="0" style="width:80px"></label>`).join('')}</span>
+        <label class="check" title="run PID gains refused by their predicted margins (the divergence watch trips them to 0 V)"><input type="checkbox" name="force">force</label>
         <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
         <label class="check" title="run a range beyond the axis's stroke with the command clamped at the axis's voltage limits"><input type="checkbox" name="allow_saturation">allow saturation</label>
         <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
       </form>
-      <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div>
+      <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div><div id="traj-pid-report"></div>
     </div>
     <div class="grid">
       <div class="card"><h2>Error per period</h2><div id="period-chart"></div></div>
@@ -55,6 +61,9 @@ export async function enter(root) {
     <div class="card"><h2>Errors beside the paper's</h2><table id="traj-errors"></table></div>
   </div>`));
   const form = root.querySelector('#traj-form');
+  root.querySelector('#traj-pid').addEventListener('change', (e) => {
+    root.querySelector('#traj-gains').hidden = e.target.value !== 'custom';
+  });
   root.querySelector('#traj-preset').addEventListener('change', (e) => {
     const preset = PAPER[e.target.value];
     if (preset) for (const [k, v] of Object.entries(preset.form)) form.elements[k].value = v;
@@ -86,7 +95,11 @@ async function run(root) {
   root.querySelector('#traj-warnings').innerHTML = '';
   if (f.get('feedforward_model_y')) ctl.feedforward_model_y = f.get('feedforward_model_y');
   if (f.get('feedforward_model_z')) ctl.feedforward_model_z = f.get('feedforward_model_z');
-  if (f.get('pid')) ctl.pid = PID[f.get('pid')];
+  const pid = f.get('pid');
+  if (pid === 'custom') ctl.pid = Object.fromEntries(GAINS.map((g) => [g, Number(f.get(g))]));
+  else if (pid) ctl.pid = pid;
+  if (f.get('force') === 'on') ctl.force = true;
+  root.querySelector('#traj-pid-report').innerHTML = '';
   const body = { shape: 'ellipse', amplitude_y_um: Number(f.get('amplitude_y_um')), amplitude_z_um: Number(f.get('amplitude_z_um')),
     min_y_um: Number(f.get('min_y_um')), min_z_um: Number(f.get('min_z_um')),
     inclination_deg: Number(f.get('inclination_deg')), frequency_hz: Number(f.get('frequency_hz')), cycles: Number(f.get('cycles')), controller: ctl };
@@ -128,6 +141,7 @@ async function run(root) {
       if (result.warnings && result.warnings.length) {
         root.querySelector('#traj-warnings').innerHTML = `<div class="warn">${result.warnings.map((w) => `<p>${esc(w)}</p>`).join('')}</div>`;
       }
+      if (result.pid) renderPid(root, result.pid);
       await drawPeriods(perPeriod({ result }));
       renderErrors(root, result, body);
       await drawEllipse(root, result, body);
@@ -173,4 +187,18 @@ function renderErrors(root, r, body) {
 export function leave() {
   if (controller) controller.abort();
   destroyAll(charts);
+}
+
+// The PID the run used, per axis: gains and the margins predicted on the identified plant.
+function renderPid(root, report) {
+  const num = (v, unit) => (v === null || v === undefined ? '—' : `${fmt(v)} ${unit}`);
+  const rows = Object.entries(report.axes).map(([axis, a]) => {
+    const m = a.margins || {};
+    return `<tr><td>${esc(axis.toUpperCase())}</td><td>${fmt(a.kp)}</td><td>${fmt(a.ki)}</td><td>${fmt(a.kd)}</td>
+      <td>${a.margins ? (m.stable ? 'stable' : 'unstable') : 'not predicted'}</td><td>${num(m.phase_margin_deg, '°')}</td>
+      <td>${num(m.gain_margin_db, 'dB')}</td><td>${m.delay_margin_s != null ? fmt(m.delay_margin_s * 1e6) + ' µs' : '—'}</td></tr>`;
+  }).join('');
+  root.querySelector('#traj-pid-report').innerHTML = `<table id="traj-pid-table"><caption>PID: ${esc(report.pid)}</caption>
+    <tr><th>axis</th><th>kp (V/µm)</th><th>ki (V/(µm·s))</th><th>kd (V·s/µm)</th><th>loop</th><th>phase margin</th>
+    <th>gain margin</th><th>delay margin</th></tr>${rows}</table>`;
 }
