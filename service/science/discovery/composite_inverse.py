@@ -27,8 +27,8 @@ from service.science.fitting.metrics import rms
 from service.science.models.inverse import numerical_inverse
 
 FIXED_POINT_ITERATIONS = 6
-#: the inner PI inverse's search range (V) when none is given: beyond 0–120 V, so that the safety
-#: check sees what the reference needs
+#: the inner PI inverse's search range (V) when none is given: beyond the stack's rating (0–150 V on the
+#: default bench), so that the safety check sees what the reference needs
 COMPOSITE_LIMITS_V = (-60.0, 180.0)
 
 
