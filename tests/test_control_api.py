@@ -39,7 +39,7 @@ def _wait(http, job_id, timeout_s=120.0):
 def test_refusals_name_the_field_and_reason(http):
     r = http.post("/api/trajectories", json={**BASE, "frequency_hz": 400, "controller": {"pid": {"kp_y": 1, "kp_z": 1}}})
     assert r.status_code == 422 and r.json()["field"] == "frequency_hz"
-    assert "needs 271 mA; the amplifier's limit is 200 mA" in r.json()["detail"]
+    assert "150 Vpp at 400 Hz needs 339 mA; the amplifier's limit is 200 mA" in r.json()["detail"]   # the full 0–150 V
     r = http.post("/api/trajectories", json={**BASE, "mode": "buffered", "controller": {"pid": {"kp_y": 1, "kp_z": 1}}})
     assert r.status_code == 422 and r.json()["field"] == "controller.pid"
     assert "buffered" in r.json()["detail"]
@@ -114,16 +114,24 @@ def test_composite_model_ids_as_feedforward_and_stroke_refusal(http):
         assert job["state"] == "succeeded", job
         ids[ax] = job["result"]["model_id"]
     ff = {"feedforward_model_y": ids["y"], "feedforward_model_z": ids["z"]}
-    r = http.post("/api/trajectories", json={"shape": "ellipse", "y_range_um": [1, 6], "z_range_um": [1, 11],
-                                             "frequency_hz": 100, "cycles": 5, "controller": ff})
+    r = http.post("/api/trajectories", json={"shape": "ellipse", "y_range_um": [1, 6], "z_range_um": [1, 14],
+                                             "frequency_hz": 100, "cycles": 5, "controller": ff})   # beyond 150 V
     assert r.status_code == 422 and r.json()["field"] == "z_range_um", r.text
     assert "the axis reaches" in r.json()["detail"] and "at 150 V" in r.json()["detail"]   # the stacks' rating
-    pid = {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1, "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4}
-    r = http.post("/api/trajectories", json={**BASE, "cycles": 10, "controller": {**ff, "pid": pid}})
+    # PID "auto" on the composite's plant (its identified mode); issue 6's scanned gains (kp 1, ki 300,
+    # kd 0.01) are borderline there: the 1–100 Hz sweeps may identify Y's mode as very lightly damped
+    # (ζ ≈ 0.005 at ≈513 Hz seen once), and then they are refused as predicted unstable
+    r = http.post("/api/trajectories", json={**BASE, "cycles": 10, "controller": ff})
+    ff_only, _ = _wait(http, r.json()["job_id"])
+    r = http.post("/api/trajectories", json={**BASE, "cycles": 10, "controller": {**ff, "pid": "auto"}})
     assert r.status_code == 202, r.text
     job, _ = _wait(http, r.json()["job_id"])
     assert job["state"] == "succeeded", job
-    assert job["result"]["tripped"] is None and job["result"]["relative_error_pct"] < 6.2
+    # measured: FF alone 10.9 %, FF + auto 9.4 % (a 60° / 6 dB loop leaves little gain at 100 Hz; the
+    # scanned gains reached < 6.2 % on margins the targets refuse)
+    assert job["result"]["tripped"] is None
+    assert job["result"]["relative_error_pct"] < ff_only["result"]["relative_error_pct"]
+    assert all(a["margins"]["stable"] for a in job["result"]["pid"]["axes"].values())
 
 
 @pytest.mark.slow

@@ -99,12 +99,12 @@ class _Linear:
 
 def test_safety_refusals_say_why(bench):
     ctl = Controller(pid=SCANNED_PID)
-    with pytest.raises(ControlRefused, match="needs 271 mA; the amplifier's limit is 200 mA") as exc:
+    with pytest.raises(ControlRefused, match="150 Vpp at 400 Hz needs 339 mA; the amplifier's limit is 200 mA") as exc:
         plan(bench, Ellipse((1, 6), (1, 11), 0, 400.0, 4), ctl, "point_by_point")
     assert exc.value.field == "frequency_hz"
     with pytest.raises(ControlRefused, match="first resonance") as exc:
         plan(bench, Ellipse((1, 6), (1, 11), 0, 200.0, 4), ctl, "point_by_point")
-    with pytest.raises(ControlRefused, match=r"needs .*V by the feedforward model; the actuator limit is 0–120 V") as exc:
+    with pytest.raises(ControlRefused, match=r"needs .*V by the feedforward model; the actuator limit is 0–150 V") as exc:
         plan(bench, Ellipse((1, 6), (1, 19), 0, 100.0, 4),
              Controller(feedforward={"y": _Linear(0.09), "z": _Linear(0.09)}), "point_by_point")
     assert exc.value.field == "z_range_um"

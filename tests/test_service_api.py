@@ -117,7 +117,7 @@ BAD_REQUESTS = [
     (("post", "/api/datasets", {"files": {"file": ("empty.csv", b"")}}), 422, "file"),
     (("post", "/api/datasets", {"data": {"axis": "y"}}), 422, "file"),
     (("post", "/api/datasets", {"files": {"file": ("a.dat", _csv()[10:])}, "data": {"columns": "[1"}}), 422, "columns"),
-    (("post", "/api/sweeps", {"json": {**SHORT, "v_max": 130}}), 422, "v_max"),
+    (("post", "/api/sweeps", {"json": {**SHORT, "v_max": 151}}), 422, "v_max"),   # beyond the 150 V rating
     (("post", "/api/sweeps", {"json": {**SHORT, "v_min": -5}}), 422, "v_min"),
     (("post", "/api/sweeps", {"json": {**SHORT, "waveform": "square"}}), 422, "waveform"),
     (("post", "/api/sweeps", {"json": {**SHORT, "frequencies_hz": [10, 400]}}), 422, "frequencies_hz"),
