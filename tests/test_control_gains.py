@@ -57,6 +57,26 @@ def test_sweeps_default_to_0_120_v_and_the_limit_is_the_150_v_rating(http_ff):
     http.delete(f"/api/jobs/{r.json()['job_id']}")
 
 
+def test_span_sweeps_cover_the_voltages_the_ellipse_needs_within_the_rating(http_ff):
+    """POST /api/trajectories/span-sweeps: one sweep body per axis over the feedforward drive's span
+    ± 5 V (issue 19 §1: identification over the voltages a trajectory needs is a user action)."""
+    http, ff, _ = http_ff
+    r = http.post("/api/trajectories/span-sweeps", json={**CASE2, "controller": ff})
+    assert r.status_code == 200, r.text
+    bodies = r.json()
+    assert [b["axes"] for b in bodies] == [["y"], ["z"]]
+    for b in bodies:
+        assert 0.0 <= b["v_min"] < b["v_max"] <= 150.0 and b["frequencies_hz"] == [1.0, 10.0, 50.0, 100.0]
+        assert b["v_max"] - b["v_min"] < 120.0             # a span, not the full loop
+    bigger = http.post("/api/trajectories/span-sweeps", json={**CASE2, "z_range_um": [1, 11], "controller": ff}).json()
+    assert bigger[1]["v_max"] > bodies[1]["v_max"] and bigger[1]["v_max"] > 120.0   # case 1's Z needs > 120 V
+    r = http.post("/api/sweeps", json={**bodies[0], "cycles": 1, "frequencies_hz": [10]})
+    assert r.status_code == 202, r.text                    # the body is a sweep request as it stands
+    assert _job(http, r.json()["job_id"])["state"] == "succeeded"
+    r = http.post("/api/trajectories/span-sweeps", json={**CASE2, "controller": {}})
+    assert r.status_code == 422 and r.json()["field"] == "controller.feedforward_model_y"
+
+
 def test_the_papers_gains_are_refused_with_their_predicted_margins(http_ff):
     http, ff, _ = http_ff
     r = http.post("/api/trajectories", json={**CASE2, "controller": {**ff, "pid": "paper"}})

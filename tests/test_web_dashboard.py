@@ -202,6 +202,25 @@ def test_trajectory_pid_select_offers_auto_tuned_paper_and_custom(page, server):
     page.console_errors.clear()
 
 
+def test_trajectory_page_sweeps_the_span_the_ellipse_needs(page, server):
+    """"Sweep the span it needs" runs one sweep per axis over the feedforward drive's span ± 5 V."""
+    api = server["api"]
+    sweep = api.post("/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 2}).json()
+    dataset_id = wait_job(job_of(server), sweep["job_id"])["result"]["dataset_id"]
+    models = {}
+    for axis in ("y", "z"):
+        job = api.post("/models", json={"axis": axis, "datasets": [dataset_id], "model": "static_pi"}).json()
+        models[axis] = wait_job(job_of(server), job["job_id"])["result"]["model_id"]
+    goto(page, server, "trajectories")
+    page.select_option("#traj-preset", "case2")
+    page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
+    page.select_option("#traj-form select[name=feedforward_model_z]", models["z"])
+    page.click("#traj-span-sweep")
+    page.wait_for_selector("#traj-span div[data-axis=z] .jobline[data-state='succeeded']", timeout=150_000)
+    assert page.locator("#traj-span div[data-axis=y] .jobline[data-state='succeeded']").count() == 1
+    assert "span" in page.inner_text("#traj-span") and " V for a 100 Hz ellipse" in page.inner_text("#traj-span")
+
+
 @requires_real_data
 def test_import_headerless_file_with_column_mapping(page, server):
     goto(page, server, "datasets")

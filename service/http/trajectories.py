@@ -8,10 +8,11 @@ from fastapi import APIRouter, Depends
 from drivers.bench import Bench
 from service.http.deps import get_bench, get_jobs, get_store
 from service.http.schemas.common import JobQueued
+from service.http.schemas.datasets import SweepRequest
 from service.http.schemas.trajectories import TrajectoryRequest
 from service.runtime.jobs import JobManager
 from service.store import Store
-from service.usecases.track import check_trajectory, run_trajectory
+from service.usecases.track import check_trajectory, run_trajectory, span_sweeps
 
 router = APIRouter(tags=["trajectories"])
 
@@ -29,3 +30,12 @@ def start_trajectory(body: TrajectoryRequest, bench: Bench = Depends(get_bench),
                       lambda ctx: run_trajectory(ctx, bench, store, ellipse, controller, body.mode, params, body.name),
                       needs_bench=True)
     return {"job_id": job["id"], "state": job["state"]}
+
+
+@router.post("/trajectories/span-sweeps", response_model=list[SweepRequest])
+def trajectory_span_sweeps(body: TrajectoryRequest, bench: Bench = Depends(get_bench),
+                           store: Store = Depends(get_store)) -> list[dict]:
+    """The sweeps (one per axis, ready for POST /api/sweeps) over the voltages this ellipse needs by its
+    feedforward models, ± 5 V within the bench's limits: identify models on them for the run. Nothing
+    runs; 422 naming controller.feedforward_model_<axis> when an axis has no model."""
+    return span_sweeps(bench, store, body.ellipse(), body.controller.model_dump())

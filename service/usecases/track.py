@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
+from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v
 from service.science.control.loop import PIDGains, StopRequested, TrackRecord
 from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
                                              track_plan)
 from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid
-from service.science.control.trajectory import RAMP_PERIODS, Ellipse
+from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.errors import FieldError
 from service.store import NotFoundError, Store
 from service.usecases.identify import load_model
@@ -65,6 +66,27 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
     except ValueError as exc:
         raise FieldError("body", str(exc)) from None
     return built
+
+
+def span_sweeps(bench: Bench, store: Store, ellipse: Ellipse, controller: dict) -> list[dict]:
+    """Sweep bodies (``POST /api/sweeps``), one per axis, over the voltages the ellipse needs by each
+    axis's feedforward model (± ``SPAN_MARGIN_V``, within the bench's limits), at the paper's 1/10/50/100 Hz:
+    a model identified on them knows the minor loops the trajectory runs. FieldError names
+    ``controller.feedforward_model_<axis>`` when an axis has no model to read the span from."""
+    built = build_controller(bench, store, {**controller, "pid": None}, ellipse.frequency_hz)
+    ref = reference(ellipse, SAMPLE_RATE_HZ)
+    bodies = []
+    for i, axis in enumerate(bench.axes):
+        model = built.feedforward.get(axis)
+        if model is None:
+            raise FieldError(f"controller.feedforward_model_{axis}", "the span is read from the axis's feedforward "
+                             "model: identify one on a default (0–120 V) sweep first")
+        lim = bench.limits[axis]
+        v_min, v_max = drive_span_v(model, ref.x_um[ref.steady, i], SAMPLE_RATE_HZ, (lim.v_min_v, lim.v_max_v))
+        bodies.append({"axes": [axis], "frequencies_hz": list(SWEEP_FREQUENCIES_HZ), "cycles": 5,
+                       "v_min": round(v_min, 1), "v_max": round(v_max, 1),
+                       "name": f"{axis} span {v_min:.0f}–{v_max:.0f} V for a {ellipse.frequency_hz:g} Hz ellipse"})
+    return bodies
 
 
 def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse, controller: Controller,

@@ -88,7 +88,20 @@ def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequ
     return fit_composite([record], list(effects), n_operators)
 
 
-def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, margin_v: float = 5.0,
+#: the margin (V) a span sweep adds on each side of the drive a trajectory needs
+SPAN_MARGIN_V = 5.0
+
+
+def drive_span_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, limits_v: tuple[float, float],
+                 margin_v: float = SPAN_MARGIN_V) -> tuple[float, float]:
+    """(min, max) V of the model's feedforward drive for ``x_ref_um`` (the reference's steady part),
+    widened by ``margin_v`` on each side and kept within ``limits_v`` (the axis's hard limits): the
+    span to sweep so that a model fitted on it knows the minor loops the trajectory runs."""
+    u = np.asarray(model.inverse(np.asarray(x_ref_um, dtype=float), sample_rate_hz=sample_rate_hz), dtype=float)
+    return max(limits_v[0], float(np.min(u)) - margin_v), min(limits_v[1], float(np.max(u)) + margin_v)
+
+
+def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, margin_v: float = SPAN_MARGIN_V,
                            sample_rate_hz: float = 20_000.0) -> dict:
     """Composite feedforward models per axis fitted on the voltages ``ellipse`` needs: a full-range
     (0–120 V) fit gives the drive span of the reference's steady part, then each axis is swept again
@@ -102,9 +115,8 @@ def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, mar
     out = {}
     for i, axis in enumerate(bench.axes):
         full = identify_composite(bench, axis, effects)
-        u = full.inverse(ref.x_um[steady, i], sample_rate_hz=sample_rate_hz)
         lim = bench.limits[axis]
-        span = (max(lim.v_min_v, float(np.min(u)) - margin_v), min(lim.v_max_v, float(np.max(u)) + margin_v))
+        span = drive_span_v(full, ref.x_um[steady, i], sample_rate_hz, (lim.v_min_v, lim.v_max_v), margin_v)
         out[axis] = identify_composite(bench, axis, effects, v_range=span)
         out[axis].fit_range_v = span
     return out

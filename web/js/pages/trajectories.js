@@ -51,8 +51,9 @@ export async function enter(root) {
         <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
         <label class="check" title="run a range beyond the axis's stroke with the command clamped at the axis's voltage limits"><input type="checkbox" name="allow_saturation">allow saturation</label>
         <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
+        <button type="button" id="traj-span-sweep" title="sweep each axis over the voltages this ellipse needs by its feedforward model (± 5 V), to identify models for the run"${available ? '' : ' disabled'}>Sweep the span it needs</button>
       </form>
-      <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div><div id="traj-pid-report"></div>
+      <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div><div id="traj-pid-report"></div><div id="traj-span"></div>
     </div>
     <div class="grid">
       <div class="card"><h2>Error per period</h2><div id="period-chart"></div></div>
@@ -69,6 +70,7 @@ export async function enter(root) {
     if (preset) for (const [k, v] of Object.entries(preset.form)) form.elements[k].value = v;
   });
   form.addEventListener('submit', (e) => { e.preventDefault(); run(root); });
+  root.querySelector('#traj-span-sweep').addEventListener('click', () => sweepSpan(root));
   renderErrors(root, null);
 }
 
@@ -85,24 +87,47 @@ function perPeriod(job) {
   return null;
 }
 
-async function run(root) {
-  const form = root.querySelector('#traj-form');
-  const f = new FormData(form);
-  const err = root.querySelector('#traj-error');
-  err.textContent = '';
+// The tracking request the form describes.
+function formBody(root) {
+  const f = new FormData(root.querySelector('#traj-form'));
   const ctl = { ilc: f.get('ilc') === 'on' };
   if (f.get('allow_saturation') === 'on') ctl.allow_saturation = true;
-  root.querySelector('#traj-warnings').innerHTML = '';
   if (f.get('feedforward_model_y')) ctl.feedforward_model_y = f.get('feedforward_model_y');
   if (f.get('feedforward_model_z')) ctl.feedforward_model_z = f.get('feedforward_model_z');
   const pid = f.get('pid');
   if (pid === 'custom') ctl.pid = Object.fromEntries(GAINS.map((g) => [g, Number(f.get(g))]));
   else if (pid) ctl.pid = pid;
   if (f.get('force') === 'on') ctl.force = true;
-  root.querySelector('#traj-pid-report').innerHTML = '';
-  const body = { shape: 'ellipse', amplitude_y_um: Number(f.get('amplitude_y_um')), amplitude_z_um: Number(f.get('amplitude_z_um')),
+  return { shape: 'ellipse', amplitude_y_um: Number(f.get('amplitude_y_um')), amplitude_z_um: Number(f.get('amplitude_z_um')),
     min_y_um: Number(f.get('min_y_um')), min_z_um: Number(f.get('min_z_um')),
     inclination_deg: Number(f.get('inclination_deg')), frequency_hz: Number(f.get('frequency_hz')), cycles: Number(f.get('cycles')), controller: ctl };
+}
+
+// Sweeps over the voltages this ellipse needs by its feedforward models (± 5 V, within the bench's
+// limits), one per axis, run one after the other: identify models on their datasets for the run.
+async function sweepSpan(root) {
+  const err = root.querySelector('#traj-error');
+  err.textContent = '';
+  const out = root.querySelector('#traj-span');
+  out.innerHTML = '';
+  try {
+    const bodies = await api('/trajectories/span-sweeps', { method: 'POST', body: formBody(root), signal: controller.signal });
+    for (const body of bodies) {
+      const line = h(`<div data-axis="${esc(body.axes[0])}"><p>${esc(body.name)}</p><div class="span-job"></div></div>`);
+      out.append(line);
+      await runJob(line.querySelector('.span-job'), '/sweeps', body, 'sweep', { signal: controller.signal });
+    }
+  } catch (e) {
+    showError(err, e);
+  }
+}
+
+async function run(root) {
+  const err = root.querySelector('#traj-error');
+  err.textContent = '';
+  root.querySelector('#traj-warnings').innerHTML = '';
+  root.querySelector('#traj-pid-report').innerHTML = '';
+  const body = formBody(root);
   const button = root.querySelector('#traj-start');
   button.disabled = true;
   destroyAll(charts);
