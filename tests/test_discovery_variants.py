@@ -84,6 +84,24 @@ def test_ambiguity_names_a_runnable_experiment(sweeps):
     assert plan_for_bench(plan_from_dict(body), open_bench("delay", 0)).samples > 0
 
 
+def test_a_gauge_bow_the_sweep_cannot_separate_from_asymmetry_is_named_with_its_ambiguity(sweeps):
+    """Bouc–Wen stack, gauge bowed 1.2 % of its span, axis Y: the gauge's curvature fits the held-out
+    cycles better than the stack's asymmetry, but not significantly (quasi-static data), so it is
+    named first and the pair comes back as an ambiguity with a sweep the bench can run."""
+    from drivers.emulated import open_bench
+    from service.http.sweeps import SweepRequest
+    from service.usecases.plans import plan_for_bench, plan_from_dict
+
+    d = diagnose([sweeps("bw_sensor_nonlinearity", seed=0)["y"]])
+    assert d["candidates"][0]["effect"] == "sensor_nonlinearity" and d["candidates"][0]["claimed"]
+    asym = next(c for c in d["candidates"] if c["effect"] == "asymmetry")
+    assert not asym["claimed"] and "head to head" in asym["evidence"]
+    amb = d["ambiguity"]
+    assert amb and amb["effects"] == ["sensor_nonlinearity", "asymmetry"] and "second gauge" in amb["text"]
+    body = SweepRequest(**amb["experiment"]).model_dump()
+    assert plan_for_bench(plan_from_dict(body), open_bench("bw_sensor_nonlinearity", 0)).samples > 0
+
+
 @_shared("drift")
 def test_creep_and_drift_are_not_confused_on_a_sine_sweep(sweeps):
     """Creep is bounded to relax in the direction of the drive change, so it cannot pose as a
