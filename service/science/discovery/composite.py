@@ -379,6 +379,12 @@ class CompositeModel:
         """Fitted effect parameters in words, per effect."""
         return {e: EFFECTS[e].describe(self.theta.get(e, {}), self.coef or {}) for e in self.effects}
 
+    def physical_parameters(self) -> dict[str, dict[str, float]]:
+        """Fitted physical parameters as numbers per effect, units in the names (Effect.parameters)."""
+        self._require_fitted()
+        return {e: EFFECTS[e].parameters(self.theta.get(e, {}), self.coef, self.scales, self.sign)
+                for e in self.effects}
+
     # -- serialisation -----------------------------------------------------------------------
     def to_dict(self) -> dict:
         """``{"model", "config", **learned state}``, JSON-serialisable (floats round-trip exactly)."""
