@@ -61,6 +61,9 @@ class Model(BaseModel):
     software_version: str
     job_id: str | None
     created_at: str
+    name: str | None = Field(default=None, description="a user's labels (PATCH /api/models/{id})")
+    tags: list[str] = []
+    notes: str | None = None
 
 
 class FitFigures(BaseModel):
