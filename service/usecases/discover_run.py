@@ -105,6 +105,7 @@ def _step_summary(index: int, model_id: str, step: dict, run: dict) -> dict:
             "validation_rms_um": d["residual_rms_um"], "train_rms_um": d["train_rms_um"],
             "noise_floor_um": d["noise_floor_um"], "ratio_to_noise_floor": _ratio(d["residual_rms_um"], d["noise_floor_um"]),
             "at_noise_floor": d["at_noise_floor"], "verdict": d["verdict"], "verdict_text": d["verdict_text"],
+            "ambiguous": d["ambiguity"]["effects"] if d.get("ambiguity") else None,
             "per_block": [{**b, "ratio_to_noise_floor": _ratio(b["validation_rms_um"], b["noise_floor_um"])}
                           for b in step["per_block"]],
             "not_testable": [{"effect": c["effect"], "reason": c["reason"], "experiment": c["experiment"]}
@@ -135,5 +136,5 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
         "verdict_text", "per_block", "not_testable")}
     return {"start_model_id": run["start_model_id"], "axis": run["axis"],
             "final_model_id": last["model_id"] if last else None, "effects": last["effects"] if last else None,
-            "steps": steps, "effects_found": found, "remains": remains, "stopped": stopped,
-            "stop_reason": reason, "needed_experiment": needed, "experiments": run["experiments"]}
+            "steps": list(steps), "effects_found": found, "remains": remains, "stopped": stopped,
+            "stop_reason": reason, "needed_experiment": needed, "experiments": list(run["experiments"])}
