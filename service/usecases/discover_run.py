@@ -56,11 +56,12 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
         need = needed_experiment(d, stopping=add is None, done=[e["experiment"] for e in run["experiments"]])
         if need is not None:
             busy = bench_jobs() if bench_jobs else []
-            if not allow_experiments or run_experiment is None or busy:
-                stopped = "needs_experiment"
+            last = index == max_steps - 1                # no step left to use the experiment's data
+            if not allow_experiments or run_experiment is None or busy or last:
+                stopped, needed = "needs_experiment", need
                 reason = ("the loop needs an experiment; ask again with allow_experiments" if not allow_experiments
-                          else f"the loop needs an experiment and the bench is busy with {', '.join(busy)}")
-                needed = need
+                          else f"the loop needs an experiment and the bench is busy with {', '.join(busy)}" if busy
+                          else f"the loop needs an experiment and max_steps = {max_steps} leaves no step to use it")
                 break
             datasets.append(_experiment(ctx, store, run, need, run_experiment))
             records.append(load_record(store, datasets[-1], axis))

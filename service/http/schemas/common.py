@@ -50,7 +50,7 @@ class Job(BaseModel):
     ``{"model_id", …}``, a trajectory's errors), also on a partial run; ``error`` says why it failed."""
 
     id: str
-    kind: str = Field(description="sweep | trajectory | identify | refine")
+    kind: str = Field(description="sweep | trajectory | identify | refine | discover")
     state: JobState
     progress: float = Field(ge=0, le=1)
     message: str | None
