@@ -18,6 +18,7 @@ from service.runtime.app import create_app
 from service.runtime.jobs import JobContext
 from service.runtime.settings import Settings
 from service.science.discovery.loop import discovery_run
+from service.store.check import check_store
 from service.usecases.identify import load_model, load_records
 
 pytestmark = pytest.mark.slow      # identifications and diagnoses through the API
@@ -119,6 +120,7 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
         assert partial["steps"][k]["noise_floor_um"] == pytest.approx(steps[k]["noise_floor_um"], rel=1e-12)
     text = discovery_text(result)
     assert "found creep: creep_nm_per_decade" in text and "remains: held-out" in text
+    assert check_store(store)["ok"]
 
 
 def test_a_cancel_between_steps_keeps_the_steps_done(creep, monkeypatch):
@@ -180,6 +182,7 @@ def test_an_ambiguity_stops_the_job_naming_its_experiment_or_runs_it(delay):
     assert model["datasets"] == [dataset_id, experiment["dataset_id"]]
     delay_us = ran["effects_found"][0]["parameters"]["delay_us"]
     assert ran["effects_found"][0]["effect"] == "delay" and delay_us > 0
+    assert check_store(http.app.state.store)["ok"]
 
 
 def test_the_cli_verbs_parse():

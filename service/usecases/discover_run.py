@@ -37,6 +37,7 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
     model = start if start.is_fitted else None     # a paper's PI stands for the unfitted composite
     run = {"start_model_id": model_id, "axis": axis, "steps": [], "experiments": [], "added": {}}
     stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} steps", None
+    joined = None                                   # an experiment's dataset, new in this step's fit
     for index in range(max_steps):
         if ctx.cancelled:
             raise JobInterrupted(f"cancelled after step {index - 1}", result=_result(
@@ -48,7 +49,8 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
         step_id = model_id if index == 0 else store_model(
             store, model, records, axis, list(datasets), ["hysteresis"] + ordered(effects), n_operators,
             run["steps"][-1]["model_id"], ctx.job_id)["id"]
-        run["steps"].append(_step_summary(index, step_id, step, run))
+        run["steps"].append(_step_summary(index, step_id, step, run, joined))
+        joined = None
         run["final_model"] = model
         ctx.progress((index + 1) / max_steps, _step_words(run["steps"][-1]),
                      partial=_result(run, None, "running", None, model))
@@ -63,8 +65,9 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
                           else f"the loop needs an experiment and the bench is busy with {', '.join(busy)}" if busy
                           else f"the loop needs an experiment and max_steps = {max_steps} leaves no step to use it")
                 break
-            datasets.append(_experiment(ctx, store, run, need, run_experiment))
-            records.append(load_record(store, datasets[-1], axis))
+            joined = _experiment(ctx, store, run, need, run_experiment)
+            datasets.append(joined)
+            records.append(load_record(store, joined, axis))
             model = None                            # the same effects, refitted on every dataset
             continue
         if add is None:
@@ -94,15 +97,14 @@ def _experiment_fraction(run: dict) -> float:
     return min(0.95, len(run["steps"]) / (len(run["steps"]) + 2))
 
 
-def _step_summary(index: int, model_id: str, step: dict, run: dict) -> dict:
-    """One step as the result shows it (µm)."""
+def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str | None) -> dict:
+    """One step as the result shows it (µm); ``joined``: the experiment's dataset new in its fit."""
     d = step["diagnosis"]
     previous = run["steps"][-1] if run["steps"] else None
     added = [e for e in step["effects"] if previous and e not in previous["effects"]]
     return {"step": index, "model_id": model_id, "parent_id": previous["model_id"] if previous else None,
             "effects": step["effects"], "added": added[0] if added else None,
-            "experiment_dataset_id": run["experiments"][-1]["dataset_id"] if run["experiments"] and previous
-            and not added else None,
+            "experiment_dataset_id": joined,
             "validation_rms_um": d["residual_rms_um"], "train_rms_um": d["train_rms_um"],
             "noise_floor_um": d["noise_floor_um"], "ratio_to_noise_floor": _ratio(d["residual_rms_um"], d["noise_floor_um"]),
             "at_noise_floor": d["at_noise_floor"], "verdict": d["verdict"], "verdict_text": d["verdict_text"],
