@@ -103,7 +103,9 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     assert list(found) == ["creep", "operators"] and found["creep"]["added_at_step"] == 1
     final = load_model(store.get_model(result["final_model_id"]))
     assert found["creep"]["parameters"] == pytest.approx(final.physical_parameters()["creep"], rel=1e-9)
-    assert found["creep"]["parameters"]["creep_nm_per_decade"] > 10
+    # the creep bench's stack creeps 3 % of its strain per decade (fixtures/benches/creep.toml); a
+    # half-second record sees the first decades of it
+    assert 2.0 < found["creep"]["parameters"]["creep_pct_per_decade"] < 4.0, found["creep"]["parameters"]
     assert "creep" in found["creep"]["evidence"] and found["creep"]["p_value"] < 1e-3
     remains = result["remains"]
     assert remains["ratio_to_noise_floor"] == pytest.approx(
@@ -181,7 +183,8 @@ def test_an_ambiguity_stops_the_job_naming_its_experiment_or_runs_it(delay):
     model = http.get(f"/api/models/{added['model_id']}").json()
     assert model["datasets"] == [dataset_id, experiment["dataset_id"]]
     delay_us = ran["effects_found"][0]["parameters"]["delay_us"]
-    assert ran["effects_found"][0]["effect"] == "delay" and delay_us > 0
+    assert ran["effects_found"][0]["effect"] == "delay"
+    assert delay_us == pytest.approx(250.0, rel=0.05)     # the delay bench's 5 samples at 20 kHz
     assert check_store(http.app.state.store)["ok"]
 
 

@@ -380,9 +380,13 @@ class CompositeModel:
         return {e: EFFECTS[e].describe(self.theta.get(e, {}), self.coef or {}) for e in self.effects}
 
     def physical_parameters(self) -> dict[str, dict[str, float]]:
-        """Fitted physical parameters as numbers per effect, units in the names (Effect.parameters)."""
+        """Fitted physical parameters as numbers per effect, units in the names (Effect.parameters).
+        The effects also see ``stroke_um``: the hysteresis base's rise on a ramp from rest to the full
+        drive scale, Σ wᵢ·max(u_scale − rᵢ, 0) (µm), against which a creep is a share per decade."""
         self._require_fitted()
-        return {e: EFFECTS[e].parameters(self.theta.get(e, {}), self.coef, self.scales, self.sign)
+        rise_v = np.maximum(self.scales["u_scale_v"] - np.asarray(self.thresholds_v), 0.0)
+        scales = {**self.scales, "stroke_um": float(np.asarray(self.coef["weights_um_per_v"]) @ rise_v)}
+        return {e: EFFECTS[e].parameters(self.theta.get(e, {}), self.coef, scales, self.sign)
                 for e in self.effects}
 
     # -- serialisation -----------------------------------------------------------------------
