@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Callable
 
 from service.science.discovery.loop import discovery_step, needed_experiment, next_effect
+from service.science.discovery.parameters import physical_parameters
 from service.science.effects import EFFECTS, ordered
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.store import Store
@@ -129,7 +130,7 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
     """The job's answer (also its partial result while it runs)."""
     steps = run["steps"]
     last = steps[-1] if steps else None
-    parameters = final_model.physical_parameters() if final_model is not None else {}
+    parameters = physical_parameters(final_model) if final_model is not None else {}
     found = [{"effect": name, "kind": EFFECTS[name].kind, "added_at_step": index + 1,
               "parameters": parameters.get(name, {}), "evidence": c["evidence"], "p_value": c["p_value"],
               "score": c["score"], "expected_rms_um": c["expected_rms_um"]}

@@ -379,16 +379,6 @@ class CompositeModel:
         """Fitted effect parameters in words, per effect."""
         return {e: EFFECTS[e].describe(self.theta.get(e, {}), self.coef or {}) for e in self.effects}
 
-    def physical_parameters(self) -> dict[str, dict[str, float]]:
-        """Fitted physical parameters as numbers per effect, units in the names (Effect.parameters).
-        The effects also see ``stroke_um``: the hysteresis base's rise on a ramp from rest to the full
-        drive scale, Σ wᵢ·max(u_scale − rᵢ, 0) (µm), against which a creep is a share per decade."""
-        self._require_fitted()
-        rise_v = np.maximum(self.scales["u_scale_v"] - np.asarray(self.thresholds_v), 0.0)
-        scales = {**self.scales, "stroke_um": float(np.asarray(self.coef["weights_um_per_v"]) @ rise_v)}
-        return {e: EFFECTS[e].parameters(self.theta.get(e, {}), self.coef, scales, self.sign)
-                for e in self.effects}
-
     # -- serialisation -----------------------------------------------------------------------
     def to_dict(self) -> dict:
         """``{"model", "config", **learned state}``, JSON-serialisable (floats round-trip exactly)."""
