@@ -179,10 +179,11 @@ def test_an_ambiguity_stops_the_job_naming_its_experiment_or_runs_it(delay):
         need["experiment"]["frequencies_hz"]
     refit, added = ran["steps"][1], ran["steps"][2]
     assert refit["experiment_dataset_id"] == experiment["dataset_id"] and refit["added"] is None
-    assert refit["ambiguous"] is None                     # the experiment told them apart
+    assert refit["ambiguous"] is None and experiment["resolved"]      # the experiment told them apart
     assert added["added"] == "delay" and added["parent_id"] == refit["model_id"]
     model = http.get(f"/api/models/{added['model_id']}").json()
     assert model["datasets"] == [dataset_id, experiment["dataset_id"]]
+    assert f"dataset {experiment['dataset_id']}" in discovery_text(ran)
     delay_us = ran["effects_found"][0]["parameters"]["delay_us"]
     assert ran["effects_found"][0]["effect"] == "delay"
     assert delay_us == pytest.approx(250.0, rel=0.05)     # the delay bench's 5 samples at 20 kHz

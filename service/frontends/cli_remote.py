@@ -179,6 +179,9 @@ def discovery_text(result: dict) -> str:
     for step in result["steps"]:
         lines.append(f"  step {step['step']} {('+' + step['added']) if step['added'] else '':<18} {step['model_id']}  "
                      f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}")
+    for ran in result["experiments"]:
+        lines.append(f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
+                     f"{ran['sweep_job_id']}), " + ("resolved" if ran.get("resolved") else "not resolved by it"))
     for found in result["effects_found"]:
         figures = ", ".join(f"{k} {v:.4g}" for k, v in found["parameters"].items())
         lines.append(f"found {found['effect']}" + (f": {figures}" if figures else "") + f"\n  evidence: {found['evidence']}")

@@ -51,6 +51,8 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
             store, model, records, axis, list(datasets), ["hysteresis"] + ordered(effects), n_operators,
             run["steps"][-1]["model_id"], ctx.job_id)["id"]
         run["steps"].append(_step_summary(index, step_id, step, run, joined))
+        if joined is not None:
+            run["experiments"][-1]["resolved"] = _resolved(run["experiments"][-1]["effects"], d)
         joined = None
         run["final_model"] = model
         ctx.progress((index + 1) / max_steps, _step_words(run["steps"][-1]),
@@ -91,6 +93,14 @@ def _experiment(ctx: JobContext, store: Store, run: dict, need: dict, run_experi
     run["experiments"].append({**need, "sweep_job_id": sweep["id"], "dataset_id": dataset_id,
                                "after_step": len(run["steps"]) - 1})
     return dataset_id
+
+
+def _resolved(effects: list[str], d: dict) -> bool:
+    """Whether the diagnosis with an experiment's data no longer has what the experiment was for:
+    the ambiguity between ``effects``, or ``effects`` not testable."""
+    still = set(d["ambiguity"]["effects"]) if d.get("ambiguity") else set()
+    still |= {c["effect"] for c in d.get("not_testable", [])}
+    return not set(effects) <= still
 
 
 def _experiment_fraction(run: dict) -> float:
