@@ -104,6 +104,7 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     assert list(found) == ["creep", "operators"] and found["creep"]["added_at_step"] == 1
     final = load_model(store.get_model(result["final_model_id"]))
     assert found["creep"]["parameters"] == pytest.approx(physical_parameters(final)["creep"], rel=1e-9)
+    assert result["final_parameters"]["creep"] == found["creep"]["parameters"]
     # the creep bench's stack creeps 3 % of its strain per decade (fixtures/benches/creep.toml); a
     # half-second record sees the first decades of it
     assert 2.0 < found["creep"]["parameters"]["creep_pct_per_decade"] < 4.0, found["creep"]["parameters"]

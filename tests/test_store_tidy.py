@@ -163,10 +163,13 @@ def test_rename_tag_annotate_and_delete_over_rest(http):
                                                          "notes": "3 cycles"})
     assert r.status_code == 200, r.text
     assert (r.json()["name"], r.json()["tags"], r.json()["notes"]) == ("Y quick", ["demo", "y"], "3 cycles")
+    r = http.patch(f"/api/datasets/{dataset_id}", json={"name": None})
+    assert r.status_code == 422 and r.json()["field"] == "name"
     listed = {d["id"]: d for d in http.get("/api/datasets").json()}
     assert listed[dataset_id]["tags"] == ["demo", "y"]
     r = http.patch(f"/api/models/{parent}", json={"name": "base", "notes": "PI only"})
     assert r.status_code == 200 and r.json()["name"] == "base" and r.json()["tags"] == []
+    assert http.patch(f"/api/models/{parent}", json={"name": None}).json()["name"] is None   # a model's may go
     for body, field in (({"colour": "red"}, "colour"), ({"tags": "demo"}, "tags"), ({"tags": [""]}, "tags"),
                         ({"name": ""}, "name")):
         r = http.patch(f"/api/models/{parent}", json=body)

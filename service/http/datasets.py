@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Upload
 from fastapi.responses import StreamingResponse
 
 from service.http.deps import get_store
-from service.http.schemas.common import Deleted, LabelsUpdate, with_figures
+from service.http.schemas.common import DatasetLabelsUpdate, Deleted, with_figures
 from service.http.schemas.datasets import Dataset, DatasetSummary
 from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
@@ -84,7 +84,7 @@ def get_dataset(dataset_id: str, store: Store = Depends(get_store)) -> dict:
 
 
 @router.patch("/{dataset_id}", response_model=Dataset)
-def label_dataset(dataset_id: str, body: LabelsUpdate, store: Store = Depends(get_store)) -> dict:
+def label_dataset(dataset_id: str, body: DatasetLabelsUpdate, store: Store = Depends(get_store)) -> dict:
     """Rename, tag or annotate a dataset (the fields given; its samples never change)."""
     return dataset_view(store.label_dataset(dataset_id, **body.model_dump(exclude_unset=True)))
 

@@ -27,8 +27,9 @@ ExperimentRunner = Callable[[JobContext, dict], dict]
 def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, allow_experiments: bool = False,
              run_experiment: ExperimentRunner | None = None, bench_jobs: Callable[[], list[str]] | None = None) -> dict:
     """Job body: the loop from stored model ``model_id`` for at most ``max_steps`` steps (the start
-    model's diagnosis is step 0). Returns ``{"start_model_id", "final_model_id", "steps", "effects_found",
-    "remains", "stopped", "stop_reason", "needed_experiment", "experiments"}`` (µm, Hz, s in the names)."""
+    model's diagnosis is step 0). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
+    effect of the final model), "steps", "effects_found", "remains", "stopped", "stop_reason",
+    "needed_experiment", "experiments"}`` (units in the names)."""
     row = store.get_model(model_id)
     axis, datasets = row["axis"], list(row["datasets"])
     n_operators = int((row["options"] or {}).get("n_operators", 10))
@@ -63,10 +64,15 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
             busy = bench_jobs() if bench_jobs else []
             last = index == max_steps - 1                # no step left to use the experiment's data
             if not allow_experiments or run_experiment is None or busy or last:
-                stopped, needed = "needs_experiment", need
-                reason = ("the loop needs an experiment; ask again with allow_experiments" if not allow_experiments
-                          else f"the loop needs an experiment and the bench is busy with {', '.join(busy)}" if busy
-                          else f"the loop needs an experiment and max_steps = {max_steps} leaves no step to use it")
+                needed = need
+                why = ("ask again with allow_experiments to run it" if not allow_experiments
+                       else f"the bench is busy with {', '.join(busy)}" if busy
+                       else f"max_steps = {max_steps} leaves no step to use it")
+                if add is not None:                 # the loop cannot go on without it
+                    stopped, reason = "needs_experiment", f"the loop needs an experiment ({need['reason']}): {why}"
+                else:                               # done as far as the data goes; the experiment would test more
+                    stopped = _natural_stop(d)
+                    reason = f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
                 break
             joined = _experiment(ctx, store, run, need, run_experiment)
             datasets.append(joined)
@@ -74,8 +80,7 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
             model = None                            # the same effects, refitted on every dataset
             continue
         if add is None:
-            stopped = "at_noise_floor" if d["at_noise_floor"] else "complete"
-            reason = d["verdict_text"]
+            stopped, reason = _natural_stop(d), d["verdict_text"]
             break
         run["added"][add] = (index, next(c for c in d["candidates"] if c["effect"] == add))
         effects, model = effects + [add], None
@@ -95,6 +100,11 @@ def _experiment(ctx: JobContext, store: Store, run: dict, need: dict, run_experi
     return dataset_id
 
 
+def _natural_stop(d: dict) -> str:
+    """Why the loop stops when there is nothing left to add: at the noise floor, or complete."""
+    return "at_noise_floor" if d["at_noise_floor"] else "complete"
+
+
 def _resolved(effects: list[str], d: dict) -> bool:
     """Whether the diagnosis with an experiment's data no longer has what the experiment was for:
     the ambiguity between ``effects``, or ``effects`` not testable."""
@@ -104,7 +114,7 @@ def _resolved(effects: list[str], d: dict) -> bool:
 
 
 def _experiment_fraction(run: dict) -> float:
-    """Progress while an experiment runs: half a step on from the last step (0..1, never the end)."""
+    """Progress while an experiment runs: more the more steps are done, never the end (0..0.95)."""
     return min(0.95, len(run["steps"]) / (len(run["steps"]) + 2))
 
 
@@ -150,5 +160,6 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
         "verdict_text", "per_block", "not_testable")}
     return {"start_model_id": run["start_model_id"], "axis": run["axis"],
             "final_model_id": last["model_id"] if last else None, "effects": last["effects"] if last else None,
-            "steps": list(steps), "effects_found": found, "remains": remains, "stopped": stopped,
+            "final_parameters": parameters, "steps": list(steps), "effects_found": found, "remains": remains,
+            "stopped": stopped,
             "stop_reason": reason, "needed_experiment": needed, "experiments": list(run["experiments"])}

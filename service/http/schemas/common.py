@@ -29,6 +29,17 @@ class LabelsUpdate(BaseModel):
         return None if tags is None else list(dict.fromkeys(t.strip() for t in tags))
 
 
+class DatasetLabelsUpdate(LabelsUpdate):
+    """PATCH a dataset: as LabelsUpdate, but a dataset always has a name (it cannot be cleared)."""
+
+    @field_validator("name")
+    @classmethod
+    def _name_kept(cls, name: str | None) -> str:
+        if name is None:
+            raise ValueError("a dataset's name cannot be cleared; give a new one")
+        return name
+
+
 class Deleted(BaseModel):
     """What a DELETE removed: the records (a cascade lists every model that went with it) and the
     bytes of array files freed."""
