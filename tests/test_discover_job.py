@@ -169,25 +169,31 @@ def test_an_ambiguity_stops_the_job_naming_its_experiment_or_runs_it(delay):
     assert stopped["steps"][0]["ambiguous"] == need["effects"]
     assert "POST /api/sweeps" in discovery_text(stopped)
 
-    job = api.discover(base_id, allow_experiments=True, max_steps=3)
+    job = api.discover(base_id, allow_experiments=True, max_steps=4)
     assert job["state"] == "succeeded", job
     ran = job["result"]
-    assert len(ran["experiments"]) == 1
-    experiment = ran["experiments"][0]
-    sweep = http.get(f"/api/jobs/{experiment['sweep_job_id']}").json()
-    assert sweep["kind"] == "sweep" and sweep["result"]["dataset_id"] == experiment["dataset_id"]
-    assert http.get(f"/api/datasets/{experiment['dataset_id']}").json()["plan"]["frequencies_hz"] == \
-        need["experiment"]["frequencies_hz"]
-    refit, added = ran["steps"][1], ran["steps"][2]
-    assert refit["experiment_dataset_id"] == experiment["dataset_id"] and refit["added"] is None
-    assert refit["ambiguous"] is None and experiment["resolved"]      # the experiment told them apart
-    assert added["added"] == "delay" and added["parent_id"] == refit["model_id"]
+    experiment = ran["experiments"][0]                   # the one the first diagnosis named
+    assert experiment["experiment"] == need["experiment"] and experiment["after_step"] == 0
+    assert experiment["resolved"]                        # delay and rate dependence are told apart now
+    assert ran["steps"][1]["ambiguous"] != need["effects"]
+    bodies = [e["experiment"] for e in ran["experiments"]]
+    assert len(bodies) == len({str(b) for b in bodies})  # each experiment is run once
+    for e in ran["experiments"]:                          # each through the sweep queue, then refitted on
+        sweep = http.get(f"/api/jobs/{e['sweep_job_id']}").json()
+        assert sweep["kind"] == "sweep" and sweep["result"]["dataset_id"] == e["dataset_id"]
+        assert http.get(f"/api/datasets/{e['dataset_id']}").json()["plan"]["frequencies_hz"] == \
+            e["experiment"]["frequencies_hz"]
+        refit = ran["steps"][e["after_step"] + 1]
+        assert refit["experiment_dataset_id"] == e["dataset_id"] and refit["added"] is None
+        assert refit["parent_id"] == ran["steps"][e["after_step"]]["model_id"]
+    added = next(s for s in ran["steps"] if s["added"])
+    assert added["added"] == "delay"                      # the hidden effect, once the data tells it apart
     model = http.get(f"/api/models/{added['model_id']}").json()
-    assert model["datasets"] == [dataset_id, experiment["dataset_id"]]
+    assert model["datasets"] == [dataset_id] + [e["dataset_id"] for e in ran["experiments"]]
     assert f"dataset {experiment['dataset_id']}" in discovery_text(ran)
-    delay_us = ran["effects_found"][0]["parameters"]["delay_us"]
-    assert ran["effects_found"][0]["effect"] == "delay"
-    assert delay_us == pytest.approx(250.0, rel=0.05)     # the delay bench's 5 samples at 20 kHz
+    delay = ran["effects_found"][0]
+    assert delay["effect"] == "delay"
+    assert delay["parameters"]["delay_us"] == pytest.approx(250.0, rel=0.05)   # 5 samples at 20 kHz
     assert check_store(http.app.state.store)["ok"]
 
 
