@@ -192,3 +192,35 @@ def test_restart_marks_unfinished_jobs_failed_and_shutdown_cancels_queued(store)
     assert store.get_job(blocking["id"])["state"] in ("succeeded", "cancelled")
     with pytest.raises(RuntimeError, match="shutting down"):
         manager.submit("sweep", None, lambda ctx: {}, needs_bench=True)
+
+
+def test_a_running_job_shows_its_result_so_far_and_the_bench_jobs_are_listed(store):
+    """``ctx.progress(..., partial=...)`` (the discover job's steps so far) is the job's ``result``
+    while it runs, and the final result replaces it; ``bench_jobs`` names what holds the bench."""
+    manager = JobManager(store)
+    reported, finish, bench_free = threading.Event(), threading.Event(), threading.Event()
+
+    def stepping(ctx):
+        ctx.progress(0.5, "step 0", partial={"steps": [{"step": 0, "validation_rms_um": 0.05}]})
+        reported.set()
+        finish.wait(5)
+        return {"steps": [{"step": 0}, {"step": 1}]}
+
+    try:
+        assert manager.bench_jobs() == []
+        holder = manager.submit("sweep", None, lambda ctx: {"held": bench_free.wait(5)}, needs_bench=True)["id"]
+        job_id = manager.submit("discover", None, stepping, needs_bench=False)["id"]
+        assert reported.wait(5)
+        running = manager.get(job_id)
+        assert running["state"] == "running" and running["message"] == "step 0"
+        assert running["result"] == {"steps": [{"step": 0, "validation_rms_um": 0.05}]}
+        assert manager.bench_jobs() == [holder]
+        finish.set()
+        bench_free.set()
+        done = wait_job(manager.get, job_id)
+        wait_job(manager.get, holder)
+        assert done["result"] == {"steps": [{"step": 0}, {"step": 1}]} and manager.bench_jobs() == []
+    finally:
+        finish.set()
+        bench_free.set()
+        manager.shutdown()

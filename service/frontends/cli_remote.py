@@ -1,5 +1,5 @@
-"""CLI verbs that talk to a running service over REST: sweep, import, identify, compare, jobs,
-datasets, models. Long jobs show a text progress bar on stderr; results go to stdout."""
+"""CLI verbs that talk to a running service over REST: sweep, import, identify, compare, discover,
+jobs, datasets, models (with rename, tag, annotate and delete). Long jobs show a text progress bar on stderr; results go to stdout."""
 from __future__ import annotations
 
 import argparse
@@ -62,6 +62,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("model_id")
     p.add_argument("--dataset", required=True, help="dataset id")
 
+    p = remote("discover", "run the discovery loop from a model: diagnose, add the missing effect, refit, "
+                           "repeat; then capacity down to the noise floor", _discover)
+    p.add_argument("model_id")
+    p.add_argument("--allow-experiments", action="store_true",
+                   help="run the sweep the loop needs on the bench when it is free (else it stops and names it)")
+    p.add_argument("--max-steps", type=int, default=8, help="steps at most, the model's own diagnosis the first "
+                                                             "(1–12, default 8)")
+
     p = remote("jobs", "list jobs, show one, follow it, or cancel it", _jobs)
     p.add_argument("job_id", nargs="?")
     p.add_argument("--cancel", action="store_true", help="cancel the job (a sweep keeps its partial data)")
@@ -70,11 +78,21 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     remote("stop", "emergency stop: every output to 0 V, the bench job and its queue cancelled", _stop)
     remote("reset", "clear latched amplifier faults and the watchdog's trip (bench idle, outputs at 0 V)", _reset)
 
-    p = remote("datasets", "list datasets or show one", _datasets)
+    p = remote("datasets", "list datasets, show one, or rename, tag, annotate or delete it", _datasets)
     p.add_argument("dataset_id", nargs="?")
+    _tidy_options(p, "the models fitted on it")
 
-    p = remote("models", "list models or show one", _models)
+    p = remote("models", "list models, show one, or rename, tag, annotate or delete it", _models)
     p.add_argument("model_id", nargs="?")
+    _tidy_options(p, "every model refined from it")
+
+
+def _tidy_options(p: argparse.ArgumentParser, dependents: str) -> None:
+    p.add_argument("--rename", metavar="NAME", help="set its name")
+    p.add_argument("--tags", help="comma-separated tags (replace its tags; '' clears them)")
+    p.add_argument("--notes", help="set its notes ('' clears them)")
+    p.add_argument("--delete", action="store_true", help=f"delete it (refused while {dependents} exist)")
+    p.add_argument("--cascade", action="store_true", help=f"with --delete: also delete {dependents}")
 
 
 # ---------------------------------------------------------------------- verbs
@@ -138,6 +156,46 @@ def _compare(api: Client, args) -> int:
     return 0
 
 
+def _discover(api: Client, args) -> int:
+    bar = ProgressBar()
+
+    def progress(job: dict) -> None:   # each step's line as it is stored, then the bar
+        steps = (job.get("result") or {}).get("steps") or []
+        for step in steps[len(seen):]:
+            print(f"\rstep {step['step']}: {' + '.join(step['effects']):<50} {step['model_id']}  held-out "
+                  f"{_nm(step['validation_rms_um'])}, noise floor {_nm(step['noise_floor_um'])}", file=sys.stderr)
+        seen[:] = steps
+        bar(job)
+
+    seen: list = []
+    job = api.discover(args.model_id, args.allow_experiments, args.max_steps, on_progress=progress)
+    return _finish(args, job, discovery_text(job["result"]) if job.get("result") else "")
+
+
+def discovery_text(result: dict) -> str:
+    """A discover job's result in words: final model, effects found with their parameters, what remains."""
+    lines = [f"final model {result['final_model_id']}: {' + '.join(result['effects'] or [])} "
+             f"(stopped: {result['stopped']})"]
+    for step in result["steps"]:
+        lines.append(f"  step {step['step']} {('+' + step['added']) if step['added'] else '':<18} {step['model_id']}  "
+                     f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}")
+    for ran in result["experiments"]:
+        lines.append(f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
+                     f"{ran['sweep_job_id']}), " + ("resolved" if ran.get("resolved") else "not resolved by it"))
+    for found in result["effects_found"]:
+        figures = ", ".join(f"{k} {v:.4g}" for k, v in found["parameters"].items())
+        lines.append(f"found {found['effect']}" + (f": {figures}" if figures else "") + f"\n  evidence: {found['evidence']}")
+    remains = result.get("remains") or {}
+    if remains:
+        lines.append(f"remains: held-out {_nm(remains['validation_rms_um'])} = {remains['ratio_to_noise_floor']:.2f}× "
+                     f"the noise floor ({_nm(remains['noise_floor_um'])}): {remains['verdict_text']}")
+    if result.get("needed_experiment"):
+        need = result["needed_experiment"]
+        lines.append(f"needs an experiment ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
+                     " — or run again with --allow-experiments")
+    return "\n".join(lines)
+
+
 def _jobs(api: Client, args) -> int:
     if not args.job_id:
         rows = api.jobs()
@@ -171,7 +229,29 @@ def _reset(api: Client, args) -> int:
     return 1 if out["remaining"] else 0
 
 
+def _tidy(args, label, delete, record_id: str) -> tuple[dict, str] | None:
+    """Apply --rename/--tags/--notes or --delete to ``record_id``; (answer, words) or None if none was given."""
+    if args.delete:
+        gone = delete(record_id, cascade=args.cascade)
+        return gone, (f"deleted datasets {', '.join(gone['datasets']) or 'none'}, models "
+                      f"{', '.join(gone['models']) or 'none'}; freed {gone['freed_bytes']} bytes")
+    labels = {}
+    if args.rename is not None:
+        labels["name"] = args.rename
+    if args.tags is not None:
+        labels["tags"] = _list(args.tags)
+    if args.notes is not None:
+        labels["notes"] = args.notes or None
+    if not labels:
+        return None
+    row = label(record_id, **labels)
+    return row, f"{row['id']}: name {row['name']!r}, tags {', '.join(row['tags']) or '-'}, notes {row['notes']!r}"
+
+
 def _datasets(api: Client, args) -> int:
+    done = args.dataset_id and _tidy(args, api.label_dataset, api.delete_dataset, args.dataset_id)
+    if done:
+        return _emit(args, *done)
     if args.dataset_id:
         row = api.dataset(args.dataset_id)
         return _emit(args, row, json.dumps({k: v for k, v in row.items() if k != "config"}, indent=2))
@@ -182,6 +262,9 @@ def _datasets(api: Client, args) -> int:
 
 
 def _models(api: Client, args) -> int:
+    done = args.model_id and _tidy(args, api.label_model, api.delete_model, args.model_id)
+    if done:
+        return _emit(args, *done)
     if args.model_id:
         row = api.model(args.model_id)
         return _emit(args, row, json.dumps(row, indent=2))
@@ -250,3 +333,7 @@ def _num(value, fmt: str = ".4f") -> str:
 
 def _um(value) -> str:
     return "-" if value is None else f"{value:.4f} µm"
+
+
+def _nm(value_um) -> str:
+    return "-" if value_um is None else f"{value_um * 1e3:.3g} nm"

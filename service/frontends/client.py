@@ -196,6 +196,15 @@ class Client:
                 out[name][start:start + values.size] = values
         return out
 
+    def label_dataset(self, dataset_id: str, **labels) -> dict:
+        """Set some of a dataset's ``name``, ``tags`` (a list) and ``notes``; returns its record."""
+        return self._request("PATCH", f"/api/datasets/{dataset_id}", json=labels)
+
+    def delete_dataset(self, dataset_id: str, cascade: bool = False) -> dict:
+        """Delete a dataset and its arrays (ApiError 409 naming the models fitted on it unless
+        ``cascade``); returns ``{"datasets", "models", "freed_bytes"}`` deleted."""
+        return self._request("DELETE", f"/api/datasets/{dataset_id}", params={"cascade": cascade})
+
     def _ndjson(self, dataset_id: str) -> Iterator[dict]:
         """The objects of ``GET /api/datasets/{id}/data?format=ndjson``: the header, then the chunks."""
         with self.http.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "ndjson"},
@@ -229,6 +238,23 @@ class Client:
 
     def models(self) -> list[dict]:
         return self._request("GET", "/api/models")
+
+    def label_model(self, model_id: str, **labels) -> dict:
+        """Set some of a model's ``name``, ``tags`` (a list) and ``notes``; returns its record."""
+        return self._request("PATCH", f"/api/models/{model_id}", json=labels)
+
+    def delete_model(self, model_id: str, cascade: bool = False) -> dict:
+        """Delete a model (ApiError 409 naming its children unless ``cascade``)."""
+        return self._request("DELETE", f"/api/models/{model_id}", params={"cascade": cascade})
+
+    def discover(self, model_id: str, allow_experiments: bool = False, max_steps: int = 8, wait: bool = True,
+                 on_progress: ProgressCallback | None = None) -> dict:
+        """Run the discovery loop from a model (POST /api/models/{id}/discover). With ``wait`` the
+        finished job (its ``result``: steps, final_model_id, effects_found, remains, needed_experiment),
+        ``on_progress`` called with the job at each step; else the queued job."""
+        started = self._request("POST", f"/api/models/{model_id}/discover",
+                                json={"allow_experiments": allow_experiments, "max_steps": max_steps})
+        return self.wait(started["job_id"], on_progress) if wait else self.job(started["job_id"])
 
     def compare(self, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:
         """The metrics (over every sample) and, unless ``arrays`` is False, measured, predicted and

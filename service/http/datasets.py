@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Upload
 from fastapi.responses import StreamingResponse
 
 from service.http.deps import get_store
-from service.http.schemas.common import with_figures
+from service.http.schemas.common import DatasetLabelsUpdate, Deleted, with_figures
 from service.http.schemas.datasets import Dataset, DatasetSummary
 from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
@@ -21,7 +21,7 @@ router = APIRouter(prefix="/datasets", tags=["datasets"])
 
 MAX_UPLOAD_BYTES = 200 * 1024 * 1024
 SUMMARY_KEYS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "partial", "partial_reason",
-                "created_at", "started_at", "finished_at", "job_id")
+                "created_at", "started_at", "finished_at", "job_id", "tags", "notes")
 MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "application/x-ndjson",
                "hdf5": "application/x-hdf5"}
 _RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
@@ -81,6 +81,21 @@ def get_dataset(dataset_id: str, store: Store = Depends(get_store)) -> dict:
     """A dataset's metadata: block table, plan, bench configuration snapshot, units, drive range
     per axis (``drive_range_v``, volts, for imports), checksum."""
     return dataset_view(store.get_dataset(dataset_id))
+
+
+@router.patch("/{dataset_id}", response_model=Dataset)
+def label_dataset(dataset_id: str, body: DatasetLabelsUpdate, store: Store = Depends(get_store)) -> dict:
+    """Rename, tag or annotate a dataset (the fields given; its samples never change)."""
+    return dataset_view(store.label_dataset(dataset_id, **body.model_dump(exclude_unset=True)))
+
+
+@router.delete("/{dataset_id}", response_model=Deleted)
+def delete_dataset(dataset_id: str, cascade: bool = Query(False, description="also delete the models fitted on "
+                                                          "it and every model refined from them"),
+                   store: Store = Depends(get_store)) -> dict:
+    """Delete a dataset and its arrays. Refused with 409 naming the models fitted on it (``dependents``)
+    unless ``cascade=true``; the store stays consistent (``evcbench store check``)."""
+    return store.delete_dataset(dataset_id, cascade)
 
 
 @router.get("/{dataset_id}/data", response_model=None, responses=DATASET_DOWNLOADS)

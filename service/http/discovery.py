@@ -1,12 +1,15 @@
-"""Discovery routes under /models: diagnosis, refine (a job) and history. No science here."""
+"""Discovery routes under /models: diagnosis, refine and discover (jobs) and history. No science here."""
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
 
-from service.http.deps import get_jobs, get_store
+from drivers.bench import Bench
+from service.http.deps import get_bench, get_jobs, get_store
 from service.http.schemas.common import JobQueued
-from service.http.schemas.models import Diagnosis, History, RefineRequest
+from service.http.schemas.models import Diagnosis, DiscoverRequest, History, RefineRequest
+from service.usecases.acquire import sweep_and_wait
 from service.usecases.discover import diagnose_model, history, refine_params
+from service.usecases.discover_run import discover
 from service.runtime.jobs import JobManager
 from service.usecases.identify import identify
 from service.store import Store
@@ -27,6 +30,26 @@ def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store)
     """Queue a refit with another effect set on the same data; the new model's parent is ``model_id``."""
     params = refine_params(store, model_id, body.add, body.remove, body.effects, body.datasets)
     job = jobs.submit("refine", params, lambda ctx: identify(ctx, store, **params), needs_bench=False)
+    return {"job_id": job["id"], "state": job["state"]}
+
+
+@router.post("/{model_id}/discover", status_code=202, response_model=JobQueued)
+def start_discovery(model_id: str, body: DiscoverRequest, store: Store = Depends(get_store),
+                    jobs: JobManager = Depends(get_jobs), bench: Bench = Depends(get_bench)) -> dict:
+    """Queue the discovery loop from ``model_id`` (a compute job: it never holds the bench). Each step
+    is stored as a model whose parent is the previous step and reported as progress (the steps so far
+    are the job's ``result`` while it runs). The result: ``steps`` (model_id, effects, added,
+    validation_rms_um, noise_floor_um, …), ``final_model_id``, ``effects_found`` (fitted physical
+    parameters, units in the names, and the evidence), ``remains`` (held-out RMS against the noise
+    floor, per block), ``stopped`` and ``needed_experiment`` (a /api/sweeps body) when it stopped for one."""
+    store.get_model(model_id)                      # 404 before anything is queued
+    params = {"model_id": model_id, **body.model_dump()}
+
+    def run_experiment(ctx, sweep_body: dict) -> dict:
+        return sweep_and_wait(ctx, jobs, bench, store, sweep_body, name=f"experiment of discovery from {model_id}")
+
+    job = jobs.submit("discover", params, lambda ctx: discover(ctx, store, run_experiment=run_experiment,
+                                                               bench_jobs=jobs.bench_jobs, **params), needs_bench=False)
     return {"job_id": job["id"], "state": job["state"]}
 
 

@@ -8,6 +8,7 @@ from fastapi.responses import JSONResponse
 from service.science.errors import FieldError
 from service.runtime.jobs import QueueFull
 from service.store import IntegrityError, NotFoundError
+from service.store.tidy import InUseError
 
 
 def _field_of(loc: tuple | list) -> str:
@@ -34,6 +35,11 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(NotFoundError)
     async def _not_found(_request: Request, exc: NotFoundError) -> JSONResponse:
         return JSONResponse(status_code=404, content={"detail": str(exc), "field": exc.field})
+
+    @app.exception_handler(InUseError)
+    async def _in_use(_request: Request, exc: InUseError) -> JSONResponse:
+        return JSONResponse(status_code=409, content={"detail": str(exc), "field": "cascade",
+                                                      "dependents": exc.dependents})
 
     @app.exception_handler(QueueFull)
     async def _queue_full(_request: Request, exc: QueueFull) -> JSONResponse:

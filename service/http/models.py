@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, Query
 
 from service.http.deps import get_jobs, get_store
 from service.science.data.export import JSON_DEFAULT_MAX_POINTS
-from service.http.schemas.common import JobQueued, with_figures
+from service.http.schemas.common import Deleted, JobQueued, LabelsUpdate, with_figures
 from service.http.schemas.models import Comparison, Model, ModelRequest
 from service.runtime.jobs import JobManager
 from service.usecases.identify import check_identify_request, compare, identify
@@ -23,7 +23,7 @@ def model_view(row: ModelRow) -> dict:
             "parent_id": row["parent_id"], "datasets": row["datasets"], "options": row["options"],
             "parameters": row["parameters"], "parameters_sha256": row["parameters_sha256"],
             "metrics": row["metrics"], "software_version": row["software_version"], "job_id": row["job_id"],
-            "created_at": row["created_at"]}
+            "created_at": row["created_at"], "name": row["name"], "tags": row["tags"], "notes": row["notes"]}
 
 
 @router.post("", status_code=202, response_model=JobQueued)
@@ -46,6 +46,19 @@ def list_models(store: Store = Depends(get_store)) -> list[dict]:
 def get_model(model_id: str, store: Store = Depends(get_store)) -> dict:
     """A model: kind, effects, parameters (``model.to_dict()``) and train/held-out metrics."""
     return model_view(store.get_model(model_id))
+
+
+@router.patch("/{model_id}", response_model=Model, response_model_exclude_unset=True)
+def label_model(model_id: str, body: LabelsUpdate, store: Store = Depends(get_store)) -> dict:
+    """Rename, tag or annotate a model (the fields given; its parameters never change)."""
+    return model_view(store.label_model(model_id, **body.model_dump(exclude_unset=True)))
+
+
+@router.delete("/{model_id}", response_model=Deleted)
+def delete_model(model_id: str, cascade: bool = Query(False, description="also delete every model refined "
+                                                      "from it"), store: Store = Depends(get_store)) -> dict:
+    """Delete a model. Refused with 409 naming its children (``dependents``) unless ``cascade=true``."""
+    return store.delete_model(model_id, cascade)
 
 
 @router.get("/{model_id}/compare", response_model=Comparison, response_model_exclude_unset=True)

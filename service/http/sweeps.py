@@ -8,7 +8,7 @@ from service.http.deps import get_bench, get_jobs, get_store
 from service.http.schemas.datasets import SweepQueued, SweepRequest
 from service.runtime.jobs import JobManager
 from service.store import Store
-from service.usecases.acquire import plan_sweep, run_sweep
+from service.usecases.acquire import queue_sweep
 
 router = APIRouter(tags=["sweeps"])
 
@@ -19,7 +19,6 @@ def start_sweep(body: SweepRequest, bench: Bench = Depends(get_bench), store: St
     if the plan leaves the bench's voltage, current or slew limits: nothing is queued then."""
     values = body.model_dump()
     name = values.pop("name")
-    planned, plan = plan_sweep(bench, values)
-    job = jobs.submit("sweep", plan, lambda ctx: run_sweep(ctx, bench, store, planned, plan, name), needs_bench=True)
+    job, planned = queue_sweep(jobs, bench, store, values, name)
     return {"job_id": job["id"], "state": job["state"], "samples": planned.samples,
             "duration_s": planned.duration_s, "blocks": planned.blocks}

@@ -64,6 +64,7 @@ class _Live:
     persisted_at: float = 0.0
     cancel: threading.Event = field(default_factory=threading.Event)
     cancel_reason: str | None = None
+    partial: dict | None = None      # the result so far, shown while the job runs (JobContext.progress)
 
 
 class JobContext:
@@ -72,9 +73,11 @@ class JobContext:
     def __init__(self, manager: "JobManager", job_id: str):
         self._manager, self.job_id = manager, job_id
 
-    def progress(self, fraction: float, message: str | None = None) -> None:
-        """Report progress in 0..1 with an optional message (cheap; persisted at intervals)."""
-        self._manager._set_progress(self.job_id, fraction, message)
+    def progress(self, fraction: float, message: str | None = None, partial: dict | None = None) -> None:
+        """Report progress in 0..1 with an optional message (cheap; persisted at intervals).
+        ``partial``: the result so far, shown as the job's ``result`` (GET and the event stream) until it
+        ends (kept in memory only; the final result replaces it)."""
+        self._manager._set_progress(self.job_id, fraction, message, partial)
 
     @property
     def cancelled(self) -> bool:
@@ -144,6 +147,8 @@ class JobManager:
         live = self._live.get(row["id"])
         if live is not None and row["state"] not in TERMINAL_STATES:
             row.update(state=live.state, progress=live.progress, message=live.message)
+            if live.partial is not None:
+                row["result"] = live.partial
         return _public(row)
 
     def cancel(self, job_id: str, reason: str | None = None) -> dict:
@@ -163,6 +168,11 @@ class JobManager:
             self._on_cancel_bench()  # besides the job's own cancel flag, for jobs that poll only the bench
         self._set_progress(job_id, live.progress, "cancel requested")
         return self.get(job_id)
+
+    def bench_jobs(self) -> list[str]:
+        """Ids of the bench jobs running or waiting for the bench now (empty: the bench is free)."""
+        with self._lock:
+            return [i for i, live in self._live.items() if live.needs_bench and live.state in ("queued", "running")]
 
     @property
     def running_bench_job(self) -> str | None:
@@ -264,13 +274,15 @@ class JobManager:
             else:
                 self._finish(job_id, "succeeded", result=result, progress=1.0, message="done")
 
-    def _set_progress(self, job_id: str, fraction: float, message: str | None) -> None:
+    def _set_progress(self, job_id: str, fraction: float, message: str | None, partial: dict | None = None) -> None:
         live = self._live.get(job_id)
         if live is None:  # finished meanwhile
             return
         live.progress = float(min(max(fraction, 0.0), 1.0))
         if message is not None:
             live.message = message
+        if partial is not None:
+            live.partial = clean_json(partial)
         live.version += 1
         now = time.monotonic()
         if now - live.persisted_at >= PERSIST_EVERY_S:  # written by another thread: a bench loop never

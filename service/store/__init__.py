@@ -1,6 +1,7 @@
 """The store: metadata in SQL (SQLite in WAL mode by default, PostgreSQL by URL), arrays in files.
 
-Nothing is updated in place except a job's state: datasets and models are written once. A
+Nothing is updated in place except a job's state and the labels (name, tags, notes) of a dataset
+or model: their data and parameters are written once, and may be deleted (service.store.tidy). A
 dataset's arrays are written (atomically) before its row; if the row cannot be inserted the
 file is removed again, so a failed request leaves the store as it was.
 """
@@ -19,7 +20,7 @@ from sqlalchemy import create_engine, event, insert, select, update
 from sqlalchemy.engine import Engine
 
 from service import __version__
-from service.store import tables
+from service.store import schema, tables, tidy
 from service.store.files import IntegrityError, StoredArrays, open_arrays, read_arrays, write_arrays
 from service.store.rows import DatasetRow, JobRow, ModelRow
 from service.store.tokens import TokenRows
@@ -103,6 +104,7 @@ class Store:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.engine = make_engine(database_url)
         tables.metadata.create_all(self.engine)
+        schema.upgrade(self.engine)   # columns added since the database was created
         #: the API token rows (hashes only; see service.security.auth)
         self.tokens = TokenRows(self.engine)
         #: the data dir's lock (service.store.lock) while this store's process owns it: the running
@@ -135,6 +137,7 @@ class Store:
             "software_version": __version__, "partial": bool(meta.get("partial", False)),
             "partial_reason": meta.get("partial_reason"), "job_id": meta.get("job_id"),
             "started_at": meta.get("started_at"), "finished_at": meta.get("finished_at"), "created_at": utc_now(),
+            "tags": list(meta.get("tags") or []), "notes": meta.get("notes"),
         }
         path, digest = write_arrays(self.arrays_dir, dataset_id, arrays)
         row.update(file=str(path.relative_to(self.data_dir)), sha256=digest)
@@ -147,10 +150,20 @@ class Store:
         return row
 
     def get_dataset(self, dataset_id: str) -> DatasetRow:
-        return self._get(tables.datasets, dataset_id, "dataset")
+        return tidy.with_labels(self._get(tables.datasets, dataset_id, "dataset"))
 
     def list_datasets(self) -> list[DatasetRow]:
-        return self._list(tables.datasets)
+        return [tidy.with_labels(row) for row in self._list(tables.datasets)]
+
+    def label_dataset(self, dataset_id: str, **labels: Any) -> DatasetRow:
+        """Set some of a dataset's ``name``, ``tags`` and ``notes``; the updated record."""
+        tidy.set_labels(self, tables.datasets, dataset_id, labels)
+        return self.get_dataset(dataset_id)
+
+    def delete_dataset(self, dataset_id: str, cascade: bool = False) -> dict:
+        """Delete a dataset and its arrays (service.store.tidy.delete_dataset: InUseError naming the
+        models fitted on it unless ``cascade``, which deletes them and their descendants too)."""
+        return tidy.delete_dataset(self, dataset_id, cascade)
 
     def load_arrays(self, dataset_id: str) -> dict[str, np.ndarray]:
         """The dataset's arrays, verified against the stored checksum."""
@@ -174,6 +187,7 @@ class Store:
             "parameters": parameters, "parameters_sha256": json_sha256(parameters),
             "metrics": clean_json(record.get("metrics", {})), "software_version": __version__,
             "job_id": record.get("job_id"), "created_at": utc_now(),
+            "name": record.get("name"), "tags": list(record.get("tags") or []), "notes": record.get("notes"),
         }
         with self.engine.begin() as conn:
             conn.execute(insert(tables.models).values(**row))
@@ -181,13 +195,23 @@ class Store:
 
     def get_model(self, model_id: str) -> ModelRow:
         """The model's record; IntegrityError if its parameters no longer match their checksum."""
-        row = self._get(tables.models, model_id, "model")
+        row = tidy.with_labels(self._get(tables.models, model_id, "model"))
         if json_sha256(row["parameters"]) != row["parameters_sha256"]:
             raise IntegrityError(f"model {model_id}: parameters do not match their sha256")
         return row
 
     def list_models(self) -> list[ModelRow]:
-        return self._list(tables.models)
+        return [tidy.with_labels(row) for row in self._list(tables.models)]
+
+    def label_model(self, model_id: str, **labels: Any) -> ModelRow:
+        """Set some of a model's ``name``, ``tags`` and ``notes``; the updated record."""
+        tidy.set_labels(self, tables.models, model_id, labels)
+        return self.get_model(model_id)
+
+    def delete_model(self, model_id: str, cascade: bool = False) -> dict:
+        """Delete a model (service.store.tidy.delete_model: InUseError naming its children unless
+        ``cascade``, which deletes its descendants too)."""
+        return tidy.delete_model(self, model_id, cascade)
 
     # ------------------------------------------------------------------ jobs
     def add_job(self, kind: str, params: dict | None, needs_bench: bool) -> JobRow:

@@ -32,6 +32,8 @@ class DatasetRow(TypedDict):
     started_at: str | None            # acquisition start and end (None for imports)
     finished_at: str | None
     created_at: str
+    tags: list[str]                   # a user's labels (service.store.tidy)
+    notes: str | None
 
 
 class ModelRow(TypedDict):
@@ -50,6 +52,9 @@ class ModelRow(TypedDict):
     software_version: str
     job_id: str | None
     created_at: str
+    name: str | None                  # a user's labels (service.store.tidy)
+    tags: list[str]
+    notes: str | None
 
 
 class JobRow(TypedDict):

@@ -30,6 +30,9 @@ datasets = Table(
     Column("started_at", String(40), nullable=True),       # acquisition start (sweeps)
     Column("finished_at", String(40), nullable=True),      # acquisition end (sweeps)
     Column("created_at", String(40), nullable=False),
+    # added after the first release (service.store.schema upgrades older databases): a user's labels
+    Column("tags", JSON, nullable=True),                   # ["calibration", …]
+    Column("notes", Text, nullable=True),
 )
 
 models = Table(
@@ -47,6 +50,10 @@ models = Table(
     Column("software_version", String(40), nullable=False),
     Column("job_id", String(40), nullable=True),
     Column("created_at", String(40), nullable=False),
+    # added after the first release (service.store.schema upgrades older databases): a user's labels
+    Column("name", Text, nullable=True),
+    Column("tags", JSON, nullable=True),
+    Column("notes", Text, nullable=True),
 )
 
 jobs = Table(

@@ -6,9 +6,11 @@ most the last second of them, and the bench leaves its output at 0 V either way.
 """
 from __future__ import annotations
 
+import time
+
 from drivers.bench import Bench
-from service.runtime.jobs import JobContext
-from service.store import Store
+from service.runtime.jobs import JobContext, JobInterrupted, JobManager
+from service.store import TERMINAL_STATES, Store
 from service.usecases.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
 from service.usecases.recorder import Recorder, bench_snapshot, record_arrays
 
@@ -20,6 +22,34 @@ def plan_sweep(bench: Bench, values: dict) -> tuple[PlannedSweep, dict]:
     plan = plan_from_dict(values)
     planned = plan_for_bench(plan, bench)
     return planned, {**plan.to_dict(), "samples": planned.samples, "duration_s": planned.duration_s}
+
+
+def queue_sweep(jobs: JobManager, bench: Bench, store: Store, values: dict, name: str | None = None) -> tuple[dict, PlannedSweep]:
+    """Plan a sweep (``plan_sweep``: FieldError naming the field if it leaves the bench's limits) and
+    queue it as a bench job; ``(job, planned)``. POST /api/sweeps and the discover job's experiments."""
+    planned, plan = plan_sweep(bench, values)
+    job = jobs.submit("sweep", plan, lambda ctx: run_sweep(ctx, bench, store, planned, plan, name), needs_bench=True)
+    return job, planned
+
+
+#: how often a job waiting for a sweep it queued looks at it (s)
+SWEEP_POLL_S = 0.2
+
+
+def sweep_and_wait(ctx: JobContext, jobs: JobManager, bench: Bench, store: Store, values: dict,
+                   name: str | None = None) -> dict:
+    """From inside another job: queue the sweep ``values`` (a /api/sweeps body) and wait until it ends;
+    returns the sweep's job. When ``ctx`` is cancelled the sweep is cancelled too (its partial data is
+    kept as a dataset) and JobInterrupted is raised."""
+    job, _ = queue_sweep(jobs, bench, store, values, name)
+    while True:
+        row = jobs.get(job["id"])
+        if row["state"] in TERMINAL_STATES:
+            return row
+        if ctx.cancelled:
+            jobs.cancel(job["id"], f"its job {ctx.job_id} was cancelled")
+            raise JobInterrupted(f"cancelled while sweep {job['id']} ran", cancelled=True)
+        time.sleep(SWEEP_POLL_S)
 
 
 def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep, plan: dict,

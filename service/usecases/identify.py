@@ -136,9 +136,17 @@ def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effe
     if ctx.cancelled:
         raise JobInterrupted("cancelled before the model was stored")
     ctx.progress(0.8, "validating on held-out cycles")
-    metrics = estimator.validate(records)
-    row = store.add_model({"axis": axis, "kind": estimator.name, "effects": effects, "parent_id": parent_id,
-                           "datasets": datasets, "options": {"n_operators": n_operators},
-                           "parameters": estimator.to_dict(), "metrics": metrics, "job_id": ctx.job_id})
+    row = store_model(store, estimator, records, axis, datasets, effects, n_operators, parent_id, ctx.job_id)
+    metrics = row["metrics"]
     return {"model_id": row["id"], "train_rms_um": metrics["train_rms_um"],
             "validation_rms_um": metrics["validation_rms_um"], "effects": effects}
+
+
+def store_model(store: Store, estimator, records: list[Record], axis: str, datasets: list[str], effects: list[str],
+                n_operators: int, parent_id: str | None, job_id: str | None) -> dict:
+    """Validate a fitted model on the held-out cycles of ``records`` (train/held-out RMS in µm) and
+    store it (``parent_id``: the model it refines); the stored row."""
+    metrics = estimator.validate(records)
+    return store.add_model({"axis": axis, "kind": estimator.name, "effects": effects, "parent_id": parent_id,
+                            "datasets": datasets, "options": {"n_operators": n_operators},
+                            "parameters": estimator.to_dict(), "metrics": metrics, "job_id": job_id})

@@ -3,12 +3,50 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 #: For response payloads that may grow: the named fields are documented, others pass through.
 OPEN = ConfigDict(extra="allow")
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class LabelsUpdate(BaseModel):
+    """PATCH a dataset or model: any of ``name``, ``tags`` (replaces the list) and ``notes`` (null
+    clears them). The data and parameters never change."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str | None = Field(default=None, min_length=1, max_length=200)
+    tags: list[str] | None = Field(default=None, max_length=50)
+    notes: str | None = Field(default=None, max_length=20_000)
+
+    @field_validator("tags")
+    @classmethod
+    def _tags_are_words(cls, tags: list[str] | None) -> list[str] | None:
+        if tags is not None and any(not t.strip() or len(t) > 60 for t in tags):
+            raise ValueError("every tag must be 1–60 characters, not blank")
+        return None if tags is None else list(dict.fromkeys(t.strip() for t in tags))
+
+
+class DatasetLabelsUpdate(LabelsUpdate):
+    """PATCH a dataset: as LabelsUpdate, but a dataset always has a name (it cannot be cleared)."""
+
+    @field_validator("name")
+    @classmethod
+    def _name_kept(cls, name: str | None) -> str:
+        if name is None:
+            raise ValueError("a dataset's name cannot be cleared; give a new one")
+        return name
+
+
+class Deleted(BaseModel):
+    """What a DELETE removed: the records (a cascade lists every model that went with it) and the
+    bytes of array files freed."""
+
+    datasets: list[str]
+    models: list[str]
+    freed_bytes: int
 
 
 class JobQueued(BaseModel):
@@ -23,7 +61,7 @@ class Job(BaseModel):
     ``{"model_id", …}``, a trajectory's errors), also on a partial run; ``error`` says why it failed."""
 
     id: str
-    kind: str = Field(description="sweep | trajectory | identify | refine")
+    kind: str = Field(description="sweep | trajectory | identify | refine | discover")
     state: JobState
     progress: float = Field(ge=0, le=1)
     message: str | None

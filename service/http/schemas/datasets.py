@@ -78,6 +78,8 @@ class DatasetSummary(BaseModel):
     job_id: str | None
     duration_s: float
     n_blocks: int
+    tags: list[str] = Field(default=[], description="a user's labels (PATCH /api/datasets/{id})")
+    notes: str | None = None
 
 
 class Dataset(DatasetSummary):

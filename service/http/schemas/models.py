@@ -32,6 +32,17 @@ class RefineRequest(BaseModel):
     datasets: list[str] = Field(default=[], max_length=100, description="datasets to add to the fit")
 
 
+class DiscoverRequest(BaseModel):
+    """Run the discovery loop from a model: at most ``max_steps`` steps (the model's own diagnosis is
+    the first); ``allow_experiments``: run on the bench, when it is free, the sweep the loop needs
+    (an ambiguity's separating experiment, or one that makes an effect testable), else stop and name it."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_steps: int = Field(default=8, ge=1, le=12)
+    allow_experiments: bool = False
+
+
 class ModelMetrics(BaseModel):
     """Train and held-out figures (µm): means over blocks, every frequency block counting equally."""
 
@@ -61,6 +72,9 @@ class Model(BaseModel):
     software_version: str
     job_id: str | None
     created_at: str
+    name: str | None = Field(default=None, description="a user's labels (PATCH /api/models/{id})")
+    tags: list[str] = []
+    notes: str | None = None
 
 
 class FitFigures(BaseModel):

@@ -1,36 +1,78 @@
 """One full discovery run as a report: diagnose, add the top physical candidate, refit, repeat
 until the verdict is complete, then more hysteresis capacity while the model is not at the noise
-floor and a capacity candidate removes a significant share of the excess; the error history as a figure (matplotlib Agg)."""
+floor and a capacity candidate removes a significant share of the excess; the error history as a figure (matplotlib Agg).
+
+The decisions are ``discovery_step`` (fit and diagnose one step), ``next_effect`` (what the loop adds
+next, or None when it stops) and ``needed_experiment`` (the sweep it needs before going on): the
+report (``discovery_run``) and the discover job (service.usecases.discover_run) both call them."""
 from __future__ import annotations
 
-from service.science.discovery.composite import fit_composite
+import json
+
+from service.science.discovery.composite import CompositeModel, fit_composite
 from service.science.discovery.diagnosis import diagnose, helpful_capacity
 
 MAX_STEPS = 8
+
+
+def discovery_step(records, effects, n_operators: int = 10, theta: dict | None = None,
+                   model: CompositeModel | None = None) -> tuple[CompositeModel, dict]:
+    """Fit ``hysteresis + effects`` (warm at ``theta``; or take the fitted ``model`` as it is) and
+    diagnose it: ``(model, {"effects", "diagnosis", "per_block"})``, per-block validation RMS and
+    noise floor in µm."""
+    model = model if model is not None else fit_composite(records, effects, n_operators, theta)
+    d = diagnose(records, model=model)
+    per_block = [{"dataset_id": ds["dataset_id"], "frequency_hz": b["frequency_hz"],
+                  "validation_rms_um": b["validation"]["rms_um"]}
+                 for ds in d["metrics"]["per_dataset"] for b in ds["blocks"]]
+    noise_by_block = [b["noise_um"] for b in d["noise"]["per_block"]]
+    for row, nf in zip(per_block, noise_by_block):
+        row["noise_floor_um"] = nf
+    return model, {"effects": ["hysteresis"] + list(effects), "diagnosis": d, "per_block": per_block}
+
+
+def next_effect(d: dict) -> str | None:
+    """The effect the loop adds after diagnosis ``d``: the top claimed physical candidate while the
+    verdict is missing_effect; then capacity while it is validated and the model is not at the noise
+    floor; None when the loop stops."""
+    if d["verdict"] == "missing_effect":
+        return next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])
+    # complete as far as physics goes: more capacity if the model is not at the noise floor yet
+    capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])   # only effects not in the model
+    if d["at_noise_floor"] or not capacity:
+        return None
+    return capacity[0]["effect"]
+
+
+def needed_experiment(d: dict, stopping: bool, done=()) -> dict | None:
+    """The sweep the loop needs before it can go on (``{"effects", "reason", "experiment"}``, the
+    experiment a ready-to-POST /api/sweeps body), or None: the ambiguity's separating sweep when the
+    two leading claimed candidates explain the residual alike; when the loop is ``stopping`` short
+    of the noise floor, the first sweep that makes a physical effect testable. Experiments in
+    ``done`` (bodies already run) are never asked for again."""
+    ran = {json.dumps(body, sort_keys=True) for body in done}
+    amb = d.get("ambiguity")
+    if amb and json.dumps(amb["experiment"], sort_keys=True) not in ran:
+        return {"effects": list(amb["effects"]), "reason": amb["text"], "experiment": amb["experiment"]}
+    if not stopping or d["at_noise_floor"]:
+        return None
+    for c in d.get("not_testable", []):
+        if c["kind"] == "physical" and json.dumps(c["experiment"], sort_keys=True) not in ran:
+            return {"effects": [c["effect"]], "reason": c["reason"], "experiment": c["experiment"]}
+    return None
 
 
 def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) -> list[dict]:
     """Steps of an automatic discovery: each with effects, diagnosis and per-block validation RMS."""
     effects, steps, theta = [], [], {}
     for _ in range(max_steps):
-        model = fit_composite(records, effects, n_operators, theta)
+        model, step = discovery_step(records, effects, n_operators, theta)
         theta = model.theta
-        d = diagnose(records, model=model)
-        per_block = [{"dataset_id": ds["dataset_id"], "frequency_hz": b["frequency_hz"],
-                      "validation_rms_um": b["validation"]["rms_um"]}
-                     for ds in d["metrics"]["per_dataset"] for b in ds["blocks"]]
-        noise_by_block = [b["noise_um"] for b in d["noise"]["per_block"]]
-        for row, nf in zip(per_block, noise_by_block):
-            row["noise_floor_um"] = nf
-        steps.append({"effects": ["hysteresis"] + list(effects), "diagnosis": d, "per_block": per_block})
-        if d["verdict"] == "missing_effect":
-            effects = effects + [next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])]
-            continue
-        # complete as far as physics goes: more capacity if the model is not at the noise floor yet
-        capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])   # only effects not in the model
-        if d["at_noise_floor"] or not capacity:
+        steps.append(step)
+        added = next_effect(step["diagnosis"])
+        if added is None:
             break
-        effects = effects + [capacity[0]["effect"]]
+        effects = effects + [added]
     return steps
 
 

@@ -91,3 +91,9 @@ class Effect:
     def describe(self, theta: dict, values: dict) -> str:
         """Fitted parameters in words (units in the text)."""
         return ""
+
+    def parameters(self, theta: dict, values: dict, scales: dict, sign: float) -> dict[str, float]:
+        """Fitted physical parameters as numbers, units in the names (``theta`` this effect's transform
+        parameters, ``values`` the model's fitted weights by block name, ``scales`` the model's drive and
+        time scales, ``sign`` its gauge sign). Empty for an effect without a physical figure."""
+        return {}

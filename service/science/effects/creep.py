@@ -40,3 +40,18 @@ class Creep(Effect):
 
     def describe(self, theta, values):
         return ""
+
+    def parameters(self, theta, values, scales, sign):
+        """``creep_nm_per_decade``: after a step of the full drive scale (``creep_step_v``), the mean rise
+        of the output per decade of time between the shortest and the longest relaxation time (nm);
+        ``creep_pct_per_decade``: that rise as a share of the hysteresis base's stroke (``stroke_um``)."""
+        weights = values.get("creep_weights_um")
+        if weights is None:
+            return {}
+        taus = creep_time_constants_s(scales["min_period_s"], scales["time_scale_s"])
+        risen = lambda t_s: float(np.sum(np.asarray(weights) * (1.0 - np.exp(-t_s / taus))))  # noqa: E731
+        per_decade_um = float((risen(taus[-1]) - risen(taus[0])) / np.log10(taus[-1] / taus[0]))
+        out = {"creep_nm_per_decade": sign * per_decade_um * 1e3, "creep_step_v": float(scales["u_scale_v"])}
+        if scales.get("stroke_um"):
+            out["creep_pct_per_decade"] = 100.0 * per_decade_um / scales["stroke_um"]
+        return out

@@ -22,3 +22,15 @@ class CrossCoupling(Effect):
         motion = ctx.x_other_um if ctx.x_other_um is not None else np.zeros(ctx.n)
         drive = np.column_stack([ctx.p_other[:, 0], ctx.p_other[:, 1:].sum(axis=1)])
         return [Block.make("coupling_um_per_v", drive), Block.make("coupling_um_per_um", motion)]
+
+    def parameters(self, theta, values, scales, sign):
+        """``coupling_ratio``: this axis's motion per µm of the other axis's measured motion (µm/µm);
+        ``coupling_drive_um_per_v`` and ``coupling_hysteretic_um_per_v``: the other axis's drive path
+        (its linear and summed hysteretic play-operator weights)."""
+        out = {}
+        if values.get("coupling_um_per_um") is not None:
+            out["coupling_ratio"] = sign * float(np.asarray(values["coupling_um_per_um"]).ravel()[0])
+        drive = values.get("coupling_um_per_v")
+        if drive is not None:
+            out["coupling_drive_um_per_v"], out["coupling_hysteretic_um_per_v"] = (sign * float(w) for w in drive)
+        return out

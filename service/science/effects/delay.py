@@ -51,3 +51,6 @@ class Delay(Effect):
 
     def describe(self, theta, values):
         return f"delay {theta['delay_s'] * 1e3:.3g} ms"
+
+    def parameters(self, theta, values, scales, sign):
+        return {"delay_us": float(theta["delay_s"]) * 1e6}

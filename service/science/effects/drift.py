@@ -22,3 +22,12 @@ class Drift(Effect):
         s = 2.0 * ctx.t_s / ctx.time_scale_s - 1.0
         cols = np.column_stack([legendre.legval(s, np.eye(DEGREE + 1)[k]) for k in range(1, DEGREE + 1)])
         return [Block.make("drift_legendre_um", cols)]
+
+    def parameters(self, theta, values, scales, sign):
+        """``drift_nm_per_s``: the mean rate over the longest record (the Legendre terms' end-to-end
+        change, P_k(1) − P_k(−1) = 1 − (−1)^k, over its duration)."""
+        c = values.get("drift_legendre_um")
+        if c is None:
+            return {}
+        change_um = sum(float(ck) * (1.0 - (-1.0) ** k) for k, ck in enumerate(c, start=1))
+        return {"drift_nm_per_s": sign * change_um / scales["time_scale_s"] * 1e3}

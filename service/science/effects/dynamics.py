@@ -88,3 +88,6 @@ class Dynamics(Effect):
 
     def describe(self, theta, values):
         return f"resonance {theta['fn_hz']:.4g} Hz, damping ratio {theta['zeta']:.3g}"
+
+    def parameters(self, theta, values, scales, sign):
+        return {"resonance_hz": float(theta["fn_hz"]), "damping_ratio": float(theta["zeta"])}

@@ -1,0 +1,45 @@
+"""Schema upgrades of a database created by an earlier version: ``metadata.create_all`` makes the
+tables that are missing but never changes one that exists, so every column added to an existing
+table since is listed here and added with ``ALTER TABLE … ADD COLUMN`` (SQLite and PostgreSQL
+alike; the column type is compiled for the database's dialect). Old rows read NULL in them, which
+the store shows as the column's default (service.store.Store)."""
+from __future__ import annotations
+
+from sqlalchemy import inspect, text
+from sqlalchemy.engine import Engine
+from sqlalchemy.exc import DBAPIError
+
+from service.store import tables
+
+#: columns added to existing tables, per table, in the order they were added
+ADDED_COLUMNS = {
+    "datasets": ("tags", "notes"),           # issue 20: keeping the store tidy
+    "models": ("name", "tags", "notes"),
+}
+
+
+def missing_columns(engine: Engine) -> dict[str, list[str]]:
+    """The added columns the database does not have yet, per table."""
+    inspector = inspect(engine)
+    present = {name: {c["name"] for c in inspector.get_columns(name)} for name in ADDED_COLUMNS}
+    return {name: [c for c in added if c not in present[name]] for name, added in ADDED_COLUMNS.items()
+            if any(c not in present[name] for c in added)}
+
+
+def upgrade(engine: Engine) -> list[str]:
+    """Add the missing columns (nullable, no default); returns ``table.column`` of each one added. Two
+    processes upgrading one database at once are harmless: a column the other added is not an error."""
+    added = []
+    for table_name, names in missing_columns(engine).items():
+        for name in names:
+            column = tables.metadata.tables[table_name].c[name]
+            ddl = f"ALTER TABLE {table_name} ADD COLUMN {name} {column.type.compile(dialect=engine.dialect)}"
+            try:
+                with engine.begin() as conn:
+                    conn.execute(text(ddl))
+            except DBAPIError:
+                if name in missing_columns(engine).get(table_name, []):
+                    raise
+                continue
+            added.append(f"{table_name}.{name}")
+    return added
