@@ -157,17 +157,21 @@ def delay(tmp_path):
 AMBIGUOUS_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 3, "together": False}
 
 
-def test_an_ambiguity_stops_the_job_naming_its_experiment_or_runs_it(delay):
+def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     http = delay
     dataset_id, base_id = _fresh_model(http, AMBIGUOUS_SWEEP)
     api = Client(http=http)
-    stopped = api.discover(base_id)["result"]
-    assert stopped["stopped"] == "needs_experiment" and stopped["final_model_id"] == base_id
-    need = stopped["needed_experiment"]
-    assert set(need["effects"]) == {"delay", "rate_dependence"}
-    assert need["experiment"]["waveform"] == "sine" and max(need["experiment"]["frequencies_hz"]) > 100
-    assert stopped["steps"][0]["ambiguous"] == need["effects"]
-    assert "POST /api/sweeps" in discovery_text(stopped)
+    went_on = api.discover(base_id)["result"]
+    # without allow_experiments: the first step's ambiguity is named with its sweep, and the loop
+    # goes on with the leading claimed effect (as the report's loop does)
+    first = went_on["suggested_experiments"][0]
+    assert first["after_step"] == 0 and set(first["effects"]) == {"delay", "rate_dependence"}
+    assert first["experiment"]["waveform"] == "sine" and max(first["experiment"]["frequencies_hz"]) > 100
+    assert went_on["steps"][0]["ambiguous"] == first["effects"] and "allow_experiments" in first["not_run_because"]
+    assert went_on["steps"][1]["added"] in first["effects"] and went_on["experiments"] == []
+    assert went_on["final_model_id"] != base_id and went_on["needed_experiment"] is not None
+    assert "POST /api/sweeps" in discovery_text(went_on)
+    need = first
 
     job = api.discover(base_id, allow_experiments=True, max_steps=4)
     assert job["state"] == "succeeded", job

@@ -191,7 +191,7 @@ def discovery_text(result: dict) -> str:
                      f"the noise floor ({_nm(remains['noise_floor_um'])}): {remains['verdict_text']}")
     if result.get("needed_experiment"):
         need = result["needed_experiment"]
-        lines.append(f"needs an experiment ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
+        lines.append(f"an experiment would help ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
                      " — or run again with --allow-experiments")
     return "\n".join(lines)
 

@@ -37,7 +37,7 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
     start = load_model(row).as_composite()
     effects, theta = list(start.effects), dict(start.theta)
     model = start if start.is_fitted else None     # a paper's PI stands for the unfitted composite
-    run = {"start_model_id": model_id, "axis": axis, "steps": [], "experiments": [], "added": {}}
+    run = {"start_model_id": model_id, "axis": axis, "steps": [], "experiments": [], "added": {}, "suggested": []}
     stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} steps", None
     joined = None                                   # an experiment's dataset, new in this step's fit
     for index in range(max_steps):
@@ -68,17 +68,19 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
                 why = ("ask again with allow_experiments to run it" if not allow_experiments
                        else f"the bench is busy with {', '.join(busy)}" if busy
                        else f"max_steps = {max_steps} leaves no step to use it")
-                if add is not None:                 # the loop cannot go on without it
-                    stopped, reason = "needs_experiment", f"the loop needs an experiment ({need['reason']}): {why}"
-                else:                               # done as far as the data goes; the experiment would test more
+                run["suggested"].append({**need, "after_step": index, "not_run_because": why})
+                if add is None:                     # done as far as the data goes; the experiment would test more
                     stopped = _natural_stop(d)
                     reason = f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
-                break
-            joined = _experiment(ctx, store, run, need, run_experiment)
-            datasets.append(joined)
-            records.append(load_record(store, joined, axis))
-            model = None                            # the same effects, refitted on every dataset
-            continue
+                    break
+                # an ambiguity: the loop goes on as the report does, with the leading claimed effect,
+                # and the step and the result name the sweep that would tell the pair apart
+            else:
+                joined = _experiment(ctx, store, run, need, run_experiment)
+                datasets.append(joined)
+                records.append(load_record(store, joined, axis))
+                model = None                        # the same effects, refitted on every dataset
+                continue
         if add is None:
             stopped, reason = _natural_stop(d), d["verdict_text"]
             break
@@ -162,4 +164,5 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
             "final_model_id": last["model_id"] if last else None, "effects": last["effects"] if last else None,
             "final_parameters": parameters, "steps": list(steps), "effects_found": found, "remains": remains,
             "stopped": stopped,
-            "stop_reason": reason, "needed_experiment": needed, "experiments": list(run["experiments"])}
+            "stop_reason": reason, "needed_experiment": needed, "experiments": list(run["experiments"]),
+            "suggested_experiments": list(run["suggested"])}

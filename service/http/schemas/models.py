@@ -35,7 +35,8 @@ class RefineRequest(BaseModel):
 class DiscoverRequest(BaseModel):
     """Run the discovery loop from a model: at most ``max_steps`` steps (the model's own diagnosis is
     the first); ``allow_experiments``: run on the bench, when it is free, the sweep the loop needs
-    (an ambiguity's separating experiment, or one that makes an effect testable), else stop and name it."""
+    (an ambiguity's separating experiment, or one that makes an effect testable); without it the loop
+    names the sweep and goes on past an ambiguity with the leading claimed effect (as the report does)."""
 
     model_config = ConfigDict(extra="forbid")
 
