@@ -236,6 +236,17 @@ class Client:
     def model(self, model_id: str) -> dict:
         return self._request("GET", f"/api/models/{model_id}")
 
+    def refine(self, model_id: str, **body) -> dict:
+        """Refine (``add=``, ``remove=`` or ``effects=``, optional ``datasets=``) and wait; the new model."""
+        job = self.wait(self._request("POST", f"/api/models/{model_id}/refine", json=body)["job_id"])
+        if job["state"] != "succeeded":
+            raise ApiError(500, f"refine job {job['id']} {job['state']}: {job['error'] or job['message']}")
+        return self.model(job["result"]["model_id"])
+
+    def model_report(self, model_id: str) -> str:
+        """The model's self-contained HTML report (GET /api/models/{id}/report)."""
+        return self._send("GET", f"/api/models/{model_id}/report", timeout=None).text
+
     def models(self) -> list[dict]:
         return self._request("GET", "/api/models")
 

@@ -21,6 +21,7 @@ from service.http import health as health_api
 from service.http import discovery as discovery_api
 from service.http import jobs as jobs_api
 from service.http import models as models_api
+from service.http import reports as reports_api
 from service.http import sweeps as sweeps_api
 from service.http import tokens as tokens_api
 from service.http import trajectories as trajectories_api
@@ -35,8 +36,8 @@ from service.store import Store
 #: Routers mounted under /api, in the order they appear in the docs. Every one but health needs a
 #: token (service/http/auth.py): read for GET/HEAD, operate for writes, admin under /api/admin.
 ROUTERS = (health_api.router, bench_api.stop_router, bench_api.router, jobs_api.router, sweeps_api.router,
-           datasets_api.router, models_api.router, discovery_api.router, trajectories_api.router,
-           tokens_api.router, admin_api.router)
+           datasets_api.router, models_api.router, discovery_api.router, reports_api.router,
+           trajectories_api.router, tokens_api.router, admin_api.router)
 #: Mounted without the router-level token check: health needs none; the emergency stop checks its
 #: token itself, on its own thread (service/http/bench.py)
 OPEN_ROUTERS = (health_api.router, bench_api.stop_router)

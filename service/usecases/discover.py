@@ -16,11 +16,13 @@ def model_effects(row: dict) -> list[str]:
     return load_model(row).as_composite().effects
 
 
-def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None = None) -> dict:
-    """The diagnosis of a stored model on its datasets (plus ``extra_datasets``, refitted on all)."""
+def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None = None, records=None) -> dict:
+    """The diagnosis of a stored model on its datasets (plus ``extra_datasets``, refitted on all);
+    ``records``: those datasets' records when the caller has loaded them already."""
     row = store.get_model(model_id)
     datasets = list(row["datasets"]) + [d for d in (extra_datasets or []) if d not in row["datasets"]]
-    records = load_records(store, datasets, row["axis"], field="extra_datasets")
+    if records is None:
+        records = load_records(store, datasets, row["axis"], field="extra_datasets")
     n_ops = int(row["options"].get("n_operators", 10))
     basis = load_model(row).as_composite()   # a stored composite fit, or the one a paper's model stands for
     if not basis.is_fitted or len(datasets) > len(row["datasets"]):  # (re)fitted, warm at its transforms

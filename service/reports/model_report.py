@@ -1,0 +1,210 @@
+"""The model report: one self-contained HTML page (inline CSS and SVG, no script, no external
+file) with the model, its data, its lineage, its diagnosis, its fitted parameters, a figure per
+block (the loop over the held-out cycles, measured and predicted, and the residual) and the error
+history, and the commands that reproduce it. Printing it from a browser gives a PDF with the
+figures as vectors.
+
+Pure rendering: it takes rows, dicts and decimated arrays (service.usecases.report gathers them),
+and knows no store or HTTP.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from html import escape
+
+import numpy as np
+
+from service.reports.svg import COLOURS, MAX_CURVE_POINTS, Panel, figure, fmt_length, length_unit
+
+CSS = """body{font-family:system-ui,sans-serif;max-width:1120px;margin:24px auto;padding:0 16px;color:#222}
+h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:3px;margin-top:1.6em}
+table{border-collapse:collapse;margin:6px 0;font-size:.9em}td,th{border:1px solid #ccc;padding:3px 7px;
+vertical-align:top;text-align:left}td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
+pre{background:#f5f5f5;padding:8px;overflow-x:auto;font-size:.8em;white-space:pre-wrap;word-break:break-all}
+.muted{color:#666}.verdict{font-weight:600}svg.figure{display:block;max-width:100%;height:auto;margin:8px 0}
+svg text{fill:#222}svg .title{font-weight:600;font-size:11.5px}footer{margin-top:2em;color:#666;font-size:.85em}
+@media print{body{margin:0;max-width:none}pre{white-space:pre-wrap}svg.figure{page-break-inside:avoid}}"""
+
+PDF_NOTE = ("For a PDF, open this file in a browser and print it to PDF (Print → Save as PDF): the "
+            "figures are SVG and stay vectors. The file needs no network and no script.")
+
+
+@dataclass
+class BlockCurves:
+    """One block's held-out cycles, decimated: drive ``u_v`` (V), measured ``x_um`` and predicted
+    ``x_model_um`` (µm) at times ``t_s`` (s, from the held-out start), with its RMS figures (µm,
+    over every sample)."""
+
+    title: str
+    dataset_id: str
+    t_s: np.ndarray
+    u_v: np.ndarray
+    x_um: np.ndarray
+    x_model_um: np.ndarray
+    held_out_rms_um: float | None
+    train_rms_um: float | None
+
+
+def _num(value, digits: int = 4) -> str:
+    return "–" if value is None else f"{value:.{digits}g}"
+
+
+def _table(head: list[str], rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
+    """An HTML table; cells are already-escaped HTML; columns in ``numeric`` right-aligned."""
+    cls = lambda i: ' class="num"' if i in numeric else ""   # noqa: E731
+    out = [f"<table{attrs}><tr>" + "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(head)) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows]
+    return "".join(out) + "</table>"
+
+
+def block_figure(b: BlockCurves, axis: str) -> str:
+    """The loop (x against u; measured and model) and the residual over time, side by side."""
+    factor, unit = length_unit(float(np.max(np.abs(b.x_um))) if b.x_um.size else 1.0)
+    loop = Panel(520, 300, f"{b.title}: loop", f"u_{axis} (V)", f"x_{axis} ({unit})")
+    loop.line(b.u_v, b.x_um * factor, "measured", COLOURS[0], width=2.6)
+    loop.line(b.u_v, b.x_model_um * factor, "model", COLOURS[1], width=1.0)
+    residual = b.x_um - b.x_model_um
+    rf, ru = length_unit(float(np.max(np.abs(residual))) if residual.size else 1.0)
+    res = Panel(520, 300, f"residual, held-out RMS {fmt_length(b.held_out_rms_um)}", "time in the held-out cycles (ms)",
+                f"measured − model ({ru})")
+    res.line(b.t_s * 1e3, residual * rf, "residual", COLOURS[3]).hline(0.0, "")
+    return figure([loop, res], f"{b.title} ({b.dataset_id}): loop and residual")
+
+
+def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
+    """Held-out RMS per lineage step on a log scale, the noise-floor band and the 2× floor line."""
+    rms = [s["validation_rms_um"] for s in steps]
+    known = [v for v in rms if v] + ([noise_floor_um] if noise_floor_um else [])
+    factor, unit = length_unit(max(known) if known else 1.0)
+    panel = Panel(1040, 320, "Error history: held-out RMS per step", "lineage step",
+                  f"held-out RMS ({unit}, log scale)", log_y=True, integer_x=True, legend="bottom-right")
+    if noise_floor_um:
+        panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_length(noise_floor_um)}")
+        panel.hline(2 * noise_floor_um * factor, "2× noise floor")
+    shown = [(i + 1, v * factor, s["change"] or "first fit") for i, (s, v) in enumerate(zip(steps, rms)) if v]
+    panel.points([p[0] for p in shown], [p[1] for p in shown], [p[2] for p in shown])
+    return figure([panel], "error history: held-out RMS per lineage step with the noise floor")
+
+
+def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]:
+    """(name, count, values as text) of every stored parameter, nested names joined by dots."""
+    rows = []
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            rows += parameter_rows(value, name + ".")
+            continue
+        try:
+            numbers = np.asarray(value, dtype=float).ravel()
+        except (TypeError, ValueError):
+            rows.append((name, 1, str(value)))
+            continue
+        rows.append((name, numbers.size, ", ".join(f"{v:.6g}" for v in numbers)))
+    return rows
+
+
+def _model_section(row: dict, description: dict) -> str:
+    m = row["metrics"]
+    facts = [["model", f"<code>{escape(row['id'])}</code>"], ["kind", escape(row["kind"])],
+             ["axis", escape(row["axis"].upper())], ["effects", escape(" + ".join(row["effects"]))],
+             ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
+             ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
+             ["training RMS", fmt_length(m.get("train_rms_um"), 4)],
+             ["held-out RMS", f'<span id="model-heldout">{fmt_length(m.get("validation_rms_um"), 4)}</span>'],
+             ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
+             ["created", escape(row["created_at"])], ["software", escape(row["software_version"])],
+             ["parameters SHA-256", f"<code>{escape(row['parameters_sha256'])}</code>"]]
+    text = _table(["", ""], facts)
+    words = [[escape(k), escape(v)] for k, v in description.items() if v]
+    params = {k: v for k, v in row["parameters"].items() if k not in ("model", "config")}
+    values = [[f"<code>{escape(name)}</code>", str(n), escape(text)] for name, n, text in parameter_rows(params)]
+    return ("<h2>1. Model</h2>" + text + "<h2>2. Fitted parameters</h2>"
+            + (_table(["effect", "fitted, in words"], words) if words else "")
+            + _table(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
+            + "<details><summary>Every stored parameter (<code>model.to_dict()</code>, JSON)</summary><pre>"
+            + escape(json.dumps({"config": row["parameters"].get("config"), **params})) + "</pre></details>")
+
+
+def _datasets_section(datasets: list[dict], axis: str) -> str:
+    rows = []
+    for d in datasets:
+        blocks = "; ".join(f"{b.get('index')}: {b.get('kind')}"
+                           + (f" {b['frequency_hz']:g} Hz × {b.get('cycles')}" if b.get("frequency_hz") else "")
+                           + (f" ({'+'.join(b['axes']).upper()})" if b.get("axes") else "") for b in d["blocks"])
+        rows.append([f"<code>{escape(d['id'])}</code>", escape(d.get("name") or ""), escape(d["source"]),
+                     escape(",".join(d["axes"]).upper()), str(d["samples"]), f"{d['sample_rate_hz']:g}",
+                     "partial: " + escape(d["partial_reason"] or "") if d.get("partial") else "complete",
+                     escape(blocks)])
+    return (f"<h2>3. Data</h2><p>Axis {escape(axis.upper())} of these datasets; the last ⌈20 %⌉ cycles of every "
+            "block are held out of the fit.</p>"
+            + _table(["dataset", "name", "source", "axes", "samples", "rate (Hz)", "state", "blocks"], rows, {4, 5}))
+
+
+def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
+    rows = [[str(i + 1), f"<code>{escape(s['model_id'])}</code>", escape(s["change"] or "first fit"),
+             escape(" + ".join(s["effects"])),
+             f'<span class="rms-train">{fmt_length(s["train_rms_um"], 4)}</span>',
+             f'<span class="rms-heldout">{fmt_length(s["validation_rms_um"], 4)}</span>',
+             _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–"]
+            for i, s in enumerate(steps)]
+    return ("<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model.</p>"
+            + _table(["step", "model", "change", "effects", "training RMS", "held-out RMS", "× noise floor"], rows,
+                     {0, 4, 5, 6}, ' id="lineage"')
+            + history_figure(steps, noise_floor_um))
+
+
+def _experiment(body: dict) -> str:
+    return f"<pre>POST /api/sweeps\n{escape(json.dumps(body))}</pre>"
+
+
+def _diagnosis_section(d: dict) -> str:
+    cands = [c for c in d.get("candidates") or [] if c.get("testable", True)]
+    rows = [[escape(c["effect"]), escape(c.get("kind") or ""), "yes" if c.get("claimed") else "no",
+             _num(c.get("score"), 3), fmt_length(c.get("expected_rms_um"), 4), escape(c.get("evidence") or "")]
+            for c in cands]
+    untestable = "".join(f"<li><b>{escape(c['effect'])}</b>: {escape(c.get('reason') or '')}"
+                         f"{_experiment(c['experiment']) if c.get('experiment') else ''}</li>"
+                         for c in d.get("not_testable") or [])
+    amb = d.get("ambiguity")
+    return ("<h2>5. Diagnosis</h2>"
+            f'<p class="verdict" id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
+            f"{escape(str(d.get('verdict')))}</p><p id=\"verdict-text\">{escape(d.get('verdict_text') or '')}</p>"
+            f"<p>Held-out RMS {fmt_length(d.get('residual_rms_um'), 4)} · noise floor "
+            f"<span id=\"noise-floor\">{fmt_length(d.get('noise_floor_um'), 4)}</span>"
+            + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "") + "</p>"
+            + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
+            + "<h3>Candidate effects (best first)</h3>"
+            + _table(["effect", "kind", "claimed", "score", "held-out RMS with it", "evidence"], rows, {3, 4},
+                     ' id="candidates"')
+            + (f"<h3>Not testable with this data</h3><ul id=\"not-testable\">{untestable}</ul>" if untestable else "")
+            + (f"<h3>Ambiguity</h3><p id=\"ambiguity\">{escape(amb.get('text') or '')}</p>"
+               + (_experiment(amb["experiment"]) if amb.get("experiment") else "") if amb else ""))
+
+
+def _blocks_section(blocks: list[BlockCurves], axis: str) -> str:
+    figs = "".join(f'<div class="block-figure">{block_figure(b, axis)}</div>' for b in blocks)
+    return ("<h2>6. Measured against model, block by block</h2><p>Each block's held-out cycles (never fitted): "
+            f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve.</p>" + figs)
+
+
+def _reproduce_section(commands: dict[str, str]) -> str:
+    parts = [("curl", "REST (curl)"), ("cli", "evcbench CLI"), ("python", "Python client")]
+    return ("<h2>7. Reproduce</h2><p>The requests that record the datasets again (their stored plans) and fit the "
+            "lineage step by step on the new ids. On another bench, or a later day, the figures differ by the "
+            "bench's noise and drift.</p>"
+            + "".join(f'<h3>{title}</h3><pre id="reproduce-{key}">{escape(commands[key])}</pre>' for key, title in parts))
+
+
+def render_report(model_row: dict, description: dict, datasets: list[dict], steps: list[dict], diagnosis: dict,
+                  blocks: list[BlockCurves], commands: dict[str, str], generated_at: str) -> str:
+    """The whole report as HTML text."""
+    title = f"Model {model_row['id']}: {model_row['kind']}, axis {model_row['axis'].upper()}"
+    return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{escape(title)}</title><style>{CSS}</style></head><body>"
+            f"<h1>{escape(title)}</h1><p class=\"muted\">{escape(' + '.join(model_row['effects']))} · "
+            f"EVC Bench report generated {escape(generated_at)}</p>"
+            + _model_section(model_row, description) + _datasets_section(datasets, model_row["axis"])
+            + _lineage_section(steps, diagnosis.get("noise_floor_um")) + _diagnosis_section(diagnosis)
+            + _blocks_section(blocks, model_row["axis"]) + _reproduce_section(commands)
+            + f"<footer><p>{escape(PDF_NOTE)}</p></footer></body></html>")

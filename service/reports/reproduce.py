@@ -1,0 +1,153 @@
+"""The commands that reproduce a model: the requests that record its datasets again (a sweep's
+stored plan body, an import's options, a trajectory's request) and the identification and refine
+steps of its lineage, as curl, ``evcbench`` and Python-client text.
+
+Ids change when the steps are run again, so the text keeps them in variables: ``DS1``, ``DS2``, …
+for the datasets and ``M1``, ``M2``, … for the lineage's models (``M1`` the root).
+Pure text: no store, no HTTP.
+"""
+from __future__ import annotations
+
+import json
+import shlex
+
+#: the stored plan's keys that are the planner's figures, not part of the request body
+PLAN_FIGURES = ("samples", "duration_s")
+#: sweep body keys with their own ``evcbench sweep`` flag or form (the rest map to --key-with-dashes)
+_CLI_SPECIAL = {"axes", "frequencies_hz", "levels_v", "together", "name"}
+
+_SHELL_PRELUDE = """\
+# needs curl and jq; EVCBENCH_TOKEN an operate-scope token (see the README's "API tokens")
+URL=${EVCBENCH_URL:-http://127.0.0.1:8000}; AUTH="Authorization: Bearer $EVCBENCH_TOKEN"
+post() { curl -sf -X POST "$URL/api$1" -H "$AUTH" -H 'content-type: application/json' -d "$2" | jq -r .job_id; }
+wait_job() {  # wait_job JOB_ID FIELD: the job's result.FIELD once it succeeded
+  while :; do J=$(curl -sf -H "$AUTH" "$URL/api/jobs/$1")
+    case $(echo "$J" | jq -r .state) in succeeded) echo "$J" | jq -r ".result.$2"; return;;
+      failed|cancelled) echo "$J" >&2; return 1;; esac; sleep 1; done; }"""
+
+
+def dataset_request(row: dict) -> dict:
+    """How a stored dataset was made: ``{"kind": "sweep"|"trajectory"|"import", "body"}`` with the
+    request body (sweep: the stored plan without the planner's figures, named as the dataset)."""
+    plan = row.get("plan") if isinstance(row.get("plan"), dict) else {}
+    if row.get("source") == "import" or "import" in plan:
+        options = {k: v for k, v in (plan.get("import") or {}).items() if v is not None}
+        return {"kind": "import", "body": {**options, "name": row.get("name")}}
+    if row.get("source") == "trajectory":
+        return {"kind": "trajectory", "body": dict(plan)}
+    body = {k: v for k, v in plan.items() if k not in PLAN_FIGURES}
+    body["name"] = row.get("name")
+    return {"kind": "sweep", "body": body}
+
+
+def refine_body(step: dict, previous: dict) -> dict:
+    """The POST /api/models/{parent}/refine body of one lineage step (``history`` entries):
+    ``add``/``remove`` for one effect changed, else ``effects``; ``datasets`` it added to the fit."""
+    now, before = step["effects"], previous["effects"]
+    added, removed = [e for e in now if e not in before], [e for e in before if e not in now]
+    if len(added) + len(removed) == 1:
+        body = {"add": added[0]} if added else {"remove": removed[0]}
+    else:
+        body = {"effects": list(now)}
+    extra = [d for d in step["datasets"] if d not in previous["datasets"]]
+    if extra:
+        body["datasets"] = extra
+    return body
+
+
+def _vars(ids: list[str], prefix: str) -> dict[str, str]:
+    return {i: f"{prefix}{n}" for n, i in enumerate(ids, 1)}
+
+
+def _json(value) -> str:
+    return json.dumps(value, separators=(", ", ": "))
+
+
+def _with_vars(text: str, names: dict[str, str], shell: bool) -> str:
+    """Ids in a JSON text replaced by their variables ("$DS1" in a shell string, ds1 in Python)."""
+    for old, new in names.items():
+        text = text.replace(f'"{old}"', f'"\'"${new}"\'"' if shell else new.lower())
+    return text
+
+
+def _cli_sweep(body: dict) -> str:
+    args = ["evcbench", "sweep", "--axes", ",".join(body.get("axes", ["y"]))]
+    if body.get("frequencies_hz") and body.get("waveform", "sine") in ("sine", "multisine"):
+        args += ["--frequencies", ",".join(f"{f:g}" for f in body["frequencies_hz"])]
+    if body.get("levels_v"):
+        args += ["--levels", ",".join(f"{v:g}" for v in body["levels_v"])]
+    if body.get("together") is False:
+        args.append("--separate")
+    if body.get("name"):
+        args += ["--name", body["name"]]
+    for key, value in body.items():
+        if key not in _CLI_SPECIAL and value is not None and not isinstance(value, (list, dict)):
+            args += [f"--{key.replace('_', '-')}", f"{value:g}" if isinstance(value, float) else str(value)]
+    return " ".join(shlex.quote(a) for a in args) + " --wait --json | jq -r .result.dataset_id"
+
+
+def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[str, str]:
+    """``{"curl", "cli", "python"}``: the text of each way to reproduce the model. ``steps`` is its
+    lineage (service.usecases.discover.history), ``root`` the stored row of its first model."""
+    ds = _vars([r["id"] for r in dataset_rows], "DS")
+    md = _vars([s["model_id"] for s in steps], "M")
+    names = {**ds, **md}
+    curl, cli = [_SHELL_PRELUDE], ["# needs jq; --url/--token or EVCBENCH_URL/EVCBENCH_TOKEN as for every verb"]
+    py = ["from service.frontends.client import Client", "",
+          'api = Client("http://127.0.0.1:8000", token="evc_…")   # an operate-scope token']
+    for row in dataset_rows:
+        req, var = dataset_request(row), ds[row["id"]]
+        note = f"# {var} = {row['id']} ({row.get('name')}, {req['kind']})"
+        curl.append(note)
+        cli.append(note)
+        py.append(note)
+        body = req["body"]
+        if req["kind"] == "import":
+            form = " ".join(f"-F {shlex.quote(f'{k}={v}')}" for k, v in body.items() if k != "filename")
+            fname = body.get("filename") or "FILE.csv"
+            curl.append(f'{var}=$(curl -sf -X POST "$URL/api/datasets" -H "$AUTH" -F file=@{shlex.quote(fname)} '
+                        f'{form} | jq -r .id)   # the original file: {fname}')
+            cli.append(f"{var}=$(evcbench import {shlex.quote(fname)} --json"
+                       + "".join(f" --{k.replace('_', '-')} {shlex.quote(str(v))}" for k, v in body.items()
+                                 if k not in ("filename",)) + " | jq -r .id)")
+            py.append(f"{var.lower()} = api.import_dataset({fname!r}, "
+                      + ", ".join(f"{k}={v!r}" for k, v in body.items() if k != "filename") + ')["id"]')
+        elif req["kind"] == "trajectory":
+            curl.append(f"{var}=$(wait_job $(post /trajectories '{_json(body)}') dataset_id)")
+            cli.append(f"# {var}: a trajectory run; no evcbench verb runs one: use the curl or Python lines")
+            py.append(f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_json(body)}).json()'
+                      f'["job_id"])["result"]["dataset_id"]')
+        else:
+            curl.append(f"{var}=$(wait_job $(post /sweeps '{_json(body)}') dataset_id)")
+            cli.append(f"{var}=$({_cli_sweep(body)})")
+            py.append(f'{var.lower()} = api.sweep(**{_json(body)})["result"]["dataset_id"]')
+    kind, n_ops = root["kind"], int((root.get("options") or {}).get("n_operators", 10))
+    first = steps[0]
+    body = {"axis": root["axis"], "datasets": first["datasets"], "model": kind, "effects": first["effects"],
+            "n_operators": n_ops}
+    m1 = md[first["model_id"]]
+    for out in (curl, cli, py):
+        out.append(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(first['effects'])}")
+    curl.append(f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names, True)}') model_id)")
+    cli.append(f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
+               + ",".join(f"${ds[d]}" for d in first["datasets"]) + f" --model {kind} --effects "
+               + ",".join(first["effects"]) + f" --n-operators {n_ops} --json | jq -r .id)")
+    py.append(f"{m1.lower()} = api.identify({root['axis']!r}, [" + ", ".join(ds[d].lower() for d in first["datasets"])
+              + f"], model={kind!r}, effects={first['effects']!r}, n_operators={n_ops})[\"id\"]")
+    for prev, step in zip(steps, steps[1:]):
+        var, parent = md[step["model_id"]], md[prev["model_id"]]
+        body = refine_body(step, prev)
+        for out in (curl, cli, py):
+            out.append(f"# {var} = {step['model_id']}: {step['change']}")
+        curl.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names, True)}') "
+                    "model_id)")
+        cli.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names, True)}') "
+                   "model_id)   # refine has no evcbench verb: the curl helpers above")
+        args = ", ".join(f"{k}={_with_vars(_json(v), names, False)}" for k, v in body.items())
+        py.append(f'{var.lower()} = api.refine({parent.lower()}, {args})["id"]')
+    last = md[steps[-1]["model_id"]]
+    curl.append(f'curl -sf -H "$AUTH" "$URL/api/models/${last}/report?download=true" -o "${last}-report.html"')
+    cli.append(f"evcbench models ${last} --report ${last}-report.html")
+    py.append(f'open(f"{{{last.lower()}}}-report.html", "w").write(api.model_report({last.lower()}))')
+    cli.insert(1, _SHELL_PRELUDE.split("\n", 1)[1])    # the refine lines use the same two helpers
+    return {"curl": "\n".join(curl), "cli": "\n".join(cli), "python": "\n".join(py)}

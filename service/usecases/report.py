@@ -1,0 +1,77 @@
+"""The model report (GET /api/models/{id}/report): gathers what service.reports.model_report draws.
+
+The model's datasets are read once: the same records feed the diagnosis and the per-block
+figures, and of each record only its blocks' held-out cycles, decimated, are kept for the page.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from service.reports.model_report import BlockCurves, render_report
+from service.reports.reproduce import commands
+from service.reports.svg import decimate
+from service.science.data.record import Record
+from service.science.fitting.validation import BlockSplit
+from service.science.fitting.metrics import rms
+from service.store import Store, utc_now
+from service.usecases.discover import diagnose_model, history
+from service.usecases.identify import load_model, load_records
+
+#: dataset row fields the report shows
+DATASET_FIELDS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "blocks", "plan", "partial",
+                  "partial_reason")
+
+
+def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
+    """A block named by what it is: ``Y 100 Hz sine (held-out cycles 5–5)``, ``Y step (held-out
+    last 0.80 s)``."""
+    b = split.block
+    kind = b.get("kind") or "block"
+    f_hz = b.get("frequency_hz")
+    if f_hz:
+        period = sample_rate_hz / float(f_hz)
+        first = round((split.held_out[0] - split.train[0]) / period) + 1
+        last = round((split.held_out[1] - split.train[0]) / period)
+        what = f"{f_hz:g} Hz {kind}"
+        held = f"held-out cycle{'s' if last > first else ''} {first}–{last}" if last > first else f"held-out cycle {last}"
+    else:
+        what = kind
+        held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
+    return f"{axis.upper()} {what} ({held})"
+
+
+def block_curves(record: Record, predicted, dataset_id: str) -> list[BlockCurves]:
+    """Per block that drives the record's axis: its held-out cycles, decimated, with the block's
+    training and held-out RMS over every sample."""
+    out = []
+    for s in record.splits_of(own_axis_only=True):
+        a, b = s.held_out
+        if b <= a:
+            continue
+        keep = decimate(b - a)
+        x, p, u = record.x_um[a:b], predicted[a:b], record.u_v[a:b]
+        train = slice(*s.train)
+        out.append(BlockCurves(
+            title=block_title(record.axis or "y", s, record.sample_rate_hz), dataset_id=dataset_id,
+            t_s=np.arange(b - a)[keep] / record.sample_rate_hz,
+            u_v=u[keep].copy(), x_um=x[keep].copy(), x_model_um=p[keep].copy(), held_out_rms_um=rms(x - p),
+            train_rms_um=rms(record.x_um[train] - predicted[train]) if s.train[1] > s.train[0] else None))
+    return out
+
+
+def model_report(store: Store, model_id: str) -> str:
+    """The report of a stored model as HTML text (NotFoundError for an unknown id)."""
+    row = store.get_model(model_id)
+    steps = history(store, model_id)
+    dataset_rows = [store.get_dataset(d) for d in row["datasets"]]
+    records = load_records(store, row["datasets"], row["axis"])
+    diagnosis = diagnose_model(store, model_id, records=records)
+    model = load_model(row)
+    blocks = []
+    for i, (dataset_id, record) in enumerate(zip(row["datasets"], records)):
+        blocks += block_curves(record, model.predict(record), dataset_id)
+        records[i] = None          # this record's arrays are no longer needed
+    description = model.describe() if hasattr(model, "describe") else {}
+    root = store.get_model(steps[0]["model_id"])
+    return render_report(row, description, [{k: r[k] for k in DATASET_FIELDS} for r in dataset_rows], steps,
+                         diagnosis, blocks, commands(dataset_rows, steps, root), utc_now())
