@@ -84,6 +84,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = remote("models", "list models, show one, or rename, tag, annotate or delete it", _models)
     p.add_argument("model_id", nargs="?")
+    p.add_argument("--report", metavar="FILE", help="write the model's HTML report to FILE (print it for a PDF)")
     _tidy_options(p, "every model refined from it")
 
 
@@ -262,6 +263,12 @@ def _datasets(api: Client, args) -> int:
 
 
 def _models(api: Client, args) -> int:
+    if args.model_id and args.report:
+        html = api.model_report(args.model_id)
+        with open(args.report, "w", encoding="utf-8") as out:
+            out.write(html)
+        return _emit(args, {"model_id": args.model_id, "report": args.report, "bytes": len(html.encode())},
+                     f"report of {args.model_id}: {args.report} ({len(html.encode()) / 1024:.0f} kB)")
     done = args.model_id and _tidy(args, api.label_model, api.delete_model, args.model_id)
     if done:
         return _emit(args, *done)

@@ -42,8 +42,8 @@ def nice_ticks(lo: float, hi: float, count: int = 5) -> list[float]:
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         return [lo]
     raw = (hi - lo) / max(count, 1)
-    step = 10 ** math.floor(math.log10(raw))
-    step *= next(m for m in (1, 2, 5, 10) if m * step >= raw)
+    decade = 10 ** math.floor(math.log10(raw))
+    step = min((m * decade for m in (1, 2, 5, 10)), key=lambda v: abs(math.log(v / raw)))
     first = math.ceil(lo / step - 1e-9)
     return [round(k * step, 12) for k in range(first, int(math.floor(hi / step + 1e-9)) + 1)]
 

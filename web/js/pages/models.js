@@ -3,7 +3,7 @@
 // it fails, shaded on the plots; ranked candidate effects with their evidence); Add effect (a refine
 // job; the error-history chart of validation RMS per model version); Separate (the experiment that
 // tells two candidates apart, where the diagnosis offers one).
-import { api, esc, fmt, has } from '../api.js';
+import { api, download, esc, fmt, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
 import { renderDiagnosis } from './diagnosis.js';
@@ -84,7 +84,9 @@ async function showModel(el, modelId, query) {
       ${model.effects.map(esc).join(' + ')}${model.parent_id ? ` · refined from <a href="#/models/${esc(model.parent_id)}">${esc(model.parent_id)}</a>` : ''}</span></h2>
       <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmt(model.metrics.validation_rms_um)} µm</b>
         · training RMS ${fmt(model.metrics.train_rms_um)} µm · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
-      <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label></div>
+      <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label>
+        <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
+        <span id="report-status" class="muted"></span></div>
     </div>
     <div class="grid-1-2">
       <div class="card"><h2>Error history <span class="muted">(held-out RMS per model version)</span></h2><div id="history-chart"></div><div id="history-table"></div></div>
@@ -98,6 +100,7 @@ async function showModel(el, modelId, query) {
   select.innerHTML = all.filter((d) => d.axes.includes(model.axis)).reverse().map((d) =>
     `<option value="${esc(d.id)}"${d.id === datasetId ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}${model.datasets.includes(d.id) ? ' (fitted)' : ''}</option>`).join('');
   select.addEventListener('change', () => { location.hash = `#/models/${model.id}?dataset=${select.value}`; });
+  el.querySelector('#report-download').addEventListener('click', () => downloadReport(el, model.id));
 
   // Diagnosis first (its failure ranges shade the compare plots), then history and compare.
   let diagnosis = null;
@@ -141,6 +144,19 @@ function failureRanges(diagnosis, compared) {
     if (below) drive.push([-Infinity, Number(below[1])]);
   }
   return { time, drive };
+}
+
+/** Save GET /api/models/{id}/report as <id>-report.html (fetched with the token; it runs a diagnosis). */
+async function downloadReport(el, modelId) {
+  const button = el.querySelector('#report-download');
+  const status = el.querySelector('#report-status');
+  button.disabled = true;
+  status.classList.remove('error');
+  status.textContent = 'building the report (it runs a diagnosis)…';
+  try {
+    await download(`/models/${encodeURIComponent(modelId)}/report?download=true`, `${modelId}-report.html`);
+    status.textContent = `saved ${modelId}-report.html (print it from the browser for a PDF)`;
+  } catch (e) { showError(status, e, 'Report failed: '); } finally { button.disabled = false; }
 }
 
 async function refine(el, model, effect, datasets = []) {
