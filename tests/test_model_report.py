@@ -41,7 +41,8 @@ def refined(tmp_path_factory):
         dataset = _result(http, http.post("/api/sweeps", json=SWEEP).json()["job_id"])["dataset_id"]
         body = {"axis": "y", "datasets": [dataset], "effects": ["hysteresis"]}
         base = _result(http, http.post("/api/models", json=body).json()["job_id"])["model_id"]
-        model = _result(http, http.post(f"/api/models/{base}/refine", json={"add": "creep"}).json()["job_id"])["model_id"]
+        refine = http.post(f"/api/models/{base}/refine", json={"add": "creep"})
+        model = _result(http, refine.json()["job_id"])["model_id"]
         read = TestClient(http.app, headers=bearer(issue_token(settings, "read")))
         report = read.get(f"/api/models/{model}/report", params={"download": "true"})
         yield {"http": http, "read": read, "dataset": dataset, "base": base, "model": model, "report": report}

@@ -168,8 +168,9 @@ def _diagnosis_section(d: dict) -> str:
                          for c in d.get("not_testable") or [])
     amb = d.get("ambiguity")
     return ("<h2>5. Diagnosis</h2>"
-            f'<p class="verdict" id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
-            f"{escape(str(d.get('verdict')))}</p><p id=\"verdict-text\">{escape(d.get('verdict_text') or '')}</p>"
+            f'<p class="verdict">Verdict: <span id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
+            f"{escape(str(d.get('verdict')))}</span></p>"
+            f"<p id=\"verdict-text\">{escape(d.get('verdict_text') or '')}</p>"
             f"<p>Held-out RMS {fmt_length(d.get('residual_rms_um'), 4)} · noise floor "
             f"<span id=\"noise-floor\">{fmt_length(d.get('noise_floor_um'), 4)}</span>"
             + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "") + "</p>"
@@ -185,7 +186,8 @@ def _diagnosis_section(d: dict) -> str:
 def _blocks_section(blocks: list[BlockCurves], axis: str) -> str:
     figs = "".join(f'<div class="block-figure">{block_figure(b, axis)}</div>' for b in blocks)
     return ("<h2>6. Measured against model, block by block</h2><p>Each block's held-out cycles (never fitted): "
-            f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve.</p>" + figs)
+            f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve.</p>"
+            + figs)
 
 
 def _reproduce_section(commands: dict[str, str]) -> str:
@@ -193,7 +195,8 @@ def _reproduce_section(commands: dict[str, str]) -> str:
     return ("<h2>7. Reproduce</h2><p>The requests that record the datasets again (their stored plans) and fit the "
             "lineage step by step on the new ids. On another bench, or a later day, the figures differ by the "
             "bench's noise and drift.</p>"
-            + "".join(f'<h3>{title}</h3><pre id="reproduce-{key}">{escape(commands[key])}</pre>' for key, title in parts))
+            + "".join(f'<h3>{title}</h3><pre id="reproduce-{key}">{escape(commands[key])}</pre>'
+                      for key, title in parts))
 
 
 def render_report(model_row: dict, description: dict, datasets: list[dict], steps: list[dict], diagnosis: dict,

@@ -17,6 +17,8 @@ import numpy as np
 COLOURS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9")
 #: at most this many points per polyline (decimated evenly)
 MAX_CURVE_POINTS = 1500
+#: grid lines' style
+GRID = 'stroke="#ddd" stroke-width="0.6"'
 
 
 def length_unit(max_abs_um: float) -> tuple[float, str]:
@@ -147,14 +149,15 @@ class Panel:
         ticks_y = log_ticks(y0, y1) if self.log_y else nice_ticks(y0, y1)
         for t in ticks_y:
             y = float(sy(t))
-            out.append(f'<line x1="{left - 4}" x2="{left + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#ddd" stroke-width="0.6"/>'
+            out.append(f'<line x1="{left - 4}" x2="{left + pw}" y1="{y:.1f}" y2="{y:.1f}" {GRID}/>'
                        f'<text x="{left - 6}" y="{y + 3.5:.1f}" text-anchor="end">{_tick_text(t)}</text>')
         ticks_x = nice_ticks(x0, x1, max(2, pw // 70))
         for t in [t for t in ticks_x if t == int(t)] if self.integer_x else ticks_x:
             x = float(sx(t))
-            out.append(f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{top}" y2="{top + ph + 4}" stroke="#ddd" stroke-width="0.6"/>'
+            out.append(f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{top}" y2="{top + ph + 4}" {GRID}/>'
                        f'<text x="{x:.1f}" y="{top + ph + 16}" text-anchor="middle">{_tick_text(t)}</text>')
-        out.append(f'<text x="{left + pw / 2:.1f}" y="{self.height - 6}" text-anchor="middle">{escape(self.x_label)}</text>'
+        out.append(f'<text x="{left + pw / 2:.1f}" y="{self.height - 6}" text-anchor="middle">'
+                   f'{escape(self.x_label)}</text>'
                    f'<text transform="translate(13,{top + ph / 2:.1f}) rotate(-90)" text-anchor="middle">'
                    f'{escape(self.y_label)}</text>')
         for h in self.hlines:

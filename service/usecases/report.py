@@ -33,7 +33,7 @@ def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
         first = round((split.held_out[0] - split.train[0]) / period) + 1
         last = round((split.held_out[1] - split.train[0]) / period)
         what = f"{f_hz:g} Hz {kind}"
-        held = f"held-out cycle{'s' if last > first else ''} {first}–{last}" if last > first else f"held-out cycle {last}"
+        held = f"held-out cycles {first}–{last}" if last > first else f"held-out cycle {last}"
     else:
         what = kind
         held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
