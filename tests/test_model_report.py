@@ -7,6 +7,7 @@ import argparse
 import json
 import math
 import re
+import subprocess
 import warnings
 from html import unescape
 
@@ -119,10 +120,29 @@ def test_the_report_of_a_refined_model(refined):
     assert """post /models '{"axis": "y", "datasets": ["'"$DS1"'"], "model": "static_pi\"""" in curl
     assert """post /models/$M1/refine '{"add": "creep"}'""" in curl
     python = unescape(re.search(r'<pre id="reproduce-python">(.*?)</pre>', html, flags=re.S)[1])
-    assert 'm2 = api.refine(m1, add="creep")["id"]' in python and "api.sweep(**{" in python
+    assert "m2 = api.refine(m1, add='creep')[\"id\"]" in python and "api.sweep(**{" in python
     cli = unescape(re.search(r'<pre id="reproduce-cli">(.*?)</pre>', html, flags=re.S)[1])
     assert "evcbench sweep --axes y,z --frequencies 1,10,50,100 --separate" in cli
     assert "Print" in html and "PDF" in html
+
+
+@pytest.mark.slow
+def test_the_reproduce_commands_run(refined):
+    """The Python lines, run as they are printed (the client on this service), record the sweep
+    again and rebuild the lineage; the shell lines parse."""
+    html = refined["report"].text
+    python = unescape(re.search(r'<pre id="reproduce-python">(.*?)</pre>', html, flags=re.S)[1]).splitlines()
+    assert python[2].startswith("api = Client(") and python[-1].startswith("open(")
+    scope = {"api": Client(http=refined["http"])}
+    exec("\n".join(python[:2] + python[3:-1]), scope)        # the same service; no report written here
+    again = refined["http"].get(f"/api/models/{scope['m2']}").json()
+    original = refined["http"].get(f"/api/models/{refined['model']}").json()
+    assert again["effects"] == original["effects"] and again["parent_id"] == scope["m1"]
+    assert again["datasets"] == [scope["ds1"]] and scope["ds1"] != refined["dataset"]
+    assert again["metrics"]["validation_rms_um"] == pytest.approx(original["metrics"]["validation_rms_um"], rel=0.3)
+    for key in ("curl", "cli"):
+        text = unescape(re.search(rf'<pre id="reproduce-{key}">(.*?)</pre>', html, flags=re.S)[1])
+        assert subprocess.run(["bash", "-n"], input=text, text=True, capture_output=True).returncode == 0, text
 
 
 @pytest.mark.slow
@@ -169,6 +189,9 @@ def test_refine_bodies_and_dataset_requests():
         "effects": ["hysteresis", "creep", "drift"]}
     sweep = {"source": "sweep", "name": "s", "plan": {"waveform": "sine", "cycles": 5, "samples": 9, "duration_s": 1}}
     assert dataset_request(sweep) == {"kind": "sweep", "body": {"waveform": "sine", "cycles": 5, "name": "s"}}
+    chirp = {"source": "sweep", "name": "c", "sample_rate_hz": 1000.0, "plan": {"waveform": "chirp", "duration_s": 9.0},
+             "blocks": [{"kind": "chirp", "start": 500, "stop": 8500}]}
+    assert dataset_request(chirp)["body"] == {"waveform": "chirp", "duration_s": 8.0, "name": "c"}
     imported = {"source": "import", "name": "lab", "plan": {"import": {"filename": "a.csv", "axis": None},
                                                             "drive_range_v": {}}}
     assert dataset_request(imported) == {"kind": "import", "body": {"filename": "a.csv", "name": "lab"}}

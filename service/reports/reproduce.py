@@ -28,7 +28,8 @@ wait_job() {  # wait_job JOB_ID FIELD: the job's result.FIELD once it succeeded
 
 def dataset_request(row: dict) -> dict:
     """How a stored dataset was made: ``{"kind": "sweep"|"trajectory"|"import", "body"}`` with the
-    request body (sweep: the stored plan without the planner's figures, named as the dataset)."""
+    request body (sweep: the stored plan without the planner's figures, named as the dataset; a
+    chirp's ``duration_s`` is its block's length, which the planner rounded to whole cycles)."""
     plan = row.get("plan") if isinstance(row.get("plan"), dict) else {}
     if row.get("source") == "import" or "import" in plan:
         options = {k: v for k, v in (plan.get("import") or {}).items() if v is not None}
@@ -36,6 +37,9 @@ def dataset_request(row: dict) -> dict:
     if row.get("source") == "trajectory":
         return {"kind": "trajectory", "body": dict(plan)}
     body = {k: v for k, v in plan.items() if k not in PLAN_FIGURES}
+    chirp = [b for b in row.get("blocks") or [] if b.get("kind") == "chirp"]
+    if body.get("waveform") == "chirp" and chirp:   # the stored duration_s is the whole plan's: the chirp's
+        body["duration_s"] = round((chirp[0]["stop"] - chirp[0]["start"]) / row["sample_rate_hz"], 6)
     body["name"] = row.get("name")
     return {"kind": "sweep", "body": body}
 
@@ -60,13 +64,22 @@ def _vars(ids: list[str], prefix: str) -> dict[str, str]:
 
 
 def _json(value) -> str:
-    return json.dumps(value, separators=(", ", ": "))
+    """``value`` as JSON for a single-quoted shell word (a quote in it closed, escaped, reopened)."""
+    return json.dumps(value, separators=(", ", ": ")).replace("'", "'\\''")
 
 
-def _with_vars(text: str, names: dict[str, str], shell: bool) -> str:
-    """Ids in a JSON text replaced by their variables ("$DS1" in a shell string, ds1 in Python)."""
+def _with_vars(text: str, names: dict[str, str]) -> str:
+    """Ids in a JSON text for a single-quoted shell word replaced by their variables ("$DS1")."""
     for old, new in names.items():
-        text = text.replace(f'"{old}"', f'"\'"${new}"\'"' if shell else new.lower())
+        text = text.replace(f'"{old}"', f'"\'"${new}"\'"')
+    return text
+
+
+def _py(value, names: dict[str, str]) -> str:
+    """``value`` as Python source, ids replaced by their variables (ds1, m1)."""
+    text = repr(value)
+    for old, new in names.items():
+        text = text.replace(repr(old), new.lower())
     return text
 
 
@@ -115,12 +128,12 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
         elif req["kind"] == "trajectory":
             curl.append(f"{var}=$(wait_job $(post /trajectories '{_json(body)}') dataset_id)")
             cli.append(f"# {var}: a trajectory run; no evcbench verb runs one: use the curl or Python lines")
-            py.append(f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_json(body)}).json()'
+            py.append(f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_py(body, {})}).json()'
                       f'["job_id"])["result"]["dataset_id"]')
         else:
             curl.append(f"{var}=$(wait_job $(post /sweeps '{_json(body)}') dataset_id)")
             cli.append(f"{var}=$({_cli_sweep(body)})")
-            py.append(f'{var.lower()} = api.sweep(**{_json(body)})["result"]["dataset_id"]')
+            py.append(f'{var.lower()} = api.sweep(**{_py(body, {})})["result"]["dataset_id"]')
     kind, n_ops = root["kind"], int((root.get("options") or {}).get("n_operators", 10))
     first = steps[0]
     body = {"axis": root["axis"], "datasets": first["datasets"], "model": kind, "effects": first["effects"],
@@ -128,7 +141,7 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
     m1 = md[first["model_id"]]
     for out in (curl, cli, py):
         out.append(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(first['effects'])}")
-    curl.append(f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names, True)}') model_id)")
+    curl.append(f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names)}') model_id)")
     cli.append(f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
                + ",".join(f"${ds[d]}" for d in first["datasets"]) + f" --model {kind} --effects "
                + ",".join(first["effects"]) + f" --n-operators {n_ops} --json | jq -r .id)")
@@ -139,11 +152,11 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
         body = refine_body(step, prev)
         for out in (curl, cli, py):
             out.append(f"# {var} = {step['model_id']}: {step['change']}")
-        curl.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names, True)}') "
+        curl.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') "
                     "model_id)")
-        cli.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names, True)}') "
+        cli.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') "
                    "model_id)   # refine has no evcbench verb: the curl helpers above")
-        args = ", ".join(f"{k}={_with_vars(_json(v), names, False)}" for k, v in body.items())
+        args = ", ".join(f"{k}={_py(v, names)}" for k, v in body.items())
         py.append(f'{var.lower()} = api.refine({parent.lower()}, {args})["id"]')
     last = md[steps[-1]["model_id"]]
     curl.append(f'curl -sf -H "$AUTH" "$URL/api/models/${last}/report?download=true" -o "${last}-report.html"')
