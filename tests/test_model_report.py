@@ -44,6 +44,8 @@ def refined(tmp_path_factory):
         base = _result(http, http.post("/api/models", json=body).json()["job_id"])["model_id"]
         refine = http.post(f"/api/models/{base}/refine", json={"add": "creep"})
         model = _result(http, refine.json()["job_id"])["model_id"]
+        labelled = http.patch(f"/api/models/{model}", json={"name": "creep <Y>", "tags": ["paper", "a&b"]})
+        assert labelled.status_code == 200, labelled.text
         read = TestClient(http.app, headers=bearer(issue_token(settings, "read")))
         report = read.get(f"/api/models/{model}/report", params={"download": "true"})
         yield {"http": http, "read": read, "dataset": dataset, "base": base, "model": model, "report": report}
@@ -69,6 +71,7 @@ def test_the_report_of_a_refined_model(refined):
     html = r.text
     print(f"report of a 4-frequency two-axis sweep model: {len(r.content) / 1024:.0f} kB")
     assert len(r.content) < 400 * 1024
+    assert "<td>creep &lt;Y&gt;</td>" in html and "<td>paper, a&amp;b</td>" in html   # labels, escaped
     # self-contained: no script, nothing fetched from elsewhere
     assert "<script" not in html and not re.search(r'\s(src|href)="', html)
 

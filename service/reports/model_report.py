@@ -106,7 +106,9 @@ def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]
 
 def _model_section(row: dict, description: dict) -> str:
     m = row["metrics"]
-    facts = [["model", f"<code>{escape(row['id'])}</code>"], ["kind", escape(row["kind"])],
+    labels = [[k, escape(str(v))] for k, v in (("name", row.get("name")), ("tags", ", ".join(row.get("tags") or [])),
+                                                ("notes", row.get("notes"))) if v]
+    facts = [["model", f"<code>{escape(row['id'])}</code>"], *labels, ["kind", escape(row["kind"])],
              ["axis", escape(row["axis"].upper())], ["effects", escape(" + ".join(row["effects"]))],
              ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
              ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
@@ -132,13 +134,15 @@ def _datasets_section(datasets: list[dict], axis: str) -> str:
         blocks = "; ".join(f"{b.get('index')}: {b.get('kind')}"
                            + (f" {b['frequency_hz']:g} Hz × {b.get('cycles')}" if b.get("frequency_hz") else "")
                            + (f" ({'+'.join(b['axes']).upper()})" if b.get("axes") else "") for b in d["blocks"])
-        rows.append([f"<code>{escape(d['id'])}</code>", escape(d.get("name") or ""), escape(d["source"]),
+        label = " · ".join(x for x in (d.get("name"), ", ".join(d.get("tags") or []), d.get("notes")) if x)
+        rows.append([f"<code>{escape(d['id'])}</code>", escape(label), escape(d["source"]),
                      escape(",".join(d["axes"]).upper()), str(d["samples"]), f"{d['sample_rate_hz']:g}",
                      "partial: " + escape(d["partial_reason"] or "") if d.get("partial") else "complete",
                      escape(blocks)])
     return (f"<h2>3. Data</h2><p>Axis {escape(axis.upper())} of these datasets; the last ⌈20 %⌉ cycles of every "
             "block are held out of the fit.</p>"
-            + _table(["dataset", "name", "source", "axes", "samples", "rate (Hz)", "state", "blocks"], rows, {4, 5}))
+            + _table(["dataset", "name · tags · notes", "source", "axes", "samples", "rate (Hz)", "state", "blocks"],
+                     rows, {4, 5}))
 
 
 def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:

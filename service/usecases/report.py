@@ -19,7 +19,7 @@ from service.usecases.identify import load_model, load_records
 
 #: dataset row fields the report shows
 DATASET_FIELDS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "blocks", "plan", "partial",
-                  "partial_reason")
+                  "partial_reason", "tags", "notes")
 
 
 def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
@@ -73,5 +73,5 @@ def model_report(store: Store, model_id: str) -> str:
         records[i] = None          # this record's arrays are no longer needed
     description = model.describe() if hasattr(model, "describe") else {}
     root = store.get_model(steps[0]["model_id"])
-    return render_report(row, description, [{k: r[k] for k in DATASET_FIELDS} for r in dataset_rows], steps,
+    return render_report(row, description, [{k: r.get(k) for k in DATASET_FIELDS} for r in dataset_rows], steps,
                          diagnosis, blocks, commands(dataset_rows, steps, root), utc_now())
