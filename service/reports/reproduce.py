@@ -136,17 +136,18 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
             py.append(f'{var.lower()} = api.sweep(**{_py(body, {})})["result"]["dataset_id"]')
     kind, n_ops = root["kind"], int((root.get("options") or {}).get("n_operators", 10))
     first = steps[0]
-    body = {"axis": root["axis"], "datasets": first["datasets"], "model": kind, "effects": first["effects"],
+    effects = list(root["effects"])     # as requested (a dynamic PI's rate dependence is its kind's, not asked)
+    body = {"axis": root["axis"], "datasets": first["datasets"], "model": kind, "effects": effects,
             "n_operators": n_ops}
     m1 = md[first["model_id"]]
     for out in (curl, cli, py):
-        out.append(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(first['effects'])}")
+        out.append(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(effects)}")
     curl.append(f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names)}') model_id)")
     cli.append(f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
                + ",".join(f"${ds[d]}" for d in first["datasets"]) + f" --model {kind} --effects "
-               + ",".join(first["effects"]) + f" --n-operators {n_ops} --json | jq -r .id)")
+               + ",".join(effects) + f" --n-operators {n_ops} --json | jq -r .id)")
     py.append(f"{m1.lower()} = api.identify({root['axis']!r}, [" + ", ".join(ds[d].lower() for d in first["datasets"])
-              + f"], model={kind!r}, effects={first['effects']!r}, n_operators={n_ops})[\"id\"]")
+              + f"], model={kind!r}, effects={effects!r}, n_operators={n_ops})[\"id\"]")
     for prev, step in zip(steps, steps[1:]):
         var, parent = md[step["model_id"]], md[prev["model_id"]]
         body = refine_body(step, prev)
