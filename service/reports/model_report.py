@@ -50,10 +50,12 @@ def _num(value, digits: int = 4) -> str:
     return "–" if value is None else f"{value:.{digits}g}"
 
 
-def _table(head: list[str], rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
-    """An HTML table; cells are already-escaped HTML; columns in ``numeric`` right-aligned."""
+def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
+    """An HTML table (``head`` None: no header row); cells are already-escaped HTML; columns in
+    ``numeric`` right-aligned."""
     cls = lambda i: ' class="num"' if i in numeric else ""   # noqa: E731
-    out = [f"<table{attrs}><tr>" + "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(head)) + "</tr>"]
+    out = [f"<table{attrs}>" + ("<tr>" + "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(head)) + "</tr>"
+                                if head else "")]
     out += ["<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows]
     return "".join(out) + "</table>"
 
@@ -117,7 +119,7 @@ def _model_section(row: dict, description: dict) -> str:
              ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
              ["created", escape(row["created_at"])], ["software", escape(row["software_version"])],
              ["parameters SHA-256", f"<code>{escape(row['parameters_sha256'])}</code>"]]
-    text = _table(["", ""], facts)
+    text = _table(None, facts)
     words = [[escape(k), escape(v)] for k, v in description.items() if v]
     params = {k: v for k, v in row["parameters"].items() if k not in ("model", "config")}
     values = [[f"<code>{escape(name)}</code>", str(n), escape(text)] for name, n, text in parameter_rows(params)]
