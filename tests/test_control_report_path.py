@@ -90,3 +90,15 @@ def test_a_report_row_through_the_api_has_the_report_figures(tmp_path):
         assert api[key] == pytest.approx(report[key], rel=1e-9, abs=1e-12), key
     assert api["error_per_period_um"] == pytest.approx(report["error_per_period_um"], rel=1e-9, abs=1e-12)
     assert api["pid"]["axes"]["y"]["kp"] == pytest.approx(report["pid"]["axes"]["y"]["kp"], rel=1e-12)
+
+
+def test_a_forced_diverging_plan_trips_to_0v_and_says_why(case2):
+    """``force`` runs the refused plan: issue 6's gains + ILC trip (measured: 156.6 ms, sensor range,
+    the error 82 → 317 nm RMS per period over 12 periods after one revert), and the job's error names
+    the learning's course and its predicted factor (Y 4.64)."""
+    post, ff = case2
+    job = post("/api/trajectories", {**CASE2, "cycles": 30, "controller": {**_ff(ff), "pid": SCANNED, "ilc": True,
+                                                                          "force": True}})
+    assert job["state"] == "failed", job
+    assert "output set to 0 V" in job["error"] and "the ILC had learned for" in job["error"]
+    assert "predicted convergence factor Y" in job["error"]
