@@ -10,7 +10,8 @@ from __future__ import annotations
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
 from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v
-from service.science.control.loop import PIDGains, StopRequested, TrackRecord
+from service.science.control.ilc_stability import learning_refusal, predict_plan
+from service.science.control.loop import QUEUED_BLOCKS, PIDGains, StopRequested, TrackRecord
 from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
                                              track_plan)
 from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid
@@ -20,7 +21,8 @@ from service.store import NotFoundError, Store
 from service.usecases.identify import load_model
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
-def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz: float) -> Controller:
+def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz: float,
+                     mode: str = "point_by_point") -> Controller:
     """The controller a request describes (``ControllerRequest`` fields as a dict): stored models as
     feedforward per axis, PID gains (chosen and predicted by service.science.control.tuning.choose_pid
     on the bench's plant, for a trajectory at ``frequency_hz``), ILC. FieldError names
@@ -38,27 +40,39 @@ def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz:
             raise FieldError(field, f"no model {model_id!r}") from None
         except Exception as exc:  # a model that cannot be rebuilt or inverted
             raise FieldError(field, f"model {model_id} cannot be used: {exc}") from None
-    pid, report = None, None
+    pid, report, gains = None, None, None
     spec = controller.get("pid")
+    plants = bench_plants(bench, models, SAMPLE_RATE_HZ) if spec is not None else dict.fromkeys(bench.axes)
     if spec is not None:
         if isinstance(spec, dict):
             spec = {ax: (spec[f"kp_{ax}"], spec[f"ki_{ax}"], spec[f"kd_{ax}"], spec["tf_s"]) for ax in ("y", "z")}
-        plants = bench_plants(bench, models, SAMPLE_RATE_HZ)
         gains, report, warnings = choose_pid(spec, plants, {"tuned": TUNED_PID, "paper": PAPER_PID},
                                              frequency_hz=frequency_hz, force=controller.get("force", False))
         report["warnings"] = warnings
         pid = {ax: PIDGains(*g) for ax, g in gains.items()}
+    ilc_report = None
+    if controller["ilc"]:
+        try:
+            predicted = predict_plan(plants, gains, controller["ilc_gain"], frequency_hz, controller["ilc_harmonics"],
+                                     latency_periods=0 if mode == "point_by_point" else QUEUED_BLOCKS - 1)
+        except ValueError as exc:
+            raise FieldError("controller.ilc", str(exc)) from None
+        ilc_report = {"axes": {p.axis: p.as_dict() for p in predicted}, "refusal": learning_refusal(predicted)}
     return Controller(feedforward=models, pid=pid, ilc=controller["ilc"], ilc_gain=controller["ilc_gain"],
                       ilc_harmonics=controller["ilc_harmonics"], allow_saturation=controller["allow_saturation"],
-                      pid_report=report)
+                      pid_report=report, ilc_report=ilc_report)
 
 
 def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: dict, mode: str) -> Controller:
     """The controller of a tracking request after every check that would refuse it: the reference,
-    the feedforward models, the mode, the current, the resonance, the voltage and the stroke
-    (``session.plan``). FieldError (a ControlRefused among them) names the field; a failure that
+    the feedforward models, the mode, the current, the resonance, the voltage, the stroke
+    (``session.plan``) and the ILC's predicted convergence (``controller.ilc_gain`` or
+    ``controller.ilc``, service.science.control.ilc_stability; ``force`` runs it anyway). FieldError (a ControlRefused among them) names the field; a failure that
     names none (e.g. a model whose inverse breaks) is laid on ``body``."""
-    built = build_controller(bench, store, controller, ellipse.frequency_hz)
+    built = build_controller(bench, store, controller, ellipse.frequency_hz, mode)
+    refusal = built.ilc_report and built.ilc_report["refusal"]
+    if refusal and not controller.get("force", False):
+        raise FieldError(refusal[0], refusal[1] + " (or set controller.force to run it; a diverging run trips to 0 V)")
     try:
         plan(bench, ellipse, built, mode)
     except FieldError:

@@ -11,6 +11,7 @@ import numpy as np
 from drivers.bench import Bench
 from service.science.control.feedforward import INVERSE_TOLERANCE_SHARE, feedforward_v, inverse_miss_um
 from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
+from service.science.control.ilc_stability import learning_diagnosis
 from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, TrackRecord, Tracker
 from service.science.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
 from service.science.control.trajectory import Ellipse, Reference, reference
@@ -38,6 +39,8 @@ class Controller:
     ilc_harmonics: int = 20
     #: the PID's choice and predicted margins (service.science.control.tuning.choose_pid), for the result
     pid_report: dict | None = None
+    #: the ILC's predicted convergence per axis (service.science.control.ilc_stability), for the result
+    ilc_report: dict | None = None
     #: run a range beyond the stroke anyway (commands clamped at the axis's limits; the reason becomes a warning)
     allow_saturation: bool = False
 
@@ -154,7 +157,9 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
               "loop_cpu_s": cpu, "loop_cpu_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / max(cpu, 1e-9),
               "error_per_period_um": rec.error_per_period_um, "ilc_stop_reason": rec.ilc_stop_reason,
               "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings,
-              "pid": controller.pid_report}
+              "pid": controller.pid_report, "ilc": controller.ilc_report}
+    if rec.tripped and ilc is not None:
+        result["tripped"] = f"{rec.tripped}; {learning_diagnosis(ilc, controller.ilc_report)}"
     if rec.tripped is None and not rec.stopped:
         lims = np.array([[bench.limits[a].v_min_v, bench.limits[a].v_max_v] for a in bench.axes])
         result.update(metrics(rec, ref, lims))
