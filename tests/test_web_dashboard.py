@@ -202,15 +202,21 @@ def test_trajectory_pid_select_offers_auto_tuned_paper_and_custom(page, server):
     page.console_errors.clear()
 
 
-def test_trajectory_page_sweeps_the_span_the_ellipse_needs(page, server):
-    """"Sweep the span it needs" runs one sweep per axis over the feedforward drive's span ± 5 V."""
+def _static_pi_per_axis(server, **sweep) -> dict:
+    """A two-axis sweep over REST and a static PI on it per axis: {axis: model id}."""
     api = server["api"]
-    sweep = api.post("/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 2}).json()
-    dataset_id = wait_job(job_of(server), sweep["job_id"])["result"]["dataset_id"]
+    job = api.post("/sweeps", json={"axes": ["y", "z"], **sweep}).json()
+    dataset_id = wait_job(job_of(server), job["job_id"])["result"]["dataset_id"]
     models = {}
     for axis in ("y", "z"):
         job = api.post("/models", json={"axis": axis, "datasets": [dataset_id], "model": "static_pi"}).json()
         models[axis] = wait_job(job_of(server), job["job_id"])["result"]["model_id"]
+    return models
+
+
+def test_trajectory_page_sweeps_the_span_the_ellipse_needs(page, server):
+    """"Sweep the span it needs" runs one sweep per axis over the feedforward drive's span ± 5 V."""
+    models = _static_pi_per_axis(server, frequencies_hz=[1], cycles=2)
     goto(page, server, "trajectories")
     page.select_option("#traj-preset", "case2")
     page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
@@ -332,12 +338,7 @@ def test_discovery_story_in_the_browser(page, server):
 
 def test_trajectory_with_ilc_error_falls_on_screen(page, server):
     api = server["api"]
-    sweep = api.post("/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [10, 50, 100], "cycles": 3}).json()
-    dataset_id = wait_job(job_of(server), sweep["job_id"])["result"]["dataset_id"]
-    models = {}
-    for axis in ("y", "z"):
-        job = api.post("/models", json={"axis": axis, "datasets": [dataset_id], "model": "static_pi"}).json()
-        models[axis] = wait_job(job_of(server), job["job_id"])["result"]["model_id"]
+    models = _static_pi_per_axis(server, frequencies_hz=[10, 50, 100], cycles=3)
     goto(page, server, "trajectories")
     page.select_option("#traj-preset", "case1")
     page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
