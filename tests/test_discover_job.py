@@ -193,7 +193,8 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     added = next(s for s in ran["steps"] if s["added"])
     assert added["added"] == "delay"                      # the hidden effect, once the data tells it apart
     model = http.get(f"/api/models/{added['model_id']}").json()
-    assert model["datasets"] == [dataset_id] + [e["dataset_id"] for e in ran["experiments"]]
+    before = [e["dataset_id"] for e in ran["experiments"] if e["after_step"] < added["step"]]
+    assert before and model["datasets"] == [dataset_id] + before     # fitted on the experiments run so far
     assert f"dataset {experiment['dataset_id']}" in discovery_text(ran)
     delay = ran["effects_found"][0]
     assert delay["effect"] == "delay"

@@ -240,7 +240,16 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                                           held_out_ratio),
             "candidates": candidates + untestable, "not_testable": untestable, "claim_rule": rule_text(noise),
             "failures": worst, "signature": sig,
-            "ambiguity": ambiguity(physical, records, noise) or shape_ambiguity, "noise": floor, "metrics": ev}
+            "ambiguity": ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical),
+            "noise": floor, "metrics": ev}
+
+
+def _leading(pair_ambiguity: dict | None, physical: list[dict]) -> dict | None:
+    """The loop-shape pair's ambiguity when it is about what to add next (its claimed one leads the
+    physical candidates), else None: an ambiguity says which experiment the next step needs."""
+    if pair_ambiguity is None or not physical or physical[0]["effect"] != pair_ambiguity["effects"][0]:
+        return None
+    return pair_ambiguity
 
 
 def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
