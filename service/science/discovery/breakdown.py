@@ -19,7 +19,8 @@ def _held_rows(rec) -> np.ndarray:
 
 
 def failures(records, residuals, top: int = 6) -> list[dict]:
-    """The worst places of the held-out residual, worst first, each in words and numbers."""
+    """The worst places of the held-out residual, worst first, each in words and numbers; a block's
+    place also names it (``record``: the record's label, ``block_index``, ``frequency_hz``)."""
     places = []
     for rec, res in zip(records, residuals):
         held = _held_rows(rec)
@@ -28,20 +29,21 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             rows = slice(*s.held_out)
             f = s.block.get("frequency_hz")
             where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
-            places.append((f"{rec.label} {where}", rms(res[rows]), "frequency"))
+            places.append((f"{rec.label} {where}", rms(res[rows]), "frequency",
+                           {"record": rec.label, "block_index": s.block.get("index"), "frequency_hz": f}))
         for k, name in enumerate(SEGMENTS):
             m = held & (seg == k)
-            places.append((f"{rec.label} {name} branch", rms(res[m]), "branch"))
+            places.append((f"{rec.label} {name} branch", rms(res[m]), "branch", {}))
         speed = np.abs(rec.du_v_per_s)
         slow = held & (speed < 0.1 * np.percentile(speed[held], 95))
-        places.append((f"{rec.label} turning points (|u̇| < 10 % of its peak)", rms(res[slow]), "turning points"))
+        places.append((f"{rec.label} turning points (|u̇| < 10 % of its peak)", rms(res[slow]), "turning points", {}))
         lo, hi = np.percentile(rec.u_v[held], [33, 67])
         for name, m in (("low third of the drive", rec.u_v < lo), ("top third of the drive", rec.u_v > hi)):
             bound = f"u {'<' if 'low' in name else '>'} {lo if 'low' in name else hi:.3g} V"
-            places.append((f"{rec.label} {name} ({bound})", rms(res[held & m]), "amplitude"))
+            places.append((f"{rec.label} {name} ({bound})", rms(res[held & m]), "amplitude", {}))
     places.sort(key=lambda p: -p[1])
-    return [{"where": w, "rms_um": round(v, 6), "by": by,
-             "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"} for w, v, by in places[:top]]
+    return [{"where": w, "rms_um": round(v, 6), "by": by, **block,
+             "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"} for w, v, by, block in places[:top]]
 
 
 def signatures(records, residuals, predictions) -> dict:
