@@ -18,6 +18,7 @@ from fastapi.testclient import TestClient
 from api_client import authed_client, bearer, issue_token, wait_job
 from service.frontends.cli_remote import _models
 from service.frontends.client import Client
+from service.reports.model_report import WORST_MARK
 from service.reports.reproduce import dataset_request, refine_body
 from service.reports.svg import MAX_CURVE_POINTS, Panel, figure, fmt_length, nice_ticks
 from service.runtime.app import create_app
@@ -80,7 +81,10 @@ def test_the_report_of_a_refined_model(refined):
     titles = [unescape(t) for t in re.findall(r'<svg [^>]*aria-label="([^"]*)"', html)]
     assert len(figures) == 4 + 1, titles
     assert titles[0].startswith("error history")
-    assert [t.split(" (held-out")[0] for t in titles[1:]] == [f"Y {f} Hz sine" for f in (1, 10, 50, 100)]
+    marked = [t for t in titles[1:] if t.startswith(WORST_MARK)]
+    assert len(marked) == 1 and html.count('class="block-figure worst"') == 1, titles   # the diagnosis's worst
+    assert [t.removeprefix(WORST_MARK).split(" (held-out")[0] for t in titles[1:]] == [
+        f"Y {f} Hz sine" for f in (1, 10, 50, 100)]
     assert all("held-out cycle 5)" in t for t in titles[1:])       # 5 cycles: the last one held out
     for svg in figures:
         lines = re.findall(r'<polyline points="([^"]*)"', svg)
@@ -127,6 +131,29 @@ def test_the_report_of_a_refined_model(refined):
     cli = unescape(re.search(r'<pre id="reproduce-cli">(.*?)</pre>', html, flags=re.S)[1])
     assert "evcbench sweep --axes y,z --frequencies 1,10,50,100 --separate" in cli
     assert "Print" in html and "PDF" in html
+
+
+@pytest.mark.slow
+def test_the_report_figures_alone_for_the_page(refined):
+    """GET /report/figures: the report's own figures, named blocks, the diagnosis's worst one marked."""
+    r = refined["read"].get(f"/api/models/{refined['model']}/report/figures")
+    assert r.status_code == 200, r.text
+    fig = r.json()
+    blocks = fig["blocks"]
+    assert [b["title"].split(" (held-out")[0] for b in blocks] == [f"Y {f} Hz sine" for f in (1, 10, 50, 100)]
+    assert all(b["svg"].startswith("<svg") and "<polyline" in b["svg"] for b in blocks)
+    assert "<script" not in "".join(b["svg"] for b in blocks) + fig["history_svg"]
+    assert "+creep" in fig["history_svg"] and "2× noise floor" in fig["history_svg"]
+    d = refined["http"].get(f"/api/models/{refined['model']}/diagnosis").json()
+    named = next((f for f in d["failures"] if f.get("by") == "frequency"), None)
+    worst = blocks[fig["worst_block"]]
+    assert [b["worst"] for b in blocks].count(True) == 1 and worst["worst"]
+    assert worst["svg"].count(WORST_MARK) == 3     # the figure's aria-label and <title>, its loop's title
+    if named:                                                  # the block the diagnosis names first
+        assert (worst["dataset_id"], worst["block_index"]) == (named["record"], named["block_index"])
+    else:
+        assert worst["held_out_rms_um"] == max(b["held_out_rms_um"] for b in blocks)
+    assert refined["http"].get("/api/models/md_nope/report/figures").status_code == 404
 
 
 @pytest.mark.slow

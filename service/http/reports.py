@@ -7,7 +7,8 @@ from fastapi.responses import HTMLResponse
 from service.http.deps import get_store
 from service.runtime.bulk import run_bulk
 from service.store import Store
-from service.usecases.report import model_report
+from service.http.schemas.models import ReportFigures
+from service.usecases.report import model_figures, model_report
 
 router = APIRouter(prefix="/models", tags=["reports"])
 
@@ -30,3 +31,11 @@ async def get_report(model_id: str, download: bool = Query(False, description="a
     html = await run_bulk(model_report, store, model_id)
     headers = {"Content-Disposition": f'attachment; filename="{model_id}-report.html"'} if download else {}
     return HTMLResponse(html, headers=headers)
+
+
+@router.get("/{model_id}/report/figures", response_model=ReportFigures)
+async def get_report_figures(model_id: str, store: Store = Depends(get_store)) -> dict:
+    """The report's figures alone, as the report draws them: the error history and, per block, its
+    name, held-out RMS and SVG (the held-out loop and residual), the block the diagnosis names worst
+    marked. For a page to inline; it runs a diagnosis, as the report does."""
+    return await run_bulk(model_figures, store, model_id)

@@ -34,10 +34,12 @@ PDF_NOTE = ("For a PDF, open this file in a browser and print it to PDF (Print �
 class BlockCurves:
     """One block's held-out cycles, decimated: drive ``u_v`` (V), measured ``x_um`` and predicted
     ``x_model_um`` (µm) at times ``t_s`` (s, from the held-out start), with its RMS figures (µm,
-    over every sample)."""
+    over every sample); ``block_index`` and ``frequency_hz`` as the dataset's block table has them."""
 
     title: str
     dataset_id: str
+    block_index: int | None
+    frequency_hz: float | None
     t_s: np.ndarray
     u_v: np.ndarray
     x_um: np.ndarray
@@ -60,10 +62,16 @@ def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = fr
     return "".join(out) + "</table>"
 
 
-def block_figure(b: BlockCurves, axis: str) -> str:
-    """The loop (x against u; measured and model) and the residual over time, side by side."""
+#: the title's mark on the block the diagnosis names worst
+WORST_MARK = "▲ worst block: "
+
+
+def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
+    """The loop (x against u; measured and model) and the residual over time, side by side; the
+    block the diagnosis names worst (``worst``) has WORST_MARK before its title and a red frame."""
     factor, unit = length_unit(float(np.max(np.abs(b.x_um))) if b.x_um.size else 1.0)
-    loop = Panel(520, 300, f"{b.title}: loop", f"u_{axis} (V)", f"x_{axis} ({unit})")
+    mark = WORST_MARK if worst else ""
+    loop = Panel(520, 300, f"{mark}{b.title}: loop", f"u_{axis} (V)", f"x_{axis} ({unit})")
     loop.line(b.u_v, b.x_um * factor, "measured", COLOURS[0], width=2.6)
     loop.line(b.u_v, b.x_model_um * factor, "model", COLOURS[1], width=1.0)
     residual = b.x_um - b.x_model_um
@@ -71,7 +79,8 @@ def block_figure(b: BlockCurves, axis: str) -> str:
     res = Panel(520, 300, f"residual, held-out RMS {fmt_length(b.held_out_rms_um)}", "time in the held-out cycles (ms)",
                 f"measured − model ({ru})")
     res.line(b.t_s * 1e3, residual * rf, "residual", COLOURS[3]).hline(0.0, "")
-    return figure([loop, res], f"{b.title} ({b.dataset_id}): loop and residual")
+    return figure([loop, res], f"{mark}{b.title} ({b.dataset_id}): loop and residual",
+                  frame="#C62828" if worst else None)
 
 
 def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
@@ -189,11 +198,12 @@ def _diagnosis_section(d: dict) -> str:
                + (_experiment(amb["experiment"]) if amb.get("experiment") else "") if amb else ""))
 
 
-def _blocks_section(blocks: list[BlockCurves], axis: str) -> str:
-    figs = "".join(f'<div class="block-figure">{block_figure(b, axis)}</div>' for b in blocks)
+def _blocks_section(blocks: list[BlockCurves], axis: str, worst: int | None) -> str:
+    figs = "".join(f'<div class="block-figure{" worst" if i == worst else ""}">{block_figure(b, axis, i == worst)}</div>'
+                   for i, b in enumerate(blocks))
     return ("<h2>6. Measured against model, block by block</h2><p>Each block's held-out cycles (never fitted): "
-            f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve.</p>"
-            + figs)
+            f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve. "
+            "The block the diagnosis names worst is framed in red.</p>" + figs)
 
 
 def _reproduce_section(commands: dict[str, str]) -> str:
@@ -206,8 +216,10 @@ def _reproduce_section(commands: dict[str, str]) -> str:
 
 
 def render_report(model_row: dict, description: dict, datasets: list[dict], steps: list[dict], diagnosis: dict,
-                  blocks: list[BlockCurves], commands: dict[str, str], generated_at: str) -> str:
-    """The whole report as HTML text."""
+                  blocks: list[BlockCurves], commands: dict[str, str], generated_at: str,
+                  worst: int | None = None) -> str:
+    """The whole report as HTML text; ``worst``: the index in ``blocks`` of the block the diagnosis
+    names worst (marked)."""
     title = f"Model {model_row['id']}: {model_row['kind']}, axis {model_row['axis'].upper()}"
     return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{escape(title)}</title><style>{CSS}</style></head><body>"
@@ -215,5 +227,5 @@ def render_report(model_row: dict, description: dict, datasets: list[dict], step
             f"EVC Bench report generated {escape(generated_at)}</p>"
             + _model_section(model_row, description) + _datasets_section(datasets, model_row["axis"])
             + _lineage_section(steps, diagnosis.get("noise_floor_um")) + _diagnosis_section(diagnosis)
-            + _blocks_section(blocks, model_row["axis"]) + _reproduce_section(commands)
+            + _blocks_section(blocks, model_row["axis"], worst) + _reproduce_section(commands)
             + f"<footer><p>{escape(PDF_NOTE)}</p></footer></body></html>")

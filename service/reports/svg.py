@@ -196,14 +196,18 @@ class Panel:
         return "".join(out)
 
 
-def figure(panels: list[Panel], label: str) -> str:
-    """Panels side by side in one ``<svg>`` (``label``: its accessible name, also its ``<title>``)."""
+def figure(panels: list[Panel], label: str, frame: str | None = None) -> str:
+    """Panels side by side in one ``<svg>`` (``label``: its accessible name, also its ``<title>``;
+    ``frame``: the colour of a frame round the whole figure, none without it)."""
     width = sum(p.width for p in panels)
     height = max(p.height for p in panels)
     body, x = [], 0
     for p in panels:
         body.append(p.render(x, 0))
         x += p.width
+    if frame:
+        body.append(f'<rect x="1" y="1" width="{width - 2}" height="{height - 2}" fill="none" stroke="{frame}" '
+                    f'stroke-width="2.5" class="frame"/>')
     return (f'<svg xmlns="http://www.w3.org/2000/svg" class="figure" width="{width}" height="{height}" '
             f'viewBox="0 0 {width} {height}" role="img" aria-label="{escape(label)}" font-family="sans-serif" '
             f'font-size="10.5"><title>{escape(label)}</title>{"".join(body)}</svg>')

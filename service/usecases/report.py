@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.reports.model_report import BlockCurves, render_report
+from service.reports.model_report import BlockCurves, block_figure, history_figure, render_report
 from service.reports.reproduce import commands
 from service.reports.svg import decimate
 from service.science.data.record import Record
@@ -53,14 +53,16 @@ def block_curves(record: Record, predicted, dataset_id: str) -> list[BlockCurves
         train = slice(*s.train)
         out.append(BlockCurves(
             title=block_title(record.axis or "y", s, record.sample_rate_hz), dataset_id=dataset_id,
+            block_index=s.block.get("index"), frequency_hz=s.block.get("frequency_hz"),
             t_s=np.arange(b - a)[keep] / record.sample_rate_hz,
             u_v=u[keep].copy(), x_um=x[keep].copy(), x_model_um=p[keep].copy(), held_out_rms_um=rms(x - p),
             train_rms_um=rms(record.x_um[train] - predicted[train]) if s.train[1] > s.train[0] else None))
     return out
 
 
-def model_report(store: Store, model_id: str) -> str:
-    """The report of a stored model as HTML text (NotFoundError for an unknown id)."""
+def _gather(store: Store, model_id: str) -> dict:
+    """What the report and its figures are drawn from: the model's row, lineage, dataset rows,
+    diagnosis and per-block curves (NotFoundError for an unknown id)."""
     row = store.get_model(model_id)
     steps = history(store, model_id)
     dataset_rows = [store.get_dataset(d) for d in row["datasets"]]
@@ -71,7 +73,44 @@ def model_report(store: Store, model_id: str) -> str:
     for i, (dataset_id, record) in enumerate(zip(row["datasets"], records)):
         blocks += block_curves(record, model.predict(record), dataset_id)
         records[i] = None          # this record's arrays are no longer needed
-    description = model.describe() if hasattr(model, "describe") else {}
+    return {"row": row, "steps": steps, "dataset_rows": dataset_rows, "diagnosis": diagnosis, "model": model,
+            "blocks": blocks}
+
+
+def worst_block(diagnosis: dict, blocks: list[BlockCurves]) -> int | None:
+    """The index in ``blocks`` of the block the diagnosis names first among its failures (worst
+    first); when no block is among them, the block with the largest held-out RMS."""
+    for f in diagnosis.get("failures") or []:
+        if f.get("by") == "frequency":
+            for i, b in enumerate(blocks):
+                if (b.dataset_id, b.block_index) == (f.get("record"), f.get("block_index")):
+                    return i
+    rms_of = [b.held_out_rms_um if b.held_out_rms_um is not None else -1.0 for b in blocks]
+    return int(np.argmax(rms_of)) if blocks else None
+
+
+def model_report(store: Store, model_id: str) -> str:
+    """The report of a stored model as HTML text (NotFoundError for an unknown id)."""
+    g = _gather(store, model_id)
+    row, steps, dataset_rows = g["row"], g["steps"], g["dataset_rows"]
+    description = g["model"].describe() if hasattr(g["model"], "describe") else {}
     root = store.get_model(steps[0]["model_id"])
     return render_report(row, description, [{k: r.get(k) for k in DATASET_FIELDS} for r in dataset_rows], steps,
-                         diagnosis, blocks, commands(dataset_rows, steps, root), utc_now())
+                         g["diagnosis"], g["blocks"], commands(dataset_rows, steps, root), utc_now(),
+                         worst_block(g["diagnosis"], g["blocks"]))
+
+
+def model_figures(store: Store, model_id: str) -> dict:
+    """The report's figures alone, for a page to inline: the error history and, per block, its name,
+    held-out and training RMS (µm), whether the diagnosis names it worst, and its SVG."""
+    g = _gather(store, model_id)
+    d, blocks = g["diagnosis"], g["blocks"]
+    worst = worst_block(d, blocks)
+    return {"model_id": model_id, "axis": g["row"]["axis"], "noise_floor_um": d.get("noise_floor_um"),
+            "verdict": d.get("verdict"), "worst_block": worst,
+            "history_svg": history_figure(g["steps"], d.get("noise_floor_um")),
+            "blocks": [{"title": b.title, "dataset_id": b.dataset_id, "block_index": b.block_index,
+                        "frequency_hz": b.frequency_hz, "held_out_rms_um": b.held_out_rms_um,
+                        "train_rms_um": b.train_rms_um, "worst": i == worst,
+                        "svg": block_figure(b, g["row"]["axis"], worst=i == worst)}
+                       for i, b in enumerate(blocks)]}

@@ -170,3 +170,30 @@ class History(BaseModel):
     model_config = ConfigDict(protected_namespaces=())
     model_id: str
     steps: list[HistoryStep]
+
+
+class BlockFigure(BaseModel):
+    """One block of the report's figures: its name, RMS (µm) and SVG."""
+
+    title: str = Field(description='the block named by what it is: "Y 100 Hz sine (held-out cycle 5)"')
+    dataset_id: str
+    block_index: int | None
+    frequency_hz: float | None
+    held_out_rms_um: float | None
+    train_rms_um: float | None
+    worst: bool = Field(description="the block the diagnosis names worst")
+    svg: str = Field(description="the report's figure: the held-out loop (measured, model) and the residual")
+
+
+class ReportFigures(BaseModel):
+    """The model report's figures alone (GET /api/models/{id}/report/figures), for a page to inline."""
+
+    model_config = ConfigDict(protected_namespaces=())
+    model_id: str
+    axis: str
+    noise_floor_um: float | None
+    verdict: str | None
+    worst_block: int | None = Field(description="index in blocks of the block the diagnosis names worst")
+    history_svg: str = Field(description="the error history: held-out RMS per lineage step, log scale, the "
+                                         "noise-floor band and the 2× line, each step labelled with its change")
+    blocks: list[BlockFigure]
