@@ -154,4 +154,7 @@ export async function followJob(jobId, onUpdate = () => {}, { signal } = {}) {
 
 export const fmt = (v, digits = 4) => (v === null || v === undefined || Number.isNaN(Number(v))) ? '–'
   : String(Number(Number(v).toPrecision(digits)));
+/** A length given in µm, in the unit that suits it: nm below 1 µm (0.002945 → "2.95 nm"). */
+export const fmtLength = (um, digits = 3) => (um === null || um === undefined || !Number.isFinite(Number(um))) ? '–'
+  : Math.abs(um) < 1 ? `${fmt(um * 1e3, digits)} nm` : `${fmt(um, digits)} µm`;
 export const esc = (s) => String(s ?? '').replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));

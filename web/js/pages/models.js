@@ -7,6 +7,7 @@ import { api, download, esc, fmt, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
 import { renderDiagnosis } from './diagnosis.js';
+import { renderDiscover } from './discover.js';
 
 const charts = [];
 let controller = null;
@@ -88,6 +89,7 @@ async function showModel(el, modelId, query) {
         <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
         <span id="report-status" class="muted"></span></div>
     </div>
+    <div id="discover"></div>
     <div class="grid-1-2">
       <div class="card"><h2>Error history <span class="muted">(held-out RMS per model version)</span></h2><div id="history-chart"></div><div id="history-table"></div></div>
       <div class="card" id="diagnosis-card"><h2>Diagnosis</h2><div id="diagnosis"></div><div id="refine-job"></div><div id="separate-job"></div></div>
@@ -101,6 +103,12 @@ async function showModel(el, modelId, query) {
     `<option value="${esc(d.id)}"${d.id === datasetId ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}${model.datasets.includes(d.id) ? ' (fitted)' : ''}</option>`).join('');
   select.addEventListener('change', () => { location.hash = `#/models/${model.id}?dataset=${select.value}`; });
   el.querySelector('#report-download').addEventListener('click', () => downloadReport(el, model.id));
+  if (await has('POST /api/models/{model_id}/discover')) {
+    renderDiscover(el.querySelector('#discover'), model, { signal, onModels: async () => {
+      const list = document.querySelector('#model-list');
+      if (list) renderModelList(list, await api('/models', { signal }), model.id);
+    } });
+  }
 
   // Diagnosis first (its failure ranges shade the compare plots), then history and compare.
   let diagnosis = null;

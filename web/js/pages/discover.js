@@ -1,0 +1,210 @@
+// Models page, the discovery story in one place (issue 20 §2): the Discover job (POST
+// /api/models/{id}/discover) followed step by step over its event stream; the report's own figures
+// (GET /api/models/{id}/report/figures: the error history and the per-block loop and residual,
+// the block the diagnosis names worst marked) inlined; and two models of the lineage compared block
+// by block (GET /api/models/{id}/compare?arrays=false on each dataset).
+import { api, esc, fmt, fmtLength } from '../api.js';
+import { h, runJob, showError } from '../ui.js';
+
+/** The Discover, Figures and Compare cards for `model`, appended to `el`. */
+export function renderDiscover(el, model, { signal, onModels = () => {} }) {
+  const box = h(`<div>
+    <div class="card" id="discover-card"><h2>Discover <span class="muted">(diagnose, add the top claimed effect, refit; until the
+      verdict is complete, then more capacity while it validates and the model is not at the noise floor)</span></h2>
+      <form id="discover-form" class="inline">
+        <label>max steps <input name="max_steps" type="number" min="1" max="12" step="1" value="8"></label>
+        <label class="check"><input type="checkbox" name="allow_experiments"> run the experiments it needs on the bench</label>
+        <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
+      </form>
+      <div id="discover-job"></div>
+      <div id="discover-run"></div>
+    </div>
+    <div class="card" id="figures-card"><h2>Figures <span class="muted" id="figures-of"></span></h2>
+      <div class="row"><button type="button" id="figures-load">Show the figures of ${esc(model.id)}</button>
+        <span class="muted" id="figures-status"></span></div>
+      <div id="figures-history"></div><div id="figures-blocks" class="small-multiples"></div>
+    </div>
+    <div class="card" id="lineage-compare"><h2>Compare two models of the lineage, block by block</h2>
+      <div class="row"><label>model A <select id="compare-a"></select></label><label>model B <select id="compare-b"></select></label>
+        <button type="button" id="compare-run">Compare</button></div>
+      <div id="compare-models"></div>
+    </div>
+  </div>`);
+  el.append(box);
+  const state = { figures: null, steps: [] };
+  const figures = (id) => showFigures(box, id, state, signal);
+  box.querySelector('#figures-load').addEventListener('click', () => figures(model.id));
+  box.querySelector('#discover-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    discover(box, model, state, { signal, onModels, figures });
+  });
+  box.querySelector('#compare-run').addEventListener('click', () => compareModels(box, state, signal));
+  box.querySelector('#discover-run').addEventListener('click', (e) => {
+    const b = e.target.closest('button[data-figures]');
+    if (b) figures(b.dataset.figures);
+  });
+  fillLineage(box, model.id, state, signal).catch((e) => showError(box.querySelector('#compare-models'), e));
+}
+
+async function discover(box, model, state, { signal, onModels, figures }) {
+  const f = new FormData(box.querySelector('#discover-form'));
+  const body = { max_steps: Number(f.get('max_steps')), allow_experiments: f.get('allow_experiments') === 'on' };
+  const button = box.querySelector('#discover-start');
+  const out = box.querySelector('#discover-run');
+  button.disabled = true;
+  out.replaceChildren();
+  out.classList.remove('error');
+  try {
+    const job = await runJob(box.querySelector('#discover-job'), `/models/${encodeURIComponent(model.id)}/discover`, body,
+      'discover', { signal, onUpdate: (j) => { if (j.result?.steps) renderRun(out, j.result, model.axis, signal); } });
+    if (job.result?.steps) renderRun(out, job.result, model.axis, signal);
+    if (job.state !== 'succeeded') {
+      showError(out.appendChild(document.createElement('p')), new Error(job.error || `discover ${job.state}`));
+    }
+    const last = job.result?.final_model_id;
+    if (last) {
+      onModels();
+      await fillLineage(box, last, state, signal);
+      await figures(last);
+    }
+  } catch (e) {
+    showError(out.appendChild(document.createElement('p')), e, 'Discover failed: ');
+  } finally {
+    button.disabled = false;
+  }
+}
+
+const ratio = (r) => (r === null || r === undefined ? '–' : `${fmt(r, 3)}×`);
+
+/** The run so far (the job's partial result while it runs, then its result). */
+function renderRun(out, r, axis, signal) {
+  const steps = r.steps || [];
+  const found = r.effects_found || [];
+  const rem = r.remains;
+  const suggested = r.suggested_experiments || [];
+  const done = r.stopped && r.stopped !== 'running';
+  out.innerHTML = `<h3>Steps</h3>
+    <table id="discover-steps"><tr><th>step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
+      <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
+    ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
+      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `refit with ${esc(s.experiment_dataset_id)}` : (s.step ? 'refit' : 'start'))}</td>
+      <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
+      <td class="num">${fmtLength(s.validation_rms_um)}</td><td class="num">${fmtLength(s.noise_floor_um)}</td>
+      <td class="num">${ratio(s.ratio_to_noise_floor)}</td><td>${esc(s.verdict)}${s.ambiguous ? ` <span class="warn">(${s.ambiguous.map(esc).join(' or ')}?)</span>` : ''}</td>
+      <td><button type="button" data-figures="${esc(s.model_id)}">figures</button></td></tr>`).join('')}
+    </table>
+    ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${esc(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
+    ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters</th><th>evidence</th></tr>
+      ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
+        <td>${Object.entries(e.parameters || {}).map(([k, v]) => `<code>${esc(k)}</code> = ${Array.isArray(v) ? v.map((x) => fmt(x)).join(', ') : fmt(v)}`).join('<br>') || '–'}</td>
+        <td class="evidence">${esc(e.evidence)}</td></tr>`).join('')}</table>` : ''}
+    ${rem ? `<h3>What remains</h3><p id="discover-remains" data-ratio="${rem.ratio_to_noise_floor ?? ''}">Held-out RMS <b>${fmtLength(rem.validation_rms_um)}</b>
+      against a noise floor of ${fmtLength(rem.noise_floor_um)}: ${ratio(rem.ratio_to_noise_floor)}${rem.at_noise_floor ? ', at the noise floor' : ''}.
+      <span class="muted">${esc(rem.verdict_text || '')}</span></p>` : ''}
+    ${suggested.length ? `<h3>${r.needed_experiment ? 'The experiment it needs' : 'Experiments it suggested'}</h3><ul id="discover-experiments">
+      ${suggested.map((x, i) => `<li data-effects="${esc(x.effects.join(','))}">after step ${x.after_step}: ${esc(x.reason || '')}
+        <span class="muted">(not run: ${esc(x.not_run_because || '')})</span>
+        <pre>POST /api/sweeps ${esc(JSON.stringify(x.experiment))}</pre>
+        <button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
+        <div class="experiment-job"></div></li>`).join('')}</ul>` : ''}`;
+  out.querySelectorAll('.run-experiment').forEach((b) => b.addEventListener('click', async () => {
+    const x = suggested[Number(b.dataset.i)];
+    const jobBox = b.nextElementSibling;
+    b.disabled = true;
+    try {
+      const job = await runJob(jobBox, '/sweeps', x.experiment, `experiment for ${x.effects.join(', ')}`, { signal });
+      const ds = job.result?.dataset_id;
+      if (job.state === 'succeeded' && ds) {
+        jobBox.append(h(`<p class="ok">Dataset <a href="#/datasets/${esc(ds)}">${esc(ds)}</a> recorded: refine with it, or
+          Discover again with "run the experiments it needs" to fit on it.</p>`));
+      } else showError(jobBox.appendChild(document.createElement('p')), new Error(job.error || `the sweep ${job.state}`));
+    } catch (e) { showError(jobBox.appendChild(document.createElement('p')), e); } finally { b.disabled = false; }
+  }));
+}
+
+/** Our own SVG (the report's figures), parsed as SVG and stripped of anything active before it joins the page. */
+function safeSvg(text) {
+  const doc = new DOMParser().parseFromString(text, 'image/svg+xml');
+  const svg = doc.documentElement;
+  if (svg.nodeName !== 'svg') throw new Error('the figure is not an SVG');
+  svg.querySelectorAll('script, foreignObject, iframe').forEach((n) => n.remove());
+  for (const n of [svg, ...svg.querySelectorAll('*')]) {
+    for (const a of [...n.attributes]) {
+      if (/^on/i.test(a.name) || (/href$/i.test(a.name) && !a.value.startsWith('#'))) n.removeAttribute(a.name);
+    }
+  }
+  return document.importNode(svg, true);
+}
+
+async function showFigures(box, modelId, state, signal) {
+  const status = box.querySelector('#figures-status');
+  const button = box.querySelector('#figures-load');
+  button.disabled = true;
+  status.classList.remove('error');
+  status.textContent = `drawing the figures of ${modelId} (it runs a diagnosis)…`;
+  try {
+    const f = await api(`/models/${encodeURIComponent(modelId)}/report/figures`, { signal });
+    state.figures = f;
+    box.querySelector('#figures-of').textContent = `of ${modelId} · noise floor ${fmtLength(f.noise_floor_um)} · verdict ${f.verdict}`;
+    const history = box.querySelector('#figures-history');
+    history.replaceChildren(safeSvg(f.history_svg));
+    history.dataset.modelId = modelId;
+    box.querySelector('#figures-blocks').replaceChildren(...f.blocks.map((b) => {
+      const cell = h(`<div class="block-figure${b.worst ? ' worst' : ''}" data-dataset-id="${esc(b.dataset_id)}" data-block-index="${b.block_index ?? ''}"
+        data-rms="${b.held_out_rms_um ?? ''}"><h3>${b.worst ? '<span class="bad">▲ worst block (the diagnosis names it)</span> · ' : ''}${esc(b.title)}
+        <span class="muted">· held-out RMS ${fmtLength(b.held_out_rms_um)} · ${esc(b.dataset_id)}</span></h3></div>`);
+      cell.append(safeSvg(b.svg));
+      return cell;
+    }));
+    status.textContent = '';
+  } catch (e) { showError(status, e, 'Figures failed: '); } finally { button.disabled = false; }
+}
+
+/** The lineage of `modelId` in the two selects (A: its parent, B: it). */
+async function fillLineage(box, modelId, state, signal) {
+  const r = await api(`/models/${encodeURIComponent(modelId)}/history`, { signal });
+  state.steps = r.steps;
+  const options = r.steps.map((s, i) => `<option value="${esc(s.model_id)}">${i}: ${esc(s.model_id)} · ${esc(s.change || 'first fit')}</option>`).join('');
+  const a = box.querySelector('#compare-a');
+  const b = box.querySelector('#compare-b');
+  a.innerHTML = options;
+  b.innerHTML = options;
+  a.selectedIndex = Math.max(0, r.steps.length - 2);
+  b.selectedIndex = r.steps.length - 1;
+}
+
+/** Per-block held-out RMS of models A and B on the datasets either was fitted on, the difference, and their effects. */
+async function compareModels(box, state, signal) {
+  const out = box.querySelector('#compare-models');
+  const ids = [box.querySelector('#compare-a').value, box.querySelector('#compare-b').value];
+  out.classList.remove('error');
+  out.innerHTML = '<p class="muted">comparing…</p>';
+  try {
+    const [ma, mb] = await Promise.all(ids.map((id) => api(`/models/${encodeURIComponent(id)}`, { signal })));
+    const datasets = [...new Set([...ma.datasets, ...mb.datasets])];
+    const per = await Promise.all([ma, mb].map((m) => Promise.all(datasets.map((d) =>
+      api(`/models/${encodeURIComponent(m.id)}/compare?dataset=${encodeURIComponent(d)}&arrays=false`, { signal })))));
+    const names = new Map((state.figures?.blocks || []).map((b) => [`${b.dataset_id}/${b.block_index}`, b.title]));
+    const rows = [];
+    datasets.forEach((d, k) => {
+      per[0][k].metrics.per_block.forEach((blockA, j) => {
+        const blockB = per[1][k].metrics.per_block[j];
+        const a = blockA.validation?.rms_um; const b = blockB?.validation?.rms_um;
+        const name = names.get(`${d}/${blockA.index}`) || `${ma.axis.toUpperCase()} ${blockA.frequency_hz ? `${fmt(blockA.frequency_hz)} Hz ` : ''}${blockA.kind || 'block'} (block ${blockA.index})`;
+        const unseen = [per[0][k], per[1][k]].some((c) => !c.used_in_fit);
+        rows.push(`<tr data-dataset-id="${esc(d)}" data-block-index="${blockA.index}" data-a="${a}" data-b="${b}">
+          <td>${esc(name)}${unseen ? ' <span class="muted">(not fitted by both: whole block unseen)</span>' : ''}</td><td>${esc(d)}</td>
+          <td class="num">${fmtLength(a)}</td><td class="num">${fmtLength(b)}</td>
+          <td class="num ${b < a ? 'ok' : 'bad'}">${fmtLength(b - a)}</td><td class="num">${a ? `${fmt(100 * (b - a) / a, 3)} %` : '–'}</td></tr>`);
+      });
+    });
+    const effects = (m) => m.effects.map(esc).join(' + ');
+    out.innerHTML = `<table id="compare-blocks"><tr><th>block</th><th>dataset</th><th class="num">A: held-out RMS</th><th class="num">B: held-out RMS</th>
+        <th class="num">B − A</th><th class="num">change</th></tr>${rows.join('')}
+      <tr class="best"><td>the model's held-out RMS (on its own datasets)</td><td></td><td class="num">${fmtLength(ma.metrics.validation_rms_um)}</td>
+        <td class="num">${fmtLength(mb.metrics.validation_rms_um)}</td><td class="num">${fmtLength(mb.metrics.validation_rms_um - ma.metrics.validation_rms_um)}</td><td></td></tr></table>
+      <table id="compare-effects"><tr><th></th><th>model</th><th>effects</th><th>only in it</th></tr>
+        ${[[ma, mb, 'A'], [mb, ma, 'B']].map(([m, o, tag]) => `<tr data-model-id="${esc(m.id)}"><td>${tag}</td><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td>
+          <td>${effects(m)}</td><td>${m.effects.filter((e) => !o.effects.includes(e)).map(esc).join(', ') || '–'}</td></tr>`).join('')}</table>`;
+  } catch (e) { showError(out, e, 'Compare failed: '); }
+}
