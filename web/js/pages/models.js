@@ -3,7 +3,7 @@
 // it fails, shaded on the plots; ranked candidate effects with their evidence); Add effect (a refine
 // job; the error-history chart of validation RMS per model version); Separate (the experiment that
 // tells two candidates apart, where the diagnosis offers one).
-import { api, download, esc, fmt, has } from '../api.js';
+import { api, download, esc, fmt, fmtLength, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
 import { renderDiagnosis } from './diagnosis.js';
@@ -48,10 +48,10 @@ export async function enter(root, [modelId], query = {}) {
 
 function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
-    <th class="num">train RMS (µm)</th><th class="num">held-out RMS (µm)</th></tr>` + models.slice().reverse().map((m) => `
+    <th class="num">train RMS</th><th class="num">held-out RMS</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td><td>${m.axis}</td><td>${esc(m.kind)}</td>
       <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
-      <td class="num">${fmt(m.metrics.train_rms_um)}</td><td class="num">${fmt(m.metrics.validation_rms_um)}</td></tr>`).join('');
+      <td class="num">${fmtLength(m.metrics.train_rms_um, 4)}</td><td class="num">${fmtLength(m.metrics.validation_rms_um, 4)}</td></tr>`).join('');
 }
 
 async function identify(root) {
@@ -83,8 +83,8 @@ async function showModel(el, modelId, query) {
   el.append(h(`<div>
     <div class="card"><h2>Model <span id="model-id">${esc(model.id)}</span> <span class="muted">axis ${model.axis} · ${esc(model.kind)} ·
       ${model.effects.map(esc).join(' + ')}${model.parent_id ? ` · refined from <a href="#/models/${esc(model.parent_id)}">${esc(model.parent_id)}</a>` : ''}</span></h2>
-      <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmt(model.metrics.validation_rms_um)} µm</b>
-        · training RMS ${fmt(model.metrics.train_rms_um)} µm · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
+      <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmtLength(model.metrics.validation_rms_um, 4)}</b>
+        · training RMS ${fmtLength(model.metrics.train_rms_um, 4)} · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
       <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label>
         <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
         <span id="report-status" class="muted"></span></div>
@@ -222,9 +222,9 @@ async function renderHistory(el, model, canHistory) {
   charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
     yLabel: 'held-out RMS (µm)', series: [{ label: 'held-out RMS (µm)', values: steps.map((s) => s.rms), points: true, width: 2 }],
     height: 220, points: true, integerX: true }));
-  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS (µm)</th></tr>
+  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th></tr>
     ${steps.map((s, i) => `<tr data-rms="${s.rms}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
-      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmt(s.rms)}</td></tr>`).join('')}</table>`;
+      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtLength(s.rms, 4)}</td></tr>`).join('')}</table>`;
 }
 
 async function renderCompare(el, model, datasetId, diagnosis) {
