@@ -46,6 +46,12 @@ def test_discovery_over_rest(http):
     assert d["verdict"] == "missing_effect"
     assert d["candidates"][0]["effect"] == "creep"
     assert {"effect", "score", "expected_rms_um", "evidence", "kind"} <= set(d["candidates"][0])
+    # a failing block is named by what it is, beside the record and block it is
+    blocks = [f for f in d["failures"] if f["by"] == "frequency"]
+    assert blocks, d["failures"]
+    for f in blocks:
+        assert f["record"] == dataset_id and f"{f['frequency_hz']:g} Hz block" in f["where"]
+        assert f["block"] == f"Y {f['frequency_hz']:g} Hz sine (held-out cycle 5)", f
 
     assert http.post(f"/api/models/{base_id}/refine", json={"add": "warp"}).status_code == 422
     assert http.post(f"/api/models/{base_id}/refine", json={"remove": "creep"}).json()["field"] == "remove"

@@ -52,6 +52,11 @@ def _card_shot(page, selector: str, name: str) -> None:
 def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
     api, base = server["api"], server["base"]
     goto(page, server, f"models/{base}")
+    # the diagnosis names the blocks where the model fails by what they are
+    page.wait_for_selector("#failures li", timeout=120_000)
+    named = page.locator("#failures li[data-block]")
+    assert named.count() >= 1 and re.match(r"Y \d+ Hz sine \(held-out cycle 5\): held-out residual RMS [\d.]+ nm",
+                                           named.first.inner_text()), page.inner_text("#failures")
 
     # 1. Discover: the run builds up step by step, as the job's result has it
     page.fill("#discover-form input[name=max_steps]", "4")

@@ -6,6 +6,7 @@ from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
+from service.science.fitting.validation import BlockSplit
 from service.store import Store
 from service.usecases.identify import load_model, load_records
 
@@ -14,6 +15,34 @@ def model_effects(row: dict) -> list[str]:
     """The effects of a stored model beyond hysteresis, as discovery sees it (the composite it
     starts from: a dynamic PI is hysteresis + rate dependence)."""
     return load_model(row).as_composite().effects
+
+
+def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
+    """A block named by what it is: ``Y 100 Hz sine (held-out cycles 5–5)``, ``Y step (held-out
+    last 0.80 s)``."""
+    b = split.block
+    kind = b.get("kind") or "block"
+    f_hz = b.get("frequency_hz")
+    if f_hz:
+        period = sample_rate_hz / float(f_hz)
+        first = round((split.held_out[0] - split.train[0]) / period) + 1
+        last = round((split.held_out[1] - split.train[0]) / period)
+        what = f"{f_hz:g} Hz {kind}"
+        held = f"held-out cycles {first}–{last}" if last > first else f"held-out cycle {last}"
+    else:
+        what = kind
+        held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
+    return f"{axis.upper()} {what} ({held})"
+
+
+def name_failing_blocks(failures: list[dict], records) -> None:
+    """Each failure that is a block gains ``block``: the block named by what it is (block_title)."""
+    by_label = {r.label: r for r in records}
+    for f in failures:
+        rec = by_label.get(f.get("record")) if f.get("by") == "frequency" else None
+        split = next((s for s in rec.splits if s.block.get("index") == f.get("block_index")), None) if rec else None
+        if split is not None:
+            f["block"] = block_title(rec.axis or "y", split, rec.sample_rate_hz)
 
 
 def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None = None, records=None) -> dict:
@@ -28,6 +57,7 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
     if not basis.is_fitted or len(datasets) > len(row["datasets"]):  # (re)fitted, warm at its transforms
         basis = fit_composite(records, basis.effects, n_ops, basis.theta)
     out = diagnose(records, basis.effects, n_ops, model=basis)
+    name_failing_blocks(out["failures"], records)
     out.update({"model_id": model_id, "datasets": datasets, "axis": row["axis"]})
     if out.get("ambiguity"):
         out["ambiguity"]["then"] = (f"POST /api/sweeps with the experiment body, then GET /api/models/{model_id}"

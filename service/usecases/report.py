@@ -11,33 +11,14 @@ from service.reports.model_report import BlockCurves, block_figure, history_figu
 from service.reports.reproduce import commands
 from service.reports.svg import decimate
 from service.science.data.record import Record
-from service.science.fitting.validation import BlockSplit
 from service.science.fitting.metrics import rms
 from service.store import Store, utc_now
-from service.usecases.discover import diagnose_model, history
+from service.usecases.discover import block_title, diagnose_model, history
 from service.usecases.identify import load_model, load_records
 
 #: dataset row fields the report shows
 DATASET_FIELDS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "blocks", "plan", "partial",
                   "partial_reason", "tags", "notes")
-
-
-def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
-    """A block named by what it is: ``Y 100 Hz sine (held-out cycles 5–5)``, ``Y step (held-out
-    last 0.80 s)``."""
-    b = split.block
-    kind = b.get("kind") or "block"
-    f_hz = b.get("frequency_hz")
-    if f_hz:
-        period = sample_rate_hz / float(f_hz)
-        first = round((split.held_out[0] - split.train[0]) / period) + 1
-        last = round((split.held_out[1] - split.train[0]) / period)
-        what = f"{f_hz:g} Hz {kind}"
-        held = f"held-out cycles {first}–{last}" if last > first else f"held-out cycle {last}"
-    else:
-        what = kind
-        held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
-    return f"{axis.upper()} {what} ({held})"
 
 
 def block_curves(record: Record, predicted, dataset_id: str) -> list[BlockCurves]:

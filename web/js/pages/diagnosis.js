@@ -67,7 +67,8 @@ export function renderDiagnosis(box, model, d, opts) {
         : 'The model explains the data down to the noise floor.'}
       Residual RMS <b data-value="${d.residual_rms_um}">${fmtLength(d.residual_rms_um, 4)}</b> · noise floor ${fmtLength(d.noise_floor_um, 4)}</p>
     ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
-    ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}">${esc(f.text || '') || describe(f)}</li>`).join('')}</ul>` : ''}
+    ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}"${f.block ? ` data-block="${esc(f.block)}"` : ''}>${f.block
+      ? `${esc(f.block)}: held-out residual RMS ${fmtLength(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
     <h3>Candidate effects, best first</h3>
     <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after</th><th>evidence</th><th></th></tr>
     ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${i === 0 ? ' class="best"' : ''}>
