@@ -112,6 +112,19 @@ def job_of(server):
     return lambda job_id: server["api"].get(f"/jobs/{job_id}").json()
 
 
+def posted_result(server, path: str, body: dict) -> dict:
+    """POST a job over the server's API client, wait for it (it must succeed): its result."""
+    job = wait_job(job_of(server), server["api"].post(path, json=body).json()["job_id"], timeout_s=300)
+    assert job["state"] == "succeeded", job
+    return job["result"]
+
+
+def swept_static_pi(server, sweep: dict) -> tuple[str, str]:
+    """A sweep over REST and a static PI of Y on it: (dataset id, model id)."""
+    dataset = posted_result(server, "/sweeps", sweep)["dataset_id"]
+    return dataset, posted_result(server, "/models", {"axis": "y", "datasets": [dataset]})["model_id"]
+
+
 def run_sweep_in_browser(page, server, frequencies: str = "10,50,100", cycles: int = 3, axes=("y",)) -> str:
     """Fill the Sweeps form, start it, wait for the progress line to reach 'succeeded'; the dataset id."""
     goto(page, server, "sweeps")

@@ -10,8 +10,8 @@ from __future__ import annotations
 import re
 
 import pytest
-from api_client import wait_job
-from test_web_dashboard import ARTIFACTS, _browser_setup_is_complete, browser, goto, page, serving  # noqa: F401
+from test_web_dashboard import (ARTIFACTS, _browser_setup_is_complete, browser, goto, page,  # noqa: F401
+                                serving, swept_static_pi)
 
 pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_discover")]
 
@@ -22,16 +22,7 @@ QUICK_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [10, 100], "cycles": 5, "to
 def server(tmp_path_factory):
     """A live service on the creep bench with a short two-axis sweep and a static PI of Y on it."""
     with serving(tmp_path_factory, "creep") as s:
-        api = s["api"]
-
-        def result(job_id: str) -> dict:
-            job = wait_job(lambda j: api.get(f"/jobs/{j}").json(), job_id, timeout_s=300)
-            assert job["state"] == "succeeded", job
-            return job["result"]
-
-        s["dataset"] = result(api.post("/sweeps", json=QUICK_SWEEP).json()["job_id"])["dataset_id"]
-        body = {"axis": "y", "datasets": [s["dataset"]], "effects": ["hysteresis"]}
-        s["base"] = result(api.post("/models", json=body).json()["job_id"])["model_id"]
+        s["dataset"], s["base"] = swept_static_pi(s, QUICK_SWEEP)
         yield s
 
 

@@ -4,8 +4,8 @@ screenshot is tests/artifacts/model_report.png. Set-up as tests/test_web_dashboa
 from __future__ import annotations
 
 import pytest
-from api_client import wait_job
-from test_web_dashboard import ARTIFACTS, _browser_setup_is_complete, browser, goto, page, serving  # noqa: F401
+from test_web_dashboard import (ARTIFACTS, _browser_setup_is_complete, browser, goto, page,  # noqa: F401
+                                posted_result, serving, swept_static_pi)
 
 pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_report")]
 
@@ -16,17 +16,8 @@ FREQUENCIES_HZ = [1, 10, 50, 100]
 def server(tmp_path_factory):
     """A live service on the creep bench with a swept Y axis, a static PI and its +creep refinement."""
     with serving(tmp_path_factory, "creep") as s:
-        api = s["api"]
-
-        def result(job_id: str) -> dict:
-            job = wait_job(lambda j: api.get(f"/jobs/{j}").json(), job_id, timeout_s=300)
-            assert job["state"] == "succeeded", job
-            return job["result"]
-
-        sweep = api.post("/sweeps", json={"axes": ["y"], "frequencies_hz": FREQUENCIES_HZ, "cycles": 5}).json()
-        dataset = result(sweep["job_id"])["dataset_id"]
-        base = result(api.post("/models", json={"axis": "y", "datasets": [dataset]}).json()["job_id"])["model_id"]
-        s["model"] = result(api.post(f"/models/{base}/refine", json={"add": "creep"}).json()["job_id"])["model_id"]
+        _, base = swept_static_pi(s, {"axes": ["y"], "frequencies_hz": FREQUENCIES_HZ, "cycles": 5})
+        s["model"] = posted_result(s, f"/models/{base}/refine", {"add": "creep"})["model_id"]
         yield s
 
 
