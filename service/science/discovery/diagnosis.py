@@ -337,17 +337,19 @@ def remaining_excess(candidate: dict, noise: float) -> float:
 
 
 def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
-    """Two leading claimed candidates that explain the residual about equally well (the runner-up
-    leaving less than twice the leader's unexplained excess), and the experiment that separates them."""
+    """Two leading claimed candidates that are look-alikes (a pair of SEPARATING: their residual
+    signatures coincide on the data at hand) and explain the residual about equally well (the
+    runner-up leaving less than twice the leader's unexplained excess), with the experiment that
+    separates them. Two claimed effects that do not look alike are both present, not alternatives:
+    the loop adds the larger and the next diagnosis tests the other."""
     if len(physical) < 2 or not (physical[0]["claimed"] and physical[1]["claimed"]):
         return None
     a, b = physical[0], physical[1]
+    pair = frozenset((a["effect"], b["effect"]))
     ratio = remaining_excess(b, noise) / remaining_excess(a, noise)
-    if ratio >= SEPARATED_EXCESS_RATIO:
+    if pair not in SEPARATING or ratio >= SEPARATED_EXCESS_RATIO:
         return None
-    why, body = SEPARATING.get(frozenset((a["effect"], b["effect"])),
-                               ("a multi-frequency sine sweep with more cycles per frequency",
-                                {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0], "cycles": 10}))
+    why, body = SEPARATING[pair]
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
     return {"effects": [a["effect"], b["effect"]], "excess_ratio": ratio,
             "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
