@@ -1,5 +1,5 @@
 """Feedforward from a discovery composite model (CompositeModel.inverse): its inverse is exact
-on the model itself, it beats the paper's static-PI feedforward on case 2, and a range beyond the
+on the model itself, any effect discovery may add (the capacity candidate included) inverts, it beats the paper's static-PI feedforward on case 2, and a range beyond the
 stroke is refused with the reason (or run clamped, with the reason as a warning)."""
 from __future__ import annotations
 
@@ -42,6 +42,32 @@ def test_composite_inverse_is_exact_on_the_model(composite):
         x = composite[axis].predict(u, sample_rate_hz=FS)
         assert np.max(np.abs(x[steady] - ref.x_um[steady, i])) < 0.005          # µm
         assert "dynamics" in composite[axis].effects and composite[axis].judges_stroke
+
+
+#: what each effect's model may miss its own case-2 reference by (share of the range, RMS): the
+#: damped iteration converges to 0.1 % for every effect but rate dependence, whose operator-rate
+#: terms stall it at 4–6 %; the harmonic Gauss–Newton then takes it below 1 % (before both: 6.6–7.9 %,
+#: beyond the 5 % a plan accepts)
+INVERSE_MISS_SHARE = {"rate_dependence": 0.015}
+
+
+@pytest.mark.parametrize("effect", ["asymmetry", "creep", "rate_dependence", "cross_coupling", "drift", "delay",
+                                    "sensor_nonlinearity", "operators"])
+def test_any_discovered_composite_inverts(bench, effect):
+    """Issue 19 §4: hysteresis + ``effect`` + dynamics, fitted on a sweep of each axis, is a
+    feedforward the plan accepts; its own prediction of its inverse follows the reference. Before the
+    damped iteration the capacity candidate (operators) missed by 6–15 % and a one-axis sweep's
+    cross-coupling fitted Z by Y's echo (37 µm/µm) and missed by 690 %."""
+    ref = reference(CASE2, FS)
+    steady = ref.steady
+    effects = tuple(dict.fromkeys((effect, "dynamics")))
+    ff = {ax: identify_composite(bench, ax, effects) for ax in bench.axes}
+    for i, axis in enumerate("yz"):
+        x_ref = ref.x_um[:, i]
+        u = ff[axis].inverse(x_ref, sample_rate_hz=FS)
+        miss = np.sqrt(np.mean((ff[axis].predict(u, sample_rate_hz=FS)[steady] - x_ref[steady]) ** 2))
+        assert miss < INVERSE_MISS_SHARE.get(effect, 0.002) * np.ptp(x_ref[steady]), (axis, miss)
+    plan(bench, CASE2, Controller(feedforward=ff), "point_by_point")     # accepted: no ControlRefused
 
 
 def test_composite_feedforward_beats_static_pi_on_case2(bench, composite):
