@@ -42,12 +42,12 @@ def recover(store: Store) -> dict:
     """Fail the interrupted jobs, turn their chunks into partial datasets, clear the debris.
 
     Returns ``{"failed_jobs": [ids], "datasets": [ids created], "problems": [words], "cleaned":
-    [actions], "freed_bytes": n, "uploaded": [outbox uploads, service.store.placement.flush]}``; an
-    action is service.store.debris's (``action``, ``kind``, ``path``, ``bytes``, ``done``, maybe ``to``), or ``{"action": "delete", "kind": "chunks", …}``
-    for a chunk directory, whose ``dataset`` names the dataset its samples are in (or None).
+    [actions], "freed_bytes": n}`` and, with a shared array location, ``"uploaded"``: the outbox's
+    uploads (service.store.placement.flush). An action is service.store.debris's (``action``, ``kind``,
+    ``path``, ``bytes``, ``done``, maybe ``to``), or ``{"action": "delete", "kind": "chunks", …}`` for
+    a chunk directory, whose ``dataset`` names the dataset its samples are in (or None).
     """
-    report: dict = {"failed_jobs": [], "datasets": [], "problems": [], "cleaned": [], "freed_bytes": 0,
-                    "uploaded": []}
+    report: dict = {"failed_jobs": [], "datasets": [], "problems": [], "cleaned": [], "freed_bytes": 0}
     owned = claim(store)
     for job in store.unfinished_jobs():
         directory = chunk_dir(store.data_dir, job["id"])
@@ -65,7 +65,9 @@ def recover(store: Store) -> dict:
         report["cleaned"] += cleaned
         report["freed_bytes"] += sum(a["bytes"] for a in cleaned if a["done"] and a["action"] == "delete")
         report["problems"] += [f"{a['path']}: {debris.describe(a)}" for a in cleaned if not a["done"]]
-        try:   # measurements that wait for the shared array location go up now if it answers
+    if owned and store.arrays is not None:   # measurements waiting for the shared location go up if it answers
+        report["uploaded"] = []
+        try:
             report["uploaded"] = placement.flush(store)
         except ArrayStoreUnavailable as exc:
             report["problems"].append(f"outbox not uploaded: {exc}")

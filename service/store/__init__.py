@@ -28,8 +28,8 @@ from service.store.files import IntegrityError, StoredArrays, load_npz
 from service.store.rows import DatasetRow, JobRow, ModelRow
 from service.store.tokens import TokenRows
 
-__all__ = ["Store", "NotFoundError", "IntegrityError", "ArrayStoreUnavailable", "StoredArrays", "DatasetRow", "ModelRow", "JobRow", "utc_now",
-           "clean_json", "json_sha256"]
+__all__ = ["Store", "NotFoundError", "IntegrityError", "ArrayStoreUnavailable", "StoredArrays", "DatasetRow",
+           "ModelRow", "JobRow", "utc_now", "clean_json", "json_sha256"]
 
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 
@@ -131,7 +131,8 @@ class Store:
         self.engine.dispose()
 
     # ------------------------------------------------------------------ datasets
-    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict, keep_if_unreachable: bool = False) -> DatasetRow:
+    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict,
+                    keep_if_unreachable: bool = False) -> DatasetRow:
         """Store a dataset: arrays to a checksummed file (uploaded to the shared location, if any),
         then its row. Returns the record. If the shared location cannot be reached the arrays wait in
         the outbox when ``keep_if_unreachable`` (a measurement), else ArrayStoreUnavailable and nothing

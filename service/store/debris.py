@@ -2,10 +2,11 @@
 ``evcbench store repair``; ``evcbench store check`` reports the same things).
 
 - **Temporary files** of the atomic writer (``.<name>.*.tmp``, service.store.files.write_atomic) in
-  the data dir, ``arrays/``, ``outbox/`` and ``cache/arrays/``: a write that never reached its rename. They are never a stored
-  dataset (a dataset's file has its final name before its row is inserted), so they are deleted.
-- **Arrays with no dataset row** (``arrays/<id>.npz``, ``outbox/<id>.npz``): normally a dataset whose row was never
-  inserted (killed between the rename and the insert). But a store opened with the wrong database
+  the data dir, ``arrays/``, ``outbox/`` and ``cache/arrays/``: a write that never reached its
+  rename. They are never a stored dataset (a dataset's file has its final name before its row is
+  inserted), so they are deleted.
+- **Arrays with no dataset row** (``arrays/<id>.npz``, ``outbox/<id>.npz``): normally a dataset
+  whose row was never inserted (killed between the rename and the insert). But a store opened with the wrong database
   (another ``--database-url``, an older backup) sees every completed dataset of the right one this
   way. So they are never deleted: they are moved to ``quarantine/arrays/`` and moved back as soon as
   a dataset row names them and their SHA-256 matches that row's (``restore``).

@@ -167,13 +167,16 @@ def check_row(store, row: dict, quick: bool) -> tuple[str, str] | None:
     file, location = row["file"], store.arrays
     if pending(file):
         here = (store.data_dir / file).is_file()
+        if here and not quick and file_sha256(store.data_dir / file) != row["sha256"]:
+            return "corrupt_array", f"array file {file} (waiting for upload) does not match its sha256"
         where = f"in this service's {file}" if here else "in the outbox of the service that recorded it"
         target = location.url if location is not None else "a shared array location"
         return "pending_upload", f"arrays wait {where} for {target} (uploaded when it answers)"
     if location is None:
         return "missing_array", f"array {file} is in a shared location, and none is configured (--array-url)"
     if quick:
-        return None if location.size(file) is not None else ("missing_array", f"array {location.where(file)} is missing")
+        found = location.size(file) is not None
+        return None if found else ("missing_array", f"array {location.where(file)} is missing")
     try:
         digest = location.sha256(file)
     except IntegrityError:

@@ -57,7 +57,7 @@ def repair_store(store: Store, dry_run: bool = False) -> dict:
                  "action": "rebuilt from an interrupted acquisition's chunks"} for dataset_id in recovered["datasets"]]
     actions += [_file_action(a) for a in recovered["cleaned"]]
     actions += [{"kind": "pending_upload", "id": u["id"], "action": f"uploaded from the outbox as {u['key']}"}
-                for u in recovered["uploaded"]]
+                for u in recovered.get("uploaded", [])]
     now, handled, left = utc_now(), set(), check_store(store, offline=True)
     for problem in left["problems"]:
         if (problem["kind"], problem["id"]) not in handled:  # a job's fixes are applied together
