@@ -143,7 +143,10 @@ def flush(store) -> list[dict]:
             key = f"{row['id']}.npz"
             store.arrays.put(path, key, row["sha256"])
             with store.engine.begin() as conn:
-                conn.execute(update(d).where(d.c.id == row["id"]).where(d.c.file == row["file"]).values(file=key))
+                moved = conn.execute(update(d).where(d.c.id == row["id"]).where(d.c.file == row["file"])
+                                     .values(file=key)).rowcount
+            if not moved:
+                continue                        # another store on this data dir flushed it meanwhile
             store.arrays.adopt(path, row["sha256"])
             done.append({"id": row["id"], "key": key, "bytes": store.arrays.size(key) or 0})
             log.warning("outbox: dataset %s uploaded to %s", row["id"], store.arrays.where(key))
@@ -153,12 +156,14 @@ def flush(store) -> list[dict]:
 
 
 def flush_quietly(store) -> list[dict]:
-    """``flush``, with an unreachable location logged instead of raised."""
+    """``flush``, with any failure logged instead of raised (the caller's own dataset is stored)."""
     try:
         return flush(store)
     except ArrayStoreUnavailable as exc:
         log.warning("outbox not flushed: %s", exc)
-        return []
+    except Exception:
+        log.exception("outbox not flushed")
+    return []
 
 
 def check_row(store, row: dict, quick: bool) -> tuple[str, str] | None:
