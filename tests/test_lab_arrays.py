@@ -68,7 +68,7 @@ def _object_sha256(s3, url: str, key: str) -> str:
     return hashlib.sha256(body).hexdigest()
 
 
-def test_a_dataset_round_trips_through_s3_with_its_checksum(tmp_path, s3, bucket_url):
+def test_a_dataset_round_trips_through_s3_with_its_checksum(tmp_path, s3, bucket_url, monkeypatch):
     writer, reader = _store(tmp_path, "bench-a", bucket_url), _store(tmp_path, "bench-b", bucket_url)
     arrays = _arrays(1)
     row = writer.add_dataset(arrays, META)
@@ -85,10 +85,16 @@ def test_a_dataset_round_trips_through_s3_with_its_checksum(tmp_path, s3, bucket
     cached.write_bytes(b"bit rot")                                 # a damaged cache entry is fetched again
     np.testing.assert_array_equal(reader.load_arrays(row["id"])["u_y_v"], arrays["u_y_v"])
     assert hashlib.sha256(cached.read_bytes()).hexdigest() == row["sha256"]
+    second = writer.add_dataset(_arrays(5), META)
+    monkeypatch.setenv("EVCBENCH_ARRAY_CACHE_BYTES", str(cached.stat().st_size))   # room for one copy
+    np.testing.assert_array_equal(reader.load_arrays(second["id"])["x_y_um"], _arrays(5)["x_y_um"])
+    assert [p.name for p in cached.parent.glob("*.npz")] == [f"{second['sha256']}.npz"]   # the older one went
+    np.testing.assert_array_equal(reader.load_arrays(row["id"])["x_y_um"], arrays["x_y_um"])   # fetched again
     size = cached.stat().st_size
     assert reader.delete_dataset(row["id"])["freed_bytes"] == size
     listing = s3.client().list_objects_v2(Bucket=_bucket(bucket_url), Prefix="lab/")
-    assert listing["KeyCount"] == 0 and not cached.exists()        # delete removed the object and the copy
+    assert [o["Key"] for o in listing["Contents"]] == [f"lab/{second['id']}.npz"]   # delete removed the object
+    assert not cached.exists()                                                      # and the local copy
     writer.close(), reader.close()
 
 

@@ -9,6 +9,8 @@
 - ``s3://bucket/prefix``: ``S3Arrays``, an S3-compatible object store through boto3. The endpoint
   comes from EVCBENCH_S3_ENDPOINT_URL (or AWS_ENDPOINT_URL; none means AWS itself), the
   credentials and region from the usual AWS variables (AWS_ACCESS_KEY_ID, …, AWS_DEFAULT_REGION).
+  Reads go through ``<data_dir>/cache/arrays/<sha256>.npz``, verified at every use and trimmed to
+  EVCBENCH_ARRAY_CACHE_BYTES (default 4 GB), least recently used first.
 
 A row's ``file`` is then a key relative to the location (``<id>.npz``). Every object is complete
 npz bytes whose SHA-256 the row holds; a location never changes an object once written.
@@ -29,6 +31,8 @@ from service.store.files import BLOCK_BYTES, IntegrityError, file_sha256, write_
 
 #: keys under this prefix of a location hold objects set aside by ``evcbench store repair``
 QUARANTINE_PREFIX = "quarantine/"
+#: bytes of local copies of S3 objects kept by default (EVCBENCH_ARRAY_CACHE_BYTES)
+DEFAULT_CACHE_BYTES = 4e9
 
 
 class ArrayStoreUnavailable(RuntimeError):
@@ -226,9 +230,10 @@ class S3Arrays:
         cached = self.cache_dir / f"{sha256}.npz"
         try:
             if file_sha256(cached) == sha256:
+                os.utime(cached)                        # recently used: trimmed last
                 return cached
-        except IntegrityError:
-            pass                                        # not cached yet
+        except (IntegrityError, FileNotFoundError):
+            pass                                        # not cached (or just trimmed by another thread)
         try:
             body = self._call(f"reading {key}", "get_object", Key=self._name(key))["Body"]
         except FileNotFoundError:
@@ -246,7 +251,29 @@ class S3Arrays:
             cached.unlink(missing_ok=True)
             raise IntegrityError(f"array object {self.where(key)} is corrupt: sha256 {digest} does not match "
                                  f"the stored {sha256}")
+        self.trim_cache(keep=cached)
         return cached
+
+    def trim_cache(self, keep: Path | None = None) -> int:
+        """Delete the least recently used cached copies until the cache holds at most
+        EVCBENCH_ARRAY_CACHE_BYTES (default 4 GB), never ``keep``; returns the bytes freed. A copy an
+        open reader has memory-mapped stays readable to it (the file lives on until it is closed)."""
+        limit = float(os.environ.get("EVCBENCH_ARRAY_CACHE_BYTES") or DEFAULT_CACHE_BYTES)
+        entries = []
+        for path in self.cache_dir.glob("*.npz"):
+            try:
+                stat = path.stat()
+            except FileNotFoundError:
+                continue
+            entries.append((stat.st_mtime, stat.st_size, path))
+        total, freed = sum(size for _, size, _ in entries), 0
+        for _, size, path in sorted(entries, key=lambda e: e[0]):
+            if total - freed <= limit:
+                break
+            if path != keep:
+                path.unlink(missing_ok=True)
+                freed += size
+        return freed
 
     def adopt(self, local: Path, sha256: str) -> None:
         """Keep the just-uploaded file ``local`` as the cached copy of its object (no download to read it)."""
