@@ -172,7 +172,14 @@ def test_two_services_share_one_directory(tmp_path):
 @pytest.mark.slow
 @pytest.mark.postgres
 def test_two_services_share_postgresql_and_one_bucket(tmp_path, s3, bucket_url, postgres_url):
-    _two_services_write_at_once(tmp_path, postgres_url, bucket_url, s3.env, 8)
+    from service.store import tables
+
+    try:
+        _two_services_write_at_once(tmp_path, postgres_url, bucket_url, s3.env, 8)
+    finally:
+        store = Store(postgres_url, tmp_path / "cleanup")
+        tables.metadata.drop_all(store.engine)      # the PostgreSQL database is shared by the session
+        store.close()
 
 
 def test_an_unmounted_share_is_refused_not_filled_on_local_disk(tmp_path):
