@@ -329,3 +329,42 @@ def test_store_check_on_the_command_line_reads_the_shared_location(tmp_path, s3,
     s3.client().delete_object(Bucket=_bucket(bucket_url), Key=f"lab/{row['id']}.npz")
     assert main(args) == 1
     assert json.loads(capsys.readouterr().out)["problems"][0]["kind"] == "missing_array"
+
+
+def test_chunks_of_a_killed_sweep_are_kept_when_the_store_is_down_at_restart(tmp_path, s3, bucket_url):
+    """Start-up recovery rebuilds an interrupted acquisition into the outbox while S3 is away, and
+    the next start-up (S3 back) uploads it: the samples are never only in memory or lost."""
+    from service.runtime.recovery import recover
+    from service.store.chunks import ChunkWriter, chunk_dir
+
+    data_dir = tmp_path / "bench-a"
+    store = _store(tmp_path, "bench-a", bucket_url)
+    job = store.add_job("sweep", {}, needs_bench=True)
+    store.update_job(job["id"], state="running", started_at="2026-01-01T00:00:00Z")
+    writer = ChunkWriter(data_dir, job["id"], {"name": "sweep", "source": "sweep", "axes": ["y"],
+                                               "sample_rate_hz": 1000.0, "blocks": [], "job_id": job["id"]})
+    rows = np.arange(3000)
+    writer.append({"t_s": rows / 1000.0, "u_y_v": rows * 0.01, "x_y_um": rows * 0.001})
+    writer.flush()
+    store.close()                                            # the service was killed here
+    s3.stop()
+    try:
+        restarted = _store(tmp_path, "bench-a", bucket_url)
+        report = recover(restarted)
+        [dataset_id] = report["datasets"]
+        assert report["uploaded"] == [] and any(bucket_url in p for p in report["problems"])
+        assert restarted.get_dataset(dataset_id)["file"] == f"outbox/{dataset_id}.npz"
+        assert not chunk_dir(data_dir, job["id"]).exists()   # the chunks are in the outbox file now
+        np.testing.assert_array_equal(restarted.load_arrays(dataset_id)["x_y_um"], rows * 0.001)
+        restarted.close()
+    finally:
+        s3.start()
+    again = _store(tmp_path, "bench-a", bucket_url)
+    report = recover(again)
+    assert [u["id"] for u in report["uploaded"]] == [dataset_id]
+    row = again.get_dataset(dataset_id)
+    assert row["file"] == f"{dataset_id}.npz" and _object_sha256(s3, bucket_url, row["file"]) == row["sha256"]
+    other = _store(tmp_path, "bench-b", bucket_url)
+    np.testing.assert_array_equal(other.load_arrays(dataset_id)["u_y_v"], rows * 0.01)
+    assert check_store(again)["ok"]
+    again.close(), other.close()
