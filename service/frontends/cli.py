@@ -25,6 +25,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         port=args.port or defaults.port,
         database_url=args.database_url or defaults.database_url,
         auth=args.auth or defaults.auth,
+        array_url=args.array_url or defaults.array_url,
     )
     from service.frontends.cli_tokens import serve_refusal
     from service.runtime.safe_shutdown import install
@@ -73,7 +74,7 @@ def _cmd_store_check(args: argparse.Namespace) -> int:
     if not data_dir.is_dir():
         print(f"no store at {data_dir}", file=sys.stderr)
         return 2
-    store = open_store(args.data_dir, args.database_url)
+    store = open_store(args.data_dir, args.database_url, args.array_url)
     try:
         report = check_store(store, quick=args.quick, offline=args.offline)
     finally:
@@ -91,7 +92,7 @@ def _cmd_store_repair(args: argparse.Namespace) -> int:
         print(f"no store at {data_dir}", file=sys.stderr)
         return 2
     logging.getLogger("evcbench.recovery").setLevel(logging.ERROR)  # the report below says it all
-    store = open_store(args.data_dir, args.database_url)
+    store = open_store(args.data_dir, args.database_url, args.array_url)
     try:
         report = repair_store(store, dry_run=args.dry_run)
     except StoreBusy as exc:
@@ -101,6 +102,11 @@ def _cmd_store_repair(args: argparse.Namespace) -> int:
         store.close()
     print(json.dumps(report) if args.json else format_repair(report))
     return 0 if args.dry_run or report["after"]["ok"] else 1
+
+
+ARRAY_URL_HELP = ("the lab's shared array location: a path or file:// URL (an NFS mount) or s3://bucket/prefix "
+                  "(endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); default <data-dir>/arrays; "
+                  "env EVCBENCH_ARRAY_URL")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -118,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "(default: SQLite in the data dir; env EVCBENCH_DATABASE_URL)")
     serve.add_argument("--auth", choices=("tokens", "off"),
                        help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)")
+    serve.add_argument("--array-url", help=ARRAY_URL_HELP)
     serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
@@ -134,6 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
         verb.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
         verb.add_argument("--database-url",
                           help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
+        verb.add_argument("--array-url", help=ARRAY_URL_HELP)
         verb.add_argument("--json", action="store_true", help="print one JSON object")
         verb.set_defaults(func=func)
         return verb

@@ -19,11 +19,12 @@ from service.runtime.settings import Settings
 from service.store import Store, utc_now
 
 
-def open_store(data_dir: Path | None = None, database_url: str | None = None) -> Store:
+def open_store(data_dir: Path | None = None, database_url: str | None = None, array_url: str | None = None) -> Store:
     """The store ``serve`` would open with the same options (defaults from the environment)."""
     defaults = Settings()
-    settings = Settings(data_dir=data_dir or defaults.data_dir, database_url=database_url or defaults.database_url)
-    return Store(settings.resolved_database_url, settings.data_dir)
+    settings = Settings(data_dir=data_dir or defaults.data_dir, database_url=database_url or defaults.database_url,
+                        array_url=array_url or defaults.array_url)
+    return Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

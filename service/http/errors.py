@@ -7,8 +7,12 @@ from fastapi.responses import JSONResponse
 
 from service.science.errors import FieldError
 from service.runtime.jobs import QueueFull
-from service.store import IntegrityError, NotFoundError
+from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError
 from service.store.tidy import InUseError
+
+
+#: the Retry-After (s) of a 503 for an unreachable shared array location
+ARRAY_STORE_RETRY_AFTER_S = 30
 
 
 def _field_of(loc: tuple | list) -> str:
@@ -50,3 +54,8 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(IntegrityError)
     async def _integrity(_request: Request, exc: IntegrityError) -> JSONResponse:
         return JSONResponse(status_code=500, content={"detail": str(exc)})
+
+    @app.exception_handler(ArrayStoreUnavailable)
+    async def _array_store(_request: Request, exc: ArrayStoreUnavailable) -> JSONResponse:
+        return JSONResponse(status_code=503, headers={"Retry-After": str(ARRAY_STORE_RETRY_AFTER_S)},
+                            content={"detail": str(exc), "field": None, "array_store": exc.url})

@@ -55,7 +55,7 @@ class UseCases:
 
     def __init__(self, settings: Settings):
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
-        self.store = Store(settings.resolved_database_url, settings.data_dir)
+        self.store = Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
         self.bench = open_configured_bench(settings)
         self.jobs = JobManager(self.store, on_cancel_bench=self.bench.request_stop)
 

@@ -69,7 +69,7 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         app.state.settings = settings
         app.state.started_at = time.time()
-        app.state.store = Store(settings.resolved_database_url, settings.data_dir)
+        app.state.store = Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
         try:
             app.state.recovery = recover(app.state.store)
             if settings.auth == "tokens":

@@ -10,6 +10,8 @@
    writer are deleted; array files no dataset row names are moved to ``quarantine/arrays/`` (never
    deleted: with the wrong database every completed dataset looks like that), and moved back when
    a row names them with the same SHA-256. A completed dataset's file is never touched.
+4. Datasets measured while the shared array location was unreachable (service.store.placement's
+   outbox) are uploaded, if it answers now.
 
 Recovery first takes the data dir's lock (service.store.lock) and keeps it while the service runs,
 so ``evcbench store repair`` cannot run beside it. If another live process holds it, step 3 is
@@ -25,7 +27,8 @@ import logging
 from pathlib import Path
 
 from service.science.data.datasets import units_for
-from service.store import Store, debris, utc_now
+from service.store import Store, debris, placement, utc_now
+from service.store.arrays import ArrayStoreUnavailable
 from service.store.chunks import chunk_dir, discard, partial_root, read_chunks, read_meta
 from service.store.lock import StoreLock
 from service.usecases.plans import trim_blocks
@@ -39,9 +42,10 @@ def recover(store: Store) -> dict:
     """Fail the interrupted jobs, turn their chunks into partial datasets, clear the debris.
 
     Returns ``{"failed_jobs": [ids], "datasets": [ids created], "problems": [words], "cleaned":
-    [actions], "freed_bytes": n}``; an action is service.store.debris's (``action``, ``kind``,
-    ``path``, ``bytes``, ``done``, maybe ``to``), or ``{"action": "delete", "kind": "chunks", …}``
-    for a chunk directory, whose ``dataset`` names the dataset its samples are in (or None).
+    [actions], "freed_bytes": n}`` and, with a shared array location, ``"uploaded"``: the outbox's
+    uploads (service.store.placement.flush). An action is service.store.debris's (``action``, ``kind``,
+    ``path``, ``bytes``, ``done``, maybe ``to``), or ``{"action": "delete", "kind": "chunks", …}`` for
+    a chunk directory, whose ``dataset`` names the dataset its samples are in (or None).
     """
     report: dict = {"failed_jobs": [], "datasets": [], "problems": [], "cleaned": [], "freed_bytes": 0}
     owned = claim(store)
@@ -61,6 +65,13 @@ def recover(store: Store) -> dict:
         report["cleaned"] += cleaned
         report["freed_bytes"] += sum(a["bytes"] for a in cleaned if a["done"] and a["action"] == "delete")
         report["problems"] += [f"{a['path']}: {debris.describe(a)}" for a in cleaned if not a["done"]]
+    if owned and store.arrays is not None:   # measurements waiting for the shared location go up if it answers
+        report["uploaded"] = []
+        try:
+            report["uploaded"] = placement.flush(store)
+        except ArrayStoreUnavailable as exc:
+            report["problems"].append(f"outbox not uploaded: {exc}")
+            log.warning("recovery: outbox not uploaded: %s", exc)
     for action in report["cleaned"]:
         log.warning("recovery: %s: %s", action["path"], debris.describe(action))
     if report["failed_jobs"] or report["datasets"] or report["cleaned"]:
@@ -116,6 +127,6 @@ def _rebuild(store: Store, job_id: str, directory: Path, report: dict) -> dict |
     row = store.add_dataset(arrays, {
         **meta, "job_id": job_id, "blocks": trim_blocks(meta.get("blocks") or [], samples, rate_hz),
         "units": meta.get("units") or units_for(arrays), "partial": True, "partial_reason": INTERRUPTED,
-        "finished_at": None})
+        "finished_at": None}, keep_if_unreachable=True)
     report["datasets"].append(row["id"])
     return {"dataset_id": row["id"], "samples": row["samples"], "partial": True}

@@ -34,6 +34,9 @@ class Settings:
     #: ``process``: the bench engine runs in its own process (service.runtime.engine), so no request
     #: can delay the real-time loop or the stop; ``inline``: in this process (tests of internals)
     engine: str = field(default_factory=lambda: os.environ.get("EVCBENCH_ENGINE", "process"))
+    #: the lab's shared array location (service.store.arrays): a path or file:// URL (an NFS mount),
+    #: or s3://bucket/prefix (endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); empty: <data_dir>/arrays
+    array_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_ARRAY_URL") or None)
 
     def __post_init__(self) -> None:
         if self.auth not in ("tokens", "off"):

@@ -1,4 +1,5 @@
-"""The store: metadata in SQL (SQLite in WAL mode by default, PostgreSQL by URL), arrays in files.
+"""The store: metadata in SQL (SQLite in WAL mode by default, PostgreSQL by URL), arrays in files
+(in the data dir, or in a location the lab's services share: service.store.arrays and .placement).
 
 Nothing is updated in place except a job's state and the labels (name, tags, notes) of a dataset
 or model: their data and parameters are written once, and may be deleted (service.store.tidy). A
@@ -10,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import threading
 import uuid
 from datetime import datetime, timezone
 from pathlib import Path
@@ -20,13 +22,14 @@ from sqlalchemy import create_engine, event, insert, select, update
 from sqlalchemy.engine import Engine
 
 from service import __version__
-from service.store import schema, tables, tidy
-from service.store.files import IntegrityError, StoredArrays, open_arrays, read_arrays, write_arrays
+from service.store import placement, schema, tables, tidy
+from service.store.arrays import ArrayStoreUnavailable, open_location
+from service.store.files import IntegrityError, StoredArrays, load_npz
 from service.store.rows import DatasetRow, JobRow, ModelRow
 from service.store.tokens import TokenRows
 
-__all__ = ["Store", "NotFoundError", "IntegrityError", "StoredArrays", "DatasetRow", "ModelRow", "JobRow", "utc_now",
-           "clean_json", "json_sha256"]
+__all__ = ["Store", "NotFoundError", "IntegrityError", "ArrayStoreUnavailable", "StoredArrays", "DatasetRow",
+           "ModelRow", "JobRow", "utc_now", "clean_json", "json_sha256"]
 
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 
@@ -96,12 +99,19 @@ def make_engine(url: str) -> Engine:
 
 
 class Store:
-    """Datasets, models and jobs of one service instance."""
+    """Datasets, models and jobs of one service instance.
 
-    def __init__(self, database_url: str, data_dir: Path):
+    ``array_url`` is the lab's shared array location (service.store.arrays.open_location: a path,
+    ``file://`` or ``s3://bucket/prefix`` URL); None keeps the arrays in ``<data_dir>/arrays``."""
+
+    def __init__(self, database_url: str, data_dir: Path, *, array_url: str | None = None):
         self.data_dir = Path(data_dir)
         self.arrays_dir = self.data_dir / "arrays"
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        #: the shared array location (None: the data dir's arrays/); its URL names it in messages
+        self.arrays = open_location(array_url, self.data_dir / placement.CACHE_DIR)
+        self.array_url = array_url or None
+        self.flush_lock = threading.Lock()    # one outbox upload at a time (service.store.placement.flush)
         self.engine = make_engine(database_url)
         tables.metadata.create_all(self.engine)
         schema.upgrade(self.engine)   # columns added since the database was created
@@ -121,8 +131,12 @@ class Store:
         self.engine.dispose()
 
     # ------------------------------------------------------------------ datasets
-    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict) -> DatasetRow:
-        """Store a dataset: arrays to a checksummed file, then its row. Returns the record.
+    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict,
+                    keep_if_unreachable: bool = False) -> DatasetRow:
+        """Store a dataset: arrays to a checksummed file (uploaded to the shared location, if any),
+        then its row. Returns the record. If the shared location cannot be reached the arrays wait in
+        the outbox when ``keep_if_unreachable`` (a measurement), else ArrayStoreUnavailable and nothing
+        is stored (service.store.placement).
 
         ``meta`` holds name, source, axes, sample_rate_hz, blocks and optionally plan, config,
         units, partial, partial_reason, job_id, started_at and finished_at (of an acquisition).
@@ -139,14 +153,16 @@ class Store:
             "started_at": meta.get("started_at"), "finished_at": meta.get("finished_at"), "created_at": utc_now(),
             "tags": list(meta.get("tags") or []), "notes": meta.get("notes"),
         }
-        path, digest = write_arrays(self.arrays_dir, dataset_id, arrays)
-        row.update(file=str(path.relative_to(self.data_dir)), sha256=digest)
+        file, digest, remove = placement.place(self, dataset_id, arrays, keep_if_unreachable)
+        row.update(file=file, sha256=digest)
         try:
             with self.engine.begin() as conn:
                 conn.execute(insert(tables.datasets).values(**row))
         except BaseException:
-            path.unlink(missing_ok=True)
+            remove()
             raise
+        if self.arrays is not None and not placement.pending(file):
+            placement.flush_quietly(self)   # the location answers: earlier measurements waiting go up too
         return row
 
     def get_dataset(self, dataset_id: str) -> DatasetRow:
@@ -167,14 +183,12 @@ class Store:
 
     def load_arrays(self, dataset_id: str) -> dict[str, np.ndarray]:
         """The dataset's arrays, verified against the stored checksum."""
-        record = self.get_dataset(dataset_id)
-        return read_arrays(self.data_dir / record["file"], record["sha256"])
+        return load_npz(placement.local_path(self, self.get_dataset(dataset_id)))
 
     def open_arrays(self, dataset_id: str) -> StoredArrays:
         """The dataset's arrays opened lazily (memory-mapped or read a range at a time), after the
         file was verified against the stored checksum (read in blocks). Close it when done."""
-        record = self.get_dataset(dataset_id)
-        return open_arrays(self.data_dir / record["file"], record["sha256"])
+        return StoredArrays(placement.local_path(self, self.get_dataset(dataset_id)))
 
     # ------------------------------------------------------------------ models
     def add_model(self, record: dict) -> ModelRow:

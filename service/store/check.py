@@ -1,9 +1,13 @@
 """Store consistency check (``evcbench store check``): do the rows and the files agree?
 
 Problems reported, each as ``{"kind", "id", "detail"}``:
-- ``missing_array``: a dataset row whose array file is missing;
-- ``corrupt_array``: a dataset's array file whose SHA-256 differs from the row's (unless ``quick``);
-- ``orphan_array``: an array file no dataset row refers to;
+- ``missing_array``: a dataset row whose array file (or object of the shared location) is missing;
+- ``corrupt_array``: a dataset's array file or object whose SHA-256 differs from the row's (unless
+  ``quick``; an object is read through, as a file is);
+- ``orphan_array``: an array file no dataset row refers to (an object of the shared location only
+  when older than service.store.placement.ORPHAN_GRACE_S: another service may be storing it);
+- ``pending_upload``: a dataset whose arrays wait in an outbox for the shared location;
+- ``array_store_unavailable``: the shared location could not be asked (named by its URL);
 - ``temp_file``: a leftover ``.*.tmp`` of an unfinished atomic write (in the data dir or arrays/);
 - ``orphan_chunks``: a chunk directory under ``partial/`` whose job is not queued or running
   (recovery at the next start turns such chunks into a partial dataset);
@@ -20,7 +24,8 @@ repair) is listed under ``quarantined`` and no longer makes the store inconsiste
 """
 from __future__ import annotations
 
-from service.store import TERMINAL_STATES, Store, debris, quarantine
+from service.store import TERMINAL_STATES, Store, debris, placement, quarantine
+from service.store.arrays import ArrayStoreUnavailable
 from service.store.chunks import partial_root
 from service.store.files import file_sha256
 
@@ -41,9 +46,19 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
     dataset_ids = {row["id"] for row in datasets}
     cleanup = debris.find(store.data_dir, datasets)
     restorable = {a["id"]: a["path"] for a in cleanup if a["action"] == "restore"}
+    unreachable = None
     for row in datasets:
         path = store.data_dir / row["file"]
-        if not path.is_file():
+        if not placement.in_data_dir(row["file"]) or placement.pending(row["file"]):
+            if unreachable is None or placement.pending(row["file"]):
+                try:
+                    found = placement.check_row(store, row, quick)
+                except ArrayStoreUnavailable as exc:
+                    unreachable, found = exc, None
+                    problem("array_store_unavailable", exc.url, f"{exc}: its arrays were not checked")
+                if found is not None:
+                    problem(found[0], row["id"], found[1])
+        elif not path.is_file():
             copy = restorable.get(row["id"])
             problem("missing_array", row["id"], f"array file {row['file']} is missing" + (
                 f" (its copy {copy} matches: start-up recovery or store repair moves it back)" if copy else ""))
@@ -57,6 +72,13 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
             problem("temp_file", name, f"leftover temporary file {action['path']} ({size})")
         elif action["kind"] == "orphan_array":
             problem("orphan_array", name.rsplit(".", 1)[0], f"{action['path']} belongs to no dataset ({size})")
+    if unreachable is None and store.arrays is not None:
+        try:
+            for key, size in placement.orphan_objects(store, datasets):
+                problem("orphan_array", key.rsplit(".", 1)[0],
+                        f"{store.arrays.where(key)} belongs to no dataset ({debris.format_bytes(size)})")
+        except ArrayStoreUnavailable as exc:
+            problem("array_store_unavailable", exc.url, f"{exc}: its objects were not listed")
     root = partial_root(store.data_dir)
     if root.is_dir():
         for directory in sorted(p for p in root.iterdir() if p.is_dir()):

@@ -2,14 +2,17 @@
 ``evcbench store repair``; ``evcbench store check`` reports the same things).
 
 - **Temporary files** of the atomic writer (``.<name>.*.tmp``, service.store.files.write_atomic) in
-  the data dir and in ``arrays/``: a write that never reached its rename. They are never a stored
-  dataset (a dataset's file has its final name before its row is inserted), so they are deleted.
-- **Arrays with no dataset row** (``arrays/<id>.npz``): normally a dataset whose row was never
-  inserted (killed between the rename and the insert). But a store opened with the wrong database
+  the data dir, ``arrays/``, ``outbox/`` and ``cache/arrays/``: a write that never reached its
+  rename. They are never a stored dataset (a dataset's file has its final name before its row is
+  inserted), so they are deleted.
+- **Arrays with no dataset row** (``arrays/<id>.npz``, ``outbox/<id>.npz``): normally a dataset
+  whose row was never inserted (killed between the rename and the insert). But a store opened with the wrong database
   (another ``--database-url``, an older backup) sees every completed dataset of the right one this
   way. So they are never deleted: they are moved to ``quarantine/arrays/`` and moved back as soon as
   a dataset row names them and their SHA-256 matches that row's (``restore``).
 - Chunk directories under ``partial/`` are service.runtime.recovery's (they become partial datasets).
+- Objects of a shared array location (service.store.arrays) are not debris of this data dir: other
+  services write there. ``evcbench store check`` lists the old ones no row names; repair sets them aside.
 
 Nothing here may run while another process writes to the store: the caller holds the store's
 lock (service.store.lock).
@@ -20,6 +23,7 @@ import os
 from pathlib import Path
 
 from service.store.files import file_sha256
+from service.store.placement import CACHE_DIR, OUTBOX_DIR, in_data_dir
 
 QUARANTINE_DIR = "quarantine"
 
@@ -38,7 +42,7 @@ def temp_files(data_dir: Path) -> list[Path]:
     """Leftover temporary files of the atomic writer in the data dir and ``arrays/``."""
     data_dir = Path(data_dir)
     found = []
-    for directory in (data_dir, data_dir / "arrays"):
+    for directory in (data_dir, data_dir / "arrays", data_dir / OUTBOX_DIR, data_dir / CACHE_DIR):
         if directory.is_dir():
             found.extend(p for p in sorted(directory.iterdir()) if p.is_file() and is_temp(p))
     return found
@@ -56,14 +60,17 @@ def find(data_dir: Path, datasets: list[dict]) -> list[dict]:
     data_dir = Path(data_dir)
     actions = [{"action": "delete", "kind": "temp_file", "path": _rel(p, data_dir), "bytes": _size(p)}
                for p in temp_files(data_dir)]
-    referenced = {(data_dir / row["file"]).resolve() for row in datasets}
-    arrays_dir, aside = data_dir / "arrays", quarantine_dir(data_dir)
-    if arrays_dir.is_dir():
+    local_rows = [row for row in datasets if in_data_dir(row["file"])]
+    referenced = {(data_dir / row["file"]).resolve() for row in local_rows}
+    aside = quarantine_dir(data_dir)
+    for arrays_dir in (data_dir / "arrays", data_dir / OUTBOX_DIR):
+        if not arrays_dir.is_dir():
+            continue
         for path in sorted(arrays_dir.iterdir()):
             if path.is_file() and not is_temp(path) and path.resolve() not in referenced:
                 actions.append({"action": "quarantine", "kind": "orphan_array", "path": _rel(path, data_dir),
                                 "to": _rel(free_name(aside / path.name), data_dir), "bytes": _size(path)})
-    for row in datasets:
+    for row in local_rows:
         target, copy = data_dir / row["file"], aside / Path(row["file"]).name
         if not target.exists() and copy.is_file() and file_sha256(copy) == row["sha256"]:
             actions.append({"action": "restore", "kind": "missing_array", "id": row["id"],

@@ -95,6 +95,11 @@ def verify_file(path: Path, sha256: str) -> None:
 def read_arrays(path: Path, sha256: str) -> dict[str, np.ndarray]:
     """Every array of an npz file, in memory, after checking its SHA-256."""
     verify_file(path, sha256)
+    return load_npz(path)
+
+
+def load_npz(path: Path) -> dict[str, np.ndarray]:
+    """Every array of an npz file, in memory (no checksum: the caller verified it)."""
     with np.load(path, allow_pickle=False) as npz:
         return {name: npz[name] for name in npz.files}
 

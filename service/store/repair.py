@@ -11,7 +11,11 @@ dataset. Each problem (service.store.check kinds) is answered so:
 - ``corrupt_array``: the file is moved to ``quarantine/arrays/`` (kept for inspection) and the row
   is put in quarantine; putting a good copy back at the row's path lifts it at the next repair;
 - ``impossible_job``: the job row is made consistent (service.store.check.job_problems says how);
-- ``dangling_reference``: the row is kept and put in quarantine.
+- ``dangling_reference``: the row is kept and put in quarantine;
+- in a shared array location (service.store.arrays): a corrupt object is moved to the location's
+  ``quarantine/`` (the row in quarantine); an old object no row names is moved there too;
+  ``pending_upload`` is uploaded if the location answers (at recovery), else left, as is
+  ``array_store_unavailable``.
 
 No dataset or model row is ever deleted. Entries whose problem is gone are lifted. Repair needs the
 data dir to itself: it takes the lock the running service holds (service.store.lock), so it is
@@ -20,9 +24,10 @@ refused while the service runs, except ``dry_run``, which changes nothing and sa
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from service.runtime.recovery import INTERRUPTED, claim, recover
-from service.store import Store, debris, quarantine, utc_now
+from service.store import Store, debris, placement, quarantine, utc_now
 from service.store.check import check_store, job_problems
 from service.store.lock import StoreLock
 
@@ -51,6 +56,8 @@ def repair_store(store: Store, dry_run: bool = False) -> dict:
     actions += [{"kind": "partial_dataset", "id": dataset_id,
                  "action": "rebuilt from an interrupted acquisition's chunks"} for dataset_id in recovered["datasets"]]
     actions += [_file_action(a) for a in recovered["cleaned"]]
+    actions += [{"kind": "pending_upload", "id": u["id"], "action": f"uploaded from the outbox as {u['key']}"}
+                for u in recovered.get("uploaded", [])]
     now, handled, left = utc_now(), set(), check_store(store, offline=True)
     for problem in left["problems"]:
         if (problem["kind"], problem["id"]) not in handled:  # a job's fixes are applied together
@@ -68,6 +75,14 @@ def _fix(store: Store, problem: dict, now: str) -> dict:
     """Answer one problem left after recovery; the action in words."""
     kind, record_id = problem["kind"], problem["id"]
     action = {"kind": kind, "id": record_id}
+    if kind == "corrupt_array" and not placement.in_data_dir(store.get_dataset(record_id)["file"]):
+        moved_to = placement.set_aside(store, store.get_dataset(record_id)["file"])
+        quarantine.add(store, record_id, kind, problem["detail"], moved_to, now)
+        return {**action, "action": f"object moved to {moved_to}; the dataset row is kept, in quarantine"}
+    if kind == "orphan_array" and store.arrays is not None and store.arrays.size(f"{record_id}.npz") is not None:
+        # left after recovery: an old object of the shared location
+        moved_to = placement.set_aside(store, f"{record_id}.npz")
+        return {**action, "action": f"moved aside to {moved_to} (kept: it may be another database's dataset)"}
     if kind == "corrupt_array":
         row = store.get_dataset(record_id)
         source = store.data_dir / row["file"]
@@ -101,9 +116,13 @@ def _plan(store: Store, problems: list[dict]) -> list[dict]:
              "corrupt_array": "file would be moved to quarantine/arrays/; the row kept, in quarantine",
              "missing_array": "row would be kept, in quarantine",
              "dangling_reference": "row would be kept, in quarantine",
-             "impossible_job": "job row would be set consistent"}
+             "impossible_job": "job row would be set consistent",
+             "pending_upload": "would be uploaded if the shared array location answers",
+             "orphan_array": "object would be moved to the shared location's quarantine/"}
+    restored |= {Path(a["path"]).stem for a in cleanup if a["kind"] == "orphan_array"}   # said above
     for problem in problems:
-        if problem["kind"] in words and not (problem["kind"] == "missing_array" and problem["id"] in restored):
+        if problem["kind"] in words and not (problem["kind"] in ("missing_array", "orphan_array")
+                                             and problem["id"] in restored):
             plan.append({"kind": problem["kind"], "id": problem["id"], "action": words[problem["kind"]]})
     return plan
 

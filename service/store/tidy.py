@@ -4,7 +4,8 @@ A record others derive from is not deleted unless asked to ``cascade``: a datase
 fitted on, a model that others were refined from (its children). With ``cascade`` the records that
 derive from it go too: every model fitted on the dataset and every descendant of a deleted model,
 so no row is left naming one that is gone (``evcbench store check`` stays clean). The rows go in
-one transaction; then the arrays' files. A job whose result names a deleted dataset keeps the id as
+one transaction; then the arrays' files (or objects of the shared location, which is asked first:
+if it cannot be reached nothing is deleted). A job whose result names a deleted dataset keeps the id as
 ``deleted_dataset_id`` (its ``dataset_id`` becomes null, as the check expects), and quarantine
 entries of deleted records are lifted.
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 from sqlalchemy import delete, select, update
 
-from service.store import tables
+from service.store import placement, tables
 
 #: the labels a user may change, and their defaults as shown for rows written before they existed
 LABELS = ("name", "tags", "notes")
@@ -79,11 +80,10 @@ def delete_dataset(store, dataset_id: str, cascade: bool = False) -> dict:
     if using and not cascade:
         raise InUseError("dataset", dataset_id, {"models": using}, "models were fitted on it:")
     model_ids = descendants(models, using)
-    path = store.data_dir / row["file"]
-    freed = path.stat().st_size if path.is_file() else 0
+    freed = placement.size(store, row)   # asks a shared location first: unreachable, nothing is deleted
     with store.engine.begin() as conn:
         _delete_rows(conn, model_ids, [dataset_id])
-    path.unlink(missing_ok=True)
+    placement.remove(store, row)
     return {"datasets": [dataset_id], "models": model_ids, "freed_bytes": freed}
 
 

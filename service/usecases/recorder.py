@@ -24,7 +24,7 @@ import numpy as np
 from drivers.bench import Bench, BenchRecord, RunInterrupted
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.datasets import units_for
-from service.store import DatasetRow, Store, utc_now
+from service.store import DatasetRow, Store, placement, utc_now
 from service.store.chunks import ChunkWriter
 
 
@@ -71,7 +71,7 @@ class Recorder:
     def __init__(self, store: Store, meta: dict, ctx: JobContext | None = None):
         self.store, self.ctx = store, ctx
         self.meta = dict(meta)
-        self._chunks, self._closed = None, False
+        self._chunks, self._closed, self._pending = None, False, None
         if ctx is not None:
             self.meta.update(job_id=ctx.job_id, started_at=utc_now())
             self._chunks = ChunkWriter(store.data_dir, ctx.job_id, self.meta)
@@ -125,10 +125,14 @@ class Recorder:
                  "partial_reason": None if stop is None else stop.reason}
         if self.ctx is not None:
             final["finished_at"] = utc_now()
-        try:
-            return self.store.add_dataset(dict(arrays), final)
+        try:   # a measurement is kept (in the outbox) if the shared array location is down; an import is not
+            row = self.store.add_dataset(dict(arrays), final, keep_if_unreachable=self.ctx is not None)
         finally:
             self.close()
+        if placement.pending(row["file"]):
+            self._pending = (f"the arrays wait on this service's disk ({row['file']}) for the shared array store "
+                             f"{self.store.array_url}, which did not answer; they are uploaded when it does")
+        return row
 
     def end(self, row: DatasetRow, result: dict, stop: Stop | None) -> dict:
         """The job's result, with any warning about the chunks; on a ``stop``, JobInterrupted
@@ -146,8 +150,9 @@ class Recorder:
         return JobInterrupted(message, None, cancelled=cancelled)
 
     def warnings(self) -> list[str]:
-        """A chunk write that failed (crash safety was lost for this run), in words."""
-        return [] if self._chunks is None else self._chunks.warnings()
+        """A chunk write that failed (crash safety was lost for this run), or arrays kept in the outbox
+        (service.store.placement), in words."""
+        return ([] if self._chunks is None else self._chunks.warnings()) + ([self._pending] if self._pending else [])
 
     def close(self) -> None:
         """Stop the chunk writer and remove the chunks (stored, or nothing to keep); once."""
