@@ -113,8 +113,7 @@ class Store:
         self.array_url = array_url or None
         self.flush_lock = threading.Lock()    # one outbox upload at a time (service.store.placement.flush)
         self.engine = make_engine(database_url)
-        tables.metadata.create_all(self.engine)
-        schema.upgrade(self.engine)   # columns added since the database was created
+        schema.create_schema(self.engine)   # tables, and columns added since the database was created
         #: the API token rows (hashes only; see service.security.auth)
         self.tokens = TokenRows(self.engine)
         #: the data dir's lock (service.store.lock) while this store's process owns it: the running

@@ -18,6 +18,31 @@ ADDED_COLUMNS = {
 }
 
 
+#: the PostgreSQL advisory lock key that serialises schema creation between services starting at once
+SCHEMA_LOCK_KEY = 0x45564342   # "EVCB"
+
+
+def create_schema(engine: Engine) -> list[str]:
+    """Create the missing tables and add the missing columns (``upgrade``), safely when several services
+    of a lab start at once on one database: on PostgreSQL under a transaction-scoped advisory lock (a
+    plain ``create_all`` races: both see no table, one CREATE fails with "already exists"); on SQLite,
+    whose writers are serialised anyway, a CREATE that lost the race is retried (each retry's existence
+    check sees the tables the others made, so there are at most as many as tables)."""
+    if engine.dialect.name == "postgresql":
+        with engine.begin() as conn:
+            conn.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": SCHEMA_LOCK_KEY})
+            tables.metadata.create_all(conn)
+    else:
+        for attempt in range(len(tables.metadata.tables) + 1):
+            try:
+                tables.metadata.create_all(engine)
+                break
+            except DBAPIError:
+                if attempt == len(tables.metadata.tables):
+                    raise
+    return upgrade(engine)
+
+
 def missing_columns(engine: Engine) -> dict[str, list[str]]:
     """The added columns the database does not have yet, per table."""
     inspector = inspect(engine)
