@@ -51,12 +51,16 @@ def run_seed(seed: int, cycles: int, data_dir: Path) -> dict:
                     r["trace"] = last_periods(uc.store.load_arrays(r["dataset_id"]), cycles)
     finally:
         uc.close()
+    return {"noise_rms_um": gauge_noise_um(seed), "cases": out}
+
+
+def gauge_noise_um(seed: int) -> float:
+    """The gauge noise (µm RMS) of the default bench with ``seed``, measured on a twin opened at rest."""
     twin = open_bench("default", seed=seed)
     try:
-        noise = noise_rms_um(twin)
+        return noise_rms_um(twin)
     finally:
         twin.close()
-    return {"noise_rms_um": noise, "cases": out}
 
 
 def last_periods(arrays: dict, cycles: int, sample_rate_hz: float = 20_000.0, frequency_hz: float = 100.0) -> dict:
