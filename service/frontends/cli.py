@@ -26,6 +26,9 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         database_url=args.database_url or defaults.database_url,
         auth=args.auth or defaults.auth,
         array_url=args.array_url or defaults.array_url,
+        # a lab: unless given, the id derives from the bench and the URL from host and port (Settings)
+        **({"bench_id": args.bench_id} if args.bench_id else {}),
+        **({"public_url": args.public_url} if args.public_url else {}),
     )
     from service.frontends.cli_tokens import serve_refusal
     from service.runtime.safe_shutdown import install
@@ -125,6 +128,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--auth", choices=("tokens", "off"),
                        help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)")
     serve.add_argument("--array-url", help=ARRAY_URL_HELP)
+    serve.add_argument("--bench-id", help="this bench's id in a lab of services on one database (default: from "
+                       "--bench, e.g. 'creep'; env EVCBENCH_BENCH_ID)")
+    serve.add_argument("--public-url", help="where the lab reaches this service (default http://HOST:PORT; env "
+                       "EVCBENCH_PUBLIC_URL)")
     serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")

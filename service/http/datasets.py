@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Upload
 from fastapi.responses import StreamingResponse
 
 from service.http.deps import get_store
-from service.http.schemas.common import DatasetLabelsUpdate, Deleted, with_figures
+from service.http.schemas.common import BENCH_FILTER, DatasetLabelsUpdate, Deleted, with_figures
 from service.http.schemas.datasets import Dataset, DatasetSummary
 from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
@@ -21,7 +21,7 @@ router = APIRouter(prefix="/datasets", tags=["datasets"])
 
 MAX_UPLOAD_BYTES = 200 * 1024 * 1024
 SUMMARY_KEYS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "partial", "partial_reason",
-                "created_at", "started_at", "finished_at", "job_id", "tags", "notes")
+                "created_at", "started_at", "finished_at", "job_id", "tags", "notes", "bench_id")
 MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "application/x-ndjson",
                "hdf5": "application/x-hdf5"}
 _RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
@@ -71,9 +71,9 @@ async def import_dataset(
 
 
 @router.get("", response_model=list[DatasetSummary])
-def list_datasets(store: Store = Depends(get_store)) -> list[dict]:
-    """Every dataset, oldest first (summary fields)."""
-    return [dataset_view(row, full=False) for row in store.list_datasets()]
+def list_datasets(bench_id: str | None = BENCH_FILTER, store: Store = Depends(get_store)) -> list[dict]:
+    """Every dataset of every bench of the lab (``bench_id``: that bench's), oldest first (summary fields)."""
+    return [dataset_view(row, full=False) for row in store.list_datasets(bench_id)]
 
 
 @router.get("/{dataset_id}", response_model=Dataset)

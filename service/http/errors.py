@@ -6,7 +6,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from service.science.errors import FieldError
-from service.runtime.jobs import QueueFull
+from service.runtime.jobs import OtherBenchJob, QueueFull
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError
 from service.store.tidy import InUseError
 
@@ -50,6 +50,11 @@ def install(app: FastAPI) -> None:
         return JSONResponse(status_code=429, headers={"Retry-After": str(int(exc.retry_after_s))},
                             content={"detail": str(exc), "field": None, "queue": exc.queue,
                                      "queued": exc.queued, "limit": exc.limit})
+
+    @app.exception_handler(OtherBenchJob)
+    async def _other_bench(_request: Request, exc: OtherBenchJob) -> JSONResponse:
+        return JSONResponse(status_code=409, content={"detail": str(exc), "field": exc.field,
+                                                      "bench_id": exc.bench_id, "url": exc.url})
 
     @app.exception_handler(IntegrityError)
     async def _integrity(_request: Request, exc: IntegrityError) -> JSONResponse:

@@ -6,7 +6,7 @@ from fastapi.responses import StreamingResponse
 
 from service.http.auth import require_token, token_recheck
 from service.http.deps import get_jobs
-from service.http.schemas.common import Job
+from service.http.schemas.common import BENCH_FILTER, Job
 from service.http.schemas.streams import JOB_EVENTS
 from service.runtime.jobs import JobManager
 
@@ -14,9 +14,11 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
 @router.get("", response_model=list[Job])
-def list_jobs(limit: int = Query(100, ge=1, le=1000), jobs: JobManager = Depends(get_jobs)) -> list[dict]:
-    """The newest jobs first: id, kind, state, progress (0..1), message, result, error, timestamps."""
-    return jobs.list(limit)
+def list_jobs(limit: int = Query(100, ge=1, le=1000), bench_id: str | None = BENCH_FILTER,
+              jobs: JobManager = Depends(get_jobs)) -> list[dict]:
+    """The newest jobs first (of every bench of the lab): id, kind, state, progress (0..1), message,
+    result, error, timestamps, bench_id."""
+    return jobs.list(limit, bench_id=bench_id)
 
 
 @router.get("/{job_id}", response_model=Job)
@@ -39,5 +41,6 @@ async def job_events(job_id: str, request: Request, token: dict = Depends(requir
 @router.delete("/{job_id}", status_code=202, response_model=Job)
 def cancel_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
     """Cancel: a queued job is cancelled at once; a running sweep stops at its next block,
-    leaves the output at 0 V and keeps the samples so far as a partial dataset."""
+    leaves the output at 0 V and keeps the samples so far as a partial dataset. 409 (``field``
+    job_id, with the ``bench_id`` and ``url`` of its service) for another bench's unfinished job."""
     return jobs.cancel(job_id)

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, Query
 
 from service.http.deps import get_jobs, get_store
 from service.science.data.export import JSON_DEFAULT_MAX_POINTS
-from service.http.schemas.common import Deleted, JobQueued, LabelsUpdate, with_figures
+from service.http.schemas.common import BENCH_FILTER, Deleted, JobQueued, LabelsUpdate, with_figures
 from service.http.schemas.models import Comparison, Model, ModelRequest
 from service.runtime.jobs import JobManager
 from service.usecases.identify import check_identify_request, compare, identify
@@ -23,7 +23,8 @@ def model_view(row: ModelRow) -> dict:
             "parent_id": row["parent_id"], "datasets": row["datasets"], "options": row["options"],
             "parameters": row["parameters"], "parameters_sha256": row["parameters_sha256"],
             "metrics": row["metrics"], "software_version": row["software_version"], "job_id": row["job_id"],
-            "created_at": row["created_at"], "name": row["name"], "tags": row["tags"], "notes": row["notes"]}
+            "created_at": row["created_at"], "name": row["name"], "tags": row["tags"], "notes": row["notes"],
+            "bench_id": row.get("bench_id")}
 
 
 @router.post("", status_code=202, response_model=JobQueued)
@@ -37,9 +38,9 @@ def create_model(body: ModelRequest, store: Store = Depends(get_store), jobs: Jo
 
 
 @router.get("", response_model=list[Model], response_model_exclude_unset=True)
-def list_models(store: Store = Depends(get_store)) -> list[dict]:
-    """Every model, oldest first."""
-    return [model_view(row) for row in store.list_models()]
+def list_models(bench_id: str | None = BENCH_FILTER, store: Store = Depends(get_store)) -> list[dict]:
+    """Every model of every bench of the lab (``bench_id``: that bench's), oldest first."""
+    return [model_view(row) for row in store.list_models(bench_id)]
 
 
 @router.get("/{model_id}", response_model=Model, response_model_exclude_unset=True)

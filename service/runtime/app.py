@@ -1,6 +1,7 @@
-"""The FastAPI application: opens the store (recovering what a killed process left: see
-service.runtime.recovery) and the bench at start-up, mounts the routers, and at shut-down stops the jobs
-(a running sweep keeps its partial data) and closes the bench at 0 V."""
+"""The FastAPI application: opens the store (registering its bench in the lab's table, then recovering
+what a killed process of this bench left: see service.runtime.heartbeat and service.runtime.recovery)
+and the bench at start-up, mounts the routers, and at shut-down stops the jobs (a running sweep keeps
+its partial data), closes the bench at 0 V and marks the bench stopped."""
 from __future__ import annotations
 
 import time
@@ -20,24 +21,27 @@ from service.http import errors as errors_api
 from service.http import health as health_api
 from service.http import discovery as discovery_api
 from service.http import jobs as jobs_api
+from service.http import lab as lab_api
 from service.http import models as models_api
 from service.http import reports as reports_api
 from service.http import sweeps as sweeps_api
 from service.http import tokens as tokens_api
 from service.http import trajectories as trajectories_api
 from service.http import web as web_api
+from service.runtime.heartbeat import Heartbeat, claim, new_instance, register, running_state
 from service.runtime.jobs import JobManager, freeze_heap
 from service.runtime.recovery import recover
 from service.security.auth import ensure_bootstrap_token
 from service.security.binding import auth_refusal
 from service.runtime.settings import Settings
 from service.store import Store
+from service.usecases.recorder import bench_snapshot
 
 #: Routers mounted under /api, in the order they appear in the docs. Every one but health needs a
 #: token (service/http/auth.py): read for GET/HEAD, operate for writes, admin under /api/admin.
 ROUTERS = (health_api.router, bench_api.stop_router, bench_api.router, jobs_api.router, sweeps_api.router,
            datasets_api.router, models_api.router, discovery_api.router, reports_api.router,
-           trajectories_api.router, tokens_api.router, admin_api.router)
+           trajectories_api.router, lab_api.router, tokens_api.router, admin_api.router)
 #: Mounted without the router-level token check: health needs none; the emergency stop checks its
 #: token itself, on its own thread (service/http/bench.py)
 OPEN_ROUTERS = (health_api.router, bench_api.stop_router)
@@ -69,14 +73,22 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         app.state.settings = settings
         app.state.started_at = time.time()
-        app.state.store = Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
+        app.state.store = store = Store(settings.resolved_database_url, settings.data_dir,
+                                        array_url=settings.array_url)
+        store.bench_id = settings.bench_id            # every row it adds carries it; it recovers only its own
+        app.state.instance = instance = new_instance()
+        heartbeat = None
         try:
-            app.state.recovery = recover(app.state.store)
+            claim(store, settings, instance)          # BenchIdInUse before anything is recovered
+            app.state.recovery = recover(store)
             if settings.auth == "tokens":
-                ensure_bootstrap_token(app.state.store, settings.data_dir)
+                ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
             app.state.bench = factory(settings)
             try:
-                app.state.jobs = JobManager(app.state.store, on_cancel_bench=app.state.bench.request_stop)
+                app.state.jobs = JobManager(store, on_cancel_bench=app.state.bench.request_stop)
+                register(store.benches, settings, instance, "idle", bench_snapshot(app.state.bench))
+                heartbeat = Heartbeat(settings.resolved_database_url, settings.bench_id, instance,
+                                      settings.heartbeat_s, lambda: running_state(app.state.jobs)).start()
                 freeze_heap()  # what start-up loaded is never scanned again by the collector
                 try:
                     yield
@@ -85,7 +97,9 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
             finally:
                 app.state.bench.close()
         finally:
-            app.state.store.close()
+            if heartbeat is not None:
+                heartbeat.stop()                      # after the bench is at 0 V and closed: state "stopped"
+            store.close()
 
     app = FastAPI(title="EVC Bench", version=__version__, lifespan=lifespan,
                   description="Characterise, model and control a two-axis piezo EVC bench. Units live in "

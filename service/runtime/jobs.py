@@ -4,7 +4,9 @@ States: queued → running → succeeded | failed | cancelled (a queued job may 
 cancelled). Every job is persisted in the store; live progress is kept in memory and written
 through at most every ``PERSIST_EVERY_S``. Jobs that need the bench run one at a time, in
 submission order, on a single worker thread (that thread owns the bench); the others run on a
-small thread pool beside it. Each queue is bounded (``MAX_QUEUED_BENCH_JOBS``,
+small thread pool beside it. In a lab (several services on one store) a manager runs, cancels and
+overlays only its own jobs (``store.bench_id``); another bench's are shown as stored, and cancelling
+one is refused with ``OtherBenchJob``. Each queue is bounded (``MAX_QUEUED_BENCH_JOBS``,
 ``MAX_QUEUED_COMPUTE_JOBS``): a submission beyond it raises ``QueueFull`` and stores nothing.
 """
 from __future__ import annotations
@@ -50,6 +52,18 @@ class QueueFull(Exception):
         super().__init__(f"the {queue_name} job queue is full: {queued} {queue_name} jobs queued (limit {limit}); "
                          f"retry when one has started, or cancel one (DELETE /api/jobs/{{id}})")
         self.queue, self.queued, self.limit, self.retry_after_s = queue_name, queued, limit, retry_after_s
+
+
+class OtherBenchJob(Exception):
+    """A job of another bench of the lab: only that bench's service (``url``) may cancel it."""
+
+    field = "job_id"
+
+    def __init__(self, job_id: str, bench_id: str, url: str | None):
+        where = f" at {url}" if url else ""
+        super().__init__(f"job {job_id} runs on bench {bench_id!r}; only that bench's service{where} "
+                         f"may cancel it (DELETE /api/jobs/{job_id} there)")
+        self.job_id, self.bench_id, self.url = job_id, bench_id, url
 
 
 @dataclass
@@ -139,9 +153,9 @@ class JobManager:
         """The job as the API shows it (live progress overlaid on the stored record)."""
         return self._overlay(self.store.get_job(job_id))
 
-    def list(self, limit: int = 100) -> list[dict]:
-        """The newest ``limit`` jobs, newest first."""
-        return [self._overlay(row) for row in self.store.list_jobs(limit)]
+    def list(self, limit: int = 100, bench_id: str | None = None) -> list[dict]:
+        """The newest ``limit`` jobs (of every bench; ``bench_id``: that bench's), newest first."""
+        return [self._overlay(row) for row in self.store.list_jobs(limit, bench_id=bench_id)]
 
     def _overlay(self, row: dict) -> dict:
         live = self._live.get(row["id"])
@@ -156,6 +170,10 @@ class JobManager:
         ``reason`` (e.g. "emergency stop") becomes the job's message if the job gives none."""
         row = self.store.get_job(job_id)
         live = self._live.get(job_id)
+        owner = row.get("bench_id")
+        if live is None and owner is not None and owner != self.store.bench_id and row["state"] not in TERMINAL_STATES:
+            bench = self.store.benches.get(owner)
+            raise OtherBenchJob(job_id, owner, bench["url"] if bench else None)
         if row["state"] in TERMINAL_STATES or live is None:
             return self.get(job_id)
         with self._lock:
@@ -317,7 +335,7 @@ def freeze_heap() -> None:
 
 def _public(row: dict) -> dict:
     keys = ("id", "kind", "state", "progress", "message", "result", "error", "params", "created_at",
-            "started_at", "finished_at")
+            "started_at", "finished_at", "bench_id")
     return {k: row.get(k) for k in keys}
 
 

@@ -1,7 +1,9 @@
 """Start-up recovery after a crash (``kill -9``, power loss): run once, before any job starts.
 
-1. Every job still ``queued`` or ``running`` in the store belonged to a process that is gone: it
-   is marked ``failed`` with the reason ``"interrupted by restart"``.
+1. Every job of this bench (``store.bench_id``; or without a bench) still ``queued`` or ``running``
+   in the store belonged to a process that is gone: it is marked ``failed`` with the reason
+   ``"interrupted by restart"``. In a lab another bench's jobs are never touched; a store opened
+   without a bench id (``evcbench store repair``) leaves the jobs of every bench online alone.
 2. Every chunk directory under ``<data_dir>/partial/`` (service.store.chunks) holds samples an
    acquisition wrote before it died. If its job has no dataset yet, the chunks become a dataset
    marked ``partial`` (``partial_reason`` "interrupted by restart") and the job's result names it;
@@ -27,6 +29,7 @@ import logging
 from pathlib import Path
 
 from service.science.data.datasets import units_for
+from service.runtime.heartbeat import is_online
 from service.store import Store, debris, placement, utc_now
 from service.store.arrays import ArrayStoreUnavailable
 from service.store.chunks import chunk_dir, discard, partial_root, read_chunks, read_meta
@@ -49,7 +52,7 @@ def recover(store: Store) -> dict:
     """
     report: dict = {"failed_jobs": [], "datasets": [], "problems": [], "cleaned": [], "freed_bytes": 0}
     owned = claim(store)
-    for job in store.unfinished_jobs():
+    for job in _unfinished_here(store):
         directory = chunk_dir(store.data_dir, job["id"])
         result = _rebuild(store, job["id"], directory, report) if directory.is_dir() else None
         store.update_job(job["id"], state="failed", error=INTERRUPTED, message=INTERRUPTED,
@@ -79,6 +82,16 @@ def recover(store: Store) -> dict:
                     "or chunk directories cleared, %s freed", len(report["failed_jobs"]), len(report["datasets"]),
                     len(report["cleaned"]), debris.format_bytes(report["freed_bytes"]))
     return report
+
+
+def _unfinished_here(store: Store) -> list[dict]:
+    """The unfinished jobs this process may fail: ``store.unfinished_jobs()`` (this bench's), less
+    the jobs of other benches whose services are online."""
+    live = {row["id"] for row in store.benches.list() if row["id"] != store.bench_id and is_online(row)}
+    jobs = store.unfinished_jobs()
+    for job in (j for j in jobs if j.get("bench_id") in live):
+        log.info("recovery: job %s is bench %s's, whose service is online: left to it", job["id"], job["bench_id"])
+    return [j for j in jobs if j.get("bench_id") not in live]
 
 
 def claim(store: Store) -> bool:

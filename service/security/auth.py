@@ -121,9 +121,14 @@ def read_bootstrap_token(data_dir: str | Path) -> str | None:
         return None
 
 
-def ensure_bootstrap_token(store: Store, data_dir: Path) -> Path:
+def ensure_bootstrap_token(store: Store, data_dir: Path, bench_id: str | None = None) -> Path:
     """Make sure <data_dir>/admin.token (mode 0600) holds a valid bootstrap admin token, so the
-    local CLI and dashboard work; a missing, unknown or revoked one is replaced. Returns the path."""
+    local CLI and dashboard work; a missing, unknown or revoked one is replaced. Returns the path.
+
+    In a lab (several services, each with its own data dir, on one database) every service keeps
+    its own file and its own token, named after ``bench_id``; the token table is shared, so any
+    service's token is valid on every service of the lab, and one service replacing its token never
+    touches another's."""
     path = Path(data_dir) / BOOTSTRAP_FILE
     try:
         authenticate(store, read_bootstrap_token(data_dir) or "")
@@ -131,7 +136,8 @@ def ensure_bootstrap_token(store: Store, data_dir: Path) -> Path:
         return path
     except (OSError, AuthError):
         pass
-    plaintext, _ = issue(store, "bootstrap admin", "admin", "bootstrap")
+    name = f"bootstrap admin (bench {bench_id})" if bench_id else "bootstrap admin"
+    plaintext, _ = issue(store, name, "admin", "bootstrap")
     write_secret(path, plaintext)
     return path
 

@@ -18,13 +18,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sqlalchemy import create_engine, event, insert, select, update
+from sqlalchemy import create_engine, event, insert, or_, select, update
 from sqlalchemy.engine import Engine
 
 from service import __version__
 from service.store import placement, schema, tables, tidy
 from service.store.arrays import ArrayStoreUnavailable, open_location
 from service.store.files import IntegrityError, StoredArrays, load_npz
+from service.store.benches import BenchRows
 from service.store.rows import DatasetRow, JobRow, ModelRow
 from service.store.tokens import TokenRows
 
@@ -99,10 +100,16 @@ def make_engine(url: str) -> Engine:
 
 
 class Store:
-    """Datasets, models and jobs of one service instance.
+    """Datasets, models and jobs of one service instance (in a lab, of every bench on the database).
+
+    ``bench_id`` is the bench of the service that opened it (set by the app): every dataset and job
+    it adds carries it, and ``unfinished_jobs`` returns only that bench's. None (tools such as
+    ``evcbench store repair``, tests) adds rows without a bench and sees every job.
 
     ``array_url`` is the lab's shared array location (service.store.arrays.open_location: a path,
     ``file://`` or ``s3://bucket/prefix`` URL); None keeps the arrays in ``<data_dir>/arrays``."""
+
+    bench_id: str | None = None
 
     def __init__(self, database_url: str, data_dir: Path, *, array_url: str | None = None):
         self.data_dir = Path(data_dir)
@@ -116,6 +123,8 @@ class Store:
         schema.create_schema(self.engine)   # tables, and columns added since the database was created
         #: the API token rows (hashes only; see service.security.auth)
         self.tokens = TokenRows(self.engine)
+        #: the lab's registered benches (service.store.benches; service.runtime.heartbeat writes them)
+        self.benches = BenchRows(self.engine)
         #: the data dir's lock (service.store.lock) while this store's process owns it: the running
         #: service (taken by service.runtime.recovery) or ``evcbench store repair``; released by ``close``
         self.owner_lock = None
@@ -150,7 +159,7 @@ class Store:
             "software_version": __version__, "partial": bool(meta.get("partial", False)),
             "partial_reason": meta.get("partial_reason"), "job_id": meta.get("job_id"),
             "started_at": meta.get("started_at"), "finished_at": meta.get("finished_at"), "created_at": utc_now(),
-            "tags": list(meta.get("tags") or []), "notes": meta.get("notes"),
+            "tags": list(meta.get("tags") or []), "notes": meta.get("notes"), "bench_id": self.bench_id,
         }
         file, digest, remove = placement.place(self, dataset_id, arrays, keep_if_unreachable)
         row.update(file=file, sha256=digest)
@@ -167,8 +176,9 @@ class Store:
     def get_dataset(self, dataset_id: str) -> DatasetRow:
         return tidy.with_labels(self._get(tables.datasets, dataset_id, "dataset"))
 
-    def list_datasets(self) -> list[DatasetRow]:
-        return [tidy.with_labels(row) for row in self._list(tables.datasets)]
+    def list_datasets(self, bench_id: str | None = None) -> list[DatasetRow]:
+        """Every dataset (of every bench), oldest first; ``bench_id``: only that bench's."""
+        return [tidy.with_labels(row) for row in self._list(tables.datasets, bench_id=bench_id)]
 
     def label_dataset(self, dataset_id: str, **labels: Any) -> DatasetRow:
         """Set some of a dataset's ``name``, ``tags`` and ``notes``; the updated record."""
@@ -203,8 +213,16 @@ class Store:
             "name": record.get("name"), "tags": list(record.get("tags") or []), "notes": record.get("notes"),
         }
         with self.engine.begin() as conn:
+            row["bench_id"] = self._bench_of_datasets(conn, row["datasets"])
             conn.execute(insert(tables.models).values(**row))
         return row
+
+    def _bench_of_datasets(self, conn, dataset_ids: list[str]) -> str | None:
+        """A model's bench: the one its datasets were all recorded on, else (mixed, or datasets
+        without a bench) this store's."""
+        query = select(tables.datasets.c.bench_id).where(tables.datasets.c.id.in_(dataset_ids)).distinct()
+        found = {value for (value,) in conn.execute(query)}
+        return found.pop() if len(found) == 1 and None not in found else self.bench_id
 
     def get_model(self, model_id: str) -> ModelRow:
         """The model's record; IntegrityError if its parameters no longer match their checksum."""
@@ -213,8 +231,9 @@ class Store:
             raise IntegrityError(f"model {model_id}: parameters do not match their sha256")
         return row
 
-    def list_models(self) -> list[ModelRow]:
-        return [tidy.with_labels(row) for row in self._list(tables.models)]
+    def list_models(self, bench_id: str | None = None) -> list[ModelRow]:
+        """Every model (of every bench), oldest first; ``bench_id``: only that bench's."""
+        return [tidy.with_labels(row) for row in self._list(tables.models, bench_id=bench_id)]
 
     def label_model(self, model_id: str, **labels: Any) -> ModelRow:
         """Set some of a model's ``name``, ``tags`` and ``notes``; the updated record."""
@@ -230,7 +249,8 @@ class Store:
     def add_job(self, kind: str, params: dict | None, needs_bench: bool) -> JobRow:
         row = {"id": new_id("job"), "kind": kind, "needs_bench": needs_bench, "state": "queued",
                "progress": 0.0, "message": "queued", "params": clean_json(params), "result": None,
-               "error": None, "created_at": utc_now(), "started_at": None, "finished_at": None}
+               "error": None, "created_at": utc_now(), "started_at": None, "finished_at": None,
+               "bench_id": self.bench_id}
         with self.engine.begin() as conn:
             conn.execute(insert(tables.jobs).values(**row))
         return row
@@ -253,13 +273,18 @@ class Store:
     def get_job(self, job_id: str) -> JobRow:
         return self._get(tables.jobs, job_id, "job")
 
-    def list_jobs(self, limit: int = 100) -> list[JobRow]:
-        return self._list(tables.jobs, limit=limit, newest_first=True)
+    def list_jobs(self, limit: int | None = 100, bench_id: str | None = None) -> list[JobRow]:
+        """The newest ``limit`` jobs (of every bench), newest first; ``bench_id``: only that bench's."""
+        return self._list(tables.jobs, limit=limit, newest_first=True, bench_id=bench_id)
 
     def unfinished_jobs(self) -> list[JobRow]:
-        """Jobs neither succeeded, failed nor cancelled (queued or running), oldest first."""
+        """This bench's jobs neither succeeded, failed nor cancelled (queued or running), oldest first:
+        those with this store's ``bench_id`` or none (written before benches had ids); every bench's
+        when ``bench_id`` is None. Another bench's jobs are its own service's to run or recover."""
         query = (select(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
                  .order_by(tables.jobs.c.created_at, tables.jobs.c.id))
+        if self.bench_id is not None:
+            query = query.where(or_(tables.jobs.c.bench_id == self.bench_id, tables.jobs.c.bench_id.is_(None)))
         with self.engine.connect() as conn:
             return [dict(row) for row in conn.execute(query).mappings()]
 
@@ -277,9 +302,12 @@ class Store:
             raise NotFoundError(field, record_id)
         return dict(row)
 
-    def _list(self, table, limit: int | None = None, newest_first: bool = False) -> list[dict]:
+    def _list(self, table, limit: int | None = None, newest_first: bool = False,
+              bench_id: str | None = None) -> list[dict]:
         order = table.c.created_at.desc() if newest_first else table.c.created_at
         query = select(table).order_by(order, table.c.id)
+        if bench_id is not None:
+            query = query.where(table.c.bench_id == bench_id)
         if limit is not None:
             query = query.limit(limit)
         with self.engine.connect() as conn:

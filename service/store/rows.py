@@ -34,6 +34,7 @@ class DatasetRow(TypedDict):
     created_at: str
     tags: list[str]                   # a user's labels (service.store.tidy)
     notes: str | None
+    bench_id: str | None              # the bench it was recorded on or imported at (None: before benches had ids)
 
 
 class ModelRow(TypedDict):
@@ -55,6 +56,7 @@ class ModelRow(TypedDict):
     name: str | None                  # a user's labels (service.store.tidy)
     tags: list[str]
     notes: str | None
+    bench_id: str | None              # the bench its datasets came from (None: before benches had ids)
 
 
 class JobRow(TypedDict):
@@ -72,3 +74,4 @@ class JobRow(TypedDict):
     created_at: str
     started_at: str | None
     finished_at: str | None
+    bench_id: str | None              # the bench whose service runs it; no other service touches it

@@ -13,8 +13,9 @@ from service.store import tables
 
 #: columns added to existing tables, per table, in the order they were added
 ADDED_COLUMNS = {
-    "datasets": ("tags", "notes"),           # issue 20: keeping the store tidy
-    "models": ("name", "tags", "notes"),
+    "datasets": ("tags", "notes", "bench_id"),           # issue 20: keeping the store tidy; 21: a lab
+    "models": ("name", "tags", "notes", "bench_id"),
+    "jobs": ("bench_id",),
 }
 
 

@@ -33,6 +33,8 @@ datasets = Table(
     # added after the first release (service.store.schema upgrades older databases): a user's labels
     Column("tags", JSON, nullable=True),                   # ["calibration", …]
     Column("notes", Text, nullable=True),
+    # a lab (issue 21): the bench it was recorded on (or imported at); NULL in rows from before
+    Column("bench_id", String(40), nullable=True),
 )
 
 models = Table(
@@ -54,6 +56,7 @@ models = Table(
     Column("name", Text, nullable=True),
     Column("tags", JSON, nullable=True),
     Column("notes", Text, nullable=True),
+    Column("bench_id", String(40), nullable=True),         # the bench its datasets came from (issue 21)
 )
 
 jobs = Table(
@@ -70,6 +73,7 @@ jobs = Table(
     Column("created_at", String(40), nullable=False),
     Column("started_at", String(40), nullable=True),
     Column("finished_at", String(40), nullable=True),
+    Column("bench_id", String(40), nullable=True),         # the bench whose service runs it (issue 21)
 )
 
 #: Rows known to be damaged, set aside by ``evcbench store repair`` instead of being deleted (see

@@ -3,12 +3,18 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+from fastapi import Query
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 #: For response payloads that may grow: the named fields are documented, others pass through.
 OPEN = ConfigDict(extra="allow")
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+#: The ``?bench_id=`` of the list routes: only that bench's rows (a lab sees every bench's by default).
+BENCH_FILTER = Query(None, min_length=1, max_length=40, pattern=r"^[a-z0-9][a-z0-9._-]*$",
+                     description="only the rows of this bench (GET /api/lab/benches lists them)")
+BENCH_ID_FIELD = Field(default=None, description="the bench (GET /api/lab/benches) it belongs to; null: stored "
+                                                 "before benches had ids")
 
 
 class LabelsUpdate(BaseModel):
@@ -71,6 +77,7 @@ class Job(BaseModel):
     created_at: str
     started_at: str | None
     finished_at: str | None
+    bench_id: str | None = BENCH_ID_FIELD
 
 
 def with_figures(**figures):

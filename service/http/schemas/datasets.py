@@ -5,7 +5,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from service.http.schemas.common import OPEN, JobState
+from service.http.schemas.common import BENCH_ID_FIELD, OPEN, JobState
 
 
 class SweepRequest(BaseModel):
@@ -80,6 +80,7 @@ class DatasetSummary(BaseModel):
     n_blocks: int
     tags: list[str] = Field(default=[], description="a user's labels (PATCH /api/datasets/{id})")
     notes: str | None = None
+    bench_id: str | None = BENCH_ID_FIELD
 
 
 class Dataset(DatasetSummary):

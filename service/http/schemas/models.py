@@ -5,7 +5,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.http.schemas.common import OPEN
+from service.http.schemas.common import BENCH_ID_FIELD, OPEN
 
 
 class ModelRequest(BaseModel):
@@ -76,6 +76,7 @@ class Model(BaseModel):
     name: str | None = Field(default=None, description="a user's labels (PATCH /api/models/{id})")
     tags: list[str] = []
     notes: str | None = None
+    bench_id: str | None = BENCH_ID_FIELD
 
 
 class FitFigures(BaseModel):
