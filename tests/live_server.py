@@ -17,12 +17,14 @@ class Server:
     bootstrap admin token (<data_dir>/admin.token), ``headers`` carry it, ``dashboard_url()``
     opens the dashboard with it already stored in the browser."""
 
-    def __init__(self, data_dir: Path, log: Path, bench: str = "default", seed: int = 1):
+    def __init__(self, data_dir: Path, log: Path, bench: str = "default", seed: int = 1,
+                 env: dict[str, str] | None = None):
+        """``env``: EVCBENCH_* settings of the service (e.g. a lab's database URL and bench id)."""
         self.log = log
         self.data_dir = Path(data_dir)
         for attempt in range(3):
             try:
-                self.proc, self.url = spawn_service(self.data_dir, bench, log, seed=seed)
+                self.proc, self.url = spawn_service(self.data_dir, bench, log, seed=seed, extra_env=env)
                 break
             except RuntimeError as exc:
                 # The free port is found by binding port 0 and closing it: under pytest-xdist another

@@ -69,14 +69,16 @@ def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, heade
 
 
 def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.0,
-                  seed: int = 1) -> tuple[subprocess.Popen, str]:
+                  seed: int = 1, extra_env: dict[str, str] | None = None) -> tuple[subprocess.Popen, str]:
     """``evcbench serve`` on a free loopback port; returns (process, base URL) once /api/health answers
-    (RuntimeError with the log's tail if it exits or stays silent). Also tests/live_server.py's."""
+    (RuntimeError with the log's tail if it exits or stays silent). Also tests/live_server.py's.
+    The service sees no EVCBENCH_* variable of this process, only those of ``extra_env``."""
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
     env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
     env["OPENBLAS_NUM_THREADS"] = "1"
+    env.update(extra_env or {})
     proc = subprocess.Popen([sys.executable, "-m", "service.frontends.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
                              "--data-dir", str(data_dir), "--bench", bench, "--seed", str(seed)],
                             cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)

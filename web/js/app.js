@@ -9,6 +9,7 @@ const PAGES = {
   datasets: () => import('./pages/datasets.js'),
   models: () => import('./pages/models.js'),
   trajectories: () => import('./pages/trajectories.js'),
+  lab: () => import('./pages/lab.js'),
 };
 
 let current = null;
