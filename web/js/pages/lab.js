@@ -8,7 +8,7 @@ const REFRESH_MS = 2000;
 const AXES = ['y', 'z'];
 /** Column titles of the physical parameters (service/science/effects/*: units in the names). */
 const PARAMETER_TITLES = {
-  resonance_hz: 'resonance (Hz)', damping_ratio: 'damping ζ', creep_pct_per_decade: 'creep (%/decade)',
+  resonance_hz: 'resonance (Hz)', damping_ratio: 'resonance damping ζ', creep_pct_per_decade: 'creep (%/decade)',
   creep_nm_per_decade: 'creep (nm/decade)', creep_step_v: 'creep step (V)', delay_us: 'delay (µs)',
   drift_nm_per_s: 'drift (nm/s)', coupling_ratio: 'coupling (µm/µm)',
 };
@@ -78,9 +78,10 @@ async function refreshBenches(root) {
     }).join('');
 }
 
+/** "creep (%/decade)" for a known parameter, else "effect · parameter". */
 function parameterTitle(name) {
   const [effect, parameter] = name.split('.');
-  return `${esc(effect)}<br>${esc(PARAMETER_TITLES[parameter] || parameter)}`;
+  return esc(PARAMETER_TITLES[parameter] || `${effect} · ${parameter}`);
 }
 
 async function refreshCompare(root) {
