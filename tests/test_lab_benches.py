@@ -233,5 +233,10 @@ def test_lab_routes_in_process(tmp_path, monkeypatch):
         refused = http.delete(f"/api/jobs/{foreign['id']}")
         assert refused.status_code == 409 and refused.json()["field"] == "job_id"
         assert refused.json()["url"] == "http://b2:8000" and other.get_job(foreign["id"])["state"] == "queued"
+        # a model of another bench: its discovery may not run experiments on this bench's hardware
+        theirs = _model(other, [])
+        sent = http.post(f"/api/models/{theirs['id']}/discover", json={"allow_experiments": True})
+        assert sent.status_code == 422 and sent.json()["field"] == "allow_experiments"
+        assert "http://b2:8000" in sent.json()["detail"]
     assert app.state.store.benches.get("creep")["state"] == "stopped"            # a clean shut-down
     other.close()

@@ -5,7 +5,7 @@ PI + creep, the dynamics bench static PI + dynamics. The dynamics service is the
 opened on the default bench's service, shows all three benches, the stopped one OFFLINE with its
 dataset still counted, each bench's newest Y model; and the Y comparison shows every model's
 held-out RMS and the fitted creep (about the bench's 3 %/decade) and resonance (about its 482.6 Hz)
-as the API gives them. Screenshot: tests/artifacts/web_lab.png. Set-up as tests/test_web_dashboard.py."""
+as the API gives them; the Datasets page lists each bench's dataset with its bench. Screenshot: tests/artifacts/web_lab.png. Set-up as tests/test_web_dashboard.py."""
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
@@ -105,6 +105,13 @@ def test_lab_page_shows_every_bench_and_compares_them(browser, lab):
         page.select_option("#lab-axis", "z")
         page.wait_for_selector("#lab-compare[data-axis='z']")
         assert page.locator("#lab-compare tr[data-model-id='']").count() == 3          # no Z model anywhere yet
+
+        # the Datasets page of one service lists every bench's dataset, with its bench
+        page.goto(services["default"].dashboard_url("datasets"))
+        page.wait_for_selector("#dataset-list tr[data-dataset-id]")
+        for bench in LAB_BENCHES:
+            dataset = api.get(f"/models/{models[bench]}").json()["datasets"][0]
+            assert page.locator(f"#dataset-list tr[data-dataset-id='{dataset}'] td.bench").inner_text() == bench
     finally:
         context.close()
     assert errors == [], f"console errors on the Lab page: {errors}"

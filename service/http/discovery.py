@@ -12,6 +12,7 @@ from service.usecases.discover import diagnose_model, history, refine_params
 from service.usecases.discover_run import discover
 from service.runtime.jobs import JobManager
 from service.usecases.identify import identify
+from service.science.errors import FieldError
 from service.store import Store
 
 router = APIRouter(prefix="/models", tags=["discovery"])
@@ -41,8 +42,16 @@ def start_discovery(model_id: str, body: DiscoverRequest, store: Store = Depends
     are the job's ``result`` while it runs). The result: ``steps`` (model_id, effects, added,
     validation_rms_um, noise_floor_um, …), ``final_model_id``, ``effects_found`` (fitted physical
     parameters, units in the names, and the evidence), ``remains`` (held-out RMS against the noise
-    floor, per block), ``stopped`` and ``needed_experiment`` (a /api/sweeps body) when it stopped for one."""
-    store.get_model(model_id)                      # 404 before anything is queued
+    floor, per block), ``stopped`` and ``needed_experiment`` (a /api/sweeps body) when it stopped for one.
+    In a lab, ``allow_experiments`` is refused (422) for a model of another bench: its experiments
+    would run on this service's hardware."""
+    row = store.get_model(model_id)                # 404 before anything is queued
+    owner = row.get("bench_id")
+    if body.allow_experiments and owner not in (None, store.bench_id):   # a lab: experiments on its own bench
+        bench = store.benches.get(owner)
+        raise FieldError("allow_experiments", f"model {model_id} describes bench {owner!r}: its experiments must run "
+                         f"on that bench, so start the discovery at its service ({bench['url'] if bench else 'its URL'}),"
+                         f" or here without allow_experiments")
     params = {"model_id": model_id, **body.model_dump()}
 
     def run_experiment(ctx, sweep_body: dict) -> dict:

@@ -48,10 +48,11 @@ export async function enter(root, [modelId], query = {}) {
 
 function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
-    <th class="num">train RMS</th><th class="num">held-out RMS</th></tr>` + models.slice().reverse().map((m) => `
+    <th class="num">train RMS</th><th class="num">held-out RMS</th><th title="the bench its datasets came from">bench</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td><td>${m.axis}</td><td>${esc(m.kind)}</td>
       <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
-      <td class="num">${fmtLength(m.metrics.train_rms_um, 4)}</td><td class="num">${fmtLength(m.metrics.validation_rms_um, 4)}</td></tr>`).join('');
+      <td class="num">${fmtLength(m.metrics.train_rms_um, 4)}</td><td class="num">${fmtLength(m.metrics.validation_rms_um, 4)}</td>
+      <td class="bench">${esc(m.bench_id || '—')}</td></tr>`).join('');
 }
 
 async function identify(root) {
