@@ -12,7 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 import pytest
-from test_web_dashboard import ARTIFACTS, _browser_setup_is_complete, browser, shot  # noqa: F401
+from test_web_dashboard import _browser_setup_is_complete, browser, shot  # noqa: F401
 
 from api_client import wait_job
 from lab_services import LAB_BENCHES, fresh_database, lab_services
