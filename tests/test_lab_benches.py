@@ -52,6 +52,7 @@ def test_settings_derive_the_bench_id_and_public_url(monkeypatch):
     assert (s.bench_id, s.public_url, s.heartbeat_s) == ("creep", "http://10.0.0.5:8123", 5.0)
     assert bench_id_for("/etc/benches/Stage 2.toml") == "stage-2" and bench_id_for("default") == "default"
     assert Settings(bench_id="line-3", public_url="http://lab:9000/").public_url == "http://lab:9000"
+    assert Settings(host="0.0.0.0", port=8001).public_url == f"http://{socket.gethostname()}:8001"
     monkeypatch.setenv("EVCBENCH_BENCH_ID", "from-env")
     monkeypatch.setenv("EVCBENCH_HEARTBEAT_S", "0.5")
     assert (Settings().bench_id, Settings().heartbeat_s) == ("from-env", 0.5)

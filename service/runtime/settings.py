@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,8 +31,9 @@ class Settings:
 
     A lab (several services on one database): ``bench_id`` names this service's bench in every row it
     writes (default: derived from ``bench``, so a single bench needs nothing); ``public_url`` is where
-    the other services and the lab page reach it (default ``http://host:port``); ``heartbeat_s`` how
-    often it says it is alive (service.runtime.heartbeat).
+    the other services and the lab page reach it (default ``http://host:port``, the machine's name
+    for a wildcard host such as 0.0.0.0); ``heartbeat_s`` how often it says it is alive
+    (service.runtime.heartbeat).
     """
 
     data_dir: Path = field(default_factory=lambda: Path(os.environ.get("EVCBENCH_DATA_DIR", "var")))
@@ -62,8 +64,9 @@ class Settings:
         if not BENCH_ID_PATTERN.match(self.bench_id):
             raise ValueError(f"bench_id must be 1-40 lower-case letters, digits, '.', '-' or '_' (starting with a "
                              f"letter or digit), not {self.bench_id!r}")
-        if not self.public_url:
-            object.__setattr__(self, "public_url", f"http://{self.host}:{self.port}")
+        if not self.public_url:   # a wildcard bind is reached by this machine's name
+            host = socket.gethostname() if self.host in ("0.0.0.0", "::", "") else self.host
+            object.__setattr__(self, "public_url", f"http://{host}:{self.port}")
         object.__setattr__(self, "public_url", self.public_url.rstrip("/"))
         if not 0.05 <= self.heartbeat_s <= 3600:
             raise ValueError(f"heartbeat_s must lie in 0.05-3600 s, not {self.heartbeat_s!r}")
