@@ -222,6 +222,10 @@ def test_lab_routes_in_process(tmp_path, monkeypatch):
         assert row["model"]["parameters"]["creep"] == pytest.approx(expected["creep"], rel=1e-12)
         assert 2.0 < row["model"]["parameters"]["creep"]["creep_pct_per_decade"] < 4.5   # the bench has 3 %/decade
         assert "creep.creep_pct_per_decade" in compared["parameter_names"]
+        # every identified model knows its data's noise floor: the creep bench's gauge noise is nanometres,
+        # and the refined model's held-out error is within a few times of it
+        floor = row["model"]["noise_floor_um"]
+        assert 0.0005 < floor < row["model"]["validation_rms_um"] < 10 * floor
         assert next(b for b in compared["benches"] if b["id"] == "stage-2")["model"] is None
 
         bad = http.get("/api/lab/compare", params={"axis": "x"})

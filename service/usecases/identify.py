@@ -13,6 +13,7 @@ import numpy as np
 from service.science.data.datasets import stored_sample_rate_hz
 from service.science.data.export import json_stride
 from service.science.data.record import Record
+from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.effects import EFFECT_NAMES, ordered
 from service.science.errors import FieldError
@@ -147,6 +148,9 @@ def store_model(store: Store, estimator, records: list[Record], axis: str, datas
     """Validate a fitted model on the held-out cycles of ``records`` (train/held-out RMS in µm) and
     store it (``parent_id``: the model it refines); the stored row."""
     metrics = estimator.validate(records)
+    # the data's own noise floor (µm RMS, from the cycle-to-cycle differences of the residual), so that a
+    # lab comparing models across benches sees how far each is from what its data allow
+    metrics["noise_floor_um"] = noise_floor(records, [r.x_um - estimator.predict(r) for r in records])["noise_floor_um"]
     return store.add_model({"axis": axis, "kind": estimator.name, "effects": effects, "parent_id": parent_id,
                             "datasets": datasets, "options": {"n_operators": n_operators},
                             "parameters": estimator.to_dict(), "metrics": metrics, "job_id": job_id})
