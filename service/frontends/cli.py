@@ -161,11 +161,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "be stopped); exit 1 if problems remain", _cmd_store_repair)
     repair.add_argument("--dry-run", action="store_true", help="change nothing; say what would be done")
 
+    from service.frontends import cli_lab
     from service.frontends import cli_remote
     from service.frontends import cli_tokens
 
     cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
     cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
+    cli_lab.add_commands(sub)     # lab batch (on the store, in process or on Dask)
     return parser
 
 

@@ -16,6 +16,7 @@ BENCHMARKS: dict[str, str] = {
     "service": "service.perf.service_load:run_service_benchmark",
     "safety": "service.perf.safety:run_safety_benchmark",
     "auth": "service.perf.auth:run_auth_benchmark",
+    "batch": "service.perf.batch:run_batch_benchmark",
 }
 
 

@@ -25,9 +25,11 @@ ExperimentRunner = Callable[[JobContext, dict], dict]
 
 
 def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, allow_experiments: bool = False,
-             run_experiment: ExperimentRunner | None = None, bench_jobs: Callable[[], list[str]] | None = None) -> dict:
+             run_experiment: ExperimentRunner | None = None, bench_jobs: Callable[[], list[str]] | None = None,
+             labels: dict | None = None) -> dict:
     """Job body: the loop from stored model ``model_id`` for at most ``max_steps`` steps (the start
-    model's diagnosis is step 0). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
+    model's diagnosis is step 0); each step's model is stored with ``labels`` (more fields of its
+    row: bench, tags). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
     effect of the final model), "steps", "effects_found", "remains", "stopped", "stop_reason",
     "needed_experiment", "experiments"}`` (units in the names)."""
     row = store.get_model(model_id)
@@ -50,7 +52,7 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
         theta, d = model.theta, step["diagnosis"]
         step_id = model_id if index == 0 else store_model(
             store, model, records, axis, list(datasets), ["hysteresis"] + ordered(effects), n_operators,
-            run["steps"][-1]["model_id"], ctx.job_id)["id"]
+            run["steps"][-1]["model_id"], ctx.job_id, labels)["id"]
         run["steps"].append(_step_summary(index, step_id, step, run, joined))
         if joined is not None:
             run["experiments"][-1]["resolved"] = _resolved(run["experiments"][-1]["effects"], d)

@@ -144,13 +144,14 @@ def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effe
 
 
 def store_model(store: Store, estimator, records: list[Record], axis: str, datasets: list[str], effects: list[str],
-                n_operators: int, parent_id: str | None, job_id: str | None) -> dict:
+                n_operators: int, parent_id: str | None, job_id: str | None, labels: dict | None = None) -> dict:
     """Validate a fitted model on the held-out cycles of ``records`` (train/held-out RMS in µm) and
-    store it (``parent_id``: the model it refines); the stored row."""
+    store it (``parent_id``: the model it refines; ``labels``: more fields of the row, such as its
+    bench and tags); the stored row."""
     metrics = estimator.validate(records)
     # the data's own noise floor (µm RMS, from the cycle-to-cycle differences of the residual), so that a
     # lab comparing models across benches sees how far each is from what its data allow
     metrics["noise_floor_um"] = noise_floor(records, [r.x_um - estimator.predict(r) for r in records])["noise_floor_um"]
-    return store.add_model({"axis": axis, "kind": estimator.name, "effects": effects, "parent_id": parent_id,
-                            "datasets": datasets, "options": {"n_operators": n_operators},
+    return store.add_model({**(labels or {}), "axis": axis, "kind": estimator.name, "effects": effects,
+                            "parent_id": parent_id, "datasets": datasets, "options": {"n_operators": n_operators},
                             "parameters": estimator.to_dict(), "metrics": metrics, "job_id": job_id})
