@@ -46,12 +46,13 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     if address.array_url is None and not Path(address.data_dir).is_dir():
         print(f"evcbench lab batch: no store at {address.data_dir}", file=sys.stderr)
         return 2
-    scheduler = args.scheduler or (None if args.local_workers else scheduler_from_env())
+    local = args.local_workers is not None
+    scheduler = args.scheduler or (None if local else scheduler_from_env())
     options = {"dataset_ids": _list(args.datasets) if args.datasets else None, "axes": tuple(_list(args.axes)),
                "steps": args.steps, "n_operators": args.n_operators,
                "on_result": None if args.json else _progress}
     try:
-        if scheduler or args.local_workers:
+        if scheduler or local:
             with dask_client(scheduler, args.local_workers) as client:
                 result = batch_discover(address, client=client, **options)
         else:
