@@ -74,13 +74,13 @@ def table(result: dict) -> str:
     lines = [f"batch {result['batch_id']}: {result['ok']} ok, {result['skipped']} skipped, {result['failed']} failed "
              f"(steps {result['steps']})",
              f"{'bench':<14} {'dataset':<20} {'axis':<4} {'held-out nm':>11} {'after nm':>9} {'noise nm':>9} "
-             f"{'verdict':<15} claimed | found: parameters"]
+             f"{'verdict':<15} claimed | found (parameters)"]
     for r in result["results"]:
         head = f"{str(r.get('bench_id') or '-'):<14} {r['dataset_id']:<20} {r['axis']:<4}"
         if r.get("status") != "ok":
             lines.append(f"{head} {r.get('status')}: {r.get('reason') or r.get('error')}")
             continue
-        found = "; ".join(f"{e}: " + ", ".join(f"{k} {v:.4g}" for k, v in r["physical_parameters"].get(e, {}).items())
+        found = "; ".join(" ".join([e] + [f"{k} {v:.4g}" for k, v in r["physical_parameters"].get(e, {}).items()])
                           for e in r["effects_found"])
         lines.append(f"{head} {_nm(r['held_out_rms_um']):>11} {_nm(r['held_out_rms_after_um']):>9} "
                      f"{_nm(r['noise_floor_um']):>9} {r['verdict']:<15} {','.join(r['claimed_effects']) or '-'}"
