@@ -172,3 +172,33 @@ def test_a_worker_killed_mid_batch_loses_no_result(lab, client):
     assert comparable(result["results"]) == comparable(in_process["results"])
     client.wait_for_workers(2, timeout=60)
     assert killed[0]["pid"] not in client.run(os.getpid).values()                  # it did die; its nanny restarted it
+
+
+@pytest.mark.slow
+def test_workers_read_the_arrays_from_the_shared_s3_location(tmp_path, monkeypatch):
+    """The arrays in an S3-compatible store (moto's server, tests/s3_server.py): with the local
+    copies removed, the LocalCluster's workers fetch them and give the in-process numbers."""
+    import shutil
+    import uuid
+
+    from s3_server import s3_server
+
+    from service.lab.cluster import dask_client
+    from service.store.placement import CACHE_DIR
+
+    with s3_server() as s3:
+        for name, value in s3.env.items():                 # the workers inherit this environment
+            monkeypatch.setenv(name, value)
+        bucket = s3.make_bucket(f"evc-{uuid.uuid4().hex[:12]}")
+        address = StoreAddress.of(None, tmp_path / "store", f"s3://{bucket}/lab")
+        row = record_emulated_sweep(open_store(address), "creep", 1, bench_id="bench-creep")
+        keys = [o["Key"] for o in s3.client().list_objects_v2(Bucket=bucket).get("Contents", [])]
+        assert any(row["id"] in key for key in keys)
+        in_process = batch_discover(address, axes=("y",))
+        shutil.rmtree(tmp_path / "store" / CACHE_DIR, ignore_errors=True)
+        assert not list((tmp_path / "store").rglob(f"*{row['id']}*"))   # no local copy left anywhere
+        with dask_client(local_workers=2) as client:
+            on_dask = batch_discover(address, axes=("y",), client=client)
+    assert (in_process["ok"], on_dask["ok"]) == (1, 1)
+    assert comparable(on_dask["results"]) == comparable(in_process["results"])
+    assert on_dask["results"][0]["claimed_effects"][0] == "creep"

@@ -6,7 +6,6 @@ its connections instead of creating the tables' metadata again for every dataset
 """
 from __future__ import annotations
 
-import inspect
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,22 +36,12 @@ _LOCK = threading.Lock()
 
 
 def open_store(address: StoreAddress) -> Store:
-    """The Store at ``address``, opened once per process. ValueError naming ``array_url`` when this
-    version of the store has no shared array location."""
+    """The Store at ``address``, opened once per process."""
     with _LOCK:
         store = _OPEN.get(address)
         if store is None:
-            store = _OPEN[address] = _new_store(address)
+            store = _OPEN[address] = Store(address.database_url, Path(address.data_dir), array_url=address.array_url)
         return store
-
-
-def _new_store(address: StoreAddress) -> Store:
-    if address.array_url is None:
-        return Store(address.database_url, Path(address.data_dir))
-    if "array_url" not in inspect.signature(Store).parameters:
-        raise ValueError(f"array_url: this store keeps arrays under its data dir only; "
-                         f"{address.array_url!r} cannot be used")
-    return Store(address.database_url, Path(address.data_dir), array_url=address.array_url)
 
 
 def close_stores() -> None:
