@@ -12,6 +12,7 @@ import os
 import pickle
 import signal
 import warnings
+from pathlib import Path
 
 import pytest
 
@@ -46,6 +47,20 @@ def test_plan_skips_what_cannot_be_diagnosed_and_names_bad_fields(y_only):
         plan_batch(open_store(address), dataset_ids=["ds_nope"])
     assert unknown.value.field == "dataset_ids"
     assert pickle.loads(pickle.dumps(address)) == address   # what travels to a worker
+
+
+def test_a_dataset_whose_arrays_fail_their_checksum_is_a_failed_row_and_the_batch_goes_on(y_only):
+    address, row = y_only
+    path = Path(address.data_dir) / row["file"]
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    result = batch_discover(address)
+    assert (result["ran"], result["ok"], result["skipped"], result["failed"]) == (1, 0, 1, 1)
+    failed = result["results"][0]
+    assert failed["status"] == "failed" and failed["error"].startswith("IntegrityError")
+    assert open_store(address).get_dataset(row["id"])["sha256"] == row["sha256"]   # the row is as it was
+    assert open_store(address).list_models() == []
 
 
 def test_bench_id_is_read_from_the_column_or_the_tag():

@@ -127,7 +127,7 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
                    on_result: ResultCallback | None = None) -> dict:
     """Run ``discover_one`` for every dataset (all of the store's when ``dataset_ids`` is None) and
     axis: in this process when ``client`` is None, else as one task each on the Dask cluster of
-    ``client`` (a distributed.Client). Returns ``{"batch_id", "steps", "n_operators", "ran",
+    ``client`` (a distributed.Client). Returns ``{"batch_id", "steps", "n_operators", "ran", "ok",
     "skipped", "failed", "results"}``: one row per dataset and axis in dataset order; a task that
     raised is a row with ``status`` "failed" and its ``error``."""
     if steps < 0:
@@ -136,7 +136,6 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
     batch_id = uuid.uuid4().hex[:12]
     todo = [i for i, entry in enumerate(plan) if "status" not in entry]
     results = list(plan)
-
     done = []
 
     def arrived(i: int, row: dict) -> None:
