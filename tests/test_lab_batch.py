@@ -63,6 +63,13 @@ def test_a_dataset_whose_arrays_fail_their_checksum_is_a_failed_row_and_the_batc
     assert open_store(address).list_models() == []
 
 
+def test_a_batch_cancelled_before_it_starts_runs_nothing(y_only):
+    address, _ = y_only
+    result = batch_discover(address, cancelled=lambda: True)
+    assert (result["ran"], result["ok"], result["cancelled"], result["skipped"]) == (1, 0, 1, 1)
+    assert open_store(address).list_models() == []
+
+
 def test_bench_id_is_read_from_the_column_or_the_tag():
     assert bench_id_of({"bench_id": "b1", "tags": ["bench:b2"]}) == "b1"
     assert bench_id_of({"tags": ["x", "bench:b2"]}) == "b2"
@@ -164,6 +171,23 @@ def test_dask_batch_gives_the_in_process_results(lab, client):
     for mine, theirs in zip(on_dask["results"], in_process["results"]):
         assert mine["model_id"] != theirs["model_id"]                              # stored again, by a worker
         assert store.get_model(mine["final_model_id"])["parameters"] == store.get_model(theirs["final_model_id"])["parameters"]
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("lab_batch")
+def test_cancel_stops_the_remaining_tasks(lab, client):
+    address, in_process = lab
+    flag = []
+    result = batch_discover(address, steps=1, client=client, on_result=lambda row, done, total: flag.append(done),
+                            cancelled=lambda: bool(flag))
+    assert result["ok"] >= 1 and result["cancelled"] >= 1 and result["ok"] + result["cancelled"] == 6
+    assert result["failed"] == 0
+    expected = {(r["dataset_id"], r["axis"]): r for r in comparable(in_process["results"])}
+    for row in comparable(result["results"]):
+        if row["status"] == "ok":
+            assert row == expected[(row["dataset_id"], row["axis"])]
+        else:
+            assert set(row) == {"bench_id", "dataset_id", "dataset_name", "axis", "status"}
 
 
 @pytest.mark.slow

@@ -35,6 +35,8 @@ AXES = ("y", "z")
 #: fields of a result row that name stored rows (differ between two runs of the same batch)
 REFERENCES = ("model_id", "final_model_id")
 
+#: how often a batch on a cluster looks at its cancel flag while it waits for results (s)
+CANCEL_POLL_S = 0.5
 #: ``on_result(row, done, total)``: called as each task's row arrives (in completion order)
 ResultCallback = Callable[[dict, int, int], None]
 
@@ -123,13 +125,15 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
 
 
 def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = None, axes: Sequence[str] = AXES,
-                   steps: int = 0, n_operators: int = 10, client=None,
-                   on_result: ResultCallback | None = None) -> dict:
+                   steps: int = 0, n_operators: int = 10, client=None, on_result: ResultCallback | None = None,
+                   cancelled: Callable[[], bool] | None = None) -> dict:
     """Run ``discover_one`` for every dataset (all of the store's when ``dataset_ids`` is None) and
     axis: in this process when ``client`` is None, else as one task each on the Dask cluster of
     ``client`` (a distributed.Client). Returns ``{"batch_id", "steps", "n_operators", "ran", "ok",
-    "skipped", "failed", "results"}``: one row per dataset and axis in dataset order; a task that
-    raised is a row with ``status`` "failed" and its ``error``."""
+    "skipped", "failed", "cancelled", "results"}``: one row per dataset and axis in dataset order; a
+    task that raised is a row with ``status`` "failed" and its ``error``. When ``cancelled()`` turns
+    true (polled between tasks, and every CANCEL_POLL_S on a cluster) the tasks not yet finished are
+    cancelled and their rows say so; a task a worker is running finishes there, unread."""
     if steps < 0:
         raise FieldError("steps", f"must be 0 or more, not {steps}")
     plan = plan_batch(open_store(address), dataset_ids, axes)
@@ -137,6 +141,7 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
     todo = [i for i, entry in enumerate(plan) if "status" not in entry]
     results = list(plan)
     done = []
+    stop = cancelled or (lambda: False)
 
     def arrived(i: int, row: dict) -> None:
         results[i] = row
@@ -146,25 +151,45 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
 
     if client is None:
         for i in todo:
+            if stop():
+                break
             try:
                 row = discover_one(address, plan[i]["dataset_id"], plan[i]["axis"], steps, n_operators, batch_id)
             except Exception as exc:  # noqa: BLE001 - one dataset's failure is its row, not the batch's
                 row = _failed(plan[i], exc)
             arrived(i, row)
     else:
-        from distributed import as_completed
+        _run_on_cluster(client, address, plan, todo, steps, n_operators, batch_id, arrived, stop)
+    for i in todo:
+        if i not in done:
+            results[i] = {**plan[i], "status": "cancelled"}
+    count = {s: sum(1 for r in results if r.get("status") == s) for s in ("ok", "skipped", "failed", "cancelled")}
+    return {"batch_id": batch_id, "steps": steps, "n_operators": n_operators, "ran": len(todo), **count,
+            "results": results}
 
-        futures = client.map(discover_one, [address] * len(todo), [plan[i]["dataset_id"] for i in todo],
-                             [plan[i]["axis"] for i in todo], steps=steps, n_operators=n_operators,
-                             batch_id=batch_id, pure=False)
-        index = {f.key: i for f, i in zip(futures, todo)}
-        for future in as_completed(futures):
+
+def _run_on_cluster(client, address, plan, todo, steps, n_operators, batch_id, arrived, stop) -> None:
+    """One task per entry of ``todo`` on ``client``'s cluster; each row to ``arrived`` as it comes;
+    the rest cancelled once ``stop()``."""
+    from distributed import wait
+
+    futures = client.map(discover_one, [address] * len(todo), [plan[i]["dataset_id"] for i in todo],
+                         [plan[i]["axis"] for i in todo], steps=steps, n_operators=n_operators,
+                         batch_id=batch_id, pure=False)
+    index = {f.key: i for f, i in zip(futures, todo)}
+    pending = set(futures)
+    while pending:
+        if stop():
+            client.cancel(list(pending))
+            return
+        try:
+            finished, pending = wait(pending, timeout=CANCEL_POLL_S, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            continue
+        for future in sorted(finished, key=lambda f: index[f.key]):
             i = index[future.key]
             arrived(i, future.result() if future.status == "finished" else _failed(plan[i], future.exception()))
             future.release()
-    count = {s: sum(1 for r in results if r.get("status") == s) for s in ("ok", "skipped", "failed")}
-    return {"batch_id": batch_id, "steps": steps, "n_operators": n_operators, "ran": len(todo),
-            "ok": count["ok"], "skipped": count["skipped"], "failed": count["failed"], "results": results}
 
 
 def _failed(entry: dict, exc: BaseException) -> dict:
