@@ -44,8 +44,10 @@ def dask_client(scheduler: str | None = None, local_workers: int | None = None) 
         n = 1 if local_workers is None else int(local_workers)
         if n < 1:
             raise ValueError(f"local_workers: must be 1 or more, not {n}")
+        # no dashboard; the scheduler's own HTTP routes (health, metrics) on a free port, not 8787
         with LocalCluster(n_workers=n, processes=True, threads_per_worker=1, dashboard_address=None,
-                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+                          scheduler_kwargs={"dashboard_address": ":0"}, silence_logs=logging.ERROR) as cluster, \
+                Client(cluster) as client:
             yield client
 
 
