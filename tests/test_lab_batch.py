@@ -19,7 +19,7 @@ import pytest
 from service.frontends.cli import main as cli_main
 from service.lab.address import StoreAddress, open_store
 from service.lab.batch import batch_discover, comparable, plan_batch
-from service.lab.emulated import bench_id_of, record_emulated_sweep
+from service.lab.emulated import record_emulated_sweep
 from service.science.errors import FieldError
 
 BENCHES = ("default", "creep", "dynamics")
@@ -70,12 +70,6 @@ def test_a_batch_cancelled_before_it_starts_runs_nothing(y_only):
     assert open_store(address).list_models() == []
 
 
-def test_bench_id_is_read_from_the_column_or_the_tag():
-    assert bench_id_of({"bench_id": "b1", "tags": ["bench:b2"]}) == "b1"
-    assert bench_id_of({"tags": ["x", "bench:b2"]}) == "b2"
-    assert bench_id_of({"tags": []}) is None
-
-
 def test_the_config_file_for_workers_started_by_hand_says_what_the_local_cluster_uses():
     import yaml
 
@@ -101,7 +95,7 @@ def test_cli_batch_in_process_prints_a_row_per_dataset_and_axis(y_only, capsys):
     assert (y["bench_id"], y["dataset_id"], y["axis"], y["status"]) == ("bench-a", row["id"], "y", "ok")
     assert 0 < y["noise_floor_um"] < y["held_out_rms_um"] < 0.5           # µm: a fitted loop, above the gauge noise
     stored = open_store(address).get_model(y["model_id"])
-    assert (stored["axis"], stored["datasets"], bench_id_of(stored)) == ("y", [row["id"]], "bench-a")
+    assert (stored["axis"], stored["datasets"], stored["bench_id"]) == ("y", [row["id"]], "bench-a")
     assert cli_main(["lab", "batch", "--data-dir", address.data_dir]) == 0
     text = capsys.readouterr().out
     assert "1 ok, 1 skipped, 0 failed" in text and "no block drives axis z" in text
@@ -156,7 +150,7 @@ def test_in_process_batch_names_the_hidden_effects(lab):
         assert "creep" not in r["effects_found"] or r["bench_id"] == "bench-creep"
     store = open_store(address)
     model = store.get_model(creep["final_model_id"])
-    assert model["parent_id"] == creep["model_id"] and bench_id_of(model) == "bench-creep"
+    assert model["parent_id"] == creep["model_id"] and model["bench_id"] == "bench-creep"
     assert f"batch:{result['batch_id']}" in model["tags"]
 
 

@@ -6,7 +6,7 @@ A task (``discover_one``) is the REST path a user would take for one dataset and
 /api/models/{id}/diagnosis (service.usecases.discover.diagnose_model), and with ``steps`` > 0 POST
 /api/models/{id}/discover with ``max_steps = steps + 1`` (service.usecases.discover_run.discover;
 no experiments: a batch has no bench). It opens the store from its ``StoreAddress`` in the process
-it runs in, stores every model it fits with the dataset's bench id and the tag ``batch:<id>``, and
+it runs in, stores every model it fits (with the dataset's bench id) tagged ``batch:<id>``, and
 returns a plain JSON-safe row. The fit and diagnosis draw no random numbers, so a task gives the
 same numbers wherever it runs; the rows differ only in the ids of the models stored
 (``comparable`` leaves those out).
@@ -21,7 +21,6 @@ import uuid
 from typing import Callable, Sequence
 
 from service.lab.address import StoreAddress, open_store
-from service.lab.emulated import bench_id_of, bench_labels
 from service.science.discovery.parameters import physical_parameters
 from service.science.errors import FieldError
 from service.science.fitting.validation import split_blocks
@@ -72,7 +71,7 @@ def plan_batch(store: Store, dataset_ids: Sequence[str] | None = None, axes: Seq
     plan = []
     for row in rows:
         for axis in axes:
-            entry = {"bench_id": bench_id_of(row), "dataset_id": row["id"], "dataset_name": row["name"], "axis": axis}
+            entry = {"bench_id": row.get("bench_id"), "dataset_id": row["id"], "dataset_name": row["name"], "axis": axis}
             if axis not in row["axes"]:
                 entry.update(status="skipped", reason=f"no {axis} axis (the dataset has {', '.join(row['axes'])})")
             elif not split_blocks(row["blocks"], row["samples"], row["sample_rate_hz"], axis):
@@ -88,8 +87,7 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
     "skipped" with the ``reason`` the data cannot be modelled)."""
     store = open_store(address)
     row = store.get_dataset(dataset_id)
-    bench_id = bench_id_of(row)
-    out = {"bench_id": bench_id, "dataset_id": dataset_id, "dataset_name": row["name"], "axis": axis}
+    out = {"bench_id": row.get("bench_id"), "dataset_id": dataset_id, "dataset_name": row["name"], "axis": axis}
     try:
         record = load_record(store, dataset_id, axis, row=row)
     except FieldError as exc:
@@ -97,8 +95,7 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
     if not record.training_mask(own_axis_only=True).any():
         return {**out, "status": "skipped", "reason": "no training data: every block is too short to hold out "
                                                       "its last cycle and keep one for the fit"}
-    labels = bench_labels(bench_id)
-    labels["tags"] = labels.get("tags", []) + ([f"batch:{batch_id}"] if batch_id else [])
+    labels = {"tags": [f"batch:{batch_id}"] if batch_id else []}     # the bench: the dataset's (Store.add_model)
     estimator = model_for("composite", ["hysteresis"], n_operators)
     estimator.fit([record])
     base = store_model(store, estimator, [record], axis, [dataset_id], ["hysteresis"], n_operators, None, None, labels)
