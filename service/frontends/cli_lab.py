@@ -20,7 +20,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--database-url", help="SQLAlchemy URL of the metadata database (default: SQLite in the "
                    "data dir; env EVCBENCH_DATABASE_URL)")
     p.add_argument("--data-dir", type=Path, help="store directory (default ./var, env EVCBENCH_DATA_DIR)")
-    p.add_argument("--array-url", help="shared array location (a path or s3://bucket/prefix), when the store has one")
+    p.add_argument("--array-url", help="shared array location (a path or s3://bucket/prefix), when the store has one "
+                   "(env EVCBENCH_ARRAY_URL)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", help="Dask scheduler address, tcp://host:8786 (default: env "
                        "EVCBENCH_DASK_SCHEDULER; neither and no --local-workers: run in this process)")
@@ -42,7 +43,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
     defaults = Settings()
     address = StoreAddress.of(args.database_url or defaults.database_url, args.data_dir or defaults.data_dir,
-                              args.array_url)
+                              args.array_url or defaults.array_url)
     if address.array_url is None and not Path(address.data_dir).is_dir():
         print(f"evcbench lab batch: no store at {address.data_dir}", file=sys.stderr)
         return 2
