@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from service.reports.calibration import FREQUENCIES_HZ
-from service.reports.reproduction import MODEL_COLUMNS, PAPER_TABLE6_UM, render_markdown, sweep_series
+from service.reports.calibration_fit import target_checks
+from service.reports.reproduction import MODEL_COLUMNS, PAPER_TABLE6_UM, render_markdown, reproduce, sweep_series
 from service.science.models import DynamicPI, StaticPI
 
 
@@ -74,3 +75,39 @@ def test_reproduction_table_has_every_model_and_the_papers_figures():
         [paper] = [h for h in row if h.startswith("paper")]
         expected = PAPER_TABLE6_UM[axis].get(f_hz, ())
         assert row[paper] == pytest.approx(expected, abs=5e-5), (axis, f_hz)
+
+
+#: Table 6 targets the default bench does not meet, and why (docs/calibration.md, "Residual disagreements").
+#: Filled from the calibrated bench's reproduction run; the test asserts this set exactly, so a target
+#: that becomes met (or one that is lost) shows here.
+UNMET_TARGETS: dict[str, str] = {}
+
+
+@pytest.fixture(scope="module")
+def default_reproduction():
+    """One reproduction run of the default bench (seed 0, as docs/reproduction.md), PSO left out."""
+    return reproduce("default", seed=0, with_pso=False)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("axis", ["y", "z"])
+def test_default_bench_meets_the_papers_table6_targets(default_reproduction, axis):
+    """Issue 18's targets, read from the reproduction run's figures: each Table 6 cell within ±35 % of
+    the paper's, the paper's ordering (dynamic < GRPI ≤ static where the paper has it), the dynamic
+    PI's 10 Hz reduction of the static PI's error within 15 points of the paper's, and the 1 Hz stroke
+    within 3 %. Every target is met except those in UNMET_TARGETS, which stay unmet."""
+    result = default_reproduction[axis]
+    stroke = measure_calibration_stroke(axis)
+    checks = target_checks(axis, result["rms_um"], stroke)
+    missed = {name: figures for name, met, figures in checks if not met}
+    expected = {name for name in UNMET_TARGETS if name.startswith(axis.upper() + " ")}
+    assert set(missed) == expected, missed
+    assert len(checks) >= 10
+
+
+def measure_calibration_stroke(axis: str) -> float:
+    """The 1 Hz stroke (last cycle, µm) of the default bench, as docs/calibration.md measures it."""
+    from service.reports.calibration import last_cycle, run_loops
+
+    _, x = run_loops("default", 0, (1.0,), axes=(axis,))[axis][1.0]
+    return float(np.ptp(last_cycle(x, x, 1.0)[1]))

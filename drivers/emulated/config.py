@@ -65,6 +65,7 @@ RULES: dict[str, tuple] = {
     "axes.*.piezo.hysteresis.maxwell_slip.elastic_fraction": ("num", 0.0, 0.9),
     "axes.*.piezo.hysteresis.maxwell_slip.distribution_seed": ("int", 0, 2 ** 32 - 1),
     "axes.*.piezo.rate_dependence.relaxation_s": ("num", 0.0, 10.0),
+    "axes.*.piezo.rate_dependence.relaxing_fraction": ("num", 0.0, 1.0),
     "axes.*.piezo.creep.rate_per_decade": ("num", 0.0, 0.5),
     "axes.*.piezo.creep.tau_min_s": ("num", 1e-5, 1e7),
     "axes.*.piezo.creep.tau_max_s": ("num", 1e-5, 1e7),
@@ -89,6 +90,7 @@ FAMILY_KEY = "axes.*.piezo.hysteresis.family"
 #: the family's own table: required when the family is selected, ignored otherwise
 FAMILY_TABLES = {family: f"axes.*.piezo.hysteresis.{family}." for family in ("bouc_wen", "maxwell_slip")}
 OPTIONAL = {"seed", "description", "daq.realtime", "ambient.thermometer", FAMILY_KEY,
+            "axes.*.piezo.rate_dependence.relaxing_fraction",
             *(k for k in RULES if any(k.startswith(prefix) for prefix in FAMILY_TABLES.values()))}
 CHECKED_ELSEWHERE = ("transport", "safety", "faults", "emulator")
 

@@ -37,7 +37,7 @@ SG_T_S, SG_RING, SG_TEMP_C, NSG = range(4)
  P_TC_PER_C, P_TREF_C, P_NCREEP, P_GRID_LO_V, P_GRID_INV_STEP, P_GRID_N, P_S0,
  F_ON, F_AD00, F_AD01, F_AD10, F_AD11, F_BD0, F_BD1, C_FROM_OTHER,
  S_V_PER_UM, S_BW_ALPHA, S_NOISE_UM, S_NL_UM, S_RANGE_UM, S_DRIFT_UM,
- P_FAMILY, P_BW_A, P_BW_BETA, P_BW_GAMMA, P_BW_N, P_BW_STEP_V, P_MS_N, P_MS_ELASTIC, NPA) = range(47)
+ P_FAMILY, P_BW_A, P_BW_BETA, P_BW_GAMMA, P_BW_N, P_BW_STEP_V, P_MS_N, P_MS_ELASTIC, P_RELAX_FRAC, NPA) = range(48)
 # ---- per-axis state sa[axis, ...]
 (S_VOUT, S_VP, S_IA, S_CLIM, S_OCT, S_OCQ, S_OCPEAK, S_FAULT, S_FAULT_I, S_FAULT_T, S_ENABLED,
  S_UCUR, S_TOP, S_XSW, S_XFAST, S_XPZ, S_FP, S_FV, S_XTOOL, S_G, S_GOFF, S_GV, S_SAT, S_SATN,
@@ -247,7 +247,7 @@ def _amplifier(pg, pa, sa, a, vin, nz):
 
 @njit(cache=True, inline="always")
 def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
-    """Stack strain (µm): reversible + relaxing switched part (the axis's family) + electrostriction,
+    """Stack strain (µm): reversible + switched part (the axis's family; a fraction of it relaxes) + electrostriction,
     temperature-scaled, plus creep (first-order modes with log-spaced time constants)."""
     if pa[a, P_HYST_ON] > 0.5:
         # Bouc–Wen and Maxwell-slip switch on the amplifier's noise-free output: a Duhem-type law
@@ -260,8 +260,9 @@ def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
     inv_sat = pa[a, P_SAT_INV]
     if inv_sat > 0.0:
         xeq = math.tanh(xeq * inv_sat) / inv_sat
-    xsw = sa[a, S_XSW] + (xeq - sa[a, S_XSW]) * pa[a, P_RELAX_ALPHA]
-    sa[a, S_XSW] = xsw
+    slow = sa[a, S_XSW] + (xeq - sa[a, S_XSW]) * pa[a, P_RELAX_ALPHA]
+    sa[a, S_XSW] = slow
+    xsw = xeq + (slow - xeq) * pa[a, P_RELAX_FRAC]   # the relaxing fraction lags, the rest follows at once
     xfast = (pa[a, P_DI_UM_PER_V] * u + xsw + pa[a, P_Q_UM_PER_V2] * u * u) * (
         1.0 + pa[a, P_TC_PER_C] * (temp_c - pa[a, P_TREF_C]))
     sa[a, S_XFAST] = xfast

@@ -192,6 +192,7 @@ class World:
             rd = pz["rate_dependence"]
             tau = rd["relaxation_s"] * _on(rd)
             pa[a, K.P_RELAX_ALPHA] = 1.0 - math.exp(-dt / tau) if tau > 0 else 1.0
+            pa[a, K.P_RELAX_FRAC] = rd.get("relaxing_fraction", 1.0)
             self.ca[a] = -np.expm1(-dt / self.creep_tau_s[a])
             pa[a, K.S_DRIFT_UM] = gauge["drift"]["offset_rate_nm_per_s"] * 1e-3 * _on(gauge["drift"]) * dt
             dyn = flex["dynamics"]

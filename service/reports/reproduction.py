@@ -58,9 +58,10 @@ def _switched_off(paths: tuple[str, ...]) -> dict:
     return overrides
 
 
-def sweep_series(bench_name: str = "default", seed: int = 0, overrides: dict | None = None) -> dict[str, list[Record]]:
+def sweep_series(bench_name: str = "default", seed: int = 0, overrides: dict | None = None,
+                 axes: tuple[str, ...] = ("y", "z")) -> dict[str, list[Record]]:
     """Per axis, one Record per frequency, with the commanded waveform's exact derivatives."""
-    loops = run_loops(bench_name, seed=seed, overrides=overrides)
+    loops = run_loops(bench_name, seed=seed, overrides=overrides, axes=axes)
     out: dict[str, list[Record]] = {}
     for axis, by_frequency in loops.items():
         out[axis] = []
@@ -99,9 +100,9 @@ def identify_axis(loops: list[Record], seed: int = 0, with_pso: bool = True) -> 
     return {"rms_um": rms, "fit_s": timings}
 
 
-def reproduce(bench_name: str = "default", seed: int = 0) -> dict:
+def reproduce(bench_name: str = "default", seed: int = 0, with_pso: bool = True) -> dict:
     """Sweep, identify and tabulate both axes. Returns {axis: identify_axis(...)}."""
-    return {axis: identify_axis(loops, seed) for axis, loops in sweep_series(bench_name, seed).items()}
+    return {axis: identify_axis(loops, seed, with_pso) for axis, loops in sweep_series(bench_name, seed).items()}
 
 
 def ablation(bench_name: str = "default", seed: int = 0) -> list[tuple[str, dict]]:
