@@ -80,7 +80,15 @@ def test_reproduction_table_has_every_model_and_the_papers_figures():
 #: Table 6 targets the default bench does not meet, and why (docs/calibration.md, "Residual disagreements").
 #: Filled from the calibrated bench's reproduction run; the test asserts this set exactly, so a target
 #: that becomes met (or one that is lost) shows here.
-UNMET_TARGETS: dict[str, str] = {}
+FLEXURE_FLOOR = ("the first mode (FEM 482.6 / 290.7 Hz) passes the 100 Hz fundamental with |H − 1| ≥ r²/(1 − r²) "
+                 "at any damping, plus one sample of AO→AI latency; no PI-family model has structural dynamics")
+UNMET_TARGETS: dict[str, str] = {
+    **{f"{axis} 100 Hz {model} within ±35 %": FLEXURE_FLOOR for axis in ("Y", "Z")
+       for model in ("dynamic_joint", "grpi", "static")},
+    "Y 10 Hz reduction within 15 points": "25.5 % against 41 % (26 % needed): the relaxation that gives the dynamic PI "
+                                          "its lead also widens the 1 Hz loop's shape error the static PI keeps, and the "
+                                          "calibration test holds that error to ≥ half the paper's 0.0881 µm",
+}
 
 
 @pytest.fixture(scope="module")

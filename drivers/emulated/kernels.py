@@ -262,7 +262,8 @@ def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
         xeq = math.tanh(xeq * inv_sat) / inv_sat
     slow = sa[a, S_XSW] + (xeq - sa[a, S_XSW]) * pa[a, P_RELAX_ALPHA]
     sa[a, S_XSW] = slow
-    xsw = xeq + (slow - xeq) * pa[a, P_RELAX_FRAC]   # the relaxing fraction lags, the rest follows at once
+    frac = pa[a, P_RELAX_FRAC]          # the relaxing fraction lags, the rest follows at once (1: exactly `slow`)
+    xsw = frac * slow + (1.0 - frac) * xeq
     xfast = (pa[a, P_DI_UM_PER_V] * u + xsw + pa[a, P_Q_UM_PER_V2] * u * u) * (
         1.0 + pa[a, P_TC_PER_C] * (temp_c - pa[a, P_TREF_C]))
     sa[a, S_XFAST] = xfast

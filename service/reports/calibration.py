@@ -198,7 +198,7 @@ def write_report(path: str | Path = "docs/calibration.md", bench_name: str = "de
         path = ROOT / path
     img = path.parent / "img" / "calibration_loops.png"
     img.parent.mkdir(parents=True, exist_ok=True)
-    from service.reports.calibration_fit import fit_markdown
+    from service.reports.calibration_notes import fit_markdown
     from service.reports.reproduction import reproduce
 
     res = measure_calibration(bench_name, seed)

@@ -168,18 +168,20 @@ def target_checks(axis: str, rms_um: dict, stroke_um: float | None = None) -> li
 WEIGHT_100HZ = 0.2
 #: Pull towards the centre of a band, so that a met target does not sit on its edge.
 CENTRE_PULL = 0.1
+#: The static PI's 1 Hz error may differ from the paper's by this factor (the calibration test allows 2).
+PI_1HZ_MARGIN = 1.8
 
 
 def _band(miss: float) -> float:
     """Squared excess beyond a band, in band widths (0 inside), plus a gentle pull to its centre."""
-    return max(0.0, abs(miss) - 1.0) ** 2 * 10.0 + CENTRE_PULL * miss ** 2
+    return max(0.0, abs(miss) - 1.0) ** 2 * 100.0 + CENTRE_PULL * miss ** 2
 
 
 def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
     """Sum of terms: each 10 Hz cell's log ratio to the paper's in units of log(1.35) and the 10 Hz
     reduction's miss in units of 15 points (``_band``: steep beyond the target, gentle inside); the
     100 Hz cells' squared log ratios at ``WEIGHT_100HZ``; ordering hinges; and the calibration
-    test's 1 Hz guards (loop width 10–15 %, static PI at 1 Hz within 2× of the paper's)."""
+    test's 1 Hz guards with a margin (loop width 10.5–14.5 %, static PI at 1 Hz within ``PI_1HZ_MARGIN`` × of the paper's)."""
     got, parts = cells(measured["rms_um"]), {}
     for (m, f), value in got.items():
         paper = PAPER_TABLE6_UM[axis][f][MODELS.index(m)]
@@ -189,19 +191,20 @@ def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
     parts["reduction@10"] = _band((red - paper_reduction(axis)) / REDUCTION_TOLERANCE)
     for f in TABLE_FREQUENCIES_HZ:
         d, g, s = (got[(m, f)] for m in MODELS)
-        parts[f"order_dg@{f:g}"] = 1000.0 * max(0.0, math.log(d / g) + 0.02) ** 2
+        parts[f"order_dg@{f:g}"] = 1e4 * max(0.0, math.log(d / g) + 0.02) ** 2
         if PAPER_TABLE6_UM[axis][f][1] <= PAPER_TABLE6_UM[axis][f][2]:
-            parts[f"order_gs@{f:g}"] = 1000.0 * max(0.0, math.log(g / s) + 0.01) ** 2
+            parts[f"order_gs@{f:g}"] = 1e4 * max(0.0, math.log(g / s) + 0.01) ** 2
     width = measured["loop_width_pct"]
     parts["loop_width"] = (max(0.0, 10.5 - width, width - 14.5)) ** 2
     pi_1hz = measured["rms_um"]["static"]["1 Hz"] / PAPER[axis]["pi_rms_1hz_um"]
-    parts["pi_1hz"] = 10.0 * max(0.0, abs(math.log(pi_1hz)) - math.log(1.8)) ** 2
+    parts["pi_1hz"] = 1e4 * max(0.0, abs(math.log(pi_1hz)) - math.log(PI_1HZ_MARGIN)) ** 2
     return float(sum(parts.values())), parts
 
 
 def fit_axis(axis: str, evaluations: int = 150, bench: str = "default", seed: int = 0,
-             log=None, start: dict[str, float] | None = None) -> dict:
-    """Bounded Nelder–Mead over ``PARAMETERS`` from ``start`` (default: the bench's values).
+             log=None, start: dict[str, float] | None = None, step: float = 0.25) -> dict:
+    """Bounded Nelder–Mead over ``PARAMETERS`` from ``start`` (default: the bench's values), the initial
+    simplex ``step`` wide in the [0, 1] coordinates.
     Returns the best {"objective", "parts", "values", "measured", "evaluations"}."""
     base = current_values(axis, bench)
     if start:
@@ -221,7 +224,8 @@ def fit_axis(axis: str, evaluations: int = 150, bench: str = "default", seed: in
         cache[key] = value
         record = {"n": len(cache), "s": round(time.perf_counter() - began, 1), "objective": value,
                   "values": {p.key: values[p.key] for p in PARAMETERS},
-                  "cells": {f"{m}@{f:g}": v for (m, f), v in cells(measured["rms_um"]).items()}}
+                  "cells": {f"{m}@{f:g}": v for (m, f), v in cells(measured["rms_um"]).items()},
+                  "static_1hz_um": measured["rms_um"]["static"]["1 Hz"]}
         if log is not None:
             log.write(json.dumps({"axis": axis, **record}) + "\n")
             log.flush()
@@ -231,125 +235,12 @@ def fit_axis(axis: str, evaluations: int = 150, bench: str = "default", seed: in
                   + ", ".join(f"{k} {v:.4f}" for k, v in record["cells"].items()), flush=True)
         return value
 
-    simplex = [x0] + [np.clip(x0 + np.where(np.arange(len(x0)) == i, 0.25 if x0[i] < 0.75 else -0.25, 0.0), 0, 1)
+    simplex = [x0] + [np.clip(x0 + np.where(np.arange(len(x0)) == i, step if x0[i] < 1 - step else -step, 0.0), 0, 1)
                       for i in range(len(x0))]
     minimize(evaluate, x0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * len(x0),
              options={"maxfev": evaluations, "initial_simplex": np.array(simplex), "xatol": 5e-3, "fatol": 1e-3})
     best["evaluations"] = len(cache)
     return best
-
-
-#: Parameters the fit does not move, and where their values come from.
-FIXED = (
-    ("flexure.resonance_hz", "first modes from the paper's FEM (Fig. 1d,e); a target, not a fitted value"),
-    ("piezo.reversible_um_per_v", "scaled with the switched strain, electrostriction and saturation by one "
-                                  "factor per evaluation, so that the 1 Hz stroke is the paper's"),
-    ("piezo.hysteresis.switched_um", "idem (the Preisach density's shape, coercive mode and bias are unchanged)"),
-    ("amplifier.bandwidth.bandwidth_hz", "PZD350-class channel into 1.8 µF (not fitted)"),
-)
-
-
-def _config_value(cfg: dict, axis: str, key: str) -> float:
-    node = cfg["axes"][axis]
-    for part in key.split("."):
-        node = node.get(part, 1.0) if isinstance(node, dict) else node
-    return float(node)
-
-
-def parameter_table(bench: str = "default") -> list[str]:
-    """Markdown rows: every fitted and every stroke-scaled parameter with its Y and Z values,
-    bound and source."""
-    cfg = load_config(bench)
-    rows = ["| parameter (`axes.<axis>.…`) | Y | Z | bound | source or inference |", "|---|---|---|---|---|"]
-    for p in PARAMETERS:
-        y, z = (_config_value(cfg, axis, p.key) for axis in ("y", "z"))
-        rows.append(f"| `{p.key}` | {y:.4g} | {z:.4g} | {p.low:g}–{p.high:g} | fitted; bound: {p.why} |")
-    for key, why in FIXED:
-        y, z = (_config_value(cfg, axis, key) for axis in ("y", "z"))
-        rows.append(f"| `{key}` | {y:.4g} | {z:.4g} | — | {why} |")
-    return rows
-
-
-def flexure_floor_um(axis: str, bench: str = "default", frequency_hz: float = 100.0) -> dict[str, float]:
-    """What the flexure alone costs a 1 Hz-fitted static PI at ``frequency_hz``, for ANY damping: a
-    second-order mode at f_n passes the drive's fundamental with |H − 1| ≥ r²/(1 − r²), r = f/f_n
-    (the minimum is at ζ → 0 for r < 1/√2), on the fundamental's amplitude (half the paper's stroke).
-    Also the AO→AI latency's phase at ``frequency_hz`` and what it alone costs."""
-    cfg = load_config(bench)
-    r = frequency_hz / float(cfg["axes"][axis]["flexure"]["resonance_hz"])
-    amplitude_um = PAPER[axis]["stroke_um"] / 2.0
-    gain_excess = r * r / (1.0 - r * r)
-    latency_s = cfg["daq"]["latency"]["samples"] / cfg["daq"]["sample_rate_hz"] if cfg["daq"]["latency"]["enabled"] else 0.0
-    phase_rad = 2 * math.pi * frequency_hz * latency_s
-    return {"r": r, "gain_excess": gain_excess, "flexure_rms_um": gain_excess * amplitude_um / math.sqrt(2.0),
-            "latency_rad": phase_rad, "latency_rms_um": phase_rad * amplitude_um / math.sqrt(2.0)}
-
-
-def fit_markdown(rms_by_axis: dict, bench: str = "default") -> str:
-    """docs/calibration.md's account of the fit: the parameters with their sources, every target
-    of Table 6 met or not on ``rms_by_axis`` ({axis: identify_axis(...)["rms_um"]}), and why the
-    unmet ones stay unmet (the flexure's and the latency's floors computed from the config)."""
-    lines = ["## Fitted parameters", "",
-             "Fitted by `python -m service.reports.calibration --fit` (module `service/reports/calibration_fit.py`): "
-             "per axis, a bounded Nelder–Mead over the parameters below, each mapped to [0, 1] inside its bound "
-             "(log-mapped where the bound spans a decade), from the bench's previous values. One evaluation sweeps "
-             "the axis at 1, 10, 50 and 100 Hz exactly as `python -m service.reports.reproduction` does, after "
-             "scaling the stack's strain coefficients so that the 1 Hz stroke is the paper's, and fits the static "
-             "PI, GRPI and dynamic PI (exact least squares). The objective sums, per axis: each 10 Hz cell's log "
-             "ratio to the paper's in units of log 1.35 and the dynamic PI's 10 Hz reduction of the static PI's "
-             "error in units of 15 points (steep beyond the target, gentle inside it); the 100 Hz cells' squared "
-             f"log ratios at weight {WEIGHT_100HZ:g} (their floor, below, is physical); hinges on the paper's "
-             "ordering; and the calibration test's 1 Hz guards (loop width 10–15 %, static PI within 2× of the "
-             "paper's).", "", *parameter_table(bench), "",
-             "## Table 6 targets on the calibrated bench", "",
-             "From the reproduction's own sweep (seed 0). ✓ met, ✗ not met.", "",
-             "| target | figures | met |", "|---|---|---|"]
-    for axis in ("y", "z"):
-        for name, met, figures in target_checks(axis, rms_by_axis[axis]):
-            lines.append(f"| {name} | {figures} | {'✓' if met else '✗'} |")
-    floors = {axis: flexure_floor_um(axis, bench) for axis in ("y", "z")}
-    ceiling = {axis: PAPER_TABLE6_UM[axis][100.0][2] * (1 + CELL_TOLERANCE) for axis in ("y", "z")}
-    fy, fz = floors["y"], floors["z"]
-    z_pp_um, z_stroke = 11.0 - 1.0, PAPER["z"]["stroke_um"]
-    lines += ["", "## Residual disagreements, and why", "",
-              f"- **The 100 Hz cells have a physical floor.** A second-order mode at f_n passes a drive at f with "
-              f"|H − 1| ≥ r²/(1 − r²), r = f/f_n, whatever its damping (the bound is reached as ζ → 0; more damping "
-              f"adds phase lag, less lets the loop's harmonics ring the mode). At 100 Hz that is "
-              f"{100 * fy['gain_excess']:.1f} % on Y (r = {fy['r']:.3f}) and {100 * fz['gain_excess']:.1f} % on Z "
-              f"(r = {fz['r']:.3f}) of the fundamental, i.e. at least {fy['flexure_rms_um']:.3f} µm and "
-              f"{fz['flexure_rms_um']:.3f} µm rms that a static PI fitted at 1 Hz cannot follow, against the paper's "
-              f"static-PI figures {PAPER_TABLE6_UM['y'][100.0][2]:.4f} and {PAPER_TABLE6_UM['z'][100.0][2]:.4f} µm "
-              f"(±35 % ceilings {ceiling['y']:.3f} and {ceiling['z']:.3f}). The DAQ's one-sample AO→AI latency adds "
-              f"{1e3 * fy['latency_rad']:.1f} mrad of lag at 100 Hz ({fy['latency_rms_um']:.3f} µm on Y, "
-              f"{fz['latency_rms_um']:.3f} µm on Z). So on Z no damping meets the 100 Hz static-PI cell with the "
-              f"FEM's 290.7 Hz mode in the path; the fitted ζ is the one that best trades harmonic ringing "
-              f"against lag. The paper's 100 Hz figures imply a first mode well above the FEM's, or a static PI "
-              f"refitted at 100 Hz: for the fundamental alone to stay within the Z ceiling, r²/(1 − r²) ≤ "
-              f"{math.sqrt(max(ceiling['z'] ** 2 - PAPER['z']['pi_rms_1hz_um'] ** 2, 0.0)) * math.sqrt(2) / (z_stroke / 2):.3f}, "
-              f"i.e. f_n ≥ "
-              f"{100.0 / math.sqrt(_r2_for_excess(math.sqrt(max(ceiling['z'] ** 2 - PAPER['z']['pi_rms_1hz_um'] ** 2, 0.0)) * math.sqrt(2) / (z_stroke / 2))):.0f} Hz "
-              f"(given the paper's own 1 Hz floor of {PAPER['z']['pi_rms_1hz_um']:.4f} µm).",
-              f"- **The paper's own Z numbers pull apart.** Case 1 tracks Z over 1–11 µm ({z_pp_um:g} µm peak to peak) "
-              f"at 100 Hz, {z_pp_um / z_stroke:.3f}× the 1 Hz stroke of {z_stroke:.2f} µm at 0–120 V. Either the "
-              f"100 Hz loop is ≥ {100 * (z_pp_um / z_stroke - 1):.1f} % larger than the 1 Hz loop at 0–120 V — and "
-              f"then a 1 Hz static PI leaves ≥ {(z_pp_um / z_stroke - 1) * z_stroke / 2 / math.sqrt(2):.3f} µm rms at "
-              f"100 Hz, not Table 6's {PAPER_TABLE6_UM['z'][100.0][2]:.4f} µm — or the tracking drove the stack past "
-              f"120 V (to ≈ {120 * z_pp_um / z_stroke:.0f} V at the 1 Hz gain), outside the range Table 6 was identified on. "
-              "The emulator keeps the FEM mode, so its Z stroke at 100 Hz is larger than at 1 Hz and case 1 fits "
-              "inside 0–120 V; its Table 6 Z 100 Hz cells stay above the paper's.",
-              "- **The paper's material data bound the damping and the relaxation.** Table 1 gives the stack's "
-              "mechanical quality factor Q_m = 45 (ζ = 1/(2 Q_m) ≈ 0.011 for the ceramic alone, so the flexure's ζ "
-              "is not below 0.02 with bolted joints added) and a small-signal dielectric loss tan δ = 1.5 %. The "
-              "fitted relaxation is a large-signal domain-wall effect on the switched strain, not bounded by tan δ; "
-              "its phase peak at 1/(2πτ) is what lets the dynamic PI, whose weights move with u̇ and ü, beat the "
-              "static PI at 10 Hz.",
-              ]
-    return "\n".join(lines) + "\n"
-
-
-def _r2_for_excess(excess: float) -> float:
-    """r² such that r²/(1 − r²) = ``excess``."""
-    return excess / (1.0 + excess)
 
 
 def toml_lines(axis: str, values: dict[str, float]) -> list[str]:
@@ -368,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--axis", choices=("y", "z"), action="append", help="axis to fit (default: both)")
     parser.add_argument("--evaluations", type=int, default=150, help="sweeps per axis (each ≈ 2–3 s)")
     parser.add_argument("--bench", default="default")
+    parser.add_argument("--step", type=float, default=0.25, help="initial simplex size in [0, 1] coordinates")
     parser.add_argument("--log", help="append every evaluation as a JSON line to this file")
     parser.add_argument("--start", action="append", default=[], metavar="KEY=VALUE",
                         help="start the search here instead of the bench's value (KEY under axes.<axis>.)")
@@ -381,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     log = open(args.log, "a") if args.log else None
     try:
         for axis in args.axis or ("y", "z"):
-            best = fit_axis(axis, args.evaluations, args.bench, log=log, start=start)
+            best = fit_axis(axis, args.evaluations, args.bench, log=log, start=start, step=args.step)
             print(f"\n{axis.upper()}: objective {best['objective']:.3f} after {best['evaluations']} evaluations")
             for name, value in sorted(best["parts"].items(), key=lambda kv: -kv[1]):
                 print(f"  {name:16s} {value:8.3f}")
