@@ -204,7 +204,8 @@ def write_report(path: str | Path = "docs/calibration.md", bench_name: str = "de
     res = measure_calibration(bench_name, seed)
     res["variants"] = {name: sweep_pi_rms(name, seed) for name in ("base",) + VARIANTS}
     res["fit_markdown"] = fit_markdown({axis: v["rms_um"] for axis, v in
-                                        reproduce(bench_name, seed, with_pso=False).items()}, bench_name)
+                                        reproduce(bench_name, seed, with_pso=False).items()},
+                                       res["axes"]["z"]["per_frequency"][100.0]["stroke_um"], bench_name)
     res["rating_rows"] = rating_rows(bench_name, seed)
     data = run_loops(bench_name, seed)
     fig, axs = plt.subplots(1, 2, figsize=(11, 4.6))

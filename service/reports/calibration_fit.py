@@ -69,24 +69,25 @@ class Parameter:
 
 PARAMETERS = (
     Parameter("piezo.rate_dependence.relaxation_s", 1e-4, 3e-2,
-              "Debye time of domain-wall relaxation: 0.1 ms (the bench's former value, the fast end) to 30 ms, "
-              "below the 10 ms creep modes' upper decades; a PZT stack's dielectric loss peaks in this band"),
+              "Debye time of the slow domain-wall motion: from 0.1 ms (the bench's former value) to 30 ms, where it "
+              "would merge into the creep modes (10 ms to 1000 s)"),
     Parameter("piezo.rate_dependence.relaxing_fraction", 0.0, 0.4,
-              "share of the switched strain that lags: 0 (none) to 0.4, i.e. at most ~30 % of the stroke lost "
-              "between 1 and 100 Hz, the upper end of the stroke loss reported for stacks over that range"),
+              "share of the switched strain that lags: 0 (none) to 0.4 (at most ~30 % of the stroke lost at high "
+              "rate), a cap so that the 100 Hz loop cannot collapse; the fitted value stays well inside it"),
     Parameter("piezo.asymmetry.saturation_um", 3.0, 60.0,
               "soft saturation (tanh) scale of the switched strain: 3 µm (strongly saturating at 120 V, "
               "loop visibly bent over) to 60 µm (practically linear)"),
     Parameter("piezo.asymmetry.electrostrictive_um_per_v2", 0.0, 3e-5,
               "u² strain: 0 to 3e-5 µm/V², i.e. up to 0.43 µm (5–7 % of the stroke) at 120 V"),
     Parameter("piezo.creep.rate_per_decade", 0.01, 0.02,
-              "log(t) creep: 1–2 % per decade of time (DESIGN §6, stack makers' data sheets)"),
-    Parameter("flexure.dynamics.damping_ratio", 0.02, 0.3,
-              "first-mode damping of a bolted, preloaded steel flexure: 0.02 (monolithic) to 0.3 "
-              "(joint friction and the stack's own loss; beyond that a mode needs an added damper)"),
+              "log(t) creep: 1–2 % per decade of time (DESIGN §6)"),
+    Parameter("flexure.dynamics.damping_ratio", 0.02, 0.1,
+              "first-mode damping of a bolted, preloaded flexure: from 0.02 (the paper's Table 1 gives Q_m = 45, "
+              "ζ ≈ 0.011 for the ceramic alone) to 0.1, the most that still leaves the FEM mode a resonance "
+              "(peak ≥ 4× the low-frequency gain, within 2 % of f_n: tests/test_emulator_stages.py)"),
     Parameter("gauge.bandwidth.bandwidth_hz", 2e3, 1e5,
-              "capacitance gauge low-pass: 2–100 kHz, the range of MicroSense 5300 bandwidth options "
-              "that keep nm-level noise"),
+              "capacitance-gauge low-pass: 2–100 kHz, the range such gauge electronics are set to (DESIGN §6: "
+              "0.3–5 nm noise depending on bandwidth; the noise is not refitted)"),
 )
 
 

@@ -7,7 +7,8 @@ import math
 
 from drivers.emulated.config import load_config
 from service.reports.calibration import PAPER
-from service.reports.calibration_fit import CELL_TOLERANCE, PARAMETERS, PI_1HZ_MARGIN, WEIGHT_100HZ, target_checks
+from service.reports.calibration_fit import (CELL_TOLERANCE, PARAMETERS, PI_1HZ_MARGIN, WEIGHT_100HZ, measure_axis,
+                                             target_checks)
 from service.reports.reproduction import PAPER_TABLE6_UM
 
 
@@ -19,6 +20,29 @@ FIXED = (
     ("piezo.hysteresis.switched_um", "idem (the Preisach density's shape, coercive mode and bias are unchanged)"),
     ("amplifier.bandwidth.bandwidth_hz", "PZD350-class channel into 1.8 µF (not fitted)"),
 )
+
+
+#: The Y values ``--fit`` found (stroke-scaled), NOT in default.toml: with them the default-bench
+#: discovery test (tests/test_discovery_default.py) adds rate_dependence first, whose fit then takes the
+#: flexure's lag, and never claims dynamics. Y keeps its former values; the notes measure this set.
+Y_FIT_NOT_LANDED = {
+    "piezo.rate_dependence.relaxation_s": 4.444e-3, "piezo.rate_dependence.relaxing_fraction": 0.1419,
+    "piezo.asymmetry.saturation_um": 6.426, "piezo.asymmetry.electrostrictive_um_per_v2": 2.2022e-5,
+    "piezo.creep.rate_per_decade": 0.01309, "flexure.dynamics.damping_ratio": 0.2114,
+    "gauge.bandwidth.bandwidth_hz": 54230.0, "piezo.reversible_um_per_v": 0.02019, "piezo.hysteresis.switched_um": 4.502,
+}
+
+
+def y_fit_rows(bench: str = "default") -> list[str]:
+    """Markdown: the Y set ``Y_FIT_NOT_LANDED`` measured now (the reproduction's sweep and fits), target by target."""
+    measured = measure_axis("y", Y_FIT_NOT_LANDED, bench)
+    rows = ["| parameter | value |", "|---|---|", *(f"| `{k}` | {v:.4g} |" for k, v in Y_FIT_NOT_LANDED.items()),
+            "", "| target (Y fit, not landed) | figures | met |", "|---|---|---|"]
+    rows += [f"| {name} | {figures} | {'✓' if met else '✗'} |"
+             for name, met, figures in target_checks("y", measured["rms_um"], measured["stroke_um"])]
+    rows.append(f"| static PI at 1 Hz (calibration test: within 2× of 0.0881) | "
+                f"{measured['rms_um']['static']['1 Hz']:.4f} µm | — |")
+    return rows
 
 
 def _config_value(cfg: dict, axis: str, key: str) -> float:
@@ -35,7 +59,8 @@ def parameter_table(bench: str = "default") -> list[str]:
     rows = ["| parameter (`axes.<axis>.…`) | Y | Z | bound | source or inference |", "|---|---|---|---|---|"]
     for p in PARAMETERS:
         y, z = (_config_value(cfg, axis, p.key) for axis in ("y", "z"))
-        rows.append(f"| `{p.key}` | {y:.4g} | {z:.4g} | {p.low:g}–{p.high:g} | fitted; bound: {p.why} |")
+        rows.append(f"| `{p.key}` | {y:.4g} | {z:.4g} | {p.low:g}–{p.high:g} | Z fitted, Y its former value "
+                    f"(below); bound: {p.why} |")
     for key, why in FIXED:
         y, z = (_config_value(cfg, axis, key) for axis in ("y", "z"))
         rows.append(f"| `{key}` | {y:.4g} | {z:.4g} | — | {why} |")
@@ -57,10 +82,11 @@ def flexure_floor_um(axis: str, bench: str = "default", frequency_hz: float = 10
             "latency_rad": phase_rad, "latency_rms_um": phase_rad * amplitude_um / math.sqrt(2.0)}
 
 
-def fit_markdown(rms_by_axis: dict, bench: str = "default") -> str:
+def fit_markdown(rms_by_axis: dict, z_stroke_100hz_um: float, bench: str = "default") -> str:
     """docs/calibration.md's account of the fit: the parameters with their sources, every target
     of Table 6 met or not on ``rms_by_axis`` ({axis: identify_axis(...)["rms_um"]}), and why the
-    unmet ones stay unmet (the flexure's and the latency's floors computed from the config)."""
+    unmet ones stay unmet (the flexure's and the latency's floors computed from the config).
+    ``z_stroke_100hz_um``: the emulated Z stroke at 100 Hz, 0–120 V (last cycle)."""
     lines = ["## Fitted parameters", "",
              "Fitted by `python -m service.reports.calibration --fit` (module `service/reports/calibration_fit.py`): "
              "per axis, a bounded Nelder–Mead over the parameters below, each mapped to [0, 1] inside its bound "
@@ -80,6 +106,14 @@ def fit_markdown(rms_by_axis: dict, bench: str = "default") -> str:
     for axis in ("y", "z"):
         for name, met, figures in target_checks(axis, rms_by_axis[axis]):
             lines.append(f"| {name} | {figures} | {'✓' if met else '✗'} |")
+    lines += ["", "## The Y set the fit found, and why it is not the default", "",
+              "`--fit` on Y (same objective) found the set below: every 10 Hz cell within ±35 % and the paper's "
+              "ordering, the 10 Hz reduction half a point short of the 26 % it needs, the 100 Hz cells as far off as "
+              "Z's. It is not in default.toml: with it, `tests/test_discovery_default.py` fails — discovery on the "
+              "default bench's Y record adds rate_dependence first (the millisecond relaxation is now the largest "
+              "effect), its fit takes the flexure's lag with it, and dynamics is never claimed (the test requires "
+              "asymmetry, dynamics and cross_coupling among the effects added). The discovery thresholds were not "
+              "touched; Y keeps its former values until that is resolved.", "", *y_fit_rows(bench), ""]
     floors = {axis: flexure_floor_um(axis, bench) for axis in ("y", "z")}
     ceiling = {axis: PAPER_TABLE6_UM[axis][100.0][2] * (1 + CELL_TOLERANCE) for axis in ("y", "z")}
     fy, fz = floors["y"], floors["z"]
@@ -108,8 +142,10 @@ def fit_markdown(rms_by_axis: dict, bench: str = "default") -> str:
               f"then a 1 Hz static PI leaves ≥ {(z_pp_um / z_stroke - 1) * z_stroke / 2 / math.sqrt(2):.3f} µm rms at "
               f"100 Hz, not Table 6's {PAPER_TABLE6_UM['z'][100.0][2]:.4f} µm — or the tracking drove the stack past "
               f"120 V (to ≈ {120 * z_pp_um / z_stroke:.0f} V at the 1 Hz gain), outside the range Table 6 was identified on. "
-              "The emulator keeps the FEM mode, so its Z stroke at 100 Hz is larger than at 1 Hz and case 1 fits "
-              "inside 0–120 V; its Table 6 Z 100 Hz cells stay above the paper's.",
+              f"The emulator keeps the FEM mode: its Z stroke at 100 Hz and 0–120 V is {z_stroke_100hz_um:.2f} µm "
+              f"({z_stroke_100hz_um / z_stroke:.3f}× the 1 Hz stroke), so case 1 "
+              + ("fits inside 0–120 V" if z_stroke_100hz_um >= z_pp_um else "needs more than 120 V")
+              + ", and its Table 6 Z 100 Hz cells stay above the paper's.",
               "- **The paper's material data bound the damping and the relaxation.** Table 1 gives the stack's "
               "mechanical quality factor Q_m = 45 (ζ = 1/(2 Q_m) ≈ 0.011 for the ceramic alone, so the flexure's ζ "
               "is not below 0.02 with bolted joints added) and a small-signal dielectric loss tan δ = 1.5 %. The "
