@@ -31,7 +31,7 @@ PAPER = {  # paper values: PI weight sums -> strokes at 120 V; Table 6 and §2.3
     "y": {"stroke_um": 6.4, "pi_rms_1hz_um": 0.0881, "pi_rms_10hz_um": 0.0991, "pi_rms_100hz_um": 0.1075},
     "z": {"stroke_um": 9.3, "pi_rms_1hz_um": 0.1432, "pi_rms_10hz_um": 0.1406, "pi_rms_100hz_um": 0.1513},
 }
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def fit_static_pi(u: np.ndarray, x: np.ndarray, thresholds: np.ndarray = THRESHOLDS_V):

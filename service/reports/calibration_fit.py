@@ -155,7 +155,7 @@ def target_checks(axis: str, rms_um: dict, stroke_um: float | None = None) -> li
             out.append((f"{axis.upper()} {f:g} Hz GRPI ≤ static", g <= s, f"{g:.4f} ≤ {s:.4f}"))
     red, red_paper = 1.0 - got[("dynamic_joint", 10.0)] / got[("static", 10.0)], paper_reduction(axis)
     out.append((f"{axis.upper()} 10 Hz reduction within 15 points", abs(red - red_paper) <= REDUCTION_TOLERANCE,
-                f"{100 * red:.0f} % vs {100 * red_paper:.0f} %"))
+                f"{100 * red:.1f} % vs {100 * red_paper:.1f} %"))
     if stroke_um is not None:
         ratio = stroke_um / PAPER[axis]["stroke_um"]
         out.append((f"{axis.upper()} 1 Hz stroke within 3 %", abs(ratio - 1.0) <= STROKE_TOLERANCE,

@@ -113,7 +113,9 @@ def fit_markdown(rms_by_axis: dict, z_stroke_100hz_um: float, bench: str = "defa
               "default bench's Y record adds rate_dependence first (the millisecond relaxation is now the largest "
               "effect), its fit takes the flexure's lag with it, and dynamics is never claimed (the test requires "
               "asymmetry, dynamics and cross_coupling among the effects added). The discovery thresholds were not "
-              "touched; Y keeps its former values until that is resolved.", "", *y_fit_rows(bench), ""]
+              "touched; Y keeps its former values until that is resolved. (This set was found while the "
+              "damping's upper bound was still 0.3: its ζ of 0.21 would also fail the emulator's resonance test.)",
+              "", *y_fit_rows(bench), ""]
     floors = {axis: flexure_floor_um(axis, bench) for axis in ("y", "z")}
     ceiling = {axis: PAPER_TABLE6_UM[axis][100.0][2] * (1 + CELL_TOLERANCE) for axis in ("y", "z")}
     fy, fz = floors["y"], floors["z"]
