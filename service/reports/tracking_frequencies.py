@@ -82,8 +82,8 @@ def limit_reading(result: dict) -> str:
         else:
             short.append((f, r))
     z_mode = PAPER_AXES["z"][1]
-    text = (f"With learning, the error reaches 2× the gauge noise ({2 * noise * 1e3:.1f} nm) up to {max(ok):.0f} Hz. "
-            if ok else "With learning, no frequency reaches 2× the gauge noise. ")
+    text = (f"With learning, the error is within 2× the gauge noise ({2 * noise * 1e3:.1f} nm) at "
+            f"{', '.join(f'{f:.0f}' for f in ok)} Hz. " if ok else "With learning, no frequency reaches 2× the gauge noise. ")
     for f, r in short:
         near = harmonic_near_mode(f, z_mode)
         text += (f"At {f:.0f} Hz it stays at {_fmt(r, 'rms_error_um', 1e3, 1)} nm RMS"
