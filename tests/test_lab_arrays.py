@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.store import ArrayStoreUnavailable, IntegrityError, Store
+from service.store import ArrayStoreUnavailable, IntegrityError, Store, placement
 from service.store.check import check_store
 from service.store.repair import repair_store
 
@@ -278,7 +278,7 @@ def test_the_store_going_away_gives_503_naming_it_and_loses_nothing(tmp_path, s3
 
 def test_check_finds_a_corrupted_object_and_repair_sets_it_aside(tmp_path, s3, bucket_url):
     store = _store(tmp_path, "bench-a", bucket_url)
-    good, bad = (store.add_dataset(_arrays(seed), META) for seed in (1, 2))
+    good, bad, lost = (store.add_dataset(_arrays(seed), META) for seed in (1, 2, 3))
     bucket, key = _bucket(bucket_url), f"lab/{bad['id']}.npz"
     s3.client().put_object(Bucket=bucket, Key=key, Body=b"PK not the dataset any more")     # replaced behind our back
     report = check_store(store)
@@ -289,14 +289,19 @@ def test_check_finds_a_corrupted_object_and_repair_sets_it_aside(tmp_path, s3, b
     with pytest.raises(IntegrityError, match="is corrupt: sha256"):
         reader.load_arrays(bad["id"])
     np.testing.assert_array_equal(reader.load_arrays(good["id"])["u_y_v"], _arrays(1)["u_y_v"])
-    s3.client().delete_object(Bucket=bucket, Key=f"lab/{good['id']}.npz")
+    for gone in (good, lost):                                            # the store lost two objects
+        s3.client().delete_object(Bucket=bucket, Key=f"lab/{gone['id']}.npz")
+    (store.data_dir / placement.CACHE_DIR / f"{lost['sha256']}.npz").unlink()   # of one, no cached copy is left
     assert {(p["kind"], p["id"]) for p in check_store(store)["problems"]} == {
-        ("corrupt_array", bad["id"]), ("missing_array", good["id"])}
+        ("corrupt_array", bad["id"]), ("missing_array", good["id"]), ("missing_array", lost["id"])}
     result = repair_store(store)
-    assert result["after"]["ok"] and {q["id"] for q in result["after"]["quarantined"]} == {good["id"], bad["id"]}
+    # the object of which this service holds a verified copy is put back; the others are kept, in quarantine
+    assert result["after"]["ok"] and {q["id"] for q in result["after"]["quarantined"]} == {lost["id"], bad["id"]}
+    assert _object_sha256(s3, bucket_url, f"{good['id']}.npz") == good["sha256"]
+    assert any("from this service's verified cache copy" in a["action"] for a in result["actions"] if a["id"] == good["id"])
     aside = s3.client().get_object(Bucket=bucket, Key=f"lab/quarantine/{bad['id']}.npz")["Body"].read()
     assert aside == b"PK not the dataset any more"                      # kept for inspection, not deleted
-    assert len(store.list_datasets()) == 2                              # no row is ever deleted
+    assert len(store.list_datasets()) == 3                              # no row is ever deleted
     reader.close(), store.close()
 
 

@@ -199,6 +199,20 @@ def orphan_objects(store, datasets: list[dict]) -> list[tuple[str, int]]:
     return [(key, size) for key, size, age in store.arrays.keys() if key not in named and age > ORPHAN_GRACE_S]
 
 
+def restore_from_cache(store, row: dict) -> str | None:
+    """Upload this service's verified cached copy of a row whose object is missing from the shared
+    location (an S3 store that lost its data, a bucket re-created empty); where it was put back, or
+    None when there is no cached copy whose SHA-256 is the row's."""
+    cache_dir = getattr(store.arrays, "cache_dir", None)
+    if cache_dir is None or pending(row["file"]) or in_data_dir(row["file"]):
+        return None
+    cached = Path(cache_dir) / f"{row['sha256']}.npz"
+    if not cached.is_file() or file_sha256(cached) != row["sha256"]:
+        return None
+    store.arrays.put(cached, row["file"], row["sha256"])
+    return store.arrays.where(row["file"])
+
+
 def set_aside(store, key: str) -> str:
     """Move a shared object to the location's quarantine (kept, not deleted); its new location."""
     target = f"{QUARANTINE_PREFIX}{key}"

@@ -7,7 +7,8 @@ dataset. Each problem (service.store.check kinds) is answered so:
 - ``orphan_chunks``, ``unfinished_job``: as at start-up (service.runtime.recovery): the chunks become a
   partial dataset unless the job has one, the job is marked failed "interrupted by restart";
 - ``missing_array``: the file is restored from ``quarantine/arrays/`` if a copy there matches the
-  row's SHA-256; otherwise the row is kept and put in quarantine (service.store.quarantine);
+  row's SHA-256 (for a shared location's object: uploaded again from this service's read cache, if
+  a copy there matches); otherwise the row is kept and put in quarantine (service.store.quarantine);
 - ``corrupt_array``: the file is moved to ``quarantine/arrays/`` (kept for inspection) and the row
   is put in quarantine; putting a good copy back at the row's path lifts it at the next repair;
 - ``impossible_job``: the job row is made consistent (service.store.check.job_problems says how);
@@ -92,6 +93,10 @@ def _fix(store: Store, problem: dict, now: str) -> dict:
         moved_to = str(target.relative_to(store.data_dir))
         quarantine.add(store, record_id, kind, problem["detail"], moved_to, now)
         return {**action, "action": f"file moved to {moved_to}; the dataset row is kept, in quarantine"}
+    if kind == "missing_array" and store.arrays is not None:
+        restored = placement.restore_from_cache(store, store.get_dataset(record_id))
+        if restored:
+            return {**action, "action": f"object put back at {restored} from this service's verified cache copy"}
     if kind in QUARANTINED:
         quarantine.add(store, record_id, kind, problem["detail"], None, now)
         return {**action, "action": "row kept, in quarantine"}
