@@ -127,6 +127,25 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     assert check_store(store)["ok"]
 
 
+@pytest.mark.parametrize("bench, first_added", [("dynamics", "dynamics"), ("default", "asymmetry")])
+def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_added):
+    """Issue 20's "Done when" on the dynamics and default benches as on the creep one: the job's steps
+    are the report loop's on the same records, effect for effect and figure for figure (1e-6)."""
+    warnings.simplefilter("ignore")
+    with authed_client(create_app(Settings(data_dir=tmp_path, bench=bench, seed=0))) as http:
+        dataset_id, base_id = _fresh_model(http, QUICK_SWEEP)
+        result = _result(http, http.post(f"/api/models/{base_id}/discover", json={}).json()["job_id"])
+        reference = discovery_run(load_records(http.app.state.store, [dataset_id], "y"))
+    steps = result["steps"]
+    assert [s["effects"] for s in steps] == [s["effects"] for s in reference]
+    assert steps[1]["added"] == first_added
+    for step, ref in zip(steps, reference):
+        assert step["validation_rms_um"] == pytest.approx(ref["diagnosis"]["residual_rms_um"], rel=1e-6)
+        assert step["noise_floor_um"] == pytest.approx(ref["diagnosis"]["noise_floor_um"], rel=1e-6)
+    assert steps[0]["validation_rms_um"] / steps[-1]["validation_rms_um"] > 5
+    assert result["remains"]["ratio_to_noise_floor"] < 3
+
+
 def test_a_cancel_between_steps_keeps_the_steps_done(creep, monkeypatch):
     http = creep
     _, base_id = _fresh_model(http, QUICK_SWEEP)
