@@ -151,6 +151,7 @@ def test_a_feedforward_model_whose_inverse_diverges_is_refused_before_the_bench_
         "feedforward_model_y": ids["dynamic_pi", "y"], "feedforward_model_z": ids["dynamic_pi", "z"]}})
     assert r.status_code == 422 and r.json()["field"].startswith("controller.feedforward_model_")
     assert "inverse does not converge at 100 Hz" in r.json()["detail"] and "µm RMS" in r.json()["detail"]
+    assert "dynamic PI inverse diverges" in r.json()["detail"]          # the model's own advice reaches the user
     assert len(http.get("/api/jobs").json()) == jobs_before            # nothing was queued
     r = http.post("/api/trajectories", json={**BASE, "cycles": 5, "controller": {
         "feedforward_model_y": ids["static_pi", "y"], "feedforward_model_z": ids["static_pi", "z"]}})

@@ -88,13 +88,10 @@ def metrics(rec: TrackRecord, ref: Reference, v_limits: np.ndarray, eval_periods
             "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= v_limits[:, 1] - 1e-3) | (rec.u_v[start:end] <= v_limits[:, 0] + 1e-3)))}
 
 
-#: why an inverse misses, per model class, and what to use instead
-INVERSE_ADVICE = {
-    "DynamicPI": "The paper's dynamic PI inverse diverges at 50–100 Hz (segment-switched weights); use a "
-                 "static_pi or composite model",
-    None: "The model's output is not monotone in the drive along this reference (or jumps, as segment-switched "
-          "rate terms do), so no drive makes it follow: refit without the effect that makes it so, or use "
-          "hysteresis + delay + dynamics"}
+#: why an inverse misses, unless the model says so itself (its ``inverse_advice``)
+INVERSE_ADVICE = ("The model's output is not monotone in the drive along this reference (or jumps, as "
+                  "segment-switched rate terms do), so no drive makes it follow: refit without the effect that "
+                  "makes it so, or use hysteresis + delay + dynamics")
 
 
 def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequency_hz: float,
@@ -107,7 +104,7 @@ def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequ
         raise ControlRefused(f"controller.feedforward_model_{axis}", (
             f"the {name} model's inverse does not converge at {frequency_hz:g} Hz: its own prediction of the "
             f"feedforward drive misses the {axis.upper()} reference by {miss:.3g} µm RMS "
-            f"({100 * miss / span:.0f} % of its {span:.3g} µm range). " + INVERSE_ADVICE.get(name, INVERSE_ADVICE[None])))
+            f"({100 * miss / span:.0f} % of its {span:.3g} µm range). " + getattr(model, "inverse_advice", INVERSE_ADVICE)))
 
 
 def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,

@@ -71,6 +71,10 @@ class DynamicPI(HysteresisModel):
     by exact least squares; the paper's two-stage and PSO procedures are in ``service.science.fitting.pi_family``.
     """
 
+    #: why a feedforward plan refuses this model's inverse when it misses (service.science.control.session)
+    inverse_advice = ("The paper's dynamic PI inverse diverges at 50–100 Hz (segment-switched weights); use a "
+                      "static_pi or composite model")
+
     name = "dynamic_pi"
     rate_dependent = True
     described_effects = ("hysteresis", "rate_dependence")
