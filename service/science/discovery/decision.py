@@ -13,7 +13,14 @@ in mean squared residual. A candidate is **claimed** when both hold:
    blocks is not drowned by the variance of the slow ones);
 2. **size**: the mean held-out improvement is at least ``NOISE_MULTIPLE`` noise variances σ²
    (σ: the noise floor measured from the data's own cycle-to-cycle scatter). An effect smaller
-   than the noise cannot be seen to fall and is not claimed.
+   than the noise cannot be seen to fall and is not claimed. The size is the larger of the
+   improvement with each block's level anchored at its last training cycle (as the significance)
+   and the improvement as measured: a slow effect (creep after the drive's mean stepped, a drift)
+   *is* a change of level, most of it inside the training cycles, and the anchor removes it — on
+   the yan9a-dbo record creep takes the held-out RMS from 0.238 to 0.129 µm, 4.0e4 nm² of mean
+   square, of which the anchored comparison keeps 1.7e3 nm² (σ² = 4.3e3 nm²). A level that is
+   merely wrong (a family without wiping-out memory resting elsewhere) is still not claimed: the
+   anchored segments must improve significantly as well.
 
 The reference is what keeps *systematic* misfit from being claimed: for a physical candidate it is
 the model plus a flexible rate-independent base (finer operators and a non-symmetric loop shape),
@@ -63,7 +70,7 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
     """Segment-wise held-out improvement of a trial model over a reference (residuals per record,
     µm): ``gain_mse_um2`` (mean over held-out stretches of the drop in mean square, every block
     weighted alike), ``p`` (one-sided signed-rank) and ``segments``."""
-    diffs, per_stretch = [], []
+    diffs, per_stretch, per_stretch_raw = [], [], []
     for rec, r0, r1 in zip(records, res_ref, res_trial):
         for s in rec.splits:
             a, b = s.held_out
@@ -71,18 +78,21 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
                 continue
             e0, e1 = _offset_free(r0, rec, s), _offset_free(r1, rec, s)
             per_stretch.append(float(np.mean(e0[a:b] ** 2) - np.mean(e1[a:b] ** 2)))
+            per_stretch_raw.append(float(np.mean(r0[a:b] ** 2) - np.mean(r1[a:b] ** 2)))
             diffs += [float(np.mean(e0[i:j] ** 2) - np.mean(e1[i:j] ** 2)) for i, j in _segments(rec, s)]
     d = np.asarray(diffs)
     d = d[d != 0.0]
-    if d.size < 2 or not per_stretch:
-        return {"gain_mse_um2": float(np.mean(per_stretch)) if per_stretch else 0.0, "p": 1.0, "segments": int(d.size)}
-    p = float(stats.wilcoxon(d, alternative="greater").pvalue)
-    return {"gain_mse_um2": float(np.mean(per_stretch)), "p": p, "segments": int(d.size)}
+    gain = float(np.mean(per_stretch)) if per_stretch else 0.0
+    gain_raw = float(np.mean(per_stretch_raw)) if per_stretch_raw else 0.0
+    p = 1.0 if d.size < 2 or not per_stretch else float(stats.wilcoxon(d, alternative="greater").pvalue)
+    return {"gain_mse_um2": gain, "gain_as_measured_mse_um2": gain_raw, "p": p, "segments": int(d.size)}
 
 
 def claimed(test: dict, noise_um: float) -> bool:
-    """The rule above: significant (p < ALPHA) and at least NOISE_MULTIPLE·σ² of held-out mean square."""
-    return bool(test["p"] < ALPHA and test["gain_mse_um2"] >= NOISE_MULTIPLE * noise_um**2)
+    """The rule above: significant (p < ALPHA) and at least NOISE_MULTIPLE·σ² of held-out mean square
+    (anchored or as measured, the larger)."""
+    size = max(test["gain_mse_um2"], test.get("gain_as_measured_mse_um2", test["gain_mse_um2"]))
+    return bool(test["p"] < ALPHA and size >= NOISE_MULTIPLE * noise_um**2)
 
 
 def rule_text(noise_um: float) -> str:

@@ -118,7 +118,8 @@ def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, s
     against = "the model" if not reference else "the model + " + " + ".join(reference)
     how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm (p = "
            f"{test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² of mean "
-           f"square against σ² = {noise**2 * 1e6:.3g} nm²)")
+           f"square with each block's level anchored, {test['gain_as_measured_mse_um2'] * 1e6:.3g} nm² as measured, "
+           f"against σ² = {noise**2 * 1e6:.3g} nm²)")
     return _entry(name, fits, noise, v0, k0, sig, floor, claimed(test, noise), test["p"], test["gain_mse_um2"],
                   reference, v_ref, how)
 
