@@ -17,7 +17,7 @@ from service.frontends.client import Client
 from service.runtime.app import create_app
 from service.runtime.jobs import JobContext
 from service.runtime.settings import Settings
-from service.science.discovery.loop import discovery_run
+from service.science.discovery.loop import discovery_run, stops_at_ambiguity
 from service.science.discovery.parameters import physical_parameters
 from service.store.check import check_store
 from service.usecases.identify import load_model, load_records
@@ -127,15 +127,34 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     assert check_store(store)["ok"]
 
 
-@pytest.mark.parametrize("bench, first_added", [("dynamics", "dynamics"), ("default", "asymmetry")])
-def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_added):
+@pytest.mark.parametrize("bench, first_added, ambiguous_at", [("dynamics", "dynamics", 1),
+                                                              ("default", "asymmetry", 0)])
+def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_added, ambiguous_at):
     """Issue 20's "Done when" on the dynamics and default benches as on the creep one: the job's steps
-    are the report loop's on the same records, effect for effect and figure for figure (1e-6)."""
+    are the report loop's on the same records, effect for effect and figure for figure (1e-6). Without
+    experiments the job stops at an ambiguity (the default bench's first diagnosis, the dynamics
+    bench's second: the stack's
+    asymmetry and the gauge's curvature bend the loop alike) and names the sweep, as the report's loop
+    does; with continue_past_ambiguity both add the leading effect and go on."""
     warnings.simplefilter("ignore")
     with authed_client(create_app(Settings(data_dir=tmp_path, bench=bench, seed=0))) as http:
         dataset_id, base_id = _fresh_model(http, QUICK_SWEEP)
-        result = _result(http, http.post(f"/api/models/{base_id}/discover", json={}).json()["job_id"])
-        reference = discovery_run(load_records(http.app.state.store, [dataset_id], "y"))
+        records = load_records(http.app.state.store, [dataset_id], "y")
+        result = _result(http, http.post(f"/api/models/{base_id}/discover",
+                                         json={"continue_past_ambiguity": True}).json()["job_id"])
+        reference = discovery_run(records, continue_past_ambiguity=True)
+        stops = [k for k, s in enumerate(reference) if stops_at_ambiguity(s["diagnosis"], False)]
+        assert (stops[0] if stops else None) == ambiguous_at
+        if stops:
+            stopped = _result(http, http.post(f"/api/models/{base_id}/discover", json={}).json()["job_id"])
+            report_stopped = discovery_run(records)
+    if stops:
+        need = stops_at_ambiguity(reference[ambiguous_at]["diagnosis"], False)
+        assert stopped["stopped"] == "needs_experiment" and len(stopped["steps"]) == ambiguous_at + 1
+        assert [s["effects"] for s in stopped["steps"]] == [s["effects"] for s in report_stopped]
+        assert stopped["needed_experiment"]["effects"] == need["effects"]
+        assert stopped["needed_experiment"]["experiment"] == need["experiment"]
+        assert "continue_past_ambiguity" in stopped["stop_reason"] and "allow_experiments" in stopped["stop_reason"]
     steps = result["steps"]
     assert [s["effects"] for s in steps] == [s["effects"] for s in reference]
     assert steps[1]["added"] == first_added
@@ -180,9 +199,13 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     http = delay
     dataset_id, base_id = _fresh_model(http, AMBIGUOUS_SWEEP)
     api = Client(http=http)
-    went_on = api.discover(base_id)["result"]
-    # without allow_experiments: the first step's ambiguity is named with its sweep, and the loop
-    # goes on with the leading claimed effect (as the report's loop does)
+    # without allow_experiments the loop stops at the first step's ambiguity and names its sweep
+    stopped = api.discover(base_id)["result"]
+    assert stopped["stopped"] == "needs_experiment" and len(stopped["steps"]) == 1
+    assert set(stopped["needed_experiment"]["effects"]) == {"delay", "rate_dependence"}
+    assert stopped["final_model_id"] == base_id and "--continue-past-ambiguity" in discovery_text(stopped)
+    # with continue_past_ambiguity it goes on with the leading claimed effect, still naming the sweep
+    went_on = api.discover(base_id, continue_past_ambiguity=True)["result"]
     first = went_on["suggested_experiments"][0]
     assert first["after_step"] == 0 and set(first["effects"]) == {"delay", "rate_dependence"}
     assert first["experiment"]["waveform"] == "sine" and max(first["experiment"]["frequencies_hz"]) > 100
@@ -226,6 +249,8 @@ def test_the_cli_verbs_parse():
 
     args = build_parser().parse_args(["discover", "md_x", "--allow-experiments", "--max-steps", "3"])
     assert (args.model_id, args.allow_experiments, args.max_steps) == ("md_x", True, 3)
+    assert not args.continue_past_ambiguity
+    assert build_parser().parse_args(["discover", "md_x", "--continue-past-ambiguity"]).continue_past_ambiguity
     args = build_parser().parse_args(["datasets", "ds_x", "--delete", "--cascade"])
     assert (args.dataset_id, args.delete, args.cascade) == ("ds_x", True, True)
     args = build_parser().parse_args(["models", "md_x", "--rename", "base", "--tags", "a,b", "--notes", ""])

@@ -114,7 +114,7 @@ def lab(tmp_path_factory):
     store = open_store(address)
     for seed, bench in enumerate(BENCHES):
         record_emulated_sweep(store, bench, seed, bench_id=f"bench-{bench}")
-    return address, batch_discover(address, steps=1)
+    return address, batch_discover(address, steps=1, continue_past_ambiguity=True)
 
 
 @pytest.fixture(scope="module")
@@ -158,7 +158,7 @@ def test_in_process_batch_names_the_hidden_effects(lab):
 @pytest.mark.xdist_group("lab_batch")
 def test_dask_batch_gives_the_in_process_results(lab, client):
     address, in_process = lab
-    on_dask = batch_discover(address, steps=1, client=client)
+    on_dask = batch_discover(address, steps=1, client=client, continue_past_ambiguity=True)
     assert on_dask["ok"] == 6
     assert comparable(on_dask["results"]) == comparable(in_process["results"])     # every number, exactly
     store = open_store(address)
@@ -172,7 +172,8 @@ def test_dask_batch_gives_the_in_process_results(lab, client):
 def test_cancel_stops_the_remaining_tasks(lab, client):
     address, in_process = lab
     flag = []
-    result = batch_discover(address, steps=1, client=client, on_result=lambda row, done, total: flag.append(done),
+    result = batch_discover(address, steps=1, client=client, continue_past_ambiguity=True,
+                            on_result=lambda row, done, total: flag.append(done),
                             cancelled=lambda: bool(flag))
     assert result["ok"] >= 1 and result["cancelled"] >= 1 and result["ok"] + result["cancelled"] == 6
     assert result["failed"] == 0
@@ -199,7 +200,8 @@ def test_a_worker_killed_mid_batch_loses_no_result(lab, client):
         os.kill(pids[victim], signal.SIGKILL)
         killed.append({"worker": victim, "pid": pids[victim], "tasks": list(busy[victim]), "after": done})
 
-    result = batch_discover(address, steps=1, client=client, on_result=kill_a_busy_worker)
+    result = batch_discover(address, steps=1, client=client, continue_past_ambiguity=True,
+                            on_result=kill_a_busy_worker)
     assert len(killed) == 1 and killed[0]["tasks"] and killed[0]["after"] == 1
     assert (result["ok"], result["failed"]) == (6, 0)
     assert comparable(result["results"]) == comparable(in_process["results"])

@@ -30,6 +30,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--axes", default="y,z", help="comma-separated axes (default y,z)")
     p.add_argument("--steps", type=int, default=0, help="effects the discovery loop may add after the "
                    "diagnosis (default 0: identify and diagnose only)")
+    p.add_argument("--continue-past-ambiguity", action="store_true",
+                   help="at an ambiguity the loop may not test (a batch runs no experiment), add the leading "
+                        "claimed effect and go on (default: stop there and name the sweep)")
     p.add_argument("--n-operators", type=int, default=10, help="play operators of the hysteresis model (default 10)")
     p.add_argument("--json", action="store_true", help="print the whole result as one JSON object")
     p.set_defaults(func=_cmd_batch)
@@ -51,6 +54,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     scheduler = args.scheduler or (None if local else scheduler_from_env())
     options = {"dataset_ids": _list(args.datasets) if args.datasets else None, "axes": tuple(_list(args.axes)),
                "steps": args.steps, "n_operators": args.n_operators,
+               "continue_past_ambiguity": args.continue_past_ambiguity,
                "on_result": None if args.json else _progress}
     try:
         if scheduler or local:

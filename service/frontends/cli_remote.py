@@ -67,6 +67,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("model_id")
     p.add_argument("--allow-experiments", action="store_true",
                    help="run the sweep the loop needs on the bench when it is free (else it stops and names it)")
+    p.add_argument("--continue-past-ambiguity", action="store_true",
+                   help="at an ambiguity it may not test, add the leading claimed effect and go on (else it stops "
+                        "there and names the sweep that would tell the two apart)")
     p.add_argument("--max-steps", type=int, default=8, help="steps at most, the model's own diagnosis the first "
                                                              "(1–12, default 8)")
 
@@ -169,7 +172,8 @@ def _discover(api: Client, args) -> int:
         bar(job)
 
     seen: list = []
-    job = api.discover(args.model_id, args.allow_experiments, args.max_steps, on_progress=progress)
+    job = api.discover(args.model_id, args.allow_experiments, args.max_steps, on_progress=progress,
+                       continue_past_ambiguity=args.continue_past_ambiguity)
     return _finish(args, job, discovery_text(job["result"]) if job.get("result") else "")
 
 
@@ -193,7 +197,9 @@ def discovery_text(result: dict) -> str:
     if result.get("needed_experiment"):
         need = result["needed_experiment"]
         lines.append(f"an experiment would help ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
-                     " — or run again with --allow-experiments")
+                     " — or run again with --allow-experiments"
+                     + ("" if result["stopped"] != "needs_experiment" else
+                        ", or with --continue-past-ambiguity to add the leading effect and go on"))
     return "\n".join(lines)
 
 

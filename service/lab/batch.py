@@ -81,9 +81,10 @@ def plan_batch(store: Store, dataset_ids: Sequence[str] | None = None, axes: Seq
 
 
 def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int = 0, n_operators: int = 10,
-                 batch_id: str | None = None) -> dict:
+                 batch_id: str | None = None, continue_past_ambiguity: bool = False) -> dict:
     """One task: identify the hysteresis model of ``axis`` of a stored dataset, diagnose it, and run
-    the discovery loop for at most ``steps`` added effects. A JSON-safe row (µm; ``status`` "ok", or
+    the discovery loop for at most ``steps`` added effects (a batch runs no experiment: the loop stops
+    at an ambiguity, ``stopped`` "needs_experiment", unless ``continue_past_ambiguity``). A JSON-safe row (µm; ``status`` "ok", or
     "skipped" with the ``reason`` the data cannot be modelled)."""
     store = open_store(address)
     row = store.get_dataset(dataset_id)
@@ -113,7 +114,8 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
         "held_out_rms_after_um": d["residual_rms_um"], "physical_parameters": physical_parameters(estimator),
         "stopped": None})
     if steps > 0:
-        run = discover(_BatchContext(), store, base["id"], max_steps=steps + 1, labels=labels)
+        run = discover(_BatchContext(), store, base["id"], max_steps=steps + 1, labels=labels,
+                       continue_past_ambiguity=continue_past_ambiguity)
         out.update({"final_model_id": run["final_model_id"], "effects": run["effects"],
                     "effects_found": [e["effect"] for e in run["effects_found"]],
                     "held_out_rms_after_um": run["remains"]["validation_rms_um"],
@@ -123,7 +125,7 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
 
 def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = None, axes: Sequence[str] = AXES,
                    steps: int = 0, n_operators: int = 10, client=None, on_result: ResultCallback | None = None,
-                   cancelled: Callable[[], bool] | None = None) -> dict:
+                   cancelled: Callable[[], bool] | None = None, continue_past_ambiguity: bool = False) -> dict:
     """Run ``discover_one`` for every dataset (all of the store's when ``dataset_ids`` is None) and
     axis: in this process when ``client`` is None, else as one task each on the Dask cluster of
     ``client`` (a distributed.Client). Returns ``{"batch_id", "steps", "n_operators", "ran", "ok",
@@ -151,12 +153,14 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
             if stop():
                 break
             try:
-                row = discover_one(address, plan[i]["dataset_id"], plan[i]["axis"], steps, n_operators, batch_id)
+                row = discover_one(address, plan[i]["dataset_id"], plan[i]["axis"], steps, n_operators, batch_id,
+                                   continue_past_ambiguity)
             except Exception as exc:  # noqa: BLE001 - one dataset's failure is its row, not the batch's
                 row = _failed(plan[i], exc)
             arrived(i, row)
     else:
-        _run_on_cluster(client, address, plan, todo, steps, n_operators, batch_id, arrived, stop)
+        _run_on_cluster(client, address, plan, todo, arrived, stop, steps=steps, n_operators=n_operators,
+                        batch_id=batch_id, continue_past_ambiguity=continue_past_ambiguity)
     for i in todo:
         if i not in done:
             results[i] = {**plan[i], "status": "cancelled"}
@@ -165,14 +169,13 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
             "results": results}
 
 
-def _run_on_cluster(client, address, plan, todo, steps, n_operators, batch_id, arrived, stop) -> None:
-    """One task per entry of ``todo`` on ``client``'s cluster; each row to ``arrived`` as it comes;
-    the rest cancelled once ``stop()``."""
+def _run_on_cluster(client, address, plan, todo, arrived, stop, **options) -> None:
+    """One task per entry of ``todo`` on ``client``'s cluster (``options``: discover_one's keywords);
+    each row to ``arrived`` as it comes; the rest cancelled once ``stop()``."""
     from distributed import wait
 
     futures = client.map(discover_one, [address] * len(todo), [plan[i]["dataset_id"] for i in todo],
-                         [plan[i]["axis"] for i in todo], steps=steps, n_operators=n_operators,
-                         batch_id=batch_id, pure=False)
+                         [plan[i]["axis"] for i in todo], pure=False, **options)
     index = {f.key: i for f, i in zip(futures, todo)}
     pending = set(futures)
     while pending:

@@ -6,13 +6,14 @@ service.reports.discovery`` reaches on the same records. Here only what the repo
 fitted step is validated and stored with ``parent_id`` = the previous step; progress (with the
 steps so far) is reported after each; a cancel is honoured between steps; and when the loop needs an
 experiment it is run on the bench (``run_experiment``, when allowed and the bench is free) and its
-dataset joins the fit, or the job stops and names it.
+dataset joins the fit, or the job stops and names it (``stopped`` = "needs_experiment"; at an
+ambiguity ``continue_past_ambiguity`` adds the leading claimed effect instead and goes on).
 """
 from __future__ import annotations
 
 from typing import Callable
 
-from service.science.discovery.loop import discovery_step, needed_experiment, next_effect
+from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, stops_at_ambiguity
 from service.science.discovery.parameters import physical_parameters
 from service.science.effects import EFFECTS, ordered
 from service.runtime.jobs import JobContext, JobInterrupted
@@ -26,10 +27,13 @@ ExperimentRunner = Callable[[JobContext, dict], dict]
 
 def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, allow_experiments: bool = False,
              run_experiment: ExperimentRunner | None = None, bench_jobs: Callable[[], list[str]] | None = None,
-             labels: dict | None = None) -> dict:
+             labels: dict | None = None, continue_past_ambiguity: bool = False) -> dict:
     """Job body: the loop from stored model ``model_id`` for at most ``max_steps`` steps (the start
     model's diagnosis is step 0); each step's model is stored with ``labels`` (more fields of its
-    row: bench, tags). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
+    row: bench, tags). Where a diagnosis names an experiment that is not run (not allowed, the bench
+    busy, no step left), the job stops there (``stopped`` = "needs_experiment") and names it, unless
+    ``continue_past_ambiguity`` (then it adds the leading claimed effect, as an ambiguity allows, and
+    goes on). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
     effect of the final model), "steps", "effects_found", "remains", "stopped", "stop_reason",
     "needed_experiment", "experiments"}`` (units in the names)."""
     row = store.get_model(model_id)
@@ -75,8 +79,14 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
                     stopped = _natural_stop(d)
                     reason = f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
                     break
-                # an ambiguity: the loop goes on as the report does, with the leading claimed effect,
-                # and the step and the result name the sweep that would tell the pair apart
+                if stops_at_ambiguity(d, continue_past_ambiguity, done=[e["experiment"] for e in run["experiments"]]):
+                    stopped = "needs_experiment"
+                    reason = (f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
+                              f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
+                              f"claim) and go on")
+                    break
+                # continue_past_ambiguity: the loop goes on with the leading claimed effect, and the
+                # step and the result name the sweep that would tell the pair apart
             else:
                 joined = _experiment(ctx, store, run, need, run_experiment)
                 datasets.append(joined)

@@ -36,12 +36,14 @@ class DiscoverRequest(BaseModel):
     """Run the discovery loop from a model: at most ``max_steps`` steps (the model's own diagnosis is
     the first); ``allow_experiments``: run on the bench, when it is free, the sweep the loop needs
     (an ambiguity's separating experiment, or one that makes an effect testable); without it the loop
-    names the sweep and goes on past an ambiguity with the leading claimed effect (as the report does)."""
+    stops at an ambiguity and names the sweep, unless ``continue_past_ambiguity``: then it adds the
+    leading claimed effect and goes on (the ambiguity is still named)."""
 
     model_config = ConfigDict(extra="forbid")
 
     max_steps: int = Field(default=8, ge=1, le=12)
     allow_experiments: bool = False
+    continue_past_ambiguity: bool = False
 
 
 class ModelMetrics(BaseModel):

@@ -3,7 +3,8 @@ until the verdict is complete, then more hysteresis capacity while the model is 
 floor and a capacity candidate removes a significant share of the excess; the error history as a figure (matplotlib Agg).
 
 The decisions are ``discovery_step`` (fit and diagnose one step), ``next_effect`` (what the loop adds
-next, or None when it stops) and ``needed_experiment`` (the sweep it needs before going on): the
+next, or None when it stops), ``needed_experiment`` (the sweep it needs before going on) and
+``stops_at_ambiguity`` (whether it stops there rather than guess between look-alikes): the
 report (``discovery_run``) and the discover job (service.usecases.discover_run) both call them."""
 from __future__ import annotations
 
@@ -62,15 +63,28 @@ def needed_experiment(d: dict, stopping: bool, done=()) -> dict | None:
     return None
 
 
-def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS) -> list[dict]:
-    """Steps of an automatic discovery: each with effects, diagnosis and per-block validation RMS."""
+def stops_at_ambiguity(d: dict, continue_past_ambiguity: bool, done=()) -> dict | None:
+    """The ambiguity the loop stops at after diagnosis ``d`` (``needed_experiment``'s answer), or None:
+    two look-alike candidates explain the residual alike, so adding the leading one would be a guess
+    the data cannot back. ``continue_past_ambiguity`` adds the leading claimed effect instead and
+    goes on (the ambiguity is still reported)."""
+    if continue_past_ambiguity or next_effect(d) is None:
+        return None
+    return needed_experiment(d, stopping=False, done=done)
+
+
+def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS,
+                  continue_past_ambiguity: bool = False) -> list[dict]:
+    """Steps of an automatic discovery: each with effects, diagnosis and per-block validation RMS. It
+    stops at an ambiguity (the last step's diagnosis names the separating sweep) unless
+    ``continue_past_ambiguity``, as the discover job does without experiments."""
     effects, steps, theta = [], [], {}
     for _ in range(max_steps):
         model, step = discovery_step(records, effects, n_operators, theta)
         theta = model.theta
         steps.append(step)
         added = next_effect(step["diagnosis"])
-        if added is None:
+        if added is None or stops_at_ambiguity(step["diagnosis"], continue_past_ambiguity):
             break
         effects = effects + [added]
     return steps

@@ -14,6 +14,7 @@ export function renderDiscover(el, model, { signal, onModels = () => {} }) {
       <form id="discover-form" class="inline">
         <label>max steps <input name="max_steps" type="number" min="1" max="12" step="1" value="8"></label>
         <label class="check"><input type="checkbox" name="allow_experiments"> run the experiments it needs on the bench</label>
+        <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> at an ambiguity, add the leading effect and go on</label>
         <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
       </form>
       <div id="discover-job"></div>
@@ -48,7 +49,8 @@ export function renderDiscover(el, model, { signal, onModels = () => {} }) {
 
 async function discover(box, model, state, { signal, onModels, figures }) {
   const f = new FormData(box.querySelector('#discover-form'));
-  const body = { max_steps: Number(f.get('max_steps')), allow_experiments: f.get('allow_experiments') === 'on' };
+  const body = { max_steps: Number(f.get('max_steps')), allow_experiments: f.get('allow_experiments') === 'on',
+    continue_past_ambiguity: f.get('continue_past_ambiguity') === 'on' };
   const button = box.querySelector('#discover-start');
   const out = box.querySelector('#discover-run');
   button.disabled = true;
