@@ -8,7 +8,7 @@ from service.http.deps import get_bench, get_jobs, get_store
 from service.http.schemas.common import JobQueued
 from service.http.schemas.models import Diagnosis, DiscoverRequest, History, RefineRequest
 from service.usecases.acquire import sweep_and_wait
-from service.usecases.discover import diagnose_model, history, refine_params
+from service.usecases.discover import diagnose_model, history, imported_datasets, refine_params
 from service.usecases.discover_run import discover
 from service.runtime.jobs import JobManager
 from service.usecases.identify import identify
@@ -46,6 +46,11 @@ def start_discovery(model_id: str, body: DiscoverRequest, store: Store = Depends
     In a lab, ``allow_experiments`` is refused (422) for a model of another bench: its experiments
     would run on this service's hardware."""
     row = store.get_model(model_id)                # 404 before anything is queued
+    imported = imported_datasets(store, row["datasets"]) if body.allow_experiments else []
+    if imported:
+        raise FieldError("allow_experiments", f"model {model_id} was fitted on imported data ({', '.join(imported)}), "
+                         "recorded on another stage: this bench's experiments would measure a different stack. Run "
+                         "the experiment it names on that stage and import it, or ask without allow_experiments")
     owner = row.get("bench_id")
     if body.allow_experiments and owner not in (None, store.bench_id):   # a lab: experiments on its own bench
         bench = store.benches.get(owner)

@@ -54,16 +54,34 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
         records = load_records(store, datasets, row["axis"], field="extra_datasets")
     n_ops = int(row["options"].get("n_operators", 10))
     basis = load_model(row).as_composite()   # a stored composite fit, or the one a paper's model stands for
+    stands_in = not basis.is_fitted
     if not basis.is_fitted or len(datasets) > len(row["datasets"]):  # (re)fitted, warm at its transforms
         basis = fit_composite(records, basis.effects, n_ops, basis.theta)
     out = diagnose(records, basis.effects, n_ops, model=basis)
     name_failing_blocks(out["failures"], records)
-    out.update({"model_id": model_id, "datasets": datasets, "axis": row["axis"]})
+    if stands_in:   # a paper's model: say which model the figures are of, beside the stored one's own
+        out["diagnosed_as"] = (
+            f"the composite {' + '.join(out['effects'])} fitted on the same data, standing for this "
+            f"{row['kind']} (held-out {out['residual_rms_um'] * 1e3:.4g} nm; the {row['kind']}'s own "
+            f"{(row.get('metrics') or {}).get('validation_rms_um', float('nan')) * 1e3:.4g} nm): its play "
+            "operators are fitted jointly with the effects, so a refine or a discover step starts from it")
+    imported = imported_datasets(store, datasets)
+    out.update({"model_id": model_id, "datasets": datasets, "axis": row["axis"],
+                "experiments_run_here": not imported,
+                "experiments_note": None if not imported else (
+                    f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: recorded on another "
+                    "stage, whose experiments this bench cannot run (a different stack behind a different amplifier). "
+                    "Run the experiment on that stage, over the range it names, and import the result")})
     if out.get("ambiguity"):
         out["ambiguity"]["then"] = (f"POST /api/sweeps with the experiment body, then GET /api/models/{model_id}"
                                     "/diagnosis?extra_datasets=<dataset_id> or refine with added datasets")
     out.pop("metrics", None)
     return out
+
+
+def imported_datasets(store: Store, dataset_ids) -> list[str]:
+    """The ids among ``dataset_ids`` that were imported (recorded elsewhere, not by this bench)."""
+    return [d for d in dataset_ids if store.get_dataset(d).get("source") == "import"]
 
 
 def refined_effects(row: dict, add: str | None, remove: str | None, effects: list[str] | None) -> list[str]:

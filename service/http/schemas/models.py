@@ -153,6 +153,13 @@ class Diagnosis(BaseModel):
     candidates: list[Candidate] | None = None
     failures: list[Failure] | None = None
     ambiguity: dict[str, Any] | None = None
+    experiments_run_here: bool | None = Field(default=None, description=(
+        "false when the model's data were imported (recorded on another stage): the experiments it names "
+        "must run there, and allow_experiments is refused"))
+    experiments_note: str | None = None
+    diagnosed_as: str | None = Field(default=None, description=(
+        "for a paper's model (static/dynamic PI, GRPI): the composite that stands for it in the diagnosis, "
+        "and both held-out figures"))
 
 
 class HistoryStep(BaseModel):

@@ -90,16 +90,29 @@ def detect_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> lis
     return blocks
 
 
+#: why a stretch of an imported record is in no block (it stays in the record: models run through it)
+OUTSIDE_BLOCKS = ("not steady oscillation (a rest, a ramp, or the first cycle out of a rest, before the "
+                  "oscillation is steady): outside the blocks")
+
+
 def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict]:
     """The block table of a record that came without one: its steady stretches when there are several
     (a sweep over frequencies or axes, bursts between holds); else one block over the whole record,
     with the frequency and whole cycles of its one steady oscillation if it has one; and if a rest
     of more than one period comes before or after that oscillation, the block is the oscillation
-    alone and ``trimmed`` says how long the rest was (s) before and after it."""
+    alone and ``trimmed`` says how long the rest was (s) before and after it. With several blocks,
+    each block's ``trimmed`` gives the stretch between the previous block (or the record's start)
+    and it, and the last block's also the stretch after it: what no block holds is reported."""
     blocks = detect_blocks(drives_v, sample_rate_hz)
-    if len(blocks) >= 2:
-        return blocks
     n = len(next(iter(drives_v.values())))
+    if len(blocks) >= 2:
+        previous_stop = 0
+        for k, block in enumerate(blocks):
+            after = n - int(block["stop"]) if k == len(blocks) - 1 else 0
+            block["trimmed"] = {"before_s": max(0, int(block["start"]) - previous_stop) / sample_rate_hz,
+                                "after_s": after / sample_rate_hz, "why": OUTSIDE_BLOCKS}
+            previous_stop = max(previous_stop, int(block["stop"]))
+        return blocks
     whole = {"index": 0, "start": 0, "stop": n, "kind": "imported", "frequency_hz": None, "cycles": None,
              "axes": list(drives_v)}
     if blocks:
@@ -113,6 +126,6 @@ def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float)
             return [{**whole, "start": int(run["start"]), "stop": int(run["stop"]), "frequency_hz": f,
                      "cycles": int(run["cycles"]), "axes": run["axes"],
                      "trimmed": {"before_s": before / sample_rate_hz, "after_s": after / sample_rate_hz,
-                                 "why": "not steady oscillation (a rest or a ramp): outside the block"}}]
+                                 "why": OUTSIDE_BLOCKS}}]
         whole.update(frequency_hz=f, cycles=int(np.floor(n * f / sample_rate_hz + 1e-9)), axes=run["axes"])
     return [whole]

@@ -20,7 +20,7 @@ import numpy as np
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.decision import claimed, held_out_improvement, rule_text
-from service.science.discovery.identifiability import not_testable
+from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.symmetry import asymmetry_test
 from service.science.effects import EFFECTS
@@ -116,12 +116,17 @@ def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, s
     _, res_trial, v_trial = fits.get(reference + (name,), theta)
     test = held_out_improvement(records, res_ref, res_trial)
     against = "the model" if not reference else "the model + " + " + ".join(reference)
-    how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm (p = "
-           f"{test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² of mean "
-           f"square with each block's level anchored, {test['gain_as_measured_mse_um2'] * 1e6:.3g} nm² as measured, "
-           f"against σ² = {noise**2 * 1e6:.3g} nm²)")
+    how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm "
+           f"{_test_words(test, noise)}")
     return _entry(name, fits, noise, v0, k0, sig, floor, claimed(test, noise), test["p"], test["gain_mse_um2"],
                   reference, v_ref, how)
+
+
+def _test_words(test: dict, noise: float) -> str:
+    """A held-out test's figures in words (both anchorings of the blocks' levels)."""
+    return (f"(p = {test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² "
+            f"of mean square with each block's level anchored at its last training cycle, "
+            f"{test['gain_trend_mse_um2'] * 1e6:.3g} nm² at its training mean; against σ² = {noise**2 * 1e6:.3g} nm²)")
 
 
 def _entry(name, fits: "_Fits", noise, v0, k0, sig, floor, is_claimed: bool, p_value: float, gain: float,
@@ -189,7 +194,7 @@ def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple
     return rows, {"effects": [winner, other], "excess_ratio": None,
                   "text": (f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
                            f"(held-out {_fmt_nm(min(v_a, v_s))} and {_fmt_nm(max(v_a, v_s))}); {why}"),
-                  "experiment": {"axes": axes, **body}}
+                  "experiment": experiment_body(records, axes, **body)}
 
 
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
@@ -273,8 +278,8 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor
     """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
     whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
     if missing:
-        return (f"missing effect: {physical[0]['effect']} (p = {physical[0]['p_value']:.2g}, held-out "
-                f"{_fmt_nm(physical[0]['reference_rms_um'])} → {_fmt_nm(physical[0]['expected_rms_um'])} with it); "
+        return (f"missing effect: {physical[0]['effect']} (p = {physical[0]['p_value']:.2g}; this model's held-out "
+                f"{_fmt_nm(v0)} → {_fmt_nm(physical[0]['expected_rms_um'])} with it added); "
                 f"held-out RMS {v0:.4g} µm against a noise floor of {noise:.3g} µm")
     rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
     if at_floor:
@@ -356,4 +361,4 @@ def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
             "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
                     f"(held-out {_fmt_nm(a['expected_rms_um'])} and "
                     f"{_fmt_nm(b['expected_rms_um'])}); {why}",
-            "experiment": {"axes": axes, **body}}
+            "experiment": experiment_body(records, axes, **body)}

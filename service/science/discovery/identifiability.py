@@ -70,6 +70,19 @@ def other_axis_independence(records) -> float | None:
     return float(np.sqrt(num / den)) if den > 0 else 0.0
 
 
+def experiment_body(records, axes: list[str], **body) -> dict:
+    """A ready-to-POST /api/sweeps body on ``axes``; a sine sweep spans the data's own drive range
+    (``v_min``/``v_max``, V, rounded out to 0.1 V), so that an experiment asked for data of another
+    stage or range is that range — and a bench that cannot drive it refuses it, naming the field."""
+    out = {"axes": axes, **body}
+    drives = [np.asarray(r.u_v, dtype=float) for r in records if getattr(r, "u_v", None) is not None and r.u_v.size]
+    if body.get("waveform") == "sine" and drives:
+        lo, hi = min(float(u.min()) for u in drives), max(float(u.max()) for u in drives)
+        if hi > lo:
+            out.update(v_min=float(np.floor(lo * 10.0) / 10.0), v_max=float(np.ceil(hi * 10.0) / 10.0))
+    return out
+
+
 def _axes(records) -> list[str]:
     return sorted({r.axis for r in records if r.axis}) or ["y"]
 
@@ -87,13 +100,20 @@ def not_testable(effect: str, records) -> dict | None:
         if share is None:
             return {"effect": effect, "reason": "the record has no drive of the other axis, so its influence "
                                                 "cannot be seen",
-                    "experiment": {"axes": sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP, "together": False}}
+                    "experiment": experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP,
+                                                  together=False)}
+        if not any(r.u_other_v is not None and np.ptp(r.u_other_v) > 0 for r in records):
+            return {"effect": effect, "reason": "the other axis was not driven (its drive is constant), so its "
+                                                "influence cannot be seen",
+                    "experiment": experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP,
+                                                  together=False)}
         if share < INDEPENDENT_SHARE:
             return {"effect": effect,
                     "reason": f"the other axis was driven with this axis's waveform (only {100 * share:.1f} % of its "
                               "drive is independent of this axis's): collinear drives make coupling "
                               "indistinguishable from more hysteresis; drive each axis alone",
-                    "experiment": {"axes": sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP, "together": False}}
+                    "experiment": experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP,
+                                                  together=False)}
         return None
     if effect == "temperature":
         temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
@@ -104,7 +124,7 @@ def not_testable(effect: str, records) -> dict | None:
                     "reason": f"a temperature effect needs a temp_c column that varies by at least "
                               f"{MIN_TEMPERATURE_SPAN_K:g} K ({seen}): record the stack's temperature over a run "
                               "long enough for it to change",
-                    "experiment": {"axes": axes, "waveform": "sine", "frequencies_hz": [1.0], "cycles": 60}}
+                    "experiment": experiment_body(records, axes, waveform="sine", frequencies_hz=[1.0], cycles=60)}
         return None
     if effect in RATE_EFFECTS:
         rates = drive_rates_hz(records)
@@ -113,5 +133,5 @@ def not_testable(effect: str, records) -> dict | None:
             return {"effect": effect,
                     "reason": f"{effect} needs at least two drive rates a factor {MIN_RATE_RATIO:g} apart (this data: "
                               f"{seen}): at one rate it is one fixed loop shape, which the hysteresis base absorbs",
-                    "experiment": {"axes": axes, **RATE_SWEEP}}
+                    "experiment": experiment_body(records, axes, **RATE_SWEEP)}
     return None

@@ -132,19 +132,35 @@ async function submitImport(root) {
   }
 }
 
+/** " · drive −150 … 150 V (y)" from the dataset's recorded drive range, or "". */
+function driveRange(ds) {
+  const range = ds.drive_range_v || {};
+  const parts = Object.entries(range).map(([axis, [lo, hi]]) => `${fmt(lo)} … ${fmt(hi)} V (${esc(axis)})`);
+  return parts.length ? ` · <span id="drive-range">drive ${parts.join(', ')}</span>` : '';
+}
+
+/** What an imported record's block leaves out before (and, for the last block, after) it, in words. */
+function trimmedText(b) {
+  const t = b.trimmed;
+  if (!t || (!t.before_s && !t.after_s)) return '';
+  const parts = [t.before_s ? `${fmt(t.before_s)} s before` : '', t.after_s ? `${fmt(t.after_s)} s after` : ''].filter(Boolean);
+  return `<span title="${esc(t.why || '')}">${parts.join(', ')}</span>`;
+}
+
 async function showDataset(root, id) {
   const ds = await api(`/datasets/${encodeURIComponent(id)}`, { signal: controller.signal });
   root.append(h(`<div>
     <h1>Dataset <span id="dataset-id">${esc(ds.id)}</span> <span class="muted">${esc(ds.name)}</span></h1>
     <div class="card"><p id="dataset-summary" data-samples="${ds.samples}" data-sample-rate-hz="${ds.sample_rate_hz}">${esc(ds.source)} · axes ${ds.axes.join(', ')} ·
-      ${ds.samples} samples at ${fmt(ds.sample_rate_hz)} Hz · ${fmt(ds.duration_s)} s · ${ds.n_blocks} blocks
+      ${ds.samples} samples at ${fmt(ds.sample_rate_hz)} Hz · ${fmt(ds.duration_s)} s · ${ds.n_blocks} blocks${driveRange(ds)}
       ${ds.partial ? ` · <span class="warn">partial: ${esc(ds.partial_reason || '')}</span>` : ''}</p>
       <p>Export: <a id="export-csv" href="/api/datasets/${esc(ds.id)}/data?format=csv" download="${esc(ds.id)}.csv">CSV</a> ·
         <a id="export-hdf5" href="/api/datasets/${esc(ds.id)}/data?format=hdf5" download="${esc(ds.id)}.h5">HDF5</a> ·
         <a href="#/models?dataset=${esc(ds.id)}">identify a model from it</a> · <a href="#/datasets">all datasets</a></p>
-      <table id="block-table"><tr><th>block</th><th>kind</th><th class="num">frequency (Hz)</th><th class="num">cycles</th><th class="num">start (s)</th><th class="num">stop (s)</th><th>axes</th></tr>
+      <table id="block-table"><tr><th>block</th><th>kind</th><th class="num">frequency (Hz)</th><th class="num">cycles</th><th class="num">start (s)</th><th class="num">stop (s)</th><th>axes</th><th title="stretches in no block: a rest, a ramp, the first cycle out of a rest">outside the blocks</th></tr>
       ${ds.blocks.map((b) => `<tr><td>${b.index ?? ''}</td><td>${esc(b.kind ?? '')}</td><td class="num">${fmt(b.frequency_hz)}</td><td class="num">${fmt(b.cycles)}</td>
-        <td class="num">${fmt(b.start / ds.sample_rate_hz)}</td><td class="num">${fmt(b.stop / ds.sample_rate_hz)}</td><td>${(b.axes || ds.axes).join(', ')}</td></tr>`).join('')}</table></div>
+        <td class="num">${fmt(b.start / ds.sample_rate_hz)}</td><td class="num">${fmt(b.stop / ds.sample_rate_hz)}</td><td>${(b.axes || ds.axes).join(', ')}</td>
+        <td class="trimmed">${trimmedText(b)}</td></tr>`).join('')}</table></div>
     <div class="card"><div id="ts-chart"></div></div>
     <div class="card"><h2>Hysteresis loops per frequency block</h2><div id="loops" class="grid"></div></div>
   </div>`));

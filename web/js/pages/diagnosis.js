@@ -67,6 +67,7 @@ export function renderDiagnosis(box, model, d, opts) {
         : 'The model explains the data down to the noise floor.'}
       Residual RMS <b data-value="${d.residual_rms_um}">${fmtLength(d.residual_rms_um, 4)}</b> · noise floor ${fmtLength(d.noise_floor_um, 4)}</p>
     ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
+    ${d.diagnosed_as ? `<p class="muted" id="diagnosed-as">Diagnosed as ${esc(d.diagnosed_as)}.</p>` : ''}
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}"${f.block ? ` data-block="${esc(f.block)}"` : ''}>${f.block
       ? `${esc(f.block)}: held-out residual RMS ${fmtLength(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
     <h3>Candidate effects, best first</h3>
@@ -78,8 +79,10 @@ export function renderDiagnosis(box, model, d, opts) {
     </table>
     ${d.claim_rule ? `<p class="muted" id="claim-rule">Claim rule: ${esc(d.claim_rule)}.</p>` : ''}
     ${untestable.length ? `<h3>Not testable with this data</h3><ul id="not-testable">${untestable.map((u) => `<li data-effect="${esc(u.effect)}">
-      <b>${esc(u.effect)}</b>: ${esc(u.reason)}. <button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>
+      <b>${esc(u.effect)}</b>: ${esc(u.reason)}. ${d.experiments_run_here === false ? '<span class="muted">On the stage that recorded the data:</span>'
+        : `<button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>`}
       <span class="muted">(${describe(u.experiment)})</span></li>`).join('')}</ul>` : ''}
+    ${d.experiments_note ? `<p class="warn" id="experiments-elsewhere">${esc(d.experiments_note)}</p>` : ''}
     <div id="separate"></div>`;
   box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => onAdd(b.dataset.effect, extra)));
   box.querySelectorAll('.run-test').forEach((b) => b.addEventListener('click', async () => {
@@ -93,6 +96,11 @@ export function renderDiagnosis(box, model, d, opts) {
   const offered = separatingExperiment(d);
   if (!offered) return;
   const sep = box.querySelector('#separate');
+  if (d.experiments_run_here === false) {      // imported data: the experiment belongs to the stage that recorded it
+    sep.innerHTML = `<h3>Separate</h3><p>${esc(offered.text || '')}</p>
+      <p class="muted">On the stage that recorded the data: ${describe(offered.body)}.</p>`;
+    return;
+  }
   sep.innerHTML = `<h3>Separate</h3><p>${esc(offered.text || '')}</p>
     <p class="muted">The experiment: ${describe(offered.body)}.</p>
     <button type="button" class="primary" id="separate-run" data-a="${esc(offered.a)}" data-b="${esc(offered.b)}">Run the experiment that separates ${esc(offered.a)} from ${esc(offered.b)}</button>`;
