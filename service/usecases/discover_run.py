@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, stops_at_ambiguity
+from service.science.discovery.loop import discovery_step, needed_experiment, next_effect
 from service.science.discovery.parameters import physical_parameters
 from service.science.effects import EFFECTS, ordered
 from service.runtime.jobs import JobContext, JobInterrupted
@@ -79,7 +79,7 @@ def discover(ctx: JobContext, store: Store, model_id: str, max_steps: int = 8, a
                     stopped = _natural_stop(d)
                     reason = f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
                     break
-                if stops_at_ambiguity(d, continue_past_ambiguity, done=[e["experiment"] for e in run["experiments"]]):
+                if not continue_past_ambiguity:     # ``need`` is the ambiguity (stops_at_ambiguity's answer)
                     stopped = "needs_experiment"
                     reason = (f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
                               f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "

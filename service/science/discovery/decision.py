@@ -53,13 +53,18 @@ def _segments(rec, split) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(edges[:-1], edges[1:]) if e > s]
 
 
+def _less_mean_from(residual: np.ndarray, split, start: int) -> np.ndarray:
+    """The block's residual less its mean over training rows ``start``..the end of training."""
+    out = residual.copy()
+    cut = split.train[1]
+    if cut > start:
+        out[split.train[0]:split.held_out[1]] -= float(np.mean(residual[start:cut]))
+    return out
+
+
 def _training_mean_free(residual: np.ndarray, split) -> np.ndarray:
     """The residual less its mean over the block's training rows (the level the fit itself sets)."""
-    out = residual.copy()
-    a, cut = split.train
-    if cut > a:
-        out[a:split.held_out[1]] -= float(np.mean(residual[a:cut]))
-    return out
+    return _less_mean_from(residual, split, split.train[0])
 
 
 def _offset_free(residual: np.ndarray, rec, split) -> np.ndarray:
@@ -68,13 +73,9 @@ def _offset_free(residual: np.ndarray, rec, split) -> np.ndarray:
     the base may get wrong (a Bouc–Wen or Maxwell-slip stack has no wiping-out memory, so it comes to
     rest elsewhere than a Preisach model predicts); a candidate must explain what changes *after*
     the training cycles — the held-out ones come last."""
-    out = residual.copy()
     a, cut = split.train
     period = rec.period_samples(split)
-    start = max(a, cut - int(round(period)) if period else cut - (cut - a) // 5)
-    if cut > start:
-        out[a:split.held_out[1]] -= float(np.mean(residual[start:cut]))
-    return out
+    return _less_mean_from(residual, split, max(a, cut - int(round(period)) if period else cut - (cut - a) // 5))
 
 
 def held_out_improvement(records, res_ref, res_trial) -> dict:

@@ -97,23 +97,21 @@ def not_testable(effect: str, records) -> dict | None:
     axes = _axes(records)
     if effect == "cross_coupling":
         share = other_axis_independence(records)
+        both_axes = experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP, together=False)
         if share is None:
             return {"effect": effect, "reason": "the record has no drive of the other axis, so its influence "
                                                 "cannot be seen",
-                    "experiment": experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP,
-                                                  together=False)}
+                    "experiment": both_axes}
         if not any(r.u_other_v is not None and np.ptp(r.u_other_v) > 0 for r in records):
             return {"effect": effect, "reason": "the other axis was not driven (its drive is constant), so its "
                                                 "influence cannot be seen",
-                    "experiment": experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP,
-                                                  together=False)}
+                    "experiment": both_axes}
         if share < INDEPENDENT_SHARE:
             return {"effect": effect,
                     "reason": f"the other axis was driven with this axis's waveform (only {100 * share:.1f} % of its "
                               "drive is independent of this axis's): collinear drives make coupling "
                               "indistinguishable from more hysteresis; drive each axis alone",
-                    "experiment": experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP,
-                                                  together=False)}
+                    "experiment": both_axes}
         return None
     if effect == "temperature":
         temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
