@@ -4,7 +4,8 @@ from a grid search refined locally; the weights stay linear."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import bilinear, lfilter
+from numba import njit
+from scipy.signal import bilinear
 
 from service.science.effects.base import Effect
 from service.science.effects.harmonics import projected_costs
@@ -17,11 +18,31 @@ FN_PER_DECADE = 230  # 1 % steps
 COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 
 
+@njit(cache=True)
+def _biquad_about_first_row(b, a, x, out):
+    """Direct form II transposed (as scipy's lfilter) down each column of ``x`` (n, m), about its
+    first row, in row order: the columns share each sample's pass through memory."""
+    n, m = x.shape
+    z1, z2 = np.zeros(m), np.zeros(m)
+    for k in range(n):
+        for j in range(m):
+            xi = x[k, j] - x[0, j]
+            y = b[0] * xi + z1[j]
+            z1[j] = b[1] * xi - a[1] * y + z2[j]
+            z2[j] = b[2] * xi - a[2] * y
+            out[k, j] = y + x[0, j]
+
+
 def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: float) -> np.ndarray:
+    """Every column (n_samples,) or (n_samples, m) through the resonance, starting at rest at its
+    first sample (so a constant column passes unchanged)."""
     wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
     b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
-    y0 = columns[:1]
-    return lfilter(b, a, columns - y0, axis=0) + y0
+    x = np.ascontiguousarray(columns, dtype=float)
+    rows = x.reshape(x.shape[0], -1)
+    out = np.empty_like(rows)
+    _biquad_about_first_row(np.asarray(b / a[0]), np.asarray(a / a[0]), rows, out)
+    return out.reshape(x.shape)
 
 
 def digital_response(frequency_hz: np.ndarray, fs_hz: float, fn_hz: np.ndarray, zeta: np.ndarray) -> np.ndarray:
