@@ -93,3 +93,25 @@ def test_segments_follow_eq3_first_matching_row():
     np.testing.assert_array_equal(segment_index(du, ddu), list(cases.values()))
     alpha, beta = np.array([1.0, 2.0, 3.0, 4.0]), np.array([10.0, 20.0, 30.0, 40.0])
     assert dynamic_weight_shift(-2.0, 0.5, alpha, beta) == 4.0 * -2.0 + 40.0 * 0.5
+
+
+@pytest.mark.parametrize("fn_hz, zeta", [(300.0, 0.01), (1500.0, 0.3)])
+def test_resonance_filter_kernel_matches_scipy_lfilter(fn_hz, zeta):
+    """The compiled biquad gives scipy's direct form II transposed output, column by column, about
+    the first sample; a constant column passes unchanged and the DC gain is 1."""
+    from scipy.signal import bilinear, lfilter
+
+    from service.science.effects.dynamics import resonance_filter
+
+    fs_hz = 10_000.0
+    columns = np.cumsum(np.random.default_rng(3).normal(size=(20_000, 5)), axis=0)
+    columns[:, 4] = 2.5
+    wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)
+    b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
+    expected = lfilter(b, a, columns - columns[:1], axis=0) + columns[:1]
+    got = resonance_filter(columns, fs_hz, fn_hz, zeta)
+    assert np.max(np.abs(got - expected)) < 1e-9 * np.max(np.abs(expected))
+    assert np.array_equal(got[:, 4], columns[:, 4])
+    np.testing.assert_allclose(resonance_filter(columns[:, 0], fs_hz, fn_hz, zeta), expected[:, 0], rtol=0, atol=1e-9 * np.max(np.abs(expected)))
+    step = resonance_filter(np.r_[np.zeros(10), np.ones(20_000)], fs_hz, fn_hz, zeta)
+    assert abs(step[-1] - 1.0) < 1e-6
