@@ -23,12 +23,15 @@ def test_default_bench_discovery_converges(sweeps):
     # without continue_past_ambiguity the loop stops at the first step whose two leading look-alikes
     # explain the data alike, naming the sweep; with it, the loop adds the leading one and goes on
     stops = [k for k, s in enumerate(steps) if stops_at_ambiguity(s["diagnosis"], False) is not None]
-    if stops:
-        need = stops_at_ambiguity(steps[stops[0]]["diagnosis"], False)
-        assert len(need["effects"]) == 2 and need["experiment"]["waveform"] in ("sine", "step")
-        assert steps[stops[0] + 1]["effects"][-1] == need["effects"][0]     # the leading one, added
-        stopped = discovery_run([record])
-        assert [s["effects"] for s in stopped] == [s["effects"] for s in steps[:stops[0] + 1]]
+    assert stops and stops[0] == 0      # the stack's asymmetry and the gauge's bow bend the first loop alike
+    need = stops_at_ambiguity(steps[0]["diagnosis"], False)
+    assert set(need["effects"]) == {"asymmetry", "sensor_nonlinearity"}
+    experiment = need["experiment"]     # more rates and cycles part them, over the drive range measured
+    assert experiment["waveform"] == "sine" and max(experiment["frequencies_hz"]) > 100.0
+    assert experiment["cycles"] >= 10 and experiment["v_min"] < experiment["v_max"]
+    assert steps[1]["effects"][-1] == need["effects"][0]     # the leading one, added
+    stopped = discovery_run([record])
+    assert [s["effects"] for s in stopped] == [s["effects"] for s in steps[:1]]
     rms = [s["diagnosis"]["residual_rms_um"] for s in steps]
     assert steps[-1]["diagnosis"]["verdict"] == "complete"
     assert len(steps) >= 4  # several effects are hidden
