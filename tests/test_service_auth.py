@@ -122,6 +122,27 @@ def test_missing_unknown_and_revoked_tokens_get_401_with_a_reason(service):
     assert http.delete("/api/admin/tokens/tok_nope", headers=admin).status_code == 404
 
 
+
+def test_the_stop_checks_a_token_seen_lately_without_the_store(service, monkeypatch):
+    """The emergency stop takes a token this process verified lately from memory (no store read,
+    whose lock hand-offs wait behind downloads and imports), refuses it at once when it is revoked
+    over the API, and goes back to the store once RecentTokens.trust_s has passed."""
+    app, http = service
+    record = _token(http, "operate", "bob")
+    operate, admin = bearer(record["token"]), bearer(auth.read_bootstrap_token(app.state.settings.data_dir))
+    assert http.get("/api/bench", headers=operate).status_code == 200     # verified against the store
+    reads = []
+    real_by_hash = app.state.store.tokens.by_hash
+    monkeypatch.setattr(app.state.store.tokens, "by_hash", lambda digest: reads.append(digest) or real_by_hash(digest))
+    r = http.post("/api/bench/stop", headers=operate)
+    assert r.status_code == 200 and r.json()["stopped"] is True and reads == []
+    app.state.recent_tokens.trust_s = 0.0                                 # the memory has gone stale
+    assert http.post("/api/bench/stop", headers=operate).status_code == 200 and len(reads) == 1
+    app.state.recent_tokens.trust_s = 60.0
+    assert http.delete(f"/api/admin/tokens/{record['id']}", headers=admin).status_code == 200
+    r = http.post("/api/bench/stop", headers=operate)
+    assert r.status_code == 401 and "revoked" in r.json()["detail"]
+
 def test_scopes_read_operate_admin(service):
     app, http = service
     read, operate = bearer(_token(http, "read")["token"]), bearer(_token(http, "operate")["token"])
@@ -270,7 +291,11 @@ def test_cli_create_use_list_revoke(tmp_path):
         assert "operate" in line and " cli " in line and "active" in line and plaintext not in listed
         assert _cli("token", "revoke", token_id, "--data-dir", str(tmp_path)).stdout.strip() == \
             f"token {token_id} revoked"
-        r = http.post("/api/bench/stop", headers=bearer(plaintext))  # no restart needed
+        r = http.get("/api/bench", headers=bearer(plaintext))  # no restart needed
+        assert r.status_code == 401 and "revoked" in r.json()["detail"]
+        # the stop takes tokens verified lately from memory; a request that found this one revoked
+        # has dropped it there too (else it would be refused after RecentTokens.trust_s)
+        r = http.post("/api/bench/stop", headers=bearer(plaintext))
         assert r.status_code == 401 and "revoked" in r.json()["detail"]
     assert _cli("token", "revoke", "tok_nope", "--data-dir", str(tmp_path), check=False).returncode == 2
 

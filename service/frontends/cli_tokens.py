@@ -49,7 +49,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--if-missing", action="store_true",
                    help="do nothing if an active cli/api token already exists (container start-up)")
     verb("list", "list tokens (no secrets)", _list)
-    p = verb("revoke", "revoke a token: requests with it get 401 at once", _revoke)
+    p = verb("revoke", "revoke a token: requests with it get 401 at once (a running "
+                 "service's emergency stop still takes it for up to 5 s if it saw it lately)", _revoke)
     p.add_argument("token_id", help="the token's id (tok_…), from `evcbench token list`")
 
 

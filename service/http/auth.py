@@ -17,7 +17,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from service.security.auth import AuthError, authenticate, authorize, required_scope, still_valid
+from service.security.auth import AuthError, RecentTokens, authenticate, authorize, required_scope, still_valid
 
 #: A token in a query string, as written to the access log.
 QUERY_TOKEN = re.compile(r"(?<=[?&]token=)[^&\s]+")
@@ -42,9 +42,32 @@ def require_token(request: Request, credentials: HTTPAuthorizationCredentials | 
             raise AuthError(401, "?token= is accepted only on /api/jobs/{id}/events; send the header "
                                  "'Authorization: Bearer <token>'", field="token")
         token = query_token
-    record = authenticate(request.app.state.store, token)
+    try:
+        record = authenticate(request.app.state.store, token)
+    except AuthError:
+        if token:
+            recent_tokens(request.app).forget_token(token)      # revoked elsewhere: the stop refuses it too
+        raise
+    recent_tokens(request.app).remember(token, record)
     authorize(record, required_scope(request.method, path))
     return record
+
+
+def require_token_for_stop(request: Request, credentials: HTTPAuthorizationCredentials | None) -> dict:
+    """``require_token`` for the emergency stop: a token this process verified lately is taken from
+    memory, without a store read (``RecentTokens`` says why, and what it allows); any other goes
+    through the store as on every route."""
+    if request.app.state.settings.auth != "off" and credentials is not None:
+        record = recent_tokens(request.app).recent(credentials.credentials)
+        if record is not None:
+            authorize(record, required_scope(request.method, request.url.path))
+            return record
+    return require_token(request, credentials)
+
+
+def recent_tokens(app: FastAPI) -> RecentTokens:
+    """The app's ``RecentTokens`` (``install`` makes it)."""
+    return app.state.recent_tokens
 
 
 #: Pass to include_router(dependencies=…) for every router that needs a token.
@@ -76,7 +99,8 @@ _REDACT = RedactQueryToken()
 
 def install(app: FastAPI) -> None:
     """Turn AuthError into the API's error body ``{"detail", "field"}`` (+ WWW-Authenticate on 401),
-    and keep query tokens out of uvicorn's access log."""
+    and keep query tokens out of uvicorn's access log; the tokens verified lately start empty."""
+    app.state.recent_tokens = RecentTokens()
     access_log = logging.getLogger("uvicorn.access")
     if _REDACT not in access_log.filters:
         access_log.addFilter(_REDACT)

@@ -10,7 +10,7 @@ from fastapi.security import HTTPAuthorizationCredentials
 
 from drivers.bench import BenchBusy
 
-from service.http.auth import AUTH_ERRORS, BEARER, require_token
+from service.http.auth import AUTH_ERRORS, BEARER, require_token_for_stop
 from service.http.schemas.bench import BenchState, EmergencyStop, FaultsReset, LiveSignals
 from service.runtime.safe_shutdown import safe_state
 
@@ -32,14 +32,14 @@ EMERGENCY_STOP = "emergency stop"
 _STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop")
 
 
-#: The stop's own router: its token is checked on the stop's thread (require_token inside the
-#: handler), not by a router dependency, which FastAPI runs on the request thread pool that a busy
+#: The stop's own router: its token is checked on the stop's thread (require_token_for_stop inside
+#: the handler: from memory if this process verified it lately), not by a router dependency, which FastAPI runs on the request thread pool that a busy
 #: service's downloads and imports hold (app.py mounts it without the router-level check).
 stop_router = APIRouter(tags=["bench"])
 
 
 def _authorized_stop(request: Request, credentials: HTTPAuthorizationCredentials | None) -> dict:
-    require_token(request, credentials)          # 401/403 as every route: nothing moves without a token
+    require_token_for_stop(request, credentials)  # 401/403 as every route: nothing moves without a token
     return safe_state(request.app, EMERGENCY_STOP)
 
 

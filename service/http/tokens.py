@@ -1,9 +1,10 @@
 """Token management (admin scope): GET/POST /api/admin/tokens, DELETE /api/admin/tokens/{id}."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request
 
 from service.security import auth
+from service.http.auth import recent_tokens
 from service.http.deps import get_store
 from service.http.schemas.admin import NewToken, Token, TokenRequest
 from service.store import NotFoundError, Store, utc_now
@@ -25,8 +26,9 @@ def create_token(body: TokenRequest, store: Store = Depends(get_store)) -> dict:
 
 
 @router.delete("/{token_id}", response_model=Token)
-def revoke_token(token_id: str, store: Store = Depends(get_store)) -> dict:
-    """Revoke a token at once (the next request with it gets 401)."""
+def revoke_token(token_id: str, request: Request, store: Store = Depends(get_store)) -> dict:
+    """Revoke a token at once (the next request with it gets 401, the emergency stop's included)."""
     if not store.tokens.revoke(token_id, utc_now()):
         raise NotFoundError("token", token_id)
+    recent_tokens(request.app).forget(token_id)
     return auth.public(store.tokens.get(token_id))

@@ -9,7 +9,8 @@ Figures, side by side in one run:
 
 * ``stop``: request → 0 V at the actuator (the engine's 0 V write, ``time.monotonic`` seconds
   being one clock for every process of the machine) and request → answer, p50/p99/max in ms,
-  with the same figures for the service idle;
+  with the same figures for the service idle; ``engine_zero_ms`` is the part inside the engine
+  (its stop thread's receipt → the 0 V write), the rest is the web process and the pipe;
 * ``sweep``: one 1/10/50/100 Hz sweep run to its end under the load: its state, watchdog trips and
   the emulated DAQ's real-time overruns;
 * ``rss_mb``: peak resident memory of the web process and of the engine process.
@@ -96,6 +97,7 @@ def _press(client: httpx.Client, rng: random.Random) -> dict:
     zero = answer.get("zero_monotonic_s")
     return {"answer_ms": (t_answer - t_send) * 1e3,
             "zero_ms": (zero - t_send) * 1e3 if zero is not None else float("inf"),
+            "engine_ms": answer.get("zero_after_request_ms") or float("inf"),
             "output_v_max": max(abs(v) for v in answer["output_v"].values()),
             "job_state": done["state"], "cancelled": answer["cancelled_job_id"] == job["job_id"]}
 
@@ -109,6 +111,7 @@ def _stats(values: list[float]) -> dict:
 def _summary(presses: list[dict]) -> dict:
     landed = [p["output_v_max"] < 0.05 and p["cancelled"] and p["job_state"] == "cancelled" for p in presses]
     return {"zero_ms": _stats([p["zero_ms"] for p in presses]), "answer_ms": _stats([p["answer_ms"] for p in presses]),
+            "engine_zero_ms": _stats([p["engine_ms"] for p in presses]),
             "every_stop_landed": all(landed), "not_landed": [p for p, ok in zip(presses, landed) if not ok]}
 
 
