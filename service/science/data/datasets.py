@@ -149,7 +149,7 @@ def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> dic
                                        '{"u": 0, "x": 4} (0-based column indices)')
         mapping = {ALIASES.get(name, name): name for name in header if ALIASES.get(name, name) in CANONICAL}
         if not mapping:
-            raise DataError("file", f"no known columns in header {header}; expected t, u_y, x_y, u_z, "
+            raise DataError("file", f"no known columns in header {layout.written}; expected t, u_y, x_y, u_z, "
                                     "x_z, temp_c or u, x")
     specs = {}
     for name, spec in mapping.items():
@@ -157,7 +157,7 @@ def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> dic
         if canonical not in CANONICAL:
             raise DataError("columns", f"unknown column name {name!r}; use t, u_y, x_y, u_z, x_z, "
                                        "temp_c, or u and x with an axis")
-        specs[canonical] = _column_spec(name, spec, header, layout.width)
+        specs[canonical] = _column_spec(name, spec, layout)
     return _name_axes(specs, axis)
 
 
@@ -176,7 +176,8 @@ def _scaled(raw: dict[int, np.ndarray], specs: dict[str, tuple[int, float, float
     return arrays
 
 
-def _column_spec(name: str, spec, header: list[str] | None, width: int) -> tuple[int, float, float]:
+def _column_spec(name: str, spec, layout: Layout) -> tuple[int, float, float]:
+    header, width = layout.header, layout.width
     scale, offset = 1.0, 0.0
     if isinstance(spec, dict):
         if "column" not in spec:
@@ -192,7 +193,7 @@ def _column_spec(name: str, spec, header: list[str] | None, width: int) -> tuple
         raise DataError("columns", f"{name}: give a 0-based column index or a header name, not {spec!r}")
     if isinstance(spec, str):
         if header is None or spec.lower() not in header:
-            raise DataError("columns", f"{name}: no column named {spec!r} in the header {header}")
+            raise DataError("columns", f"{name}: no column named {spec!r} in the header {layout.written}")
         return header.index(spec.lower()), scale, offset
     if not 0 <= spec < width:
         raise DataError("columns", f"{name}: column {spec} does not exist; the file has {width} columns "

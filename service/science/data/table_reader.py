@@ -31,11 +31,13 @@ class DataError(FieldError):
 
 @dataclass
 class Layout:
-    """``header`` (lower-case names, or None), ``sep`` (None: runs of whitespace), ``width`` (fields)."""
+    """``header`` (lower-case names, or None), ``sep`` (None: runs of whitespace), ``width`` (fields),
+    ``written`` (the header's names as the file spells them, for messages)."""
 
     header: list[str] | None
     sep: str | None
     width: int
+    written: list[str] | None = None
 
 
 class TableReader:
@@ -66,7 +68,8 @@ class TableReader:
                     self._first = (first_no + k, lines[k:])
                     return Layout(None, sep, len(fields))
                 self._first = (first_no + k + 1, lines[k + 1:])
-                return Layout([f.strip('"').lower() for f in fields], sep, len(fields))
+                names = [f.strip('"') for f in fields]
+                return Layout([n.lower() for n in names], sep, len(fields), names)
         raise DataError("file", "is empty")
 
     # ------------------------------------------------------------------ rows
