@@ -37,10 +37,12 @@ install: $(STAMP) $(WEB_STAMP)
 browser:
 	bash tests/setup/install_browser.sh
 
-## Start the service on 127.0.0.1:8000 against the emulated bench, with its store in ./var. The
-## default bench is paced to real time, as hardware is (EVCBENCH_BENCH=<name> picks another).
+## Start the service on 127.0.0.1:$(PORT) against the emulated bench, with its store in ./var. The
+## default bench is paced to real time, as hardware is (EVCBENCH_BENCH=<name> picks another;
+## `make run PORT=8001` another port).
+PORT ?= 8000
 run: $(STAMP) $(WEB_STAMP)
-	$(VENV)/bin/evcbench serve --host 127.0.0.1 --port 8000 --data-dir var --bench "$${EVCBENCH_BENCH:-default_realtime}"
+	$(VENV)/bin/evcbench serve --host 127.0.0.1 --port $(PORT) --data-dir var --bench "$${EVCBENCH_BENCH:-default_realtime}"
 
 ## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
