@@ -130,6 +130,9 @@ def test_a_bench_id_held_by_a_live_service_is_refused(tmp_path):
         register(store.benches, settings, "elsewhere:4242:abcd", "idle")        # live, on another machine
         with pytest.raises(BenchIdInUse, match="held by a running service"):
             claim(store, settings, new_instance())
+        # `evcbench serve` says it before uvicorn starts (exit 2), not inside a start-up traceback
+        from service.frontends.cli_tokens import serve_refusal
+        assert "bench id 'a' is held by a running service" in serve_refusal(settings)
         dead = _dead_pid()
         register(store.benches, settings, f"{socket.gethostname()}:{dead}:abcd", "busy")  # this host, crashed
         claim(store, settings, new_instance())

@@ -80,8 +80,9 @@ def test_three_services_on_one_postgres(tmp_path, postgres_url):
             assert clients["default"].delete(f"/jobs/{jobs['creep']['id']}").json()["state"] == "succeeded"
 
             # a second service claiming the live id 'creep' is refused before it touches anything
-            with pytest.raises(RuntimeError, match="bench id 'creep' is held by a running service"):
+            with pytest.raises(RuntimeError, match="bench id 'creep' is held by a running service") as refused:
                 start_service(tmp_path / "intruder", database, "creep")
+            assert "exited with 2" in str(refused.value) and "Traceback" not in str(refused.value)
 
             # kill -9 the dynamics service: offline on the others after 3 silent heartbeats
             lab["dynamics"].proc.kill()

@@ -107,16 +107,18 @@ def _revoke(args: argparse.Namespace) -> int:
 
 
 def serve_refusal(settings: Settings) -> str | None:
-    """Why ``evcbench serve`` must not start with these settings (see service.security.binding), or None."""
+    """Why ``evcbench serve`` must not start with these settings, or None: a non-loopback bind
+    without a token (see service.security.binding), or a bench id a live service holds (said here,
+    before uvicorn starts, so it is not buried in a start-up traceback; the start-up checks again)."""
+    from service.runtime.heartbeat import held_elsewhere
     from service.security.binding import bind_refusal, is_loopback
 
-    if is_loopback(settings.host):
-        return None
-    count = 0
-    if settings.auth == "tokens":
-        store = open_store(settings.data_dir, settings.database_url)
-        try:
-            count = len(auth.remote_tokens(store))
-        finally:
-            store.close()
-    return bind_refusal(settings.host, settings.auth, count)
+    store = open_store(settings.data_dir, settings.database_url)
+    try:
+        held = held_elsewhere(store, settings)
+        count = len(auth.remote_tokens(store)) if settings.auth == "tokens" and not is_loopback(settings.host) else 0
+    finally:
+        store.close()
+    if held is not None:
+        return held
+    return None if is_loopback(settings.host) else bind_refusal(settings.host, settings.auth, count)

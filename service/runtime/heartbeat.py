@@ -73,15 +73,22 @@ def _holder_is_gone(row: dict) -> bool:
     return False
 
 
-def claim(store: Store, settings: Settings, instance: str) -> None:
-    """Register this service's bench (state ``starting``), unless another live service holds the id."""
+def held_elsewhere(store: Store, settings: Settings, instance: str | None = None) -> str | None:
+    """Why another live service holds this bench id (what to do about it, in words), or None."""
     row = store.benches.get(settings.bench_id)
     if row is not None and row["instance"] != instance and is_online(row) and not _holder_is_gone(row):
-        raise BenchIdInUse(
-            f"bench id {settings.bench_id!r} is held by a running service at {row['url']} (instance "
-            f"{row['instance']}, heartbeat {age_s(row):.1f} s ago): give this service its own --bench-id "
-            f"(EVCBENCH_BENCH_ID); if that service is gone, its bench shows offline after "
-            f"{OFFLINE_AFTER_HEARTBEATS * row['heartbeat_s']:g} s")
+        return (f"bench id {settings.bench_id!r} is held by a running service at {row['url']} (instance "
+                f"{row['instance']}, heartbeat {age_s(row):.1f} s ago): give this service its own --bench-id "
+                f"(EVCBENCH_BENCH_ID); if that service is gone, its bench shows offline after "
+                f"{OFFLINE_AFTER_HEARTBEATS * row['heartbeat_s']:g} s")
+    return None
+
+
+def claim(store: Store, settings: Settings, instance: str) -> None:
+    """Register this service's bench (state ``starting``), unless another live service holds the id."""
+    reason = held_elsewhere(store, settings, instance)
+    if reason is not None:
+        raise BenchIdInUse(reason)
     register(store.benches, settings, instance, "starting")
 
 
