@@ -12,6 +12,7 @@ from drivers.bench import BenchBusy
 
 from service.http.auth import AUTH_ERRORS, BEARER, require_token_for_stop
 from service.http.schemas.bench import BenchState, EmergencyStop, FaultsReset, LiveSignals
+from service.runtime.priority import SAFETY_NICE, set_thread_nice
 from service.runtime.safe_shutdown import safe_state
 
 router = APIRouter(tags=["bench"])
@@ -29,7 +30,8 @@ EMERGENCY_STOP = "emergency stop"
 
 #: The emergency stop's own thread: it never waits for the request thread pool that downloads,
 #: imports and other routes share.
-_STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop")
+_STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop", initializer=set_thread_nice,
+                                    initargs=(SAFETY_NICE,))
 
 
 #: The stop's own router: its token is checked on the stop's thread (require_token_for_stop inside

@@ -9,31 +9,20 @@ priority (``nice`` +10, best effort; a thread may always lower its own priority)
 from __future__ import annotations
 
 import asyncio
-import logging
-import os
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import AsyncIterator, Callable, Iterator, TypeVar
 
-log = logging.getLogger("evcbench.bulk")
+from service.runtime.priority import BULK_NICE, set_thread_nice
 
 #: threads for bulk work: more downloads or imports than this wait their turn (they are not refused)
 BULK_WORKERS = 4
-#: the niceness a bulk thread gives itself (0 = as the event loop; 19 = the least)
-BULK_NICE = 10
 
 T = TypeVar("T")
 
 
-def _lower_priority() -> None:
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BULK_NICE)
-    except (OSError, AttributeError) as exc:  # not Linux, or not allowed: run at normal priority
-        log.debug("bulk thread keeps its priority: %s", exc)
-
-
-_POOL = ThreadPoolExecutor(max_workers=BULK_WORKERS, thread_name_prefix="evc-bulk", initializer=_lower_priority)
+_POOL = ThreadPoolExecutor(max_workers=BULK_WORKERS, thread_name_prefix="evc-bulk", initializer=set_thread_nice,
+                           initargs=(BULK_NICE,))
 
 
 async def run_bulk(fn: Callable[..., T], *args) -> T:

@@ -26,6 +26,7 @@ from multiprocessing.connection import Connection
 
 from drivers.bench import Bench
 from drivers.interfaces import DriverError
+from service.runtime.priority import ENGINE_NICE, set_thread_nice
 
 log = logging.getLogger("evcbench.engine")
 
@@ -110,19 +111,6 @@ def _serve(conn: Connection, handle, lock: threading.Lock | None, on_eof) -> Non
             return
 
 
-#: the engine's scheduling priority (niceness; lower runs first): above the web process's bulk work
-ENGINE_NICE = -10
-
-
-def _raise_priority() -> None:
-    """Ask the kernel to schedule this process before the web process (needs CAP_SYS_NICE or root;
-    without it the engine keeps the default priority and says so)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, ENGINE_NICE)
-    except (OSError, AttributeError) as exc:
-        log.info("the engine keeps the default scheduling priority (%s)", exc)
-
-
 def _exit_on_signal(sig: int, _frame) -> None:
     raise SystemExit(128 + sig)
 
@@ -136,7 +124,7 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     # this process alone still leaves through ``finally``: the outputs at 0 V.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_signal)
-    _raise_priority()
+    set_thread_nice(ENGINE_NICE)      # before any thread starts: they inherit it (service.runtime.priority)
     from drivers.emulated import open_bench
 
     try:
