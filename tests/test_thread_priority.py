@@ -1,6 +1,7 @@
 """Each kind of thread of the service sets its own scheduling priority (service.runtime.priority):
-bulk downloads and imports below any program, job threads as any program even when the raised
-event loop creates them, the emergency stop's thread above both (where the kernel allows raising)."""
+bulk downloads and imports below any program, job threads as any program even when a raised thread
+(the stop's, cancelling a job) creates them, the emergency stop's thread above both (where the
+kernel allows raising)."""
 from __future__ import annotations
 
 import os
@@ -39,7 +40,7 @@ def test_the_stop_thread_runs_above_jobs_where_the_kernel_allows():
     assert _STOP_EXECUTOR.submit(_own_nice).result(30) == expected
 
 
-def test_job_threads_made_by_the_raised_event_loop_run_as_any_program(store):
+def test_job_threads_made_by_a_raised_thread_run_as_any_program(store):
     def from_a_raised_thread():
         raised = set_thread_nice(SAFETY_NICE)
         jobs = JobManager(store)

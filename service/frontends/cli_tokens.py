@@ -113,12 +113,13 @@ def serve_refusal(settings: Settings) -> str | None:
     from service.runtime.heartbeat import held_elsewhere
     from service.security.binding import bind_refusal, is_loopback
 
+    loopback = is_loopback(settings.host)
     store = open_store(settings.data_dir, settings.database_url)
     try:
         held = held_elsewhere(store, settings)
-        count = len(auth.remote_tokens(store)) if settings.auth == "tokens" and not is_loopback(settings.host) else 0
+        count = 0 if loopback or settings.auth != "tokens" else len(auth.remote_tokens(store))
     finally:
         store.close()
-    if held is not None:
+    if held is not None or loopback:
         return held
-    return None if is_loopback(settings.host) else bind_refusal(settings.host, settings.auth, count)
+    return bind_refusal(settings.host, settings.auth, count)

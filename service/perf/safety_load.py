@@ -97,7 +97,7 @@ def _press(client: httpx.Client, rng: random.Random) -> dict:
     zero = answer.get("zero_monotonic_s")
     return {"answer_ms": (t_answer - t_send) * 1e3,
             "zero_ms": (zero - t_send) * 1e3 if zero is not None else float("inf"),
-            "engine_ms": answer.get("zero_after_request_ms") or float("inf"),
+            "engine_ms": float("inf") if answer.get("zero_after_request_ms") is None else answer["zero_after_request_ms"],
             "output_v_max": max(abs(v) for v in answer["output_v"].values()),
             "job_state": done["state"], "cancelled": answer["cancelled_job_id"] == job["job_id"]}
 

@@ -30,7 +30,6 @@ from service.http import trajectories as trajectories_api
 from service.http import web as web_api
 from service.runtime.heartbeat import Heartbeat, claim, new_instance, register, running_state
 from service.runtime.jobs import JobManager, freeze_heap
-from service.runtime.priority import SAFETY_NICE, set_thread_nice
 from service.runtime.recovery import recover
 from service.security.auth import ensure_bootstrap_token
 from service.security.binding import auth_refusal
@@ -91,7 +90,6 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 heartbeat = Heartbeat(settings.resolved_database_url, settings.bench_id, instance,
                                       settings.heartbeat_s, lambda: running_state(app.state.jobs)).start()
                 freeze_heap()  # what start-up loaded is never scanned again by the collector
-                set_thread_nice(SAFETY_NICE)  # the event loop carries the stop: before bulk work and other programs
                 try:
                     yield
                 finally:

@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import AsyncIterator, Callable
 
-from service.runtime.priority import at_work_priority
+from service.runtime.priority import WORK_NICE, set_thread_nice
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, MAX_QUEUED_COMPUTE_JOBS, QUEUE_RETRY_AFTER_S
 from service.store import TERMINAL_STATES, Store, clean_json, utc_now
 
@@ -115,10 +115,10 @@ class JobManager:
         self.queue_limits = {True: int(max_queued_bench_jobs), False: int(max_queued_compute_jobs)}
         self._reserved = {True: 0, False: 0}  # places taken by submissions whose row is being written
         self._bench_queue: queue.Queue[str | None] = queue.Queue()
-        # job threads run as any program even when created by the raised event loop (service.runtime.priority)
-        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="evc-job", initializer=at_work_priority)
-        self._persister = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-progress",
-                                             initializer=at_work_priority)
+        # job threads run as any program even when a raised thread (the stop's, cancelling) starts them
+        at_work = {"initializer": set_thread_nice, "initargs": (WORK_NICE,)}
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="evc-job", **at_work)
+        self._persister = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-progress", **at_work)
         self._bench_thread = threading.Thread(target=self._bench_worker, name="evc-bench-owner", daemon=True)
         self._running_bench_job: str | None = None
         self._closed = False  # jobs a previous process left unfinished: service.runtime.recovery, before this

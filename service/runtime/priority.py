@@ -2,8 +2,10 @@
 
 On a lab PC the emergency stop's path competes for the cores with the service's own bulk work and
 with every other program. The kernel schedules a thread of lower niceness first, so each kind of
-thread sets its own: the bench engine process highest, the web event loop and the stop's thread
-next (they carry the stop to the engine), jobs as any program, bulk downloads and imports last.
+thread sets its own: the bench engine process highest, the web process's stop thread next, jobs
+as any program, bulk downloads and imports last. The web event loop keeps the default: threads
+inherit their creator's niceness, and the request threads it starts run long sync routes (a
+diagnosis takes seconds), which must not outrank other programs.
 
 A thread may always lower its own priority. Raising it above 0 needs CAP_SYS_NICE (or root: a
 systemd unit can grant it with ``AmbientCapabilities=CAP_SYS_NICE``); without it the thread keeps
@@ -19,9 +21,9 @@ log = logging.getLogger("evcbench.priority")
 
 #: the bench engine process (its loop, watchdog and stop thread)
 ENGINE_NICE = -10
-#: the web process's event loop and the emergency stop's thread, which carry the stop to the engine
+#: the web process's emergency-stop thread, which carries the stop to the engine
 SAFETY_NICE = -5
-#: job threads (fits, plans) and short requests: as any program
+#: job threads (fits, plans) and request threads: as any program
 WORK_NICE = 0
 #: downloads and imports (service.runtime.bulk)
 BULK_NICE = 10
@@ -40,8 +42,3 @@ def set_thread_nice(nice: int) -> bool:
             _refused_once.set()
             log.info("thread priority %+d refused (%s): this thread keeps its priority", nice, exc)
         return False
-
-
-def at_work_priority() -> None:
-    """ThreadPoolExecutor initializer: job threads run as any program, whatever their creator's."""
-    set_thread_nice(WORK_NICE)

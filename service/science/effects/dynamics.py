@@ -41,7 +41,7 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
     x = np.ascontiguousarray(columns, dtype=float)
     rows = x.reshape(x.shape[0], -1)
     out = np.empty_like(rows)
-    _biquad_about_first_row(np.asarray(b / a[0]), np.asarray(a / a[0]), rows, out)
+    _biquad_about_first_row(b / a[0], a / a[0], rows, out)
     return out.reshape(x.shape)
 
 
