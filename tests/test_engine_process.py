@@ -12,12 +12,14 @@ import sys
 import textwrap
 import time
 
+import httpx
 import numpy as np
 import pytest
 
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
-from api_client import authed_client, job_running, wait_job
+from service.runtime.stop_port import STOP_PATH
+from api_client import authed_client, bearer, job_running, wait_job
 
 #: The real-time paced bench in its engine process, a module fixture: one worker runs the file.
 pytestmark = [pytest.mark.realtime, pytest.mark.xdist_group("engine_process")]
@@ -65,6 +67,43 @@ def test_stop_during_a_realtime_sweep_reaches_0v_in_the_engine(http):
     assert done["state"] == "cancelled" and "emergency stop" in done["message"]
     partial = http.get(f"/api/datasets/{done['result']['dataset_id']}").json()
     assert partial["partial"] and partial["samples"] > 0
+
+
+def _stop_port(http) -> str:
+    return f"http://127.0.0.1:{http.get('/api/bench').json()['engine']['stop_port']}{STOP_PATH}"
+
+
+def test_the_engines_stop_port_stops_the_sweep_and_clears_its_queue(http):
+    """The engine's own door: 0 V from the engine, the running job cancelled as by the route, the
+    bench job queued behind it cancelled by the service before the engine runs another plan."""
+    job = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 20}).json()
+    queued = http.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [10], "cycles": 2}).json()
+    wait_job(http, job["job_id"], until=job_running(0.02), timeout_s=60)
+    answer = httpx.post(_stop_port(http), headers=bearer(http.token), timeout=30)
+    assert answer.status_code == 200, answer.text
+    body = answer.json()
+    assert body["door"] == "stop port" and body["cancelled_job_id"] == job["job_id"]
+    assert body["loop_answered"] is True and all(abs(v) < 0.05 for v in body["output_v"].values())
+    assert 0.0 <= body["zero_after_request_ms"] < float("inf")
+    done = wait_job(http, job["job_id"])
+    assert done["state"] == "cancelled" and "emergency stop" in done["message"]
+    assert http.get(f"/api/datasets/{done['result']['dataset_id']}").json()["partial"]
+    assert wait_job(http, queued["job_id"])["state"] == "cancelled"
+    # the bench stayed still: no run after the stop; and a job submitted now runs normally
+    after = http.post("/api/sweeps", json={"axes": ["y"], "frequencies_hz": [50], "cycles": 2}).json()
+    assert wait_job(http, after["job_id"], timeout_s=60)["state"] == "succeeded"
+
+
+def test_the_stop_port_learns_token_changes_from_the_service_at_once(http):
+    url = _stop_port(http)
+    made = http.post("/api/admin/tokens", json={"name": "operator", "scope": "operate"}).json()
+    viewer = http.post("/api/admin/tokens", json={"name": "viewer", "scope": "read"}).json()
+    assert httpx.post(url, headers=bearer(made["token"])).json()["door"] == "stop port"
+    refused = httpx.post(url, headers=bearer(viewer["token"]))
+    assert refused.status_code == 403 and refused.json()["field"] == "scope"
+    assert http.delete(f"/api/admin/tokens/{made['id']}").status_code == 200
+    assert httpx.post(url, headers=bearer(made["token"])).status_code == 401
+    assert httpx.post(url).status_code == 401
 
 
 def test_trajectory_and_cancel_through_the_engine(http):

@@ -14,7 +14,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.realtime]      # live services and t
 
 def test_stop_lands_and_sweep_survives_under_load():
     out = run_safety_under_load(presses=3, import_mb=10.0, seed=1)
-    for phase in ("stop_idle", "stop_under_load"):
+    for phase in ("stop_idle", "stop_under_load", "stop_idle_service_route", "stop_under_load_service_route"):
         assert out[phase]["every_stop_landed"], out[phase]["not_landed"]
         assert out[phase]["zero_ms"]["n"] >= 3
         # every stop reports a 0 V write that came after the request was sent

@@ -75,6 +75,7 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
             assert "nothing was latched" in _cli(server, "reset").stdout
             stopped = json.loads(_cli(server, "stop", "--json").stdout)
             assert stopped["cancelled_job_id"] is None and all(abs(v) < 0.05 for v in stopped["output_v"].values())
+            assert stopped["door"] == "stop port"        # the CLI presses the engine's own port
             refused = subprocess.run([sys.executable, "-m", "service.frontends.cli", "jobs", "--url", server.url, "--token",
                                       "evc_wrong"], cwd=ROOT, capture_output=True, text=True, timeout=120)
             assert refused.returncode == 2 and "error 401 [authorization]: unknown API token" in refused.stderr

@@ -291,6 +291,7 @@ def test_emergency_stop_during_a_sweep(page, server):
     assert "cancelled" in page.inner_text("#sweep-job")
     stopped = json.loads(page.get_attribute("#banner", "data-stopped"))
     assert stopped["cancelled_job_id"] == job_id
+    assert stopped["door"] == "stop port"        # the engine's own port, not the web process's route
     bench = server["api"].get("/bench").json()
     # 0 V, to the amplifier's output noise (the tolerance of tests/test_service_api.py)
     assert all(abs(bench["amplifiers"][a]["output_v"]) < 0.05 for a in bench["axes"])

@@ -23,6 +23,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         seed=args.seed if args.seed is not None else defaults.seed,
         host=args.host or defaults.host,
         port=args.port or defaults.port,
+        stop_port=args.stop_port if args.stop_port is not None else defaults.stop_port,
         database_url=args.database_url or defaults.database_url,
         auth=args.auth or defaults.auth,
         array_url=args.array_url or defaults.array_url,
@@ -120,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--host", help="bind address (default 127.0.0.1; any other address needs auth on and "
                        "a token from `evcbench token create`)")
     serve.add_argument("--port", type=int, help="TCP port (default 8000)")
+    serve.add_argument("--stop-port", type=int, help="the emergency stop's own port, served by the bench engine "
+                       "(default: any free one, named in GET /api/bench and the log; env EVCBENCH_STOP_PORT)")
     serve.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
     serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
     serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")

@@ -223,8 +223,10 @@ def _jobs(api: Client, args) -> int:
 
 def _stop(api: Client, args) -> int:
     out = api.stop_bench()
+    queued = out["cancelled_queued_job_ids"]
     return _emit(args, out, f"stopped: output {out['output_v']} V; cancelled {out['cancelled_job_id'] or 'no job'}"
-                 + (f" and queued {', '.join(out['cancelled_queued_job_ids'])}" if out["cancelled_queued_job_ids"] else ""))
+                 + (f" and queued {', '.join(queued)}" if queued else "")
+                 + (f" ({out['queued_jobs']})" if queued is None else ""))
 
 
 def _reset(api: Client, args) -> int:

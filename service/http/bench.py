@@ -14,6 +14,7 @@ from service.http.auth import AUTH_ERRORS, BEARER, require_token_for_stop
 from service.http.schemas.bench import BenchState, EmergencyStop, FaultsReset, LiveSignals
 from service.runtime.priority import SAFETY_NICE, set_thread_nice
 from service.runtime.safe_shutdown import safe_state
+from service.runtime.stop_port import EMERGENCY_STOP
 
 router = APIRouter(tags=["bench"])
 
@@ -23,9 +24,6 @@ def bench_state(request: Request) -> dict:
     """The bench's devices, their present state and its hard limits (actuator volts, amperes, hertz)."""
     state = request.app.state
     return {**state.bench.describe(), "running_job_id": state.jobs.running_bench_job}
-
-
-EMERGENCY_STOP = "emergency stop"
 
 
 #: The emergency stop's own thread: it never waits for the request thread pool that downloads,
@@ -54,7 +52,7 @@ async def emergency_stop(request: Request, credentials: HTTPAuthorizationCredent
     submitted afterwards run normally. ``zero_after_request_ms`` is the engine's measured time from
     receiving the stop to the 0 V write. Needs an ``operate`` token, checked on the stop's own thread."""
     out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, _authorized_stop, request, credentials)
-    return {"stopped": True, **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids", "loop_answered",
+    return {"stopped": True, "door": "service route", **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids", "loop_answered",
                                                     "output_v", "zero_after_request_ms")},
             "zero_monotonic_s": out["stop"]["zero_monotonic_s"]}
 

@@ -7,6 +7,7 @@ from service.security import auth
 from service.http.auth import recent_tokens
 from service.http.deps import get_store
 from service.http.schemas.admin import NewToken, Token, TokenRequest
+from service.runtime.stop_port_link import refresh_stop_tokens
 from service.store import NotFoundError, Store, utc_now
 
 router = APIRouter(prefix="/admin/tokens", tags=["admin"])
@@ -19,9 +20,10 @@ def list_tokens(store: Store = Depends(get_store)) -> list[dict]:
 
 
 @router.post("", status_code=201, response_model=NewToken)
-def create_token(body: TokenRequest, store: Store = Depends(get_store)) -> dict:
+def create_token(body: TokenRequest, request: Request, store: Store = Depends(get_store)) -> dict:
     """Issue a token. Its plaintext is in ``token`` of this answer only: it is stored hashed."""
     plaintext, record = auth.issue(store, body.name, body.scope, "api")
+    refresh_stop_tokens(request.app)
     return {**record, "token": plaintext}
 
 
@@ -31,4 +33,5 @@ def revoke_token(token_id: str, request: Request, store: Store = Depends(get_sto
     if not store.tokens.revoke(token_id, utc_now()):
         raise NotFoundError("token", token_id)
     recent_tokens(request.app).forget(token_id)
+    refresh_stop_tokens(request.app)
     return auth.public(store.tokens.get(token_id))

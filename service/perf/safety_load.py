@@ -10,7 +10,9 @@ Figures, side by side in one run:
 * ``stop``: request → 0 V at the actuator (the engine's 0 V write, ``time.monotonic`` seconds
   being one clock for every process of the machine) and request → answer, p50/p99/max in ms,
   with the same figures for the service idle; ``engine_zero_ms`` is the part inside the engine
-  (its stop thread's receipt → the 0 V write), the rest is the web process and the pipe;
+  (the stop's receipt there → the 0 V write). ``stop_*`` is pressed on the engine's stop port, as
+  the dashboard, the CLI and the Python client press it; ``stop_*_service_route`` on
+  ``POST /api/bench/stop`` of the service's port, through the web process (presses alternate);
 * ``sweep``: one 1/10/50/100 Hz sweep run to its end under the load: its state, watchdog trips and
   the emulated DAQ's real-time overruns;
 * ``rss_mb``: peak resident memory of the web process and of the engine process.
@@ -29,6 +31,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from service.runtime.stop_port import STOP_PATH
 from service.security.auth import read_bootstrap_token
 from service.perf.service_load import spawn_service
 
@@ -85,13 +88,14 @@ def _stop_load(procs: list[subprocess.Popen]) -> dict:
     return counts
 
 
-def _press(client: httpx.Client, rng: random.Random) -> dict:
-    """Start a long sweep, press the stop at a random moment of it, return the figures."""
+def _press(client: httpx.Client, rng: random.Random, stop_url: str) -> dict:
+    """Start a long sweep, press the stop (``stop_url``: the engine's stop port or the service's
+    route) at a random moment of it, return the figures."""
     job = client.post("/api/sweeps", json=LONG_SWEEP).json()
     _wait(client, job["job_id"], ("running",))
     time.sleep(0.3 + 1.5 * rng.random())
     t_send = time.monotonic()
-    answer = client.post("/api/bench/stop").json()
+    answer = client.post(stop_url).json()
     t_answer = time.monotonic()
     done = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
     zero = answer.get("zero_monotonic_s")
@@ -133,15 +137,21 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
             token = read_bootstrap_token(tmp / "data")
             headers = {"Authorization": f"Bearer {token}"}
             with httpx.Client(base_url=url, headers=headers, timeout=600) as client:
-                engine_pid = client.get("/api/bench").json()["engine"]["pid"]
+                engine = client.get("/api/bench").json()["engine"]
+                doors = {"stop_port": str(httpx.URL(url).copy_with(port=engine["stop_port"], path=STOP_PATH)),
+                         "service_route": STOP_PATH}
                 seeded = client.post("/api/sweeps", json=SWEEP).json()
                 dataset_id = _wait(client, seeded["job_id"], ("succeeded",))["result"]["dataset_id"]
-                idle = [_press(client, rng) for _ in range(max(3, presses // 3))]
+                idle = {door: [_press(client, rng, stop_url) for _ in range(max(3, presses // 3))]
+                        for door, stop_url in doors.items()}
                 csv_path = write_import_csv(tmp / "load.csv", import_mb)
                 load = _start_load(url, token, dataset_id, csv_path)
                 try:
                     time.sleep(2.0)
-                    loaded = [_press(client, rng) for _ in range(presses)]
+                    loaded = {door: [] for door in doors}
+                    for _ in range(presses):           # the two doors alternate: the same load for both
+                        for door, stop_url in doors.items():
+                            loaded[door].append(_press(client, rng, stop_url))
                     before = client.get("/api/bench").json()
                     job = client.post("/api/sweeps", json=SWEEP).json()
                     swept = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
@@ -150,7 +160,9 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                     counts = _stop_load(load)
                 trip = after["safety"].get("watchdog_last_trip")
                 return {
-                    "stop_idle": _summary(idle), "stop_under_load": _summary(loaded),
+                    "stop_idle": _summary(idle["stop_port"]), "stop_under_load": _summary(loaded["stop_port"]),
+                    "stop_idle_service_route": _summary(idle["service_route"]),
+                    "stop_under_load_service_route": _summary(loaded["service_route"]),
                     "sweep_under_load": {
                         "state": swept["state"], "error": swept["error"],
                         "watchdog_trips": int(trip is not None and trip != before["safety"].get("watchdog_last_trip")),
@@ -161,7 +173,7 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                              "import_mb": round(csv_path.stat().st_size / 1e6, 1),
                              "imports_completed": counts["imports"],
                              "import_status": sorted(counts["import_status"])},
-                    "rss_mb": {"web": round(peak_rss_mb(proc.pid), 1), "engine": round(peak_rss_mb(engine_pid), 1)},
+                    "rss_mb": {"web": round(peak_rss_mb(proc.pid), 1), "engine": round(peak_rss_mb(engine["pid"]), 1)},
                 }
         finally:
             proc.terminate()

@@ -34,6 +34,7 @@ from service.runtime.recovery import recover
 from service.security.auth import ensure_bootstrap_token
 from service.security.binding import auth_refusal
 from service.runtime.settings import Settings
+from service.runtime.stop_port_link import StopPortLink
 from service.store import Store
 from service.usecases.recorder import bench_snapshot
 
@@ -53,7 +54,7 @@ def open_configured_bench(settings: Settings) -> Bench:
     if settings.engine == "process":
         from service.runtime.engine import open_engine
 
-        return open_engine(settings.bench, seed=settings.seed)
+        return open_engine(settings.bench, seed=settings.seed, stop_address=(settings.host, settings.stop_port))
     from drivers.emulated import open_bench
 
     return open_bench(settings.bench, seed=settings.seed)
@@ -86,6 +87,10 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
             app.state.bench = factory(settings)
             try:
                 app.state.jobs = JobManager(store, on_cancel_bench=app.state.bench.request_stop)
+                # the engine's stop port (an engine in its own process has one): its tokens, its jobs
+                app.state.stop_port_link = link = (
+                    None if getattr(app.state.bench, "stop_port", None) is None
+                    else StopPortLink(app.state.bench, store, app.state.jobs, settings.auth == "off").start())
                 register(store.benches, settings, instance, "idle", bench_snapshot(app.state.bench))
                 heartbeat = Heartbeat(settings.resolved_database_url, settings.bench_id, instance,
                                       settings.heartbeat_s, lambda: running_state(app.state.jobs)).start()
@@ -93,6 +98,8 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 try:
                     yield
                 finally:
+                    if link is not None:
+                        link.close()
                     app.state.jobs.shutdown()
             finally:
                 app.state.bench.close()

@@ -10,6 +10,7 @@ imports and fits, so a busy request cannot delay a sample or a stop.
 """
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import threading
 import time
@@ -22,6 +23,9 @@ from drivers.bench import RUN_BLOCK_SAMPLES, STOPPED_ON_REQUEST, BenchRecord, Ru
 from drivers.interfaces import DriverError
 from drivers.limits import LimitsMixin
 from service.runtime.engine_process import engine_main
+from service.runtime.priority import SAFETY_NICE, set_thread_nice
+
+log = logging.getLogger("evcbench.engine")
 
 #: how often a plan's caller looks at its ``should_stop`` while no event arrives (s)
 SHOULD_STOP_POLL_S = 0.05
@@ -158,7 +162,7 @@ class _Assembled:
 class EngineBench(LimitsMixin):
     """The bench as the web process sees it when the engine runs in its own process."""
 
-    def __init__(self, process, stop_conn, command_conn, plan_conn, facts: dict):
+    def __init__(self, process, stop_conn, command_conn, plan_conn, facts: dict, notice_conn=None):
         self._process = process
         self._stop = _Channel(stop_conn, "stop")
         self._command = _Channel(command_conn, "command")
@@ -171,6 +175,13 @@ class EngineBench(LimitsMixin):
         self.parts = _parts(facts, self._command)
         self.live = _RemoteLive(self._command)
         self.last_stop: dict | None = None
+        #: the job that owns the bench now (the app sets it: the stop port's answer names the job)
+        self.run_owner: Callable[[], str | None] = lambda: None
+        #: called with the reason after the stop port stopped the bench (the app cancels the jobs)
+        self.on_port_stop: Callable[[str], None] | None = None
+        if notice_conn is not None:
+            threading.Thread(target=self._hear_notices, args=(notice_conn,), name="evc-engine-notice",
+                             daemon=True).start()
 
     # ------------------------------------------------------------------ facts
     @property
@@ -207,9 +218,39 @@ class EngineBench(LimitsMixin):
     def request_stop(self, reason: str = STOPPED_ON_REQUEST) -> None:
         self._stop.call("request_stop", reason)
 
+    @property
+    def stop_port(self) -> int | None:
+        """The engine's stop port (service.runtime.stop_port), None if it has none."""
+        return self.facts.get("stop_port")
+
+    def set_stop_tokens(self, by_digest: dict[str, tuple[str, str, str]], auth_off: bool) -> int:
+        """Tell the stop port which tokens are valid: SHA-256 hex digest → (id, name, scope)."""
+        return self._command.call("stop_tokens", by_digest, auth_off)
+
+    def _hear_notices(self, conn) -> None:
+        """The stop port's presses: the app's ``on_port_stop`` cancels the bench's jobs, then the
+        engine may run plans again. Runs at the safety priority; ends with the engine."""
+        set_thread_nice(SAFETY_NICE)
+        while True:
+            try:
+                kind, seq, reason = conn.recv()
+            except (EOFError, OSError):
+                return
+            try:
+                if self.on_port_stop is not None:
+                    self.on_port_stop(reason)
+            except Exception:  # noqa: BLE001 - the hold is released all the same: the bench is at 0 V
+                log.exception("cancelling the bench's jobs after a stop-port press failed")
+            finally:
+                try:
+                    self._command.call("release_hold", seq)
+                except EngineUnavailable:
+                    return
+
     # ------------------------------------------------------------------ queries
     def describe(self) -> dict:
-        return {**self._command.call("describe"), "engine": {"process": "separate", "pid": self.engine_pid}}
+        return {**self._command.call("describe"),
+                "engine": {"process": "separate", "pid": self.engine_pid, "stop_port": self.stop_port}}
 
     def output_v(self) -> dict[str, float]:
         return self._command.call("output_v")
@@ -239,7 +280,7 @@ class EngineBench(LimitsMixin):
     def _execute_locked(self, plan, args, on_event, should_stop):
         conn, asked = self._plan.conn, False
         try:
-            conn.send(("execute", plan, args))
+            conn.send(("execute", plan, args, self.run_owner()))
             while True:
                 if should_stop is not None and not asked and should_stop():
                     self.request_stop()
@@ -295,17 +336,19 @@ class EngineBench(LimitsMixin):
 
 
 def open_engine(bench_name: str, seed: int | None = None, overrides: dict | None = None,
-                timeout_s: float = START_TIMEOUT_S) -> EngineBench:
+                timeout_s: float = START_TIMEOUT_S, stop_address: tuple[str, int] | None = None) -> EngineBench:
     """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
-    ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench."""
+    ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench.
+    ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there."""
     ctx = multiprocessing.get_context("spawn")   # a fresh interpreter: no inherited locks or threads
-    pipes = [ctx.Pipe() for _ in range(3)]
+    pipes = [ctx.Pipe() for _ in range(3)] + [ctx.Pipe(duplex=False)]    # the last: notices, engine → here
     process = ctx.Process(target=engine_main, name="evc-bench-engine",
-                          args=(bench_name, seed, overrides, *(child for _, child in pipes)), daemon=True)
+                          args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address),
+                          daemon=True)
     process.start()
     for _, child in pipes:
         child.close()
-    stop_conn, command_conn, plan_conn = (parent for parent, _ in pipes)
+    stop_conn, command_conn, plan_conn, notice_conn = (parent for parent, _ in pipes)
     deadline = time.monotonic() + timeout_s
     while not plan_conn.poll(0.2):
         if not process.is_alive() or time.monotonic() > deadline:
@@ -319,4 +362,4 @@ def open_engine(bench_name: str, seed: int | None = None, overrides: dict | None
     if status == "error":
         process.join(5.0)
         raise value
-    return EngineBench(process, stop_conn, command_conn, plan_conn, value)
+    return EngineBench(process, stop_conn, command_conn, plan_conn, value, notice_conn)

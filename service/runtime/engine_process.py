@@ -8,9 +8,15 @@ emergency stop. Three pipes connect them, each served by its own thread here:
   queued behind anything: its thread does nothing else.
 * **command**: short queries and settings (``describe``, ``output_v``, ``live_since``,
   ``clear_faults``, fault injection), answered at once.
-* **plan**: ``("execute", plan, args)``: ``plan(bench, emit, *args)`` runs in this process's main
-  thread; ``emit`` sends ``("event", payload)`` back; the answer is ``("done", result)`` or
-  ``("error", exception)``. One plan at a time.
+* **plan**: ``("execute", plan, args, owner)``: ``plan(bench, emit, *args)`` runs in this process's
+  main thread for the job ``owner``; ``emit`` sends ``("event", payload)`` back; the answer is
+  ``("done", result)`` or ``("error", exception)``. One plan at a time.
+* **notice** (this process → the web process): ``("emergency_stop", seq, reason)`` after the stop
+  port (service.runtime.stop_port) drove the outputs to 0 V. Until the web process answers
+  ``release_hold(seq)`` on the command pipe, having cancelled the bench's jobs, no plan runs.
+
+The stop port is the emergency stop's own door into this process: a socket served by a thread of
+its own, so a stop pressed there waits for nothing the web process does.
 
 If the web process dies (kill -9 included), every pipe reaches end-of-file: this process drives the
 outputs to 0 V, closes the bench and exits. It never imports FastAPI or the store.
@@ -27,6 +33,7 @@ from multiprocessing.connection import Connection
 from drivers.bench import Bench
 from drivers.interfaces import DriverError
 from service.runtime.priority import ENGINE_NICE, set_thread_nice
+from service.runtime.stop_port import EMERGENCY_STOP, STOP_PATH, StopPort, StopTokens, zero_after_request_ms
 
 log = logging.getLogger("evcbench.engine")
 
@@ -49,13 +56,54 @@ def bench_facts(bench: Bench) -> dict:
     }
 
 
-def _stop_command(bench: Bench, message: tuple) -> dict:
-    op, reason = message[0], message[1]
-    if op == "request_stop":
-        bench.request_stop(reason)
-        return {"requested": True}
-    bench.stop(reason, wait_s=message[2])
-    return bench.last_stop
+class StopHold:
+    """The stop port's presses the web process has not yet answered: while one is open the engine
+    runs no plan, so no job queued behind the stopped one starts before the web process cancels it."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._open: set[int] = set()
+        self._count = 0
+
+    def press(self) -> int:
+        with self._lock:
+            self._count += 1
+            self._open.add(self._count)
+            return self._count
+
+    def release(self, seq: int | None = None) -> int:
+        """Close press ``seq`` (None: every one); returns how many stay open."""
+        with self._lock:
+            if seq is None:
+                self._open.clear()
+            else:
+                self._open.discard(seq)
+            return len(self._open)
+
+    @property
+    def active(self) -> bool:
+        return bool(self._open)
+
+
+class _Stopper:
+    """Every stop of this process, from the stop pipe or the stop port, one at a time: each reads
+    the ``last_stop`` figures of its own stop."""
+
+    def __init__(self, bench: Bench):
+        self.bench, self._lock = bench, threading.Lock()
+
+    def stop(self, reason: str, wait_s: float | None) -> dict:
+        with self._lock:
+            self.bench.stop(reason, wait_s=wait_s)
+            return dict(self.bench.last_stop)
+
+    def command(self, message: tuple) -> dict:
+        """A stop-pipe message: ``("stop", reason, wait_s)`` or ``("request_stop", reason)``."""
+        op, reason = message[0], message[1]
+        if op == "request_stop":
+            self.bench.request_stop(reason)
+            return {"requested": True}
+        return self.stop(reason, message[2])
 
 
 def _faults(bench: Bench):
@@ -115,10 +163,20 @@ def _exit_on_signal(sig: int, _frame) -> None:
     raise SystemExit(128 + sig)
 
 
+def _port_answer(figures: dict, owner: str | None) -> dict:
+    """The stop port's answer: the REST route's fields, from what this process knows."""
+    return {"stopped": True, "door": "stop port", "cancelled_job_id": owner, "cancelled_queued_job_ids": None,
+            "queued_jobs": "the service cancels the bench jobs queued; the engine runs none until it has",
+            "loop_answered": figures["loop_answered"], "output_v": figures["output_v"],
+            "zero_after_request_ms": zero_after_request_ms(figures), "zero_monotonic_s": figures["zero_monotonic_s"]}
+
+
 def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_conn: Connection, command_conn: Connection,
-                plan_conn: Connection) -> None:
-    """The process's entry point: open the bench, say what it is, serve the three pipes until the
-    web process closes them (or dies), then leave the outputs at 0 V."""
+                plan_conn: Connection, notice_conn: Connection | None = None,
+                stop_address: tuple[str, int] | None = None) -> None:
+    """The process's entry point: open the bench (and the stop port on ``stop_address``, if given),
+    say what it is, serve the pipes until the web process closes them (or dies), then leave the
+    outputs at 0 V."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s:     [bench engine] %(message)s")
     # The web process handles SIGINT/SIGTERM (safe_shutdown: stop, then close us). A SIGTERM sent to
     # this process alone still leaves through ``finally``: the outputs at 0 V.
@@ -132,19 +190,50 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     except Exception as exc:  # noqa: BLE001 - the web process reports it and does not start
         plan_conn.send(("error", _picklable(exc)))
         return
-    closing = threading.Event()
+    closing, hold, stopper, tokens = threading.Event(), StopHold(), _Stopper(bench), StopTokens()
+    owner: list[str | None] = [None]          # the job whose plan runs now
+    send_lock, notice_lock = threading.Lock(), threading.Lock()
+
+    def press_from_port() -> dict:
+        running = owner[0]                # read first: the plan ends, and forgets it, as the loop stops
+        figures = stopper.stop(EMERGENCY_STOP, None)           # 0 V first, then everything else
+        seq = hold.press()
+        try:
+            with notice_lock:
+                notice_conn.send(("emergency_stop", seq, EMERGENCY_STOP))
+        except (OSError, AttributeError):
+            pass                          # no web process to tell: the hold stays, nothing runs
+        log.warning("emergency stop on the stop port: outputs at 0 V, job %s stopped", running)
+        return _port_answer(figures, running)
+
+    port = None
+    if stop_address is not None:
+        try:
+            port = StopPort(*stop_address, press=press_from_port, tokens=tokens).start()
+            log.info("emergency stop port: POST http://%s:%d%s", port.host, port.port, STOP_PATH)
+        except OSError as exc:
+            bench.close()
+            plan_conn.send(("error", DriverError(f"the stop port could not listen on {stop_address[0]}:"
+                                                 f"{stop_address[1]}: {exc}")))
+            return
 
     def shut_down() -> None:
         if not closing.is_set():
             closing.set()
             bench.request_stop("the web process went away")
 
+    def clear_faults() -> dict:
+        hold.release()                    # a reset with the outputs at 0 V also ends a stale hold
+        return bench.clear_faults()
+
+    commands = {**COMMANDS, "clear_faults": lambda _bench: clear_faults(),
+                "release_hold": lambda _bench, seq: hold.release(seq),
+                "stop_tokens": lambda _bench, by_digest, auth_off: tokens.replace(by_digest, auth_off)}
     for name, conn, handle in (
-            ("evc-engine-stop", stop_conn, lambda m: _stop_command(bench, m)),
-            ("evc-engine-command", command_conn, lambda m: COMMANDS[m[0]](bench, *m[1:]))):
+            ("evc-engine-stop", stop_conn, stopper.command),
+            ("evc-engine-command", command_conn, lambda m: commands[m[0]](bench, *m[1:]))):
         threading.Thread(target=_serve, args=(conn, handle, None, shut_down), name=name, daemon=True).start()
-    plan_conn.send(("ready", bench_facts(bench)))
-    send_lock = threading.Lock()
+    plan_conn.send(("ready", {**bench_facts(bench), "stop_port": None if port is None else port.port}))
 
     def emit(*payload) -> None:
         with send_lock:
@@ -158,16 +247,23 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
                 break
             if message[0] == "close":
                 break
-            _, plan, args = message
+            _, plan, args, owner[0] = message
             try:
+                if hold.active:
+                    raise DriverError(f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
+                                      "service has cancelled the bench's jobs")
                 reply = ("done", plan(bench, emit, *args))
             except Exception as exc:  # noqa: BLE001 - the job that sent the plan reports it
                 reply = ("error", _picklable(exc))
+            finally:
+                owner[0] = None
             try:
                 with send_lock:
                     plan_conn.send(reply)
             except (EOFError, OSError):
                 break
     finally:
+        if port is not None:
+            port.close()
         bench.close()
         log.info("bench closed at 0 V")

@@ -288,7 +288,10 @@ class JobManager:
             self._finish(job_id, state, result=exc.result, message=exc.reason,
                          error=None if state == "cancelled" else exc.reason)
         except Exception as exc:  # the job's failure is its result; the worker lives on
-            self._finish(job_id, "failed", message="failed", error=str(exc) or type(exc).__name__)
+            if live.cancel.is_set():      # cancelled while it failed (an emergency stop's hold): cancelled
+                self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
+            else:
+                self._finish(job_id, "failed", message="failed", error=str(exc) or type(exc).__name__)
         else:
             if live.cancel.is_set() and not result:
                 self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")

@@ -13,6 +13,8 @@ import logging
 import signal
 from typing import Any
 
+from service.runtime.stop_port import zero_after_request_ms
+
 log = logging.getLogger("evcbench.safety")
 
 
@@ -39,14 +41,18 @@ def safe_state(app: Any, reason: str) -> dict:
         out["loop_answered"] = bench.stop(reason)
         out["stop"] = stop = dict(bench.last_stop)
         if jobs is not None:
-            out["cancelled_queued_job_ids"] = jobs.cancel_queued_bench_jobs(reason)
-            out["cancelled_job_id"] = jobs.cancel_running_bench_job(reason) or running
+            out["cancelled_job_id"], out["cancelled_queued_job_ids"] = cancel_bench_jobs(jobs, reason, running)
         out["output_v"] = stop["output_v"]
-        out["zero_after_request_ms"] = (
-            None if stop["zero_monotonic_s"] is None
-            else round(max(0.0, stop["zero_monotonic_s"] - stop["requested_monotonic_s"]) * 1e3, 3))
+        out["zero_after_request_ms"] = zero_after_request_ms(stop)
     log.warning("%s: outputs at 0 V, running job %s cancelled", reason, out["cancelled_job_id"])
     return out
+
+
+def cancel_bench_jobs(jobs: Any, reason: str, running: str | None = None) -> tuple[str | None, list[str]]:
+    """After a stop: cancel the bench jobs queued (the bench stays still), then the one running, with
+    ``reason``. Returns (the running job's id, or ``running`` if it ended meanwhile; the queued ids)."""
+    queued = jobs.cancel_queued_bench_jobs(reason)
+    return jobs.cancel_running_bench_job(reason) or running, queued
 
 
 def install(server: Any, app: Any) -> None:

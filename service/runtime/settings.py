@@ -46,6 +46,9 @@ class Settings:
     #: ``process``: the bench engine runs in its own process (service.runtime.engine), so no request
     #: can delay the real-time loop or the stop; ``inline``: in this process (tests of internals)
     engine: str = field(default_factory=lambda: os.environ.get("EVCBENCH_ENGINE", "process"))
+    #: the engine's stop port (service.runtime.stop_port) on ``host``: 0 lets the system pick a free
+    #: one (GET /api/bench says which); set one to open it through a firewall
+    stop_port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_STOP_PORT") or 0))
     #: the lab's shared array location (service.store.arrays): a path or file:// URL (an NFS mount),
     #: or s3://bucket/prefix (endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); empty: <data_dir>/arrays
     array_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_ARRAY_URL") or None)
@@ -59,6 +62,8 @@ class Settings:
             raise ValueError(f"auth must be 'tokens' or 'off', not {self.auth!r}")
         if self.engine not in ("process", "inline"):
             raise ValueError(f"engine must be 'process' or 'inline', not {self.engine!r}")
+        if not 0 <= self.stop_port <= 65535:
+            raise ValueError(f"stop_port must lie in 0-65535 (0: any free port), not {self.stop_port!r}")
         if not self.bench_id:
             object.__setattr__(self, "bench_id", bench_id_for(self.bench))
         if not BENCH_ID_PATTERN.match(self.bench_id):

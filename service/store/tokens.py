@@ -53,6 +53,12 @@ class TokenRows:
             query = select(*PUBLIC_COLUMNS).order_by(tokens.c.created_at, tokens.c.id)
             return [dict(row) for row in conn.execute(query).mappings()]
 
+    def valid_digests(self) -> dict[str, tuple[str, str, str]]:
+        """Every token not revoked: its SHA-256 hex digest → (id, name, scope), for the engine's stop port."""
+        with self.engine.connect() as conn:
+            query = select(tokens.c.sha256, tokens.c.id, tokens.c.name, tokens.c.scope).where(tokens.c.revoked.is_(False))
+            return {row.sha256: (row.id, row.name, row.scope) for row in conn.execute(query)}
+
     def revoke(self, token_id: str, when: str) -> bool:
         """Mark a token revoked; False if there is no such token."""
         with self.engine.begin() as conn:

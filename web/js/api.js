@@ -40,6 +40,26 @@ export async function api(path, { method = 'GET', body, form, signal } = {}) {
     if (err.name === 'AbortError') throw err;
     throw new ApiError(0, `cannot reach the service (${err.message})`);
   }
+  return readAnswer(response);
+}
+
+/** The emergency stop: on the bench engine's own stop port when the service names one (GET
+ *  /api/bench's engine.stop_port; it waits for nothing the service's web process does), else, or
+ *  if this browser cannot reach that port, or it cannot take the stop yet (503), POST /api/bench/stop. */
+export async function pressStop(stopPort) {
+  if (stopPort) {
+    let response = null;
+    try {
+      response = await fetch(`${location.protocol}//${location.hostname}:${stopPort}/api/bench/stop`,
+                             { method: 'POST', headers: headers() });
+    } catch (_) { /* unreachable from here (a firewall): the service's own route below */ }
+    if (response && response.status !== 503) return readAnswer(response);
+  }
+  return api('/bench/stop', { method: 'POST' });
+}
+
+/** The JSON of an answer, or an ApiError with the API's `detail` and `field`. */
+async function readAnswer(response) {
   if (!response.ok) {
     let detail = `${response.status} ${response.statusText}`;
     let field = null;

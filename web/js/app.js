@@ -1,6 +1,6 @@
 // The dashboard shell: hash routing between pages, the always-visible emergency stop, the bench
 // pill (which job owns the bench), and the API token in the settings corner.
-import { api, getToken, setToken } from './api.js';
+import { api, getToken, pressStop, setToken } from './api.js';
 import { banner } from './ui.js';
 
 const PAGES = {
@@ -37,15 +37,19 @@ async function route() {
   }
 }
 
+/** The engine's stop port, as the last GET /api/bench named it (the pill's polling keeps it current). */
+let stopPort = null;
+
 async function emergencyStop() {
   const button = document.getElementById('estop');
   button.disabled = true;
   try {
-    const r = await api('/bench/stop', { method: 'POST' });
+    const r = await pressStop(stopPort);
     const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${(Math.abs(v) < 0.005 ? 0 : Number(v)).toFixed(2)} V`).join(', ');
     banner(`Emergency stop: outputs at ${volts || '0 V'}` +
            (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no job was running') +
-           ((r.cancelled_queued_job_ids || []).length ? `; queued bench jobs cancelled too: ${r.cancelled_queued_job_ids.join(', ')}.` : '.'), 'info');
+           ((r.cancelled_queued_job_ids || []).length ? `; queued bench jobs cancelled too: ${r.cancelled_queued_job_ids.join(', ')}.` : '.') +
+           (r.cancelled_queued_job_ids === null ? ` The service cancels the bench jobs queued; the bench runs none until it has.` : ''), 'info');
     document.getElementById('banner').dataset.stopped = JSON.stringify(r);
   } catch (err) {
     banner(`Emergency stop FAILED: ${err.message}`);
@@ -58,6 +62,7 @@ async function refreshPill() {
   const pill = document.getElementById('bench-pill');
   try {
     const bench = await api('/bench');
+    stopPort = (bench.engine && bench.engine.stop_port) || null;
     pill.textContent = bench.running_job_id ? `bench busy: ${bench.running_job_id}` : `bench idle · ${bench.backend}`;
     pill.dataset.runningJob = bench.running_job_id || '';
   } catch (err) {

@@ -113,6 +113,8 @@ class EmergencyStop(BaseModel):
     """Outputs at 0 V; the job that owned the bench and those queued behind it cancelled."""
 
     stopped: bool
+    door: str = Field(description="'service route' here; 'stop port' when pressed on the engine's own port "
+                                  "(GET /api/bench: engine.stop_port), which answers with the same fields")
     cancelled_job_id: str | None
     cancelled_queued_job_ids: list[str]
     loop_answered: bool | None = Field(description="a running loop wrote the 0 V itself")
