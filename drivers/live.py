@@ -53,29 +53,41 @@ class LiveMonitor:
             return self._run
 
     def push(self, u_v: Mapping[str, np.ndarray], x_um: Mapping[str, np.ndarray]) -> None:
-        """Append one streamed block (axis → samples; a missing axis reads as NaN)."""
-        if self._run == 0:
-            return
+        """Append one streamed block (axis → samples; a missing axis, or the end of a shorter one,
+        reads as NaN)."""
         n = max((len(v) for v in list(u_v.values()) + list(x_um.values())), default=0)
-        if n == 0:
+        if self._run == 0 or n == 0:
+            return
+        self.push_columns(_columns(u_v, self.axes, n), _columns(x_um, self.axes, n))
+
+    def push_columns(self, u_v: np.ndarray, x_um: np.ndarray) -> None:
+        """``push`` for (n, axes) arrays in ``self.axes`` order: what a loop that holds its signals
+        as columns pushes once per period, without building a mapping or a mask."""
+        n = u_v.shape[0]
+        if self._run == 0 or n == 0:
             return
         with self._lock:
-            idx = np.arange(self._phase, n, self._stride)
-            self._phase = (self._phase - n) % self._stride
-            t0 = self._t_index
+            first, stride, t0 = self._phase, self._stride, self._t_index
+            self._phase = (first - n) % stride
             self._t_index += n
-            if len(idx) == 0:
+            if first >= n:
                 return
-            rows = np.empty((len(idx), self._buf.shape[1]))
-            rows[:, 0] = (t0 + idx) / self._source_rate_hz
+            kept = np.arange(first, n, stride)
+            rows = np.empty((len(kept), self._buf.shape[1]))
+            rows[:, 0] = (t0 + kept) / self._source_rate_hz
             rows[:, 1] = self._run
-            for j, axis in enumerate(self.axes):
-                rows[:, 2 + j] = _pick(u_v.get(axis), idx)
-                rows[:, 2 + len(self.axes) + j] = _pick(x_um.get(axis), idx)
-            rows = rows[-self.capacity:]
-            pos = (self._total + np.arange(len(rows))) % self.capacity
-            self._buf[pos] = rows
-            self._total += len(rows)
+            axes = len(self.axes)
+            rows[:, 2:2 + axes] = u_v[first::stride]
+            rows[:, 2 + axes:] = x_um[first::stride]
+            self._append(rows[-self.capacity:])
+
+    def _append(self, rows: np.ndarray) -> None:
+        """Write ``rows`` after the newest kept sample, wrapping around the ring (lock held)."""
+        start = self._total % self.capacity
+        head = min(len(rows), self.capacity - start)
+        self._buf[start:start + head] = rows[:head]
+        self._buf[:len(rows) - head] = rows[head:]
+        self._total += len(rows)
 
     def since(self, cursor: int | None = None, max_points: int = 2000) -> dict:
         """The kept samples from ``cursor`` on (or the latest ``max_points`` if None), thinned by a
@@ -100,13 +112,14 @@ class LiveMonitor:
         return out
 
 
-def _pick(values, idx: np.ndarray) -> np.ndarray:
-    if values is None:
-        return np.full(len(idx), np.nan)
-    values = np.asarray(values, dtype=float)
-    out = np.full(len(idx), np.nan)
-    ok = idx < len(values)
-    out[ok] = values[idx[ok]]
+def _columns(signals: Mapping[str, np.ndarray], axes: Sequence[str], n: int) -> np.ndarray:
+    """(n, axes) array of ``signals`` in ``axes`` order: NaN where an axis is missing or shorter."""
+    out = np.full((n, len(axes)), np.nan)
+    for j, axis in enumerate(axes):
+        values = signals.get(axis)
+        if values is not None:
+            values = np.asarray(values, dtype=float)[:n]
+            out[:len(values), j] = values
     return out
 
 

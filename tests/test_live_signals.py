@@ -38,6 +38,21 @@ def test_monitor_decimates_evenly_across_blocks_and_keeps_the_latest():
     assert live.since(None, max_points=3)["u_y_v"] == [1.0, 1.0, 1.0]
 
 
+def test_columns_and_mappings_keep_the_same_samples_across_the_ring():
+    """push_columns (the tracking loop's, once per period) keeps what push keeps, wrap-around included."""
+    rng = np.random.default_rng(4)
+    by_mapping, by_columns = (LiveMonitor(("y", "z"), rate_hz=1000.0, capacity=37) for _ in range(2))
+    for live in (by_mapping, by_columns):
+        live.begin(20_000.0)                 # stride 20
+    sizes = (200, 7, 13, 200, 1, 0, 450, 19, 200)
+    for n in sizes:
+        u, x = rng.standard_normal((n, 2)), rng.standard_normal((n, 2))
+        by_mapping.push({"y": u[:, 0], "z": u[:, 1]}, {"y": x[:, 0], "z": x[:, 1]})
+        by_columns.push_columns(u, x)
+        assert by_columns.since(0, 1000) == by_mapping.since(0, 1000)
+    assert by_columns.since(0, 1000)["cursor"] == len(range(0, sum(sizes), 20))
+
+
 def test_live_endpoint_follows_a_sweep(tmp_path):
     app = create_app(Settings(data_dir=tmp_path, bench="default", seed=1))
     with authed_client(app) as http:

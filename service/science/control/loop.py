@@ -167,8 +167,7 @@ class Tracker:
     def _end_period(self, p, rec, on_period, should_stop, session) -> bool:
         session.feed(self.ref.period)
         s = slice(p * self.ref.period, rec.samples)
-        self.bench.live.push({a: rec.u_v[s, i] for i, a in enumerate(self.bench.axes)},
-                             {a: rec.x_um[s, i] for i, a in enumerate(self.bench.axes)})
+        self.bench.live.push_columns(rec.u_v[s], rec.x_um[s])     # u_v, x_um columns are in bench.axes order
         reason = self.bench.fault_reason()
         if reason:
             rec.tripped = f"{reason} (tripped at t={rec.samples / self.fs:.2f} s)"
