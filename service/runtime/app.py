@@ -29,7 +29,8 @@ from service.http import tokens as tokens_api
 from service.http import trajectories as trajectories_api
 from service.http import web as web_api
 from service.runtime.heartbeat import Heartbeat, claim, new_instance, register, running_state
-from service.runtime.jobs import JobManager, freeze_heap
+from service.runtime.heap import freeze_heap
+from service.runtime.jobs import JobManager
 from service.runtime.recovery import recover
 from service.security.auth import ensure_bootstrap_token
 from service.security.binding import auth_refusal

@@ -26,12 +26,14 @@ from __future__ import annotations
 import logging
 import os
 import pickle
+import queue
 import signal
 import threading
 from multiprocessing.connection import Connection
 
 from drivers.bench import Bench
 from drivers.interfaces import DriverError
+from service.runtime.heap import freeze_heap
 from service.runtime.priority import ENGINE_NICE, set_thread_nice
 from service.runtime.stop_port import EMERGENCY_STOP, STOP_PATH, StopPort, StopTokens, zero_after_request_ms
 
@@ -159,6 +161,34 @@ def _serve(conn: Connection, handle, lock: threading.Lock | None, on_eof) -> Non
             return
 
 
+class _Outbox:
+    """The plan pipe's sending side, on a thread of its own: a plan's ``emit`` never blocks its
+    loop when the web process is slow to read (its socket buffer full while it collects garbage,
+    say); events and the answer leave in the order they were put."""
+
+    def __init__(self, conn: Connection, on_eof):
+        self._conn, self._on_eof = conn, on_eof
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._send_all, name="evc-engine-outbox", daemon=True)
+        self._thread.start()
+
+    def put(self, message: tuple) -> None:
+        self._queue.put(message)
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Send what is queued, then stop."""
+        self._queue.put(None)
+        self._thread.join(timeout_s)
+
+    def _send_all(self) -> None:
+        while (message := self._queue.get()) is not None:
+            try:
+                self._conn.send(message)
+            except (EOFError, OSError):
+                self._on_eof()
+                return
+
+
 def _exit_on_signal(sig: int, _frame) -> None:
     raise SystemExit(128 + sig)
 
@@ -192,7 +222,7 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
         return
     closing, hold, stopper, tokens = threading.Event(), StopHold(), _Stopper(bench), StopTokens()
     owner: list[str | None] = [None]          # the job whose plan runs now
-    send_lock, notice_lock = threading.Lock(), threading.Lock()
+    notice_lock = threading.Lock()
 
     def press_from_port() -> dict:
         running = owner[0]                # read first: the plan ends, and forgets it, as the loop stops
@@ -234,10 +264,10 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
             ("evc-engine-command", command_conn, lambda m: commands[m[0]](bench, *m[1:]))):
         threading.Thread(target=_serve, args=(conn, handle, None, shut_down), name=name, daemon=True).start()
     plan_conn.send(("ready", {**bench_facts(bench), "stop_port": None if port is None else port.port}))
+    outbox = _Outbox(plan_conn, shut_down)          # from here on the only sender on the plan pipe
 
     def emit(*payload) -> None:
-        with send_lock:
-            plan_conn.send(("event", payload))
+        outbox.put(("event", payload))
 
     try:
         while not closing.is_set():
@@ -248,6 +278,7 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
             if message[0] == "close":
                 break
             _, plan, args, owner[0] = message
+            freeze_heap()                 # no full collection of the engine's heap stalls the run
             try:
                 if hold.active:
                     raise DriverError(f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
@@ -257,12 +288,9 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
                 reply = ("error", _picklable(exc))
             finally:
                 owner[0] = None
-            try:
-                with send_lock:
-                    plan_conn.send(reply)
-            except (EOFError, OSError):
-                break
+            outbox.put(reply)             # after the plan's events, in order
     finally:
+        outbox.close()
         if port is not None:
             port.close()
         bench.close()

@@ -12,7 +12,6 @@ one is refused with ``OtherBenchJob``. Each queue is bounded (``MAX_QUEUED_BENCH
 from __future__ import annotations
 
 import asyncio
-import gc
 import json
 import queue
 import sys
@@ -22,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import AsyncIterator, Callable
 
+from service.runtime.heap import freeze_heap
 from service.runtime.priority import WORK_NICE, set_thread_nice
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, MAX_QUEUED_COMPUTE_JOBS, QUEUE_RETRY_AFTER_S
 from service.store import TERMINAL_STATES, Store, clean_json, utc_now
@@ -326,17 +326,6 @@ class JobManager:
         live.state, live.message = state, fields["message"]
         live.version += 1
         self._live.pop(job_id, None)  # the store has it all now; frees the job's closure and its arrays
-
-
-def freeze_heap() -> None:
-    """Collect, then move every object alive now out of the garbage collector's reach (``gc.freeze``).
-
-    A full collection of the service's heap (numba, scipy, SQLAlchemy: ~200 000 objects) holds the
-    GIL for 50–200 ms, which would stall a real-time loop and every request; after a freeze the
-    collector only scans what was allocated since, which takes well under a millisecond. Called at
-    start-up and before each bench job (whose first run may have compiled kernels)."""
-    gc.collect()
-    gc.freeze()
 
 
 def _public(row: dict) -> dict:
