@@ -1,0 +1,128 @@
+"""Where the FF + PID (auto) tracking error sits, harmonic by harmonic (issue 19's 3 % target).
+
+    python -m service.reports.tracking_error_spectrum [--seed 1] [--cycles 50]     (writes docs/tracking_error_spectrum.md)
+
+Runs a case as the tracking report does (service.reports.rest_path: the first sweep, the span
+sweeps, composite models, then ``POST /api/trajectories``) with FF only and FF + PID (auto), and
+splits each axis's error over the middle ``PERIODS`` steady periods into its periodic part, per
+harmonic of the ellipse's frequency (amplitude, nm), and what is left (RMS, nm: the gauge's noise
+and anything not locked to the period). Each case runs on a fresh service of the seed.
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from service.reports.rest_path import ROWS, UseCases, first_models, identify_for, run_row
+from service.reports.tracking import CASES, PAPER_AXES, ROOT
+from service.runtime.settings import Settings
+
+SAMPLE_RATE_HZ = 20_000.0
+#: steady periods averaged around the middle of the run
+PERIODS = 10
+#: harmonics shown (0 = the mean)
+HARMONICS = 8
+SPECTRUM_ROWS = ("b FF only", "c FF + PID (auto)")
+
+
+def error_harmonics(ref_um: np.ndarray, x_um: np.ndarray, period: int, periods: int = PERIODS) -> tuple[np.ndarray, float]:
+    """(amplitude per harmonic 0..HARMONICS-1 of the period-averaged error (µm), RMS of the rest (µm))
+    over ``periods`` whole periods around the middle of the record."""
+    error = np.asarray(ref_um, float) - np.asarray(x_um, float)
+    start = len(error) // 2 - (len(error) // 2) % period
+    block = error[start:start + periods * period].reshape(periods, period)
+    locked = block.mean(axis=0)
+    amplitudes = np.abs(np.fft.rfft(locked))[:HARMONICS] / period * 2.0
+    amplitudes[0] /= 2.0
+    return amplitudes, float((block - locked).std())
+
+
+def run(seed: int, case: str, cycles: int, data_dir: Path) -> list[dict]:
+    """One row per (controller, axis): harmonics (nm), the rest (nm RMS), the run's relative error (%)."""
+    uc = UseCases(Settings(data_dir=data_dir, bench="default", seed=seed, engine="inline"))
+    try:
+        body = {**CASES[case], "cycles": cycles}
+        models = identify_for(uc.post, body, first_models(uc.post))
+        period = round(SAMPLE_RATE_HZ / body.get("frequency_hz", 100.0))
+        rows = []
+        for name in SPECTRUM_ROWS:
+            result = run_row(uc.post, body, models, ROWS[name])
+            arrays = uc.store.load_arrays(result["dataset_id"])
+            for axis in ("y", "z"):
+                harmonics, rest = error_harmonics(arrays[f"ref_{axis}_um"], arrays[f"x_{axis}_um"], period)
+                rows.append({"controller": name, "axis": axis, "harmonics_nm": harmonics * 1e3, "rest_nm": rest * 1e3,
+                             "relative_error_pct": result["relative_error_pct"]})
+        return rows
+    finally:
+        uc.close()
+
+
+def render(rows: list[dict]) -> str:
+    head = " | ".join(f"{k}×f" if k else "mean" for k in range(HARMONICS))
+    lines = [f"| controller | axis | relative error (%) | {head} | not periodic (nm RMS) |",
+             "|---|---|---|" + "---|" * HARMONICS + "---|"]
+    for r in rows:
+        cells = " | ".join(f"{v:.0f}" for v in r["harmonics_nm"])
+        lines.append(f"| {r['controller']} | {r['axis']} | {r['relative_error_pct']:.2f} | {cells} | {r['rest_nm']:.1f} |")
+    return "\n".join(lines)
+
+
+def dominant(rows: list[dict], frequency_hz: float) -> list[str]:
+    """Per axis of the FF + PID rows: its largest periodic harmonic in words, beside the axis's mode."""
+    out = []
+    for r in rows:
+        if r["controller"] != SPECTRUM_ROWS[1]:
+            continue
+        k = int(np.argmax(r["harmonics_nm"][1:])) + 1
+        mode_hz = PAPER_AXES[r["axis"]][1]
+        out.append(f"{r['axis'].upper()}: {k}×f = {k * frequency_hz:.0f} Hz carries {r['harmonics_nm'][k]:.0f} nm "
+                   f"(the flexure mode is at {mode_hz:.1f} Hz)")
+    return out
+
+
+def write(seed: int, cycles: int, path: Path) -> None:
+    """Both cases, each on a fresh service, as docs/tracking_error_spectrum.md."""
+    lines = ["# Where the FF + PID (auto) tracking error sits", "",
+             "Regenerate (about a minute on one core):", "",
+             f"    .venv/bin/python -m service.reports.tracking_error_spectrum --seed {seed} --cycles {cycles}", "",
+             "Each case as in docs/tracking.md (the REST path: first sweep, span sweeps, composite models with "
+             "hysteresis + delay + dynamics, `POST /api/trajectories`), on a fresh emulated default bench of "
+             f"seed {seed}. The error over {PERIODS} steady periods around the middle of the run is split into "
+             "its periodic part, as the amplitude of each harmonic of the ellipse's 100 Hz (nm), and what is "
+             "not locked to the period (nm RMS: the gauge's noise). Relative error as in docs/tracking.md.", ""]
+    for case in ("case1", "case2"):
+        with tempfile.TemporaryDirectory(prefix="evc-spectrum-") as tmp:
+            rows = run(seed, case, cycles, Path(tmp))
+        lines += [f"## {case}", "", render(rows), "", *[f"- {d}" for d in dominant(rows, 100.0)], ""]
+    lines += ["## What it says", "",
+              "- **The error is periodic, not noise**: what is not locked to the period is the gauge's 3 nm. "
+              "That is why ILC, which learns each harmonic, takes the same runs to 0.2–0.3 % (docs/tracking.md).",
+              "- **It peaks at the harmonic next to each axis's flexure mode** (ζ 0.02: about 25× at resonance). "
+              "The feedforward inverts the composite model; where the model's hysteresis shape differs from "
+              "the stage's at that harmonic, the mode multiplies the difference. A better hysteresis family "
+              "shrinks it only as far as its shape error at that one harmonic shrinks.",
+              "- **The PID cannot reach it**: `pid: auto` keeps a 60° phase margin and 6 dB gain margin on the "
+              "same lightly damped mode, so its crossover stays far below 100 Hz; it removes the mean and "
+              "some of 1×f, and at the mode's harmonic it can add to the error.",
+              "- **Next step, not built**: damp the mode in the loop (positive position feedback or integral "
+              "resonance control, the usual remedy for piezo flexure stages), so that the mode no longer "
+              "multiplies the model's error and the PID's crossover may rise; then re-tune `auto` on the damped "
+              "plant. Until then the 3 % target for FF + PID is not met (docs/tracking.md: 4.2–5.4 %).", ""]
+    path.write_text("\n".join(lines))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--cycles", type=int, default=50)
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "tracking_error_spectrum.md")
+    args = parser.parse_args()
+    write(args.seed, args.cycles, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
