@@ -74,6 +74,22 @@ def test_without_a_valid_operate_token_nothing_is_pressed(port, headers, status,
         assert "'operate' scope" in answer.json()["detail"] and "tok_rd" in answer.json()["detail"]
 
 
+def test_another_benchs_id_is_refused_before_anything_moves():
+    tokens, press = StopTokens(), _Presses()
+    tokens.replace({_digest(OPERATE): ("tok_op", "operator", "operate")}, auth_off=False)
+    served = StopPort("127.0.0.1", 0, press=press, tokens=tokens, bench_id="bench-a").start()
+    try:
+        url = f"http://127.0.0.1:{served.port}{STOP_PATH}"
+        wrong = httpx.post(url, params={"bench_id": "bench-b"}, headers=_bearer(OPERATE))
+        assert wrong.status_code == 409 and wrong.json()["field"] == "bench_id" and press.count == 0
+        assert "bench-a" in wrong.json()["detail"]
+        right = httpx.post(url, params={"bench_id": "bench-a"}, headers=_bearer(OPERATE))
+        assert right.status_code == 200 and right.json()["bench_id"] == "bench-a" and press.count == 1
+        assert httpx.post(url, headers=_bearer(OPERATE)).status_code == 200    # no id asked: this bench
+    finally:
+        served.close()
+
+
 def test_a_revoked_token_is_refused_once_the_list_says_so(port):
     assert port.client.post(STOP_PATH, headers=_bearer(OPERATE)).status_code == 200
     port.tokens_held.replace({_digest(ADMIN): ("tok_ad", "admin", "admin")}, auth_off=False)
@@ -188,3 +204,32 @@ def test_presses_from_many_threads_are_each_answered(port):
     for t in threads:
         t.join(30)
     assert results == [200] * 12 and port.presses_seen.count == 12
+
+
+def test_the_client_presses_the_port_and_falls_back_when_it_is_another_benchs():
+    """Client.stop_bench: the stop port of the bench GET /api/bench names; when that port stops another
+    bench (409) the service's own route. The service here is a stand-in answering those two routes."""
+    from service.frontends.client import Client
+
+    tokens, press = StopTokens(), _Presses()
+    tokens.replace({_digest(OPERATE): ("tok_op", "operator", "operate")}, auth_off=False)
+    served = StopPort("127.0.0.1", 0, press=press, tokens=tokens, bench_id="bench-a").start()
+    routed: list[str] = []
+
+    def service(bench_id: str):
+        def answer(request: httpx.Request) -> httpx.Response:
+            routed.append(f"{request.method} {request.url.path}")
+            if request.url.path == "/api/bench":
+                return httpx.Response(200, json={"engine": {"stop_port": served.port}, "bench_id": bench_id})
+            return httpx.Response(200, json={"stopped": True, "door": "service route"})
+        return httpx.MockTransport(answer)
+
+    try:
+        for bench_id, door, presses in (("bench-a", "stop port", 1), ("bench-b", "service route", 1)):
+            routed.clear()
+            http = httpx.Client(base_url="http://127.0.0.1:1", transport=service(bench_id))
+            with Client(http=http, token=OPERATE) as client:
+                assert client.stop_bench()["door"] == door and press.count == presses
+            assert ("POST /api/bench/stop" in routed) == (door == "service route")
+    finally:
+        served.close()

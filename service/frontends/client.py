@@ -82,28 +82,29 @@ class Client:
     def stop_bench(self) -> dict:
         """Emergency stop: 0 V now, and the running bench job is cancelled. Pressed on the bench
         engine's stop port, which waits for nothing the service's web process does, if the service
-        has one (``prepare_stop`` looks it up; the first stop does if it was not called) and it
-        answers; else, or if the port cannot take it yet (503), on ``POST /api/bench/stop``."""
+        has one (``prepare_stop`` looks it up; the first stop does if it was not called); if that
+        port cannot be reached or does not stop this bench (any answer but 200: unreachable, not yet
+        ready, another bench's port), on ``POST /api/bench/stop`` of the service itself."""
         url = self.prepare_stop()
         if url is not None:
             try:
                 response = self._stop_http.post(url, headers={"Authorization": self.http.headers.get("Authorization", "")})
+                if response.status_code == 200:
+                    return response.json()
             except httpx.TransportError:
-                response = None               # the port is unreachable from here (a firewall): the service's route
-            if response is not None and response.status_code != 503:
-                if response.status_code >= 400:
-                    self._raise(response)
-                return response.json()
+                pass                          # unreachable from here (a firewall): the service's own route
         return self._request("POST", "/api/bench/stop")
 
     def prepare_stop(self) -> str | None:
         """The URL of the engine's stop port (the host this client reaches the service by, the port
-        ``GET /api/bench`` names), looked up once; None if the service has no stop port."""
+        ``GET /api/bench`` names, with ``?bench_id=`` so that another bench's port refuses it),
+        looked up once; None if the service has no stop port."""
         if self._stop_url is _NOT_LOOKED_UP:
-            port = (self.bench().get("engine") or {}).get("stop_port")
+            bench = self.bench()
+            port = (bench.get("engine") or {}).get("stop_port")
             host = self.http.base_url.host       # "testserver": an in-process test client has no network
-            self._stop_url = None if port is None or host in ("", "testserver") else \
-                str(self.http.base_url.copy_with(port=port, path="/api/bench/stop", query=None))
+            self._stop_url = None if port is None or host in ("", "testserver") else str(self.http.base_url.copy_with(
+                port=port, path="/api/bench/stop", params={"bench_id": bench["bench_id"]}))
         return self._stop_url
 
     def reset_bench(self) -> dict:

@@ -23,7 +23,7 @@ router = APIRouter(tags=["bench"])
 def bench_state(request: Request) -> dict:
     """The bench's devices, their present state and its hard limits (actuator volts, amperes, hertz)."""
     state = request.app.state
-    return {**state.bench.describe(), "running_job_id": state.jobs.running_bench_job}
+    return {**state.bench.describe(), "bench_id": state.settings.bench_id, "running_job_id": state.jobs.running_bench_job}
 
 
 #: The emergency stop's own thread: it never waits for the request thread pool that downloads,

@@ -55,7 +55,8 @@ def open_configured_bench(settings: Settings) -> Bench:
     if settings.engine == "process":
         from service.runtime.engine import open_engine
 
-        return open_engine(settings.bench, seed=settings.seed, stop_address=(settings.host, settings.stop_port))
+        return open_engine(settings.bench, seed=settings.seed, stop_address=(settings.host, settings.stop_port),
+                           bench_id=settings.bench_id)
     from drivers.emulated import open_bench
 
     return open_bench(settings.bench, seed=settings.seed)

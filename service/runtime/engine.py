@@ -336,14 +336,16 @@ class EngineBench(LimitsMixin):
 
 
 def open_engine(bench_name: str, seed: int | None = None, overrides: dict | None = None,
-                timeout_s: float = START_TIMEOUT_S, stop_address: tuple[str, int] | None = None) -> EngineBench:
+                timeout_s: float = START_TIMEOUT_S, stop_address: tuple[str, int] | None = None,
+                bench_id: str | None = None) -> EngineBench:
     """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
     ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench.
-    ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there."""
+    ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there, for the
+    bench ``bench_id`` (service.runtime.stop_port)."""
     ctx = multiprocessing.get_context("spawn")   # a fresh interpreter: no inherited locks or threads
     pipes = [ctx.Pipe() for _ in range(3)] + [ctx.Pipe(duplex=False)]    # the last: notices, engine → here
     process = ctx.Process(target=engine_main, name="evc-bench-engine",
-                          args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address),
+                          args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address, bench_id),
                           daemon=True)
     process.start()
     for _, child in pipes:

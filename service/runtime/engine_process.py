@@ -203,7 +203,7 @@ def _port_answer(figures: dict, owner: str | None) -> dict:
 
 def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_conn: Connection, command_conn: Connection,
                 plan_conn: Connection, notice_conn: Connection | None = None,
-                stop_address: tuple[str, int] | None = None) -> None:
+                stop_address: tuple[str, int] | None = None, bench_id: str | None = None) -> None:
     """The process's entry point: open the bench (and the stop port on ``stop_address``, if given),
     say what it is, serve the pipes until the web process closes them (or dies), then leave the
     outputs at 0 V."""
@@ -239,7 +239,7 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     port = None
     if stop_address is not None:
         try:
-            port = StopPort(*stop_address, press=press_from_port, tokens=tokens).start()
+            port = StopPort(*stop_address, press=press_from_port, tokens=tokens, bench_id=bench_id).start()
             log.info("emergency stop port: POST http://%s:%d%s", port.host, port.port, STOP_PATH)
         except OSError as exc:
             bench.close()

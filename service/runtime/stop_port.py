@@ -26,6 +26,7 @@ import selectors
 import socket
 import threading
 import time
+import urllib.parse
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -46,7 +47,7 @@ MAX_CONNECTIONS = 64
 PREFLIGHT_MAX_AGE_S = 600
 
 _REASONS = {200: "OK", 204: "No Content", 400: "Bad Request", 401: "Unauthorized", 403: "Forbidden",
-            404: "Not Found", 405: "Method Not Allowed", 413: "Payload Too Large",
+            404: "Not Found", 405: "Method Not Allowed", 409: "Conflict", 413: "Payload Too Large",
             431: "Request Header Fields Too Large", 503: "Service Unavailable"}
 
 
@@ -102,6 +103,7 @@ class _Connection:
 class _Request:
     method: str
     path: str
+    query: dict[str, str]
     headers: dict[str, str]
 
 
@@ -120,7 +122,8 @@ def _parse_head(head: bytes) -> _Request | None:
         if not sep or not name or name != name.strip():
             return None
         headers[name.lower()] = value.strip()
-    return _Request(method.upper(), target.split("?", 1)[0], headers)
+    path, _, query = target.partition("?")
+    return _Request(method.upper(), path, dict(urllib.parse.parse_qsl(query)), headers)
 
 
 def _response(status: int, body: dict | None, origin: str | None, extra: dict[str, str] | None = None) -> bytes:
@@ -136,10 +139,13 @@ def _response(status: int, body: dict | None, origin: str | None, extra: dict[st
 class StopPort:
     """Listen on ``(host, port)`` (port 0: the system picks one; ``self.port`` says which) and
     answer ``POST /api/bench/stop``: ``press()`` drives the outputs to 0 V and returns the answer's
-    body. ``serve_forever`` runs in the caller's thread until ``close``."""
+    body. ``bench_id`` names the bench: a request whose ``?bench_id=`` names another is refused (409)
+    before anything moves, so a client that reached the wrong service's port (a port forwarded to
+    another bench) learns it and presses the stop on its own service instead. ``serve_forever`` runs
+    in the caller's thread until ``close``."""
 
-    def __init__(self, host: str, port: int, press: Callable[[], dict], tokens: StopTokens):
-        self.press, self.tokens = press, tokens
+    def __init__(self, host: str, port: int, press: Callable[[], dict], tokens: StopTokens, bench_id: str | None = None):
+        self.press, self.tokens, self.bench_id = press, tokens, bench_id
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self._listener = socket.create_server((host, port), family=family, backlog=64)
         self._listener.setblocking(False)
@@ -273,9 +279,14 @@ class StopPort:
             status, detail, field_name = refusal
             extra = {"WWW-Authenticate": "Bearer"} if status == 401 else None
             return _response(status, {"detail": detail, "field": field_name}, origin, extra)
+        asked = request.query.get("bench_id")
+        if asked is not None and self.bench_id is not None and asked != self.bench_id:
+            return _response(409, {"detail": f"this port stops bench {self.bench_id!r}, not {asked!r}: nothing was "
+                                             "stopped; press the stop on that bench's own service", "field": "bench_id"},
+                             origin)
         self.presses += 1
         try:
-            return _response(200, self.press(), origin)
+            return _response(200, {**self.press(), "bench_id": self.bench_id}, origin)
         except Exception as exc:  # noqa: BLE001 - the port lives on; the caller learns what failed
             log.exception("stop port: the stop failed")
             return _response(503, {"detail": f"the stop failed: {type(exc).__name__}: {exc}", "field": None}, origin)

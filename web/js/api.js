@@ -44,16 +44,16 @@ export async function api(path, { method = 'GET', body, form, signal } = {}) {
 }
 
 /** The emergency stop: on the bench engine's own stop port when the service names one (GET
- *  /api/bench's engine.stop_port; it waits for nothing the service's web process does), else, or
- *  if this browser cannot reach that port, or it cannot take the stop yet (503), POST /api/bench/stop. */
-export async function pressStop(stopPort) {
+ *  /api/bench's engine.stop_port and bench_id; it waits for nothing the service's web process
+ *  does); if this browser cannot reach that port or it does not stop this bench (any answer but
+ *  200: not ready yet, another bench's port), POST /api/bench/stop on the service itself. */
+export async function pressStop(stopPort, benchId) {
   if (stopPort) {
-    let response = null;
     try {
-      response = await fetch(`${location.protocol}//${location.hostname}:${stopPort}/api/bench/stop`,
-                             { method: 'POST', headers: headers() });
+      const url = `${location.protocol}//${location.hostname}:${stopPort}/api/bench/stop?bench_id=${encodeURIComponent(benchId)}`;
+      const response = await fetch(url, { method: 'POST', headers: headers() });
+      if (response.status === 200) return response.json();
     } catch (_) { /* unreachable from here (a firewall): the service's own route below */ }
-    if (response && response.status !== 503) return readAnswer(response);
   }
   return api('/bench/stop', { method: 'POST' });
 }

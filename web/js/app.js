@@ -37,14 +37,16 @@ async function route() {
   }
 }
 
-/** The engine's stop port, as the last GET /api/bench named it (the pill's polling keeps it current). */
+/** The engine's stop port and the bench it stops, as the last GET /api/bench named them (the
+ *  pill's polling keeps them current). */
 let stopPort = null;
+let benchId = '';
 
 async function emergencyStop() {
   const button = document.getElementById('estop');
   button.disabled = true;
   try {
-    const r = await pressStop(stopPort);
+    const r = await pressStop(stopPort, benchId);
     const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${(Math.abs(v) < 0.005 ? 0 : Number(v)).toFixed(2)} V`).join(', ');
     banner(`Emergency stop: outputs at ${volts || '0 V'}` +
            (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no job was running') +
@@ -63,6 +65,7 @@ async function refreshPill() {
   try {
     const bench = await api('/bench');
     stopPort = (bench.engine && bench.engine.stop_port) || null;
+    benchId = bench.bench_id;
     pill.textContent = bench.running_job_id ? `bench busy: ${bench.running_job_id}` : `bench idle · ${bench.backend}`;
     pill.dataset.runningJob = bench.running_job_id || '';
   } catch (err) {

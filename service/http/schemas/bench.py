@@ -83,7 +83,9 @@ class BenchState(BaseModel):
     modes: Modes
     timing: dict[str, Any] = Field(description="real-time pacing of an emulated DAQ: realtime, periods, "
                                                "overruns, max_late_ms")
-    engine: dict[str, Any] | None = Field(default=None, description="the bench engine process, when separate")
+    engine: dict[str, Any] | None = Field(default=None, description="the bench engine process, when separate: "
+                                          "process, pid, stop_port (its own emergency-stop port)")
+    bench_id: str = Field(description="this service's bench (a lab's id; the stop port takes it as ?bench_id=)")
     running_job_id: str | None
 
 
