@@ -109,3 +109,31 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
     finally:
         if server.proc.poll() is None:
             server.proc.kill()
+
+
+def test_evcbench_stop_needs_nothing_of_a_frozen_web_process(tmp_path):
+    """The web process stopped dead (SIGSTOP) mid-sweep: `evcbench stop` on its machine still drives the
+    bench to 0 V through the engine's stop port, which it finds in <data dir>/stop_port.json."""
+    import signal
+
+    server = Server(tmp_path / "var", tmp_path / "server.log", bench="default_realtime")
+    try:
+        announced = json.loads((server.data_dir / "stop_port.json").read_text())
+        assert announced["service_port"] == server.port and announced["stop_port"] > 0
+        with Client(server.url, token=server.token) as api:
+            job = api.start_sweep(axes=["y", "z"], frequencies_hz=[1], cycles=30)
+            wait_job(api.job, job["job_id"], until=job_running(0.02), timeout_s=60)
+            server.proc.send_signal(signal.SIGSTOP)
+            try:
+                stopped = json.loads(_cli(server, "stop", "--json").stdout)
+            finally:
+                server.proc.send_signal(signal.SIGCONT)
+            assert stopped["door"] == "stop port" and stopped["cancelled_job_id"] == job["job_id"]
+            assert all(abs(v) < 0.05 for v in stopped["output_v"].values())
+            done = wait_job(api.job, job["job_id"], timeout_s=60)
+            assert done["state"] == "cancelled" and "emergency stop" in done["message"]
+        assert server.stop()
+        assert not (server.data_dir / "stop_port.json").exists()     # a clean shut-down takes it back
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()

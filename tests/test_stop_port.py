@@ -155,6 +155,11 @@ def test_malformed_requests_get_4xx_and_press_nothing(port, request_bytes, statu
     assert port.client.post(STOP_PATH, headers=_bearer(OPERATE)).status_code == 200     # still serving
 
 
+def test_a_hand_typed_request_with_bare_line_feeds_is_answered(port):
+    answer = _raw(port.port, f"POST {STOP_PATH} HTTP/1.1\nHost: x\nAuthorization: Bearer {OPERATE}\n\n".encode())
+    assert answer.startswith(b"HTTP/1.1 200") and port.presses_seen.count == 1
+
+
 def test_a_body_sent_in_pieces_is_read_before_the_answer(port):
     head = (f"POST {STOP_PATH} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {OPERATE}\r\n"
             "Content-Type: application/json\r\nContent-Length: 20\r\n\r\n").encode()
@@ -233,3 +238,19 @@ def test_the_client_presses_the_port_and_falls_back_when_it_is_another_benchs():
             assert ("POST /api/bench/stop" in routed) == (door == "service route")
     finally:
         served.close()
+
+
+def test_serve_refuses_a_stop_port_it_cannot_have_in_one_line(tmp_path, monkeypatch):
+    from service.frontends import cli
+    from service.frontends.cli_tokens import stop_port_refusal
+    from service.runtime.settings import Settings
+
+    settings = Settings(data_dir=tmp_path, port=8123, stop_port=8123)
+    assert "the service's own --port" in stop_port_refusal(settings)
+    with socket.create_server(("127.0.0.1", 0)) as held:
+        taken = held.getsockname()[1]
+        assert f"127.0.0.1:{taken} cannot listen" in stop_port_refusal(Settings(data_dir=tmp_path, stop_port=taken))
+    assert stop_port_refusal(Settings(data_dir=tmp_path, stop_port=0)) is None
+    assert cli.main(["serve", "--data-dir", str(tmp_path), "--stop-port", "70000"]) == 2
+    monkeypatch.setenv("EVCBENCH_STOP_PORT", "abc")
+    assert cli.main(["serve", "--data-dir", str(tmp_path)]) == 2

@@ -16,8 +16,32 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     from service.runtime.app import create_app
 
-    defaults = Settings()
-    settings = Settings(
+    try:
+        settings = _serve_settings(args)
+    except ValueError as exc:           # a bad --stop-port, EVCBENCH_* value or bench id: one line
+        print(f"evcbench serve: {exc}", file=sys.stderr)
+        return 2
+    from service.frontends.cli_tokens import serve_refusal
+    from service.runtime.safe_shutdown import install
+
+    refusal = serve_refusal(settings)
+    if refusal:
+        print(f"evcbench serve: {refusal}", file=sys.stderr)
+        return 2
+    app = create_app(settings)
+    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
+    install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
+    server.run()
+    return 0
+
+
+def _serve_settings(args: argparse.Namespace) -> Settings:
+    """The service's settings: the command line over the environment (EVCBENCH_*) over the defaults."""
+    try:
+        defaults = Settings()
+    except ValueError as exc:
+        raise ValueError(f"the environment's EVCBENCH_* settings: {exc}") from None
+    return Settings(
         data_dir=args.data_dir or defaults.data_dir,
         bench=args.bench or defaults.bench,
         seed=args.seed if args.seed is not None else defaults.seed,
@@ -31,18 +55,6 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         **({"bench_id": args.bench_id} if args.bench_id else {}),
         **({"public_url": args.public_url} if args.public_url else {}),
     )
-    from service.frontends.cli_tokens import serve_refusal
-    from service.runtime.safe_shutdown import install
-
-    refusal = serve_refusal(settings)
-    if refusal:
-        print(f"evcbench serve: {refusal}", file=sys.stderr)
-        return 2
-    app = create_app(settings)
-    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
-    install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
-    server.run()
-    return 0
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:

@@ -223,10 +223,15 @@ def _jobs(api: Client, args) -> int:
 
 def _stop(api: Client, args) -> int:
     out = api.stop_bench()
+    volts = ", ".join(f"{axis} {0.0 if abs(v) < 0.005 else v:.2f} V" for axis, v in out["output_v"].items())
+    zero = out.get("zero_after_request_ms")
     queued = out["cancelled_queued_job_ids"]
-    return _emit(args, out, f"stopped: output {out['output_v']} V; cancelled {out['cancelled_job_id'] or 'no job'}"
-                 + (f" and queued {', '.join(queued)}" if queued else "")
-                 + (f" ({out['queued_jobs']})" if queued is None else ""))
+    lines = [f"stopped on the {out.get('door', 'service route')}" + (f", 0 V {zero:.1f} ms after it arrived" if zero is not None else ""),
+             f"outputs: {volts}",
+             f"running job: {out['cancelled_job_id'] + ' cancelled' if out['cancelled_job_id'] else 'none'}",
+             "queued bench jobs: " + ("cancelled by the service (the bench runs none until it has)" if queued is None
+                                      else ", ".join(queued) + " cancelled" if queued else "none")]
+    return _emit(args, out, "\n".join(lines))
 
 
 def _reset(api: Client, args) -> int:

@@ -49,8 +49,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--if-missing", action="store_true",
                    help="do nothing if an active cli/api token already exists (container start-up)")
     verb("list", "list tokens (no secrets)", _list)
-    p = verb("revoke", "revoke a token: requests with it get 401 at once (a running "
-                 "service's emergency stop still takes it for up to 5 s if it saw it lately)", _revoke)
+    p = verb("revoke", "revoke a token: requests with it get 401 at once (a running service's emergency "
+                 "stop still takes it for up to 5 s if it saw it lately, its bench engine's stop port for up to 2 s)",
+             _revoke)
     p.add_argument("token_id", help="the token's id (tok_…), from `evcbench token list`")
 
 
@@ -113,6 +114,9 @@ def serve_refusal(settings: Settings) -> str | None:
     from service.runtime.heartbeat import held_elsewhere
     from service.security.binding import bind_refusal, is_loopback
 
+    port_clash = stop_port_refusal(settings)
+    if port_clash:
+        return port_clash
     loopback = is_loopback(settings.host)
     store = open_store(settings.data_dir, settings.database_url)
     try:
@@ -123,3 +127,21 @@ def serve_refusal(settings: Settings) -> str | None:
     if held is not None or loopback:
         return held
     return bind_refusal(settings.host, settings.auth, count)
+
+
+def stop_port_refusal(settings: Settings) -> str | None:
+    """Why the bench engine's stop port (``--stop-port``) cannot listen, in one line, or None: the
+    service's own port, or a port another program holds (0: any free port, never refused)."""
+    import socket
+
+    if settings.stop_port == 0:
+        return None
+    if settings.stop_port == settings.port:
+        return f"--stop-port {settings.stop_port} is the service's own --port: give the emergency stop another port"
+    family = socket.AF_INET6 if ":" in settings.host else socket.AF_INET
+    try:
+        socket.create_server((settings.host, settings.stop_port), family=family).close()
+    except OSError as exc:
+        return f"the stop port {settings.host}:{settings.stop_port} cannot listen ({exc.strerror or exc}): " \
+               "pick another with --stop-port, or 0 for any free port"
+    return None

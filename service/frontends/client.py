@@ -21,12 +21,16 @@ from typing import Callable, Iterator, Sequence
 import httpx
 import numpy as np
 
+from service.runtime.stop_port import STOP_PORT_FILE
 from service.security.binding import is_loopback
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 ProgressCallback = Callable[[dict], None]
 _NOT_LOOKED_UP = object()
+#: The stop port answers within milliseconds (it waits at most the bench's stop_wait_s for the loop):
+#: past this the client presses the service's own route instead.
+STOP_PORT_TIMEOUT = httpx.Timeout(2.0, connect=1.0)
 
 
 class ApiError(RuntimeError):
@@ -53,6 +57,7 @@ class Client:
 
     def __init__(self, base_url: str = DEFAULT_URL, timeout_s: float = 60.0, http: httpx.Client | None = None,
                  token: str | None = None, data_dir: str | Path | None = None):
+        self._data_dir = Path(data_dir or os.environ.get("EVCBENCH_DATA_DIR") or "var")
         if http is None:
             http = httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout_s)
             token = resolve_token(base_url, token, data_dir)
@@ -60,7 +65,7 @@ class Client:
             http.headers["Authorization"] = f"Bearer {token}"
         self.http = http
         self._stop_url: str | None | object = _NOT_LOOKED_UP
-        self._stop_http = httpx.Client(timeout=10.0)     # the stop port's own connection
+        self._stop_http = httpx.Client(timeout=STOP_PORT_TIMEOUT)     # the stop port's own connection
 
     def close(self) -> None:
         self.http.close()
@@ -100,12 +105,31 @@ class Client:
         ``GET /api/bench`` names, with ``?bench_id=`` so that another bench's port refuses it),
         looked up once; None if the service has no stop port."""
         if self._stop_url is _NOT_LOOKED_UP:
-            bench = self.bench()
-            port = (bench.get("engine") or {}).get("stop_port")
             host = self.http.base_url.host       # "testserver": an in-process test client has no network
-            self._stop_url = None if port is None or host in ("", "testserver") else str(self.http.base_url.copy_with(
-                port=port, path="/api/bench/stop", params={"bench_id": bench["bench_id"]}))
+            found = None if host in ("", "testserver") else self._stop_port_lookup()
+            self._stop_url = None if found is None else str(self.http.base_url.copy_with(
+                port=found["stop_port"], path="/api/bench/stop", params={"bench_id": found["bench_id"]}))
         return self._stop_url
+
+    def _stop_port_lookup(self) -> dict | None:
+        """``{"stop_port", "bench_id"}``: from the file a service on this machine writes
+        (<data_dir>/stop_port.json, service.runtime.stop_port_link), so that a local ``evcbench stop``
+        needs nothing of the web process; else from ``GET /api/bench`` (2 s at most); else None."""
+        url = self.http.base_url
+        if is_loopback(url.host):
+            try:
+                local = json.loads((self._data_dir / STOP_PORT_FILE).read_text())
+                if local.get("service_port") == url.port:
+                    return local
+            except (OSError, ValueError):
+                pass
+        try:
+            bench = self.http.get("/api/bench", timeout=STOP_PORT_TIMEOUT)
+            if bench.status_code == 200 and (bench.json().get("engine") or {}).get("stop_port") is not None:
+                return {"stop_port": bench.json()["engine"]["stop_port"], "bench_id": bench.json()["bench_id"]}
+        except (httpx.TransportError, ValueError):
+            pass
+        return None
 
     def reset_bench(self) -> dict:
         """Clear latched amplifier faults and the watchdog's trip (409 while a job runs):

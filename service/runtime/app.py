@@ -92,7 +92,8 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 # the engine's stop port (an engine in its own process has one): its tokens, its jobs
                 app.state.stop_port_link = link = (
                     None if getattr(app.state.bench, "stop_port", None) is None
-                    else StopPortLink(app.state.bench, store, app.state.jobs, settings.auth == "off").start())
+                    else StopPortLink(app.state.bench, store, app.state.jobs, settings.auth == "off",
+                                      announce=(settings.data_dir, settings.port, settings.bench_id)).start())
                 register(store.benches, settings, instance, "idle", bench_snapshot(app.state.bench))
                 heartbeat = Heartbeat(settings.resolved_database_url, settings.bench_id, instance,
                                       settings.heartbeat_s, lambda: running_state(app.state.jobs)).start()

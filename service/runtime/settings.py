@@ -48,7 +48,7 @@ class Settings:
     engine: str = field(default_factory=lambda: os.environ.get("EVCBENCH_ENGINE", "process"))
     #: the engine's stop port (service.runtime.stop_port) on ``host``: 0 lets the system pick a free
     #: one (GET /api/bench says which); set one to open it through a firewall
-    stop_port: int = field(default_factory=lambda: int(os.environ.get("EVCBENCH_STOP_PORT") or 0))
+    stop_port: int = field(default_factory=lambda: _port_from_env("EVCBENCH_STOP_PORT"))
     #: the lab's shared array location (service.store.arrays): a path or file:// URL (an NFS mount),
     #: or s3://bucket/prefix (endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); empty: <data_dir>/arrays
     array_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_ARRAY_URL") or None)
@@ -90,6 +90,15 @@ def bench_id_for(bench: str) -> str:
     stem = Path(bench).stem if bench.endswith(".toml") or "/" in bench else bench
     text = re.sub(r"[^a-z0-9._-]+", "-", stem.lower()).strip("-._")[:40]
     return text or "bench"
+
+
+def _port_from_env(name: str) -> int:
+    """A TCP port from the environment variable ``name`` (unset or empty: 0, any free port)."""
+    text = os.environ.get(name) or "0"
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{name} must be a TCP port number (0-65535), not {text!r}") from None
 
 
 def _int_or_none(text: str | None) -> int | None:

@@ -33,6 +33,9 @@ from typing import Callable
 log = logging.getLogger("evcbench.engine")
 
 STOP_PATH = "/api/bench/stop"
+#: Where a service tells the clients on its machine its stop port, in its data dir
+#: (``{"service_port", "stop_port", "bench_id"}``): a local ``evcbench stop`` needs nothing of the web process.
+STOP_PORT_FILE = "stop_port.json"
 #: The reason every emergency stop gives (the job it cancels carries it), through either door.
 EMERGENCY_STOP = "emergency stop"
 #: A request head larger than this is refused (431): the stop needs a few hundred bytes.
@@ -110,7 +113,7 @@ class _Request:
 def _parse_head(head: bytes) -> _Request | None:
     """The request line and headers of ``head`` (up to the blank line), or None if malformed."""
     try:
-        lines = head.decode("latin-1").split("\r\n")
+        lines = head.decode("latin-1").replace("\r\n", "\n").split("\n")
         method, target, version = lines[0].split(" ")
     except ValueError:
         return None
@@ -124,6 +127,13 @@ def _parse_head(head: bytes) -> _Request | None:
         headers[name.lower()] = value.strip()
     path, _, query = target.partition("?")
     return _Request(method.upper(), path, dict(urllib.parse.parse_qsl(query)), headers)
+
+
+def _head_end(data: bytearray) -> tuple[int, int]:
+    """(where the request head ends, the blank line's length): CRLF CRLF, or LF LF as a hand-typed
+    request (``nc``) sends it; (-1, 0) while it has not ended."""
+    ends = [(i, len(sep)) for sep in (b"\r\n\r\n", b"\n\n") if (i := data.find(sep)) >= 0]
+    return min(ends) if ends else (-1, 0)
 
 
 def _response(status: int, body: dict | None, origin: str | None, extra: dict[str, str] | None = None) -> bytes:
@@ -245,7 +255,7 @@ class StopPort:
     # ------------------------------------------------------------------ HTTP
     def _reply_if_complete(self, data: bytearray) -> bytes | None:
         """The answer once ``data`` holds a whole request (head and body), else None."""
-        end = data.find(b"\r\n\r\n")
+        end, gap = _head_end(data)
         if end < 0:
             return _response(431, {"detail": f"request head over {MAX_HEAD_BYTES} bytes", "field": None},
                              None) if len(data) > MAX_HEAD_BYTES else None
@@ -260,7 +270,7 @@ class StopPort:
         if length < 0 or length > MAX_BODY_BYTES:
             return _response(413, {"detail": f"the stop takes no body (at most {MAX_BODY_BYTES} bytes)",
                                    "field": "content-length"}, origin)
-        if len(data) < end + 4 + length:
+        if len(data) < end + gap + length:
             return None                 # the body is still on its way: answering now would reset it
         return self._handle(request, origin)
 

@@ -9,11 +9,15 @@ another service of the lab) may still press the stop there: the stop only drives
 """
 from __future__ import annotations
 
+import json
 import logging
 import threading
+from pathlib import Path
 from typing import Any
 
 from service.runtime.safe_shutdown import cancel_bench_jobs
+from service.runtime.stop_port import STOP_PORT_FILE
+from service.store.files import write_bytes_atomic
 
 log = logging.getLogger("evcbench.safety")
 
@@ -24,8 +28,11 @@ REFRESH_S = 2.0
 class StopPortLink:
     """Connect an ``EngineBench``'s stop port to the app: tokens and job cancellation."""
 
-    def __init__(self, bench: Any, store: Any, jobs: Any, auth_off: bool, refresh_s: float = REFRESH_S):
+    def __init__(self, bench: Any, store: Any, jobs: Any, auth_off: bool, refresh_s: float = REFRESH_S,
+                 announce: tuple[Path, int, str] | None = None):
+        """``announce``: (data dir, the service's port, bench id) to write ``STOP_PORT_FILE`` there."""
         self.bench, self.store, self.jobs, self.auth_off = bench, store, jobs, auth_off
+        self.announce = announce
         self.refresh_s = refresh_s
         self._sent: dict | None = None
         self._lock = threading.Lock()
@@ -39,12 +46,18 @@ class StopPortLink:
         self.refresh()
         self._thread = threading.Thread(target=self._keep_current, name="evc-stop-tokens", daemon=True)
         self._thread.start()
+        if self.announce is not None:
+            data_dir, service_port, bench_id = self.announce
+            write_bytes_atomic(Path(data_dir) / STOP_PORT_FILE, json.dumps(
+                {"service_port": service_port, "stop_port": self.bench.stop_port, "bench_id": bench_id}).encode())
         return self
 
     def close(self) -> None:
         self._closing.set()
         if self._thread is not None:
             self._thread.join(5.0)
+        if self.announce is not None:
+            (Path(self.announce[0]) / STOP_PORT_FILE).unlink(missing_ok=True)
 
     def refresh(self) -> None:
         """Read the valid tokens from the store and send them to the engine if they changed."""

@@ -43,6 +43,8 @@ export async function api(path, { method = 'GET', body, form, signal } = {}) {
   return readAnswer(response);
 }
 
+const STOP_PORT_TIMEOUT_MS = 2000;
+
 /** The emergency stop: on the bench engine's own stop port when the service names one (GET
  *  /api/bench's engine.stop_port and bench_id; it waits for nothing the service's web process
  *  does); if this browser cannot reach that port or it does not stop this bench (any answer but
@@ -51,7 +53,8 @@ export async function pressStop(stopPort, benchId) {
   if (stopPort) {
     try {
       const url = `${location.protocol}//${location.hostname}:${stopPort}/api/bench/stop?bench_id=${encodeURIComponent(benchId)}`;
-      const response = await fetch(url, { method: 'POST', headers: headers() });
+      // The port answers within milliseconds; a firewall that drops packets must not hold the stop up.
+      const response = await fetch(url, { method: 'POST', headers: headers(), signal: AbortSignal.timeout(STOP_PORT_TIMEOUT_MS) });
       if (response.status === 200) return response.json();
     } catch (_) { /* unreachable from here (a firewall): the service's own route below */ }
   }

@@ -51,7 +51,7 @@ async function emergencyStop() {
     banner(`Emergency stop: outputs at ${volts || '0 V'}` +
            (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no job was running') +
            ((r.cancelled_queued_job_ids || []).length ? `; queued bench jobs cancelled too: ${r.cancelled_queued_job_ids.join(', ')}.` : '.') +
-           (r.cancelled_queued_job_ids === null ? ` The service cancels the bench jobs queued; the bench runs none until it has.` : ''), 'info');
+           (r.cancelled_queued_job_ids === null ? ' Queued bench jobs: cancelled by the service (the bench runs none until it has).' : ''), 'info');
     document.getElementById('banner').dataset.stopped = JSON.stringify(r);
   } catch (err) {
     banner(`Emergency stop FAILED: ${err.message}`);
