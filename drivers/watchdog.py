@@ -13,6 +13,7 @@ Drivers know no service: this module knows only the ``Daq`` protocol. Configurat
     watchdog_min_s = 1.0        # floor of the timeout (slow sweeps, blocks of ≥ 0.1 s), seconds
     watchdog_poll_s = 0.005     # how often the thread looks, seconds
     stop_wait_s = 0.5           # emergency stop: how long to wait for the loop to reach 0 V itself
+    unread_limit_s = 10.0       # a run whose measured samples nobody has taken for this long stops at 0 V
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from dataclasses import dataclass, fields
 from typing import Callable
 
 _LIMITS = {"watchdog_periods": (1.0, 1000.0), "watchdog_min_s": (0.001, 3600.0),
-           "watchdog_poll_s": (0.0005, 1.0), "stop_wait_s": (0.0, 60.0)}
+           "watchdog_poll_s": (0.0005, 1.0), "stop_wait_s": (0.0, 60.0), "unread_limit_s": (0.1, 3600.0)}
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,9 @@ class SafetyConfig:
     watchdog_min_s: float = 1.0
     watchdog_poll_s: float = 0.005
     stop_wait_s: float = 0.5
+    #: the host that records a run (the service, in the bench engine's case) took none of its samples
+    #: for this long (s): the run stops at 0 V rather than measure what nobody keeps
+    unread_limit_s: float = 10.0
 
     @classmethod
     def from_config(cls, section: dict | None) -> "SafetyConfig":

@@ -175,3 +175,25 @@ def _alive(pid: int) -> bool:
             return f.read().split()[2] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_a_run_whose_samples_nobody_takes_stops_at_0v():
+    """The web process stops reading (hung, frozen): the engine does not measure on for ever into its
+    memory; past [safety] unread_limit_s the run stops at 0 V and says why."""
+    from service.runtime.engine import open_engine, run_buffered
+
+    bench = open_engine("default_realtime", seed=1, overrides={"safety": {"unread_limit_s": 0.5}})
+    try:
+        fs = bench.sample_rate_hz
+        u = np.minimum(np.arange(int(20 * fs)) / fs * 120.0, 60.0)     # up to 60 V in 0.5 s, then held
+        conn = bench._plan.conn                   # the plan pipe, read by no one for a while
+        conn.send(("execute", run_buffered, ({"y": u, "z": u}, fs, 2000), None))
+        time.sleep(3.0)
+        assert all(abs(v) < 0.05 for v in bench.output_v().values())    # stopped long before its 20 s
+        while (message := conn.recv())[0] == "event":
+            pass
+        kind, (_sent, _rows, _rate, ending) = message
+        assert kind == "done" and ending is not None
+        assert "took none of the run's samples" in ending[0] and "unread_limit_s" in ending[0]
+    finally:
+        bench.close()

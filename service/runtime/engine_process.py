@@ -29,6 +29,7 @@ import pickle
 import queue
 import signal
 import threading
+import time
 from multiprocessing.connection import Connection
 
 from drivers.bench import Bench
@@ -169,11 +170,22 @@ class _Outbox:
     def __init__(self, conn: Connection, on_eof):
         self._conn, self._on_eof = conn, on_eof
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._count_lock = threading.Lock()
+        self._unsent, self._waiting_since = 0, 0.0
         self._thread = threading.Thread(target=self._send_all, name="evc-engine-outbox", daemon=True)
         self._thread.start()
 
     def put(self, message: tuple) -> None:
+        with self._count_lock:
+            if self._unsent == 0:
+                self._waiting_since = time.monotonic()     # the clock starts with the first unsent message
+            self._unsent += 1
         self._queue.put(message)
+
+    def unsent_for_s(self) -> float:
+        """How long the oldest message still waiting to be sent has waited (s; 0 when none waits)."""
+        with self._count_lock:
+            return time.monotonic() - self._waiting_since if self._unsent else 0.0
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Send what is queued, then stop."""
@@ -187,6 +199,9 @@ class _Outbox:
             except (EOFError, OSError):
                 self._on_eof()
                 return
+            with self._count_lock:
+                self._unsent -= 1
+                self._waiting_since = time.monotonic()    # the next one has waited from now at most
 
 
 def _exit_on_signal(sig: int, _frame) -> None:
@@ -268,6 +283,10 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
 
     def emit(*payload) -> None:
         outbox.put(("event", payload))
+        unread_s = outbox.unsent_for_s()
+        if unread_s > bench.safety.unread_limit_s and bench.interrupt_reason() is None:
+            bench.request_stop(f"the service took none of the run's samples for {unread_s:.1f} s (limit "
+                               f"{bench.safety.unread_limit_s:g} s, [safety] unread_limit_s): stopped at 0 V")
 
     try:
         while not closing.is_set():

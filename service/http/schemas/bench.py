@@ -57,6 +57,7 @@ class SafetyState(BaseModel):
     watchdog_min_s: float
     watchdog_poll_s: float
     stop_wait_s: float
+    unread_limit_s: float = Field(description="a run whose samples the service has not taken for this long stops at 0 V (s)")
     watchdog_last_trip: dict[str, Any] | None
     stop_requested: bool
     running: bool
