@@ -254,3 +254,28 @@ def test_serve_refuses_a_stop_port_it_cannot_have_in_one_line(tmp_path, monkeypa
     assert cli.main(["serve", "--data-dir", str(tmp_path), "--stop-port", "70000"]) == 2
     monkeypatch.setenv("EVCBENCH_STOP_PORT", "abc")
     assert cli.main(["serve", "--data-dir", str(tmp_path)]) == 2
+
+
+def test_a_stop_neither_door_takes_is_an_error_naming_both():
+    """The port does not know the token yet (401) and the service does not answer (hung): the client
+    says so within its timeouts instead of waiting for the service's minute."""
+    from service.frontends.client import ApiError, Client
+
+    served = StopPort("127.0.0.1", 0, press=_Presses(), tokens=StopTokens(), bench_id="bench-a").start()
+    served.tokens.replace({}, auth_off=False)
+
+    def hung_service(request: httpx.Request) -> httpx.Response:
+        if request.url.path == "/api/bench":
+            return httpx.Response(200, json={"engine": {"stop_port": served.port}, "bench_id": "bench-a"})
+        raise httpx.ReadTimeout("timed out", request=request)
+
+    try:
+        http = httpx.Client(base_url="http://127.0.0.1:1", transport=httpx.MockTransport(hung_service))
+        with Client(http=http, token=OPERATE) as client:
+            with pytest.raises(ApiError) as refused:
+                client.stop_bench()
+        assert refused.value.status_code == 503
+        assert "did not take the emergency stop" in refused.value.detail
+        assert "stop port: 401: unknown or revoked API token" in refused.value.detail
+    finally:
+        served.close()

@@ -226,11 +226,15 @@ def _stop(api: Client, args) -> int:
     volts = ", ".join(f"{axis} {0.0 if abs(v) < 0.005 else v:.2f} V" for axis, v in out["output_v"].items())
     zero = out.get("zero_after_request_ms")
     queued = out["cancelled_queued_job_ids"]
-    lines = [f"stopped on the {out.get('door', 'service route')}" + (f", 0 V {zero:.1f} ms after it arrived" if zero is not None else ""),
+    running = out["cancelled_job_id"]
+    lines = [f"stopped on the {out.get('door', 'service route')}"
+             + (f", 0 V {zero:.1f} ms after the stop reached the bench" if zero is not None else ""),
              f"outputs: {volts}",
-             f"running job: {out['cancelled_job_id'] + ' cancelled' if out['cancelled_job_id'] else 'none'}",
-             "queued bench jobs: " + ("cancelled by the service (the bench runs none until it has)" if queued is None
+             f"running job: {running + ' (the service cancels it)' if running and queued is None else running + ' cancelled' if running else 'none'}",
+             "queued bench jobs: " + ("the service cancels any (the bench runs none until it has)" if queued is None
                                       else ", ".join(queued) + " cancelled" if queued else "none")]
+    if out.get("stop_port_refusal"):
+        lines.append(f"(the stop port was not used: {out['stop_port_refusal']})")
     return _emit(args, out, "\n".join(lines))
 
 

@@ -28,6 +28,8 @@ DEFAULT_URL = "http://127.0.0.1:8000"
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 ProgressCallback = Callable[[dict], None]
 _NOT_LOOKED_UP = object()
+#: How long a stop pressed on the service's own route may take before the client gives up (s).
+STOP_ROUTE_TIMEOUT_S = 10.0
 #: The stop port answers within milliseconds (it waits at most the bench's stop_wait_s for the loop):
 #: past this the client presses the service's own route instead.
 STOP_PORT_TIMEOUT = httpx.Timeout(2.0, connect=1.0)
@@ -88,17 +90,27 @@ class Client:
         """Emergency stop: 0 V now, and the running bench job is cancelled. Pressed on the bench
         engine's stop port, which waits for nothing the service's web process does, if the service
         has one (``prepare_stop`` looks it up; the first stop does if it was not called); if that
-        port cannot be reached or does not stop this bench (any answer but 200: unreachable, not yet
-        ready, another bench's port), on ``POST /api/bench/stop`` of the service itself."""
-        url = self.prepare_stop()
+        port cannot be reached or does not stop this bench (any answer but 200: unreachable, a token
+        it has not learnt yet, another bench's port), on ``POST /api/bench/stop`` of the service
+        itself, waiting at most ``STOP_ROUTE_TIMEOUT_S``. The answer then says why the port was not
+        used (``stop_port_refusal``); a service that does not answer either raises ApiError (503)
+        naming both."""
+        url, refusal = self.prepare_stop(), None
         if url is not None:
             try:
                 response = self._stop_http.post(url, headers={"Authorization": self.http.headers.get("Authorization", "")})
                 if response.status_code == 200:
                     return response.json()
-            except httpx.TransportError:
-                pass                          # unreachable from here (a firewall): the service's own route
-        return self._request("POST", "/api/bench/stop")
+                refusal = f"{response.status_code}: {_detail(response)}"
+            except httpx.TransportError as exc:      # unreachable from here (a firewall): the service's own route
+                refusal = f"unreachable ({type(exc).__name__})"
+        try:
+            answer = self._request("POST", "/api/bench/stop", timeout=STOP_ROUTE_TIMEOUT_S)
+        except httpx.TransportError as exc:
+            raise ApiError(503, f"the service did not take the emergency stop within {STOP_ROUTE_TIMEOUT_S:g} s "
+                                f"({type(exc).__name__})" + (f"; its stop port: {refusal}" if refusal else
+                                                             "; it names no stop port")) from None
+        return answer if refusal is None else {**answer, "stop_port_refusal": refusal}
 
     def prepare_stop(self) -> str | None:
         """The URL of the engine's stop port (the host this client reaches the service by, the port
@@ -342,8 +354,15 @@ class Client:
     @staticmethod
     def _raise(response: httpx.Response) -> None:
         try:
-            body = response.json()
-            detail, field = body.get("detail", response.text), body.get("field")
+            field = response.json().get("field")
         except ValueError:
-            detail, field = response.text or response.reason_phrase, None
-        raise ApiError(response.status_code, str(detail), field)
+            field = None
+        raise ApiError(response.status_code, _detail(response), field)
+
+
+def _detail(response: httpx.Response) -> str:
+    """The API's ``detail`` of an error answer, in words (the body's text if it is not JSON)."""
+    try:
+        return str(response.json().get("detail", response.text))
+    except (ValueError, AttributeError):
+        return response.text or response.reason_phrase

@@ -44,7 +44,8 @@ def safe_state(app: Any, reason: str) -> dict:
             out["cancelled_job_id"], out["cancelled_queued_job_ids"] = cancel_bench_jobs(jobs, reason, running)
         out["output_v"] = stop["output_v"]
         out["zero_after_request_ms"] = zero_after_request_ms(stop)
-    log.warning("%s: outputs at 0 V, running job %s cancelled", reason, out["cancelled_job_id"])
+    log.warning("%s: outputs at 0 V, %s", reason, f"running job {out['cancelled_job_id']} cancelled"
+                if out["cancelled_job_id"] else "no job was running")
     return out
 
 

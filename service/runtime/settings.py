@@ -63,7 +63,8 @@ class Settings:
         if self.engine not in ("process", "inline"):
             raise ValueError(f"engine must be 'process' or 'inline', not {self.engine!r}")
         if not 0 <= self.stop_port <= 65535:
-            raise ValueError(f"stop_port must lie in 0-65535 (0: any free port), not {self.stop_port!r}")
+            raise ValueError(f"the stop port (--stop-port, EVCBENCH_STOP_PORT) must lie in 0-65535 (0: any free "
+                             f"port), not {self.stop_port!r}")
         if not self.bench_id:
             object.__setattr__(self, "bench_id", bench_id_for(self.bench))
         if not BENCH_ID_PATTERN.match(self.bench_id):
