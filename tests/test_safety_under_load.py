@@ -19,6 +19,9 @@ def test_stop_lands_and_sweep_survives_under_load():
         assert out[phase]["zero_ms"]["n"] >= 3
         # every stop reports a 0 V write that came after the request was sent
         assert 0.0 <= out[phase]["zero_ms"]["max"] < float("inf")
+    # the client's stop took the engine's port every time (no fallback), the route stayed the route
+    assert out["stop_idle"]["doors"] == out["stop_under_load"]["doors"] == ["stop port"]
+    assert out["stop_under_load_service_route"]["doors"] == ["service route"]
     sweep = out["sweep_under_load"]
     assert sweep["state"] == "succeeded", sweep["error"]
     # never tripped by others' requests; the real-time overruns are the benchmark's figure (a shared

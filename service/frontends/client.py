@@ -67,11 +67,12 @@ class Client:
             http.headers["Authorization"] = f"Bearer {token}"
         self.http = http
         self._stop_url: str | None | object = _NOT_LOOKED_UP
-        self._stop_http = httpx.Client(timeout=STOP_PORT_TIMEOUT)     # the stop port's own connection
+        self._stop_http: httpx.Client | None = None      # the stop port's own client, made by prepare_stop
 
     def close(self) -> None:
         self.http.close()
-        self._stop_http.close()
+        if self._stop_http is not None:
+            self._stop_http.close()
 
     def __enter__(self) -> "Client":
         return self
@@ -121,6 +122,8 @@ class Client:
             found = None if host in ("", "testserver") else self._stop_port_lookup()
             self._stop_url = None if found is None else str(self.http.base_url.copy_with(
                 port=found["stop_port"], path="/api/bench/stop", params={"bench_id": found["bench_id"]}))
+            if self._stop_url is not None:    # made here, not at the press: a client costs tens of ms to make
+                self._stop_http = httpx.Client(timeout=STOP_PORT_TIMEOUT)
         return self._stop_url
 
     def _stop_port_lookup(self) -> dict | None:

@@ -28,9 +28,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from typing import Callable
+
 import httpx
 import numpy as np
 
+from service.frontends.client import Client
 from service.runtime.stop_port import STOP_PATH
 from service.security.auth import read_bootstrap_token
 from service.perf.service_load import spawn_service
@@ -88,21 +91,21 @@ def _stop_load(procs: list[subprocess.Popen]) -> dict:
     return counts
 
 
-def _press(client: httpx.Client, rng: random.Random, stop_url: str) -> dict:
-    """Start a long sweep, press the stop (``stop_url``: the engine's stop port or the service's
-    route) at a random moment of it, return the figures."""
+def _press(client: httpx.Client, rng: random.Random, press: Callable[[], dict]) -> dict:
+    """Start a long sweep, press the stop (``press``: through one door) at a random moment of it,
+    return the figures."""
     job = client.post("/api/sweeps", json=LONG_SWEEP).json()
     _wait(client, job["job_id"], ("running",))
     time.sleep(0.3 + 1.5 * rng.random())
     t_send = time.monotonic()
-    answer = client.post(stop_url).json()
+    answer = press()
     t_answer = time.monotonic()
     done = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
     zero = answer.get("zero_monotonic_s")
     return {"answer_ms": (t_answer - t_send) * 1e3,
             "zero_ms": (zero - t_send) * 1e3 if zero is not None else float("inf"),
             "engine_ms": float("inf") if answer.get("zero_after_request_ms") is None else answer["zero_after_request_ms"],
-            "output_v_max": max(abs(v) for v in answer["output_v"].values()),
+            "output_v_max": max(abs(v) for v in answer["output_v"].values()), "door": answer.get("door"),
             "job_state": done["state"], "cancelled": answer["cancelled_job_id"] == job["job_id"]}
 
 
@@ -116,6 +119,7 @@ def _summary(presses: list[dict]) -> dict:
     landed = [p["output_v_max"] < 0.05 and p["cancelled"] and p["job_state"] == "cancelled" for p in presses]
     return {"zero_ms": _stats([p["zero_ms"] for p in presses]), "answer_ms": _stats([p["answer_ms"] for p in presses]),
             "engine_zero_ms": _stats([p["engine_ms"] for p in presses]),
+            "doors": sorted({p["door"] for p in presses}),
             "every_stop_landed": all(landed), "not_landed": [p for p, ok in zip(presses, landed) if not ok]}
 
 
@@ -136,22 +140,25 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
         try:
             token = read_bootstrap_token(tmp / "data")
             headers = {"Authorization": f"Bearer {token}"}
-            with httpx.Client(base_url=url, headers=headers, timeout=600) as client:
+            with httpx.Client(base_url=url, headers=headers, timeout=600) as client, \
+                    Client(url, token=token, data_dir=tmp / "data") as user:
                 engine = client.get("/api/bench").json()["engine"]
-                doors = {"stop_port": str(httpx.URL(url).copy_with(port=engine["stop_port"], path=STOP_PATH)),
-                         "service_route": STOP_PATH}
+                # the stop port as the CLI and scripts press it (Client.stop_bench: the port it reads
+                # from <data dir>/stop_port.json, ?bench_id=, the fallback), and the service's route
+                assert user.prepare_stop() is not None, "the service announced no stop port"
+                doors = {"stop_port": user.stop_bench, "service_route": lambda: client.post(STOP_PATH).json()}
                 seeded = client.post("/api/sweeps", json=SWEEP).json()
                 dataset_id = _wait(client, seeded["job_id"], ("succeeded",))["result"]["dataset_id"]
-                idle = {door: [_press(client, rng, stop_url) for _ in range(max(3, presses // 3))]
-                        for door, stop_url in doors.items()}
+                idle = {door: [_press(client, rng, press) for _ in range(max(3, presses // 3))]
+                        for door, press in doors.items()}
                 csv_path = write_import_csv(tmp / "load.csv", import_mb)
                 load = _start_load(url, token, dataset_id, csv_path)
                 try:
                     time.sleep(2.0)
                     loaded = {door: [] for door in doors}
                     for _ in range(presses):           # the two doors alternate: the same load for both
-                        for door, stop_url in doors.items():
-                            loaded[door].append(_press(client, rng, stop_url))
+                        for door, press in doors.items():
+                            loaded[door].append(_press(client, rng, press))
                     before = client.get("/api/bench").json()
                     job = client.post("/api/sweeps", json=SWEEP).json()
                     swept = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
