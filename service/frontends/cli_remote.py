@@ -225,14 +225,16 @@ def _stop(api: Client, args) -> int:
     out = api.stop_bench()
     volts = ", ".join(f"{axis} {0.0 if abs(v) < 0.005 else v:.2f} V" for axis, v in out["output_v"].items())
     zero = out.get("zero_after_request_ms")
-    queued = out["cancelled_queued_job_ids"]
-    running = out["cancelled_job_id"]
+    queued, running = out["cancelled_queued_job_ids"], out["cancelled_job_id"]
+    by_engine = queued is None              # the stop port: the service cancels the jobs after it
+    if by_engine:
+        queued_text = "the service cancels any (the bench runs none until it has)"
+    else:
+        queued_text = ", ".join(queued) + " cancelled" if queued else "none"
+    running_text = "none" if not running else f"{running} {'(the service cancels it)' if by_engine else 'cancelled'}"
     lines = [f"stopped on the {out.get('door', 'service route')}"
              + (f", 0 V {zero:.1f} ms after the stop reached the bench" if zero is not None else ""),
-             f"outputs: {volts}",
-             f"running job: {running + ' (the service cancels it)' if running and queued is None else running + ' cancelled' if running else 'none'}",
-             "queued bench jobs: " + ("the service cancels any (the bench runs none until it has)" if queued is None
-                                      else ", ".join(queued) + " cancelled" if queued else "none")]
+             f"outputs: {volts}", f"running job: {running_text}", f"queued bench jobs: {queued_text}"]
     if out.get("stop_port_refusal"):
         lines.append(f"(the stop port was not used: {out['stop_port_refusal']})")
     return _emit(args, out, "\n".join(lines))

@@ -19,8 +19,7 @@ import numpy as np
 from service.reports.rest_path import ROWS, UseCases, first_models, identify_for, run_row
 from service.reports.tracking import CASES, PAPER_AXES, ROOT
 from service.runtime.settings import Settings
-
-SAMPLE_RATE_HZ = 20_000.0
+from service.science.control.session import SAMPLE_RATE_HZ
 #: steady periods averaged around the middle of the run
 PERIODS = 10
 #: harmonics shown (0 = the mean)
@@ -46,7 +45,7 @@ def run(seed: int, case: str, cycles: int, data_dir: Path) -> list[dict]:
     try:
         body = {**CASES[case], "cycles": cycles}
         models = identify_for(uc.post, body, first_models(uc.post))
-        period = round(SAMPLE_RATE_HZ / body.get("frequency_hz", 100.0))
+        period = round(SAMPLE_RATE_HZ / body["frequency_hz"])
         rows = []
         for name in SPECTRUM_ROWS:
             result = run_row(uc.post, body, models, ROWS[name])
@@ -96,7 +95,7 @@ def write(seed: int, cycles: int, path: Path) -> None:
     for case in ("case1", "case2"):
         with tempfile.TemporaryDirectory(prefix="evc-spectrum-") as tmp:
             rows = run(seed, case, cycles, Path(tmp))
-        lines += [f"## {case}", "", render(rows), "", *[f"- {d}" for d in dominant(rows, 100.0)], ""]
+        lines += [f"## {case}", "", render(rows), "", *[f"- {d}" for d in dominant(rows, CASES[case]["frequency_hz"])], ""]
     lines += ["## What it says", "",
               "- **The error is periodic, not noise**: what is not locked to the period is the gauge's 3 nm. "
               "That is why ILC, which learns each harmonic, takes the same runs to 0.2–0.3 % (docs/tracking.md).",

@@ -74,14 +74,13 @@ class StopHold:
             self._open.add(self._count)
             return self._count
 
-    def release(self, seq: int | None = None) -> int:
-        """Close press ``seq`` (None: every one); returns how many stay open."""
+    def release(self, seq: int | None = None) -> None:
+        """Close press ``seq`` (None: every one)."""
         with self._lock:
             if seq is None:
                 self._open.clear()
             else:
                 self._open.discard(seq)
-            return len(self._open)
 
     @property
     def active(self) -> bool:
@@ -183,7 +182,8 @@ class _Outbox:
         self._queue.put(message)
 
     def unsent_for_s(self) -> float:
-        """How long the oldest message still waiting to be sent has waited (s; 0 when none waits)."""
+        """While messages wait: how long since the reader last took one (or since the first of them
+        was put, if later), in s; 0 when none waits. A reader that takes nothing makes it grow."""
         with self._count_lock:
             return time.monotonic() - self._waiting_since if self._unsent else 0.0
 
@@ -201,7 +201,7 @@ class _Outbox:
                 return
             with self._count_lock:
                 self._unsent -= 1
-                self._waiting_since = time.monotonic()    # the next one has waited from now at most
+                self._waiting_since = time.monotonic()    # the reader took one just now
 
 
 def _exit_on_signal(sig: int, _frame) -> None:
