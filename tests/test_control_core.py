@@ -18,7 +18,7 @@ DT = 1 / 20_000
 
 
 def _pid(kp=50.0, ki=300.0, kd=0.0, tf=1e-4):
-    return np.array([kp, ki, kd, tf, 1.0]), np.zeros(CK.NPS)
+    return np.array([kp, ki, kd, tf, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]), np.zeros(CK.NPS)
 
 
 def test_pid_integrator_does_not_wind_up_while_clamped_and_recovers_fast():

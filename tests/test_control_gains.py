@@ -144,5 +144,6 @@ def test_tuned_is_what_auto_gives_on_the_default_bench():
             t = tune(plant)
             for got, want in zip((t.kp, t.ki, t.kd, t.tf_s), TUNED_PID[ax]):
                 assert got == pytest.approx(want, rel=0.05, abs=1e-6), (ax, t, TUNED_PID[ax])
+            assert t.damping is None
     finally:
         bench.close()

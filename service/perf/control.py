@@ -23,6 +23,7 @@ from numba import njit
 
 from service.science.control import kernels as CK
 from service.science.control.ilc import HarmonicILC
+from service.science.control.loop import PIDGains
 
 SAMPLE_RATE_HZ = 20_000.0
 
@@ -40,7 +41,7 @@ def controller_cost_us(n: int = 400_000, period: int = 200, harmonics: int = 20)
     t = np.arange(n) / period
     ref = np.stack([3.5 + 2.5 * np.sin(2 * np.pi * t), 6 + 5 * np.cos(2 * np.pi * t)], axis=1)
     uff = ref * 10.0
-    pid_p = np.array([[1.0, 300.0, 0.01, 2e-4, 1.0]] * 2)
+    pid_p = np.array([PIDGains(1.0, 300.0, 0.01, 2e-4).row(SAMPLE_RATE_HZ)] * 2)
     lim = np.array([[0.0, 120.0, 5.0, 20.0]] * 2)
     trip = np.array([[1e9, 1e9, 1e9]] * 2)
 

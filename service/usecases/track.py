@@ -14,7 +14,7 @@ from service.science.control.ilc_stability import learning_refusal, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, PIDGains, StopRequested, TrackRecord
 from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
                                              track_plan)
-from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid
+from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.errors import FieldError
 from service.store import NotFoundError, Store
@@ -46,8 +46,10 @@ def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz:
     if spec is not None:
         if isinstance(spec, dict):
             spec = {ax: (spec[f"kp_{ax}"], spec[f"ki_{ax}"], spec[f"kd_{ax}"], spec["tf_s"]) for ax in ("y", "z")}
+        damped = frozenset(ax for ax, model in models.items() if feedforward_inverts_mode(model))
         gains, report, warnings = choose_pid(spec, plants, {"tuned": TUNED_PID, "paper": PAPER_PID},
-                                             frequency_hz=frequency_hz, force=controller.get("force", False))
+                                             frequency_hz=frequency_hz, force=controller.get("force", False),
+                                             damped_axes=damped)
         report["warnings"] = warnings
         pid = {ax: PIDGains(*g) for ax, g in gains.items()}
     ilc_report = None

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from service.science.control.stability import AxisPlant, pid_response, plant_response
+from service.science.control.stability import AxisPlant, controller_response, plant_response
 
 #: incremental gain of a small minor loop as a share of the full swing's (≈ 0.03 / 0.08 µm/V, issue 19)
 MINOR_LOOP_SHARE = 0.35
@@ -51,12 +51,12 @@ LIMIT = 1.0
 
 def closed_loop_um_per_v(plant: AxisPlant, pid: tuple | None, f_hz: np.ndarray) -> np.ndarray:
     """T(j2πf) (µm/V) from the feedforward input to the gauge: P/(1 + C·P) with ``pid`` (kp V/µm,
-    ki V/(µm·s), kd V·s/µm, tf_s s), or P without one. DC (f = 0) is taken at 1e-3 Hz."""
+    ki V/(µm·s), kd V·s/µm, tf_s s[, mode damping section]), or P without one. DC (f = 0) is taken at 1e-3 Hz."""
     f = np.maximum(np.asarray(f_hz, dtype=float), 1e-3)
     p = plant_response(plant, f)
     if pid is None:
         return p
-    return p / (1.0 + pid_response(*pid, f) * p)
+    return p / (1.0 + controller_response(pid, f) * p)
 
 
 def gain_ratios(plant: AxisPlant, pid: tuple | None, frequency_hz: float, harmonics: int,

@@ -2,8 +2,9 @@
 command clamping, divergence watch, and the point-by-point runner that loops plant + controller.
 
 Arrays per axis (row 0 = Y, row 1 = Z):
-  pid_p[a] = (kp V/µm, ki V/(µm·s), kd V·s/µm, tf_s derivative filter, on 0/1)
-  pid_s[a] = (integral V, derivative V, previous error µm)
+  pid_p[a] = (kp V/µm, ki V/(µm·s), kd V·s/µm, tf_s derivative filter, on 0/1,
+              mode damping section b0, b1, b2, a1, a2: a biquad on the error, V/µm; all 0 = none)
+  pid_s[a] = (integral V, derivative V, previous error µm, the damping section's two states V)
   lim[a]   = (v_min V, v_max V, max step V/sample, amplifier gain V/V)
   trip[a]  = (error limit µm, samples over the limit to trip, sensor range µm)
 """
@@ -12,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-KP, KI, KD, TF, ON, NPID = range(6)
-S_INT, S_DER, S_EPREV, NPS = range(4)
+KP, KI, KD, TF, ON, DB0, DB1, DB2, DA1, DA2, NPID = range(11)
+S_INT, S_DER, S_EPREV, S_D1, S_D2, NPS = range(6)
 L_VMIN, L_VMAX, L_STEP, L_GAIN, NL = range(5)
 T_ERR, T_N, T_RANGE, NT = range(4)
 OK, TRIP_ERROR, TRIP_RANGE, STOPPED = 0, 1, 2, 3
@@ -30,20 +31,25 @@ def clamp_command(u, u_prev, vmin, vmax, step):
 
 @njit(cache=True)
 def pid_step(p, s, e_um, u_ff, u_prev, vmin, vmax, step, dt):
-    """One PID sample on error ``e_um``; returns the clamped total command (V) = u_ff + PID.
+    """One PID sample on error ``e_um``; returns the clamped total command (V) = u_ff + PID + the
+    mode damping section's output.
 
     Derivative: backward-Euler filtered, D = (tf·D + kd·Δe)/(tf + dt). Anti-windup: conditional
     integration (the integrator does not move while the output is clamped and the error pushes
-    further into the clamp), and the integral is bounded by the voltage span."""
+    further into the clamp), and the integral is bounded by the voltage span. Damping: a biquad
+    (transposed direct form II) on the error (service.science.control.damping)."""
     if p[ON] < 0.5:
         return clamp_command(u_ff, u_prev, vmin, vmax, step)
     d = (p[TF] * s[S_DER] + p[KD] * (e_um - s[S_EPREV])) / (p[TF] + dt)
     s[S_DER] = d
     s[S_EPREV] = e_um
+    damp = p[DB0] * e_um + s[S_D1]
+    s[S_D1] = p[DB1] * e_um - p[DA1] * damp + s[S_D2]
+    s[S_D2] = p[DB2] * e_um - p[DA2] * damp
     i_new = s[S_INT] + p[KI] * e_um * dt
     span = vmax - vmin
     i_new = min(max(i_new, -span), span)
-    raw = u_ff + p[KP] * e_um + i_new + d
+    raw = u_ff + p[KP] * e_um + i_new + d + damp
     u = clamp_command(raw, u_prev, vmin, vmax, step)
     saturated_up = raw > u + 1e-12
     saturated_dn = raw < u - 1e-12

@@ -17,6 +17,7 @@ import numpy as np
 from drivers.bench import Bench, BenchSession
 from drivers.interfaces import DriverError
 from service.science.control import kernels as CK
+from service.science.control.damping import ModeDamping
 from service.science.control.ilc import HarmonicILC
 from service.science.control.safety import stepping_hook
 from service.science.control.trajectory import Reference
@@ -37,15 +38,19 @@ class StopRequested(RuntimeError):
 
 @dataclass(frozen=True)
 class PIDGains:
-    """Paper eq. 19 gains: kp V/µm, ki V/(µm·s), kd V·s/µm; derivative filter time constant tf_s."""
+    """Paper eq. 19 gains: kp V/µm, ki V/(µm·s), kd V·s/µm; derivative filter time constant tf_s;
+    optionally a PPF section that damps the axis's flexure mode (service.science.control.damping)."""
 
     kp: float
     ki: float
     kd: float = 0.0
     tf_s: float = 1e-4
+    damping: ModeDamping | None = None
 
-    def row(self) -> list[float]:
-        return [self.kp, self.ki, self.kd, self.tf_s, 1.0]
+    def row(self, sample_rate_hz: float) -> list[float]:
+        """The compiled loop's parameter row (service.science.control.kernels: pid_p)."""
+        section = self.damping.biquad(sample_rate_hz) if self.damping is not None else (0.0,) * 5
+        return [self.kp, self.ki, self.kd, self.tf_s, 1.0, *section]
 
 
 @dataclass
@@ -84,7 +89,7 @@ class Tracker:
         self.pid_p = np.zeros((2, CK.NPID))
         for i, axis in enumerate(bench.axes):
             if pid and pid.get(axis) is not None:
-                self.pid_p[i] = pid[axis].row()
+                self.pid_p[i] = pid[axis].row(ref.sample_rate_hz)
         self.fs = ref.sample_rate_hz
         self.lim = np.array([[bench.limits[a].v_min_v, bench.limits[a].v_max_v,
                               min(bench.limits[a].slew_limit_v_per_s,

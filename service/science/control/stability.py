@@ -65,6 +65,15 @@ def pid_response(kp: float, ki: float, kd: float, tf_s: float, f_hz: np.ndarray)
     return kp + ki / s + kd * s / (1.0 + tf_s * s)
 
 
+def controller_response(gains: tuple, f_hz: np.ndarray) -> np.ndarray:
+    """C(j2πf) (V/µm) of ``gains`` = (kp, ki, kd, tf_s) or (kp, ki, kd, tf_s, damping), damping a
+    ``ModeDamping`` section (service.science.control.damping) or None: the PID plus the section, as
+    the compiled loop runs them in parallel on the error."""
+    c = pid_response(*gains[:4], f_hz)
+    damping = gains[4] if len(gains) > 4 else None
+    return c if damping is None else c + damping.response(f_hz)
+
+
 def plant_response(plant: AxisPlant, f_hz: np.ndarray) -> np.ndarray:
     """G(jω) (µm/V) of ``plant``."""
     s = 2j * np.pi * np.asarray(f_hz, dtype=float)
@@ -102,10 +111,10 @@ def margins_of(loop: np.ndarray, f_hz: np.ndarray, delay_s: float) -> LoopMargin
 
 
 def loop_margins(kp: float, ki: float, kd: float, tf_s: float, plant: AxisPlant,
-                 f_hz: np.ndarray = GRID_HZ) -> LoopMargins:
-    """Predicted ``LoopMargins`` of PID (kp V/µm, ki V/(µm·s), kd V·s/µm, derivative filter tf_s s)
-    on ``plant``."""
-    loop = pid_response(kp, ki, kd, tf_s, f_hz) * plant_response(plant, f_hz)
+                 f_hz: np.ndarray = GRID_HZ, damping=None) -> LoopMargins:
+    """Predicted ``LoopMargins`` of PID (kp V/µm, ki V/(µm·s), kd V·s/µm, derivative filter tf_s s),
+    with the mode ``damping`` section in parallel when given, on ``plant``."""
+    loop = controller_response((kp, ki, kd, tf_s, damping), f_hz) * plant_response(plant, f_hz)
     return margins_of(loop, f_hz, plant.delay_s)
 
 

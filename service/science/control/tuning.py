@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.science.control.damping import ModeDamping
 from service.science.control.safety import ControlRefused
 from service.science.control.stability import (GRID_HZ, AxisPlant, LoopMargins, loop_delay_s, loop_margins,
                                                margins_of, pid_response, plant_response)
@@ -97,19 +98,26 @@ def plant_from_model(model, resonance_hz: float, delay_s: float, sample_rate_hz:
 
 @dataclass(frozen=True)
 class Tuned:
-    """Gains (kp V/µm, ki V/(µm·s), kd V·s/µm, tf_s s) and the margins they leave on the plant."""
+    """Gains (kp V/µm, ki V/(µm·s), kd V·s/µm, tf_s s), the mode damping section run beside them
+    (None: none) and the margins they leave on the plant."""
 
     kp: float
     ki: float
     kd: float
     tf_s: float
     margins: LoopMargins
+    damping: ModeDamping | None = None
+
+    def gains(self) -> tuple:
+        """(kp, ki, kd, tf_s, damping), as ``choose_pid`` and the loop take them."""
+        return (self.kp, self.ki, self.kd, self.tf_s, self.damping)
 
 
 def _best_ki(plant: AxisPlant, targets: Targets, kp: float, kd: float, ki_grid: np.ndarray,
-             f_hz: np.ndarray, g: np.ndarray) -> float:
-    """The largest ki on ``ki_grid`` (rising) for which (kp, ki, kd) meets ``targets``; 0 if none."""
-    base = pid_response(kp, 0.0, kd, TF_S, f_hz) * g
+             f_hz: np.ndarray, g: np.ndarray, extra: np.ndarray | float = 0.0) -> float:
+    """The largest ki on ``ki_grid`` (rising) for which (kp, ki, kd) beside the response ``extra``
+    (V/µm on ``f_hz``: a damping section) meets ``targets``; 0 if none."""
+    base = (pid_response(kp, 0.0, kd, TF_S, f_hz) + extra) * g
     integ = g / (2j * np.pi * f_hz)
     best = 0.0
     for ki in ki_grid:
@@ -121,39 +129,99 @@ def _best_ki(plant: AxisPlant, targets: Targets, kp: float, kd: float, ki_grid: 
 
 #: the paper's trajectory frequency (Hz): "tuned" and a tuning without a stated frequency aim there
 DESIGN_FREQUENCY_HZ = 100.0
-#: harmonics of the trajectory frequency whose tracking error the tuning minimises (an ellipse is one
-#: sine per axis: its error is mostly at the fundamental)
-DESIGN_HARMONICS = 1
+#: the tuning weighs the harmonics of the trajectory frequency up to this multiple of the mode's
+#: frequency (the feedforward's error there is what the mode multiplies)
+DESIGN_BAND_OVER_MODE = 1.25
 #: the search meets the targets by this much more (phase margin deg, gain margin dB, delay margin
 #: factor) on its coarser grid, so that the answer meets them on the fine one
 SEARCH_SLACK = (1.0, 0.3, 1.05)
+#: PPF sections tried on each axis's mode (service.science.control.damping): the loop's share k·g
+#: at DC (PPF alone is stable below 1), the section's damping ratio and its frequency over the mode's
+#: (Fleming and Leang 2014, ch. 8: a section a little above the mode, damped 0.2–0.5)
+DAMPING_SHARES = (0.1, 0.2, 0.3)
+DAMPING_RATIOS = (0.2, 0.3, 0.5)
+DAMPING_DETUNES = (1.1, 1.2, 1.4)
+#: plant gains the expected error is averaged over, as shares of the largest slope: the tracking
+#: runs minor loops whose incremental gain is down to about a third of it (ilc_stability)
+GAIN_BAND = (0.35, 0.6, 1.0)
 
 
-def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = DESIGN_FREQUENCY_HZ) -> Tuned:
-    """The PID meeting ``targets`` on ``plant`` that tracks a trajectory at ``frequency_hz`` best: the
-    lowest worst-case sensitivity |1/(1 + L)| over its first DESIGN_HARMONICS harmonics, with the
-    largest ki (integral action against creep and drift) that kp, kd leave. Coarse grid over kp and kd
-    (ki by a rising scan), then a finer grid around the best. ValueError when no gain set meets them."""
+def design_harmonics(plant: AxisPlant, frequency_hz: float) -> np.ndarray:
+    """The harmonics (Hz) of ``frequency_hz`` the tuning weighs: up to DESIGN_BAND_OVER_MODE × the
+    plant's mode, at least the fundamental."""
+    top = max(1, int(DESIGN_BAND_OVER_MODE * plant.resonance_hz // frequency_hz))
+    return frequency_hz * np.arange(1, top + 1)
+
+
+def expected_error(plant: AxisPlant, controller: np.ndarray, band_hz: np.ndarray) -> float:
+    """The tracking error a controller leaves, relative (1 = the feedforward's own with no
+    feedback): the mean over the plant gains of GAIN_BAND and the harmonics ``band_hz`` of
+    |S·M/k|², S = 1/(1 + C·G) the sensitivity, M the mode's gain (the feedforward model's error passes
+    through it) and 1/k the fall of that error with the harmonic's order k (docs/tracking_error_spectrum.md).
+    ``controller`` is C on ``band_hz`` (V/µm)."""
+    k = np.arange(1, len(band_hz) + 1)
+    cost = 0.0
+    for share in GAIN_BAND:
+        g = plant_response(AxisPlant(share * plant.gain_um_per_v, plant.resonance_hz, plant.damping_ratio,
+                                     plant.delay_s), band_hz)
+        mode = g / (share * plant.gain_um_per_v)
+        cost += float(np.mean(np.abs(mode / (k * (1.0 + controller * g))) ** 2))
+    open_loop = float(np.mean(np.abs(plant_response(plant, band_hz) / (plant.gain_um_per_v * k)) ** 2))
+    return float(np.sqrt(cost / (len(GAIN_BAND) * open_loop)))
+
+
+def damping_candidates(plant: AxisPlant) -> list[ModeDamping | None]:
+    """None and every PPF section of the grid above, on ``plant``'s mode."""
+    return [None] + [ModeDamping(share / plant.gain_um_per_v, detune * plant.resonance_hz, ratio)
+                     for share in DAMPING_SHARES for ratio in DAMPING_RATIOS for detune in DAMPING_DETUNES]
+
+
+def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = DESIGN_FREQUENCY_HZ,
+         damp: bool = False) -> Tuned:
+    """The PID meeting ``targets`` on ``plant`` that tracks a trajectory at ``frequency_hz`` best, with
+    the largest ki (integral action against creep and drift) that kp, kd leave.
+
+    Without ``damp``: best = the lowest sensitivity |1/(1 + L)| at the fundamental. With ``damp``: a
+    PPF section on the mode beside the PID, and best = the least ``expected_error`` over the
+    harmonics up to the mode; first the section (each candidate beside the largest integral gain it
+    allows), then the PID beside the best one. The PID: a coarse grid over kp and kd (ki by a rising
+    scan), then a finer grid around the best. ValueError when no gain set meets the targets."""
     f_hz = GRID_HZ[::3]            # the search reads a coarser grid; the answer is checked on the fine one
     g = plant_response(plant, f_hz)
     strict = Targets(targets.phase_margin_deg + SEARCH_SLACK[0], targets.gain_margin_db + SEARCH_SLACK[1],
                      targets.delay_margin_factor * SEARCH_SLACK[2])
-    band_hz = frequency_hz * np.arange(1, DESIGN_HARMONICS + 1)
-    g_band = plant_response(plant, band_hz)
+    band_hz = design_harmonics(plant, frequency_hz) if damp else np.array([float(frequency_hz)])
+
+    def cost_of(c_band: np.ndarray) -> float:
+        if damp:
+            return expected_error(plant, c_band, band_hz)
+        return float(np.max(np.abs(1.0 / (1.0 + c_band * plant_response(plant, band_hz)))))
+
     scale = 1.0 / plant.gain_um_per_v            # gains in units of the plant's inverse gain
-    best, best_s = (0.0, 0.0, 0.0), np.inf
+    ki_grid = scale * np.logspace(0, 5, 41)
+    damping, best_cost = None, np.inf
+    for candidate in (damping_candidates(plant) if damp else [None]):
+        extra = 0.0 if candidate is None else candidate.response(f_hz)
+        ki = _best_ki(plant, strict, 0.0, 0.0, ki_grid, f_hz, g, extra)
+        if ki == 0.0:
+            continue
+        c_band = ki / (2j * np.pi * band_hz) + (0.0 if candidate is None else candidate.response(band_hz))
+        cost = cost_of(c_band)
+        if cost < best_cost - 1e-9:
+            damping, best_cost = candidate, cost
+    extra, extra_band = ((0.0, 0.0) if damping is None else (damping.response(f_hz), damping.response(band_hz)))
+    best, best_cost = (0.0, 0.0, 0.0), np.inf
     kp_grid = scale * np.logspace(-3, 1, 17)
     kd_grid = scale * np.concatenate(([0.0], np.logspace(-6, -3, 13)))
-    ki_grid = scale * np.logspace(0, 5, 41)
     for _ in range(2):
         for kp in kp_grid:
             for kd in kd_grid:
-                ki = _best_ki(plant, strict, kp, kd, ki_grid, f_hz, g)
+                ki = _best_ki(plant, strict, kp, kd, ki_grid, f_hz, g, extra)
                 if ki == 0.0:
                     continue
-                worst_s = float(np.max(np.abs(1.0 / (1.0 + pid_response(kp, ki, kd, TF_S, band_hz) * g_band))))
-                if worst_s < best_s - 1e-9:
-                    best, best_s = (float(kp), ki, float(kd)), worst_s
+                cost = cost_of(pid_response(kp, ki, kd, TF_S, band_hz) + extra_band)
+                if cost < best_cost - 1e-9:
+                    best, best_cost = (float(kp), ki, float(kd)), cost
         kp0, ki0, kd0 = best
         if ki0 == 0.0:
             raise ValueError("no PID meets the targets on this plant: " + ", ".join(f"{k} {v}" for k, v in
@@ -162,20 +230,29 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
         kd_grid = np.concatenate(([0.0], kd0 * np.logspace(-0.25, 0.25, 9))) if kd0 > 0 else kd_grid[:4]
         ki_grid = ki0 * np.logspace(-0.3, 0.3, 41)
     kp, ki, kd = best
-    margins = loop_margins(kp, ki, kd, TF_S, plant)
+    margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
     for _ in range(40):                 # the fine grid may see a sliver the coarse one did not: back off
         if not targets.failures(margins):
-            return Tuned(kp, ki, kd, TF_S, margins)
+            return Tuned(kp, ki, kd, TF_S, margins, damping)
         kp, ki, kd = 0.95 * kp, 0.95 * ki, 0.95 * kd
-        margins = loop_margins(kp, ki, kd, TF_S, plant)
+        margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
     raise ValueError(f"the tuned gains miss the targets on the fine grid: {', '.join(targets.failures(margins))}")
 
 
 #: "auto" on the default bench (seed 0), plant from the static PI identified on its 1 Hz 0–120 V loop
-#: (service.science.control.feedforward.identify); tests/test_control_gains.py recomputes it
+#: (service.science.control.feedforward.identify; no flexure dynamics, so no damping section);
+#: tests/test_control_gains.py recomputes it
 TUNED_PID = {"y": (0.6095, 252.6, 0.0, TF_S), "z": (0.4188, 121.5, 3.627e-4, TF_S)}
 #: PID presets a request may name besides "auto" and explicit gains
 PRESETS = ("auto", "tuned", "paper")
+
+
+def feedforward_inverts_mode(model) -> bool:
+    """Whether ``model`` carries the flexure's dynamics, so that its inverse already shapes the drive
+    around the mode. Its error then sits at the harmonic the mode multiplies, which a PPF section
+    damps; a model without them leaves its error at the fundamental (the dynamics it lacks), where
+    PPF's low-frequency positive feedback would add to it (docs/tracking_error_spectrum.md)."""
+    return identified_mode(model) is not None
 
 
 def bench_plants(bench, models: dict, sample_rate_hz: float) -> dict:
@@ -188,13 +265,16 @@ def bench_plants(bench, models: dict, sample_rate_hz: float) -> dict:
 
 
 def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), force: bool = False,
-               frequency_hz: float = DESIGN_FREQUENCY_HZ, field: str = "controller.pid") -> tuple[dict, dict, list[str]]:
+               frequency_hz: float = DESIGN_FREQUENCY_HZ, field: str = "controller.pid",
+               damped_axes: frozenset = frozenset()) -> tuple[dict, dict, list[str]]:
     """The gains per axis a request's ``spec`` names ("auto", a key of ``presets`` (axis → PIDGains-like),
     or axis → (kp, ki, kd, tf_s)), with their predicted margins on ``plants`` (axis → AxisPlant, or
-    None where no identified model gives the plant); "auto" tunes for a trajectory at ``frequency_hz``.
+    None where no identified model gives the plant); "auto" tunes for a trajectory at ``frequency_hz``,
+    with a PPF section on the mode of the ``damped_axes`` (``tune(damp=True)``: for axes whose
+    feedforward inverts the flexure's dynamics, ``feedforward_inverts_mode``).
 
-    Returns (axis → (kp, ki, kd, tf_s), report, warnings); report = {"pid": spec name, "targets",
-    "axes": {axis: {gains, "plant", "margins", "failures"}}}. Raises ControlRefused naming ``field``:
+    Returns (axis → (kp, ki, kd, tf_s, damping section or None), report, warnings); report = {"pid":
+    spec name, "targets", "axes": {axis: {gains, "damping", "plant", "margins", "failures"}}}. Raises ControlRefused naming ``field``:
     "auto" without a plant; "paper" unless ``force`` (its predicted margins in the reason); any gain
     set predicted unstable unless ``force`` (the failing margin in the reason). A stable set that
     misses a target only warns."""
@@ -206,23 +286,26 @@ def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), 
                 raise ControlRefused(field, f'"auto" tunes on the plant identified on the bench: give '
                                      f"controller.feedforward_model_{axis} (its largest slope is the {axis.upper()} gain)")
             try:
-                tuned = tune(plant, targets, frequency_hz)
+                tuned = tune(plant, targets, frequency_hz, damp=axis in damped_axes)
             except ValueError as exc:
                 raise ControlRefused(field, f"{axis.upper()}: {exc}") from None
-            g = (tuned.kp, tuned.ki, tuned.kd, tuned.tf_s)
+            g = tuned.gains()
         else:
             p = presets[name][axis] if name in presets else spec[axis]
-            g = (float(p[0]), float(p[1]), float(p[2]), float(p[3])) if isinstance(p, tuple) else (
-                p.kp, p.ki, p.kd, p.tf_s)
+            g = ((float(p[0]), float(p[1]), float(p[2]), float(p[3]), p[4] if len(p) > 4 else None)
+                 if isinstance(p, tuple) else (p.kp, p.ki, p.kd, p.tf_s, p.damping))
         gains[axis] = g
-        entry = {"kp": g[0], "ki": g[1], "kd": g[2], "tf_s": g[3], "plant": None, "margins": None, "failures": []}
+        entry = {"kp": g[0], "ki": g[1], "kd": g[2], "tf_s": g[3], "damping": None if g[4] is None else g[4].as_dict(),
+                 "plant": None, "margins": None, "failures": []}
         if plant is None:
             warnings.append(f"{axis.upper()} PID margins not predicted: no feedforward model gives the plant")
         else:
-            margins = loop_margins(*g, plant)
+            margins = loop_margins(*g[:4], plant, damping=g[4])
             fails = targets.failures(margins)
             entry.update(plant=plant.as_dict(), margins=margins.as_dict(), failures=fails)
-            said = (f"{axis.upper()} kp {g[0]:.4g} V/µm, ki {g[1]:.4g} V/(µm·s), kd {g[2]:.4g} V·s/µm: "
+            section = "" if g[4] is None else (f", mode damping {g[4].gain_v_per_um:.3g} V/µm at "
+                                               f"{g[4].frequency_hz:.0f} Hz ζ {g[4].damping_ratio:g}")
+            said = (f"{axis.upper()} kp {g[0]:.4g} V/µm, ki {g[1]:.4g} V/(µm·s), kd {g[2]:.4g} V·s/µm{section}: "
                     f"{'stable' if margins.stable else 'UNSTABLE'}, phase margin {margins.phase_margin_deg:.1f}°, gain "
                     f"margin {margins.gain_margin_db:.1f} dB, delay margin {margins.delay_margin_s * 1e6:.0f} µs "
                     f"(on {plant.gain_um_per_v:.3g} µm/V, {plant.resonance_hz:.1f} Hz ζ {plant.damping_ratio:.3g}, "
