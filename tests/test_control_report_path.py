@@ -64,9 +64,9 @@ def test_learning_predicted_to_diverge_is_refused_naming_the_field_and_factor(ca
 
 
 def test_auto_pid_with_ilc_converges_on_case2(case2):
-    """Measured (seed 1, 40 periods): error per period 188 → 3.4 nm RMS (55×, not monotone: 38 nm at
-    period 5, 63–68 at 6–7), 0.29 % relative, 4.1 nm RMS over the last 5 periods (2× noise: 5.9 nm).
-    Predicted factors Y 0.95, Z 0.94."""
+    """Measured (seed 1, 40 periods, the damped loop of "auto"): error per period 74 → 3.1–4.1 nm RMS over
+    the last 5 (about 20×, falling steadily to period 14), 0.32 % relative, 3.7 nm RMS over the last 5
+    periods (2× noise: 5.9 nm). Predicted factors Y 0.95, Z 0.95."""
     post, ff = case2
     job = post("/api/trajectories", {**CASE2, "cycles": 40, "controller": {**_ff(ff), "pid": "auto", "ilc": True}})
     assert job["state"] == "succeeded", job
@@ -74,7 +74,7 @@ def test_auto_pid_with_ilc_converges_on_case2(case2):
     assert res["tripped"] is None
     assert all(p["factor"] < 1 for p in res["ilc"]["axes"].values())
     err = res["error_per_period_um"]
-    assert len(err) == 40 and min(err[-5:]) < err[0] / 10        # falls by more than 10× (measured 55×)
+    assert len(err) == 40 and min(err[-5:]) < err[0] / 10        # falls by more than 10× (measured 22×)
     assert res["relative_error_pct"] <= 0.5
 
 
@@ -93,7 +93,7 @@ def _mode_harmonics_nm(client, result: dict) -> dict[str, float]:
 def test_auto_pid_damps_the_flexure_modes_on_case2(case2):
     """The composite feedforward carries the flexure dynamics, so "auto" puts a PPF section on each
     axis's mode (service.science.control.damping). Measured (seed 1, 20 periods): relative error
-    FF only 4.6 % → FF + PID (auto) 2.9 %; the error at Y's 5×f 70 → 20 nm, at Z's 3×f 143 → 61 nm."""
+    FF only 5.0 % → FF + PID (auto) 2.4 %; the error at Y's 5×f 52 → 21 nm, at Z's 3×f 166 → 74 nm."""
     post, ff = case2
     body = {**CASE2, "cycles": 20}
     ff_only = post("/api/trajectories", {**body, "controller": _ff(ff)})
@@ -105,8 +105,10 @@ def test_auto_pid_damps_the_flexure_modes_on_case2(case2):
         assert entry["damping"] is not None and entry["failures"] == [], entry
         assert entry["damping"]["frequency_hz"] >= entry["plant"]["resonance_hz"]
     before, after = _mode_harmonics_nm(post.client, ff_only["result"]), _mode_harmonics_nm(post.client, res)
-    assert after["y"] < before["y"] / 2.5 and after["z"] < before["z"] / 1.8, (before, after)
-    assert res["relative_error_pct"] < 0.75 * ff_only["result"]["relative_error_pct"]
+    # predicted |S| at the mode's harmonic over the gain band: below 0.6 (tests/test_control_damping.py)
+    assert after["y"] < before["y"] / 1.6 and after["z"] < before["z"] / 1.6, (before, after)
+    assert res["relative_error_pct"] <= 3.0                                   # issue 19's target
+    assert res["relative_error_pct"] < 0.6 * ff_only["result"]["relative_error_pct"]
 
 
 def test_a_report_row_through_the_api_has_the_report_figures(tmp_path):

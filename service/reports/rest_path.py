@@ -26,8 +26,12 @@ from service.usecases.track import check_trajectory, run_trajectory, span_sweeps
 
 #: the identification sweep a user starts with: the paper's four frequencies, 0–120 V, one axis at a time
 FIRST_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5, "together": False}
-#: the composite model identified per axis (discovery's hysteresis + delay + flexure dynamics)
-EFFECTS = ["hysteresis", "delay", "dynamics"]
+#: the composite model identified per axis: what discovery finds on the default bench (docs/discovery.md:
+#: asymmetry, rate dependence, creep, flexure dynamics, cross-coupling) that a per-axis feedforward can
+#: invert, with the loop's delay. Rate dependence is left out: its segment-switched terms make the
+#: model's output jump, and its inverse is refused (422 naming the model); cross-coupling needs the
+#: other axis's drive.
+EFFECTS = ["hysteresis", "asymmetry", "creep", "delay", "dynamics"]
 #: the report's rows: controller bodies on top of the feedforward models
 ROWS = {"b FF only": {},
         "c FF + PID (auto)": {"pid": "auto"},

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.emulated import open_bench
-from service.reports.rest_path import ROWS, UseCases, measure
+from service.reports.rest_path import EFFECTS, ROWS, UseCases, measure
 from service.runtime.settings import Settings
 from service.science.control.session import PAPER_PID, SCANNED_PID
 from service.science.control.stability import delay_margin
@@ -182,9 +182,14 @@ def moved(run: dict) -> list[str]:
     lines += ["", "- **Case 1 is inside the stroke now** (0–150 V rating, issue 19 §1): its Z top is no longer clipped at "
               "120 V, so ILC reaches the noise floor there too (old: 5.99 %, 139 nm, the command at 120 V for 5.5 % of "
               "samples).",
-              "- **FF + PID: auto keeps a 60° phase and 6 dB gain margin** on the lightly damped flexure mode and gains "
-              "little at 100 Hz over feedforward alone. Issue 6's scanned gains (2.58 % on case 2) are predicted "
-              "stable only with thin margins, and under ILC they are refused (rows f: no learning gain converges).",
+              "- **FF + PID (auto) damps the flexure modes**: beside the PID, a positive-position-feedback section on "
+              "each axis's mode (`service/science/control/damping.py`), within the same 60° phase and 6 dB gain "
+              "margins. The error at the harmonic next to each mode falls 2–3× (docs/tracking_error_spectrum.md). "
+              "Issue 6's scanned gains (2.58 % on case 2) are predicted stable only with thin margins, and under ILC "
+              "they are refused (rows f: no learning gain converges).",
+              "- **The feedforward carries what discovery finds** on this bench and a feedforward can invert "
+              "(asymmetry and creep besides the delay and dynamics): asymmetry takes most of the error at 2×f, "
+              "creep the mean.",
               "- **FF + PID + ILC** runs with the PID the service chooses instead of the hand-picked gentler gains "
               "(kp 0.5, ki 300, kd 0.005). Those are predicted to diverge on Y now (factor 1.12 at γ 0.2, on the "
               "assumed ζ 0.02 over the whole amplitude band) and would be refused on `controller.ilc_gain`, though they "
@@ -204,7 +209,7 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
         f"--cycles {args.cycles}", "",
         "Every figure is what a REST user gets (`service/reports/rest_path.py`): per seed a fresh service "
         "answers `POST /api/sweeps` (1/10/50/100 Hz, 0–120 V, 5 cycles, one axis after the other), `POST "
-        "/api/models` per axis (`effects: hysteresis, delay, dynamics`), `POST /api/trajectories/span-sweeps` per "
+        "/api/models` per axis (`effects` as `rest_path.EFFECTS`: " + ", ".join(EFFECTS) + "), `POST /api/trajectories/span-sweeps` per "
         "case and those sweeps, models on them, then `POST /api/trajectories` per row — through the same use "
         "cases as the routers. `tests/test_control_report_path.py` runs a row through the HTTP API and gets "
         "the same figures. Point-by-point at 20 kHz; errors over the last 5 steady periods of "
@@ -260,7 +265,9 @@ NOTES = """
 - Feedforward: the composite model's inverse (`service/science/discovery/composite_inverse.py`): the
   transforms are inverted per harmonic of the reference, then the PI by its exact numerical inverse.
 - PID: paper eq. 19 with filtered derivative and anti-windup; `"auto"` tunes each axis for a 60° phase
-  margin, 6 dB gain margin and 3× delay margin (`service/science/control/tuning.py`).
+  margin, 6 dB gain margin and 3× delay margin (`service/science/control/tuning.py`), with a PPF
+  section on the axis's flexure mode beside it when the feedforward model carries the flexure's
+  dynamics (`service/science/control/damping.py`).
 - ILC (`service/science/control/ilc.py`): harmonic ILC on harmonics 0–20 of 100 Hz, learning filter
   γ/Ĝ(k) with Ĝ measured on the bench by a multisine in the same loop and refined from the run; γ = 0.2.
 - ILC convergence (`service/science/control/ilc_stability.py`): before a run, the learning plant is the

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.reports.rest_path import ROWS, UseCases, first_models, identify_for, run_row
+from service.reports.rest_path import EFFECTS, ROWS, UseCases, first_models, identify_for, run_row
 from service.reports.tracking import CASES, PAPER_AXES, ROOT
 from service.runtime.settings import Settings
 from service.science.control.session import SAMPLE_RATE_HZ
@@ -88,7 +88,7 @@ def write(seed: int, cycles: int, path: Path) -> None:
              "Regenerate (about a minute on one core):", "",
              f"    .venv/bin/python -m service.reports.tracking_error_spectrum --seed {seed} --cycles {cycles}", "",
              "Each case as in docs/tracking.md (the REST path: first sweep, span sweeps, composite models with "
-             "hysteresis + delay + dynamics, `POST /api/trajectories`), on a fresh emulated default bench of "
+             + " + ".join(EFFECTS) + ", `POST /api/trajectories`), on a fresh emulated default bench of "
              f"seed {seed}. The error over {PERIODS} steady periods around the middle of the run is split into "
              "its periodic part, as the amplitude of each harmonic of the ellipse's 100 Hz (nm), and what is "
              "not locked to the period (nm RMS: the gauge's noise). Relative error as in docs/tracking.md.", ""]
@@ -99,17 +99,17 @@ def write(seed: int, cycles: int, path: Path) -> None:
     lines += ["## What it says", "",
               "- **The error is periodic, not noise**: what is not locked to the period is the gauge's 3 nm. "
               "That is why ILC, which learns each harmonic, takes the same runs to 0.2–0.3 % (docs/tracking.md).",
-              "- **It peaks at the harmonic next to each axis's flexure mode** (ζ 0.02: about 25× at resonance). "
-              "The feedforward inverts the composite model; where the model's hysteresis shape differs from "
-              "the stage's at that harmonic, the mode multiplies the difference. A better hysteresis family "
-              "shrinks it only as far as its shape error at that one harmonic shrinks.",
-              "- **The PID cannot reach it**: `pid: auto` keeps a 60° phase margin and 6 dB gain margin on the "
-              "same lightly damped mode, so its crossover stays far below 100 Hz; it removes the mean and "
-              "some of 1×f, and at the mode's harmonic it can add to the error.",
-              "- **Next step, not built**: damp the mode in the loop (positive position feedback or integral "
-              "resonance control, the usual remedy for piezo flexure stages), so that the mode no longer "
-              "multiplies the model's error and the PID's crossover may rise; then re-tune `auto` on the damped "
-              "plant. Until then the 3 % target for FF + PID is not met (docs/tracking.md: 4.2–5.4 %).", ""]
+              "- **Feedforward alone, it peaks at the harmonic next to each axis's flexure mode** (Y 5×f, Z 3×f): the "
+              "feedforward inverts the composite model, and where the model's shape differs from the stage's at that "
+              "harmonic, the mode multiplies the difference (1/(2ζ) at resonance).",
+              "- **`pid: auto` damps the mode**: a positive-position-feedback section on each axis's mode beside the "
+              "PID (`service/science/control/damping.py`), chosen within the same 60° phase and 6 dB gain margins, "
+              "takes that harmonic down 2–3×; the PID's integral takes the mean (creep and drift).",
+              "- **The 2×f is small because the model carries the stack's asymmetry** (`rest_path.EFFECTS`); without "
+              "it the 2×f was as large as the 1×f.",
+              "- **What is left sits at the fundamental, mostly on Z**: at a third of Z's 291 Hz mode no feedback "
+              "within those margins has loop gain (|1/(1 + L)| ≈ 1 at 100 Hz), so the fundamental is the "
+              "feedforward's alone. ILC, which learns each harmonic, takes it away (docs/tracking.md).", ""]
     path.write_text("\n".join(lines))
 
 

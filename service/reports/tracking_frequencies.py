@@ -14,7 +14,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from service.reports.rest_path import UseCases, measure
+from service.reports.rest_path import EFFECTS, UseCases, measure
 from service.reports.tracking import CASES, ILC_ROW, PAPER_AXES, PID_ROW, ROOT, _fmt, _note, gauge_noise_um
 from service.runtime.settings import Settings
 
@@ -53,7 +53,7 @@ def render(result: dict, seed: int, cycles: int) -> str:
              f"    .venv/bin/python -m service.reports.tracking_frequencies --seed {seed} --cycles {cycles}", "",
              f"Emulated default bench, seed {seed}; case 2 (Y 1–5 µm, Z 1–9 µm, 20°) over {cycles} steady periods; "
              "per frequency the span sweeps `POST /api/trajectories/span-sweeps` offers, composite models "
-             "(hysteresis + delay + dynamics) on them, then `POST /api/trajectories` with the controller the "
+             "(" + " + ".join(EFFECTS) + ") on them, then `POST /api/trajectories` with the controller the "
              "service chooses (`pid: auto`) and with learning (`ilc: true`). 150 Hz is 20000/133 ≈ 150.4 Hz, the "
              f"nearest whole-sample period at the 20 kHz loop rate. Gauge noise {noise_nm:.1f} nm RMS.", "",
              "| f (Hz) | FF + PID (auto) relative (%) | its RMS (nm) | FF + PID (auto) + ILC relative (%) | its RMS (nm) "

@@ -214,16 +214,19 @@ export function leave() {
   destroyAll(charts);
 }
 
-// The PID the run used, per axis: gains and the margins predicted on the identified plant.
+// The PID the run used, per axis: gains, the mode damping section beside them and the margins
+// predicted on the identified plant.
 function renderPid(root, report) {
   const num = (v, unit) => (v === null || v === undefined ? '—' : `${fmt(v)} ${unit}`);
+  const damping = (d) => (d ? `${fmt(d.gain_v_per_um)} V/µm at ${fmt(d.frequency_hz)} Hz, ζ ${fmt(d.damping_ratio)}` : 'none');
   const rows = Object.entries(report.axes).map(([axis, a]) => {
     const m = a.margins || {};
     return `<tr><td>${esc(axis.toUpperCase())}</td><td>${fmt(a.kp)}</td><td>${fmt(a.ki)}</td><td>${fmt(a.kd)}</td>
+      <td>${damping(a.damping)}</td>
       <td>${a.margins ? (m.stable ? 'stable' : 'unstable') : 'not predicted'}</td><td>${num(m.phase_margin_deg, '°')}</td>
       <td>${num(m.gain_margin_db, 'dB')}</td><td>${m.delay_margin_s != null ? fmt(m.delay_margin_s * 1e6) + ' µs' : '—'}</td></tr>`;
   }).join('');
   root.querySelector('#traj-pid-report').innerHTML = `<table id="traj-pid-table"><caption>PID: ${esc(report.pid)}</caption>
-    <tr><th>axis</th><th>kp (V/µm)</th><th>ki (V/(µm·s))</th><th>kd (V·s/µm)</th><th>loop</th><th>phase margin</th>
+    <tr><th>axis</th><th>kp (V/µm)</th><th>ki (V/(µm·s))</th><th>kd (V·s/µm)</th><th title="positive position feedback on the flexure mode, beside the PID">mode damping</th><th>loop</th><th>phase margin</th>
     <th>gain margin</th><th>delay margin</th></tr>${rows}</table>`;
 }
