@@ -186,11 +186,9 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
 
     Without ``damp``: best = the lowest sensitivity |1/(1 + L)| at the fundamental. With ``damp``: a
     PPF section on the mode beside the PID, and best = the least ``expected_error`` over the
-    harmonics up to the mode; first the section (each candidate beside the largest integral gain it
-    allows), then the PID beside the best one. The PID: a coarse grid over kp and kd (ki by a rising
-    scan), then a finer grid around the best. ValueError when no gain set meets the targets."""
+    harmonics up to the mode; first the section (``_pick_section``), then the PID beside it
+    (``_search_pid``). ValueError when no gain set meets the targets."""
     f_hz = GRID_HZ[::3]            # the search reads a coarser grid; the answer is checked on the fine one
-    g = plant_response(plant, f_hz)
     strict = Targets(targets.phase_margin_deg + SEARCH_SLACK[0], targets.gain_margin_db + SEARCH_SLACK[1],
                      targets.delay_margin_factor * SEARCH_SLACK[2])
     band_hz = design_harmonics(plant, frequency_hz) if damp else np.array([float(frequency_hz)])
@@ -200,22 +198,50 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
             return expected_error(plant, c_band, band_hz)
         return float(np.max(np.abs(1.0 / (1.0 + c_band * plant_response(plant, band_hz)))))
 
-    scale = 1.0 / plant.gain_um_per_v            # gains in units of the plant's inverse gain
-    ki_grid = scale * np.logspace(0, 5, 41)
-    damping, best_cost = None, np.inf
-    for candidate in (damping_candidates(plant) if damp else [None]):
+    damping = _pick_section(plant, strict, f_hz, band_hz, cost_of) if damp else None
+    kp, ki, kd = _search_pid(plant, targets, strict, f_hz, band_hz, cost_of, damping)
+    margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
+    for _ in range(40):                 # the fine grid may see a sliver the coarse one did not: back off
+        if not targets.failures(margins):
+            return Tuned(kp, ki, kd, TF_S, margins, damping)
+        kp, ki, kd = 0.95 * kp, 0.95 * ki, 0.95 * kd
+        margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
+    raise ValueError(f"the tuned gains miss the targets on the fine grid: {', '.join(targets.failures(margins))}")
+
+
+def _ki_grid(plant: AxisPlant) -> np.ndarray:
+    return np.logspace(0, 5, 41) / plant.gain_um_per_v
+
+
+def _pick_section(plant: AxisPlant, strict: Targets, f_hz: np.ndarray, band_hz: np.ndarray,
+                  cost_of) -> ModeDamping | None:
+    """The candidate section (or None) that, beside the largest integral gain it allows within
+    ``strict``, leaves the least ``cost_of`` its controller on ``band_hz``."""
+    g = plant_response(plant, f_hz)
+    best, best_cost = None, np.inf
+    for candidate in damping_candidates(plant):
         extra = 0.0 if candidate is None else candidate.response(f_hz)
-        ki = _best_ki(plant, strict, 0.0, 0.0, ki_grid, f_hz, g, extra)
+        ki = _best_ki(plant, strict, 0.0, 0.0, _ki_grid(plant), f_hz, g, extra)
         if ki == 0.0:
             continue
         c_band = ki / (2j * np.pi * band_hz) + (0.0 if candidate is None else candidate.response(band_hz))
         cost = cost_of(c_band)
         if cost < best_cost - 1e-9:
-            damping, best_cost = candidate, cost
+            best, best_cost = candidate, cost
+    return best
+
+
+def _search_pid(plant: AxisPlant, targets: Targets, strict: Targets, f_hz: np.ndarray, band_hz: np.ndarray,
+                cost_of, damping: ModeDamping | None) -> tuple[float, float, float]:
+    """(kp, ki, kd) beside ``damping`` with the least ``cost_of``: a coarse grid over kp and kd (ki by
+    a rising scan to the largest that meets ``strict``), then a finer grid around the best."""
+    g = plant_response(plant, f_hz)
     extra, extra_band = ((0.0, 0.0) if damping is None else (damping.response(f_hz), damping.response(band_hz)))
+    scale = 1.0 / plant.gain_um_per_v            # gains in units of the plant's inverse gain
     best, best_cost = (0.0, 0.0, 0.0), np.inf
     kp_grid = scale * np.logspace(-3, 1, 17)
     kd_grid = scale * np.concatenate(([0.0], np.logspace(-6, -3, 13)))
+    ki_grid = _ki_grid(plant)
     for _ in range(2):
         for kp in kp_grid:
             for kd in kd_grid:
@@ -232,14 +258,7 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
         kp_grid = kp0 * np.logspace(-0.25, 0.25, 9)
         kd_grid = np.concatenate(([0.0], kd0 * np.logspace(-0.25, 0.25, 9))) if kd0 > 0 else kd_grid[:4]
         ki_grid = ki0 * np.logspace(-0.3, 0.3, 41)
-    kp, ki, kd = best
-    margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
-    for _ in range(40):                 # the fine grid may see a sliver the coarse one did not: back off
-        if not targets.failures(margins):
-            return Tuned(kp, ki, kd, TF_S, margins, damping)
-        kp, ki, kd = 0.95 * kp, 0.95 * ki, 0.95 * kd
-        margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
-    raise ValueError(f"the tuned gains miss the targets on the fine grid: {', '.join(targets.failures(margins))}")
+    return best
 
 
 #: "auto" on the default bench (seed 0), plant from the static PI identified on its 1 Hz 0–120 V loop
