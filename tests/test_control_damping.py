@@ -104,3 +104,15 @@ def test_the_damped_loop_stays_stable_when_the_mode_is_not_where_the_bench_decla
             moved = AxisPlant(plant.gain_um_per_v, detune * plant.resonance_hz, zeta, plant.delay_s)
             m = loop_margins(tuned.kp, tuned.ki, tuned.kd, tuned.tf_s, moved, damping=tuned.damping)
             assert m.stable and m.gain_margin_db >= 6.0 and m.phase_margin_deg >= 30.0, (detune, zeta, m)
+
+
+def test_a_mode_the_loop_cannot_see_gets_no_section_and_a_plant_without_a_mode_is_tuned():
+    """A mode above damping.MAX_FREQUENCY_SHARE of the 20 kHz loop gets no section (the biquad would
+    not have the designed response; a section at the Nyquist frequency is refused outright); a plant
+    with no mode at all (none declared or identified) is a gain and a delay, and auto tunes it."""
+    high = tune(AxisPlant(0.087, 5000.0, 0.02, 125e-6), damp=True)
+    assert high.damping is None and Targets().failures(high.margins) == []
+    with pytest.raises(ValueError, match="cannot run"):
+        ModeDamping(1.0, 10_000.0, 0.3).biquad(FS_HZ)
+    flat = tune(AxisPlant(0.087, float("inf"), 0.02, 125e-6), damp=True)
+    assert flat.damping is None and Targets().failures(flat.margins) == [] and flat.ki > 0

@@ -19,6 +19,16 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+#: the highest section frequency, as a share of the loop's sample rate, at which the compiled
+#: biquad still has the designed response (2 % at 0.05, 6 % at 0.1: tests/test_control_damping.py);
+#: a mode above it is left undamped (a trajectory far below it hardly excites it)
+MAX_FREQUENCY_SHARE = 0.1
+
+
+def realisable(frequency_hz: float, sample_rate_hz: float) -> bool:
+    """Whether a section at ``frequency_hz`` runs as designed in a loop at ``sample_rate_hz``."""
+    return 0.0 < frequency_hz <= MAX_FREQUENCY_SHARE * sample_rate_hz
+
 
 @dataclass(frozen=True)
 class ModeDamping:
@@ -37,7 +47,10 @@ class ModeDamping:
 
     def biquad(self, sample_rate_hz: float) -> tuple[float, float, float, float, float]:
         """(b0, b1, b2, a1, a2) of the section at ``sample_rate_hz`` (a0 = 1): bilinear transform,
-        pre-warped so that the digital section peaks at ``frequency_hz``."""
+        pre-warped so that the digital section peaks at ``frequency_hz``. ValueError at or above the
+        Nyquist frequency."""
+        if not 0.0 < self.frequency_hz < sample_rate_hz / 2:
+            raise ValueError(f"a damping section at {self.frequency_hz:g} Hz cannot run at {sample_rate_hz:g} Hz")
         w = 2 * np.pi * self.frequency_hz
         c = w / np.tan(w / (2 * sample_rate_hz))          # pre-warped s = c·(z − 1)/(z + 1)
         z = self.damping_ratio

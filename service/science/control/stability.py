@@ -75,8 +75,10 @@ def controller_response(gains: tuple, f_hz: np.ndarray) -> np.ndarray:
 
 
 def plant_response(plant: AxisPlant, f_hz: np.ndarray) -> np.ndarray:
-    """G(jω) (µm/V) of ``plant``."""
+    """G(jω) (µm/V) of ``plant`` (without a mode when its resonance is not finite)."""
     s = 2j * np.pi * np.asarray(f_hz, dtype=float)
+    if not np.isfinite(plant.resonance_hz):          # no mode declared or identified: gain and delay
+        return plant.gain_um_per_v * np.exp(-s * plant.delay_s)
     wn = 2 * np.pi * plant.resonance_hz
     mode = wn ** 2 / (s ** 2 + 2 * plant.damping_ratio * wn * s + wn ** 2)
     return plant.gain_um_per_v * mode * np.exp(-s * plant.delay_s)

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.science.control.damping import ModeDamping
+from service.science.control.damping import ModeDamping, realisable
 from service.science.control.safety import ControlRefused
+from service.science.control.session import SAMPLE_RATE_HZ
 from service.science.control.stability import (GRID_HZ, AxisPlant, LoopMargins, loop_delay_s, loop_margins,
                                                margins_of, pid_response, plant_response)
 
@@ -132,6 +133,8 @@ DESIGN_FREQUENCY_HZ = 100.0
 #: the tuning weighs the harmonics of the trajectory frequency up to this multiple of the mode's
 #: frequency (the feedforward's error there is what the mode multiplies)
 DESIGN_BAND_OVER_MODE = 1.25
+#: ... and at most this many harmonics (a mode far above the trajectory)
+MAX_DESIGN_HARMONICS = 40
 #: the search meets the targets by this much more (phase margin deg, gain margin dB, delay margin
 #: factor) on its coarser grid, so that the answer meets them on the fine one
 SEARCH_SLACK = (1.0, 0.3, 1.05)
@@ -152,8 +155,9 @@ DAMPING_BAND = (0.02, 0.05, 0.1)
 def design_harmonics(plant: AxisPlant, frequency_hz: float) -> np.ndarray:
     """The harmonics (Hz) of ``frequency_hz`` the tuning weighs: up to DESIGN_BAND_OVER_MODE × the
     plant's mode, at least the fundamental."""
-    top = max(1, int(DESIGN_BAND_OVER_MODE * plant.resonance_hz // frequency_hz))
-    return frequency_hz * np.arange(1, top + 1)
+    top = DESIGN_BAND_OVER_MODE * plant.resonance_hz / frequency_hz
+    top = int(min(top, MAX_DESIGN_HARMONICS)) if np.isfinite(top) else 1
+    return frequency_hz * np.arange(1, max(1, top) + 1)
 
 
 def expected_error(plant: AxisPlant, controller: np.ndarray, band_hz: np.ndarray) -> float:
@@ -173,14 +177,16 @@ def expected_error(plant: AxisPlant, controller: np.ndarray, band_hz: np.ndarray
     return float(np.sqrt(cost / reference))
 
 
-def damping_candidates(plant: AxisPlant) -> list[ModeDamping | None]:
-    """None and every PPF section of the grid above, on ``plant``'s mode."""
+def damping_candidates(plant: AxisPlant, sample_rate_hz: float = SAMPLE_RATE_HZ) -> list[ModeDamping | None]:
+    """None and every PPF section of the grid above on ``plant``'s mode that a loop at
+    ``sample_rate_hz`` runs as designed (damping.realisable; none for a mode it cannot see)."""
     return [None] + [ModeDamping(share / plant.gain_um_per_v, detune * plant.resonance_hz, ratio)
-                     for share in DAMPING_SHARES for ratio in DAMPING_RATIOS for detune in DAMPING_DETUNES]
+                     for share in DAMPING_SHARES for ratio in DAMPING_RATIOS for detune in DAMPING_DETUNES
+                     if np.isfinite(plant.resonance_hz) and realisable(detune * plant.resonance_hz, sample_rate_hz)]
 
 
 def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = DESIGN_FREQUENCY_HZ,
-         damp: bool = False) -> Tuned:
+         damp: bool = False, sample_rate_hz: float = SAMPLE_RATE_HZ) -> Tuned:
     """The PID meeting ``targets`` on ``plant`` that tracks a trajectory at ``frequency_hz`` best, with
     the largest ki (integral action against creep and drift) that kp, kd leave.
 
@@ -198,7 +204,7 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
             return expected_error(plant, c_band, band_hz)
         return float(np.max(np.abs(1.0 / (1.0 + c_band * plant_response(plant, band_hz)))))
 
-    damping = _pick_section(plant, strict, f_hz, band_hz, cost_of) if damp else None
+    damping = _pick_section(plant, strict, f_hz, band_hz, cost_of, sample_rate_hz) if damp else None
     kp, ki, kd = _search_pid(plant, targets, strict, f_hz, band_hz, cost_of, damping)
     margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
     for _ in range(40):                 # the fine grid may see a sliver the coarse one did not: back off
@@ -214,12 +220,12 @@ def _ki_grid(plant: AxisPlant) -> np.ndarray:
 
 
 def _pick_section(plant: AxisPlant, strict: Targets, f_hz: np.ndarray, band_hz: np.ndarray,
-                  cost_of) -> ModeDamping | None:
+                  cost_of, sample_rate_hz: float) -> ModeDamping | None:
     """The candidate section (or None) that, beside the largest integral gain it allows within
     ``strict``, leaves the least ``cost_of`` its controller on ``band_hz``."""
     g = plant_response(plant, f_hz)
     best, best_cost = None, np.inf
-    for candidate in damping_candidates(plant):
+    for candidate in damping_candidates(plant, sample_rate_hz):
         extra = 0.0 if candidate is None else candidate.response(f_hz)
         ki = _best_ki(plant, strict, 0.0, 0.0, _ki_grid(plant), f_hz, g, extra)
         if ki == 0.0:
