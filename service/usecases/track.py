@@ -46,7 +46,8 @@ def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz:
     if spec is not None:
         if isinstance(spec, dict):
             spec = {ax: (spec[f"kp_{ax}"], spec[f"ki_{ax}"], spec[f"kd_{ax}"], spec["tf_s"]) for ax in ("y", "z")}
-        damped = frozenset(ax for ax, model in models.items() if feedforward_inverts_mode(model))
+        damped = frozenset(ax for ax, model in models.items()
+                           if plants.get(ax) is not None and feedforward_inverts_mode(model, plants[ax].resonance_hz))
         gains, report, warnings = choose_pid(spec, plants, {"tuned": TUNED_PID, "paper": PAPER_PID},
                                              frequency_hz=frequency_hz, force=controller.get("force", False),
                                              damped_axes=damped)

@@ -115,17 +115,36 @@ class Tuned:
 
 
 def _best_ki(plant: AxisPlant, targets: Targets, kp: float, kd: float, ki_grid: np.ndarray,
-             f_hz: np.ndarray, g: np.ndarray, extra: np.ndarray | float = 0.0) -> float:
+             f_hz: np.ndarray, responses: list[np.ndarray], extra: np.ndarray | float = 0.0) -> float:
     """The largest ki on ``ki_grid`` (rising) for which (kp, ki, kd) beside the response ``extra``
-    (V/µm on ``f_hz``: a damping section) meets ``targets``; 0 if none."""
-    base = (pid_response(kp, 0.0, kd, TF_S, f_hz) + extra) * g
-    integ = g / (2j * np.pi * f_hz)
+    (V/µm on ``f_hz``: a damping section) meets ``targets`` on every plant response of ``responses``
+    (``checked_plants``); 0 if none."""
+    c0 = pid_response(kp, 0.0, kd, TF_S, f_hz) + extra
+    loops = [(c0 * g, g / (2j * np.pi * f_hz)) for g in responses]
     best = 0.0
     for ki in ki_grid:
-        if targets.failures(margins_of(base + ki * integ, f_hz, plant.delay_s)):
+        if any(targets.failures(margins_of(base + ki * integ, f_hz, plant.delay_s)) for base, integ in loops):
             break
         best = float(ki)
     return best
+
+
+def checked_plants(plant: AxisPlant) -> list[AxisPlant]:
+    """The plants a gain set must meet the targets on: ``plant`` and the same axis without its mode
+    (gain and delay). A stage whose mode is higher than declared, or a bench without flexure dynamics,
+    gives the controller's high-frequency gain no roll-off to hide behind: a derivative or a section
+    tuned on the declared mode alone can then ring the loop into the amplifier's current limit."""
+    return [plant, AxisPlant(plant.gain_um_per_v, float("inf"), plant.damping_ratio, plant.delay_s)]
+
+
+def worst_failures(targets: Targets, gains: tuple, plant: AxisPlant) -> list[str]:
+    """The targets ``gains`` miss on any of ``checked_plants(plant)`` (the mode-less plant's named)."""
+    out = []
+    for checked in checked_plants(plant):
+        margins = loop_margins(*gains[:4], checked, damping=gains[4] if len(gains) > 4 else None)
+        said = targets.failures(margins)
+        out += said if checked is plant else [f"{f} without the flexure mode" for f in said]
+    return out
 
 
 #: the paper's trajectory frequency (Hz): "tuned" and a tuning without a stated frequency aim there
@@ -206,13 +225,12 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
 
     damping = _pick_section(plant, strict, f_hz, band_hz, cost_of, sample_rate_hz) if damp else None
     kp, ki, kd = _search_pid(plant, targets, strict, f_hz, band_hz, cost_of, damping)
-    margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
     for _ in range(40):                 # the fine grid may see a sliver the coarse one did not: back off
-        if not targets.failures(margins):
-            return Tuned(kp, ki, kd, TF_S, margins, damping)
+        misses = worst_failures(targets, (kp, ki, kd, TF_S, damping), plant)
+        if not misses:
+            return Tuned(kp, ki, kd, TF_S, loop_margins(kp, ki, kd, TF_S, plant, damping=damping), damping)
         kp, ki, kd = 0.95 * kp, 0.95 * ki, 0.95 * kd
-        margins = loop_margins(kp, ki, kd, TF_S, plant, damping=damping)
-    raise ValueError(f"the tuned gains miss the targets on the fine grid: {', '.join(targets.failures(margins))}")
+    raise ValueError(f"the tuned gains miss the targets on the fine grid: {', '.join(misses)}")
 
 
 def _ki_grid(plant: AxisPlant) -> np.ndarray:
@@ -223,11 +241,11 @@ def _pick_section(plant: AxisPlant, strict: Targets, f_hz: np.ndarray, band_hz: 
                   cost_of, sample_rate_hz: float) -> ModeDamping | None:
     """The candidate section (or None) that, beside the largest integral gain it allows within
     ``strict``, leaves the least ``cost_of`` its controller on ``band_hz``."""
-    g = plant_response(plant, f_hz)
+    responses = [plant_response(p, f_hz) for p in checked_plants(plant)]
     best, best_cost = None, np.inf
     for candidate in damping_candidates(plant, sample_rate_hz):
         extra = 0.0 if candidate is None else candidate.response(f_hz)
-        ki = _best_ki(plant, strict, 0.0, 0.0, _ki_grid(plant), f_hz, g, extra)
+        ki = _best_ki(plant, strict, 0.0, 0.0, _ki_grid(plant), f_hz, responses, extra)
         if ki == 0.0:
             continue
         c_band = ki / (2j * np.pi * band_hz) + (0.0 if candidate is None else candidate.response(band_hz))
@@ -241,7 +259,7 @@ def _search_pid(plant: AxisPlant, targets: Targets, strict: Targets, f_hz: np.nd
                 cost_of, damping: ModeDamping | None) -> tuple[float, float, float]:
     """(kp, ki, kd) beside ``damping`` with the least ``cost_of``: a coarse grid over kp and kd (ki by
     a rising scan to the largest that meets ``strict``), then a finer grid around the best."""
-    g = plant_response(plant, f_hz)
+    responses = [plant_response(p, f_hz) for p in checked_plants(plant)]
     extra, extra_band = ((0.0, 0.0) if damping is None else (damping.response(f_hz), damping.response(band_hz)))
     scale = 1.0 / plant.gain_um_per_v            # gains in units of the plant's inverse gain
     best, best_cost = (0.0, 0.0, 0.0), np.inf
@@ -251,7 +269,7 @@ def _search_pid(plant: AxisPlant, targets: Targets, strict: Targets, f_hz: np.nd
     for _ in range(2):
         for kp in kp_grid:
             for kd in kd_grid:
-                ki = _best_ki(plant, strict, kp, kd, ki_grid, f_hz, g, extra)
+                ki = _best_ki(plant, strict, kp, kd, ki_grid, f_hz, responses, extra)
                 if ki == 0.0:
                     continue
                 cost = cost_of(pid_response(kp, ki, kd, TF_S, band_hz) + extra_band)
@@ -275,12 +293,22 @@ TUNED_PID = {"y": (0.6095, 252.6, 0.0, TF_S), "z": (0.4188, 121.5, 3.627e-4, TF_
 PRESETS = ("auto", "tuned", "paper")
 
 
-def feedforward_inverts_mode(model) -> bool:
-    """Whether ``model`` carries the flexure's dynamics, so that its inverse already shapes the drive
-    around the mode. Its error then sits at the harmonic the mode multiplies, which a PPF section
-    damps; a model without them leaves its error at the fundamental (the dynamics it lacks), where
-    PPF's low-frequency positive feedback would add to it (docs/tracking_error_spectrum.md)."""
-    return identified_mode(model) is not None
+#: an identified mode within this share of the plant's (declared) one is the same mode
+MODE_AGREEMENT = 0.25
+
+
+def feedforward_inverts_mode(model, resonance_hz: float) -> bool:
+    """Whether ``model`` carries the flexure mode the loop sees at ``resonance_hz`` (its identified
+    dynamics within MODE_AGREEMENT of it), so that its inverse already shapes the drive around the
+    mode. Its error then sits at the harmonic the mode multiplies, which a PPF section damps. A model
+    without that mode leaves its error at the fundamental (the dynamics it lacks), where PPF's
+    low-frequency positive feedback would add to it; one whose dynamics sit far from the declared
+    mode (a stage without flexure dynamics fits a spurious kilohertz one) gives the section nothing
+    to damp (docs/tracking_error_spectrum.md)."""
+    mode = identified_mode(model)
+    if mode is None:
+        return False
+    return not np.isfinite(resonance_hz) or abs(mode[0] / resonance_hz - 1.0) <= MODE_AGREEMENT
 
 
 def bench_plants(bench, models: dict, sample_rate_hz: float) -> dict:
