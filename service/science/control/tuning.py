@@ -15,6 +15,7 @@ loop's own delay), with the derivative filter fixed (``TF_S``).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -204,6 +205,7 @@ def damping_candidates(plant: AxisPlant, sample_rate_hz: float = SAMPLE_RATE_HZ)
                      if np.isfinite(plant.resonance_hz) and realisable(detune * plant.resonance_hz, sample_rate_hz)]
 
 
+@functools.lru_cache(maxsize=64)     # a pure function of frozen inputs; a search takes seconds
 def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = DESIGN_FREQUENCY_HZ,
          damp: bool = False, sample_rate_hz: float = SAMPLE_RATE_HZ) -> Tuned:
     """The PID meeting ``targets`` on ``plant`` that tracks a trajectory at ``frequency_hz`` best, with
