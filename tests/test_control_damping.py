@@ -83,6 +83,11 @@ def test_choose_pid_damps_only_the_axes_named_and_reports_the_section():
     custom = {ax: (0.5, 100.0, 0.0, 2e-4) for ax in PLANTS}
     gains, report, _ = choose_pid(custom, PLANTS, {})
     assert all(g[4] is None for g in gains.values())
+    # issue 6's scanned gains: stable on the declared mode, unstable without it: accepted with a warning
+    scanned = {ax: (1.0, 300.0, 0.01, 2e-4) for ax in PLANTS}
+    _, report, warnings = choose_pid(scanned, PLANTS, {})
+    assert "closed loop unstable without the flexure mode" in report["axes"]["z"]["failures_without_mode"]
+    assert any("if the stage's mode is not where the bench declares it" in w for w in warnings)
 
 
 def test_learning_under_the_damped_loop_is_predicted_to_converge():

@@ -368,10 +368,15 @@ def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), 
                     f"margin {margins.gain_margin_db:.1f} dB, delay margin {margins.delay_margin_s * 1e6:.0f} µs "
                     f"(on {plant.gain_um_per_v:.3g} µm/V, {plant.resonance_hz:.1f} Hz ζ {plant.damping_ratio:.3g}, "
                     f"{plant.delay_s * 1e6:.0f} µs delay)")
+            without_mode = [f for f in worst_failures(targets, g, plant) if f.endswith("without the flexure mode")]
+            entry["failures_without_mode"] = without_mode
             if name == "paper" or not margins.stable:
                 refusals.append(said + (f"; fails: {', '.join(fails)}" if fails else ""))
             elif fails:
                 warnings.append(said + f"; misses: {', '.join(fails)}")
+            if without_mode and name != "paper":
+                warnings.append(f"{axis.upper()}: if the stage's mode is not where the bench declares it: "
+                                + ", ".join(without_mode))
         report["axes"][axis] = entry
     if name == "paper" and not force and not refusals:
         refusals.append("the paper's gains cannot be judged without a feedforward model per axis")
