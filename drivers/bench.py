@@ -150,6 +150,7 @@ class Bench(LimitsMixin):
         self._stop_flag = np.zeros(1, dtype=np.uint8)  # shared with compiled loops
         self._stop_reason: str | None = None
         self._idle = threading.Event()                # set while no session runs
+        self._plans = 0                               # plans running (plan_scope): a stop latches for them
         self._idle.set()
         self.tripped: str | None = None                 # the watchdog's reason, latched for the session
         self._last_u_v = {axis: 0.0 for axis in self.axes}
@@ -205,7 +206,25 @@ class Bench(LimitsMixin):
             if should_stop is not None and should_stop():
                 self.request_stop()
 
-        return plan(self, emit, *args)
+        with self.plan_scope():
+            if should_stop is not None and should_stop():   # stopped before the plan began: it holds
+                self.request_stop()
+            return plan(self, emit, *args)
+
+    @contextmanager
+    def plan_scope(self) -> Iterator[None]:
+        """One plan (a job's whole experiment: its preparation and every run in it). It starts with
+        the stop flag down; a stop or a trip raised at any time inside it, while the plan is still
+        computing its drive as well as during a run, stays raised for the rest of the plan, so every
+        later session in it ends at once at 0 V instead of running."""
+        with self._lock:
+            self._stop_flag[0], self._stop_reason, self.tripped = 0, None, None
+            self._plans += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._plans -= 1
 
     @property
     def running(self) -> bool:
@@ -222,11 +241,13 @@ class Bench(LimitsMixin):
 
     @contextmanager
     def session(self, period_s: float, name: str = "run") -> Iterator[BenchSession]:
-        """Own the bench for one run: one at a time, stop flag cleared, watchdog armed with this
-        loop's control period ``period_s`` (s); the DAQ output is at 0 V when the block exits."""
+        """Own the bench for one run: one at a time, watchdog armed with this loop's control period
+        ``period_s`` (s); the DAQ output is at 0 V when the block exits. Outside a plan the stop flag
+        is cleared here; inside one (``plan_scope``) a stop raised earlier in the plan still holds."""
         self._ensure_open()
         with self._lock:
-            self._stop_flag[0], self._stop_reason, self.tripped = 0, None, None
+            if self._plans == 0:
+                self._stop_flag[0], self._stop_reason, self.tripped = 0, None, None
             self._idle.clear()
             try:
                 begin = getattr(self.parts.daq, "begin_session", None)

@@ -121,6 +121,43 @@ def test_trajectory_and_cancel_through_the_engine(http):
     assert all(abs(amplifiers[a]["output_v"]) < 0.05 for a in ("y", "z"))
 
 
+def _static_pi_feedforward(http) -> dict:
+    """Static PIs per axis on a short 10 Hz sweep through the engine: the feedforward of a long plan."""
+    job = http.post("/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [10], "cycles": 3}).json()
+    dataset_id = wait_job(http, job["job_id"], timeout_s=120)["result"]["dataset_id"]
+    ff = {}
+    for axis in ("y", "z"):
+        job = http.post("/api/models", json={"axis": axis, "datasets": [dataset_id], "model": "static_pi"}).json()
+        ff[f"feedforward_model_{axis}"] = wait_job(http, job["job_id"], timeout_s=120)["result"]["model_id"]
+    return ff
+
+
+@pytest.mark.parametrize("how, cycles", [("stop port", 3000), ("cancel", 3001)])
+def test_a_stop_while_the_engine_plans_a_run_holds_for_the_run(http, how, cycles):
+    """3000 periods of feedforward take the engine a while to compute before the bench moves; a stop
+    (the engine's stop port) pressed then, or a cancel (DELETE /api/jobs/{id}) as the job starts,
+    before or after its plan reached the engine, ends the job at 0 V without a single period run (a
+    new user's finding: the run's session cleared the stop)."""
+    ff = _static_pi_feedforward(http)
+    body = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclination_deg": 20,
+            "frequency_hz": 100, "cycles": cycles, "controller": ff}   # its own length: nothing memoised
+    job = http.post("/api/trajectories", json=body).json()
+    wait_job(http, job["job_id"], until=lambda j: j["state"] == "running", timeout_s=60, poll_s=0.01)
+    if how == "stop port":
+        time.sleep(0.3)             # the plan has reached the engine, which computes its drive for seconds
+        answer = httpx.post(_stop_port(http), headers=bearer(http.token), timeout=60).json()
+        assert answer["loop_answered"] is False, answer         # pressed before the bench moved
+    else:
+        assert http.get("/api/bench").json()["safety"]["running"] is False   # still planning: no loop yet
+        assert http.delete(f"/api/jobs/{job['job_id']}").status_code == 202
+    done = wait_job(http, job["job_id"], timeout_s=120)
+    assert done["state"] == "cancelled", done
+    kept = (done.get("result") or {}).get("dataset_id")
+    assert kept is None or http.get(f"/api/datasets/{kept}").json()["samples"] < 200   # not one period
+    amplifiers = http.get("/api/bench").json()["amplifiers"]
+    assert all(abs(amplifiers[a]["output_v"]) < 0.05 for a in ("y", "z"))
+
+
 def test_fault_injection_crosses_to_the_engine(http):
     added = http.post("/api/admin/faults", json={"fault": "sensor_dropout", "axis": "z", "after_s": 0.2})
     assert added.status_code == 201, added.text

@@ -218,6 +218,15 @@ class EngineBench(LimitsMixin):
     def request_stop(self, reason: str = STOPPED_ON_REQUEST) -> None:
         self._stop.call("request_stop", reason)
 
+    def _cancel_plan(self, owner: str | None) -> None:
+        """Stop the plan of job ``owner`` (sent with it): now if it runs, or as it begins if the engine
+        has not started it yet (a plain stop request would be cleared by its start). A plan with
+        no owner gets a plain stop request."""
+        if owner is None:
+            self.request_stop()
+        else:
+            self._stop.call("cancel_plan", owner, STOPPED_ON_REQUEST)
+
     @property
     def stop_port(self) -> int | None:
         """The engine's stop port (service.runtime.stop_port), None if it has none."""
@@ -278,12 +287,12 @@ class EngineBench(LimitsMixin):
                 self._running.clear()
 
     def _execute_locked(self, plan, args, on_event, should_stop):
-        conn, asked = self._plan.conn, False
+        conn, asked, owner = self._plan.conn, False, self.run_owner()
         try:
-            conn.send(("execute", plan, args, self.run_owner()))
+            conn.send(("execute", plan, args, owner))
             while True:
                 if should_stop is not None and not asked and should_stop():
-                    self.request_stop()
+                    self._cancel_plan(owner)
                     asked = True
                 if not conn.poll(SHOULD_STOP_POLL_S):
                     if not self._process.is_alive():

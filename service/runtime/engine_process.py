@@ -4,7 +4,8 @@ The web process (uvicorn, downloads, imports, fits) and this process share no in
 and no event loop, so nothing a request does can delay the real-time loop, the watchdog or the
 emergency stop. Three pipes connect them, each served by its own thread here:
 
-* **stop**: ``("stop", reason, wait_s)`` → the stop's figures; ``("request_stop", reason)``. Never
+* **stop**: ``("stop", reason, wait_s)`` → the stop's figures; ``("request_stop", reason)``;
+  ``("cancel_plan", job_id, reason)``: that job's plan stops now, or as it begins if it has not yet. Never
   queued behind anything: its thread does nothing else.
 * **command**: short queries and settings (``describe``, ``output_v``, ``live_since``,
   ``clear_faults``, fault injection), answered at once.
@@ -87,25 +88,56 @@ class StopHold:
         return bool(self._open)
 
 
+#: jobs remembered as cancelled before their plan arrived (older ones are forgotten)
+CANCELLED_KEPT = 64
+
+
 class _Stopper:
     """Every stop of this process, from the stop pipe or the stop port, one at a time: each reads
-    the ``last_stop`` figures of its own stop."""
+    the ``last_stop`` figures of its own stop. It also remembers the jobs cancelled before their
+    plan reached this process (``cancel_plan``), so that the plan stops as it begins (``begin``)."""
 
     def __init__(self, bench: Bench):
         self.bench, self._lock = bench, threading.Lock()
+        self.owner: str | None = None            # the job whose plan runs now
+        self._cancelled: dict[str, str] = {}     # job id → reason, for plans yet to come
 
     def stop(self, reason: str, wait_s: float | None) -> dict:
         with self._lock:
             self.bench.stop(reason, wait_s=wait_s)
             return dict(self.bench.last_stop)
 
-    def command(self, message: tuple) -> dict:
-        """A stop-pipe message: ``("stop", reason, wait_s)`` or ``("request_stop", reason)``."""
-        op, reason = message[0], message[1]
-        if op == "request_stop":
+    def begin(self, owner: str | None) -> None:
+        """A plan of job ``owner`` begins (inside its ``Bench.plan_scope``): stopped at once if its
+        job was cancelled before it arrived."""
+        with self._lock:
+            self.owner = owner
+            reason = self._cancelled.pop(owner, None) if owner is not None else None
+        if reason is not None:
             self.bench.request_stop(reason)
+
+    def end(self) -> None:
+        with self._lock:
+            self.owner = None
+
+    def command(self, message: tuple) -> dict:
+        """A stop-pipe message: ``("stop", reason, wait_s)``, ``("request_stop", reason)`` or
+        ``("cancel_plan", job_id, reason)``: stop that job's plan now or, not begun yet, as it begins."""
+        op = message[0]
+        if op == "cancel_plan":
+            job_id, reason = message[1], message[2]
+            with self._lock:
+                if self.owner != job_id:
+                    self._cancelled[job_id] = reason
+                    while len(self._cancelled) > CANCELLED_KEPT:
+                        self._cancelled.pop(next(iter(self._cancelled)))
+            if self.owner == job_id:
+                self.bench.request_stop(reason)
             return {"requested": True}
-        return self.stop(reason, message[2])
+        if op == "request_stop":
+            self.bench.request_stop(message[1])
+            return {"requested": True}
+        return self.stop(message[1], message[2])
 
 
 def _faults(bench: Bench):
@@ -236,11 +268,10 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
         plan_conn.send(("error", _picklable(exc)))
         return
     closing, hold, stopper, tokens = threading.Event(), StopHold(), _Stopper(bench), StopTokens()
-    owner: list[str | None] = [None]          # the job whose plan runs now
     notice_lock = threading.Lock()
 
     def press_from_port() -> dict:
-        running = owner[0]                # read first: the plan ends, and forgets it, as the loop stops
+        running = stopper.owner           # read first: the plan ends, and forgets it, as the loop stops
         figures = stopper.stop(EMERGENCY_STOP, None)           # 0 V first, then everything else
         seq = hold.press()
         try:
@@ -296,17 +327,19 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
                 break
             if message[0] == "close":
                 break
-            _, plan, args, owner[0] = message
+            _, plan, args, job_id = message
             freeze_heap()                 # no full collection of the engine's heap stalls the run
             try:
-                if hold.active:
-                    raise DriverError(f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
-                                      "service has cancelled the bench's jobs")
-                reply = ("done", plan(bench, emit, *args))
+                with bench.plan_scope():      # a stop from here on holds for the whole plan
+                    stopper.begin(job_id)     # ... and one for this job that came before it
+                    if hold.active:
+                        raise DriverError(f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
+                                          "service has cancelled the bench's jobs")
+                    reply = ("done", plan(bench, emit, *args))
             except Exception as exc:  # noqa: BLE001 - the job that sent the plan reports it
                 reply = ("error", _picklable(exc))
             finally:
-                owner[0] = None
+                stopper.end()
             outbox.put(reply)             # after the plan's events, in order
     finally:
         outbox.close()

@@ -158,7 +158,7 @@ class HarmonicILC:
         return self.u_v
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def learn_step(E, coef_re, coef_im, cos_t, sin_t, u, base, lo, hi):
     """One compiled ILC step in place: per axis a, with E (2, K+1) the period's error at harmonics
     0..K (normalised DFT, µm), Δu = irfft(coef[a, k]·E(k)) (harmonics above K zero: the Q-filter),
@@ -182,7 +182,7 @@ def learn_step(E, coef_re, coef_im, cos_t, sin_t, u, base, lo, hi):
             u[i, a] = total - base[i, a]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def blend_response(E, A, E_prev, A_prev, suu, sue, see, n, g0, noise_var, prior_rel_sd, forget, g):
     """One period's Ĝ refinement in place (see the module doc). E, A (2, K+1): this period's error and
     applied correction spectra; suu, sue, see: the forgetting sums of |ΔU|², conj(ΔU)·(−ΔE), |ΔE|²;
@@ -209,7 +209,7 @@ def blend_response(E, A, E_prev, A_prev, suu, sue, see, n, g0, noise_var, prior_
             g[a, k] = est.real + 0j if k == 0 else est           # DC gain is real
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def spectrum(x, cos_t, sin_t, out):
     """Normalised DFT of each column of x (n, 2) at harmonics 0..K into out (2, K+1); returns
     (RMS of x, RMS of its harmonics 0..K), both in x's unit."""
@@ -231,7 +231,7 @@ def spectrum(x, cos_t, sin_t, out):
     return np.sqrt(total / (n * cols)), np.sqrt(band / cols)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def learning_coefficients(E, g, gain, gate, noise_factor, coef_re, coef_im):
     """γ_k/Ĝ(k) per (axis, harmonic) into coef_re/coef_im: γ where |E(k)|² > gate[a] (SNR_GATE·σ²),
     γ·noise_factor where the error is at the noise."""

@@ -103,7 +103,7 @@ def prominent_peaks(y: np.ndarray, prominence: float) -> np.ndarray:
     return peaks[_prominences(y, peaks) >= prominence]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prominences(y, peaks):
     """Prominence of every peak (scipy's definition, no window): its height above the higher of the
     lowest points on either side before a higher sample. One pass per side with a stack of

@@ -18,7 +18,7 @@ FN_PER_DECADE = 230  # 1 % steps
 COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _biquad_about_first_row(b, a, x, out):
     """Direct form II transposed (as scipy's lfilter) down each column of ``x`` (n, m), about its
     first row, in row order: the columns share each sample's pass through memory."""

@@ -25,7 +25,7 @@ OPERATOR_FACTOR = 2
 DUHEM_SCALES = (0.02, 0.05, 0.12, 0.3)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def duhem_operators(u_v: np.ndarray, scales_v: np.ndarray) -> np.ndarray:
     """(n, k) Duhem operator outputs (V): h_k += du − |du|·h_k/c_k per sample, exact for a step du
     (h relaxes exponentially in |u| travelled: h ← h·e^(−|du|/c) + sign(du)·c·(1 − e^(−|du|/c)))."""

@@ -51,7 +51,7 @@ def analytic_pi_inverse(x_ref_um, thresholds_v, weights_um_per_v, offset_um: flo
     return play_operators(x, r_inv) @ w_inv
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _solve_sample(x_target, a1, c_l, b1, c_r, thresholds, gains, offset, state, u_prev, u_lo, u_hi, pts, vals):
     """The u at which the generalised PI step (states fixed) outputs ``x_target``."""
     n = thresholds.size
@@ -101,7 +101,7 @@ def _solve_sample(x_target, a1, c_l, b1, c_r, thresholds, gains, offset, state, 
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _invert(x_ref, thresholds, weights, offset, a1, a2, b1, b2, alpha, beta, du, ddu, u_lo, u_hi, state):
     n = x_ref.size
     u = np.empty(n)

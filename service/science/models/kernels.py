@@ -17,14 +17,14 @@ def play(h_l: float, h_r: float, r: float, y_prev: float) -> float:
     return max(h_l - r, min(h_r + r, y_prev))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def play_update(u: float, thresholds: np.ndarray, state: np.ndarray) -> None:
     """Advance every classical play operator one sample; ``state`` (V) is updated in place."""
     for i in range(thresholds.size):
         state[i] = play(u, u, thresholds[i], state[i])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _envelope_play_operators(h_l, h_r, thresholds, y0, out):
     state = y0.copy()
     for k in range(h_l.size):
@@ -64,7 +64,7 @@ def grpi_envelopes(u, du, a1: float, a2: float, b1: float, b2: float):
     return a1 * u + a2 * speed, b1 * u + b2 * speed
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def segment_of(du: float, ddu: float) -> int:
     """Segment 0..3 of eq. 3 (paper's s = 1..4): the first matching row in the paper's order.
 
@@ -75,7 +75,7 @@ def segment_of(du: float, ddu: float) -> int:
     return 2 if ddu <= 0.0 else 3
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def segment_index(du: np.ndarray, ddu: np.ndarray) -> np.ndarray:
     """:func:`segment_of` for every sample."""
     out = np.empty(du.size, dtype=np.int64)
@@ -84,14 +84,14 @@ def segment_index(du: np.ndarray, ddu: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def dynamic_weight_shift(du: float, ddu: float, alpha: np.ndarray, beta: np.ndarray) -> float:
     """φ of eq. 3 in µm/V: ``α_s u̇ + β_s ü`` with s from the signs of (u̇, ü)."""
     s = segment_of(du, ddu)
     return alpha[s] * du + beta[s] * ddu
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gpi_step(u, a1, c_l, b1, c_r, thresholds, gains, offset, state, commit):
     """Generalised PI output (µm) at one sample with envelopes ``a1 u + c_l`` / ``b1 u + c_r``.
 
