@@ -211,6 +211,10 @@ class Bench(LimitsMixin):
                 self.request_stop()
             return plan(self, emit, *args)
 
+    def cancel_plan(self, job_id: str | None = None) -> None:
+        """Stop the plan of job ``job_id`` (its caller also stops it as it begins, ``execute``)."""
+        self.request_stop()
+
     @contextmanager
     def plan_scope(self) -> Iterator[None]:
         """One plan (a job's whole experiment: its preparation and every run in it). It starts with

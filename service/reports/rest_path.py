@@ -61,7 +61,7 @@ class UseCases:
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         self.store = Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
         self.bench = open_configured_bench(settings)
-        self.jobs = JobManager(self.store, on_cancel_bench=self.bench.request_stop)
+        self.jobs = JobManager(self.store, on_cancel_bench=self.bench.cancel_plan)
 
     def close(self) -> None:
         self.jobs.shutdown()

@@ -88,7 +88,7 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
             app.state.bench = factory(settings)
             try:
-                app.state.jobs = JobManager(store, on_cancel_bench=app.state.bench.request_stop)
+                app.state.jobs = JobManager(store, on_cancel_bench=app.state.bench.cancel_plan)
                 # the engine's stop port (an engine in its own process has one): its tokens, its jobs
                 app.state.stop_port_link = link = (
                     None if getattr(app.state.bench, "stop_port", None) is None

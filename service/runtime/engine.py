@@ -218,7 +218,7 @@ class EngineBench(LimitsMixin):
     def request_stop(self, reason: str = STOPPED_ON_REQUEST) -> None:
         self._stop.call("request_stop", reason)
 
-    def _cancel_plan(self, owner: str | None) -> None:
+    def cancel_plan(self, owner: str | None = None) -> None:
         """Stop the plan of job ``owner`` (sent with it): now if it runs, or as it begins if the engine
         has not started it yet (a plain stop request would be cleared by its start). A plan with
         no owner gets a plain stop request."""
@@ -292,7 +292,7 @@ class EngineBench(LimitsMixin):
             conn.send(("execute", plan, args, owner))
             while True:
                 if should_stop is not None and not asked and should_stop():
-                    self._cancel_plan(owner)
+                    self.cancel_plan(owner)
                     asked = True
                 if not conn.poll(SHOULD_STOP_POLL_S):
                     if not self._process.is_alive():

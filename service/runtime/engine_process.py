@@ -29,6 +29,7 @@ import os
 import pickle
 import queue
 import signal
+import sys
 import threading
 import time
 from multiprocessing.connection import Connection
@@ -36,7 +37,7 @@ from multiprocessing.connection import Connection
 from drivers.bench import Bench
 from drivers.interfaces import DriverError
 from service.runtime.heap import freeze_heap
-from service.runtime.priority import ENGINE_NICE, set_thread_nice
+from service.runtime.priority import ENGINE_NICE, SAFETY_SWITCH_INTERVAL_S, set_thread_nice
 from service.runtime.stop_port import EMERGENCY_STOP, STOP_PATH, StopPort, StopTokens, zero_after_request_ms
 
 log = logging.getLogger("evcbench.engine")
@@ -260,6 +261,10 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_signal)
     set_thread_nice(ENGINE_NICE)      # before any thread starts: they inherit it (service.runtime.priority)
+    # The stop port's thread needs the GIL for every step of a press; while a plan computes its drive
+    # in Python the main thread would hold it for the default 5 ms at a time, and a press wait that
+    # many times over (260-450 ms measured); at 0.5 ms the wait is a tenth.
+    sys.setswitchinterval(SAFETY_SWITCH_INTERVAL_S)
     from drivers.emulated import open_bench
 
     try:
@@ -267,6 +272,8 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     except Exception as exc:  # noqa: BLE001 - the web process reports it and does not start
         plan_conn.send(("error", _picklable(exc)))
         return
+    from service.science.control.loop import compile_runner
+    compile_runner(bench)                 # now, not in a run: compiling holds the GIL for seconds
     closing, hold, stopper, tokens = threading.Event(), StopHold(), _Stopper(bench), StopTokens()
     notice_lock = threading.Lock()
 

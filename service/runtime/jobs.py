@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 from typing import AsyncIterator, Callable
 
 from service.runtime.heap import freeze_heap
-from service.runtime.priority import WORK_NICE, set_thread_nice
+from service.runtime.priority import SAFETY_SWITCH_INTERVAL_S, WORK_NICE, set_thread_nice
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, MAX_QUEUED_COMPUTE_JOBS, QUEUE_RETRY_AFTER_S
 from service.store import TERMINAL_STATES, Store, clean_json, utc_now
 
 PERSIST_EVERY_S = 0.5
 #: The interpreter's thread switch interval (s) while a bench job runs: a thread waiting for the GIL
 #: (the bench loop between two compiled periods) gets it within this, not within the default 5 ms.
-BENCH_SWITCH_INTERVAL_S = 0.0005
+BENCH_SWITCH_INTERVAL_S = SAFETY_SWITCH_INTERVAL_S
 SSE_POLL_S = 0.1
 SSE_HEARTBEAT_S = 15.0
 #: How often an open event stream re-checks its caller's token (s): a revoked token's stream ends.
@@ -101,11 +101,12 @@ class JobContext:
 
 
 class JobManager:
-    """Runs, tracks and cancels jobs. ``on_cancel_bench`` is called to stop a running bench job.
+    """Runs, tracks and cancels jobs. ``on_cancel_bench(job_id)`` is called to stop a running bench
+    job's plan (``Bench.cancel_plan``).
     At most ``max_queued_bench_jobs`` bench jobs and ``max_queued_compute_jobs`` other jobs wait
     (running ones are not counted)."""
 
-    def __init__(self, store: Store, on_cancel_bench: Callable[[], None] | None = None, workers: int = 2,
+    def __init__(self, store: Store, on_cancel_bench: Callable[[str], None] | None = None, workers: int = 2,
                  max_queued_bench_jobs: int = MAX_QUEUED_BENCH_JOBS,
                  max_queued_compute_jobs: int = MAX_QUEUED_COMPUTE_JOBS):
         self.store = store
@@ -186,7 +187,7 @@ class JobManager:
                 self._finish(job_id, "cancelled", message=reason or "cancelled before it started")
                 return self.get(job_id)
         if live.needs_bench and self._on_cancel_bench is not None and self._running_bench_job == job_id:
-            self._on_cancel_bench()  # besides the job's own cancel flag, for jobs that poll only the bench
+            self._on_cancel_bench(job_id)  # besides the job's own cancel flag, for jobs that poll only the bench
         self._set_progress(job_id, live.progress, "cancel requested")
         return self.get(job_id)
 

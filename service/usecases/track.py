@@ -71,17 +71,20 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
     the feedforward models, the mode, the current, the resonance, the voltage, the stroke
     (``session.plan``) and the ILC's predicted convergence (``controller.ilc_gain`` or
     ``controller.ilc``, service.science.control.ilc_stability; ``force`` runs it anyway). FieldError (a ControlRefused among them) names the field; a failure that
-    names none (e.g. a model whose inverse breaks) is laid on ``body``."""
+    names none (e.g. a model whose inverse breaks) is laid on ``body``. The returned controller
+    carries the planned reference and drive (``planned``) for the run."""
     built = build_controller(bench, store, controller, ellipse.frequency_hz, mode)
     refusal = built.ilc_report and built.ilc_report["refusal"]
     if refusal and not controller.get("force", False):
         raise FieldError(refusal[0], refusal[1] + " (or set controller.force to run it; a diverging run trips to 0 V)")
+    warnings: list[str] = []
     try:
-        plan(bench, ellipse, built, mode)
+        ref, u_ff = plan(bench, ellipse, built, mode, warnings)
     except FieldError:
         raise
     except ValueError as exc:
         raise FieldError("body", str(exc)) from None
+    built.planned = (ref, u_ff, warnings)      # the run uses this drive: the engine computes nothing
     return built
 
 

@@ -77,6 +77,23 @@ def trip_limits(bench: Bench, ref: Reference, error_fraction: float = 1.0, error
                      for i, a in enumerate(bench.axes)], dtype=float)
 
 
+def compile_runner(bench: Bench):
+    """(runner, world args, take_noise) of ``bench``'s per-sample loop, compiled by a zero-length call,
+    or None without a compiled stepping hook. The bench engine calls it as it starts, so that no
+    run compiles (seconds that hold the GIL, during which even the stop port would wait)."""
+    hook = stepping_hook(bench)
+    if hook is None:
+        return None
+    step_fn, args, take_noise = hook
+    runner = CK.point_by_point_runner(step_fn)
+    noise, n0 = take_noise(0)
+    empty = np.zeros((0, 2))
+    runner(args, noise, n0, empty, empty.copy(), np.zeros((2, CK.NPID)), np.zeros((2, CK.NPS)), np.zeros(2),
+           np.zeros((2, CK.NL)), np.zeros((2, CK.NT)), np.zeros(2), np.zeros(2), np.zeros(2), 1.0, empty.copy(),
+           empty.copy(), np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
+    return runner, args, take_noise
+
+
 class Tracker:
     """Runs ``ref`` with feedforward ``u_ff_v`` (n, 2), optional per-axis PID and optional ILC."""
 
@@ -190,17 +207,10 @@ class Tracker:
     def _compiled_runner(self):
         """(runner, world args, take_noise), compiled by a zero-length call (compiling takes seconds,
         which must not count as a stalled loop once the watchdog is armed)."""
-        hook = stepping_hook(self.bench)
-        if hook is None:
+        compiled = compile_runner(self.bench)
+        if compiled is None:
             raise RuntimeError("point_by_point needs the DAQ's compiled stepping hook")
-        step_fn, args, take_noise = hook
-        runner = CK.point_by_point_runner(step_fn)
-        noise, n0 = take_noise(0)
-        empty = np.zeros((0, 2))
-        runner(args, noise, n0, self.ref.x_um[:0], self.u_ff[:0], self.pid_p, np.zeros((2, CK.NPS)),
-               np.zeros(2), self.lim, self.trip, np.zeros(2), self.um_per_v, np.zeros(2), 1.0 / self.fs, empty,
-               empty.copy(), np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
-        return runner, args, take_noise
+        return compiled
 
     def _run_pbp(self, compiled, rec, on_period, should_stop, session) -> None:
         runner, args, take_noise = compiled

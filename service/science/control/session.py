@@ -43,6 +43,9 @@ class Controller:
     ilc_report: dict | None = None
     #: run a range beyond the stroke anyway (commands clamped at the axis's limits; the reason becomes a warning)
     allow_saturation: bool = False
+    #: (reference, feedforward V, warnings) as ``plan`` made them where the request was checked, so that
+    #: the bench's process does not compute the drive again (seconds for a long run, the stop port waiting)
+    planned: tuple[Reference, np.ndarray | None, list[str]] | None = None
 
 
 def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarray, centre_um: np.ndarray,
@@ -144,8 +147,12 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
           on_period: Callable[[int, TrackRecord], None] | None = None,
           should_stop: Callable[[], bool] | None = None) -> tuple[dict, TrackRecord, Reference]:
     """Run one experiment; returns (result dict, record, reference)."""
-    warnings: list[str] = []
-    ref, u_ff = plan(bench, ellipse, controller, mode, warnings)
+    if controller.planned is not None:
+        ref, u_ff, said = controller.planned
+        warnings = list(said)
+    else:
+        warnings = []
+        ref, u_ff = plan(bench, ellipse, controller, mode, warnings)
     ilc = None
     if controller.ilc:
         steady = ref.steady_period()
