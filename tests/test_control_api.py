@@ -157,3 +157,9 @@ def test_a_feedforward_model_whose_inverse_diverges_is_refused_before_the_bench_
         "feedforward_model_y": ids["static_pi", "y"], "feedforward_model_z": ids["static_pi", "z"]}})
     assert r.status_code == 202, r.text
     assert _wait(http, r.json()["job_id"])[0]["state"] == "succeeded"
+    # the other axis's model is refused naming the field and the axis it belongs to (a new user
+    # swapped them: accepted silently, 71 % error)
+    r = http.post("/api/trajectories", json={**BASE, "cycles": 5, "controller": {
+        "feedforward_model_y": ids["static_pi", "z"], "feedforward_model_z": ids["static_pi", "y"]}})
+    assert r.status_code == 422 and r.json()["field"] == "controller.feedforward_model_y", r.text
+    assert "identified on the Z axis" in r.json()["detail"]

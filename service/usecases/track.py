@@ -35,9 +35,14 @@ def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz:
             continue
         field = f"controller.feedforward_model_{ax}"
         try:
-            models[ax] = load_model(store.get_model(model_id))
+            row = store.get_model(model_id)
         except NotFoundError:
             raise FieldError(field, f"no model {model_id!r}") from None
+        if row.get("axis") not in (None, ax):
+            raise FieldError(field, f"model {model_id} was identified on the {row['axis'].upper()} axis, not "
+                             f"{ax.upper()}: its hysteresis and dynamics are the other stack's")
+        try:
+            models[ax] = load_model(row)
         except Exception as exc:  # a model that cannot be rebuilt or inverted
             raise FieldError(field, f"model {model_id} cannot be used: {exc}") from None
     pid, report, gains = None, None, None
