@@ -29,7 +29,6 @@ import os
 import pickle
 import queue
 import signal
-import sys
 import threading
 import time
 from multiprocessing.connection import Connection
@@ -37,7 +36,7 @@ from multiprocessing.connection import Connection
 from drivers.bench import Bench
 from drivers.interfaces import DriverError
 from service.runtime.heap import freeze_heap
-from service.runtime.priority import ENGINE_NICE, SAFETY_SWITCH_INTERVAL_S, set_thread_nice
+from service.runtime.priority import ENGINE_NICE, set_thread_nice
 from service.runtime.stop_port import EMERGENCY_STOP, STOP_PATH, StopPort, StopTokens, zero_after_request_ms
 
 log = logging.getLogger("evcbench.engine")
@@ -128,11 +127,12 @@ class _Stopper:
         if op == "cancel_plan":
             job_id, reason = message[1], message[2]
             with self._lock:
-                if self.owner != job_id:
+                running = self.owner == job_id
+                if not running:
                     self._cancelled[job_id] = reason
                     while len(self._cancelled) > CANCELLED_KEPT:
                         self._cancelled.pop(next(iter(self._cancelled)))
-            if self.owner == job_id:
+            if running:
                 self.bench.request_stop(reason)
             return {"requested": True}
         if op == "request_stop":
@@ -261,10 +261,6 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_signal)
     set_thread_nice(ENGINE_NICE)      # before any thread starts: they inherit it (service.runtime.priority)
-    # The stop port's thread needs the GIL for every step of a press; while a plan computes its drive
-    # in Python the main thread would hold it for the default 5 ms at a time, and a press wait that
-    # many times over (260-450 ms measured); at 0.5 ms the wait is a tenth.
-    sys.setswitchinterval(SAFETY_SWITCH_INTERVAL_S)
     from drivers.emulated import open_bench
 
     try:

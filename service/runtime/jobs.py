@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 from typing import AsyncIterator, Callable
 
 from service.runtime.heap import freeze_heap
-from service.runtime.priority import SAFETY_SWITCH_INTERVAL_S, WORK_NICE, set_thread_nice
+from service.runtime.priority import WORK_NICE, set_thread_nice
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, MAX_QUEUED_COMPUTE_JOBS, QUEUE_RETRY_AFTER_S
 from service.store import TERMINAL_STATES, Store, clean_json, utc_now
 
 PERSIST_EVERY_S = 0.5
 #: The interpreter's thread switch interval (s) while a bench job runs: a thread waiting for the GIL
 #: (the bench loop between two compiled periods) gets it within this, not within the default 5 ms.
-BENCH_SWITCH_INTERVAL_S = SAFETY_SWITCH_INTERVAL_S
+BENCH_SWITCH_INTERVAL_S = 0.0005
 SSE_POLL_S = 0.1
 SSE_HEARTBEAT_S = 15.0
 #: How often an open event stream re-checks its caller's token (s): a revoked token's stream ends.

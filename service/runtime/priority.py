@@ -27,10 +27,6 @@ SAFETY_NICE = -5
 WORK_NICE = 0
 #: downloads and imports (service.runtime.bulk)
 BULK_NICE = 10
-#: the interpreter's thread switch interval (s) where a safety thread competes for the GIL (the
-#: engine process; the web process while a bench job runs): a waiting thread gets the GIL within
-#: this, not within the default 5 ms
-SAFETY_SWITCH_INTERVAL_S = 0.0005
 
 _refused_once = threading.Event()
 
