@@ -26,18 +26,13 @@ from __future__ import annotations
 import copy
 import json
 import os
-from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("EVCBENCH_ENGINE", "inline")
 
-# Each xdist worker (and the services its tests start, which inherit the variable) compiles into a
-# numba cache of its own: two processes saving two signatures of one function at the same time can
-# leave the cache index naming the other one's machine code. A single process keeps numba's default.
-if os.environ.get("PYTEST_XDIST_WORKER"):
-    os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "numba"
-                                                 / os.environ["PYTEST_XDIST_WORKER"]))
+# numba's cache is shared by the workers and the services their tests start: drivers/jit.py locks
+# its index, so two processes compiling one kernel at once keep each one's machine code.
 
 #: Run order under xdist: the marks of a test, heaviest first (a test's weight is its heaviest mark's).
 WEIGHTS = {"slow": 3, "browser": 2, "realtime": 2, "postgres": 1}

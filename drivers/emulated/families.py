@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from numba import njit
+from drivers.jit import njit
 
 INLINED_BY = ("kernels",)   # modules whose cached kernels compile these functions in
 

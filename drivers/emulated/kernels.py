@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 from drivers.emulated.families import bouc_wen_step, maxwell_slip_step
 

@@ -19,7 +19,7 @@ import os
 import time
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 from service.science.control import kernels as CK
 from service.science.control.ilc import HarmonicILC

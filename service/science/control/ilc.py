@@ -19,7 +19,7 @@ correction with half the gain if the total grows 3× (divergence).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 #: Ĝ's prior is trusted to this fraction of |G₀| (one standard deviation)
 PRIOR_REL_SD = 0.5

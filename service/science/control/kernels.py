@@ -11,7 +11,7 @@ Arrays per axis (row 0 = Y, row 1 = Z):
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 KP, KI, KD, TF, ON, DB0, DB1, DB2, DA1, DA2, NPID = range(11)
 S_INT, S_DER, S_EPREV, S_D1, S_D2, NPS = range(6)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 from scipy.signal import find_peaks, savgol_filter
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.

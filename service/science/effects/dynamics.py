@@ -4,7 +4,7 @@ from a grid search refined locally; the weights stay linear."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 from scipy.signal import bilinear
 
 from service.science.effects.base import Effect

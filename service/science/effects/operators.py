@@ -13,7 +13,7 @@ this base (service/science/discovery/diagnosis.py)."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 from service.science.effects.base import Effect, RecordContext
 from service.science.models.base import equal_thresholds

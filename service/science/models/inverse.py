@@ -10,7 +10,7 @@ voltage is taken; an unreachable target saturates at the closest reachable outpu
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 from service.science.data.record import finite_array
 from service.science.models.kernels import dynamic_weight_shift, gpi_step, play_operators

@@ -8,7 +8,7 @@ definition. The scalar/in-place kernels are meant to be called from other numba 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.jit import njit
 
 
 @njit(cache=True, inline="always")

@@ -1,0 +1,78 @@
+"""drivers.jit: two processes that save two signatures of one compiled function at the same time
+each find their own machine code afterwards (numba's own cache gives both data file 1)."""
+from __future__ import annotations
+
+import importlib
+import multiprocessing
+import sys
+import time
+
+import numpy as np
+from numba.core.caching import IndexDataCacheFile
+
+import drivers.jit  # noqa: F401 - installs the lock
+
+STAMP = (1.0, 1)                                     # a source file's (mtime, size), as numba stamps it
+
+
+def _save_slowly(cache_dir: str, key: str, payload: bytes, start) -> None:
+    """Save ``payload`` under ``key`` with the index read held open for 0.3 s: without a lock the other
+    process reads the same index within that time and takes the same data-file number."""
+    import drivers.jit  # noqa: F401 - the child's own lock (a forked child has it already)
+
+    cache = IndexDataCacheFile(cache_dir, "kernel-10.py311", STAMP)
+    read_index = cache._load_index
+
+    def slow_read():
+        index = read_index()
+        time.sleep(0.3)
+        return index
+
+    cache._load_index = slow_read
+    start.wait()
+    cache.save(key, payload)
+
+
+def test_concurrent_saves_of_two_signatures_keep_each_ones_code(tmp_path):
+    ctx = multiprocessing.get_context("fork")
+    start = ctx.Event()
+    payloads = {"(float64,)": b"code for float64", "(int64,)": b"code for int64"}
+    workers = [ctx.Process(target=_save_slowly, args=(str(tmp_path), key, data, start))
+               for key, data in payloads.items()]
+    for w in workers:
+        w.start()
+    start.set()
+    for w in workers:
+        w.join(30)
+        assert w.exitcode == 0
+    cache = IndexDataCacheFile(str(tmp_path), "kernel-10.py311", STAMP)
+    index = cache._load_index()
+    assert sorted(index) == sorted(payloads)                  # neither save was lost
+    assert len(set(index.values())) == 2                      # two data files, one per signature
+    for key, data in payloads.items():
+        assert cache.load(key) == data, key
+
+
+def test_a_kernel_compiles_caches_and_loads_through_the_lock(tmp_path, monkeypatch):
+    """A cached njit function still compiles, saves and, in a new dispatcher, loads (numba's cache
+    under the lock), giving the same numbers."""
+    from numba.core.config import reload_config
+
+    (tmp_path / "kernel_mod.py").write_text("from drivers.jit import njit\n\n@njit(cache=True)\n"
+                                            "def twice(x):\n    return 2.0 * x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    reload_config()
+    try:
+        first = importlib.import_module("kernel_mod")
+        assert first.twice(np.arange(3.0)).tolist() == [0.0, 2.0, 4.0]
+        assert sum(first.twice.stats.cache_misses.values()) == 1          # compiled and saved
+        sys.modules.pop("kernel_mod")
+        again = importlib.import_module("kernel_mod")
+        assert again.twice(np.arange(3.0)).tolist() == [0.0, 2.0, 4.0]
+        assert sum(again.twice.stats.cache_hits.values()) == 1            # loaded from the cache
+        assert list((tmp_path / "cache").rglob("*.nbi.lock")), "the lock file sits beside the index"
+    finally:
+        sys.modules.pop("kernel_mod", None)
+        monkeypatch.undo()
+        reload_config()                  # later tests in this process compile into their own cache again
