@@ -25,6 +25,8 @@ from service.runtime.app import create_app
 from service.runtime.settings import Settings
 
 SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5, "together": False}
+#: The tests that read the module's ``refined`` service run on one xdist worker, which builds it once.
+SHARED = pytest.mark.xdist_group("model_report_refined")
 
 
 def _result(http, job_id) -> dict:
@@ -64,6 +66,7 @@ def _as_printed(value_um: float) -> str:
 
 
 @pytest.mark.slow
+@SHARED
 def test_the_report_of_a_refined_model(refined):
     r, http, model = refined["report"], refined["http"], refined["model"]
     assert r.status_code == 200, r.text
@@ -134,6 +137,7 @@ def test_the_report_of_a_refined_model(refined):
 
 
 @pytest.mark.slow
+@SHARED
 def test_the_report_figures_alone_for_the_page(refined):
     """GET /report/figures: the report's own figures, named blocks, the diagnosis's worst one marked."""
     r = refined["read"].get(f"/api/models/{refined['model']}/report/figures")
@@ -157,6 +161,7 @@ def test_the_report_figures_alone_for_the_page(refined):
 
 
 @pytest.mark.slow
+@SHARED
 def test_the_reproduce_commands_run(refined):
     """The Python lines, run as they are printed (the client on this service), record the sweep
     again and rebuild the lineage; the shell lines parse."""
@@ -176,6 +181,7 @@ def test_the_reproduce_commands_run(refined):
 
 
 @pytest.mark.slow
+@SHARED
 def test_unknown_model_and_tokens(refined):
     read, model = refined["read"], refined["model"]
     r = read.get("/api/models/md_nope/report")
@@ -186,6 +192,7 @@ def test_unknown_model_and_tokens(refined):
 
 
 @pytest.mark.slow
+@SHARED
 def test_cli_writes_the_report(refined, tmp_path, capsys):
     out = tmp_path / "report.html"
     args = argparse.Namespace(model_id=refined["model"], report=str(out), json=False)
