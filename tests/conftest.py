@@ -51,6 +51,24 @@ def _expected_seconds() -> dict[str, float]:
     return json.loads(path.read_text()) if path.exists() else {}
 
 
+@pytest.hookimpl(tryfirst=True)     # before xdist's own hook sends the worker's collection
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Under ``--dist loadgroup``, a worker's node ids carry their group (``…@name``), which is how
+    the controller keeps a group on one worker. pytest-xdist sets ``item._nodeid`` for that, which
+    pytest 9 no longer reads (a node's id is ``item._id``): without this every group was split
+    test by test, and its module fixtures built on every worker. Here the suffix goes on ``_id``,
+    where xdist's own did not land, before the worker reports its collection."""
+    if not os.environ.get("PYTEST_XDIST_WORKER") or not session.config.getvalue("loadgroup"):
+        return
+    from _pytest.nodeid import coerce_node_id
+
+    for item in session.items:
+        names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                        for m in item.iter_markers("xdist_group")})
+        if names and "@" not in item.nodeid:
+            item._id = coerce_node_id(f"{item.nodeid}@{'_'.join(names)}")
+
+
 @pytest.hookimpl(tryfirst=True)      # before xdist reads the groups (it appends them to the node ids)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The PostgreSQL tests share one worker (one cluster). Under xdist the slow tests go first,

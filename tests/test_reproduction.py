@@ -99,6 +99,7 @@ def default_reproduction():
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("reproduction")     # both axes read one reproduction run: one worker builds it
 @pytest.mark.parametrize("axis", ["y", "z"])
 def test_default_bench_meets_the_papers_table6_targets(default_reproduction, axis):
     """Issue 18's targets, read from the reproduction run's figures: each Table 6 cell within ±35 % of
