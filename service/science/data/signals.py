@@ -10,10 +10,8 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy.fft import irfft, next_fast_len, rfft
-from scipy.signal import find_peaks, savgol_coeffs
-
 from drivers.jit import njit
+from scipy.signal import find_peaks, savgol_filter
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.
 TURNING_SWING_FRACTION = 0.1
@@ -179,28 +177,9 @@ def savgol_derivatives(
         d1 = np.gradient(y, dt) if y.size > 1 else np.zeros_like(y)
         d2 = np.gradient(d1, dt) if y.size > 1 else np.zeros_like(y)
         return d1, d2
-    return savgol_by_fft(y, window, dt, derivs=(1, 2))
-
-
-def savgol_by_fft(y: np.ndarray, window: int, dt_s: float, derivs=(1, 2)) -> list[np.ndarray]:
-    """``scipy.signal.savgol_filter(y, window, SAVGOL_POLYORDER, deriv=d, delta=dt_s, mode="interp")``
-    for each d in ``derivs`` (unit/s^d), the same coefficients and edge fits, with the convolution
-    done by one FFT of ``y``. scipy convolves directly, O(n·window): a 1 Hz record at 20 kHz has a
-    2001-sample window, and its two derivatives took 1.2 s each; by FFT they take milliseconds and
-    agree to about 1e-12 of the signal's scale (tests/test_signals_savgol.py)."""
-    n, half = y.size, window // 2
-    size = next_fast_len(n + window - 1, real=True)
-    spectrum = rfft(y, size)
-    out = []
-    for deriv in derivs:
-        coeffs = savgol_coeffs(window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s, use="conv")
-        full = irfft(spectrum * rfft(coeffs, size), size)[:n + window - 1]
-        d = full[half:half + n].copy()              # "same": the window centred on each sample
-        for start, edge in ((0, slice(0, half)), (n - window, slice(n - half, n))):   # the edges: a polynomial
-            fit = np.polyder(np.polyfit(np.arange(window), y[start:start + window], SAVGOL_POLYORDER), deriv)
-            d[edge] = np.polyval(fit, np.arange(edge.start - start, edge.stop - start)) / dt_s ** deriv
-        out.append(d)
-    return out
+    d1 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=1, delta=dt, mode="interp")
+    d2 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=2, delta=dt, mode="interp")
+    return d1, d2
 
 
 def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float,
