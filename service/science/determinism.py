@@ -6,7 +6,8 @@ discovery take discrete decisions on their results (an effect claimed at p < 1e-
 a grid point chosen), so those bits can move a reported figure. Measured before this module: two
 ``python -m service.reports.tracking_error_spectrum --seed 1`` runs at once gave, in one of them,
 FF-only 3.61 % where the same seed alone gives 4.56 %; with one BLAS thread every run gave 4.56 %.
-The fits here are on tall, thin matrices, where a second thread gains little.
+It costs no time here: ``evcbench bench discovery`` diagnosed Y in 2.33–2.43 s and Z in 1.64–1.75 s
+with one thread, against 2.69–2.78 s and 2.15–2.61 s with two (two runs each, alternating, 2 cores).
 
 ``limit_blas_threads()`` limits the BLAS libraries already loaded in this process (threadpoolctl
 finds them, whoever imported numpy first) and sets the environment variables that processes started
