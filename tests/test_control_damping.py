@@ -49,6 +49,7 @@ def test_the_compiled_pid_step_runs_the_section_beside_the_pid():
     assert CK.pid_step(no_section, np.zeros(CK.NPS), 0.1, 60.0, 60.0, -1e3, 1e3, 1e3, 1 / FS_HZ) == 60.0
 
 
+@pytest.mark.slow               # a tuning search with the section grid: seconds
 @pytest.mark.parametrize("axis", ["y", "z"])
 def test_auto_damps_the_mode_within_the_targets_and_predicts_less_error(axis):
     plant = PLANTS[axis]
@@ -74,6 +75,7 @@ def test_auto_damps_the_mode_within_the_targets_and_predicts_less_error(axis):
     assert abs(1 / (1 + controller_response(plain.gains(), at_mode) * plant_response(plant, at_mode)))[0] > 1.0
 
 
+@pytest.mark.slow               # a tuning search with the section grid: seconds
 def test_choose_pid_damps_only_the_axes_named_and_reports_the_section():
     gains, report, warnings = choose_pid("auto", PLANTS, {}, damped_axes=frozenset({"z"}))
     assert gains["y"][4] is None and report["axes"]["y"]["damping"] is None
@@ -96,6 +98,7 @@ def test_learning_under_the_damped_loop_is_predicted_to_converge():
     assert all(p.factor < 1.0 for p in predicted), predicted
 
 
+@pytest.mark.slow               # a tuning search with the section grid: seconds
 @pytest.mark.parametrize("axis", ["y", "z"])
 def test_the_damped_loop_stays_stable_when_the_mode_is_not_where_the_bench_declares_it(axis):
     """The section is tuned to the bench's declared mode; a real stage's may be 20 % off and lighter or
@@ -111,6 +114,7 @@ def test_the_damped_loop_stays_stable_when_the_mode_is_not_where_the_bench_decla
             assert m.stable and m.gain_margin_db >= 6.0 and m.phase_margin_deg >= 30.0, (detune, zeta, m)
 
 
+@pytest.mark.slow               # a tuning search with the section grid: seconds
 def test_a_mode_the_loop_cannot_see_gets_no_section_and_a_plant_without_a_mode_is_tuned():
     """A mode above damping.MAX_FREQUENCY_SHARE of the 20 kHz loop gets no section (the biquad would
     not have the designed response; a section at the Nyquist frequency is refused outright); a plant
@@ -123,6 +127,7 @@ def test_a_mode_the_loop_cannot_see_gets_no_section_and_a_plant_without_a_mode_i
     assert flat.damping is None and Targets().failures(flat.margins) == [] and flat.ki > 0
 
 
+@pytest.mark.slow               # a tuning search with the section grid: seconds
 def test_the_gains_meet_the_targets_without_the_mode_as_well():
     """A stage without the declared mode (a bench without flexure dynamics, or a mode higher than
     declared) gives the controller's high-frequency gain no roll-off. The PID that was tuned beside a
