@@ -7,8 +7,8 @@ benches of a lab, the workers of the test suite. numba 0.68's cache is not safe 
 first free data-file number, writes the index, then the data file. Two processes that save two
 signatures of one function at the same time both take number 1. The index then names one
 signature and file 1 holds the other's machine code, and every later process that loads that
-signature runs the wrong code, silently: the CI run at 63ea3d0 got 1.2256 % instead of 1.1646 %
-from the same tracking run.
+signature runs the wrong code, silently. tests/test_jit_cache.py shows the lost save; without
+the lock it fails.
 
 Here the index's read-modify-write and the data file are written under an exclusive ``flock`` on a
 lock file beside the index, and loads hold a shared one, so a reader never sees an index entry
