@@ -26,7 +26,6 @@ from __future__ import annotations
 import copy
 import json
 import os
-from pathlib import Path
 
 import pytest
 
@@ -41,15 +40,6 @@ WEIGHTS = {"slow": 3, "browser": 2, "realtime": 2, "postgres": 1}
 
 def _weight(item: pytest.Item) -> int:
     return max((w for mark, w in WEIGHTS.items() if item.get_closest_marker(mark)), default=0)
-
-
-def _expected_seconds() -> dict[str, float]:
-    """tests/expected_seconds.json: what the longest tests took (s, set-up and call, one ``make test``
-    on this 2-core machine). Used only to order the work, longest first within a weight, so that no
-    long test or group starts last; a test it does not list counts 0, a stale figure only costs
-    balance. Nothing asserts on time."""
-    path = Path(__file__).with_name("expected_seconds.json")
-    return json.loads(path.read_text()) if path.exists() else {}
 
 
 @pytest.hookimpl(tryfirst=True)     # before xdist's own hook sends the worker's collection
@@ -73,9 +63,9 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 @pytest.hookimpl(tryfirst=True)      # before xdist reads the groups (it appends them to the node ids)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The PostgreSQL tests share one worker (one cluster). Under xdist the slow tests go first,
-    then the real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together;
-    within a weight the longest units first (tests/expected_seconds.json). A group (xdist_group)
-    stays together, at the place of its heaviest test, so that its module fixtures are built once."""
+    then the real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together.
+    A group (xdist_group) stays together, at the place of its heaviest test, so that its module
+    fixtures are built once."""
     for item in items:
         if item.get_closest_marker("postgres"):
             item.add_marker(pytest.mark.xdist_group("postgres"))
@@ -85,9 +75,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for index, item in enumerate(items):
         group = item.get_closest_marker("xdist_group")
         units.setdefault(f"group:{group.args[0]}" if group else item.nodeid, []).append(index)
-    expected = _expected_seconds()
-    order = sorted(units.values(), key=lambda unit: (-max(_weight(items[i]) for i in unit),
-                                                     -sum(expected.get(items[i].nodeid, 0) for i in unit), unit[0]))
+    order = sorted(units.values(), key=lambda unit: (-max(_weight(items[i]) for i in unit), unit[0]))
     items[:] = [items[i] for unit in order for i in unit]
 
 
