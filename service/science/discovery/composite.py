@@ -226,28 +226,44 @@ class CompositeModel:
             """Weights for ``theta`` (see ``design``)."""
             return solve_design(design(theta, exact))
 
-        theta = {name: dict(fixed_theta.get(name) or self._identity_theta(name)) for name in self.transforms}
-        free = [name for name in self.transforms if name not in fixed_theta]
-        sol = solve(theta)
-        for it in range(OUTER_ITERATIONS if free else 0):
-            last = it == OUTER_ITERATIONS - 1
-            for name in free:
-                if EFFECTS[name].row_local:
-                    cache: dict = {}
-                    theta[name] = self._grid_refine(name, lambda th: solve({**theta, name: th}, exact=name).rms)
-                else:  # harmonics with every weight refitted (already fine), else a grid on the
-                    # current prediction refined with the exact cost
-                    best = self._harmonic_search(name, a_raw, records, theta)
-                    exact_cost = lambda th: solve({**theta, name: th}).rms  # noqa: E731
-                    if best is None:
-                        z = [self._transform(a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
-                             for k, r in enumerate(records)]
-                        best = self._search(name, z, records, rows, target)
-                        best = EFFECTS[name].refine(best, exact_cost) if last else best
-                    elif last:  # the harmonics ignore bounds and transients: a last exact polish
-                        best = EFFECTS[name].refine(best, exact_cost, fine=True)
-                    theta[name] = best
+        def descend(order: list[str]):
+            """Alternate searches of the free transforms in ``order`` (each with the others held),
+            from every transform at identity; (theta, solution)."""
+            theta = {name: dict(fixed_theta.get(name) or self._identity_theta(name)) for name in self.transforms}
             sol = solve(theta)
+            for it in range(OUTER_ITERATIONS if order else 0):
+                last = it == OUTER_ITERATIONS - 1
+                for name in order:
+                    if EFFECTS[name].row_local:
+                        cache.clear()
+                        theta[name] = self._grid_refine(name, lambda th: solve({**theta, name: th}, exact=name).rms)
+                    else:  # harmonics with every weight refitted (already fine), else a grid on the
+                        # current prediction refined with the exact cost
+                        best = self._harmonic_search(name, a_raw, records, theta)
+                        exact_cost = lambda th: solve({**theta, name: th}).rms  # noqa: E731
+                        if best is None:
+                            z = [self._transform(a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
+                                 for k, r in enumerate(records)]
+                            best = self._search(name, z, records, rows, target)
+                            best = EFFECTS[name].refine(best, exact_cost) if last else best
+                        elif last:  # the harmonics ignore bounds and transients: a last exact polish
+                            best = EFFECTS[name].refine(best, exact_cost, fine=True)
+                        theta[name] = best
+                sol = solve(theta)
+            return theta, sol
+
+        # A delay and a resonance both lag the output: searched one after the other, the first takes
+        # the whole lag and the search can stay in that basin. Each free transform is searched first
+        # once and the lower training cost kept (the first order on a tie), so the answer does not
+        # hang on which basin a rounding error tips the grid into.
+        cache: dict = {}
+        free = [name for name in self.transforms if name not in fixed_theta]
+        orders = [free[i:] + free[:i] for i in range(len(free))] or [[]]
+        theta, sol = descend(orders[0])
+        for order in orders[1:]:
+            other_theta, other = descend(order)
+            if other.rms < sol.rms:
+                theta, sol = other_theta, other
         self.theta = theta
         coef, train_rms = sol.coef, sol.rms
         gauge = self._output_effect()
