@@ -82,6 +82,42 @@ def dominant(rows: list[dict], frequency_hz: float) -> list[str]:
     return out
 
 
+def mode_harmonic(axis: str, frequency_hz: float) -> int:
+    """The harmonic of ``frequency_hz`` nearest the axis's flexure mode (Y 5×f, Z 3×f at 100 Hz)."""
+    return max(1, round(PAPER_AXES[axis][1] / frequency_hz))
+
+
+def findings(by_case: dict[str, list[dict]]) -> list[str]:
+    """What the tables say, computed from them (case → ``run``'s rows), so the words cannot go stale."""
+    def row(rows, controller, axis):
+        return next(r for r in rows if r["controller"] == controller and r["axis"] == axis)
+
+    rest = [r["rest_nm"] for rows in by_case.values() for r in rows]
+    out = [f"**The error is periodic, not noise**: what is not locked to the period is {min(rest):.1f}–{max(rest):.1f} nm "
+           "RMS, the gauge's noise. That is why ILC, which learns each harmonic, takes the same runs to the noise "
+           "(docs/tracking.md)."]
+    ff, pid = SPECTRUM_ROWS
+    for axis in ("y", "z"):
+        parts, falls = [], []
+        for case, rows in by_case.items():
+            k = mode_harmonic(axis, CASES[case]["frequency_hz"])
+            before, after = row(rows, ff, axis)["harmonics_nm"], row(rows, pid, axis)["harmonics_nm"]
+            top = int(np.argmax(before[1:])) + 1
+            parts.append(f"{case}: {before[k]:.0f} nm at {k}×f, the largest harmonic {top}×f ({before[top]:.0f} nm)")
+            falls.append(f"{case} {before[k]:.0f} → {after[k]:.0f} nm ({before[k] / max(after[k], 1e-9):.1f}×)")
+        out.append(f"**{axis.upper()}, next to its {PAPER_AXES[axis][1]:.1f} Hz flexure mode**: feedforward alone, "
+                   + "; ".join(parts) + ". With `pid: auto` (a positive-position-feedback section on the mode beside "
+                   "the PID, `service/science/control/damping.py`, within the same 60° phase and 6 dB gain margins): "
+                   + ", ".join(falls) + ".")
+    fundamental = ", ".join(f"{case} {axis.upper()} {row(rows, ff, axis)['harmonics_nm'][1]:.0f} → "
+                            f"{row(rows, pid, axis)['harmonics_nm'][1]:.0f} nm"
+                            for case, rows in by_case.items() for axis in ("y", "z"))
+    out.append(f"**The fundamental, FF only → FF + PID (auto)**: {fundamental}. Feedback within those margins "
+               "does not take it away (on an axis where it grows, the loop's sensitivity exceeds 1 at 100 Hz); ILC, "
+               "which learns each harmonic, does (docs/tracking.md).")
+    return out
+
+
 def write(seed: int, cycles: int, path: Path) -> None:
     """Both cases, each on a fresh service, as docs/tracking_error_spectrum.md."""
     lines = ["# Where the FF + PID (auto) tracking error sits", "",
@@ -92,24 +128,13 @@ def write(seed: int, cycles: int, path: Path) -> None:
              f"seed {seed}. The error over {PERIODS} steady periods around the middle of the run is split into "
              "its periodic part, as the amplitude of each harmonic of the ellipse's 100 Hz (nm), and what is "
              "not locked to the period (nm RMS: the gauge's noise). Relative error as in docs/tracking.md.", ""]
+    by_case = {}
     for case in ("case1", "case2"):
         with tempfile.TemporaryDirectory(prefix="evc-spectrum-") as tmp:
             rows = run(seed, case, cycles, Path(tmp))
+        by_case[case] = rows
         lines += [f"## {case}", "", render(rows), "", *[f"- {d}" for d in dominant(rows, CASES[case]["frequency_hz"])], ""]
-    lines += ["## What it says", "",
-              "- **The error is periodic, not noise**: what is not locked to the period is the gauge's 3 nm. "
-              "That is why ILC, which learns each harmonic, takes the same runs to 0.2–0.3 % (docs/tracking.md).",
-              "- **Feedforward alone, it peaks at the harmonic next to each axis's flexure mode** (Y 5×f, Z 3×f): the "
-              "feedforward inverts the composite model, and where the model's shape differs from the stage's at that "
-              "harmonic, the mode multiplies the difference (1/(2ζ) at resonance).",
-              "- **`pid: auto` damps the mode**: a positive-position-feedback section on each axis's mode beside the "
-              "PID (`service/science/control/damping.py`), chosen within the same 60° phase and 6 dB gain margins, "
-              "takes that harmonic down 2–3×; the PID's integral takes the mean (creep and drift).",
-              "- **The 2×f is small because the model carries the stack's asymmetry** (`rest_path.EFFECTS`); without "
-              "it the 2×f was as large as the 1×f.",
-              "- **What is left sits at the fundamental, mostly on Z**: at a third of Z's 291 Hz mode no feedback "
-              "within those margins has loop gain (|1/(1 + L)| ≈ 1 at 100 Hz), so the fundamental is the "
-              "feedforward's alone. ILC, which learns each harmonic, takes it away (docs/tracking.md).", ""]
+    lines += ["## What it says", "", *[f"- {line}" for line in findings(by_case)], ""]
     path.write_text("\n".join(lines))
 
 
