@@ -64,8 +64,8 @@ def test_learning_predicted_to_diverge_is_refused_naming_the_field_and_factor(ca
 
 
 def test_auto_pid_with_ilc_converges_on_case2(case2):
-    """Measured (seed 1, 40 periods, the damped loop of "auto"): error per period 83 → 3.2–3.5 nm RMS over
-    the last 5 (about 25×), 0.29 % relative, 3.4 nm RMS over the last 5 periods (2× noise: 5.9 nm).
+    """Measured (seed 1, 40 periods, the damped loop of "auto"): error per period 85 → 3.1–3.4 nm RMS over
+    the last 5 (about 26×), 0.25 % relative, 3.3 nm RMS over the last 5 periods (2× noise: 5.9 nm).
     Predicted factors Y 0.95, Z 0.95."""
     post, ff = case2
     job = post("/api/trajectories", {**CASE2, "cycles": 40, "controller": {**_ff(ff), "pid": "auto", "ilc": True}})
@@ -74,7 +74,7 @@ def test_auto_pid_with_ilc_converges_on_case2(case2):
     assert res["tripped"] is None
     assert all(p["factor"] < 1 for p in res["ilc"]["axes"].values())
     err = res["error_per_period_um"]
-    assert len(err) == 40 and min(err[-5:]) < err[0] / 10        # falls by more than 10× (measured 25×)
+    assert len(err) == 40 and min(err[-5:]) < err[0] / 10        # falls by more than 10× (measured 26×)
     assert res["relative_error_pct"] <= 0.5
 
 
@@ -93,7 +93,7 @@ def _mode_harmonics_nm(client, result: dict) -> dict[str, float]:
 def test_auto_pid_damps_the_flexure_modes_on_case2(case2):
     """The composite feedforward carries the flexure dynamics, so "auto" puts a PPF section on each
     axis's mode (service.science.control.damping). Measured (seed 1, 20 periods): relative error
-    FF only 4.2 % → FF + PID (auto) 2.4 %; the error at Y's 5×f 52 → 21 nm, at Z's 3×f 36 → 14 nm."""
+    FF only 4.0 % → FF + PID (auto) 2.4 %; the error at Y's 5×f 39 → 16 nm, at Z's 3×f 40 → 15 nm."""
     post, ff = case2
     body = {**CASE2, "cycles": 20}
     ff_only = post("/api/trajectories", {**body, "controller": _ff(ff)})
@@ -130,9 +130,9 @@ def test_a_report_row_through_the_api_has_the_report_figures(tmp_path):
 
 
 def test_a_forced_diverging_plan_trips_to_0v_and_says_why(case2):
-    """``force`` runs the refused plan: issue 6's gains + ILC trip (measured: 133.6 ms, sensor range,
-    the error 45 → 387 nm RMS per period over 10 periods after one revert), and the job's error names
-    the learning's course and its predicted factor (Y 7.76)."""
+    """``force`` runs the refused plan: issue 6's gains + ILC trip (measured: 132.1 ms, sensor range,
+    the error 43 → 587 nm RMS per period over 10 periods after one revert), and the job's error names
+    the learning's course and its predicted factor (Y 7.08)."""
     post, ff = case2
     job = post("/api/trajectories", {**CASE2, "cycles": 30, "controller": {**_ff(ff), "pid": SCANNED, "ilc": True,
                                                                           "force": True}})

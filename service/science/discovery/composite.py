@@ -16,6 +16,7 @@ import copy
 from typing import Sequence
 
 import numpy as np
+from scipy.optimize import minimize
 
 from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import sensitivity_sign
@@ -33,6 +34,8 @@ from service.science.models.base import equal_thresholds
 from service.science.models.contract import Drive, split_stored
 
 OUTER_ITERATIONS = 2
+#: the joint polish of the free transforms: first step (fraction of each parameter) and evaluations
+JOINT_STEP, JOINT_EVALUATIONS = 0.1, 80
 
 
 #: what an identification of a composite holds out (the stored metrics say it in words)
@@ -264,6 +267,8 @@ class CompositeModel:
             other_theta, other = descend(order)
             if other.rms < sol.rms:
                 theta, sol = other_theta, other
+        if len(free) > 1:
+            theta, sol = self._joint_polish(free, theta, sol, solve)
         self.theta = theta
         coef, train_rms = sol.coef, sol.rms
         gauge = self._output_effect()
@@ -330,6 +335,30 @@ class CompositeModel:
             return float(np.sum((target - a @ coef) ** 2))
 
         return self._grid_refine(name, cost, records[0].sample_rate_hz)
+
+    def _joint_polish(self, free: list[str], theta: dict, sol, solve):
+        """All free transforms' parameters refined together (Nelder–Mead on the exact training cost,
+        each parameter in units of its own size): one transform searched while the others are held
+        moves slowly along a valley where they trade off (a delay against a mode's damping)."""
+        keys = [(name, key) for name in free for key in theta[name]]
+        floor = {"delay_s": 1.0 / self._fs}
+        scale = np.array([max(abs(theta[n][k]), floor.get(k, 1e-12)) for n, k in keys])
+
+        def unpack(x):
+            out = {n: dict(theta[n]) for n in theta}
+            for (n, k), v in zip(keys, x * scale):
+                out[n][k] = float(v)
+            return {n: EFFECTS[n].clamp(out[n], self._fs) if n in free else out[n] for n in out}
+
+        x0 = np.ones(len(keys))
+        simplex = np.vstack([x0] + [x0 + JOINT_STEP * np.eye(len(keys))[i] for i in range(len(keys))])
+        res = minimize(lambda x: solve(unpack(x)).rms, x0, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-6 * sol.rms,
+                                "maxfev": JOINT_EVALUATIONS})
+        if res.fun < sol.rms:
+            best = unpack(res.x)
+            return best, solve(best)
+        return theta, sol
 
     def _grid_refine(self, name, cost, sample_rate_hz=None) -> dict:
         eff = EFFECTS[name]

@@ -84,6 +84,10 @@ class Effect:
     def apply_rows(self, columns: np.ndarray, fs_hz: float, theta: dict, rows: np.ndarray) -> np.ndarray:
         return self.apply(columns, fs_hz, theta)[rows]
 
+    def clamp(self, theta: dict, fs_hz: float) -> dict:
+        """``theta`` moved into this transform's valid range (a joint search may step outside it)."""
+        return theta
+
     def refine(self, theta: dict, cost, fine: bool = False) -> dict:
         """Optional local refinement around the best grid value; ``cost(theta) -> float``."""
         return theta

@@ -42,6 +42,9 @@ class Delay(Effect):
         n = columns.shape[0]
         return (1.0 - frac) * columns[np.clip(rows - k, 0, n - 1)] + frac * columns[np.clip(rows - k - 1, 0, n - 1)]
 
+    def clamp(self, theta, fs_hz):
+        return {"delay_s": max(float(theta["delay_s"]), 0.0)}
+
     def refine(self, theta, cost):
         t0 = theta["delay_s"]
         step = max(t0 * 0.25, 1e-6)

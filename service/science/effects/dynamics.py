@@ -89,6 +89,11 @@ class Dynamics(Effect):
         fn2, z2 = best_of(*np.meshgrid(fn1 * np.linspace(0.995, 1.005, 21), z1 * np.geomspace(0.85, 1.0 / 0.85, 15)))
         return {"fn_hz": fn2, "zeta": min(z2, MAX_ZETA)}
 
+    def clamp(self, theta, fs_hz):
+        """ζ within [0.003, MAX_ZETA], the mode below 0.45 fs (the bilinear map's prewarp)."""
+        return {"fn_hz": float(np.clip(theta["fn_hz"], 1.0, 0.45 * fs_hz)),
+                "zeta": float(np.clip(theta["zeta"], 0.003, MAX_ZETA))}
+
     def refine(self, theta, cost, fine: bool = False):
         """Coordinate steps in fn and ζ while the exact cost falls (``fine``: only 0.3 % steps,
         after the harmonic search)."""
