@@ -18,9 +18,8 @@ import numpy as np
 import pytest
 
 from drivers.emulated import open_bench
+from service.science.control.feedforward import sweep_record
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.records import _arrays, records_from_arrays
-from service.usecases.plans import SinePlan, plan_for_bench, trim_blocks
 
 EFFECTS = ["hysteresis", "asymmetry", "creep", "delay", "dynamics"]
 
@@ -31,14 +30,9 @@ def _sweep_record(seed: int, axis: str):
     """One axis's default sweep (1/10/50/100 Hz, 0–120 V, 5 cycles) on the emulated default bench."""
     bench = open_bench("default", seed=seed)
     try:
-        planned = plan_for_bench(SinePlan(axes=(axis,), frequencies_hz=(1.0, 10.0, 50.0, 100.0), cycles=5,
-                                          v_min=0.0, v_max=120.0), bench)
-        rec = bench.run(planned.u_v, planned.sample_rate_hz)
+        return sweep_record(bench, axis)
     finally:
         bench.close()
-    blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
-    (record,) = records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, (axis,), f"{axis}:")
-    return record
 
 
 @pytest.mark.parametrize("seed,axis", [(1, "z"), (2, "y")])

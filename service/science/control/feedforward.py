@@ -71,12 +71,10 @@ def inverse_miss_um(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rate_hz
 COMPOSITE_EFFECTS = ("delay", "dynamics")
 
 
-def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequencies_hz=SWEEP_FREQUENCIES_HZ,
-                       cycles: int = 5, n_operators: int = 10, v_range=(0.0, 120.0)):
-    """Fit a discovery composite model (hysteresis + ``effects``) on a sine sweep of one axis
-    between ``v_range`` (V, the paper's 0–120 V by default) run on ``bench`` (the discovery path: service.usecases.plans plan,
-    service.science.discovery records and fit)."""
-    from service.science.discovery.composite import fit_composite
+def sweep_record(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 5,
+                 v_range=(0.0, 120.0)):
+    """One axis's sine sweep between ``v_range`` (V) at ``frequencies_hz``, ``cycles`` each, run on
+    ``bench`` as one record (the discovery path: service.usecases.plans plan, discovery records)."""
     from service.science.discovery.records import _arrays, records_from_arrays
     from service.usecases.plans import SinePlan, plan_for_bench, trim_blocks
 
@@ -85,7 +83,16 @@ def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequ
     rec = bench.run(planned.u_v, planned.sample_rate_hz)
     blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
     (record,) = records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, (axis,), f"{axis}:")
-    return fit_composite([record], list(effects), n_operators)
+    return record
+
+
+def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequencies_hz=SWEEP_FREQUENCIES_HZ,
+                       cycles: int = 5, n_operators: int = 10, v_range=(0.0, 120.0)):
+    """Fit a discovery composite model (hysteresis + ``effects``) on ``sweep_record`` of one axis
+    (the paper's 0–120 V by default)."""
+    from service.science.discovery.composite import fit_composite
+
+    return fit_composite([sweep_record(bench, axis, frequencies_hz, cycles, v_range)], list(effects), n_operators)
 
 
 #: the margin (V) a span sweep adds on each side of the drive a trajectory needs
