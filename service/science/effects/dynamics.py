@@ -13,6 +13,8 @@ from service.science.effects.harmonics import projected_costs
 #: flexure resonances are lightly damped; a heavily damped 2nd-order lag would only mimic a delay
 ZETAS = (0.01, 0.03, 0.1, 0.3)
 MAX_ZETA = 0.5
+#: the lightest damping a fit may give a mode
+MIN_ZETA = 0.003
 #: the harmonic search: resonance frequencies per decade and damping ratios of its coarse pass
 FN_PER_DECADE = 230  # 1 % steps
 COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
@@ -90,9 +92,9 @@ class Dynamics(Effect):
         return {"fn_hz": fn2, "zeta": min(z2, MAX_ZETA)}
 
     def clamp(self, theta, fs_hz):
-        """ζ within [0.003, MAX_ZETA], the mode below 0.45 fs (the bilinear map's prewarp)."""
+        """ζ within [MIN_ZETA, MAX_ZETA], the mode below 0.45 fs (the bilinear map's prewarp)."""
         return {"fn_hz": float(np.clip(theta["fn_hz"], 1.0, 0.45 * fs_hz)),
-                "zeta": float(np.clip(theta["zeta"], 0.003, MAX_ZETA))}
+                "zeta": float(np.clip(theta["zeta"], MIN_ZETA, MAX_ZETA))}
 
     def refine(self, theta, cost, fine: bool = False):
         """Coordinate steps in fn and ζ while the exact cost falls (``fine``: only 0.3 % steps,
@@ -104,7 +106,7 @@ class Dynamics(Effect):
                 steps = (("fn_hz", factor), ("fn_hz", 1 / factor), ("zeta", factor**3), ("zeta", factor**-3))
                 for key, mult in steps:
                     trial = dict(best, **{key: best[key] * mult})
-                    trial["zeta"] = float(np.clip(trial["zeta"], 0.003, MAX_ZETA))
+                    trial["zeta"] = float(np.clip(trial["zeta"], MIN_ZETA, MAX_ZETA))
                     c = cost(trial)
                     if c < best_cost:
                         best, best_cost, improved = trial, c, True
