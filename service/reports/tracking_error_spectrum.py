@@ -112,9 +112,10 @@ def findings(by_case: dict[str, list[dict]]) -> list[str]:
     fundamental = ", ".join(f"{case} {axis.upper()} {row(rows, ff, axis)['harmonics_nm'][1]:.0f} → "
                             f"{row(rows, pid, axis)['harmonics_nm'][1]:.0f} nm"
                             for case, rows in by_case.items() for axis in ("y", "z"))
+    drive_hz = " and ".join(sorted({f"{CASES[case]['frequency_hz']:g}" for case in by_case}))
     out.append(f"**The fundamental, FF only → FF + PID (auto)**: {fundamental}. Feedback within those margins "
-               "does not take it away (on an axis where it grows, the loop's sensitivity exceeds 1 at 100 Hz); ILC, "
-               "which learns each harmonic, does (docs/tracking.md).")
+               f"does not take it away (on an axis where it grows, the loop's sensitivity exceeds 1 at {drive_hz} Hz); "
+               "ILC, which learns each harmonic, does (docs/tracking.md).")
     return out
 
 
