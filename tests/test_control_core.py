@@ -161,3 +161,26 @@ def test_compiled_ilc_step_equals_the_learning_matrices_and_projects_into_the_li
     base = np.full((200, 2), 119.0)
     u = ilc.update(e * 100, base_v=base, limits_v=(np.zeros(2), np.full(2, 120.0)))
     assert np.all(base + u <= 120.0 + 1e-12) and np.all(base + u >= -1e-12) and np.any(u == 1.0)
+
+
+def test_a_model_fitted_on_other_turning_points_is_said_to_extrapolate_the_trajectorys_loop():
+    """feedforward.uncovered_swing: a 0-120 V loop does not cover a 13-85 V trajectory (its turning points
+    are 13 and 35 V away, more than a quarter of the 72 V swing); a 8-90 V loop does, and so does a record
+    holding both; the message names the axis, the spans and the span sweeps."""
+    from service.science.control.feedforward import uncovered_swing
+    from service.science.data.record import Record
+
+    fs, f = 2000.0, 10.0
+    t = np.arange(int(fs * 5 / f)) / fs
+
+    def loop(lo, hi):
+        u = lo + (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * f * t))
+        blocks = [{"index": 0, "start": 0, "stop": u.size, "kind": "sine", "cycles": 5, "frequency_hz": f, "axes": ["y"]}]
+        return Record(u, 0.06 * u, fs, blocks=blocks, axis="y", hold_out=True)
+
+    why = uncovered_swing([loop(0.0, 120.0)], "y", (13.0, 85.0))
+    assert why is not None and why.startswith("Y:") and "13–85 V" in why and "0–120 V" in why
+    assert "35 V" in why and "/api/trajectories/span-sweeps" in why
+    assert uncovered_swing([loop(8.0, 90.0)], "y", (13.0, 85.0)) is None
+    assert uncovered_swing([loop(0.0, 120.0), loop(8.0, 90.0)], "y", (13.0, 85.0)) is None
+    assert uncovered_swing([loop(0.0, 120.0)], "y", (5.0, 118.0)) is None    # the full loop's own span

@@ -127,6 +127,9 @@ def test_auto_gains_meet_their_targets_and_track_better_than_feedforward_alone(h
     # slope and an assumed ζ = 0.02 leave little loop gain at 100 Hz, next to the Z mode at 291 Hz)
     assert res["relative_error_pct"] < 0.95 * ff_only["result"]["relative_error_pct"]
     assert res["rms_error_um"] < ff_only["result"]["rms_error_um"]
+    # the 0-120 V models never saw case 2's Y loop (about 13-85 V): the result says so and names the cure
+    said = [w for w in ff_only["result"]["warnings"] if w.startswith("Y:")]
+    assert len(said) == 1 and "extrapolated" in said[0] and "/api/trajectories/span-sweeps" in said[0], said
 
 
 def test_tuned_is_what_auto_gives_on_the_default_bench():

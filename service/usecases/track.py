@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
-from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v
+from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, uncovered_swing
 from service.science.control.ilc_stability import learning_refusal, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, PIDGains, StopRequested, TrackRecord
 from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
@@ -18,7 +18,7 @@ from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, 
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.errors import FieldError
 from service.store import NotFoundError, Store
-from service.usecases.identify import load_model
+from service.usecases.identify import load_model, load_records
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
 def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz: float,
@@ -89,8 +89,29 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
         raise
     except ValueError as exc:
         raise FieldError("body", str(exc)) from None
+    if u_ff is not None:
+        warnings.extend(extrapolated_loops(store, bench, controller, u_ff[ref.steady]))
     built.planned = (ref, u_ff, warnings)      # the run uses this drive: the engine computes nothing
     return built
+
+
+def extrapolated_loops(store: Store, bench: Bench, controller: dict, u_steady_v) -> list[str]:
+    """Warnings for the axes whose feedforward model never saw a loop the size of the trajectory's
+    (service.science.control.feedforward.uncovered_swing); a model whose datasets are gone is not judged."""
+    out = []
+    for i, axis in enumerate(bench.axes):
+        model_id = controller.get(f"feedforward_model_{axis}")
+        if model_id is None:
+            continue
+        try:
+            records = load_records(store, store.get_model(model_id)["datasets"], axis)
+        except (FieldError, NotFoundError):
+            continue
+        column = u_steady_v[:, i]
+        why = uncovered_swing(records, axis, (float(column.min()), float(column.max())))
+        if why:
+            out.append(why)
+    return out
 
 
 def span_sweeps(bench: Bench, store: Store, ellipse: Ellipse, controller: dict) -> list[dict]:
