@@ -60,3 +60,17 @@ def _install() -> None:
 
 
 _install()
+
+
+def drop_stale_cache(dispatcher, sources) -> None:
+    """numba keys a cached function on its own file alone, so a change to a function it compiles in
+    from another file (``sources``: paths) would not reach it: drop ``dispatcher``'s cache index when
+    a source is newer, before its first call loads it (numba writes a fresh index on the next
+    compile). Best effort: a cache that cannot be read or written is left as it is."""
+    try:
+        index = dispatcher._cache._cache_file._index_path
+        if os.path.exists(index) and max(os.stat(p).st_mtime for p in sources) > os.stat(index).st_mtime:
+            with index_lock(index, fcntl.LOCK_EX):
+                os.unlink(index)
+    except (AttributeError, OSError):
+        pass

@@ -10,8 +10,14 @@ Arrays per axis (row 0 = Y, row 1 = Z):
 """
 from __future__ import annotations
 
+import types
+
 import numpy as np
-from drivers.jit import njit
+
+from drivers.emulated import families as emulated_families
+from drivers.emulated import kernels as emulated_kernels
+from drivers.emulated.kernels import world_sample
+from drivers.jit import drop_stale_cache, njit
 
 KP, KI, KD, TF, ON, DB0, DB1, DB2, DA1, DA2, NPID = range(11)
 S_INT, S_DER, S_EPREV, S_D1, S_D2, NPS = range(6)
@@ -58,9 +64,55 @@ def pid_step(p, s, e_um, u_ff, u_prev, vmin, vmax, step, dt):
     return u
 
 
+def _runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last, dt,
+            x_out, u_out, ai, diag, stop):
+    """The per-sample loop (see ``point_by_point_runner``); ``STEP`` is the plant's compiled step,
+    a global of the function object that is compiled (``_compile``)."""
+    n = ref_um.shape[0]
+    ao = np.zeros(2)
+    for k in range(n):
+        if k % STOP_CHECK_SAMPLES == 0 and stop[0] != 0:
+            return k, STOPPED
+        for a in range(2):
+            e = ref_um[k, a] - y_last[a]
+            u = pid_step(pid_p[a], pid_s[a], e, uff_v[k, a], u_last[a], lim[a, L_VMIN], lim[a, L_VMAX],
+                         lim[a, L_STEP], dt)
+            u_last[a] = u
+            u_out[k, a] = u
+            ao[a] = u / lim[a, L_GAIN]
+        STEP(wargs[0], wargs[1], wargs[2], wargs[3], wargs[4], wargs[5], wargs[6], wargs[7], wargs[8],
+             wargs[9], wargs[10], ao[0], ao[1], noise, n0 + k, ai, 0, diag)
+        status = OK
+        for a in range(2):
+            y = ai[0, a] * um_per_v[a]
+            y_last[a] = y
+            x_out[k, a] = y
+            if not np.isfinite(y) or abs(y) >= trip[a, T_RANGE]:
+                status = TRIP_RANGE
+            if abs(ref_um[k, a] - y) > trip[a, T_ERR]:
+                over[a] += 1.0
+                if over[a] >= trip[a, T_N]:
+                    status = TRIP_ERROR
+            else:
+                over[a] = 0.0
+        if status != OK:
+            return k + 1, status
+    return n, OK
+
+
+#: the emulated DAQ's step, the compiled stepping hook the product has: its runner is compiled into
+#: numba's cache once (a runner for any other step is compiled per process: numba caches no closure
+#: and no function-typed argument, numba/numba#2065, #6251)
+STEP = world_sample
+# the GIL is free while a period runs: handlers and the loop do not stall each other
+_CACHED_RUNNER = njit(cache=True, nogil=True)(_runner)
+# numba keys the cache on this file alone: recompile when the emulator's kernels change
+drop_stale_cache(_CACHED_RUNNER, [emulated_kernels.__file__, emulated_families.__file__])
+
+
 def point_by_point_runner(step_fn):
-    """The compiled runner for one plant step function (built and compiled once per process and
-    plant; closing over ``step_fn`` avoids typing a function argument on every call).
+    """The compiled runner for one plant step function: the cached one for the emulator's step,
+    else one built and compiled once per process and plant.
 
     ``runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last,
     dt, x_out, u_out, ai, diag, stop) -> (samples run, status)``: a causal loop over ``ref_um.shape[0]``
@@ -68,51 +120,16 @@ def point_by_point_runner(step_fn):
     trips on divergence. ``u_last``, ``y_last``, ``over``, ``pid_s`` carry state across calls.
     ``stop`` (uint8[1], e.g. ``BenchSession.stop_flag``) is polled every STOP_CHECK_SAMPLES samples:
     non-zero returns STOPPED. The runner releases the GIL, so another thread can raise it mid-period."""
+    if step_fn is STEP:
+        return _CACHED_RUNNER
     key = id(step_fn)
     if key not in _RUNNERS:
-        _RUNNERS[key] = (step_fn, _build_runner(step_fn))
+        body = types.FunctionType(_runner.__code__, {**globals(), "STEP": step_fn}, "runner")
+        _RUNNERS[key] = (step_fn, njit(nogil=True)(body))
     return _RUNNERS[key][1]
 
 
 _RUNNERS: dict = {}
-
-
-def _build_runner(step_fn):
-    @njit(nogil=True)  # the GIL is free while a period runs: handlers and the loop do not stall each other
-    def runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last, dt,
-               x_out, u_out, ai, diag, stop):
-        n = ref_um.shape[0]
-        ao = np.zeros(2)
-        for k in range(n):
-            if k % STOP_CHECK_SAMPLES == 0 and stop[0] != 0:
-                return k, STOPPED
-            for a in range(2):
-                e = ref_um[k, a] - y_last[a]
-                u = pid_step(pid_p[a], pid_s[a], e, uff_v[k, a], u_last[a], lim[a, L_VMIN], lim[a, L_VMAX],
-                             lim[a, L_STEP], dt)
-                u_last[a] = u
-                u_out[k, a] = u
-                ao[a] = u / lim[a, L_GAIN]
-            step_fn(wargs[0], wargs[1], wargs[2], wargs[3], wargs[4], wargs[5], wargs[6], wargs[7], wargs[8],
-                    wargs[9], wargs[10], ao[0], ao[1], noise, n0 + k, ai, 0, diag)
-            status = OK
-            for a in range(2):
-                y = ai[0, a] * um_per_v[a]
-                y_last[a] = y
-                x_out[k, a] = y
-                if not np.isfinite(y) or abs(y) >= trip[a, T_RANGE]:
-                    status = TRIP_RANGE
-                if abs(ref_um[k, a] - y) > trip[a, T_ERR]:
-                    over[a] += 1.0
-                    if over[a] >= trip[a, T_N]:
-                        status = TRIP_ERROR
-                else:
-                    over[a] = 0.0
-            if status != OK:
-                return k + 1, status
-        return n, OK
-
-    return runner
 
 
 @njit(cache=True, nogil=True)
