@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from api_client import wait_job
+from api_client import job_running, wait_job
 from service.security import auth
 from service.runtime import jobs as jobs_module
 from service.runtime.jobs import JobInterrupted, JobManager
@@ -39,6 +39,7 @@ def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
 
     try:
         ids = [manager.submit("sweep", {"n": k}, bench_job(f"b{k}"), needs_bench=True)["id"] for k in range(3)]
+        wait_job(manager.get, ids[0], until=job_running())   # the bench thread has taken the first job
         side = manager.submit("identify", None, lambda ctx: {"beside": manager.running_bench_job}, needs_bench=False)
         # the identification finishes while the first bench job still holds the bench
         assert wait_job(manager.get, side["id"])["result"] == {"beside": ids[0]}
