@@ -62,15 +62,24 @@ def _install() -> None:
 _install()
 
 
-def drop_stale_cache(dispatcher, sources) -> None:
+def drop_stale_caches(namespace: dict, sources) -> None:
     """numba keys a cached function on its own file alone, so a change to a function it compiles in
-    from another file (``sources``: paths) would not reach it: drop ``dispatcher``'s cache index when
-    a source is newer, before its first call loads it (numba writes a fresh index on the next
-    compile). Best effort: a cache that cannot be read or written is left as it is."""
+    from another file (``sources``: paths) would not reach it. Call at the end of a module with its
+    ``globals()``: every cached kernel defined there whose index is older than a source loses that
+    index before its first call loads it (numba writes a fresh one on the next compile). The index
+    is found through numba's own locator, so ``NUMBA_CACHE_DIR`` is honoured. Best effort: a cache
+    that cannot be read or written is left as it is."""
     try:
-        index = dispatcher._cache._cache_file._index_path
-        if os.path.exists(index) and max(os.stat(p).st_mtime for p in sources) > os.stat(index).st_mtime:
-            with index_lock(index, fcntl.LOCK_EX):
-                os.unlink(index)
-    except (AttributeError, OSError):
-        pass
+        newest = max(os.stat(p).st_mtime for p in sources)
+    except OSError:
+        return
+    for obj in list(namespace.values()):
+        if getattr(getattr(obj, "py_func", None), "__module__", None) != namespace.get("__name__"):
+            continue
+        try:
+            index = obj._cache._cache_file._index_path
+            if os.path.exists(index) and os.stat(index).st_mtime < newest:
+                with index_lock(index, fcntl.LOCK_EX):
+                    os.unlink(index)
+        except (AttributeError, OSError):
+            pass

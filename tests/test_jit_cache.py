@@ -76,3 +76,28 @@ def test_a_kernel_compiles_caches_and_loads_through_the_lock(tmp_path, monkeypat
         sys.modules.pop("kernel_mod", None)
         monkeypatch.undo()
         reload_config()                  # later tests in this process compile into their own cache again
+
+
+def test_a_kernel_recompiles_when_a_kernel_it_compiles_in_from_another_file_changes(tmp_path):
+    """drivers.jit.drop_stale_caches: numba stamps a cached kernel with its own file only, so a
+    kernel that calls another file's kernel kept running the old callee after an edit (this test
+    fails so without the call). With the call at the end of the caller's module, a fresh process
+    runs the new callee."""
+    import os
+    import subprocess
+
+    (tmp_path / "callee.py").write_text("from drivers.jit import njit\n\n@njit(cache=True)\ndef value():\n    return 1\n")
+    (tmp_path / "caller.py").write_text(
+        "import callee\nfrom drivers.jit import drop_stale_caches, njit\n\n@njit(cache=True)\ndef read():\n"
+        "    return callee.value()\n\ndrop_stale_caches(globals(), [callee.__file__])\n")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.getcwd()])}
+
+    def run() -> str:
+        return subprocess.run([sys.executable, "-c", "import caller; print(caller.read())"], env=env,
+                              capture_output=True, text=True, check=True).stdout.strip()
+
+    assert run() == "1" and run() == "1"             # compiled, then loaded from the cache
+    time.sleep(0.05)
+    (tmp_path / "callee.py").write_text("from drivers.jit import njit\n\n@njit(cache=True)\ndef value():\n    return 2\n")
+    assert run() == "2"

@@ -19,30 +19,8 @@ know nothing of the world's array layout.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 from drivers.jit import njit
-
-INLINED_BY = ("kernels",)   # modules whose cached kernels compile these functions in
-
-
-def _drop_stale_caches() -> None:
-    """numba keys a module's cache on that module's file alone, so an edit here would not reach
-    the kernels that compiled these functions in: drop their cache index when this file is newer
-    (best effort; numba writes a fresh index on the next compile). Runs at import, before
-    ``kernels`` (which imports this module) loads anything from its cache."""
-    here = Path(__file__)
-    try:
-        newest = here.stat().st_mtime
-        for stem in INLINED_BY:
-            for index in (here.parent / "__pycache__").glob(stem + ".*.nbi"):
-                if index.stat().st_mtime < newest:
-                    index.unlink(missing_ok=True)
-    except OSError:
-        pass
-
-
-_drop_stale_caches()
 
 
 @njit(cache=True, inline="always")

@@ -22,8 +22,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from drivers.jit import njit
+from drivers.jit import drop_stale_caches, njit
 
+from drivers.emulated import families
 from drivers.emulated.families import bouc_wen_step, maxwell_slip_step
 
 # ---- global parameters pg[...]
@@ -412,3 +413,8 @@ def run_closed_loop(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, n, 
 
 def empty_diag(n: int) -> np.ndarray:
     return np.empty((n, ND))
+
+
+# numba keys the cache on this file alone: recompile the kernels that compile families' functions in
+# when families.py changes
+drop_stale_caches(globals(), [families.__file__])

@@ -17,7 +17,7 @@ import numpy as np
 from drivers.emulated import families as emulated_families
 from drivers.emulated import kernels as emulated_kernels
 from drivers.emulated.kernels import world_sample
-from drivers.jit import drop_stale_cache, njit
+from drivers.jit import drop_stale_caches, njit
 
 KP, KI, KD, TF, ON, DB0, DB1, DB2, DA1, DA2, NPID = range(11)
 S_INT, S_DER, S_EPREV, S_D1, S_D2, NPS = range(6)
@@ -106,8 +106,6 @@ def _runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, ov
 STEP = world_sample
 # the GIL is free while a period runs: handlers and the loop do not stall each other
 _CACHED_RUNNER = njit(cache=True, nogil=True)(_runner)
-# numba keys the cache on this file alone: recompile when the emulator's kernels change
-drop_stale_cache(_CACHED_RUNNER, [emulated_kernels.__file__, emulated_families.__file__])
 
 
 def point_by_point_runner(step_fn):
@@ -147,3 +145,7 @@ def watch_block(ref_um, x_um, trip, over):
             else:
                 over[a] = 0.0
     return ref_um.shape[0], OK
+
+
+# numba keys the cache on this file alone: recompile the runner when the emulator's kernels change
+drop_stale_caches(globals(), [emulated_kernels.__file__, emulated_families.__file__])

@@ -10,9 +10,10 @@ voltage is taken; an unreachable target saturates at the closest reachable outpu
 from __future__ import annotations
 
 import numpy as np
-from drivers.jit import njit
+from drivers.jit import drop_stale_caches, njit
 
 from service.science.data.record import finite_array
+from service.science.models import kernels as model_kernels
 from service.science.models.kernels import dynamic_weight_shift, gpi_step, play_operators
 from service.science.data.signals import drive_derivatives
 
@@ -186,3 +187,7 @@ def numerical_inverse(
         du, ddu = drive_derivatives(u, float(sample_rate_hz))
         u = solve((a1, a2, b1, b2), alpha, beta, du, ddu)
     return u
+
+
+# numba keys the cache on this file alone: recompile the solvers when the kernels they call change
+drop_stale_caches(globals(), [model_kernels.__file__])
