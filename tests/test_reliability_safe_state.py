@@ -318,3 +318,29 @@ def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
     idle, between = _first_zero_after(app, stops[0])
     # a stop that lands between the flag check and the write lets that one block out: one control period
     assert len(between) <= 1 and round((idle["zero_from_t_s"] - stops[0]) * FS) <= BLOCK
+
+
+def test_a_signal_that_reached_the_engine_first_is_logged_without_a_traceback(caplog):
+    """A SIGTERM to `make run`'s process group reaches the bench engine too, which leaves at 0 V on
+    its own: the web process's handler then finds the engine gone. It says so in one warning (no
+    "failed" traceback) and still hands over to uvicorn's handler."""
+    import logging
+    import signal
+    from types import SimpleNamespace
+
+    from service.runtime.engine import EngineUnavailable
+    from service.runtime.safe_shutdown import install
+
+    class GoneBench:
+        def stop(self, reason):
+            raise EngineUnavailable("the bench engine process has exited (code 143)")
+
+    calls = []
+    server = SimpleNamespace(handle_exit=lambda sig, frame: calls.append(sig))
+    install(server, SimpleNamespace(state=SimpleNamespace(bench=GoneBench(), jobs=None)))
+    with caplog.at_level(logging.WARNING, logger="evcbench.safety"):
+        server.handle_exit(signal.SIGTERM, None)
+    assert calls == [signal.SIGTERM]
+    (record,) = caplog.records
+    assert record.levelno == logging.WARNING and record.exc_info is None
+    assert "stopped by SIGTERM: the bench engine had already gone (the bench engine process has exited" in record.getMessage()

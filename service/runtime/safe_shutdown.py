@@ -13,6 +13,7 @@ import logging
 import signal
 from typing import Any
 
+from service.runtime.engine import EngineUnavailable
 from service.runtime.stop_port import zero_after_request_ms
 
 log = logging.getLogger("evcbench.safety")
@@ -63,6 +64,9 @@ def install(server: Any, app: Any) -> None:
     def handle_exit(sig: int, frame) -> None:
         try:
             safe_state(app, reason_for(sig))
+        except EngineUnavailable as exc:     # a signal to the process group reached the engine first
+            log.warning("%s: the bench engine had already gone (%s); an engine that leaves on a signal "
+                        "writes 0 V on its way out, one killed outright cannot", reason_for(sig), exc)
         except Exception:  # noqa: BLE001 - never keep uvicorn from shutting down
             log.exception("safe state on signal %s failed", sig)
         original(sig, frame)
