@@ -55,8 +55,9 @@ def test_sweep_identify_and_compare(service):
     u = np.array(data["u_y_v"])
     assert u.max() == pytest.approx(120.0, abs=0.01) and u[0] == 0.0 and u[-1] == 0.0
 
-    model = api.identify("y", [dataset_id], model="static_pi", n_operators=10)
+    model = api.identify("y", [dataset_id], model="static_pi", n_operators=10, name="Y static PI, 10 ops")
     assert model["kind"] == "static_pi" and model["effects"] == ["hysteresis"] and model["parent_id"] is None
+    assert model["name"] == "Y static PI, 10 ops"            # labelled as it is identified, as sweeps are
     assert len(model["parameters"]["weights_um_per_v"]) == 10
     m = model["metrics"]
     assert 0 < m["train_rms_um"] < 0.5 and 0 < m["validation_rms_um"] < 0.5

@@ -285,16 +285,17 @@ class Client:
 
     # ------------------------------------------------------------------ models
     def start_identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
-                       effects: Sequence[str] = ("hysteresis",), n_operators: int = 10) -> dict:
+                       effects: Sequence[str] = ("hysteresis",), n_operators: int = 10, name: str | None = None) -> dict:
         body = {"axis": axis, "datasets": list(datasets), "model": model, "effects": list(effects),
-                "n_operators": n_operators}
+                "n_operators": n_operators, **({"name": name} if name else {})}
         return self._request("POST", "/api/models", json=body)
 
     def identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
                  effects: Sequence[str] = ("hysteresis",), n_operators: int = 10,
-                 on_progress: ProgressCallback | None = None) -> dict:
-        """Identify and wait; returns the stored model. ApiError if the job did not succeed."""
-        started = self.start_identify(axis, datasets, model, effects, n_operators)
+                 on_progress: ProgressCallback | None = None, name: str | None = None) -> dict:
+        """Identify and wait (``name``: the model's label); returns the stored model. ApiError if the
+        job did not succeed."""
+        started = self.start_identify(axis, datasets, model, effects, n_operators, name)
         job = self.wait(started["job_id"], on_progress)
         if job["state"] != "succeeded":
             raise ApiError(500, f"identification job {job['id']} {job['state']}: {job['error'] or job['message']}")

@@ -122,9 +122,10 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
 
 
 def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effects: list[str],
-             model: str, n_operators: int, parent_id: str | None = None) -> dict:
+             model: str, n_operators: int, parent_id: str | None = None, name: str | None = None) -> dict:
     """Job body: build the model the request names (``parent_id``: the stored model it refines), fit
-    it on the training cycles of every dataset, validate on the held-out ones, store it and return
+    it on the training cycles of every dataset, validate on the held-out ones, store it (labelled
+    ``name``, if given) and return
     ``{"model_id", "train_rms_um", "validation_rms_um", "effects"}``."""
     ctx.progress(0.02, "loading datasets")
     records = load_records(store, datasets, axis)
@@ -137,7 +138,8 @@ def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effe
     if ctx.cancelled:
         raise JobInterrupted("cancelled before the model was stored")
     ctx.progress(0.8, "validating on held-out cycles")
-    row = store_model(store, estimator, records, axis, datasets, effects, n_operators, parent_id, ctx.job_id)
+    row = store_model(store, estimator, records, axis, datasets, effects, n_operators, parent_id, ctx.job_id,
+                      {"name": name} if name else None)
     metrics = row["metrics"]
     return {"model_id": row["id"], "train_rms_um": metrics["train_rms_um"],
             "validation_rms_um": metrics["validation_rms_um"], "effects": effects}

@@ -19,6 +19,7 @@ class ModelRequest(BaseModel):
     model: str = Field(default="static_pi", description="static_pi | dynamic_pi | grpi | composite "
                                                         "(static PI + effects; implied by any effect beyond hysteresis)")
     n_operators: int = Field(default=10, ge=1, le=100)
+    name: str | None = Field(default=None, max_length=200, description="the model's label, as PATCH sets it")
 
 
 class RefineRequest(BaseModel):
