@@ -24,3 +24,15 @@ def test_the_other_axiss_block_is_named_as_the_other_axiss():
     assert by_block[0]["where"] == "sweep y 10 Hz block that drives Z (Y undriven)"
     assert by_block[1]["where"] == "sweep y 10 Hz block"
     assert by_block[0]["rms_um"] > 10 * by_block[1]["rms_um"]
+
+
+def test_a_block_title_names_the_axis_the_block_drove():
+    """usecases.discover.block_title: Y's own block is "Y …", Z's block in Y's record is "Z …, Y undriven"."""
+    from service.science.fitting.validation import BlockSplit
+    from service.usecases.discover import block_title
+
+    block = {"index": 1, "start": 0, "stop": 1000, "kind": "sine", "cycles": 5, "frequency_hz": 5.0}
+    split = BlockSplit({**block, "axes": ["z"]}, (0, 800), (800, 1000))
+    assert block_title("y", split, 1000.0) == "Z 5 Hz sine, Y undriven (held-out cycle 5)"
+    own = BlockSplit({**block, "axes": ["y"]}, (0, 800), (800, 1000))
+    assert block_title("y", own, 1000.0) == "Y 5 Hz sine (held-out cycle 5)"

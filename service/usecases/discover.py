@@ -19,7 +19,8 @@ def model_effects(row: dict) -> list[str]:
 
 def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
     """A block named by what it is: ``Y 100 Hz sine (held-out cycles 5–5)``, ``Y step (held-out
-    last 0.80 s)``."""
+    last 0.80 s)``; a block that drove only the other axis is named by that axis: ``Z 100 Hz sine, Y
+    undriven (held-out cycle 5)``."""
     b = split.block
     kind = b.get("kind") or "block"
     f_hz = b.get("frequency_hz")
@@ -32,6 +33,9 @@ def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
     else:
         what = kind
         held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
+    driven = b.get("axes") or []
+    if driven and axis not in driven:        # a block of the other axis (cross-coupling shows there)
+        return f"{'/'.join(a.upper() for a in driven)} {what}, {axis.upper()} undriven ({held})"
     return f"{axis.upper()} {what} ({held})"
 
 
