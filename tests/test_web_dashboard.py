@@ -444,6 +444,15 @@ def test_separate_two_look_alike_effects(page, delay_server):
     page.select_option("#identify-datasets", [dataset_id])
     page.click("#identify-start")
     page.wait_for_selector("#separate-run", timeout=120_000)
+    # "where it fails" is shaded on the blocks the diagnosis names, by index: with Y and Z swept one after
+    # the other each frequency has two blocks, and a failure in Z's block is shaded there, not on Y's
+    page.wait_for_selector("#failure-shading")
+    model_id = page.inner_text("#model-id")
+    named = [f["block_index"] for f in server["api"].get(f"/models/{model_id}/diagnosis", params={"dataset": dataset_id})
+             .json()["failures"] if f.get("block_index") is not None]
+    blocks = {b["index"]: b for b in server["api"].get(f"/datasets/{dataset_id}").json()["blocks"]}
+    spans = json.loads(page.get_attribute("#failure-shading", "data-time-spans-s"))
+    assert named and spans == [[blocks[i]["start"] / 20000.0, blocks[i]["stop"] / 20000.0] for i in named], (named, spans)
     button = page.locator("#separate-run")
     a, b = button.get_attribute("data-a"), button.get_attribute("data-b")
     assert {a, b} == {"delay", "rate_dependence"}

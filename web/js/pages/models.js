@@ -127,13 +127,15 @@ async function showModel(el, modelId, query) {
   if (datasetId) await renderCompare(el, model, datasetId, diagnosis);
 }
 
-/** Where the diagnosis says the model fails, as plot ranges: time ranges of the failing frequency
- *  blocks (for the time plots) and drive ranges (for the loop), from the failure's fields or words. */
-function failureRanges(diagnosis, compared) {
+/** Where the diagnosis says the model fails, as plot ranges: time ranges of the failing blocks (for
+ *  the time plots; the block the failure names by index, else the first at its frequency) and drive
+ *  ranges (for the loop), from the failure's fields or words. */
+function failureRanges(diagnosis, compared, datasetBlocks) {
   const time = []; const drive = [];
   if (!diagnosis || !Array.isArray(diagnosis.failures)) return { time, drive };
   const rate = compared.sample_rate_hz;
-  const blocks = compared.metrics.per_block || [];
+  // the dataset's block table: it also holds the other axis's blocks, where the diagnosis may name coupling
+  const blocks = datasetBlocks || compared.metrics.per_block || [];
   for (const f of diagnosis.failures) {
     if (!f || typeof f !== 'object') continue;
     if (f.dataset_id && f.dataset_id !== compared.dataset_id) continue;
@@ -144,7 +146,9 @@ function failureRanges(diagnosis, compared) {
     if (t0 !== undefined && t1 !== undefined) { time.push([t0, t1]); continue; }
     const hz = f.frequency_hz ?? (where.match(/([0-9.]+) Hz block/) || [])[1];
     if (hz !== undefined) {
-      const block = blocks.find((b) => Math.abs(b.frequency_hz - Number(hz)) < 1e-9);
+      // the block the failure names (a sweep of both axes one after the other has two blocks per frequency)
+      const block = (f.block_index ?? null) !== null ? blocks.find((b) => b.index === f.block_index)
+        : blocks.find((b) => Math.abs(b.frequency_hz - Number(hz)) < 1e-9);
       if (block && block.start !== undefined) time.push([block.start / rate, block.stop / rate]);
       continue;
     }
@@ -240,13 +244,13 @@ async function renderCompare(el, model, datasetId, diagnosis) {
     const block = ds.blocks.find((x) => x.index === b.index);
     if (block) { b.start = block.start; b.stop = block.stop; }
   }
-  const ranges = failureRanges(diagnosis, c);
+  const ranges = failureRanges(diagnosis, c, ds.blocks);
   const axis = model.axis;
   const paper = PAPER_TABLE6[axis] || {};
   const o = c.metrics.overall;
   el.querySelector('#compare-table').innerHTML = `<p>Dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a>
     (${c.used_in_fit ? 'used in the fit: the held-out cycles are unseen' : 'not used in the fit: all of it is unseen'}) ·
-    overall RMS <b id="compare-overall-rms" data-value="${o.rms_um}">${fmt(o.rms_um)} µm</b> · max |e| ${fmt(o.max_abs_um)} µm · fit ${fmt(o.fit_pct, 4)} %</p>
+    RMS over every sample of the blocks that drive ${axis.toUpperCase()} (training and held-out cycles; the table's held-out figures are per block) <b id="compare-overall-rms" data-value="${o.rms_um}">${fmt(o.rms_um)} µm</b> · max |e| ${fmt(o.max_abs_um)} µm · fit ${fmt(o.fit_pct, 4)} %</p>
     <table id="table6"><tr><th rowspan="2">axis</th><th rowspan="2" class="num">frequency (Hz)</th>
       <th colspan="4">this model (${esc(model.kind)}${model.effects.length > 1 ? ' + ' + model.effects.filter((e) => e !== 'hysteresis').map(esc).join(' + ') : ''})</th>
       <th colspan="3">paper, Table 6: RMS (µm)</th></tr>
@@ -256,7 +260,7 @@ async function renderCompare(el, model, datasetId, diagnosis) {
         <td>${axis.toUpperCase()}</td><td class="num">${fmt(b.frequency_hz)}</td>
         <td class="num rms">${fmt(held?.rms_um)}</td><td class="num">${fmt(b.train?.rms_um)}</td><td class="num">${fmt(held?.max_abs_um)}</td><td class="num">${fmt(held?.fit_pct, 4)}</td>
         <td class="num">${p[0] ?? '–'}</td><td class="num">${p[1] ?? '–'}</td><td class="num">${p[2] ?? '–'}</td></tr>`; }).join('')}
-    </table>${ranges.time.length + ranges.drive.length ? `<p class="warn" id="failure-shading" data-time-ranges="${ranges.time.length}" data-drive-ranges="${ranges.drive.length}">Shaded red: where the diagnosis says the model fails (${ranges.time.length} block${ranges.time.length === 1 ? '' : 's'} in time, ${ranges.drive.length} drive range${ranges.drive.length === 1 ? '' : 's'} on the loop).</p>` : ''}`;
+    </table>${ranges.time.length + ranges.drive.length ? `<p class="warn" id="failure-shading" data-time-ranges="${ranges.time.length}" data-drive-ranges="${ranges.drive.length}" data-time-spans-s="${esc(JSON.stringify(ranges.time))}">Shaded red: where the diagnosis says the model fails (${ranges.time.length} block${ranges.time.length === 1 ? '' : 's'} in time, ${ranges.drive.length} drive range${ranges.drive.length === 1 ? '' : 's'} on the loop).</p>` : ''}`;
   charts.push(await lineChart(el.querySelector('#compare-time'), { title: 'Displacement over time', xs: c.t_s, xLabel: 'time (s)',
     yLabel: `x_${axis} (µm)`, series: [{ label: 'measured (µm)', values: c.x_measured_um }, { label: 'model (µm)', values: c.x_predicted_um }],
     shade: ranges.time, height: 260 }));
