@@ -383,7 +383,10 @@ def test_live_chart_shows_points_during_a_job(page, server):
     """The Bench page draws u and x per axis while a sweep streams (GET /api/bench/live)."""
     goto(page, server, "bench")
     page.wait_for_selector("#live-y canvas")
-    job = server["api"].post("/sweeps", json={"axes": ["y"], "frequencies_hz": [0.5], "cycles": 40}).json()
+    job = server["api"].post("/sweeps", json={"axes": ["y"], "frequencies_hz": [0.5], "cycles": 60}).json()
+    # a job started from another client is seen at the page's next idle poll (1.5 s); the emulator runs
+    # this 120 s sweep in about 1.3 s, so the test asks the page to look now, as a job started on it does
+    page.evaluate("window.dispatchEvent(new Event('evc:job'))")
     page.wait_for_function(
         "id => { const l = document.querySelector('#live'); const y = document.querySelector('#live-y');"
         " return l.dataset.job === id && Number(y.dataset.points) > 300; }", arg=job["job_id"], timeout=60_000)
@@ -395,7 +398,7 @@ def test_live_chart_shows_points_during_a_job(page, server):
     assert "Streaming: job " + job["job_id"] in page.inner_text("#live-status")
     labels = page.inner_text("#live-y")
     assert "u_y (V)" in labels and "x_y (µm)" in labels and "time in run (s)" in labels
-    # (No "still growing" check: the emulator streams this 80 s sweep in about a second.)
+    # (No "still growing" check: the emulator streams this 120 s sweep in about a second.)
     shot(page, "bench_live")
     assert wait_job(job_of(server), job["job_id"])["state"] == "succeeded"
 
