@@ -184,3 +184,18 @@ def test_a_model_fitted_on_other_turning_points_is_said_to_extrapolate_the_traje
     assert uncovered_swing([loop(8.0, 90.0)], "y", (13.0, 85.0)) is None
     assert uncovered_swing([loop(0.0, 120.0), loop(8.0, 90.0)], "y", (13.0, 85.0)) is None
     assert uncovered_swing([loop(0.0, 120.0)], "y", (5.0, 118.0)) is None    # the full loop's own span
+
+
+def test_a_model_whose_datasets_cannot_be_read_is_not_judged_and_the_run_is_told(store):
+    """usecases.track.extrapolated_loops never stops a run: a model whose dataset is gone gets a warning
+    that its training span was not checked."""
+    from types import SimpleNamespace
+
+    from service.usecases.track import extrapolated_loops
+
+    row = store.add_model({"axis": "y", "kind": "static_pi", "effects": ["hysteresis"], "datasets": ["ds_gone"],
+                           "parameters": {"model": "static_pi"}, "metrics": {}})
+    said = extrapolated_loops(store, SimpleNamespace(axes=("y", "z")), {"feedforward_model_y": row["id"]},
+                              np.full((10, 2), 50.0))
+    assert len(said) == 1 and said[0].startswith("Y: the feedforward model's datasets could not be read")
+    assert "ds_gone" in said[0] and "not checked" in said[0]

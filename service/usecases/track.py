@@ -17,7 +17,7 @@ from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controll
 from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.errors import FieldError
-from service.store import NotFoundError, Store
+from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, Store
 from service.usecases.identify import load_model, load_records
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
@@ -96,8 +96,9 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
 
 
 def extrapolated_loops(store: Store, bench: Bench, controller: dict, u_steady_v) -> list[str]:
-    """Warnings for the axes whose feedforward model never saw a loop the size of the trajectory's
-    (service.science.control.feedforward.uncovered_swing); a model whose datasets are gone is not judged."""
+    """Warnings for the axes whose feedforward model never saw loops near the trajectory's
+    (service.science.control.feedforward.uncovered_swing). A model whose datasets cannot be read is
+    not judged, and the warning says so: the check never stops a run."""
     out = []
     for i, axis in enumerate(bench.axes):
         model_id = controller.get(f"feedforward_model_{axis}")
@@ -105,7 +106,9 @@ def extrapolated_loops(store: Store, bench: Bench, controller: dict, u_steady_v)
             continue
         try:
             records = load_records(store, store.get_model(model_id)["datasets"], axis)
-        except (FieldError, NotFoundError):
+        except (FieldError, NotFoundError, IntegrityError, ArrayStoreUnavailable) as exc:
+            out.append(f"{axis.upper()}: the feedforward model's datasets could not be read ({exc}), so whether "
+                       "it was fitted on loops near this trajectory's was not checked")
             continue
         column = u_steady_v[:, i]
         why = uncovered_swing(records, axis, (float(column.min()), float(column.max())))
