@@ -164,31 +164,39 @@ def test_compiled_ilc_step_equals_the_learning_matrices_and_projects_into_the_li
 
 
 def test_a_model_fitted_on_other_turning_points_is_said_to_extrapolate_the_trajectorys_loop():
-    """feedforward.uncovered_swing: a 0-120 V loop does not cover a 13-85 V trajectory (its turning points
-    are 13 and 35 V away, more than a quarter of the 72 V swing); a 8-90 V loop does, and so does a record
-    holding both; the message names the axis, the spans and the span sweeps."""
-    from service.science.control.feedforward import uncovered_swing
+    """validation.trained_loops_v reads a record's trained loops (its training cycles, own axis only);
+    feedforward.untrained_turning_points: a 0-120 V loop does not cover a 13-85 V trajectory (its
+    turning points are 13 and 35 V away, more than a quarter of the 72 V swing); a 8-90 V loop does, and
+    so does a model trained on both; the message names the axis, the spans and the span sweeps."""
+    from service.science.control.feedforward import untrained_turning_points
     from service.science.data.record import Record
+    from service.science.fitting.validation import trained_loops_v
 
     fs, f = 2000.0, 10.0
     t = np.arange(int(fs * 5 / f)) / fs
 
     def loop(lo, hi):
         u = lo + (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * f * t))
-        blocks = [{"index": 0, "start": 0, "stop": u.size, "kind": "sine", "cycles": 5, "frequency_hz": f, "axes": ["y"]}]
-        return Record(u, 0.06 * u, fs, blocks=blocks, axis="y", hold_out=True)
+        other = np.concatenate([np.zeros(u.size), 200.0 * np.ones(u.size)])   # Z's block: not Y's loop
+        blocks = [{"index": 0, "start": 0, "stop": u.size, "kind": "sine", "cycles": 5, "frequency_hz": f, "axes": ["y"]},
+                  {"index": 1, "start": u.size, "stop": 2 * u.size, "kind": "sine", "cycles": 5, "frequency_hz": f,
+                   "axes": ["z"]}]
+        u_y = np.concatenate([u, np.full(u.size, lo)])
+        return Record(u_y, 0.06 * u_y, fs, blocks=blocks, axis="y", u_other_v=other, hold_out=True)
 
-    why = uncovered_swing([loop(0.0, 120.0)], "y", (13.0, 85.0))
+    full, span = trained_loops_v([loop(0.0, 120.0)]), trained_loops_v([loop(8.0, 90.0)])
+    assert np.allclose(full, [[0.0, 120.0]], atol=0.1) and np.allclose(span, [[8.0, 90.0]], atol=0.1)
+    why = untrained_turning_points(full, "y", (13.0, 85.0))
     assert why is not None and why.startswith("Y:") and "13–85 V" in why and "0–120 V" in why
     assert "35 V" in why and "/api/trajectories/span-sweeps" in why
-    assert uncovered_swing([loop(8.0, 90.0)], "y", (13.0, 85.0)) is None
-    assert uncovered_swing([loop(0.0, 120.0), loop(8.0, 90.0)], "y", (13.0, 85.0)) is None
-    assert uncovered_swing([loop(0.0, 120.0)], "y", (5.0, 118.0)) is None    # the full loop's own span
+    assert untrained_turning_points(span, "y", (13.0, 85.0)) is None
+    assert untrained_turning_points(full + span, "y", (13.0, 85.0)) is None
+    assert untrained_turning_points(full, "y", (5.0, 118.0)) is None    # the full loop's own span
 
 
 def test_a_model_whose_datasets_cannot_be_read_is_not_judged_and_the_run_is_told(store):
-    """usecases.track.extrapolated_loops never stops a run: a model whose dataset is gone gets a warning
-    that its training span was not checked."""
+    """usecases.track.extrapolated_loops never stops a run: a model stored without its trained loops,
+    whose dataset is gone, gets a warning that its training span was not checked."""
     from types import SimpleNamespace
 
     from service.usecases.track import extrapolated_loops

@@ -58,6 +58,8 @@ def test_sweep_identify_and_compare(service):
     model = api.identify("y", [dataset_id], model="static_pi", n_operators=10, name="Y static PI, 10 ops")
     assert model["kind"] == "static_pi" and model["effects"] == ["hysteresis"] and model["parent_id"] is None
     assert model["name"] == "Y static PI, 10 ops"            # labelled as it is identified, as sweeps are
+    # the loops it was trained on (each block's training cycles, 0-120 V), for trajectories to check against
+    assert np.allclose(model["metrics"]["trained_loops_v"], [[0.0, 120.0]] * 3, atol=0.05)
     assert len(model["parameters"]["weights_um_per_v"]) == 10
     m = model["metrics"]
     assert 0 < m["train_rms_um"] < 0.5 and 0 < m["validation_rms_um"] < 0.5

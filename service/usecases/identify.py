@@ -17,7 +17,7 @@ from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.effects import EFFECT_NAMES, ordered
 from service.science.errors import FieldError
-from service.science.fitting.validation import evaluate_record, split_blocks
+from service.science.fitting.validation import evaluate_record, split_blocks, trained_loops_v
 from service.science.fitting.validation import metrics as sample_metrics
 from service.science.models.registry import MODELS, model_for, model_from_dict
 from service.runtime.jobs import JobContext, JobInterrupted
@@ -154,6 +154,8 @@ def store_model(store: Store, estimator, records: list[Record], axis: str, datas
     # the data's own noise floor (µm RMS, from the cycle-to-cycle differences of the residual), so that a
     # lab comparing models across benches sees how far each is from what its data allow
     metrics["noise_floor_um"] = noise_floor(records, [r.x_um - estimator.predict(r) for r in records])["noise_floor_um"]
+    # the loops it was trained on: a trajectory checks its own against them without reading the data
+    metrics["trained_loops_v"] = trained_loops_v(records)
     return store.add_model({**(labels or {}), "axis": axis, "kind": estimator.name, "effects": effects,
                             "parent_id": parent_id, "datasets": datasets, "options": {"n_operators": n_operators},
                             "parameters": estimator.to_dict(), "metrics": metrics, "job_id": job_id})

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
-from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, uncovered_swing
+from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, untrained_turning_points
 from service.science.control.ilc_stability import learning_refusal, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, PIDGains, StopRequested, TrackRecord
 from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
@@ -17,6 +17,7 @@ from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controll
 from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.errors import FieldError
+from service.science.fitting.validation import trained_loops_v
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, Store
 from service.usecases.identify import load_model, load_records
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
@@ -97,21 +98,25 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
 
 def extrapolated_loops(store: Store, bench: Bench, controller: dict, u_steady_v) -> list[str]:
     """Warnings for the axes whose feedforward model never saw loops near the trajectory's
-    (service.science.control.feedforward.uncovered_swing). A model whose datasets cannot be read is
-    not judged, and the warning says so: the check never stops a run."""
+    (service.science.control.feedforward.untrained_turning_points), from the loops the model row
+    records (``metrics.trained_loops_v``). A model stored without them has its datasets read; if they
+    cannot be, the warning says the check was not made: the check never stops a run."""
     out = []
     for i, axis in enumerate(bench.axes):
         model_id = controller.get(f"feedforward_model_{axis}")
         if model_id is None:
             continue
-        try:
-            records = load_records(store, store.get_model(model_id)["datasets"], axis)
-        except (FieldError, NotFoundError, IntegrityError, ArrayStoreUnavailable) as exc:
-            out.append(f"{axis.upper()}: the feedforward model's datasets could not be read ({exc}), so whether "
-                       "it was fitted on loops near this trajectory's was not checked")
-            continue
+        row = store.get_model(model_id)
+        loops = row["metrics"].get("trained_loops_v")
+        if loops is None:                    # identified before models recorded their loops
+            try:
+                loops = trained_loops_v(load_records(store, row["datasets"], axis))
+            except (FieldError, NotFoundError, IntegrityError, ArrayStoreUnavailable) as exc:
+                out.append(f"{axis.upper()}: the feedforward model's datasets could not be read ({exc}), so "
+                           "whether it was fitted on loops near this trajectory's was not checked")
+                continue
         column = u_steady_v[:, i]
-        why = uncovered_swing(records, axis, (float(column.min()), float(column.max())))
+        why = untrained_turning_points(loops, axis, (float(column.min()), float(column.max())))
         if why:
             out.append(why)
     return out

@@ -57,6 +57,9 @@ class ModelMetrics(BaseModel):
     validation_max_abs_um: float | None = None
     per_dataset: list[dict[str, Any]] | None = None
     held_out: str | None = Field(default=None, description="what was held out of the fit")
+    trained_loops_v: list[list[float]] | None = Field(
+        default=None, description="[min, max] V of the drive over each training stretch of the axis's own "
+                                  "blocks: the loops the model has seen (a trajectory warns beyond them)")
 
 
 class Model(BaseModel):

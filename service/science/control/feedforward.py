@@ -135,27 +135,21 @@ def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, mar
 TURNING_POINT_TOLERANCE = 0.25
 
 
-def uncovered_swing(records: list[Record], axis: str, needed_v: tuple[float, float]) -> str | None:
-    """Why a model fitted on ``records`` is extrapolating a trajectory's loops on ``axis``, or None.
+def untrained_turning_points(loops_v, axis: str, needed_v: tuple[float, float]) -> str | None:
+    """Why a model trained on ``loops_v`` (``trained_loops_v``) extrapolates a trajectory's loop on
+    ``axis``, or None.
 
-    ``needed_v``: (min, max) V of the trajectory's drive. A training block (its training cycles, on
-    the blocks that drive ``axis``) covers it when its drive's min and max each lie within
-    TURNING_POINT_TOLERANCE × the trajectory's swing of the trajectory's. The message names the
-    closest trained loop and the way to identify on the span."""
+    ``needed_v``: (min, max) V of the trajectory's drive. A trained loop covers it when its min and max
+    each lie within TURNING_POINT_TOLERANCE × the trajectory's swing of the trajectory's. The message
+    names the closest trained loop and the way to identify on the span."""
     lo, hi = needed_v
     needed_pp = hi - lo
-    loops = []
-    for rec in records:
-        for split in rec.splits_of(own_axis_only=True):
-            u = rec.u_v[split.train[0]:split.train[1]]
-            if u.size:
-                loops.append((float(np.min(u)), float(np.max(u))))
-    if not loops or needed_pp <= 0:
+    if not loops_v or needed_pp <= 0:
         return None
-    distance = [max(abs(a - lo), abs(b - hi)) for a, b in loops]
+    distance = [max(abs(a - lo), abs(b - hi)) for a, b in loops_v]
     if min(distance) <= TURNING_POINT_TOLERANCE * needed_pp:
         return None
-    a, b = loops[int(np.argmin(distance))]
+    a, b = loops_v[int(np.argmin(distance))]
     return (f"{axis.upper()}: this trajectory drives {lo:.0f}–{hi:.0f} V, but the feedforward model was fitted on "
             f"loops whose turning points are {min(distance):.0f} V or more away from those (closest "
             f"{a:.0f}–{b:.0f} V). A piezo's minor loops depend on their turning points, so this one is "

@@ -140,3 +140,15 @@ def fit_on_training_rows(model, series: Sequence, masks: Sequence[np.ndarray]):
     if not weights.any():
         raise ValueError("no training rows: every block is too short to hold out a cycle and keep one")
     return model.fit(list(series), row_weights=weights)
+
+
+def trained_loops_v(records) -> list[list[float]]:
+    """[min, max] V of the drive over each training stretch of the blocks that drive the records'
+    own axis: the loops a model fitted on ``records`` has seen (stored with it at identification)."""
+    loops = []
+    for rec in records:
+        for split in rec.splits_of(own_axis_only=True):
+            u = rec.u_v[split.train[0]:split.train[1]]
+            if u.size:
+                loops.append([float(np.min(u)), float(np.max(u))])
+    return loops
