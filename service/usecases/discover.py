@@ -6,7 +6,7 @@ from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
-from service.science.fitting.validation import BlockSplit
+from service.science.fitting.validation import BlockSplit, other_axes
 from service.store import Store
 from service.usecases.identify import load_model, load_records
 
@@ -33,9 +33,8 @@ def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
     else:
         what = kind
         held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
-    driven = b.get("axes") or []
-    if driven and axis not in driven:        # a block of the other axis (cross-coupling shows there)
-        return f"{'/'.join(a.upper() for a in driven)} {what}, {axis.upper()} undriven ({held})"
+    if others := other_axes(b, axis):        # a block of the other axis (cross-coupling shows there)
+        return f"{'/'.join(a.upper() for a in others)} {what}, {axis.upper()} undriven ({held})"
     return f"{axis.upper()} {what} ({held})"
 
 

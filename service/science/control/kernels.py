@@ -66,8 +66,9 @@ def pid_step(p, s, e_um, u_ff, u_prev, vmin, vmax, step, dt):
 
 def _runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last, dt,
             x_out, u_out, ai, diag, stop):
-    """The per-sample loop (see ``point_by_point_runner``); ``STEP`` is the plant's compiled step,
-    a global of the function object that is compiled (``_compile``)."""
+    """The per-sample loop (see ``point_by_point_runner``). ``STEP``, the plant's compiled step, is
+    a global of the function object compiled: this module's (the emulator's step, cached) or a copy
+    of it with another step in its globals."""
     n = ref_um.shape[0]
     ao = np.zeros(2)
     for k in range(n):

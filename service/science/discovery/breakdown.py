@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.fitting.metrics import rms
+from service.science.fitting.validation import other_axes
 from service.science.models.kernels import segment_index
 
 SEGMENTS = ("rising, accelerating", "rising, decelerating", "falling, accelerating", "falling, decelerating")
@@ -29,9 +30,8 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             rows = slice(*s.held_out)
             f = s.block.get("frequency_hz")
             where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
-            driven = s.block.get("axes") or []
-            if rec.axis and driven and rec.axis not in driven:   # the other axis's block: cross-coupling's place
-                where += f" that drives {'/'.join(a.upper() for a in driven)} ({rec.axis.upper()} undriven)"
+            if others := other_axes(s.block, rec.axis):     # the other axis's block: cross-coupling's place
+                where += f" that drives {'/'.join(a.upper() for a in others)} ({rec.axis.upper()} undriven)"
             places.append((f"{rec.label} {where}", rms(res[rows]), "frequency",
                            {"record": rec.label, "block_index": s.block.get("index"), "frequency_hz": f}))
         for k, name in enumerate(SEGMENTS):

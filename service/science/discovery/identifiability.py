@@ -37,9 +37,7 @@ def drive_rates_hz(records) -> list[float]:
     """The distinct periodic drive rates (Hz) of the blocks that drive this axis."""
     rates = []
     for r in records:
-        for s in r.splits:
-            if s.block.get("axes") and r.axis and r.axis not in s.block["axes"]:
-                continue
+        for s in r.splits_of(own_axis_only=True):
             period = r.period_samples(s)
             if period:
                 rates.append(r.sample_rate_hz / period)

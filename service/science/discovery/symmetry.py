@@ -58,9 +58,7 @@ def asymmetry_test(records, noise_um: float) -> dict:
     cycle's noise, ``blocks`` used, and ``claimed`` by the rule above."""
     chi2, dof, sq, count, used = 0.0, 0, 0.0, 0, 0
     for rec in records:
-        for s in rec.splits:
-            if s.block.get("axes") and rec.axis and rec.axis not in s.block["axes"]:
-                continue
+        for s in rec.splits_of(own_axis_only=True):
             got = even_part(rec, s)
             if got is None:
                 continue

@@ -32,6 +32,13 @@ class BlockSplit:
     held_out: tuple[int, int]
 
 
+def other_axes(block: dict, axis: str | None) -> list[str]:
+    """The axes ``block`` drove when ``axis`` is not among them (``axis`` was at rest: its record shows
+    cross-coupling there), else [] (a block of ``axis``, or one whose axes are not recorded)."""
+    driven = block.get("axes") or []
+    return list(driven) if axis and driven and axis not in driven else []
+
+
 def split_blocks(blocks: Sequence[dict], samples: int, sample_rate_hz: float, axis: str | None = None,
                  fraction: float = HELD_OUT_FRACTION) -> list[BlockSplit]:
     """Train/held-out ranges per block. Blocks that drive other axes only are skipped when
@@ -42,7 +49,7 @@ def split_blocks(blocks: Sequence[dict], samples: int, sample_rate_hz: float, ax
                    "cycles": None}]
     out = []
     for block in blocks:
-        if axis is not None and block.get("axes") and axis not in block["axes"]:
+        if other_axes(block, axis):
             continue
         start, stop = int(block["start"]), min(int(block["stop"]), samples)
         if stop - start < 2:
