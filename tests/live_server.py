@@ -2,6 +2,7 @@
 (its own data dir and log under the test's tmp_path, so xdist workers never share one)."""
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 from pathlib import Path
@@ -18,13 +19,15 @@ class Server:
     opens the dashboard with it already stored in the browser."""
 
     def __init__(self, data_dir: Path, log: Path, bench: str = "default", seed: int = 1,
-                 env: dict[str, str] | None = None):
-        """``env``: EVCBENCH_* settings of the service (e.g. a lab's database URL and bench id)."""
+                 env: dict[str, str] | None = None, own_group: bool = False):
+        """``env``: EVCBENCH_* settings of the service (e.g. a lab's database URL and bench id);
+        ``own_group``: the service and its engine in a process group of their own (``stop(group=True)``)."""
         self.log = log
         self.data_dir = Path(data_dir)
         for attempt in range(3):
             try:
-                self.proc, self.url = spawn_service(self.data_dir, bench, log, seed=seed, extra_env=env)
+                self.proc, self.url = spawn_service(self.data_dir, bench, log, seed=seed, extra_env=env,
+                                                    own_group=own_group)
                 break
             except RuntimeError as exc:
                 # The free port is found by binding port 0 and closing it: under pytest-xdist another
@@ -44,10 +47,14 @@ class Server:
         localStorage and removes it from the address (a fragment never reaches the server)."""
         return f"{self.url}/web/#/{route}{'&' if '?' in route else '?'}token={self.token}"
 
-    def stop(self) -> bool:
-        """SIGTERM, then True if the process ran its shut-down and exited cleanly. (Uvicorn
+    def stop(self, group: bool = False) -> bool:
+        """SIGTERM (``group``: to the whole process group, engine included, as a shell's kill of
+        `make run` does), then True if the process ran its shut-down and exited cleanly. (Uvicorn
         re-raises the signal after a graceful shut-down, so the exit status may be −SIGTERM.)"""
-        self.proc.send_signal(signal.SIGTERM)
+        if group:
+            os.killpg(self.proc.pid, signal.SIGTERM)
+        else:
+            self.proc.send_signal(signal.SIGTERM)
         try:
             code = self.proc.wait(timeout=60)
         except subprocess.TimeoutExpired:

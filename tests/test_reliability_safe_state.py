@@ -320,6 +320,31 @@ def test_sigint_handler_reaches_zero_volts_before_uvicorn_shuts_down(service):
     assert len(between) <= 1 and round((idle["zero_from_t_s"] - stops[0]) * FS) <= BLOCK
 
 
+@pytest.mark.realtime
+def test_sigterm_to_the_process_group_leaves_zero_volts_and_no_failure_in_the_log(tmp_path: Path):
+    """A SIGTERM to `make run`'s process group reaches the bench engine too, which leaves at 0 V on its
+    own, often before the web process's handler asks it to stop. The service still shuts down cleanly,
+    the outputs end at 0 V, and the log says what happened without a "safe state … failed" traceback."""
+    log = tmp_path / "output.jsonl"
+    bench = tmp_path / "group.toml"
+    bench.write_text(f'extends = "{ROOT / "fixtures" / "benches" / "default.toml"}"\n'
+                     f'[emulator]\noutput_log = "{log}"\n')
+    server = Server(tmp_path / "data", tmp_path / "server.log", bench=str(bench), own_group=True)
+    import httpx
+    with httpx.Client(base_url=server.url, timeout=30, headers=server.headers) as http:
+        job_id = http.post("/api/trajectories", json={**ELLIPSE, "cycles": 5000}).json()["job_id"]
+        wait_job(http, job_id, until=job_running(0.01))
+    assert server.stop(group=True), (tmp_path / "server.log").read_text()[-3000:]
+    text = (tmp_path / "server.log").read_text()
+    assert "safe state on signal" not in text and "Traceback" not in text, text[-3000:]
+    assert "stopped by SIGTERM" in text
+    entries = [json.loads(line) for line in log.read_text().splitlines()]
+    last_drive = max(i for i, e in enumerate(entries) if e["event"] == "period")
+    assert any(e["event"] in ("idle", "close") and max(abs(v) for v in e.get("daq_ao_v", {"y": 0.0}).values()) == 0.0
+               for e in entries[last_drive + 1:]), entries[last_drive + 1:]
+    assert entries[-1]["event"] == "close" and max(abs(v) for v in entries[-1]["amplifier_v"].values()) < 0.05
+
+
 def test_a_signal_that_reached_the_engine_first_is_logged_without_a_traceback(caplog):
     """A SIGTERM to `make run`'s process group reaches the bench engine too, which leaves at 0 V on
     its own: the web process's handler then finds the engine gone. It says so in one warning (no

@@ -69,10 +69,12 @@ def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, heade
 
 
 def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.0,
-                  seed: int = 1, extra_env: dict[str, str] | None = None) -> tuple[subprocess.Popen, str]:
+                  seed: int = 1, extra_env: dict[str, str] | None = None,
+                  own_group: bool = False) -> tuple[subprocess.Popen, str]:
     """``evcbench serve`` on a free loopback port; returns (process, base URL) once /api/health answers
     (RuntimeError with the log's tail if it exits or stays silent). Also tests/live_server.py's.
-    The service sees no EVCBENCH_* variable of this process, only those of ``extra_env``."""
+    The service sees no EVCBENCH_* variable of this process, only those of ``extra_env``.
+    ``own_group``: in a process group of its own (with its bench engine), as a shell starts `make run`."""
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
@@ -81,7 +83,8 @@ def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.
     env.update(extra_env or {})
     proc = subprocess.Popen([sys.executable, "-m", "service.frontends.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
                              "--data-dir", str(data_dir), "--bench", bench, "--seed", str(seed)],
-                            cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+                            cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT,
+                            start_new_session=own_group)
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
