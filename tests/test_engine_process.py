@@ -230,3 +230,24 @@ def test_a_run_whose_samples_nobody_takes_stops_at_0v():
         assert "took none of the run's samples" in ending[0] and "unread_limit_s" in ending[0]
     finally:
         bench.close()
+
+
+def test_cancelling_on_a_gone_engine_is_a_no_op_and_the_emergency_stop_says_it_is_gone():
+    """A SIGTERM to `make run`'s process group can end the engine before the web process's shut-down
+    cancels its jobs: cancelling then has nothing to stop and must not fail the shut-down (it did:
+    "Application shutdown failed"), while the emergency stop still reports the engine gone."""
+    from service.runtime.engine import EngineUnavailable, open_engine
+
+    bench = open_engine("default", seed=1)
+    try:
+        os.kill(bench.engine_pid, signal.SIGTERM)            # the engine leaves at 0 V on its own
+        deadline = time.monotonic() + 30
+        while _alive(bench.engine_pid):
+            assert time.monotonic() < deadline, "the engine ignored SIGTERM"
+            time.sleep(0.05)
+        bench.cancel_plan("job_gone")                        # no exception: a gone engine runs no plan
+        bench.cancel_plan()
+        with pytest.raises(EngineUnavailable):
+            bench.stop("emergency stop")
+    finally:
+        bench.close()
