@@ -44,8 +44,8 @@ UNBOUNDED_V = (-np.inf, np.inf)
 
 class Drive:
     """What a model predicts from: ``u_v`` (V) at ``sample_rate_hz`` (Hz or None), its rates
-    (a Record's, or estimated once over the dominant period) and the other axis's drive (V) and
-    displacement (µm) when a Record has them."""
+    (a Record's, or estimated once over the dominant period), and the other axis's drive (V) and
+    displacement (µm) and the stack's temperature ``temp_c`` (°C) when a Record has them."""
 
     def __init__(self, u_v, sample_rate_hz: float | None = None, record: Record | None = None):
         self.u_v = record.u_v if record is not None else finite_array("u_v", u_v)
@@ -53,6 +53,7 @@ class Drive:
         self.record = record
         self.u_other_v = None if record is None else record.u_other_v
         self.x_other_um = None if record is None else record.x_other_um
+        self.temp_c = None if record is None else record.temp_c
         self._estimated = None
 
     @classmethod
