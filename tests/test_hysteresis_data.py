@@ -4,7 +4,10 @@ import pytest
 
 from service.science.data.record import Record
 from service.science.models import StaticPI
-from service.science.data.signals import biased_sine, dominant_period_samples, multi_sine, savgol_derivatives
+from scipy.signal import savgol_filter
+
+from service.science.data.signals import (SAVGOL_DIRECT_MAX_WINDOW, SAVGOL_POLYORDER, biased_sine,
+                                          dominant_period_samples, multi_sine, savgol, savgol_derivatives)
 
 FS = 20_000.0
 
@@ -71,6 +74,18 @@ def test_savgol_derivatives_track_the_analytic_ones():
         d1, d2 = savgol_derivatives(w.value, FS)
         assert np.max(np.abs(d1 - w.d1_per_s)) < 1e-4 * np.max(np.abs(w.d1_per_s))
         assert np.max(np.abs(d2 - w.d2_per_s2)) < 1e-2 * np.max(np.abs(w.d2_per_s2))
+
+
+@pytest.mark.parametrize("n, window", [(4001, SAVGOL_DIRECT_MAX_WINDOW + 2), (60_000, 6001), (3001, 3001)])
+def test_long_windows_by_fft_are_scipys_savgol_filter(n, window):
+    """Past SAVGOL_DIRECT_MAX_WINDOW the convolution runs by FFT: the same filter as scipy's, edges
+    included (mode="interp"), to 1e-12 of the largest value; a step-hold block's window is thousands."""
+    rng = np.random.default_rng(3)
+    y = np.cumsum(rng.normal(size=n)) + 40.0 * np.sin(np.arange(n) / 700.0)
+    for deriv in (1, 2):
+        want = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=deriv, delta=1 / FS, mode="interp")
+        got = savgol(y, window, deriv, 1 / FS)
+        assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want)), deriv
 
 
 def test_record_uses_given_derivatives_else_estimates():

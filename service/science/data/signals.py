@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 from drivers.jit import njit
-from scipy.signal import find_peaks, savgol_filter
+from scipy.signal import find_peaks, oaconvolve, savgol_coeffs, savgol_filter
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.
 TURNING_SWING_FRACTION = 0.1
@@ -21,6 +21,9 @@ STEADY_HALF_PERIOD_SHARE = 0.2
 #: Savitzky–Golay window as a fraction of the dominant period.
 SAVGOL_PERIOD_FRACTION = 0.1
 SAVGOL_POLYORDER = 4
+#: above this window (samples) the Savitzky–Golay convolution runs by FFT (overlap-add): scipy's own
+#: is direct, O(n·window), and a step-hold block's window (a tenth of a 10 s period) took seconds
+SAVGOL_DIRECT_MAX_WINDOW = 63
 
 
 @dataclass(frozen=True)
@@ -177,9 +180,21 @@ def savgol_derivatives(
         d1 = np.gradient(y, dt) if y.size > 1 else np.zeros_like(y)
         d2 = np.gradient(d1, dt) if y.size > 1 else np.zeros_like(y)
         return d1, d2
-    d1 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=1, delta=dt, mode="interp")
-    d2 = savgol_filter(y, window, SAVGOL_POLYORDER, deriv=2, delta=dt, mode="interp")
-    return d1, d2
+    return savgol(y, window, 1, dt), savgol(y, window, 2, dt)
+
+
+def savgol(y: np.ndarray, window: int, deriv: int, dt_s: float) -> np.ndarray:
+    """``scipy.signal.savgol_filter(y, window, SAVGOL_POLYORDER, deriv, dt_s, mode="interp")``
+    (unit/s^deriv), by overlap-add FFT when the window is long (the same filter; rounding apart)."""
+    if window <= SAVGOL_DIRECT_MAX_WINDOW:
+        return savgol_filter(y, window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s, mode="interp")
+    out = oaconvolve(y, savgol_coeffs(window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s), mode="same")
+    # mode="interp"'s edges: the polynomial fitted to the first (last) window, at its first (last) half
+    half, t = window // 2, np.arange(window)
+    for fit, edge in ((slice(0, window), slice(0, half)), (slice(y.size - window, y.size), slice(window - half, window))):
+        poly = np.polyder(np.polyfit(t, y[fit], SAVGOL_POLYORDER), deriv)
+        out[fit][edge] = np.polyval(poly, t[edge]) / dt_s**deriv
+    return out
 
 
 def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float,
