@@ -22,7 +22,7 @@ from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import sensitivity_sign
 from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIXED_POINT_ITERATIONS,
                                                          composite_inverse, invert_transforms)
-from service.science.discovery.play_memo import PLAY_OUTPUTS
+from service.science.discovery.column_memo import effect_blocks, play_outputs
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
@@ -105,7 +105,7 @@ class CompositeModel:
     def _context(self, drive: Drive) -> RecordContext:
         du, ddu = drive.derivatives()
         return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um,
-                            getattr(drive, "temp_c", None))
+                            drive.temp_c)
 
     def context(self, u_v: np.ndarray, sample_rate_hz: float, du: np.ndarray, ddu: np.ndarray,
                 u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None,
@@ -113,8 +113,8 @@ class CompositeModel:
         """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
         origin = self.u_origin_v
-        p = PLAY_OUTPUTS.outputs(u_v, origin, self.thresholds_v)
-        p_other = None if u_other_v is None else PLAY_OUTPUTS.outputs(u_other_v, origin, self.thresholds_v)
+        p = play_outputs(u_v, origin, self.thresholds_v)
+        p_other = None if u_other_v is None else play_outputs(u_other_v, origin, self.thresholds_v)
         u_v = u_v - origin
         u_other_v = None if u_other_v is None else u_other_v - origin
         time_scale_s = self.scales.get("time_scale_s")
@@ -128,11 +128,15 @@ class CompositeModel:
                              temp_dev)
 
     def raw_blocks(self, drive: Drive) -> list[Block]:
-        """Hysteresis, offset and additive effect blocks of one drive (before transforms)."""
+        """Hysteresis, offset and additive effect blocks of one drive (before transforms); within a
+        ``shared_effect_columns`` scope each effect's blocks are built once per record context."""
         ctx = self._context(drive)
+        sources = (drive.u_v, drive.u_other_v, drive.x_other_um, drive.temp_c, ctx.du, ctx.ddu)
+        params = (ctx.fs_hz, self.u_origin_v, np.asarray(self.thresholds_v, dtype=float).tobytes(),
+                  tuple(sorted(self.scales.items())))
         out = [Block.make("weights_um_per_v", ctx.p, lower=0.0), Block.make("offset_um", np.ones(ctx.n))]
         for name in self.effects:
-            out += EFFECTS[name].blocks(ctx)
+            out += effect_blocks(sources, (name, *params), lambda name=name: EFFECTS[name].blocks(ctx))
         return out
 
     def _transform(self, columns: np.ndarray, sample_rate_hz: float, theta: dict, skip: str | None = None) -> np.ndarray:

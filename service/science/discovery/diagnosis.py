@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.discovery.breakdown import failures, signatures
+from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.decision import claimed, held_out_improvement, rule_text
 from service.science.discovery.identifiability import experiment_body, not_testable
@@ -197,6 +198,7 @@ def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple
                   "experiment": experiment_body(records, axes, **body)}
 
 
+@shared_effect_columns()       # its dozen fits share each effect's columns of the same records
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
     """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
     records = list(records)

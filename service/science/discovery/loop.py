@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import json
 
+from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel, fit_composite
 from service.science.discovery.diagnosis import diagnose, helpful_capacity
 
 MAX_STEPS = 8
 
 
+@shared_effect_columns()       # the step's fit and its diagnosis share each effect's columns
 def discovery_step(records, effects, n_operators: int = 10, theta: dict | None = None,
                    model: CompositeModel | None = None) -> tuple[CompositeModel, dict]:
     """Fit ``hysteresis + effects`` (warm at ``theta``; or take the fitted ``model`` as it is) and
