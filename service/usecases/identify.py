@@ -13,6 +13,7 @@ import numpy as np
 from service.science.data.datasets import stored_sample_rate_hz
 from service.science.data.export import json_stride
 from service.science.data.record import Record
+from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.effects import EFFECT_NAMES, ordered
@@ -134,12 +135,13 @@ def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effe
     effects = ["hysteresis"] + ordered(effects)
     ctx.progress(0.1, f"fitting {estimator.name} ({' + '.join(effects)}) on "
                       f"{sum(int(r.training_mask(own_axis_only=True).sum()) for r in records)} training samples")
-    estimator.fit(records)
-    if ctx.cancelled:
-        raise JobInterrupted("cancelled before the model was stored")
-    ctx.progress(0.8, "validating on held-out cycles")
-    row = store_model(store, estimator, records, axis, datasets, effects, n_operators, parent_id, ctx.job_id,
-                      {"name": name} if name else None)
+    with shared_effect_columns():        # the fit, and validation's refits and predictions, share columns
+        estimator.fit(records)
+        if ctx.cancelled:
+            raise JobInterrupted("cancelled before the model was stored")
+        ctx.progress(0.8, "validating on held-out cycles")
+        row = store_model(store, estimator, records, axis, datasets, effects, n_operators, parent_id, ctx.job_id,
+                          {"name": name} if name else None)
     metrics = row["metrics"]
     return {"model_id": row["id"], "train_rms_um": metrics["train_rms_um"],
             "validation_rms_um": metrics["validation_rms_um"], "effects": effects}

@@ -22,7 +22,7 @@ from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import sensitivity_sign
 from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIXED_POINT_ITERATIONS,
                                                          composite_inverse, invert_transforms)
-from service.science.discovery.column_memo import effect_blocks, play_outputs
+from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
@@ -164,6 +164,7 @@ class CompositeModel:
         if temps:
             self.scales["temp_ref_c"] = float(np.mean(np.concatenate(temps)))
 
+    @shared_effect_columns()     # the warm-started second fit reuses the first's columns
     def fit(self, records, fixed_theta: dict | None = None,
             exclude_frequency_hz: float | None = None) -> "CompositeModel":
         """Fit on the training rows of ``records`` (every block's, decimated; held-out cycles left
@@ -411,6 +412,7 @@ class CompositeModel:
         records = as_record_list(records)
         return evaluate_records(records, [self.predict(r) for r in records])
 
+    @shared_effect_columns()     # the held-out frequencies' refits share the columns
     def validate(self, records) -> dict:
         """``evaluate``, the held-out frequencies (each left out of a refit in turn) and the mean over
         blocks of the largest train and held-out error (µm)."""
