@@ -145,6 +145,14 @@ class CompositeModel:
                 columns = EFFECTS[name].apply(columns, sample_rate_hz, theta[name])
         return columns
 
+    def _transform_rows(self, columns: np.ndarray, sample_rate_hz: float, theta: dict, rows,
+                        skip: str | None = None) -> np.ndarray:
+        """``_transform(...)[rows]``, the last transform evaluated at ``rows`` alone (the same numbers)."""
+        names = [name for name in self.transforms if name != skip and name in theta]
+        for name in names[:-1]:
+            columns = EFFECTS[name].apply(columns, sample_rate_hz, theta[name])
+        return EFFECTS[names[-1]].apply_rows(columns, sample_rate_hz, theta[names[-1]], rows) if names else columns[rows]
+
     # -- fitting ------------------------------------------------------------------------
     @property
     def u_origin_v(self) -> float:
@@ -215,15 +223,19 @@ class CompositeModel:
             for k, r in enumerate(records):
                 local = exact or (row_local if row_local in theta else None)
                 if local is None:
-                    parts.append(self._transform(a_raw[k], r.sample_rate_hz, theta)[rows[k]])
+                    parts.append(self._transform_rows(a_raw[k], r.sample_rate_hz, theta, rows[k]))
                     continue
-                if exact is None:
-                    base = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=local)
-                else:
+                if exact is not None:
                     if k not in cache:
                         cache[k] = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=exact)
-                    base = cache[k]
-                parts.append(EFFECTS[local].apply_rows(base, r.sample_rate_hz, theta[local], rows[k]))
+                    parts.append(EFFECTS[local].apply_rows(cache[k], r.sample_rate_hz, theta[local], rows[k]))
+                    continue
+                # the others' output at the rows the delay reads, then the delay's weighted sum
+                taps = EFFECTS[local].taps(r.sample_rate_hz, theta[local], rows[k], r.n_samples)
+                read, where = np.unique(np.concatenate([tap_rows for _, tap_rows in taps]), return_inverse=True)
+                base = self._transform_rows(a_raw[k], r.sample_rate_hz, theta, read, skip=local)
+                starts = np.cumsum([0] + [tap_rows.size for _, tap_rows in taps])
+                parts.append(sum(w * base[where[i:j]] for (w, _), i, j in zip(taps, starts, starts[1:])))
             return np.vstack(parts)
 
         def solve_design(a: np.ndarray, extra: Block | None = None):

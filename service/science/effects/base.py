@@ -78,11 +78,18 @@ class Effect:
         """The transform applied to columns (n, p)."""
         return columns
 
-    #: transforms that can be evaluated at a few rows (``apply_rows``) get an exact search
+    #: transforms whose output at a row reads their input at a few rows (``taps``: a delay) get an
+    #: exact search, applied after the others at the rows a fit reads
     row_local: ClassVar[bool] = False
 
     def apply_rows(self, columns: np.ndarray, fs_hz: float, theta: dict, rows: np.ndarray) -> np.ndarray:
+        """The transform's output at ``rows`` (rising sample indices) only."""
         return self.apply(columns, fs_hz, theta)[rows]
+
+    def taps(self, fs_hz: float, theta: dict, rows: np.ndarray, n: int) -> tuple:
+        """Row-local transforms: ``((weight, input_rows), ...)`` such that the output at ``rows`` of
+        an n-sample record is Σ weight·columns[input_rows]."""
+        raise NotImplementedError(f"{self.name} is not row-local")
 
     def clamp(self, theta: dict, fs_hz: float) -> dict:
         """``theta`` moved into this transform's valid range (a joint search may step outside it)."""

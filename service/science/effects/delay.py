@@ -35,12 +35,17 @@ class Delay(Effect):
     def apply(self, columns, fs_hz, theta):
         return shift_columns(columns, theta["delay_s"] * fs_hz)
 
-    def apply_rows(self, columns, fs_hz, theta, rows):
-        """The delayed columns at ``rows`` only (cheap: the search re-solves every weight)."""
+    def taps(self, fs_hz, theta, rows, n):
+        """((w0, rows0), (w1, rows1)): the delayed columns at ``rows`` of an n-sample record are
+        w0·columns[rows0] + w1·columns[rows1] (linear interpolation, held at the start)."""
         d = max(theta["delay_s"] * fs_hz, 0.0)
         k, frac = int(np.floor(d)), d - np.floor(d)
-        n = columns.shape[0]
-        return (1.0 - frac) * columns[np.clip(rows - k, 0, n - 1)] + frac * columns[np.clip(rows - k - 1, 0, n - 1)]
+        return (1.0 - frac, np.clip(rows - k, 0, n - 1)), (frac, np.clip(rows - k - 1, 0, n - 1))
+
+    def apply_rows(self, columns, fs_hz, theta, rows):
+        """The delayed columns at ``rows`` only (cheap: the search re-solves every weight)."""
+        (w0, rows0), (w1, rows1) = self.taps(fs_hz, theta, rows, columns.shape[0])
+        return w0 * columns[rows0] + w1 * columns[rows1]
 
     def clamp(self, theta, fs_hz):
         return {"delay_s": max(float(theta["delay_s"]), 0.0)}

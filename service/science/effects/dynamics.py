@@ -21,30 +21,44 @@ COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 
 
 @njit(cache=True, nogil=True)
-def _biquad_about_first_row(b, a, x, out):
+def _biquad_about_first_row(b, a, x, rows, out):
     """Direct form II transposed (as scipy's lfilter) down each column of ``x`` (n, m), about its
-    first row, in row order: the columns share each sample's pass through memory."""
+    first row, in row order (the columns share each sample's pass through memory), writing only the
+    rows ``rows`` (rising, unique) to ``out`` (len(rows), m) and stopping after the last of them."""
     n, m = x.shape
     z1, z2 = np.zeros(m), np.zeros(m)
+    r = 0
     for k in range(n):
+        if r == rows.size:
+            break
+        take = rows[r] == k
         for j in range(m):
             xi = x[k, j] - x[0, j]
             y = b[0] * xi + z1[j]
             z1[j] = b[1] * xi - a[1] * y + z2[j]
             z2[j] = b[2] * xi - a[2] * y
-            out[k, j] = y + x[0, j]
+            if take:
+                out[r, j] = y + x[0, j]
+        if take:
+            r += 1
 
 
-def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: float) -> np.ndarray:
+def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: float,
+                     rows: np.ndarray | None = None) -> np.ndarray:
     """Every column (n_samples,) or (n_samples, m) through the resonance, starting at rest at its
-    first sample (so a constant column passes unchanged)."""
+    first sample (so a constant column passes unchanged); at ``rows`` only (rising sample indices)
+    when given: the filter still runs over every sample up to the last of them, but a fit's design
+    needs its training rows alone (a twentieth of a sweep's samples)."""
     wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
     b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
     x = np.ascontiguousarray(columns, dtype=float)
-    rows = x.reshape(x.shape[0], -1)
-    out = np.empty_like(rows)
-    _biquad_about_first_row(b / a[0], a / a[0], rows, out)
-    return out.reshape(x.shape)
+    flat = x.reshape(x.shape[0], -1)
+    at = np.arange(x.shape[0]) if rows is None else np.asarray(rows, dtype=np.int64)
+    if at.size > 1 and np.any(np.diff(at) <= 0):
+        raise ValueError("rows must rise strictly")
+    out = np.empty((at.size, flat.shape[1]))
+    _biquad_about_first_row(b / a[0], a / a[0], flat, at, out)
+    return out.reshape((at.size,) + x.shape[1:])
 
 
 def digital_response(frequency_hz: np.ndarray, fs_hz: float, fn_hz: np.ndarray, zeta: np.ndarray) -> np.ndarray:
@@ -67,6 +81,9 @@ class Dynamics(Effect):
 
     def apply(self, columns, fs_hz, theta):
         return resonance_filter(columns, fs_hz, theta["fn_hz"], theta["zeta"])
+
+    def apply_rows(self, columns, fs_hz, theta, rows):
+        return resonance_filter(columns, fs_hz, theta["fn_hz"], theta["zeta"], rows)
 
     def harmonic_search(self, data, fs_hz: float, max_frequency_hz: float) -> dict | None:
         """Best (fn, ζ) against the periodic blocks' harmonics with every weight refitted per

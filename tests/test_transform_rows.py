@@ -1,0 +1,46 @@
+"""A fit's design needs the transformed columns at its training rows only (about 1 in 24 samples
+of a sweep): the resonance filter writes those rows alone and a delay reads its input at the rows
+its taps name. Both give exactly the numbers of the full transform at those rows, and a fitted
+composite's training error is the one its full-length prediction gives there."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.science.data.record import Record
+from service.science.discovery.composite import CompositeModel
+from service.science.effects import EFFECTS
+from service.science.effects.dynamics import resonance_filter
+from service.science.fitting.metrics import rms
+
+FS = 20_000.0
+
+
+def test_the_filter_at_rows_is_the_full_filter_there_bit_for_bit():
+    x = np.random.default_rng(4).normal(size=(5000, 7)).cumsum(axis=0)
+    rows = np.array([3, 4, 90, 1234, 4000])                # stops after 4000: the tail is never run
+    full = resonance_filter(x, FS, 900.0, 0.05)
+    assert np.array_equal(resonance_filter(x, FS, 900.0, 0.05, rows), full[rows])
+    assert np.array_equal(resonance_filter(x[:, 0], FS, 900.0, 0.05, rows), full[rows, 0])
+    with pytest.raises(ValueError, match="rise"):
+        resonance_filter(x, FS, 900.0, 0.05, np.array([5, 5]))
+
+
+def test_the_delay_at_rows_is_the_full_delay_there_bit_for_bit():
+    x = np.random.default_rng(5).normal(size=(3000, 3))
+    rows = np.array([0, 1, 2, 500, 2999])
+    for delay_s in (0.0, 3.3 / FS, 17.0 / FS):
+        theta = {"delay_s": delay_s}
+        assert np.array_equal(EFFECTS["delay"].apply_rows(x, FS, theta, rows),
+                              EFFECTS["delay"].apply(x, FS, theta)[rows])
+
+
+def test_a_fit_with_a_mode_and_a_delay_trains_on_what_its_prediction_gives():
+    t = np.arange(int(1.5 * FS)) / FS
+    u = 60.0 - 55.0 * np.cos(2 * np.pi * 20.0 * t) + 5.0 * np.sin(2 * np.pi * 230.0 * t)
+    x = 0.1 * resonance_filter(np.roll(u, 3), FS, 1800.0, 0.08) + 2e-3 * np.random.default_rng(6).normal(size=t.size)
+    record = Record(u, x, FS, label="mode+delay")
+    model = CompositeModel(["dynamics", "delay"]).fit([record])
+    rows = record.fit_rows()
+    assert model.train_rms_um == pytest.approx(rms(record.x_um[rows] - model.predict(record)[rows]), rel=1e-9)
+    assert model.theta["delay"]["delay_s"] > 0 and 1000.0 < model.theta["dynamics"]["fn_hz"] < 3000.0
