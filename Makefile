@@ -10,6 +10,10 @@ STAMP  := $(VENV)/.installed-stamp
 WEB_STAMP := web/node_modules/.package-lock.json
 # One BLAS thread: the least-squares solves are small and a 2-core lab PC thrashes with more.
 export OPENBLAS_NUM_THREADS ?= 1
+# Python's own default: each module's bytecode is cached (__pycache__) by the first process that
+# imports it. An environment that sets PYTHONDONTWRITEBYTECODE makes every process (the test suite
+# starts about a hundred: services, engines, clients, workers) compile all it imports from source.
+unexport PYTHONDONTWRITEBYTECODE
 
 # Every core works (pytest-xdist): a group of tests that shares an expensive module fixture
 # (xdist_group) runs on one worker, the rest test by test; tests/conftest.py puts the long tests
@@ -20,10 +24,12 @@ FAST_TESTS     := not slow and not realtime and not browser and not postgres
 
 .PHONY: run test test-fast install clean browser
 
+# --no-compile: pip would byte-compile all 12 000 modules of the packages (half its time); only
+# those imported are compiled, once, when first imported (see PYTHONDONTWRITEBYTECODE above).
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet --no-compile -e '.[dev]'
 	touch $(STAMP)
 
 $(WEB_STAMP): web/package.json web/package-lock.json
