@@ -24,6 +24,7 @@ from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIX
                                                          composite_inverse, invert_transforms)
 from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
 from service.science.effects import EFFECTS, RecordContext, ordered
+from service.science.effects.base import sum_of_taps
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
 from service.science.effects.sensor_nonlinearity import OUTPUT_ROUNDS
@@ -232,10 +233,9 @@ class CompositeModel:
                     continue
                 # the others' output at the rows the delay reads, then the delay's weighted sum
                 taps = EFFECTS[local].taps(r.sample_rate_hz, theta[local], rows[k], r.n_samples)
-                read, where = np.unique(np.concatenate([tap_rows for _, tap_rows in taps]), return_inverse=True)
+                read = np.unique(np.concatenate([tap_rows for _, tap_rows in taps]))
                 base = self._transform_rows(a_raw[k], r.sample_rate_hz, theta, read, skip=local)
-                starts = np.cumsum([0] + [tap_rows.size for _, tap_rows in taps])
-                parts.append(sum(w * base[where[i:j]] for (w, _), i, j in zip(taps, starts, starts[1:])))
+                parts.append(sum_of_taps([(w, np.searchsorted(read, tap_rows)) for w, tap_rows in taps], base))
             return np.vstack(parts)
 
         def solve_design(a: np.ndarray, extra: Block | None = None):

@@ -54,6 +54,15 @@ class RecordContext:
         return np.arange(self.n) / self.fs_hz
 
 
+def sum_of_taps(taps, columns: np.ndarray) -> np.ndarray:
+    """Σ weight·columns[input_rows] over a row-local transform's ``taps`` (``Effect.taps``)."""
+    (w, rows), *rest = taps
+    out = w * columns[rows]
+    for w, rows in rest:
+        out = out + w * columns[rows]
+    return out
+
+
 class Effect:
     """Base: subclasses set ``name``, ``kind``, ``stage``, ``signature`` and implement the hooks."""
 
@@ -88,7 +97,7 @@ class Effect:
 
     def taps(self, fs_hz: float, theta: dict, rows: np.ndarray, n: int) -> tuple:
         """Row-local transforms: ``((weight, input_rows), ...)`` such that the output at ``rows`` of
-        an n-sample record is Σ weight·columns[input_rows]."""
+        an n-sample record is ``sum_of_taps`` of them over its columns."""
         raise NotImplementedError(f"{self.name} is not row-local")
 
     def clamp(self, theta: dict, fs_hz: float) -> dict:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from service.science.effects.base import Effect
+from service.science.effects.base import Effect, sum_of_taps
 
 
 def shift_columns(columns: np.ndarray, delay_samples: float) -> np.ndarray:
@@ -44,8 +44,7 @@ class Delay(Effect):
 
     def apply_rows(self, columns, fs_hz, theta, rows):
         """The delayed columns at ``rows`` only (cheap: the search re-solves every weight)."""
-        (w0, rows0), (w1, rows1) = self.taps(fs_hz, theta, rows, columns.shape[0])
-        return w0 * columns[rows0] + w1 * columns[rows1]
+        return sum_of_taps(self.taps(fs_hz, theta, rows, columns.shape[0]), columns)
 
     def clamp(self, theta, fs_hz):
         return {"delay_s": max(float(theta["delay_s"]), 0.0)}

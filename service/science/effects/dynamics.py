@@ -53,9 +53,12 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
     b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
     x = np.ascontiguousarray(columns, dtype=float)
     flat = x.reshape(x.shape[0], -1)
-    at = np.arange(x.shape[0]) if rows is None else np.asarray(rows, dtype=np.int64)
-    if at.size > 1 and np.any(np.diff(at) <= 0):
-        raise ValueError("rows must rise strictly")
+    if rows is None:
+        at = np.arange(x.shape[0])
+    else:
+        at = np.asarray(rows, dtype=np.int64)
+        if at.size > 1 and np.any(np.diff(at) <= 0):
+            raise ValueError("rows must rise strictly")
     out = np.empty((at.size, flat.shape[1]))
     _biquad_about_first_row(b / a[0], a / a[0], flat, at, out)
     return out.reshape((at.size,) + x.shape[1:])
