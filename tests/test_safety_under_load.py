@@ -4,6 +4,8 @@ A real ``evcbench serve`` (engine in its own process) runs sweeps while four cli
 full-resolution CSV downloads and one imports a CSV, each client its own process; the stop is
 pressed at random moments. The latencies are figures of ``evcbench bench safety --json``; here the
 stop must always land, the sweep must never be tripped by others' requests, and memory stays bounded.
+The benchmark's 1 Hz block (10 s of real time over both axes) is left out of this run's sweep, and
+the stops come 0.1–0.6 s into each long sweep rather than 0.3–1.8 s: the same doors, the same load.
 """
 import pytest
 
@@ -13,7 +15,8 @@ pytestmark = [pytest.mark.slow, pytest.mark.realtime]      # live services and t
 
 
 def test_stop_lands_and_sweep_survives_under_load():
-    out = run_safety_under_load(presses=3, import_mb=10.0, seed=1)
+    out = run_safety_under_load(presses=3, import_mb=10.0, seed=1, press_window_s=(0.1, 0.6),
+                                sweep={"axes": ["y", "z"], "frequencies_hz": [10, 50, 100], "cycles": 5})
     for phase in ("stop_idle", "stop_under_load", "stop_idle_service_route", "stop_under_load_service_route"):
         assert out[phase]["every_stop_landed"], out[phase]["not_landed"]
         assert out[phase]["zero_ms"]["n"] >= 3

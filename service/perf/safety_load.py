@@ -40,6 +40,8 @@ from service.perf.service_load import spawn_service
 
 SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5}
 LONG_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 30}
+#: the stop is pressed this long (s, uniform) after the long sweep starts running
+PRESS_WINDOW_S = (0.3, 1.8)
 DOWNLOADERS = 4
 
 
@@ -91,12 +93,13 @@ def _stop_load(procs: list[subprocess.Popen]) -> dict:
     return counts
 
 
-def _press(client: httpx.Client, rng: random.Random, press: Callable[[], dict]) -> dict:
-    """Start a long sweep, press the stop (``press``: through one door) at a random moment of it,
-    return the figures."""
+def _press(client: httpx.Client, rng: random.Random, press: Callable[[], dict],
+           window_s: tuple[float, float] = PRESS_WINDOW_S) -> dict:
+    """Start a long sweep, press the stop (``press``: through one door) at a random moment of it
+    (``window_s``: seconds after it runs, uniform), return the figures."""
     job = client.post("/api/sweeps", json=LONG_SWEEP).json()
     _wait(client, job["job_id"], ("running",))
-    time.sleep(0.3 + 1.5 * rng.random())
+    time.sleep(window_s[0] + (window_s[1] - window_s[0]) * rng.random())
     t_send = time.monotonic()
     answer = press()
     t_answer = time.monotonic()
@@ -131,8 +134,12 @@ def peak_rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int = 0) -> dict:
-    """The figures above, from one service started for this run (see the module docstring)."""
+def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int = 0, sweep: dict | None = None,
+                          press_window_s: tuple[float, float] = PRESS_WINDOW_S) -> dict:
+    """The figures above, from one service started for this run (see the module docstring).
+    ``sweep``: the body of the sweep that seeds the downloads and runs under load (default ``SWEEP``);
+    ``press_window_s``: when the stop is pressed in each long sweep (s after it runs)."""
+    sweep = SWEEP if sweep is None else sweep
     rng = random.Random(seed)
     with tempfile.TemporaryDirectory(prefix="evc-safety-") as tmp:
         tmp = Path(tmp)
@@ -147,9 +154,9 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                 # from <data dir>/stop_port.json, ?bench_id=, the fallback), and the service's route
                 assert user.prepare_stop() is not None, "the service announced no stop port"
                 doors = {"stop_port": user.stop_bench, "service_route": lambda: client.post(STOP_PATH).json()}
-                seeded = client.post("/api/sweeps", json=SWEEP).json()
+                seeded = client.post("/api/sweeps", json=sweep).json()
                 dataset_id = _wait(client, seeded["job_id"], ("succeeded",))["result"]["dataset_id"]
-                idle = {door: [_press(client, rng, press) for _ in range(max(3, presses // 3))]
+                idle = {door: [_press(client, rng, press, press_window_s) for _ in range(max(3, presses // 3))]
                         for door, press in doors.items()}
                 csv_path = write_import_csv(tmp / "load.csv", import_mb)
                 load = _start_load(url, token, dataset_id, csv_path)
@@ -158,9 +165,9 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                     loaded = {door: [] for door in doors}
                     for _ in range(presses):           # the two doors alternate: the same load for both
                         for door, press in doors.items():
-                            loaded[door].append(_press(client, rng, press))
+                            loaded[door].append(_press(client, rng, press, press_window_s))
                     before = client.get("/api/bench").json()
-                    job = client.post("/api/sweeps", json=SWEEP).json()
+                    job = client.post("/api/sweeps", json=sweep).json()
                     swept = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
                     after = client.get("/api/bench").json()
                 finally:
