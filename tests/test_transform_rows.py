@@ -26,6 +26,19 @@ def test_the_filter_at_rows_is_the_full_filter_there_bit_for_bit():
         resonance_filter(x, FS, 900.0, 0.05, np.array([5, 5]))
 
 
+def test_a_mode_above_half_the_sample_rate_is_the_identity_a_fit_starts_from():
+    """The composite starts every search from fn = 1e12 Hz. There the prewarp's tan is meaningless
+    (wn = -0.00078 rad/s at 20 kHz) and scipy's bilinear gave a one-coefficient numerator, so the
+    kernel read two coefficients past the array: garbage that now and then overflowed a fit's normal
+    matrix (numba's NUMBA_BOUNDSCHECK=1 found it). Now such a mode passes every column unchanged."""
+    x = np.random.default_rng(6).normal(size=(2000, 4)).cumsum(axis=0)
+    identity = CompositeModel(["dynamics"])._identity_theta("dynamics")
+    for fn_hz in (identity["fn_hz"], 0.5 * FS, 3e9):
+        assert np.array_equal(resonance_filter(x, FS, fn_hz, identity["zeta"]), x)
+        assert np.array_equal(resonance_filter(x, FS, fn_hz, 1.0, np.array([0, 7, 1999])), x[[0, 7, 1999]])
+    assert not np.array_equal(resonance_filter(x, FS, 0.45 * FS, 0.3), x)     # the highest mode a fit may place
+
+
 def test_the_delay_at_rows_is_the_full_delay_there_bit_for_bit():
     x = np.random.default_rng(5).normal(size=(3000, 3))
     rows = np.array([0, 1, 2, 500, 2999])

@@ -48,9 +48,10 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
     """Every column (n_samples,) or (n_samples, m) through the resonance, starting at rest at its
     first sample (so a constant column passes unchanged); at ``rows`` only (rising sample indices)
     when given: the filter still runs over every sample up to the last of them, but a fit's design
-    needs its training rows alone (a twentieth of a sweep's samples)."""
-    wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
-    b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
+    needs its training rows alone (a twentieth of a sweep's samples). A mode at or above half the
+    sample rate passes every column unchanged (the identity a fit starts from: fn = 1e12 Hz; the
+    prewarp's tan there is meaningless and scipy's bilinear then returned one numerator coefficient,
+    so the kernel read two more past the array: garbage, now and then huge)."""
     x = np.ascontiguousarray(columns, dtype=float)
     flat = x.reshape(x.shape[0], -1)
     if rows is None:
@@ -59,6 +60,13 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
         at = np.asarray(rows, dtype=np.int64)
         if at.size > 1 and np.any(np.diff(at) <= 0):
             raise ValueError("rows must rise strictly")
+    if fn_hz >= 0.5 * fs_hz:         # no mode the samples can show: a composite's identity (fn 1e12 Hz)
+        return x[at].copy()
+    wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
+    b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
+    if b.size != 3 or a.size != 3:   # scipy drops coefficients it finds negligible; the kernel reads three
+        raise ValueError(f"resonance at {fn_hz:g} Hz, damping {zeta:g}, has no second-order digital form at "
+                         f"{fs_hz:g} Hz (coefficients {b}, {a})")
     out = np.empty((at.size, flat.shape[1]))
     _biquad_about_first_row(b / a[0], a / a[0], flat, at, out)
     return out.reshape((at.size,) + x.shape[1:])
