@@ -25,6 +25,7 @@ from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIX
 from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.base import sum_of_taps
+from service.science.effects.dynamics import NO_MODE
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
 from service.science.effects.sensor_nonlinearity import OUTPUT_ROUNDS
@@ -328,7 +329,7 @@ class CompositeModel:
         return gauge.invert(x_um, self.coef[gauge.block_name], self.scales["x_mid_um"], self.scales["x_half_um"])
 
     def _identity_theta(self, name: str) -> dict:
-        return {"delay_s": 0.0} if name == "delay" else {"fn_hz": 1e12, "zeta": 1.0}
+        return {"delay_s": 0.0} if name == "delay" else dict(NO_MODE)
 
     def _harmonic_search(self, name, a_raw, records, theta) -> dict | None:
         """A transform's parameters from the periodic blocks' harmonics (None if it has no such

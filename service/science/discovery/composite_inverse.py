@@ -34,7 +34,7 @@ import numpy as np
 
 from service.science.data.signals import drive_derivatives
 from service.science.effects import EFFECTS
-from service.science.effects.dynamics import digital_response
+from service.science.effects.dynamics import digital_response, shows_mode
 from service.science.fitting.metrics import rms
 from service.science.models.inverse import numerical_inverse
 
@@ -62,7 +62,7 @@ def transform_response(model, frequency_hz: np.ndarray, sample_rate_hz: float) -
     theta = model.theta
     if "delay" in theta:
         h = h * np.exp(-2j * np.pi * frequency_hz * theta["delay"]["delay_s"])
-    if "dynamics" in theta and theta["dynamics"].get("fn_hz", 1e12) < 0.5 * sample_rate_hz:
+    if "dynamics" in theta and shows_mode(theta["dynamics"]["fn_hz"], sample_rate_hz):
         h = h * digital_response(frequency_hz, sample_rate_hz, theta["dynamics"]["fn_hz"], theta["dynamics"]["zeta"])
     return h
 

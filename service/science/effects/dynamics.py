@@ -18,6 +18,14 @@ MIN_ZETA = 0.003
 #: the harmonic search: resonance frequencies per decade and damping ratios of its coarse pass
 FN_PER_DECADE = 230  # 1 % steps
 COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
+#: "no mode": where a composite's searches start; filtering with it is the identity (shows_mode)
+NO_MODE = {"fn_hz": 1e12, "zeta": 1.0}
+
+
+def shows_mode(fn_hz: float, fs_hz: float) -> bool:
+    """Whether a mode at ``fn_hz`` acts on samples taken at ``fs_hz``: below half the sample rate
+    (above it the bilinear prewarp's tan is meaningless, and the mode is none)."""
+    return fn_hz < 0.5 * fs_hz
 
 
 @njit(cache=True, nogil=True)
@@ -60,7 +68,7 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
         at = np.asarray(rows, dtype=np.int64)
         if at.size > 1 and np.any(np.diff(at) <= 0):
             raise ValueError("rows must rise strictly")
-    if fn_hz >= 0.5 * fs_hz:         # no mode the samples can show: a composite's identity (fn 1e12 Hz)
+    if not shows_mode(fn_hz, fs_hz):       # NO_MODE, a composite's identity
         return x[at].copy()
     wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
     b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
