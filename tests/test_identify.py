@@ -53,6 +53,24 @@ def test_row_weights_and_zero_columns():
     np.testing.assert_array_equal(got.values["dead"], [0.5, 0.0])
 
 
+def test_subnormal_entries_are_flushed_and_change_no_coefficient():
+    """Columns whose second half is a filter's ring-down tail (1e-310 .. 5e-324): the triangle is
+    built from chunks with those entries at 0, and the weights are those of the design with zeros."""
+    from service.science.fitting.lsq import SMALLEST_NORMAL, _chunks
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(20_000, 4))
+    a[10_000:, :2] = rng.uniform(5e-324, 1e-310, size=(10_000, 2))
+    b = a @ np.array([1.0, 2.0, -0.5, 0.25]) + rng.normal(0, 0.01, 20_000)
+    chunks = list(_chunks([[a]], b, None))
+    assert all(np.sum((c != 0.0) & (np.abs(c) < SMALLEST_NORMAL)) == 0 for c in chunks)
+    assert sum(c.shape[0] for c in chunks) == 20_000
+    zeroed = a.copy()
+    zeroed[10_000:, :2] = 0.0
+    got, ref = solve_blocks([Block.make("c", a)], b), solve_blocks([Block.make("c", zeroed)], b)
+    np.testing.assert_array_equal(got.coef, ref.coef)
+
+
 def test_ill_conditioned_designs_fall_back_to_qr():
     """Polynomial columns t^0..t^9 (condition 2.4e6 after unit scaling): the normal equations
     would be off by 1.2e-4 (measured); the QR path keeps lstsq accuracy."""

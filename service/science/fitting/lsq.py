@@ -92,6 +92,10 @@ CHUNK_ROWS = 16384
 #: The normal equations are used while the unit-column triangle's condition number stays
 #: below this (≤ ~8 digits lost, against 16); above it the chunked QR takes over.
 GRAM_MAX_COND = 1e4
+#: Below this (2.2e-308) a float is subnormal: each product with one costs ~25x a normal one
+#: (measured: the Gram of an 11 200 x 87 design, 40 % of its entries the tail of a filter that
+#: came to rest, 72 ms against 3 ms). The chunks flush them to 0; nothing a fit sees is that small.
+SMALLEST_NORMAL = float(np.finfo(float).tiny)
 
 
 def _aligned_parts(blocks: Sequence[Block], n: int) -> list[list[np.ndarray]]:
@@ -106,7 +110,8 @@ def _aligned_parts(blocks: Sequence[Block], n: int) -> list[list[np.ndarray]]:
 
 
 def _chunks(parts: list[list[np.ndarray]], b: np.ndarray, w):
-    """Row chunks of the weighted [A | b] as Fortran arrays, read from the parts in place."""
+    """Row chunks of the weighted [A | b] as Fortran arrays, read from the parts in place, with
+    subnormal entries flushed to 0 (see ``SMALLEST_NORMAL``)."""
     p = sum(cols.shape[1] for cols in parts[0])
     offset = 0
     for cols in parts:
@@ -122,6 +127,7 @@ def _chunks(parts: list[list[np.ndarray]], b: np.ndarray, w):
             chunk[:, p] = b[glob]
             if w is not None:
                 chunk *= w[glob, None]
+            chunk[np.abs(chunk) < SMALLEST_NORMAL] = 0.0
             yield chunk
         offset += n_part
 
