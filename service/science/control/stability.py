@@ -92,13 +92,14 @@ def margins_of(loop: np.ndarray, f_hz: np.ndarray, delay_s: float) -> LoopMargin
     1 + L must rise by exactly +90° with an integrator (from −90° to 0°), by 0° without one; each
     encirclement of −1 takes 360° off."""
     mag = np.abs(loop)
-    ph = np.angle(loop)
-    start = np.angle(1.0 + loop[0])
-    wind = start + np.sum(np.angle((1.0 + loop[1:]) / (1.0 + loop[:-1])))
+    turn = np.angle(1.0 + loop)                                # the phase of 1 + L, then its steps
+    steps = np.diff(turn)                                      # wrapped to (−π, π]: the angle of each
+    steps -= 2 * np.pi * np.round(steps / (2 * np.pi))         # step's ratio (1 + L[k+1])/(1 + L[k])
+    wind = turn[0] + np.sum(steps)
     stable = abs(wind) < np.pi / 2
     cross = np.flatnonzero(np.diff(np.sign(mag - 1.0)) != 0)
     if len(cross):
-        phase_deg = np.degrees(ph[cross])                      # (−180°, 180°]: a derivative's lead counts
+        phase_deg = np.degrees(np.angle(loop[cross]))          # (−180°, 180°]: a derivative's lead counts
         pm_i = 180.0 - np.abs(phase_deg)                       # the angle to −1 either way round
         lag_room_rad = np.radians(np.mod(phase_deg + 180.0, 360.0))   # a delay only turns the phase back
         w_i = 2 * np.pi * f_hz[cross]
@@ -107,7 +108,9 @@ def margins_of(loop: np.ndarray, f_hz: np.ndarray, delay_s: float) -> LoopMargin
         dm = float(np.min(lag_room_rad / w_i))
     else:
         pm, fc, dm = float("inf"), float("nan"), float("inf")
-    neg = np.flatnonzero((np.diff(np.sign(np.sin(ph))) != 0) & (np.cos(ph[:-1]) < 0))
+    # phase crossovers: L crosses the negative real axis (its imaginary part changes sign where its
+    # real part is negative)
+    neg = np.flatnonzero((np.diff(np.sign(loop.imag)) != 0) & (loop.real[:-1] < 0))
     gm = float(np.min(-20 * np.log10(np.maximum(mag[neg], 1e-300)))) if len(neg) else float("inf")
     return LoopMargins(bool(stable), fc, pm, gm, dm, float(delay_s))
 
