@@ -74,6 +74,7 @@ class World:
         self.last_diag = K.empty_diag(0)
         self._scratch_out = np.zeros((1, K.NOISE_COLS))
         self._scratch_diag = K.empty_diag(1)
+        self._scratch_ao = np.zeros((1, 2))      # step's one AO row (V), for the buffered loop's kernel
         self.reset_state()
         self._compile()
         self.faults = FaultInjector(self, config.get("faults"))
@@ -273,8 +274,9 @@ class World:
         self.sa[:, K.S_SATN] = 0.0
         self._ensure_noise(1)
         out = np.empty((1, K.NOISE_COLS))
-        K.world_sample(*self._kernel_args(), float(ao0), float(ao1), self._noise, self._cursor,
-                       out, 0, self._scratch_diag)
+        ao = self._scratch_ao
+        ao[0, 0], ao[0, 1] = ao0, ao1
+        K.run_block(*self._kernel_args(), ao, self._noise, self._cursor, out, self._scratch_diag)  # one row
         self._cursor += 1
         self.last_ao[0], self.last_ao[1] = ao0, ao1
         self.last_diag = self._scratch_diag
