@@ -52,9 +52,22 @@ run: $(STAMP) $(WEB_STAMP)
 
 ## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
-test: $(STAMP) $(WEB_STAMP)
-	bash tests/setup/install_postgres.sh
-	bash tests/setup/install_browser.sh
+## While the dashboard's packages, PostgreSQL and the browser install, two processes compile the
+## kernels into numba's cache (`evcbench warm`; logs in tests/artifacts/): on a fresh clone the
+## workers and the services the tests start would otherwise each compile them, a minute of the run.
+WARM_LOG := tests/artifacts/warm
+test: $(STAMP)
+	@mkdir -p tests/artifacts; \
+	$(VENV)/bin/evcbench warm emulator > $(WARM_LOG)-emulator.log 2>&1 & emulator=$$!; \
+	$(VENV)/bin/evcbench warm models loop > $(WARM_LOG)-models.log 2>&1 & models=$$!; \
+	$(MAKE) --no-print-directory $(WEB_STAMP) && bash tests/setup/install_postgres.sh \
+		&& bash tests/setup/install_browser.sh; setup=$$?; \
+	failed=0; \
+	wait $$emulator || failed=1; \
+	wait $$models || failed=1; \
+	cat $(WARM_LOG)-emulator.log $(WARM_LOG)-models.log; \
+	[ $$setup -eq 0 ] || exit $$setup; \
+	[ $$failed -eq 0 ] || { echo "evcbench warm failed (above)" >&2; exit 1; }
 	$(PY) -m pytest -q $(PYTEST_XDIST)
 
 ## The edit loop: the same, less the tests marked slow, realtime, browser or postgres (pyproject.toml).

@@ -57,6 +57,19 @@ def _serve_settings(args: argparse.Namespace) -> Settings:
     )
 
 
+def _cmd_warm(args: argparse.Namespace) -> int:
+    from service.runtime.warmup import warm
+
+    try:
+        took = warm(args.parts or None)
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    print(json.dumps(took) if args.json else
+          "compiled into numba's cache: " + ", ".join(f"{part} {s:.1f} s" for part, s in took.items()))
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from service.perf import get_benchmark
 
@@ -154,6 +167,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true", help="print one JSON object")
     bench.add_argument("--duration", type=float, help="service: seconds of load (default 60)")
     bench.set_defaults(func=_cmd_bench)
+
+    warm = sub.add_parser("warm", help="compile the kernels into numba's cache now, so that the first sweep, fit "
+                          "or tracking run of a fresh install does not wait for the compiler")
+    warm.add_argument("parts", nargs="*", help="emulator, models, loop (default: all)")
+    warm.add_argument("--json", action="store_true", help="print one JSON object: seconds per part")
+    warm.set_defaults(func=_cmd_warm)
 
     store = sub.add_parser("store", help="maintain the store (check, repair)")
     store_sub = store.add_subparsers(dest="store_command", required=True)
