@@ -11,7 +11,6 @@ from typing import Sequence
 
 import numpy as np
 from drivers.jit import njit
-from scipy.signal import find_peaks, oaconvolve, savgol_coeffs, savgol_filter
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.
 TURNING_SWING_FRACTION = 0.1
@@ -102,6 +101,8 @@ def prominent_peaks(y: np.ndarray, prominence: float) -> np.ndarray:
     ``scipy.signal.find_peaks(y, prominence=prominence)[0]``, in time linear in the record. (SciPy
     scans from every peak to the nearest higher sample, which is the whole record when the peaks
     are equally high, as in a clean or quantised drive: half a minute for 10 M samples.)"""
+    from scipy.signal import find_peaks   # scipy.signal costs a service 0.7 s of start-up: imported when used
+
     y = np.ascontiguousarray(y, dtype=float)
     peaks, _ = find_peaks(y)
     if peaks.size == 0:
@@ -189,6 +190,8 @@ def savgol_derivatives(
 def savgol(y: np.ndarray, window: int, deriv: int, dt_s: float) -> np.ndarray:
     """``scipy.signal.savgol_filter(y, window, SAVGOL_POLYORDER, deriv, dt_s, mode="interp")``
     (unit/s^deriv), by overlap-add FFT when the window is long (the same filter; rounding apart)."""
+    from scipy.signal import oaconvolve, savgol_coeffs, savgol_filter   # see prominent_peaks
+
     if window <= SAVGOL_DIRECT_MAX_WINDOW:
         return savgol_filter(y, window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s, mode="interp")
     out = oaconvolve(y, savgol_coeffs(window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s), mode="same")

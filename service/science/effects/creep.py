@@ -9,7 +9,6 @@ of the lab or the gauge does not.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
@@ -24,6 +23,8 @@ def creep_time_constants_s(min_period_s: float, duration_s: float, per_decade: i
 def first_order_lowpass(x: np.ndarray, tau_s: float, fs_hz: float) -> np.ndarray:
     """Exact-discretised first-order lag of unit DC gain, starting at rest."""
     a = np.exp(-1.0 / (tau_s * fs_hz))
+    from scipy.signal import lfilter   # imported when used: scipy.signal costs a service 0.7 s of start-up
+
     return lfilter([1.0 - a], [1.0, -a], x, axis=0)
 
 

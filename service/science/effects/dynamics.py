@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 from drivers.jit import njit
-from scipy.signal import bilinear
 
 from service.science.effects.base import Effect
 from service.science.effects.harmonics import projected_costs
@@ -75,6 +74,8 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
             raise ValueError("rows must rise strictly")
     if not shows_mode(fn_hz, fs_hz):       # NO_MODE, a composite's identity
         return x[at].copy()
+    from scipy.signal import bilinear   # imported when used: scipy.signal costs a service 0.7 s of start-up
+
     wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
     b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
     if b.size != 3 or a.size != 3:   # scipy drops coefficients it finds negligible; the kernel reads three
