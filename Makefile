@@ -53,8 +53,8 @@ run: $(STAMP) $(WEB_STAMP)
 ## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
 ## While the dashboard's packages, PostgreSQL and the browser install, two processes compile the
-## kernels into numba's cache (`evcbench warm`; logs in tests/artifacts/): on a fresh clone the
-## workers and the services the tests start would otherwise each compile them, a minute of the run.
+## kernels into numba's cache (`evcbench warm`; logs in tests/artifacts/): on a fresh clone the two
+## workers would otherwise each compile them at their start (22 s each), with nothing to overlap.
 WARM_LOG := tests/artifacts/warm
 test: $(STAMP)
 	@mkdir -p tests/artifacts; \
