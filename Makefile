@@ -5,6 +5,7 @@
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
+CORE_STAMP := $(VENV)/.core-stamp
 STAMP  := $(VENV)/.installed-stamp
 # The dashboard's charting library (uPlot, pinned in web/package-lock.json), served from web/node_modules.
 WEB_STAMP := web/node_modules/.package-lock.json
@@ -26,9 +27,15 @@ FAST_TESTS     := not slow and not realtime and not browser and not postgres
 
 # --no-compile: pip would byte-compile all 12 000 modules of the packages (half its time); only
 # those imported are compiled, once, when first imported (see PYTHONDONTWRITEBYTECODE above).
-$(STAMP): pyproject.toml
+# In two steps: the service's own packages, then the test, report and lab tooling ('.[dev]'), so
+# that `make test` can compile the kernels while the second step installs.
+$(CORE_STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet --no-compile -e .
+	touch $(CORE_STAMP)
+
+$(STAMP): $(CORE_STAMP)
 	$(PY) -m pip install --quiet --no-compile -e '.[dev]'
 	touch $(STAMP)
 
@@ -52,15 +59,15 @@ run: $(STAMP) $(WEB_STAMP)
 
 ## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
-## While the dashboard's packages, PostgreSQL and the browser install, two processes compile the
-## kernels into numba's cache (`evcbench warm`; logs in tests/artifacts/): on a fresh clone the two
-## workers would otherwise each compile them at their start (22 s each), with nothing to overlap.
+## While the test tooling, the dashboard's packages, PostgreSQL and the browser install, two
+## processes compile the kernels into numba's cache (`evcbench warm`; logs in tests/artifacts/): on
+## a fresh clone the two workers would otherwise each compile them at their start (22 s each).
 WARM_LOG := tests/artifacts/warm
-test: $(STAMP)
+test: $(CORE_STAMP)
 	@mkdir -p tests/artifacts; \
 	$(VENV)/bin/evcbench warm emulator > $(WARM_LOG)-emulator.log 2>&1 & emulator=$$!; \
 	$(VENV)/bin/evcbench warm models loop > $(WARM_LOG)-models.log 2>&1 & models=$$!; \
-	$(MAKE) --no-print-directory $(WEB_STAMP) && bash tests/setup/install_postgres.sh \
+	$(MAKE) --no-print-directory $(STAMP) $(WEB_STAMP) && bash tests/setup/install_postgres.sh \
 		&& bash tests/setup/install_browser.sh; setup=$$?; \
 	failed=0; \
 	wait $$emulator || failed=1; \
