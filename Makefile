@@ -65,8 +65,8 @@ run: $(STAMP) $(WEB_STAMP)
 WARM_LOG := tests/artifacts/warm
 test: $(CORE_STAMP)
 	@mkdir -p tests/artifacts; \
-	$(VENV)/bin/evcbench warm emulator > $(WARM_LOG)-emulator.log 2>&1 & emulator=$$!; \
-	$(VENV)/bin/evcbench warm models loop > $(WARM_LOG)-models.log 2>&1 & models=$$!; \
+	$(VENV)/bin/evcbench warm emulator loop > $(WARM_LOG)-emulator.log 2>&1 & emulator=$$!; \
+	$(VENV)/bin/evcbench warm models > $(WARM_LOG)-models.log 2>&1 & models=$$!; \
 	$(MAKE) --no-print-directory $(STAMP) $(WEB_STAMP) && bash tests/setup/install_postgres.sh \
 		&& bash tests/setup/install_browser.sh; setup=$$?; \
 	failed=0; \

@@ -12,8 +12,10 @@ the paper's models and a composite with the effects that have kernels fitted, pr
 inverted on a synthetic record; the tracking loop's runner, error watch and learning kernels and
 the bench's one-sample step) with the argument types the product passes, so that later processes
 load machine code from the cache (drivers/jit.py keeps a cache that several processes fill
-consistent). The parts are independent: ``make test`` runs two side by side while it installs the
-browser. The command is ``evcbench warm``.
+consistent). ``make test`` runs "emulator loop" beside "models" while it installs the rest: the loop
+part after the emulator's in one process, because opening a bench compiles (or loads) its world
+(``World._compile``), which a second process would compile again at the same time. The command
+is ``evcbench warm``.
 """
 from __future__ import annotations
 
@@ -25,9 +27,11 @@ import numpy as np
 WARM_BENCH = "default"
 WARM_FREQUENCIES_HZ = (10.0,)
 WARM_CYCLES = 3
-#: the models' part fits a record of its own (no emulator): 0–120 V raised cosine at 10 Hz, 4 cycles
-#: at the DAQ's 20 kHz, through a first-order lag (1 ms, which opens a loop) and a quadratic gain
+#: the models' part fits a record of its own (no emulator): the paper's 0–120 V drive at 10 Hz,
+#: 4 cycles at the DAQ's 20 kHz, through a first-order lag (1 ms, which opens a loop) and a quadratic gain
 RECORD_RATE_HZ = 20_000.0
+RECORD_FREQUENCY_HZ = 10.0
+RECORD_CYCLES = 4
 RECORD_LAG_S = 1e-3
 
 
@@ -60,19 +64,19 @@ def _loop() -> None:
 def _models() -> None:
     """The paper's models fitted, predicted and inverted, and a composite with the effects whose
     columns are compiled (Duhem operators, the flexure's resonance) fitted and inverted."""
-    from scipy.signal import lfilter
-
     from service.science.data.record import Record
+    from service.science.data.signals import biased_sine
     from service.science.discovery.composite import CompositeModel
+    from service.science.effects.creep import first_order_lowpass
     from service.science.models import PAPER_MODELS
 
-    n = int(4 * RECORD_RATE_HZ / 10.0)
-    u_v = 60.0 * (1.0 - np.cos(2 * np.pi * 10.0 * np.arange(n) / RECORD_RATE_HZ))
-    a = np.exp(-1.0 / (RECORD_RATE_HZ * RECORD_LAG_S))
-    lagged_v = lfilter([1.0 - a], [1.0, -a], u_v)
-    record = Record(u_v, 0.1 * lagged_v + 2e-4 * lagged_v ** 2, RECORD_RATE_HZ, label="warm-up", axis="y",
-                    blocks=[{"index": 0, "start": 0, "stop": n, "kind": "sine", "frequency_hz": 10.0, "cycles": 4,
-                             "axes": ["y"]}])
+    drive = biased_sine(RECORD_FREQUENCY_HZ, RECORD_CYCLES, RECORD_RATE_HZ)
+    lagged_v = first_order_lowpass(drive.value, RECORD_LAG_S, RECORD_RATE_HZ)
+    n = drive.value.size
+    record = Record(drive.value, 0.1 * lagged_v + 2e-4 * lagged_v ** 2, RECORD_RATE_HZ, du_v_per_s=drive.d1_per_s,
+                    ddu_v_per_s2=drive.d2_per_s2, label="warm-up", axis="y",
+                    blocks=[{"index": 0, "start": 0, "stop": n, "kind": "sine", "frequency_hz": RECORD_FREQUENCY_HZ,
+                             "cycles": RECORD_CYCLES, "axes": ["y"]}])
     x_ref = record.require_x()
     models = [cls().fit([record]) for cls in PAPER_MODELS.values()]
     models.append(CompositeModel(["operators", "dynamics"]).fit([record]))
