@@ -34,8 +34,9 @@ os.environ.setdefault("EVCBENCH_ENGINE", "inline")
 # numba's cache is shared by the workers and the services their tests start: drivers/jit.py locks
 # its index, so two processes compiling one kernel at once keep each one's machine code.
 
-#: Run order under xdist: the marks of a test, heaviest first (a test's weight is its heaviest mark's).
-WEIGHTS = {"slow": 3, "browser": 2, "realtime": 2, "postgres": 1}
+#: Run order under xdist: the marks of a test, heaviest first (a test's weight is its heaviest mark's);
+#: ``first`` before all (tests/test_warmup.py reads the cache `make test` filled before any test ran)
+WEIGHTS = {"first": 4, "slow": 3, "browser": 2, "realtime": 2, "postgres": 1}
 
 
 def _weight(item: pytest.Item) -> int:

@@ -2,11 +2,12 @@
 running the product's paths on other benches, other records and other models compiles none of the
 product's kernels: it loads them all.
 
-Both processes use the suite's shared cache, which `make test` fills with this command before the
-workers start (a private empty cache would make this test compile every kernel, half a minute of
-a worker). A kernel or argument type the product's paths reach and the warm-up misses is compiled
-here, and fails the test, unless a test before it happened to compile it (on a shared cache the
-check is as strong as the suite is early)."""
+Both processes use the suite's shared cache (a private empty one would make this test compile
+every kernel: half a minute of a worker). `make test` fills it with the same command before the
+workers start, and this test runs first on its worker (mark ``first``, tests/conftest.py), before
+other tests add kernels to the cache: a kernel or argument type the product's paths reach and the
+warm-up misses is compiled by the probe, and fails the test. (The other worker starts at the same
+moment; a kernel it compiles in the probe's first seconds could still hide a miss.)"""
 from __future__ import annotations
 
 import json
@@ -16,7 +17,7 @@ import sys
 
 import pytest
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.first]
 
 #: a process that lists the product kernels numba compiles (its "numba:compile" event fires on a
 #: cache miss only) while it sweeps two emulated benches of other hysteresis families and seeds,
