@@ -37,3 +37,25 @@ def test_docs_are_served(tmp_path):
         assert client.get("/docs").status_code == 200
         spec = client.get("/openapi.json").json()
         assert "/api/health" in spec["paths"] and "/api/bench" in spec["paths"]
+
+
+def test_the_web_process_starts_without_scipy_signal_or_stats(tmp_path):
+    """scipy.signal and scipy.stats (0.4-0.5 s of a service's start-up) are imported where the
+    science uses them, not by the app as it starts: a fresh process that builds the app and answers
+    /api/health has neither loaded."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from fastapi.testclient import TestClient\n"
+        "from service.runtime.app import create_app\n"
+        "from service.runtime.settings import Settings\n"
+        f"app = create_app(Settings(data_dir={str(tmp_path)!r}, bench='default', seed=0, auth='off'))\n"
+        "with TestClient(app) as client:\n"
+        "    assert client.get('/api/health').status_code == 200\n"
+        "print(sorted({m.split('.')[1] for m in sys.modules if m.startswith(('scipy.signal', 'scipy.stats'))}))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines()[-1] == "[]"
