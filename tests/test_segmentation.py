@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from service.science.data.segmentation import blocks_without_table, detect_blocks
 
@@ -56,3 +57,45 @@ def test_prominent_peaks_are_scipys_without_its_quadratic_scan():
             np.testing.assert_array_equal(prominent_peaks(y, prominence), find_peaks(y, prominence=prominence)[0])
     drive = np.round(biased_sine(10, 2000, rest_s=0), 3)             # 400 000 samples, 2000 equal peaks
     assert prominent_peaks(drive, 12.0).size == 2000
+
+
+def _swept_beside_steady(z_hz: float) -> dict:
+    """Y at 1 Hz then 10 Hz (10 s each) while Z oscillates steadily at ``z_hz`` the whole time."""
+    t = np.arange(int(20 * FS)) / FS
+    phase = 2 * np.pi * np.cumsum(np.where(t < 10, 1.0, 10.0)) / FS
+    return {"y": 60 - 60 * np.cos(phase), "z": 40 - 40 * np.cos(2 * np.pi * z_hz * t)}
+
+
+def test_axes_driven_at_once_at_their_own_frequencies_make_blocks_that_never_overlap():
+    """A new user's import: Y swept while Z ran steadily at 5 Hz. Z's one long run swallowed Y's 1 Hz
+    run (one block 'at 5 Hz' driving both), Y's 10 Hz block overlapped it, and every diagnosis of
+    the dataset answered 500 (the rows of a fit must rise)."""
+    u = _swept_beside_steady(5.0)
+    blocks = detect_blocks(u, FS)
+    assert all(a["stop"] <= b["start"] for a, b in zip(blocks, blocks[1:])), blocks
+    together = [b for b in blocks if len(b["axes"]) == 2]
+    assert [{a: round(f, 6) for a, f in b["frequencies_hz"].items()} for b in together] == [
+        {"y": 1.0, "z": 5.0}, {"y": 10.0, "z": 5.0}]
+    # each block is whole cycles of the period at which its drives repeat together (1 s, then 0.2 s)
+    assert [round(b["frequency_hz"], 6) for b in together] == [1.0, 5.0]
+    for b in together:
+        assert b["stop"] - b["start"] == round(b["cycles"] * FS / b["frequency_hz"]) and b["cycles"] >= 8
+        assert 0 <= b["start"] and b["stop"] <= u["y"].size
+    # 5.3 Hz beside 1 Hz repeats every 10 s, longer than the stretch; beside 10 Hz never: no period
+    loose = [b for b in detect_blocks(_swept_beside_steady(5.3), FS) if len(b["axes"]) == 2]
+    assert [b["frequency_hz"] for b in loose] == [None, None]           # and so have no period
+    assert [b["joint_frequency_hz"] for b in loose] == [pytest.approx(0.1), None]  # 53/10: 10 s > the stretch
+
+
+def test_a_diagnosis_of_axes_driven_at_their_own_frequencies_names_both_in_its_blocks():
+    from service.science.data.record import Record
+    from service.science.discovery.diagnosis import diagnose
+    from service.usecases.discover import block_title
+
+    u = _swept_beside_steady(5.0)
+    x = {a: 0.1 * v + 0.3 * np.sin(v / 20.0) for a, v in u.items()}      # a static nonlinearity
+    record = Record(u["y"], x["y"], FS, axis="y", u_other_v=u["z"], x_other_um=x["z"], hold_out=True)
+    d = diagnose([record])                    # raised 'rows must rise strictly' on the overlapping blocks
+    assert d["verdict"] in ("complete", "missing_effect") and 0 < d["residual_rms_um"] < 1.0
+    titles = [block_title("y", s, FS) for s in record.splits]
+    assert "Y 10 Hz + Z 5 Hz detected, repeating at 5 Hz (held-out common cycles" in titles[-1], titles

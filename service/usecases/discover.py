@@ -33,6 +33,11 @@ def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
     else:
         what = kind
         held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
+    if together := b.get("frequencies_hz"):    # the axes driven at once, each at its own frequency
+        repeats = f", repeating at {f_hz:g} Hz" if f_hz else ", not repeating together"
+        own_first = sorted(together.items(), key=lambda item: item[0] != axis)
+        return (f"{' + '.join(f'{a.upper()} {f:g} Hz' for a, f in own_first)} {kind}{repeats} "
+                f"({held.replace('cycle', 'common cycle')})")
     if others := other_axes(b, axis):        # a block of the other axis (cross-coupling shows there)
         return f"{'/'.join(a.upper() for a in others)} {what}, {axis.upper()} undriven ({held})"
     return f"{axis.upper()} {what} ({held})"

@@ -10,6 +10,8 @@ levels and irregular stretches fall outside every block.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from service.science.data.signals import STEADY_HALF_PERIOD_SHARE, longest_linked_run, turning_points
@@ -18,6 +20,12 @@ from service.science.data.signals import STEADY_HALF_PERIOD_SHARE, longest_linke
 CROSSING_SHARE = 0.03
 #: a run needs at least this many whole cycles to be a block
 MIN_CYCLES = 2
+#: runs of two axes at frequencies this close (share of the higher) are one oscillation on both
+SAME_FREQUENCY_SHARE = 0.01
+#: simultaneous runs at different frequencies repeat together if each ratio to the slowest is p/q,
+#: q at most this, within JOINT_RATIO_SHARE of p/q
+MAX_JOINT_DENOMINATOR = 12
+JOINT_RATIO_SHARE = 1e-3
 
 
 def steady_runs(u: np.ndarray, sample_rate_hz: float) -> list[dict]:
@@ -71,23 +79,108 @@ def _steady_chain(crossings: np.ndarray, period: float) -> np.ndarray:
 
 def detect_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict]:
     """Sweep-style blocks (index, start, stop, kind "detected", cycles, frequency_hz, axes) of the
-    steady oscillations of every axis's drive, in time order; runs of two axes that overlap by more
-    than half of the shorter one are one block driving both."""
-    found = [(axis, run) for axis, u in drives_v.items() for run in steady_runs(u, sample_rate_hz)]
-    found.sort(key=lambda item: item[1]["start"])
+    steady oscillations of every axis's drive, in time order and never overlapping. Runs of two axes
+    at one frequency that overlap by more than half of the shorter one are one block driving both.
+    Runs that overlap otherwise (one axis swept while the other oscillates steadily at its own
+    frequency) are cut where each starts and stops: each stretch is a block of the axes driven
+    there, with ``frequencies_hz`` per axis and the frequency at which they repeat together
+    (``joint_frequency_hz``; None if they do not), so that every block is whole cycles of its drive."""
+    found = sorted(((axis, run) for axis, u in drives_v.items() for run in steady_runs(u, sample_rate_hz)),
+                   key=lambda item: (item[1]["start"], item[1]["stop"]))
     blocks: list[dict] = []
-    for axis, run in found:
-        for block in blocks:
-            overlap = min(block["stop"], run["stop"]) - max(block["start"], run["start"])
-            if axis not in block["axes"] and overlap > 0.5 * min(block["stop"] - block["start"],
-                                                                  run["stop"] - run["start"]):
-                block["axes"].append(axis)
-                break
-        else:
-            blocks.append({**run, "kind": "detected", "axes": [axis]})
+    for cluster in _overlapping(found):
+        blocks += _one_oscillation(cluster) or _stretches(cluster, sample_rate_hz)
+    blocks.sort(key=lambda block: block["start"])
     for index, block in enumerate(blocks):
         block["index"] = index
     return blocks
+
+
+def _overlapping(found: list) -> list[list]:
+    """``found`` (axis, run) in start order, grouped into chains of runs that overlap in time."""
+    clusters: list[list] = []
+    reach = 0
+    for axis, run in found:
+        if clusters and run["start"] < reach:
+            clusters[-1].append((axis, run))
+            reach = max(reach, run["stop"])
+        else:
+            clusters.append([(axis, run)])
+            reach = run["stop"]
+    return clusters
+
+
+def _one_oscillation(cluster: list) -> list[dict] | None:
+    """One block when the cluster is one oscillation: a single run, or runs of different axes at one
+    frequency each overlapping the first by more than half of the shorter (the axes driven
+    together); the first run's extent and cycles. None otherwise."""
+    (axis, first), rest = cluster[0], cluster[1:]
+    axes = [axis]
+    for other_axis, run in rest:
+        overlap = min(first["stop"], run["stop"]) - max(first["start"], run["start"])
+        if (other_axis in axes or not _same_frequency(first["frequency_hz"], run["frequency_hz"])
+                or overlap <= 0.5 * min(first["stop"] - first["start"], run["stop"] - run["start"])):
+            return None
+        axes.append(other_axis)
+    return [{**first, "kind": "detected", "axes": axes}]
+
+
+def _stretches(cluster: list, sample_rate_hz: float) -> list[dict]:
+    """Non-overlapping blocks of overlapping runs: the stretches between consecutive run edges, each
+    of the runs covering it, cut to whole cycles (of the one run's period, aligned to its cycles, or
+    of the period at which the runs repeat together; a stretch of runs that do not repeat together
+    is kept whole, without a frequency); stretches of fewer than MIN_CYCLES are left out."""
+    edges = sorted({edge for _, run in cluster for edge in (run["start"], run["stop"])})
+    out = []
+    for lo, hi in zip(edges, edges[1:]):
+        covering = [(axis, run) for axis, run in cluster if run["start"] <= lo and run["stop"] >= hi]
+        if not covering:
+            continue
+        frequencies = {axis: float(run["frequency_hz"]) for axis, run in covering}
+        if len(covering) == 1:                  # whole cycles of the run, on its own cycle grid
+            run = covering[0][1]
+            period = sample_rate_hz / run["frequency_hz"]
+            first = int(np.ceil((lo - run["start"]) / period - 1e-6))
+            last = int(np.floor((hi - run["start"]) / period + 1e-6))
+            block = {"start": run["start"] + int(round(first * period)), "cycles": last - first,
+                     "frequency_hz": float(run["frequency_hz"])}
+        else:                                   # whole common cycles, if the stretch holds MIN_CYCLES
+            joint = joint_frequency_hz(list(frequencies.values()))
+            cycles = int(np.floor((hi - lo) * joint / sample_rate_hz + 1e-6)) if joint else 0
+            periodic = cycles >= MIN_CYCLES
+            block = {"start": int(lo), "cycles": cycles if periodic else None,
+                     "frequency_hz": joint if periodic else None, "frequencies_hz": frequencies,
+                     "joint_frequency_hz": joint}
+        if block["frequency_hz"] is None:
+            if hi - lo < MIN_CYCLES * sample_rate_hz / min(frequencies.values()):
+                continue
+            block["stop"] = int(hi)
+        elif block["cycles"] < MIN_CYCLES:
+            continue
+        else:
+            block["stop"] = block["start"] + int(round(block["cycles"] * sample_rate_hz / block["frequency_hz"]))
+        out.append({**block, "kind": "detected", "axes": [axis for axis, _ in covering]})
+    return out
+
+
+def _same_frequency(a_hz: float, b_hz: float) -> bool:
+    return abs(a_hz - b_hz) <= SAME_FREQUENCY_SHARE * max(a_hz, b_hz)
+
+
+def joint_frequency_hz(frequencies_hz: list[float]) -> float | None:
+    """The frequency (Hz) at which drives at ``frequencies_hz`` repeat together: the slowest divided
+    by the least common denominator of the others' ratios to it (each p/q with q ≤
+    MAX_JOINT_DENOMINATOR, within JOINT_RATIO_SHARE); None if some ratio is not such a fraction."""
+    slowest = min(frequencies_hz)
+    denominator = 1
+    for f in frequencies_hz:
+        ratio = f / slowest
+        q = next((q for q in range(1, MAX_JOINT_DENOMINATOR + 1)
+                  if abs(ratio * q - round(ratio * q)) <= JOINT_RATIO_SHARE * ratio * q), None)
+        if q is None:
+            return None
+        denominator = denominator * q // math.gcd(denominator, q)
+    return slowest / denominator if denominator <= MAX_JOINT_DENOMINATOR else None
 
 
 #: why a stretch of an imported record is in no block (it stays in the record: models run through it)

@@ -219,7 +219,8 @@ def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float,
     ddu = np.gradient(du, 1.0 / sample_rate_hz)
     for block in blocks:
         start, stop = int(block["start"]), min(int(block["stop"]), len(u_v))
-        f_hz = block.get("frequency_hz")
+        # the window of the fastest drive in the block (axes driven at once at their own frequencies)
+        f_hz = max((block.get("frequencies_hz") or {}).values(), default=block.get("frequency_hz"))
         if stop - start < 8:
             continue
         period = sample_rate_hz / f_hz if f_hz else None

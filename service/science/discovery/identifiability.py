@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.fitting.validation import axis_frequency_hz
+
 #: the characterisation that tests every rate effect (the paper's four frequencies)
 RATE_SWEEP = {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0], "cycles": 5}
 #: two rates must differ by at least this factor to separate a rate effect from the loop shape
@@ -38,9 +40,10 @@ def drive_rates_hz(records) -> list[float]:
     rates = []
     for r in records:
         for s in r.splits_of(own_axis_only=True):
+            own = axis_frequency_hz(s.block, r.axis) if "frequencies_hz" in s.block else None
             period = r.period_samples(s)
-            if period:
-                rates.append(r.sample_rate_hz / period)
+            if own or period:
+                rates.append(own or r.sample_rate_hz / period)
     distinct: list[float] = []
     for f in sorted(rates):
         if not distinct or f > distinct[-1] * 1.05:

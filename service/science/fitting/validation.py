@@ -39,6 +39,12 @@ def other_axes(block: dict, axis: str | None) -> list[str]:
     return list(driven) if axis and driven and axis not in driven else []
 
 
+def axis_frequency_hz(block: dict, axis: str | None) -> float | None:
+    """The frequency (Hz) at which ``block`` drove ``axis``: its own where the block drove the axes
+    at different frequencies (``frequencies_hz``, an imported two-axis record), else the block's."""
+    return (block.get("frequencies_hz") or {}).get(axis) or block.get("frequency_hz")
+
+
 def split_blocks(blocks: Sequence[dict], samples: int, sample_rate_hz: float, axis: str | None = None,
                  fraction: float = HELD_OUT_FRACTION) -> list[BlockSplit]:
     """Train/held-out ranges per block. Blocks that drive other axes only are skipped when
