@@ -210,15 +210,17 @@ def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float)
              "axes": list(drives_v)}
     if blocks:
         run = blocks[0]
-        f = float(run["frequency_hz"])
-        period = sample_rate_hz / f
+        together = {k: run[k] for k in ("frequencies_hz", "joint_frequency_hz") if k in run}
+        f = run["frequency_hz"]            # None: axes driven at once that do not repeat together
+        period = sample_rate_hz / (f or min(run["frequencies_hz"].values()))
         before, after = int(run["start"]), n - int(run["stop"])
         if max(before, after) > period:   # a rest (or a ramp) around the excitation: the block is the
             # steady oscillation alone, so its cycles and held-out cycles are the drive's own; the
             # rest stays in the record (the model runs through it) and is reported
             return [{**whole, "start": int(run["start"]), "stop": int(run["stop"]), "frequency_hz": f,
-                     "cycles": int(run["cycles"]), "axes": run["axes"],
+                     "cycles": run["cycles"], "axes": run["axes"], **together,
                      "trimmed": {"before_s": before / sample_rate_hz, "after_s": after / sample_rate_hz,
                                  "why": OUTSIDE_BLOCKS}}]
-        whole.update(frequency_hz=f, cycles=int(np.floor(n * f / sample_rate_hz + 1e-9)), axes=run["axes"])
+        cycles = int(np.floor(n * f / sample_rate_hz + 1e-9)) if f else None
+        whole.update(frequency_hz=f, cycles=cycles, axes=run["axes"], **together)
     return [whole]
