@@ -128,7 +128,7 @@ def test_a_malformed_row_far_into_the_file_is_named_by_its_line():
     lines[40_000] = b"40,abc,1"                       # line 40 001 of the file
     with pytest.raises(DataError) as info:
         parse_table(b"\n".join(lines))
-    assert (info.value.field, info.value.message) == ("file", "line 40001: 'abc' is not a number")
+    assert (info.value.field, info.value.message) == ("file", "line 40001, column 'u_y': 'abc' is not a number")
     lines[40_000] = b"40,1"
     with pytest.raises(DataError, match="line 40001 has 2 fields; expected 3"):
         parse_table(b"\n".join(lines))

@@ -73,7 +73,8 @@ def test_single_axis_file_with_axis_and_scaled_mapping():
     (_csv(), {"sample_rate_hz": 500}, "sample_rate_hz", "disagrees"),
     (_csv(extra=(5, "0.0041,1,1")), {}, "t", "evenly spaced"),
     (_csv(), {"delimiter": "pipe"}, "delimiter", "unknown delimiter"),
-    (b"\xff\xfe\x00", {}, "file", "UTF-8"),
+    (b"\xff\xfe\x00", {}, "file", "not valid UTF-16 text"),          # a BOM, then half a character
+    (b"PK\x03\x04\x14\x00\x06\x00", {}, "file", "binary"),                # an .xlsx (a zip)
 ])
 def test_bad_tables_name_the_field_at_fault(content, kwargs, field, words):
     with pytest.raises(DataError) as info:

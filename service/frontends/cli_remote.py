@@ -123,8 +123,9 @@ def _sweep(api: Client, args) -> int:
 def _import(api: Client, args) -> int:
     row = api.import_dataset(args.file, name=args.name, axis=args.axis, columns=args.columns,
                              sample_rate_hz=args.sample_rate_hz, delimiter=args.delimiter)
+    notes = "".join(f"\n  note: {note}" for note in row.get("import_notes") or [])
     return _emit(args, row, f"dataset {row['id']}: axes {','.join(row['axes'])}, {row['samples']} samples "
-                            f"at {row['sample_rate_hz']:g} Hz")
+                            f"at {row['sample_rate_hz']:g} Hz{notes}")
 
 
 def _identify(api: Client, args) -> int:

@@ -35,7 +35,8 @@ def dataset_view(row: DatasetRow, full: bool = True) -> dict:
     if full:
         plan = row["plan"] if isinstance(row["plan"], dict) else {}
         view.update(blocks=row["blocks"], plan=row["plan"], config=row["config"], units=row["units"],
-                    drive_range_v=plan.get("drive_range_v"), software_version=row["software_version"],
+                    drive_range_v=plan.get("drive_range_v"), import_notes=plan.get("notes") or [],
+                    software_version=row["software_version"],
                     file=row["file"], sha256=row["sha256"])
     return view
 

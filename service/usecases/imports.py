@@ -1,6 +1,7 @@
 """Imports: a table another lab (or this service) recorded, parsed, segmented and stored as a dataset.
 
-Measured data is not a command: any drive range is accepted and kept as ``drive_range_v``. A
+Measured data is not a command: any drive range is accepted and kept as ``drive_range_v``; the
+units converted and values implausible for a piezo stage are kept as the plan's ``notes``. A
 refused file (FieldError naming the field or column) stores nothing.
 """
 from __future__ import annotations
@@ -22,5 +23,5 @@ def import_table(store: Store, handle: BinaryIO, name: str, options: dict) -> Da
                         sample_rate_hz=options["sample_rate_hz"], delimiter=options["delimiter"])
     blocks = blocks_without_table({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
     meta = {"name": name, "source": "import", "axes": table.axes, "sample_rate_hz": table.sample_rate_hz,
-            "blocks": blocks, "plan": {"import": options, "drive_range_v": table.drive_range_v}}
+            "blocks": blocks, "plan": {"import": options, "drive_range_v": table.drive_range_v, "notes": table.notes}}
     return Recorder(store, meta).keep(table.arrays)

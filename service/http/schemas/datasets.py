@@ -91,6 +91,9 @@ class Dataset(DatasetSummary):
     config: dict[str, Any] | None = Field(description="the bench's configuration at the time (None for imports)")
     units: dict[str, str] = Field(description="column → unit")
     drive_range_v: dict[str, list[float]] | None = Field(description="imports: the drive's (min, max) per axis")
+    import_notes: list[str] = Field(default=[], description="imports: units converted to s, V, µm, °C (from "
+                                    "'Time [ms]', 'x_y_nm', a units row, …) and values implausible for a "
+                                    "piezo stage, with the unit that may be meant")
     software_version: str
     file: str = Field(description="the arrays' file, relative to the data dir")
     sha256: str

@@ -4,23 +4,31 @@ Arrays inside the service are named with units: ``t_s``, ``u_y_v``, ``x_y_um``, 
 ``x_z_um``, ``temp_c``. Files follow DESIGN.md §4: a header row ``t,u_y,x_y,u_z,x_z[,temp_c]``
 (``t`` in seconds, volts at the actuator, micrometres), or ``u,x`` plus an ``axis``. Headerless
 or foreign files need ``columns``, a mapping such as ``{"u": 0, "x": 4}`` (0-based indices or
-header names; a value may also be ``{"column": 4, "scale": 1.0, "offset": 0.0}``), and
-``sample_rate_hz`` when there is no time column. Columns the mapping does not name are never
-read (an unnamed index column, notes, empty columns). Measured data is not a command: any drive
-range is accepted and recorded (``drive_range_v``). No HTTP and no store here.
+header names; a value may also be ``{"column": 4, "scale": 1.0, "offset": 0.0}`` or
+``{"column": 4, "unit": "nm"}``), and ``sample_rate_hz`` when there is no time column. Columns the
+mapping does not name are never read (an unnamed index column, notes, empty columns).
+
+Units written in the header (``Time [ms]``, ``x_y_nm``, ``Position/mm``, or a units row under the
+header; service.science.data.units) are converted to seconds, volts, micrometres and °C, and the
+conversion is noted; a unit of the wrong quantity, or one this service does not know, is refused
+naming the column, unless the mapping gives the column's ``scale`` (then that is the whole
+conversion). Measured data is not a command: any drive range is accepted and recorded
+(``drive_range_v``); values implausible for a piezo stage (a stroke of millimetres, a sample rate
+under 100 Hz) are accepted with a note saying which unit may be meant. No HTTP and no store here.
 """
 from __future__ import annotations
 
 import io
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import BinaryIO
 
 import numpy as np
 
 from drivers.interfaces import AXES
 from service.science.data.table_reader import DataError, Layout, TableReader
+from service.science.data.units import SERVICE_UNIT, conversion, known_units, quantity_of_unit, split_unit
 
 __all__ = ["DataError", "ParsedTable", "parse_table", "check_sample_rate", "units_for", "ordered_names",
            "csv_name", "stored_sample_rate_hz", "SAMPLE_RATE_RANGE_HZ", "CANONICAL", "UNITS"]
@@ -38,14 +46,22 @@ UNITS = {"t_s": "s", "temp_c": "°C", **{f"u_{a}_v": "V" for a in AXES}, **{f"x_
          **{f"ref_{a}_um": "µm" for a in AXES}}
 
 
+#: what a piezo stage plausibly does; beyond it an import is accepted with a note on the unit
+PLAUSIBLE_STROKE_UM = 1000.0
+PLAUSIBLE_DRIVE_V = 1000.0
+PLAUSIBLE_MIN_SAMPLE_RATE_HZ = 100.0
+
+
 @dataclass
 class ParsedTable:
-    """Arrays with unit names, the axes present, the sample rate (Hz) and each axis's drive range (V)."""
+    """Arrays with unit names, the axes present, the sample rate (Hz), each axis's drive range (V),
+    and ``notes``: the units converted and values a piezo stage would hardly show, in words."""
 
     arrays: dict[str, np.ndarray]
     axes: list[str]
     sample_rate_hz: float
     drive_range_v: dict[str, list[float]]
+    notes: list[str] = field(default_factory=list)
 
     @property
     def samples(self) -> int:
@@ -64,10 +80,10 @@ def parse_table(source: bytes | BinaryIO, *, columns: dict | str | None = None, 
     mapping = _parse_mapping(columns)
     sample_rate_hz = check_sample_rate(sample_rate_hz)
     reader = TableReader(io.BytesIO(source) if isinstance(source, (bytes, bytearray)) else source, delimiter)
-    specs = _column_specs(mapping, reader.layout, axis)
+    specs, notes = _column_specs(mapping, reader.layout, axis)
     if "t_s" not in specs and sample_rate_hz is None:
         raise DataError("sample_rate_hz", "the file has no time column t; give sample_rate_hz")
-    raw, rows = reader.columns([index for index, _, _ in specs.values()])
+    raw, rows = reader.columns([spec.index for spec in specs.values()])
     if rows < MIN_ROWS:
         raise DataError("file", f"has {rows} data rows; at least {MIN_ROWS} are needed")
     arrays = _scaled(raw, specs)
@@ -80,7 +96,8 @@ def parse_table(source: bytes | BinaryIO, *, columns: dict | str | None = None, 
     drive_range_v = {a: [float(arrays[f"u_{a}_v"].min()), float(arrays[f"u_{a}_v"].max())] for a in axes}
     rate = _sample_rate(arrays.pop("t_s", None), sample_rate_hz)
     arrays = {"t_s": np.arange(rows) / rate, **arrays}
-    return ParsedTable(arrays=arrays, axes=axes, sample_rate_hz=rate, drive_range_v=drive_range_v)
+    notes += _implausible(arrays, rate, "t_s" in specs and specs["t_s"].unit is None)
+    return ParsedTable(arrays=arrays, axes=axes, sample_rate_hz=rate, drive_range_v=drive_range_v, notes=notes)
 
 
 def check_sample_rate(sample_rate_hz: float | None, field: str = "sample_rate_hz") -> float | None:
@@ -140,45 +157,118 @@ def _parse_mapping(columns: dict | str | None) -> dict | None:
     return columns
 
 
-def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> dict[str, tuple[int, float, float]]:
-    """Internal array name → (0-based column, scale, offset), from the mapping or the header row."""
-    header = layout.header
+@dataclass(frozen=True)
+class ColumnSpec:
+    """Where a canonical column is read (0-based ``index``) and how: value·``scale`` + ``offset``
+    in the service's unit; ``unit`` as the file gave it (None: the service's own)."""
+
+    index: int
+    scale: float = 1.0
+    offset: float = 0.0
+    unit: str | None = None
+
+
+#: the quantity of each canonical column
+QUANTITY = {"t": "time", "temp_c": "temperature", "u": "voltage", "x": "length",
+            **{f"u_{a}": "voltage" for a in AXES}, **{f"x_{a}": "length" for a in AXES}}
+
+
+def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> tuple[dict[str, ColumnSpec], list[str]]:
+    """(internal array name → ColumnSpec, notes on the units converted), from the mapping or the
+    header row (and its units)."""
+    header, given = layout.header, mapping is not None
     if mapping is None:
         if header is None:
             raise DataError("columns", 'the file has no header row; give a column mapping such as '
                                        '{"u": 0, "x": 4} (0-based column indices)')
-        mapping = {ALIASES.get(name, name): name for name in header if ALIASES.get(name, name) in CANONICAL}
-        if not mapping:
+        mapping = {}
+        for index, written in enumerate(layout.written):
+            canonical = _canonical(written)
+            if canonical is not None and canonical not in mapping:
+                mapping[canonical] = index
+        if not any(QUANTITY[name] in ("voltage", "length") for name in mapping):
             raise DataError("file", f"no known columns in header {layout.written}; expected t, u_y, x_y, u_z, "
-                                    "x_z, temp_c or u, x")
-    specs = {}
+                                    "x_z, temp_c or u, x (a unit may follow: t_ms, 'x_y [nm]')"
+                                    + _suggested_mapping(layout.written))
+    specs, notes = {}, []
     for name, spec in mapping.items():
         canonical = ALIASES.get(name, name)
         if canonical not in CANONICAL:
             raise DataError("columns", f"unknown column name {name!r}; use t, u_y, x_y, u_z, x_z, "
                                        "temp_c, or u and x with an axis")
-        specs[canonical] = _column_spec(name, spec, layout)
-    return _name_axes(specs, axis)
+        field = "columns" if given else csv_name(CANONICAL[canonical])
+        specs[canonical] = _column_spec(canonical, name, spec, layout, notes, field)
+    return _name_axes(specs, axis), notes
 
 
-def _scaled(raw: dict[int, np.ndarray], specs: dict[str, tuple[int, float, float]]) -> dict[str, np.ndarray]:
+#: words other labs name their columns with, for the mapping a refusal suggests (never applied unasked)
+COLUMN_WORDS = {"t": ("t", "time", "zeit", "temps", "tiempo"),
+                "u": ("u", "v", "voltage", "drive", "input", "command", "spannung", "vin", "ua"),
+                "x": ("x", "displacement", "position", "pos", "disp", "gauge", "sensor", "weg", "output", "d")}
+
+
+def _suggested_mapping(written: list[str]) -> str:
+    """'; if …, give columns {…} and axis' when the header's words name one time, drive and
+    displacement column each (e.g. 'Time [ms]', 'Voltage (V)', 'Displacement [nm]'), else ''."""
+    found = {}
+    for key, words in COLUMN_WORDS.items():
+        hits = [w for w in written if split_unit(w)[0] in words]
+        if len(hits) == 1:
+            found[key] = hits[0]
+    if "u" not in found or "x" not in found:
+        return ""
+    return (f"; if {', '.join(repr(found[k]) + ' is ' + k for k in found)}, give columns "
+            f"{json.dumps(found, ensure_ascii=False)} and the axis (units in the names are converted)")
+
+
+def _canonical(written: str) -> str | None:
+    """The canonical column a header name stands for (``Time [ms]`` → t, ``x_y_nm`` → x_y), or None."""
+    whole = written.strip().strip('"').lower()
+    if ALIASES.get(whole, whole) in CANONICAL:
+        return ALIASES.get(whole, whole)
+    name, unit = split_unit(written)
+    canonical = ALIASES.get(name, name)
+    return canonical if unit is not None and canonical in CANONICAL else None
+
+
+def _written_unit(index: int, layout: Layout) -> tuple[str | None, str]:
+    """(the unit the file gives column ``index``, where it says so): the header's own (``[ms]``,
+    ``_nm``: only where the whole name is not one of the service's, such as ``u_y_v``), else the
+    units row's."""
+    if layout.written is not None:
+        written = layout.written[index]
+        whole = written.strip().strip('"').lower()
+        if ALIASES.get(whole, whole) not in CANONICAL:
+            name, unit = split_unit(written)
+            if unit is not None:
+                return unit, f"the header {written!r}"
+    if layout.units is not None and layout.units[index].strip():
+        unit = layout.units[index].strip().strip("[]()").strip()
+        return unit.lower(), f"the units row's {layout.units[index]!r}"
+    return None, ""
+
+
+def _scaled(raw: dict[int, np.ndarray], specs: dict[str, ColumnSpec]) -> dict[str, np.ndarray]:
     """The named arrays: each mapped column times its scale plus its offset (in place when the
     column is named once)."""
-    uses = [index for index, _, _ in specs.values()]
+    uses = [spec.index for spec in specs.values()]
     arrays = {}
-    for name, (index, scale, offset) in specs.items():
-        values = raw[index] if uses.count(index) == 1 else raw[index].copy()
-        if scale != 1.0:
-            values *= scale
-        if offset != 0.0:
-            values += offset
+    for name, spec in specs.items():
+        values = raw[spec.index] if uses.count(spec.index) == 1 else raw[spec.index].copy()
+        if spec.scale != 1.0:
+            values *= spec.scale
+        if spec.offset != 0.0:
+            values += spec.offset
         arrays[name] = values
     return arrays
 
 
-def _column_spec(name: str, spec, layout: Layout) -> tuple[int, float, float]:
+def _column_spec(canonical: str, name: str, spec, layout: Layout, notes: list[str], field: str) -> ColumnSpec:
+    """Where and how ``canonical`` (mapped as ``name``) is read; a conversion from a unit the file or
+    the mapping gives is appended to ``notes``; a unit that cannot be converted is refused naming
+    ``field``."""
     header, width = layout.header, layout.width
-    scale, offset = 1.0, 0.0
+    scale, offset, given_unit, explicit_scale = 1.0, 0.0, None, False
     if isinstance(spec, dict):
         if "column" not in spec:
             raise DataError("columns", f"{name}: a mapping object needs a 'column' key")
@@ -188,17 +278,42 @@ def _column_spec(name: str, spec, layout: Layout) -> tuple[int, float, float]:
             raise DataError("columns", f"{name}: scale and offset must be numbers") from None
         if not (math.isfinite(scale) and math.isfinite(offset)):
             raise DataError("columns", f"{name}: scale and offset must be finite")
+        explicit_scale = "scale" in spec
+        if spec.get("unit") is not None:
+            if not isinstance(spec["unit"], str):
+                raise DataError("columns", f"{name}: unit must be text such as \"nm\", not {spec['unit']!r}")
+            given_unit = spec["unit"].strip().lower()
         spec = spec["column"]
     if isinstance(spec, bool) or not isinstance(spec, (int, str)):
         raise DataError("columns", f"{name}: give a 0-based column index or a header name, not {spec!r}")
     if isinstance(spec, str):
         if header is None or spec.lower() not in header:
             raise DataError("columns", f"{name}: no column named {spec!r} in the header {layout.written}")
-        return header.index(spec.lower()), scale, offset
-    if not 0 <= spec < width:
+        index = header.index(spec.lower())
+    elif not 0 <= spec < width:
         raise DataError("columns", f"{name}: column {spec} does not exist; the file has {width} columns "
                                    f"(0-based: 0..{width - 1})")
-    return spec, scale, offset
+    else:
+        index = spec
+    if explicit_scale:               # the mapping's scale is the whole conversion
+        return ColumnSpec(index, scale, offset)
+    unit, where = (given_unit, "the mapping's unit") if given_unit else _written_unit(index, layout)
+    if unit is None:
+        return ColumnSpec(index, scale, offset)
+    quantity = QUANTITY[canonical]
+    factor = conversion(unit, quantity)
+    if factor is None:
+        other = quantity_of_unit(unit)
+        what = f"a {other} unit" if other else "a unit this service does not know"
+        raise DataError(field, f"{name}: {where} says {unit!r}, {what}, not one of {quantity} ({known_units(quantity)}); "
+                        f"map the column as {{\"column\": {index}, \"scale\": <{SERVICE_UNIT[quantity]} per value>}} "
+                        "if it is right")
+    unit_scale, unit_offset = factor
+    if (unit_scale, unit_offset) != (1.0, 0.0):
+        notes.append(f"{csv_name(CANONICAL[canonical]) if canonical in CANONICAL else name}: {where} gives {unit}; "
+                     f"converted to {SERVICE_UNIT[quantity]}"
+                     + (f" (× {unit_scale:g})" if unit_offset == 0.0 else f" ({unit_offset:+g})"))
+    return ColumnSpec(index, unit_scale, unit_offset + offset, unit)
 
 
 def _name_axes(values: dict, axis: str | None) -> dict:
@@ -224,20 +339,53 @@ def _name_axes(values: dict, axis: str | None) -> dict:
 
 
 def _sample_rate(t: np.ndarray | None, sample_rate_hz: float | None) -> float:
-    """The given rate (Hz), else the one the time column implies; both are checked to agree, and an
-    implied rate must lie in SAMPLE_RATE_RANGE_HZ."""
+    """The given rate (Hz), else the one the time column implies (the slope of a straight line
+    through the stamps: a jittered or rounded clock's steps average out); both are checked to agree,
+    and an implied rate must lie in SAMPLE_RATE_RANGE_HZ."""
     if t is None:
         return float(sample_rate_hz)
     dt = np.diff(t)
     if dt.min() <= 0:
         raise DataError("t", f"time must increase; row {int(np.argmax(dt <= 0)) + 2} does not")
-    median = float(np.median(dt))
-    if max(float(dt.max()) - median, median - float(dt.min())) > 0.01 * median:
-        raise DataError("t", "the samples are not evenly spaced (spacing varies by more than 1 %)")
-    rate = float(f"{1.0 / median:.10g}")  # drop float noise of the time column
+    index = np.arange(t.size) - 0.5 * (t.size - 1)
+    mean = float(index @ (t - t.mean()) / (index @ index))        # least-squares step (s)
+    if max(float(dt.max()) - mean, mean - float(dt.min())) > 0.01 * mean and not _rounded_grid(t, mean):
+        raise DataError("t", "the samples are not evenly spaced (spacing varies by more than 1 %); if the time "
+                             "stamps are jittered but the samples were clocked evenly, leave t out of the "
+                             "columns and give sample_rate_hz")
+    rate = float(f"{1.0 / mean:.10g}")  # drop float noise of the time column
     if sample_rate_hz is not None and abs(rate - sample_rate_hz) > 0.01 * sample_rate_hz:
         raise DataError("sample_rate_hz", f"{sample_rate_hz:g} Hz disagrees with the time column "
                                           f"({rate:.6g} Hz)")
     if sample_rate_hz is None:
         check_sample_rate(rate, field="t")
     return float(sample_rate_hz if sample_rate_hz is not None else rate)
+
+
+def _rounded_grid(t: np.ndarray, step_s: float) -> bool:
+    """Whether ``t`` is an even grid of ``step_s`` written with too few decimals (3 kHz as 0.0003,
+    0.0007, 0.0010 s): every stamp a multiple of 10⁻ᵏ s, none further than half of that from the grid."""
+    grid = t.mean() + step_s * (np.arange(t.size) - 0.5 * (t.size - 1))
+    for k in range(10):
+        quantum = 10.0 ** -k
+        scaled = t / quantum
+        if np.max(np.abs(scaled - np.round(scaled))) <= 1e-6 * max(1.0, float(np.max(np.abs(scaled))) * 1e-9):
+            return bool(np.max(np.abs(t - grid)) <= 0.5 * quantum * (1 + 1e-6) + abs(step_s) * 1e-9)
+    return False
+
+
+def _implausible(arrays: dict[str, np.ndarray], rate_hz: float, time_without_unit: bool) -> list[str]:
+    """Notes on values a piezo stage would hardly show, with the unit that may be meant."""
+    notes = []
+    for name, data in arrays.items():
+        span = float(np.ptp(data)) if data.size else 0.0
+        if name.startswith("x_") and span > PLAUSIBLE_STROKE_UM:
+            notes.append(f"{csv_name(name)} spans {span:.4g} µm, more than a piezo stage moves; if its values "
+                         f"are nanometres, name the column {csv_name(name)}_nm or '{csv_name(name)} [nm]'")
+        if name.startswith("u_") and span > PLAUSIBLE_DRIVE_V:
+            notes.append(f"{csv_name(name)} spans {span:.4g} V; if its values are millivolts, name the column "
+                         f"{csv_name(name)}_mv or '{csv_name(name)} [mV]'")
+    if time_without_unit and rate_hz < PLAUSIBLE_MIN_SAMPLE_RATE_HZ:
+        notes.append(f"t implies {rate_hz:.4g} samples per second; if its values are milliseconds, name the "
+                     "column t_ms or 't [ms]'")
+    return notes

@@ -48,11 +48,12 @@ async function refreshList(root) {
       <td class="num">${d.n_blocks}</td><td>${esc(d.created_at)}</td><td class="bench">${esc(d.bench_id || '—')}</td></tr>`).join('');
 }
 
+// as the service guesses (service/science/data/table_reader.py): a semicolon is never a decimal mark
 function guessDelimiter(lines) {
   const first = lines.find((l) => l.trim()) || '';
+  if (first.includes(';')) return 'semicolon';
   if (first.includes('\t')) return 'tab';
   if (first.includes(',')) return 'comma';
-  if (first.includes(';')) return 'semicolon';
   return 'whitespace';
 }
 
@@ -67,7 +68,8 @@ async function preview(root) {
   if (!file) return;
   if (!root.querySelector('#import-name').value) root.querySelector('#import-name').value = file.name;
   const text = await file.slice(0, 64 * 1024).text();
-  const lines = text.split(/\r?\n/).filter((l) => l.trim() && !l.trim().startsWith('#')).slice(0, 12);
+  const comment = (l) => l.trim().startsWith('#') || l.trim().startsWith('%');    // and MATLAB's
+  const lines = text.split(/\r?\n/).filter((l) => l.trim() && !comment(l)).slice(0, 12);
   const chosen = root.querySelector('#import-delimiter').value || guessDelimiter(lines);
   const split = (l) => l.trim().split(DELIMITERS[chosen]).map((s) => s.trim());
   let rows = lines.map(split);
@@ -123,7 +125,8 @@ async function submitImport(root) {
   try {
     const ds = await api('/datasets', { method: 'POST', form, signal: controller.signal });
     result.innerHTML = `<p class="ok" id="import-done" data-dataset-id="${esc(ds.id)}" data-samples="${ds.samples}" data-sample-rate-hz="${ds.sample_rate_hz}">
-      Imported <a href="#/datasets/${esc(ds.id)}">${esc(ds.id)}</a>: ${ds.samples} samples at ${fmt(ds.sample_rate_hz)} Hz, axes ${ds.axes.join(', ')}.</p>`;
+      Imported <a href="#/datasets/${esc(ds.id)}">${esc(ds.id)}</a>: ${ds.samples} samples at ${fmt(ds.sample_rate_hz)} Hz, axes ${ds.axes.join(', ')}.</p>
+      ${(ds.import_notes || []).map((n) => `<p class="muted import-note">note: ${esc(n)}</p>`).join('')}`;
     await refreshList(root);
   } catch (e) {
     showError(result, e, 'Import refused: ');

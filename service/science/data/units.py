@@ -1,0 +1,64 @@
+"""Units written into other labs' column names, and the conversion to this service's units.
+
+Exports name their columns with a unit in many ways: ``Time [ms]``, ``Voltage (V)``,
+``Displacement/nm``, ``x_y_nm``, ``t in s``, or a units row under the header. An import that
+ignored them stored milliseconds as seconds and nanometres as micrometres, a silent factor of 1000.
+Here a column name is split into its name and its unit, and the unit into a factor (and, for
+kelvin, an offset) to seconds, volts, micrometres or degrees Celsius. A unit that is not one of the
+column's quantity is an error, never a guess.
+"""
+from __future__ import annotations
+
+import re
+
+#: quantity → unit (lower case) → (scale, offset): value in the service's unit = value·scale + offset
+UNITS_OF = {
+    "time": {"s": (1.0, 0.0), "sec": (1.0, 0.0), "ms": (1e-3, 0.0), "us": (1e-6, 0.0), "µs": (1e-6, 0.0),
+             "μs": (1e-6, 0.0), "ns": (1e-9, 0.0), "min": (60.0, 0.0)},
+    "voltage": {"v": (1.0, 0.0), "mv": (1e-3, 0.0), "kv": (1e3, 0.0)},
+    "length": {"m": (1e6, 0.0), "mm": (1e3, 0.0), "um": (1.0, 0.0), "µm": (1.0, 0.0), "μm": (1.0, 0.0),
+               "micron": (1.0, 0.0), "microns": (1.0, 0.0), "microm": (1.0, 0.0), "nm": (1e-3, 0.0),
+               "pm": (1e-6, 0.0)},
+    "temperature": {"c": (1.0, 0.0), "°c": (1.0, 0.0), "degc": (1.0, 0.0), "deg c": (1.0, 0.0),
+                    "k": (1.0, -273.15)},
+}
+#: the service's unit of each quantity, as messages name it
+SERVICE_UNIT = {"time": "s", "voltage": "V", "length": "µm", "temperature": "°C"}
+
+# "name [unit]", "name (unit)", "name {unit}", "name / unit", "name in unit"
+_WRITTEN_UNIT = (re.compile(r"^(?P<name>.*?)\s*[\[({]\s*(?P<unit>[^\])}]*?)\s*[\])}]\s*$"),
+                 re.compile(r"^(?P<name>.*?)\s*/\s*(?P<unit>[^/]+?)\s*$"),
+                 re.compile(r"^(?P<name>.*?)\s+in\s+(?P<unit>\S+)\s*$", re.IGNORECASE))
+_ALL_UNITS = {unit for units in UNITS_OF.values() for unit in units}
+
+
+def split_unit(written: str) -> tuple[str, str | None]:
+    """A column name as written → (its name, lower case and stripped; its unit, lower case, or None).
+    ``'Time [ms]'`` → ``('time', 'ms')``; ``'x_y_nm'`` → ``('x_y', 'nm')`` (a ``_unit`` suffix counts
+    only when it is a known unit); ``'temp_c'`` → ``('temp', 'c')``: callers look the whole name up
+    first."""
+    text = written.strip().strip('"').strip()
+    for pattern in _WRITTEN_UNIT:
+        match = pattern.match(text)
+        if match and match["name"].strip():
+            return match["name"].strip().lower(), match["unit"].strip().lower()
+    name, _, suffix = text.lower().rpartition("_")
+    if name and suffix in _ALL_UNITS:
+        return name, suffix
+    return text.lower(), None
+
+
+def conversion(unit: str, quantity: str) -> tuple[float, float] | None:
+    """(scale, offset) from ``unit`` to the service's unit of ``quantity``; None if ``unit`` is not
+    one of that quantity's."""
+    return UNITS_OF[quantity].get(unit.strip().lower())
+
+
+def quantity_of_unit(unit: str) -> str | None:
+    """The quantity ``unit`` measures (time, voltage, length, temperature), or None if unknown."""
+    return next((q for q, units in UNITS_OF.items() if unit.strip().lower() in units), None)
+
+
+def known_units(quantity: str) -> str:
+    """The units of ``quantity`` a message can offer, e.g. ``s, ms, us, ns``."""
+    return ", ".join(u for u in UNITS_OF[quantity] if u.isascii() and u not in ("sec", "microns", "microm", "deg c"))
