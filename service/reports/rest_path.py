@@ -108,10 +108,11 @@ def _result(job: dict) -> dict:
     return job["result"]
 
 
-def first_models(post: Post) -> dict[str, str]:
-    """axis → composite model id identified on ``FIRST_SWEEP`` (the default 0–120 V sweep)."""
+def first_models(post: Post, effects: list[str] = EFFECTS) -> dict[str, str]:
+    """axis → composite model id (hysteresis + ``effects``) identified on ``FIRST_SWEEP`` (the default
+    0–120 V sweep)."""
     dataset_id = _result(post("/api/sweeps", FIRST_SWEEP))["dataset_id"]
-    return {ax: _result(post("/api/models", {"axis": ax, "datasets": [dataset_id], "effects": EFFECTS}))["model_id"]
+    return {ax: _result(post("/api/models", {"axis": ax, "datasets": [dataset_id], "effects": effects}))["model_id"]
             for ax in ("y", "z")}
 
 
@@ -119,15 +120,16 @@ def ff_body(model_ids: dict[str, str]) -> dict:
     return {f"feedforward_model_{ax}": mid for ax, mid in model_ids.items()}
 
 
-def identify_for(post: Post, case_body: dict, first: dict[str, str]) -> dict[str, str]:
-    """axis → composite model id fitted on the sweeps ``/api/trajectories/span-sweeps`` offers for
-    ``case_body`` (the voltages the ellipse needs by the ``first`` models, ± 5 V)."""
+def identify_for(post: Post, case_body: dict, first: dict[str, str], effects: list[str] = EFFECTS) -> dict[str, str]:
+    """axis → composite model id (hysteresis + ``effects``) fitted on the sweeps
+    ``/api/trajectories/span-sweeps`` offers for ``case_body`` (the voltages the ellipse needs by the
+    ``first`` models, ± 5 V)."""
     bodies = post("/api/trajectories/span-sweeps", {**case_body, "controller": ff_body(first)})
     out = {}
     for body in bodies:
         (axis,) = body["axes"]
         dataset_id = _result(post("/api/sweeps", body))["dataset_id"]
-        out[axis] = _result(post("/api/models", {"axis": axis, "datasets": [dataset_id], "effects": EFFECTS}))["model_id"]
+        out[axis] = _result(post("/api/models", {"axis": axis, "datasets": [dataset_id], "effects": effects}))["model_id"]
     return out
 
 
@@ -142,12 +144,13 @@ def run_row(post: Post, case_body: dict, ff: dict[str, str], controller: dict) -
     return {"tripped": job.get("error") or job["state"], "failed_job": job["id"]}
 
 
-def measure(post: Post, cases: dict[str, dict], rows: dict[str, dict] = ROWS) -> dict:
-    """case → {"models": axis → model id, "rows": row name → ``run_row``'s answer}: first models on
-    the default sweep, then per case models on its span sweeps and every row of ``rows``."""
-    first = first_models(post)
+def measure(post: Post, cases: dict[str, dict], rows: dict[str, dict] = ROWS, effects: list[str] = EFFECTS) -> dict:
+    """case → {"models": axis → model id, "rows": row name → ``run_row``'s answer}: first models
+    (hysteresis + ``effects``) on the default sweep, then per case models on its span sweeps and every
+    row of ``rows``."""
+    first = first_models(post, effects)
     out = {}
     for case, body in cases.items():
-        ff = identify_for(post, body, first)
+        ff = identify_for(post, body, first, effects)
         out[case] = {"models": ff, "rows": {name: run_row(post, body, ff, ctl) for name, ctl in rows.items()}}
     return out
