@@ -120,3 +120,19 @@ def test_a_foreign_record_imported_over_rest_names_its_experiments_for_the_stage
         r = http.post("/api/sweeps", json=body)
         assert r.status_code == 422 and r.json()["field"] == "v_min", r.text
         assert [m["id"] for m in http.get("/api/models").json()] == [model_id]   # nothing else stored
+
+
+def test_periods_of_a_fractional_number_of_samples_claim_nothing_on_the_clean_stage():
+    """3, 30, 70 and 130 Hz at 5 kHz: 1666.7, 166.7, 71.4 and 38.5 samples a cycle (a user's trial:
+    3/30/70/130 Hz at 10 kHz, or 9765.625 Hz sampling). The cycles were resampled linearly, which
+    lowered the noise by √(2/3) (3.00 → 2.45 nm), and a half cycle of an odd number of points was
+    taken half a point short, which the symmetry test read as an asymmetric loop (even part 20 nm
+    against 3 nm of noise: asymmetry, or the gauge's curvature, claimed on a point-symmetric stage)."""
+    u = drive_v(frequencies_hz=(3, 30, 70, 130))
+    blocks = blocks_without_table({"y": u}, SAMPLE_RATE_HZ)
+    assert all(abs(SAMPLE_RATE_HZ / b["frequency_hz"] % 1 - 0.5) > 0.02 for b in blocks)   # fractional periods
+    record = records_from_arrays({"u_y_v": u, "x_y_um": stage_um("clean", u)}, SAMPLE_RATE_HZ, blocks, ("y",),
+                                 "foreign:")[0]
+    d = diagnose([record])
+    assert not _claims(d) and not [c for c in d["candidates"] if c["effect"] == "sensor_nonlinearity" and c["claimed"]]
+    assert d["noise_floor_um"] == pytest.approx(0.003, rel=0.05)          # the gauge's 3 nm

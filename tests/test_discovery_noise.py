@@ -85,3 +85,24 @@ def test_the_diagnosis_does_not_depend_on_the_drives_origin_or_units_or_the_gaug
         assert other[3] == order
         # the rate columns' segment (sign of u̇, ü) flips at the flat turning points with the last bits
         assert all(abs(other[2][e] - scores[e]) < 0.005 for e in scores), (other[2], scores)
+
+
+def _loop(period: float, cycles: int, cornered: bool) -> np.ndarray:
+    """A periodic signal (µm, 1 µm peak to peak): with corners, as a hysteresis residual has at each
+    reversal and threshold (|sin| of the phase), or smooth (a few harmonics)."""
+    phase = np.pi * np.arange(int(cycles * period)) / period
+    return np.abs(np.sin(phase)) if cornered else 0.5 * np.sin(2 * phase) + 0.1 * np.sin(6 * phase + 1.0)
+
+
+@pytest.mark.parametrize("period, cornered", [(500 / 13, True), (976.5625, True), (500 / 13 * 1.0003, False)])
+def test_a_fractional_period_gives_the_noise_and_no_more(period, cornered):
+    """38.46 samples a cycle (130 Hz at 5 kHz), 976.5625 (10 Hz at 9765.625 Hz): cycles fall on other
+    sample phases. Resampled linearly they read 19 % of the noise away; resampled at all, a loop's
+    corners interpolate differently in each cycle (8 nm of 'noise' from a noise-free loop here).
+    Cycles a whole number of samples apart are compared sample with sample (13 and 16 cycles);
+    without such a distance (the last period), a windowed sinc resamples them, with its noise gain."""
+    sigma = 0.003
+    clean = _loop(period, 60, cornered)
+    noisy = clean + sigma * np.random.default_rng(1).standard_normal(clean.size)
+    assert repeatability(noisy, period)["noise_um"] == pytest.approx(sigma, rel=0.08)
+    assert repeatability(clean, period)["noise_um"] < (1e-9 if cornered else 5e-4)     # µm

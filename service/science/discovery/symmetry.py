@@ -31,7 +31,7 @@ def even_part(rec, split) -> tuple[np.ndarray, int] | None:
     a, b = split.train[0], split.held_out[1]
     if not period or period < 8:
         return None
-    mat = cycles_matrix(rec.x_um[a:b], period)
+    mat = cycles_matrix(rec.x_um[a:b], period, even=True)   # a half cycle: exactly M/2 points
     if mat is None or mat.shape[0] < MIN_CYCLES:
         return None
     # a slow trend over the block (creep, drift) is not a loop shape: x(t) + x(t + T/2) grows with it,
@@ -40,11 +40,10 @@ def even_part(rec, split) -> tuple[np.ndarray, int] | None:
     slope = float(np.polyfit(np.arange(mat.shape[0]), mat.mean(axis=1), 1)[0])
     mat = mat - slope * k
     mean = mat.mean(axis=0)
-    m = mean.size - mean.size % 2
+    m = mean.size
     if m < 8:
         return None
     half = m // 2
-    mean = mean[:m]
     centre = 0.5 * (mean.max() + mean.min())
     even = 0.5 * (mean[:half] + mean[half:]) - centre
     even = even - even.mean()        # an offset is not asymmetry: the centre's estimate carries noise
