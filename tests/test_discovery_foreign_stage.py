@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from foreign_stage import SAMPLE_RATE_HZ, drive_v, stage_um
+from foreign_stage import SAMPLE_RATE_HZ, bouc_wen_um, drive_v, stage_um
 from service.science.data.segmentation import blocks_without_table
 from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
@@ -136,3 +136,41 @@ def test_periods_of_a_fractional_number_of_samples_claim_nothing_on_the_clean_st
     d = diagnose([record])
     assert not _claims(d) and not [c for c in d["candidates"] if c["effect"] == "sensor_nonlinearity" and c["claimed"]]
     assert d["noise_floor_um"] == pytest.approx(0.003, rel=0.05)          # the gauge's 3 nm
+
+
+@pytest.mark.parametrize("delay_us, first", [(30.0, None), (120.0, "delay")])
+def test_a_delay_between_the_search_grid_values_is_fitted_and_named(delay_us, first):
+    """The delay's grid steps 83 µs here, and its refinement searched only ±25 % of the best grid
+    value: a true 30 µs was fitted as 0.9 µs, 120 µs as 104 µs. And a diagnosis kept the delay found
+    on the PI alone for its test on the flexible base, so on a stage whose loop the PI cannot draw
+    the delay came out short and rate dependence ranked first. The delay here is the stage's own
+    (a cubic spline shift), not the model's linear interpolation."""
+    from scipy import ndimage
+
+    u = drive_v()
+    blocks = blocks_without_table({"y": u}, SAMPLE_RATE_HZ)
+    x = ndimage.shift(stage_um("clean", u), delay_us * 1e-6 * SAMPLE_RATE_HZ, order=3, mode="nearest")
+    record = records_from_arrays({"u_y_v": u, "x_y_um": x}, SAMPLE_RATE_HZ, blocks, ("y",), "foreign:")[0]
+    fitted = fit_composite([record], ["operators", "asymmetry", "delay"]).theta["delay"]["delay_s"] * 1e6
+    assert fitted == pytest.approx(delay_us, abs=2.0)
+    if first:
+        assert diagnose([record])["candidates"][0]["effect"] == first
+
+
+def test_a_mode_above_three_tenths_of_the_sample_rate_is_searched():
+    """A 700 Hz mode sampled at 2 kHz (the digital filter's own resonance at 700 Hz): the mode searches
+    stopped at 0.3·fs (600 Hz) and named rate dependence; they now go on at their spacing to 0.45·fs."""
+    from scipy import signal
+
+    fs = 2000.0
+    parts = [np.zeros(int(fs))]
+    for f, c in zip((1, 10, 50, 100), (5, 10, 20, 30)):
+        parts += [150 * np.sin(2 * np.pi * f * np.arange(int(round(c / f * fs))) / fs), np.zeros(int(0.5 * fs))]
+    u = np.concatenate(parts)
+    wn = 2 * fs * np.tan(np.pi * 700.0 / fs)          # prewarped: the digital mode is at 700 Hz
+    b, a = signal.bilinear([wn**2], [1, 2 * 0.02 * wn, wn**2], fs)
+    x = signal.lfilter(b, a, bouc_wen_um(u)) + np.random.default_rng(0).normal(0, 0.003, u.size)
+    record = records_from_arrays({"u_y_v": u, "x_y_um": x}, fs, blocks_without_table({"y": u}, fs), ("y",),
+                                 "foreign:")[0]
+    assert diagnose([record])["candidates"][0]["effect"] == "dynamics"
+    assert fit_composite([record], ["dynamics"]).theta["dynamics"]["fn_hz"] == pytest.approx(700.0, rel=0.02)

@@ -38,7 +38,9 @@ def test_hidden_effect_found_at_another_magnitude(bench, overrides, sweeps):
 
 def test_small_rate_dependence_is_told_from_delay_by_the_named_experiment(sweeps):
     """A rate dependence at 0.3× looks like a delay on 1–100 Hz: the diagnosis says so and names a
-    higher-frequency sweep; with that sweep's data, rate dependence leads clearly."""
+    higher-frequency sweep; with that sweep's data, rate dependence leads clearly (added to the
+    model, the best delay leaves 1.42× its held-out error: 1.5× and more while the delay's search
+    could not reach between its grid points)."""
     overrides = {"axes.y.piezo.rate_dependence.scale": 0.3, "axes.z.piezo.rate_dependence.scale": 0.3}
     record = sweeps("rate_dependence", seed=0, overrides=overrides)["y"]
     amb = diagnose([record])["ambiguity"]
@@ -47,4 +49,4 @@ def test_small_rate_dependence_is_told_from_delay_by_the_named_experiment(sweeps
     d = diagnose([record, extra])
     held_out = {c["effect"]: c["expected_rms_um"] for c in d["candidates"]}
     assert d["candidates"][0]["effect"] == "rate_dependence" and d["ambiguity"] is None
-    assert held_out["delay"] > 1.5 * held_out["rate_dependence"], held_out
+    assert held_out["delay"] > 1.3 * held_out["rate_dependence"], held_out

@@ -49,21 +49,25 @@ class CompositeModel:
     """Configuration: ``effects`` names (registry order is applied; 'hysteresis' is the base),
     ``n_operators`` base play operators, ``fixed_theta`` transform parameters kept as given (only
     the others are searched), ``exclude_frequency_hz`` blocks left out of the fit, ``warm_theta`` a
-    parent model's transform parameters (the fit also tries them kept and keeps the better).
+    parent model's transform parameters (the fit also tries them kept and keeps the better),
+    ``local_theta`` parameters found on another model from which the free transforms are only
+    refined (the effect's local search, not its grid: a diagnosis's candidate on the flexible base).
     Learned state: ``thresholds_v``, ``scales``, ``theta``, ``coef``, ``sign``, ``train_rms_um``."""
 
     name = "composite"
     judges_stroke = True     #: it models the flexure after the stack: its stroke verdict is a refusal
 
     def __init__(self, effects: Sequence[str] = (), n_operators: int = 10, *, fixed_theta: dict | None = None,
-                 exclude_frequency_hz: float | None = None, warm_theta: dict | None = None):
+                 exclude_frequency_hz: float | None = None, warm_theta: dict | None = None,
+                 local_theta: dict | None = None):
         unknown = [e for e in effects if e not in EFFECTS and e != "hysteresis"]
         if unknown:
             raise ValueError(f"unknown effects {unknown}; known: {', '.join(EFFECTS)}")
         self._config = {"effects": ordered(effects), "n_operators": int(n_operators),
                         "fixed_theta": copy.deepcopy(fixed_theta) or None,
                         "exclude_frequency_hz": None if exclude_frequency_hz is None else float(exclude_frequency_hz),
-                        "warm_theta": copy.deepcopy(warm_theta) or None}
+                        "warm_theta": copy.deepcopy(warm_theta) or None,
+                        "local_theta": copy.deepcopy(local_theta) or None}
         self.thresholds_v = None
         self.theta: dict[str, dict] = {}
         self.coef: dict[str, np.ndarray] | None = None
@@ -279,14 +283,24 @@ class CompositeModel:
         # hang on which basin a rounding error tips the grid into.
         cache: dict = {}
         free = [name for name in self.transforms if name not in fixed_theta]
-        orders = [free[i:] + free[:i] for i in range(len(free))] or [[]]
-        theta, sol = descend(orders[0])
-        for order in orders[1:]:
-            other_theta, other = descend(order)
-            if other.rms < sol.rms:
-                theta, sol = other_theta, other
-        if len(free) > 1:
-            theta, sol = self._joint_polish(free, theta, sol, solve)
+        local = self._config["local_theta"] or {}
+        if free and set(free) <= set(local):     # refined from where another model found them
+            theta = {name: dict(fixed_theta.get(name) or local[name]) for name in self.transforms}
+            for name in free:                    # one pass: the exact cost re-solves every weight
+                cache.clear()
+                exact = name if EFFECTS[name].row_local else None
+                theta[name] = self._local_refine(name, theta[name], lambda th, name=name, exact=exact: solve(
+                    {**theta, name: th}, exact=exact).rms)
+            sol = solve(theta)
+        else:
+            orders = [free[i:] + free[:i] for i in range(len(free))] or [[]]
+            theta, sol = descend(orders[0])
+            for order in orders[1:]:
+                other_theta, other = descend(order)
+                if other.rms < sol.rms:
+                    theta, sol = other_theta, other
+            if len(free) > 1:
+                theta, sol = self._joint_polish(free, theta, sol, solve)
         self.theta = theta
         coef, train_rms = sol.coef, sol.rms
         gauge = self._output_effect()
@@ -378,12 +392,26 @@ class CompositeModel:
             return best, solve(best)
         return theta, sol
 
+    def _local_refine(self, name: str, start: dict, cost) -> dict:
+        """``name``'s parameters refined from ``start`` by its local search; a one-parameter grid
+        brackets it by one grid step either side (a delay held at 0.9 µs can still reach 30 µs)."""
+        eff = EFFECTS[name]
+        if len(start) != 1:
+            return eff.refine(start, cost)
+        (key,) = start
+        grid = eff.grid(self._fs, self.scales["min_period_s"], 1.0 / self.scales["min_period_s"])
+        values = np.unique([float(g[key]) for g in grid])
+        step = float(np.max(np.diff(values))) if values.size > 1 else abs(float(start[key]))
+        return eff.refine(start, cost, bracket=({key: max(float(values[0]), start[key] - step)},
+                                                {key: start[key] + step}))
+
     def _grid_refine(self, name, cost, sample_rate_hz=None) -> dict:
         eff = EFFECTS[name]
         fs = sample_rate_hz or self._fs
         grid = eff.grid(fs, self.scales["min_period_s"], 1.0 / self.scales["min_period_s"])
         costs = [cost(th) for th in grid]
-        return eff.refine(grid[int(np.argmin(costs))], cost)
+        best = int(np.argmin(costs))
+        return eff.refine(grid[best], cost, bracket=(grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]))
 
     # -- prediction, inversion and validation ------------------------------------------------
     def _require_fitted(self):

@@ -104,8 +104,9 @@ class Effect:
         """``theta`` moved into this transform's valid range (a joint search may step outside it)."""
         return theta
 
-    def refine(self, theta: dict, cost, fine: bool = False) -> dict:
-        """Optional local refinement around the best grid value; ``cost(theta) -> float``."""
+    def refine(self, theta: dict, cost, fine: bool = False, bracket: tuple[dict, dict] | None = None) -> dict:
+        """Optional local refinement around the best grid value; ``cost(theta) -> float``; ``bracket``:
+        the grid values beside it (a 1-D grid's neighbours), where there are."""
         return theta
 
     def describe(self, theta: dict, values: dict) -> str:

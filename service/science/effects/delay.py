@@ -21,6 +21,10 @@ def shift_columns(columns: np.ndarray, delay_samples: float) -> np.ndarray:
     return (1.0 - frac) * columns[i0] + frac * columns[i1]
 
 
+#: evaluations of the bounded search between grid values (Brent's method: to ~1e-3 of the interval)
+REFINE_EVALUATIONS = 12
+
+
 class Delay(Effect):
     name = "delay"
     stage = "transform"
@@ -49,11 +53,18 @@ class Delay(Effect):
     def clamp(self, theta, fs_hz):
         return {"delay_s": max(float(theta["delay_s"]), 0.0)}
 
-    def refine(self, theta, cost):
+    def refine(self, theta, cost, fine: bool = False, bracket=None):
+        """The delay between the grid values beside the best one (``bracket``), else within ±25 % of
+        it: a quarter of the value left every delay between grid points out of reach (a true 30 µs
+        fitted as 0.9 µs from the grid's 0; 120 µs as 104 µs from its 83 µs)."""
         t0 = theta["delay_s"]
-        step = max(t0 * 0.25, 1e-6)
-        res = minimize_scalar(lambda t: cost({"delay_s": max(t, 0.0)}), bounds=(max(0.0, t0 - step), t0 + step),
-                              method="bounded", options={"xatol": 1e-7, "maxiter": 12})
+        if bracket is not None:
+            lo, hi = min(bracket[0]["delay_s"], t0), max(bracket[1]["delay_s"], t0)
+        else:
+            step = max(t0 * 0.25, 1e-6)
+            lo, hi = max(0.0, t0 - step), t0 + step
+        res = minimize_scalar(lambda t: cost({"delay_s": max(t, 0.0)}), bounds=(lo, hi),
+                              method="bounded", options={"xatol": 1e-7, "maxiter": REFINE_EVALUATIONS})
         return {"delay_s": float(max(res.x, 0.0))} if res.fun <= cost(theta) else theta
 
     def describe(self, theta, values):

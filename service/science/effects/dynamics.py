@@ -20,6 +20,19 @@ FN_PER_DECADE = 230  # 1 % steps
 COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 #: "no mode": where a composite's searches start; filtering with it is the identity (shows_mode)
 NO_MODE = {"fn_hz": 1e12, "zeta": 1.0}
+#: the searches' grids of fn are spaced up to GRID_SHARE of the sample rate and go on at that spacing
+#: up to SEARCH_SHARE (the clamp's 0.45: a 700 Hz mode sampled at 2 kHz was never searched)
+GRID_SHARE, SEARCH_SHARE = 0.3, 0.45
+
+
+def up_to_search_share(grid_hz: np.ndarray, fs_hz: float) -> np.ndarray:
+    """A geometric grid of resonance frequencies (Hz) that ends at GRID_SHARE·fs, continued at its own
+    ratio up to SEARCH_SHARE·fs."""
+    if grid_hz.size < 2:
+        return grid_hz
+    ratio = grid_hz[-1] / grid_hz[-2]
+    more = int(np.floor(np.log(SEARCH_SHARE * fs_hz / grid_hz[-1]) / np.log(ratio) + 1e-9))
+    return np.concatenate([grid_hz, grid_hz[-1] * ratio ** np.arange(1, max(more, 0) + 1)])
 
 
 def shows_mode(fn_hz: float, fs_hz: float) -> bool:
@@ -101,8 +114,10 @@ class Dynamics(Effect):
                  "the acceleration of the output: a resonance above the drive band")
 
     def grid(self, fs_hz, min_period_s, max_frequency_hz):
-        lo, hi = 1.5 * max_frequency_hz, 0.3 * fs_hz
-        return [{"fn_hz": float(f), "zeta": z} for f in np.logspace(np.log10(lo), np.log10(hi), 14) for z in ZETAS]
+        lo, hi = 1.5 * max_frequency_hz, GRID_SHARE * fs_hz
+        fn = up_to_search_share(np.logspace(np.log10(lo), np.log10(hi), 14), fs_hz) if hi > lo else \
+            np.logspace(np.log10(lo), np.log10(SEARCH_SHARE * fs_hz), 4)
+        return [{"fn_hz": float(f), "zeta": z} for f in fn for z in ZETAS]
 
     def apply(self, columns, fs_hz, theta):
         return resonance_filter(columns, fs_hz, theta["fn_hz"], theta["zeta"])
@@ -116,8 +131,8 @@ class Dynamics(Effect):
         A lightly damped mode is a narrow valley in fn that a coarse grid would step over."""
         if data.empty or data.frequency_hz.size <= data.a.shape[1] + 2:
             return None
-        lo, hi = 1.2 * max_frequency_hz, 0.3 * fs_hz
-        if hi <= lo:
+        lo = 1.2 * max_frequency_hz
+        if SEARCH_SHARE * fs_hz <= lo:
             return None
         f = data.frequency_hz[None, :]
 
@@ -127,8 +142,9 @@ class Dynamics(Effect):
             i = int(np.argmin(costs))
             return float(fn.ravel()[i]), float(zeta.ravel()[i])
 
-        fn0, z0 = best_of(*np.meshgrid(np.geomspace(lo, hi, int(np.log10(hi / lo) * FN_PER_DECADE) + 2),
-                                       COARSE_ZETAS))
+        hi = max(GRID_SHARE * fs_hz, lo * 1.01)
+        coarse = up_to_search_share(np.geomspace(lo, hi, int(np.log10(hi / lo) * FN_PER_DECADE) + 2), fs_hz)
+        fn0, z0 = best_of(*np.meshgrid(coarse, COARSE_ZETAS))
         fn1, z1 = best_of(*np.meshgrid(fn0 * np.linspace(0.97, 1.03, 31), np.geomspace(z0 / 4, min(4 * z0, MAX_ZETA), 25)))
         fn2, z2 = best_of(*np.meshgrid(fn1 * np.linspace(0.995, 1.005, 21), z1 * np.geomspace(0.85, 1.0 / 0.85, 15)))
         return {"fn_hz": fn2, "zeta": min(z2, MAX_ZETA)}
@@ -138,9 +154,9 @@ class Dynamics(Effect):
         return {"fn_hz": float(np.clip(theta["fn_hz"], 1.0, 0.45 * fs_hz)),
                 "zeta": float(np.clip(theta["zeta"], MIN_ZETA, MAX_ZETA))}
 
-    def refine(self, theta, cost, fine: bool = False):
+    def refine(self, theta, cost, fine: bool = False, bracket=None):
         """Coordinate steps in fn and ζ while the exact cost falls (``fine``: only 0.3 % steps,
-        after the harmonic search)."""
+        after the harmonic search); a 2-D grid has no bracket."""
         best, best_cost = dict(theta), cost(theta)
         for factor in ((1.003,) if fine else (1.025, 1.005)):
             for _ in range(2):
