@@ -66,7 +66,17 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """The PostgreSQL tests share one worker (one cluster). Under xdist the slow tests go first,
     then the real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together.
     A group (xdist_group) stays together, at the place of its heaviest test, so that its module
-    fixtures are built once."""
+    fixtures are built once.
+
+    Every item's id ends in its own name: schemathesis (4.32) names its items by operation
+    (``test_…[GET /api/health]``) but leaves each id the function's, which pytest 9 reads, so the
+    fuzz test's 32 operations shared one id, and under xdist only the first one ran (10 requests
+    instead of some 2000: tests/artifacts/fuzz_summary.json)."""
+    from _pytest.nodeid import coerce_node_id
+
+    for item in items:
+        if item.nodeid.rsplit("::", 1)[-1] != item.name and item.parent is not None:
+            item._id = coerce_node_id(f"{item.parent.nodeid}::{item.name}")
     for item in items:
         if item.get_closest_marker("postgres"):
             item.add_marker(pytest.mark.xdist_group("postgres"))
