@@ -95,13 +95,17 @@ class _Fits:
 
     def get(self, effects, theta: dict | None = None) -> tuple[CompositeModel, list[np.ndarray], float]:
         """The model + ``effects``: fitted, its residuals and held-out RMS. The model's transforms are
-        kept; ``theta`` (transforms an earlier fit found) are refined from there, not searched anew (a
-        transform's whole search on the flexible base costs ten fits; kept as they were, a delay found
-        on a PI that cannot draw a foreign stage's loop stayed 30 % short and lost to rate dependence)."""
+        kept, and so are ``theta`` (transforms an earlier fit found: a transform's whole search on the
+        flexible base costs ten fits), but a row-local one's (a delay's) are refined from there: found on
+        a PI that cannot draw a foreign stage's loop, a delay stayed 30 % short and lost to rate
+        dependence. A mode's come from its harmonics above the drive band, which the loop's shape
+        hardly moves (refining them too cost 60 % more per diagnosis)."""
         key = tuple(sorted(set(self.model.effects) | set(effects)))
         if key not in self._cache:
+            local = {k: v for k, v in (theta or {}).items() if EFFECTS[k].row_local}
+            held = {**self.model.theta, **{k: v for k, v in (theta or {}).items() if k not in local}}
             m = self.model if set(key) == set(self.model.effects) else CompositeModel(
-                list(key), self.model.n_operators, fixed_theta=self.model.theta, local_theta=theta).fit(self.records)
+                list(key), self.model.n_operators, fixed_theta=held, local_theta=local).fit(self.records)
             preds = [m.predict(r) for r in self.records]
             held_out_um = evaluate_records(self.records, preds)["validation_rms_um"]
             self._cache[key] = (m, [r.x_um - p for r, p in zip(self.records, preds)], held_out_um)
