@@ -50,7 +50,11 @@ RATE_CLAIMED_AFTER_RESONANCE = pytest.mark.xfail(strict=True, reason=(
 def test_the_hidden_effect_is_named_fixed_and_then_nothing_else(hidden, effect):
     record, _ = _record(hidden)
     first = diagnose([record])
-    assert first["candidates"][0]["effect"] == effect and first["candidates"][0]["claimed"], _claims(first)
+    top = first["candidates"][0]
+    assert top["effect"] == effect and top["claimed"], _claims(first)
+    # the verdict quotes the test the claim passed: the flexible base, with and without the effect
+    assert top["tested_rms_um"] < top["reference_rms_um"]
+    assert f"{top['reference_rms_um'] * 1e3:.3g} nm → {top['tested_rms_um'] * 1e3:.3g} nm" in first["verdict_text"]
     refined = fit_composite([record], [effect])
     second = diagnose([record], model=refined)
     assert second["residual_rms_um"] <= 0.5 * first["residual_rms_um"], (first["residual_rms_um"],

@@ -126,7 +126,7 @@ def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, s
     how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm "
            f"{_test_words(test, noise)}")
     return _entry(name, fits, noise, v0, k0, sig, floor, claimed(test, noise), test["p"], test["gain_mse_um2"],
-                  reference, v_ref, how)
+                  reference, v_ref, how, v_trial)
 
 
 def _test_words(test: dict, noise: float) -> str:
@@ -137,8 +137,9 @@ def _test_words(test: dict, noise: float) -> str:
 
 
 def _entry(name, fits: "_Fits", noise, v0, k0, sig, floor, is_claimed: bool, p_value: float, gain: float,
-           reference: tuple, v_ref: float, how: str) -> dict:
-    """A candidate's row: the claim, its evidence in words, and what adding it to this model gives."""
+           reference: tuple, v_ref: float, how: str, v_trial: float | None = None) -> dict:
+    """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
+    (``v_trial``: the held-out RMS of its reference with it, where it was tested against one)."""
     eff = EFFECTS[name]
     v, added, fitted = v0, 0, ""
     if is_claimed or eff.kind == "capacity":
@@ -153,7 +154,7 @@ def _entry(name, fits: "_Fits", noise, v0, k0, sig, floor, is_claimed: bool, p_v
             "significant": bool(is_claimed),
             "score": round(float(np.clip(gain / max(v_ref**2 - noise**2, 1e-30), 0, 1)), 4),
             "p_value": p_value, "gain_mse_um2": gain, "reference": list(reference), "reference_rms_um": v_ref,
-            "expected_rms_um": v, "excess_removed": round(float(removed), 4), "added_parameters": added,
+            "tested_rms_um": v_trial, "expected_rms_um": v, "excess_removed": round(float(removed), 4), "added_parameters": added,
             "evidence": evidence, "signature": eff.signature}
 
 
@@ -281,13 +282,27 @@ def helpful_capacity(candidates, residual_rms_um: float | None = None) -> list[d
         c.get("claimed") or (residual_rms_um is not None and c["expected_rms_um"] < residual_rms_um))]
 
 
+#: a claimed effect that removes less than this share of this model's excess on its own is said to
+#: need the flexible base beside it (its claim was against that base)
+ALONE_GAIN_SHARE = 0.1
+
+
 def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None,
                   held_out_ratio=None) -> str:
     """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
     whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
     if missing:
-        return (f"missing effect: {physical[0]['effect']} (p = {physical[0]['p_value']:.2g}; this model's held-out "
-                f"{_fmt_nm(v0)} → {_fmt_nm(physical[0]['expected_rms_um'])} with it added); "
+        top = physical[0]
+        tested = ""
+        if top.get("tested_rms_um") is not None and top["reference"]:
+            tested = (f"the model + {' + '.join(top['reference'])} {_fmt_nm(top['reference_rms_um'])} → "
+                      f"{_fmt_nm(top['tested_rms_um'])} with it; ")
+        alone = ""
+        if top["expected_rms_um"] >= v0 - (v0 - noise) * ALONE_GAIN_SHARE:   # its own gain hides in loop shape
+            alone = (f" (alone it gains little here: the rest is a loop shape this model cannot draw; add "
+                     f"{' and '.join(top['reference'])} as well)" if top["reference"] else "")
+        return (f"missing effect: {top['effect']} (p = {top['p_value']:.2g}; {tested}this model's held-out "
+                f"{_fmt_nm(v0)} → {_fmt_nm(top['expected_rms_um'])} with it added{alone}); "
                 f"held-out RMS {v0:.4g} µm against a noise floor of {noise:.3g} µm")
     rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
     if at_floor:
