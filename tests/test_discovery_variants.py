@@ -14,13 +14,6 @@ import pytest
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.diagnosis import diagnose
 
-#: Known gap (issue 5), Z only: after `dynamics` is added on the dynamics bench, the 10-operator PI's
-#: loop-shape error (≈15 nm at 1 Hz, the continuous Preisach density a PI cannot follow) has a 3rd
-#: harmonic that the 291 Hz mode amplifies about tenfold at 100 Hz (32 nm), and rate_dependence
-#: still claims it (25.5 → 10.6 nm). Y passes since the emulator's flexure no longer leads by half a
-#: sample. Strict: this turns red once the hysteresis shape is modelled well enough.
-DYNAMICS_INCOMPLETE_Z = pytest.mark.xfail(strict=True, reason="on Z the PI's loop-shape error, amplified by the "
-                                          "291 Hz mode at 100 Hz, is claimed by rate_dependence after the refine")
 #: Known gap (issue 17), Y only: the emulator's rate dependence is a first-order relaxation of the
 #: switched strain (τ = 0.1 ms); the paper's segment form (α_s u̇ S + β_s ü S, plus Ṗ_i) takes most of it
 #: (held-out 90 % lower) but leaves a lag that delay and dynamics still take against the flexible base,
@@ -66,7 +59,7 @@ def test_hidden_effect_is_found_on_z(bench, sweeps):
 
 
 @_shared("dynamics")
-@pytest.mark.parametrize("axis", ["y", pytest.param("z", marks=DYNAMICS_INCOMPLETE_Z)])
+@pytest.mark.parametrize("axis", ["y", "z"])
 def test_nothing_physical_is_left_after_adding_dynamics(axis, sweeps):
     _found_and_fixed(sweeps, "dynamics", axis, expect_complete=True)
 

@@ -112,6 +112,21 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
             "gain_trend_mse_um2": float(np.mean(trend_gains)) if trend_gains else 0.0, "p": p, "segments": int(d.size)}
 
 
+def unseen_block_improvement(records, res_ref, res_trial, frequency_hz: float) -> list[float]:
+    """Per block at ``frequency_hz`` of the records' own axis (blocks neither model was fitted on),
+    the drop in mean square (µm²) from the reference's residual to the trial's over the whole
+    block, each less its own mean (where a block's loop sits is history, as above)."""
+    gains = []
+    for rec, r0, r1 in zip(records, res_ref, res_trial):
+        for s in rec.splits_of(own_axis_only=True):
+            if s.block.get("frequency_hz") != frequency_hz:
+                continue
+            a, b = s.train[0], s.held_out[1]
+            e0, e1 = r0[a:b] - np.mean(r0[a:b]), r1[a:b] - np.mean(r1[a:b])
+            gains.append(float(np.mean(e0**2) - np.mean(e1**2)))
+    return gains
+
+
 def claimed(test: dict, noise_um: float) -> bool:
     """The rule above: significant (p < ALPHA) and at least NOISE_MULTIPLE·σ² of held-out mean square,
     the size with the levels anchored at the last training cycle or at the training mean (the larger)."""

@@ -6,8 +6,14 @@ symmetric density, Bouc–Wen, Maxwell-slip, and all of them behind a linear lag
 or flexure mode — then answers x(t + T/2) = 2x_c − x(t) in the steady state. So the **even part**
 e(t) = [x(t) + x(t + T/2)]/2 − x_c of the mean measured cycle is zero but for noise, whatever the
 hysteresis family, and only a loop that is not point-symmetric (electrostriction ∝ u², saturation
-of the strain, a gauge curved about its own zero) leaves it. No model is fitted: the test cannot
-mistake a loop shape that the fitted family cannot draw for asymmetry.
+of the strain, a gauge curved about its own zero) leaves it. The test is made on the residual of
+the model being diagnosed, whose own loop is point-symmetric too (the PI's, and every effect's
+that may be in it when the test runs, in the steady state): its even part is the measurement's,
+less what is not steady state that the model draws — a flexure mode's ring-down after each
+block's start, which a 291 Hz mode leaves in the first cycles of a 100 Hz block and a user's
+Krasnosel'skii-Pokrovskii stage with a 450 Hz mode showed as the gauge's curvature. No model
+draws the even part here: the test cannot mistake a loop shape that the fitted family cannot
+draw for asymmetry.
 
 Claim rule (as service/science/discovery/decision.py): the even part is significant against the
 noise of the mean cycle (χ² test, p < ALPHA) and its RMS is at least NOISE_MULTIPLE·σ.
@@ -25,13 +31,14 @@ MIN_CYCLES = 2
 POINTS_PER_CYCLE = 400
 
 
-def even_part(rec, split) -> tuple[np.ndarray, int] | None:
-    """The even part (µm) of one periodic block's mean cycle and the number of cycles averaged."""
+def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
+    """The even part (µm) of one periodic block's mean cycle of ``series`` (the record's residual)
+    and the number of cycles averaged."""
     period = rec.period_samples(split)
     a, b = split.train[0], split.held_out[1]
     if not period or period < 8:
         return None
-    mat = cycles_matrix(rec.x_um[a:b], period, even=True)   # a half cycle: exactly M/2 points
+    mat = cycles_matrix(series[a:b], period, even=True)   # a half cycle: exactly M/2 points
     if mat is None or mat.shape[0] < MIN_CYCLES:
         return None
     # a slow trend over the block (creep, drift) is not a loop shape: x(t) + x(t + T/2) grows with it,
@@ -51,13 +58,14 @@ def even_part(rec, split) -> tuple[np.ndarray, int] | None:
     return even[::step], int(mat.shape[0])
 
 
-def asymmetry_test(records, noise_um: float) -> dict:
-    """``even_rms_um`` (RMS over blocks of the even part), ``p`` of the χ² test against the mean
-    cycle's noise, ``blocks`` used, and ``claimed`` by the rule above."""
+def asymmetry_test(records, residuals, noise_um: float) -> dict:
+    """``even_rms_um`` (RMS over blocks of the even part of ``residuals``, µm, one per record),
+    ``p`` of the χ² test against the mean cycle's noise, ``blocks`` used, and ``claimed`` by the rule
+    above."""
     chi2, dof, sq, count, used = 0.0, 0, 0.0, 0, 0
-    for rec in records:
+    for rec, residual in zip(records, residuals):
         for s in rec.splits_of(own_axis_only=True):
-            got = even_part(rec, s)
+            got = even_part(rec, s, residual)
             if got is None:
                 continue
             even, cycles = got
