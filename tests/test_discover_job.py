@@ -235,6 +235,11 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
         refit = ran["steps"][e["after_step"] + 1]
         assert refit["experiment_dataset_id"] == e["dataset_id"] and refit["added"] is None
         assert refit["parent_id"] == ran["steps"][e["after_step"]]["model_id"]
+        # said as a step on more data, in the lineage and in the CLI's words (a new user read a rising
+        # held-out RMS there as the model getting worse)
+        lineage = {s["model_id"]: s for s in http.get(f"/api/models/{refit['model_id']}/history").json()["steps"]}
+        assert lineage[refit["model_id"]]["change"] == f"+data {e['dataset_id']} (held-out RMS over more data)"
+        assert f"+data {e['dataset_id']}" in discovery_text(ran)
     added = next(s for s in ran["steps"] if s["added"])
     assert added["added"] == "delay"                      # the hidden effect, once the data tells it apart
     model = http.get(f"/api/models/{added['model_id']}").json()
@@ -258,3 +263,23 @@ def test_the_cli_verbs_parse():
     assert (args.dataset_id, args.delete, args.cascade) == ("ds_x", True, True)
     args = build_parser().parse_args(["models", "md_x", "--rename", "base", "--tags", "a,b", "--notes", ""])
     assert (args.rename, args.tags, args.notes) == ("base", "a,b", "")
+
+
+def test_the_progress_bar_writes_lines_into_a_pipe_and_redraws_on_a_terminal():
+    """A new user's `evcbench sweep --wait | cat` got some 100 carriage-return redraws in its log."""
+    import io
+
+    from service.frontends.cli_remote import ProgressBar
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    events = [{"state": "running", "progress": k / 100, "message": "block 1 of 2" if k < 50 else "block 2 of 2"}
+              for k in range(100)] + [{"state": "succeeded", "progress": 1.0, "message": "done"}]
+    piped, tty = io.StringIO(), Terminal()
+    for bar in (ProgressBar(stream=piped), ProgressBar(stream=tty)):
+        for job in events:
+            bar(job)
+    assert piped.getvalue().splitlines() == ["running: block 1 of 2", "running: block 2 of 2", "succeeded: done"]
+    assert "\r" not in piped.getvalue() and tty.getvalue().count("\r") == 101 and tty.getvalue().endswith("\n")

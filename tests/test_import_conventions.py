@@ -50,11 +50,12 @@ def test_units_in_column_names_are_converted_and_noted(header, columns, mapping,
 def test_a_units_row_under_the_header_gives_the_units():
     table = parse_table(_text("t\tu_y\tx_y\ns\tV\tnm", (T, U, X * 1e3), sep="\t").encode())
     _exact(table)
-    assert table.notes == ["x_y: the units row's 'nm' gives nm; converted to µm (× 0.001)"]
+    assert table.notes == ["file: a units row under the header (s, V, nm) gives the columns' units",
+                           "x_y: the units row's 'nm' gives nm; converted to µm (× 0.001)"]
 
 
 @pytest.mark.parametrize("header, mapping, field, words", [
-    ("t,u_y [V],x_y [V]", None, "x_y", "'v', a voltage unit, not one of length"),
+    ("t,u_y [V],x_y [V]", None, "x_y", "the header 'x_y [V]' gives a voltage unit, not one of length"),
     ("t,u_y,x_y [a.u.]", None, "x_y", "a unit this service does not know"),
     ("t,drive,pos [counts]", {"u": "drive", "x": "pos [counts]"}, "columns", '"scale": <µm per value>'),
     ("t,u,x", {"u": 1, "x": {"column": 2, "unit": "furlong"}}, "columns", "does not know"),
@@ -95,6 +96,8 @@ def test_spreadsheet_matlab_and_pandas_exports_import_with_their_numbers(content
     table = parse_table(content.encode(), columns=mapping, axis="y")
     assert table.samples == T.size
     _exact(table)
+    # how the file was read is said where it differs from the service's own CSV
+    assert any("decimal commas" in n for n in table.notes) == content.startswith("t;u_y;x_y")
 
 
 @pytest.mark.parametrize("encoding, bom", [("utf-16-le", codecs.BOM_UTF16_LE), ("utf-16-be", codecs.BOM_UTF16_BE),
@@ -102,7 +105,9 @@ def test_spreadsheet_matlab_and_pandas_exports_import_with_their_numbers(content
 def test_utf16_with_its_bom_and_latin1_files_are_read(encoding, bom):
     """Excel's "Unicode text" is UTF-16 with a BOM; an old Windows program writes µ as Latin-1."""
     content = bom + _text("t\tu_y [V]\tx_y [µm]", (T, U, X), sep="\t").encode(encoding)
-    _exact(parse_table(content))
+    table = parse_table(content)
+    _exact(table)
+    assert table.notes == [f"file: read as {'UTF-16' if bom else 'LATIN-1'} text"]
 
 
 def test_time_stamps_written_with_too_few_decimals_are_an_even_clock():

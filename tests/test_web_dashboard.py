@@ -275,6 +275,34 @@ def test_import_headerless_file_with_column_mapping(page, server):
     shot(page, "import_dataset")
 
 
+def test_an_import_with_units_in_its_header_says_what_it_converted(page, server, tmp_path):
+    """Another lab's export, 'Time [ms],Voltage (V),Displacement [nm]', mapped by the page's roles:
+    stored in s, V and µm, and the conversions shown after the upload and on the dataset's page."""
+    t_ms = [i * 1.0 for i in range(3000)]                    # 1 kHz, 3 s of a 1 Hz drive
+    u_v = [50 - 50 * math.cos(2 * math.pi * t / 1000) for t in t_ms]
+    x_nm = [120 * u - 1200 * math.sin(2 * math.pi * t / 1000) for t, u in zip(t_ms, u_v)]
+    path = tmp_path / "lab-b.csv"
+    path.write_text("Time [ms],Voltage (V),Displacement [nm]\n"
+                    + "".join(f"{t},{u:.6f},{x:.4f}\n" for t, u, x in zip(t_ms, u_v, x_nm)))
+    goto(page, server, "datasets")
+    page.set_input_files("#import-file", str(path))
+    page.wait_for_selector("#preview-table")
+    for col, role in ((0, "t"), (1, "u"), (2, "x")):
+        page.select_option(f".col-role[data-col='{col}']", role)
+    page.select_option("#import-axis", "y")
+    page.click("#import-submit")
+    page.wait_for_selector("#import-done")
+    notes = page.locator("#import-result .import-note").all_inner_texts()
+    assert any("'Time [ms]' gives ms" in n for n in notes) and any("'Displacement [nm]' gives nm" in n for n in notes)
+    dataset_id = page.get_attribute("#import-done", "data-dataset-id")
+    assert float(page.get_attribute("#import-done", "data-sample-rate-hz")) == 1000.0
+    data = server["api"].get(f"/datasets/{dataset_id}/data").json()
+    assert abs(data["x_y_um"][250] - x_nm[250] / 1000) < 1e-6           # stored in µm
+    page.click("#import-done a")
+    page.wait_for_selector("#import-notes")
+    assert "converted to µm" in page.inner_text("#import-notes")
+
+
 def test_emergency_stop_during_a_sweep(page, server):
     goto(page, server, "sweeps")
     page.fill("#sweep-form input[name=frequencies]", "0.5")

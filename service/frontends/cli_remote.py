@@ -43,7 +43,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--wait", action="store_true", help="follow the job to its end with a progress bar")
 
     p = remote("import", "import a CSV or table file as a dataset", _import)
-    p.add_argument("file", help="CSV with header t,u_y,x_y,… (DESIGN §4) or a headerless table")
+    p.add_argument("file", help="CSV with header t,u_y,x_y,u_z,x_z (s, V at the actuator, µm; units written in the names are converted: 'Time [ms]', x_y_nm) or a headerless table with --columns")
     p.add_argument("--columns", help='JSON column mapping for headerless files, e.g. \'{"u":0,"x":4}\'')
     p.add_argument("--sample-rate-hz", type=float, help="needed when the file has no t column")
     p.add_argument("--axis", default="y", help="axis of a single-axis (u, x) file (default y)")
@@ -183,8 +183,12 @@ def discovery_text(result: dict) -> str:
     lines = [f"final model {result['final_model_id']}: {' + '.join(result['effects'] or [])} "
              f"(stopped: {result['stopped']})"]
     for step in result["steps"]:
-        lines.append(f"  step {step['step']} {('+' + step['added']) if step['added'] else '':<18} {step['model_id']}  "
-                     f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}")
+        change = (f"+{step['added']}" if step["added"] else
+                  f"+data {step['experiment_dataset_id']}" if step.get("experiment_dataset_id") else "")
+        lines.append(f"  step {step['step']} {change:<18} {step['model_id']}  "
+                     f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}"
+                     + ("  (over the experiment's data too: not comparable with the step before)"
+                        if step.get("experiment_dataset_id") else ""))
     for ran in result["experiments"]:
         lines.append(f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
                      f"{ran['sweep_job_id']}), " + ("resolved" if ran.get("resolved") else "not resolved by it"))
@@ -303,20 +307,26 @@ def _models(api: Client, args) -> int:
 
 # ---------------------------------------------------------------------- helpers
 class ProgressBar:
-    """A one-line text bar on stderr, redrawn from the job's SSE progress events."""
+    """A one-line text bar on stderr, redrawn from the job's SSE progress events; into a pipe or a log
+    (not a terminal) a line per new message and the end state instead of a carriage-return redraw."""
 
     def __init__(self, width: int = 30, stream=None):
         self.width, self.stream, self._last = width, stream or sys.stderr, None
+        self.redraw = bool(getattr(self.stream, "isatty", lambda: False)())
 
     def __call__(self, job: dict) -> None:
-        filled = int(round(job["progress"] * self.width))
-        line = (f"\r[{'#' * filled}{'-' * (self.width - filled)}] {job['progress'] * 100:5.1f} % "
-                f"{job['state']}: {(job.get('message') or '')[:50]:<50}")
-        if line != self._last:
+        ended = job["state"] in ("succeeded", "failed", "cancelled")
+        if self.redraw:
+            filled = int(round(job["progress"] * self.width))
+            line = (f"\r[{'#' * filled}{'-' * (self.width - filled)}] {job['progress'] * 100:5.1f} % "
+                    f"{job['state']}: {(job.get('message') or '')[:50]:<50}")
+        else:
+            line = f"{job['state']}: {job.get('message') or ''}\n"
+        if line != self._last and (self.redraw or ended or job.get("message")):
             self.stream.write(line)
             self.stream.flush()
             self._last = line
-        if job["state"] in ("succeeded", "failed", "cancelled"):
+        if ended and self.redraw:
             self.stream.write("\n")
             self.stream.flush()
 

@@ -113,7 +113,7 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
       "full_resolution", "units", "t_s": [...], "u_y_v": [...], …}}``, every ``stride``-th sample so
       that a column has at most ``max_points`` points (default {json_max_points}).
       For every sample use ``format=csv`` or ``format=ndjson`` (named in ``full_resolution``).
-    - ``csv``: DESIGN §4 (header ``t,u_y,x_y,…``), every sample; importable as it is.
+    - ``csv``: header ``t,u_y,x_y,u_z,x_z`` (s, V, µm), every sample; importable as it is.
     - ``ndjson``: a first line ``{{"id", "sample_rate_hz", "units", "columns", "samples",
       "rows_per_line"}}``, then one line per chunk of rows, ``{{"start": <first row>, "t_s": [...], …}}``.
     - ``hdf5``: one dataset per array (``unit`` attribute), the metadata as attributes.

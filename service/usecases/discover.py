@@ -115,7 +115,9 @@ def refined_effects(row: dict, add: str | None, remove: str | None, effects: lis
 
 
 def history(store: Store, model_id: str) -> list[dict]:
-    """The lineage root → ``model_id`` with train and validation RMS and the change at each step."""
+    """The lineage root → ``model_id`` with train and validation RMS and the change at each step:
+    effects added (+e) or removed (−e), datasets added (+data ds_…: its RMS is over other data, not
+    comparable with the step before), else "refit"."""
     chain, seen = [], set()
     row = store.get_model(model_id)
     while row is not None and row["id"] not in seen:
@@ -123,18 +125,20 @@ def history(store: Store, model_id: str) -> list[dict]:
         chain.append(row)
         row = store.get_model(row["parent_id"]) if row.get("parent_id") else None
     chain.reverse()
-    out, prev = [], None
+    out, prev, prev_data = [], None, []
     for r in chain:
         effects = model_effects(r)
         change = None
         if prev is not None:
             added = [e for e in effects if e not in prev]
             removed = [e for e in prev if e not in effects]
-            change = ", ".join([f"+{e}" for e in added] + [f"-{e}" for e in removed]) or "refit"
+            data = [d for d in r["datasets"] if d not in prev_data]
+            change = (", ".join([f"+{e}" for e in added] + [f"-{e}" for e in removed] + [f"+data {d}" for d in data])
+                      + (" (held-out RMS over more data)" if data else "")) or "refit"
         out.append({"model_id": r["id"], "parent_id": r["parent_id"], "effects": ["hysteresis"] + effects,
                     "change": change, "datasets": list(r["datasets"]), "train_rms_um": r["metrics"].get("train_rms_um"),
                     "validation_rms_um": r["metrics"].get("validation_rms_um"), "created_at": r["created_at"]})
-        prev = effects
+        prev, prev_data = effects, list(r["datasets"])
     return out
 
 

@@ -63,7 +63,7 @@ class JobQueued(BaseModel):
 
 
 class Job(BaseModel):
-    """A job (DESIGN §5): ``progress`` 0..1; ``result`` is the job's answer (e.g. ``{"dataset_id"}``,
+    """A job: ``progress`` 0..1; ``result`` is the job's answer (e.g. ``{"dataset_id"}``,
     ``{"model_id", …}``, a trajectory's errors), also on a partial run; ``error`` says why it failed."""
 
     id: str

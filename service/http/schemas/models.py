@@ -142,7 +142,8 @@ class Failure(BaseModel):
 
 
 class Diagnosis(BaseModel):
-    """DESIGN §5: residual vs noise floor, the verdict, ranked candidates (best first), failures."""
+    """Residual vs noise floor, the verdict, the candidates (claimed physics first, by held-out gain;
+    then the unclaimed; capacity last), failures."""
 
     model_config = OPEN
     model_id: str | None = None

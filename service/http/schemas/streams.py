@@ -18,7 +18,7 @@ DATASET_DOWNLOADS = {200: {
     "description": "The samples, streamed, in the requested format",
     "model": DatasetData,
     "content": {
-        "text/csv": {"schema": {"type": "string", "description": "DESIGN §4: header t,u_y,x_y,…; every sample"}},
+        "text/csv": {"schema": {"type": "string", "description": "header t,u_y,x_y,u_z,x_z (s, V, µm); every sample"}},
         "application/x-ndjson": {"schema": {"type": "string", "description": (
             'a first line {"id", "sample_rate_hz", "units", "columns", "samples", "rows_per_line"}, then one line '
             'per chunk of rows {"start", "t_s": [...], …}')}},

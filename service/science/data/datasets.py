@@ -96,7 +96,7 @@ def parse_table(source: bytes | BinaryIO, *, columns: dict | str | None = None, 
     drive_range_v = {a: [float(arrays[f"u_{a}_v"].min()), float(arrays[f"u_{a}_v"].max())] for a in axes}
     rate = _sample_rate(arrays.pop("t_s", None), sample_rate_hz)
     arrays = {"t_s": np.arange(rows) / rate, **arrays}
-    notes += _implausible(arrays, rate, "t_s" in specs and specs["t_s"].unit is None)
+    notes = _read_as(reader) + notes + _implausible(arrays, rate, "t_s" in specs and specs["t_s"].unit is None)
     return ParsedTable(arrays=arrays, axes=axes, sample_rate_hz=rate, drive_range_v=drive_range_v, notes=notes)
 
 
@@ -297,7 +297,7 @@ def _column_spec(canonical: str, name: str, spec, layout: Layout, notes: list[st
         index = spec
     if explicit_scale:               # the mapping's scale is the whole conversion
         return ColumnSpec(index, scale, offset)
-    unit, where = (given_unit, "the mapping's unit") if given_unit else _written_unit(index, layout)
+    unit, where = (given_unit, f"the mapping's unit {given_unit!r}") if given_unit else _written_unit(index, layout)
     if unit is None:
         return ColumnSpec(index, scale, offset)
     quantity = QUANTITY[canonical]
@@ -305,7 +305,8 @@ def _column_spec(canonical: str, name: str, spec, layout: Layout, notes: list[st
     if factor is None:
         other = quantity_of_unit(unit)
         what = f"a {other} unit" if other else "a unit this service does not know"
-        raise DataError(field, f"{name}: {where} says {unit!r}, {what}, not one of {quantity} ({known_units(quantity)}); "
+        prefix = "" if csv_name(CANONICAL[canonical]) == field else f"{name}: "
+        raise DataError(field, f"{prefix}{where} gives {what}, not one of {quantity} ({known_units(quantity)}); "
                         f"map the column as {{\"column\": {index}, \"scale\": <{SERVICE_UNIT[quantity]} per value>}} "
                         "if it is right")
     unit_scale, unit_offset = factor
@@ -372,6 +373,20 @@ def _rounded_grid(t: np.ndarray, step_s: float) -> bool:
         if np.max(np.abs(scaled - np.round(scaled))) <= 1e-6 * max(1.0, float(np.max(np.abs(scaled))) * 1e-9):
             return bool(np.max(np.abs(t - grid)) <= 0.5 * quantum * (1 + 1e-6) + abs(step_s) * 1e-9)
     return False
+
+
+def _read_as(reader: TableReader) -> list[str]:
+    """Notes on how the file was read where it differs from this service's CSV: its encoding, decimal
+    commas, a units row under the header."""
+    layout, notes = reader.layout, []
+    if reader.encoding != "utf-8":
+        notes.append(f"file: read as {reader.encoding.upper()} text")
+    if layout.decimal_comma:
+        notes.append(f"file: numbers written with decimal commas, read as decimal points "
+                     f"(fields separated by {'semicolons' if layout.sep == ';' else 'whitespace'})")
+    if layout.units is not None:
+        notes.append(f"file: a units row under the header ({', '.join(layout.units)}) gives the columns' units")
+    return notes
 
 
 def _implausible(arrays: dict[str, np.ndarray], rate_hz: float, time_without_unit: bool) -> list[str]:

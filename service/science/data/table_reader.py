@@ -65,6 +65,7 @@ class TableReader:
         self._size_bytes = _remaining_bytes(handle)
         self._newline: str | None = None
         self._line_no = 1          # number (1-based) of the first line not yet handed out
+        self.encoding = "utf-8"   #: the encoding the text was read in (utf-16 by its BOM, latin-1 if not UTF-8)
         self._blocks = self._text_blocks()
         self._first: list[tuple[int, list[str]]] = []     # blocks read ahead by the layout's sniff
         self.layout = self._sniff(delimiter)
@@ -195,6 +196,7 @@ class TableReader:
             chunk = self._handle.read(READ_BLOCK_BYTES)
             if decoder is None:
                 decoder = _decoder_for(chunk)
+                self.encoding = decoder.encoding.replace("-sig", "")
             try:
                 text = pending + decoder.decode(chunk, final=not chunk)
             except UnicodeDecodeError:
@@ -203,6 +205,7 @@ class TableReader:
                                             f"(near line {self._line_no})") from None
                 buffered = decoder.getstate()[0]   # bytes of a character the chunk ended inside
                 decoder = _Decoder("latin-1")
+                self.encoding = "latin-1"
                 text = pending + decoder.decode(buffered + chunk, final=not chunk)
             if self._newline is None and text:
                 self._newline = "\n" if "\n" in text or "\r" not in text else "\r"

@@ -47,7 +47,8 @@ def _fmt_nm(v_um) -> str:
 
 def _signature_words(name: str, sig: dict, floor: dict) -> str:
     g = sig.get("rms_growth_exponent")
-    growth = f"the residual grows with frequency as f^{g:.2f}" if g is not None else "frequency growth unknown"
+    growth = ("frequency growth unknown" if g is None else
+              f"the residual {'grows' if g >= 0 else 'falls'} with frequency as f^{g:.2f}")
     if name == "delay":
         if sig.get("lag_ms") is None:
             return "no lag can be measured: the model's prediction does not move in any block"

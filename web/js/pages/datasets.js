@@ -135,6 +135,14 @@ async function submitImport(root) {
   }
 }
 
+/** A block's frequency: its own, or each axis's where they were driven at once at their own
+ *  (with the one at which they repeat together, if they do). */
+function blockFrequency(b) {
+  if (!b.frequencies_hz) return fmt(b.frequency_hz);
+  const each = Object.entries(b.frequencies_hz).map(([axis, f]) => `${esc(axis)} ${fmt(f)}`).join(' + ');
+  return b.frequency_hz ? `${each} (together ${fmt(b.frequency_hz)})` : each;
+}
+
 /** " · drive −150 … 150 V (y)" from the dataset's recorded drive range, or "". */
 function driveRange(ds) {
   const range = ds.drive_range_v || {};
@@ -157,11 +165,12 @@ async function showDataset(root, id) {
     <div class="card"><p id="dataset-summary" data-samples="${ds.samples}" data-sample-rate-hz="${ds.sample_rate_hz}">${esc(ds.source)} · axes ${ds.axes.join(', ')} ·
       ${ds.samples} samples at ${fmt(ds.sample_rate_hz)} Hz · ${fmt(ds.duration_s)} s · ${ds.n_blocks} blocks${driveRange(ds)}
       ${ds.partial ? ` · <span class="warn">partial: ${esc(ds.partial_reason || '')}</span>` : ''}</p>
+      ${(ds.import_notes || []).length ? `<ul id="import-notes" class="muted">${ds.import_notes.map((n) => `<li>${esc(n)}</li>`).join('')}</ul>` : ''}
       <p>Export: <a id="export-csv" href="/api/datasets/${esc(ds.id)}/data?format=csv" download="${esc(ds.id)}.csv">CSV</a> ·
         <a id="export-hdf5" href="/api/datasets/${esc(ds.id)}/data?format=hdf5" download="${esc(ds.id)}.h5">HDF5</a> ·
         <a href="#/models?dataset=${esc(ds.id)}">identify a model from it</a> · <a href="#/datasets">all datasets</a></p>
       <table id="block-table"><tr><th>block</th><th>kind</th><th class="num">frequency (Hz)</th><th class="num">cycles</th><th class="num">start (s)</th><th class="num">stop (s)</th><th>axes</th><th title="stretches in no block: a rest, a ramp, the first cycle out of a rest">outside the blocks</th></tr>
-      ${ds.blocks.map((b) => `<tr><td>${b.index ?? ''}</td><td>${esc(b.kind ?? '')}</td><td class="num">${fmt(b.frequency_hz)}</td><td class="num">${fmt(b.cycles)}</td>
+      ${ds.blocks.map((b) => `<tr><td>${b.index ?? ''}</td><td>${esc(b.kind ?? '')}</td><td class="num">${blockFrequency(b)}</td><td class="num">${fmt(b.cycles)}</td>
         <td class="num">${fmt(b.start / ds.sample_rate_hz)}</td><td class="num">${fmt(b.stop / ds.sample_rate_hz)}</td><td>${(b.axes || ds.axes).join(', ')}</td>
         <td class="trimmed">${trimmedText(b)}</td></tr>`).join('')}</table></div>
     <div class="card"><div id="ts-chart"></div></div>

@@ -59,6 +59,7 @@ export function renderDiagnosis(box, model, d, opts) {
   const { canRefine, onAdd, jobBox, extra = [], before = null, experiment = null, datasetId = null } = opts;
   const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
   const candidates = (d.candidates || []).filter((c) => c.testable !== false);
+  const leading = candidates.find((c) => c.claimed);      // what the verdict names: claimed, never an unclaimed row
   const untestable = d.not_testable || [];
   box.innerHTML = `${before ? separationSummary(before, d, experiment, datasetId) : ''}
     <p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" data-extra-datasets="${esc(extra.join(','))}" class="${verdictClass}">
@@ -70,9 +71,9 @@ export function renderDiagnosis(box, model, d, opts) {
     ${d.diagnosed_as ? `<p class="muted" id="diagnosed-as">Diagnosed as ${esc(d.diagnosed_as)}.</p>` : ''}
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}"${f.block ? ` data-block="${esc(f.block)}"` : ''}>${f.block
       ? `${esc(f.block)}: held-out residual RMS ${fmtLength(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
-    <h3>Candidate effects, best first</h3>
+    <h3>Candidate effects <span class="muted">(claimed physics first, largest held-out gain first; then the others; model capacity last)</span></h3>
     <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after</th><th>evidence</th><th></th></tr>
-    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${i === 0 ? ' class="best"' : ''}>
+    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${c === leading ? ' class="best"' : ''}>
       <td>${i + 1}</td><td>${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmtLength(c.expected_rms_um, 4)}</td>
       <td class="evidence">${describe(c.evidence)}</td>
       <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}

@@ -32,7 +32,7 @@ export function renderDiscover(el, model, { signal, onModels = () => {} }) {
     </div>
   </div>`);
   el.append(box);
-  const state = { figures: null, steps: [] };
+  const state = { figures: null, steps: [], start: model.id };
   const figures = (id) => showFigures(box, id, state, signal);
   box.querySelector('#figures-load').addEventListener('click', () => figures(model.id));
   box.querySelector('#discover-form').addEventListener('submit', (e) => {
@@ -89,7 +89,7 @@ function renderRun(out, r, axis, signal) {
     <table id="discover-steps"><tr><th>step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
-      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `refit with ${esc(s.experiment_dataset_id)}` : (s.step ? 'refit' : 'start'))}</td>
+      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(RMS over more data)</span>` : (s.step ? 'refit' : 'start'))}</td>
       <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
       <td class="num">${fmtLength(s.validation_rms_um)}</td><td class="num">${fmtLength(s.noise_floor_um)}</td>
       <td class="num">${ratio(s.ratio_to_noise_floor)}</td><td>${esc(s.verdict)}${s.ambiguous ? ` <span class="warn">(${s.ambiguous.map(esc).join(' or ')}?)</span>` : ''}</td>
@@ -159,6 +159,8 @@ async function showFigures(box, modelId, state, signal) {
       return cell;
     }));
     status.textContent = '';
+    // the button draws the start model's again: say so once another model's figures are shown
+    button.textContent = `Show the figures of ${state.start}${modelId === state.start ? '' : ' (the start model)'}`;
   } catch (e) { showError(status, e, 'Figures failed: '); } finally { button.disabled = false; }
 }
 

@@ -198,12 +198,9 @@ async function lineage(model, canHistory) {
   if (canHistory) {
     const r = await api(`/models/${encodeURIComponent(model.id)}/history`, { signal: controller.signal });
     const steps = Array.isArray(r) ? r : (r.history || r.lineage || r.steps || r.models || []);
-    return steps.map((s, i) => {
-      // A refit on more data (e.g. after a separating experiment) is measured on other held-out cycles.
-      const added = i && s.datasets ? s.datasets.filter((d) => !(steps[i - 1].datasets || []).includes(d)).length : 0;
-      return { id: s.model_id || s.id, effects: s.effects || [], rms: s.validation_rms_um ?? s.metrics?.validation_rms_um,
-        change: [s.change, added ? `+${added} dataset${added > 1 ? 's' : ''} (RMS over more data)` : ''].filter(Boolean).join(', ') || null };
-    });
+    // the API names each step's change, a refit on more data too (its held-out RMS is over other cycles)
+    return steps.map((s) => ({ id: s.model_id || s.id, effects: s.effects || [],
+      rms: s.validation_rms_um ?? s.metrics?.validation_rms_um, change: s.change || null }));
   }
   // Without the endpoint: walk parent_id.
   const steps = [];
