@@ -210,7 +210,10 @@ def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple
     state) and the gauge's curvature (a function of x) are fitted head to head, each on the model:
     the one that fits the held-out cycles significantly better (the claim rule's p) is claimed; if
     neither does, the better one is claimed and the pair is returned as an ambiguity."""
-    test = asymmetry_test(records, fits.get(())[1], noise)
+    # the model's residual where the model draws a point-symmetric loop itself (then its even part is
+    # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
+    symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
+    test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise)
     even2 = (test["even_rms_um"] or 0.0) ** 2
     shape = (f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
              f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "

@@ -6,14 +6,14 @@ symmetric density, Bouc–Wen, Maxwell-slip, and all of them behind a linear lag
 or flexure mode — then answers x(t + T/2) = 2x_c − x(t) in the steady state. So the **even part**
 e(t) = [x(t) + x(t + T/2)]/2 − x_c of the mean measured cycle is zero but for noise, whatever the
 hysteresis family, and only a loop that is not point-symmetric (electrostriction ∝ u², saturation
-of the strain, a gauge curved about its own zero) leaves it. The test is made on the residual of
-the model being diagnosed, whose own loop is point-symmetric too (the PI's, and every effect's
-that may be in it when the test runs, in the steady state): its even part is the measurement's,
-less what is not steady state that the model draws — a flexure mode's ring-down after each
-block's start, which a 291 Hz mode leaves in the first cycles of a 100 Hz block and a user's
-Krasnosel'skii-Pokrovskii stage with a 450 Hz mode showed as the gauge's curvature. No model
-draws the even part here: the test cannot mistake a loop shape that the fitted family cannot
-draw for asymmetry.
+of the strain, a gauge curved about its own zero) leaves it. Where the model being diagnosed draws
+a point-symmetric loop itself (a PI with linear lags, modes, delays or creep: ``Effect.point_symmetric``)
+the test is made on its residual: the even part is then the measurement's less what is not steady
+state that the model draws — a flexure mode's ring-down after each block's start, which a 291 Hz
+mode leaves in the first cycles of a 100 Hz block and a user's Krasnosel'skii-Pokrovskii stage with
+a 450 Hz mode showed as the gauge's curvature. Otherwise (warped operators, segment-switched rate
+terms in the model) it is made on the measurement, whose own even part no model drew. Either way
+the test cannot mistake a loop shape that the fitted family cannot draw for asymmetry.
 
 Claim rule (as service/science/discovery/decision.py): the even part is significant against the
 noise of the mean cycle (χ² test, p < ALPHA) and its RMS is at least NOISE_MULTIPLE·σ.
@@ -59,7 +59,8 @@ def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
 
 
 def asymmetry_test(records, residuals, noise_um: float) -> dict:
-    """``even_rms_um`` (RMS over blocks of the even part of ``residuals``, µm, one per record),
+    """``even_rms_um`` (RMS over blocks of the even part of ``residuals``, µm, one per record: the
+    model's residuals or the measurements),
     ``p`` of the χ² test against the mean cycle's noise, ``blocks`` used, and ``claimed`` by the rule
     above."""
     chi2, dof, sq, count, used = 0.0, 0, 0.0, 0, 0

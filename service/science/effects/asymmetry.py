@@ -12,6 +12,7 @@ from service.science.fitting.lsq import Block
 
 
 class Asymmetry(Effect):
+    point_symmetric = False
     name = "asymmetry"
     signature = ("the branch-mean residual is an even (parabolic) or saturating function of the "
                  "drive: the loop is not point-symmetric about its centre")

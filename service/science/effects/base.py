@@ -73,6 +73,10 @@ class Effect:
     signature: ClassVar[str] = ""
     #: transforms: True if the transform commutes with time shifts of the drive (delay, LTI filters)
     shift_invariant: ClassVar[bool] = True
+    #: a model with the effect draws a point-symmetric loop for a sine drive in the steady state, as a
+    #: PI does (x(t + T/2) = 2x_c − x(t)): linear lags, modes, delays, creep; not a warped operator
+    #: family, a parabola in the drive or segment-switched rate terms (service.science.discovery.symmetry)
+    point_symmetric: ClassVar[bool] = True
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         """Additive regressor blocks (stage ``additive``)."""

@@ -45,6 +45,7 @@ def duhem_operators(u_v: np.ndarray, scales_v: np.ndarray) -> np.ndarray:
 
 
 class Operators(Effect):
+    point_symmetric = False
     name = "operators"
     kind = "capacity"
     stage = "capacity"

@@ -12,6 +12,7 @@ from service.science.fitting.lsq import Block
 
 
 class RateDependence(Effect):
+    point_symmetric = False
     name = "rate_dependence"
     signature = ("the loop widens or tilts with drive rate: residual grows with frequency, "
                  "changes sign with u̇ and correlates with u̇·ΣP (not with a pure shift of the whole output)")

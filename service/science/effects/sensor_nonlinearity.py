@@ -27,6 +27,7 @@ INVERSE_NEWTON_STEPS = 6
 
 
 class SensorNonlinearity(Effect):
+    point_symmetric = False
     name = "sensor_nonlinearity"
     stage = "output"
     block_name = "gauge_bow_um"
