@@ -281,5 +281,6 @@ def test_the_progress_bar_writes_lines_into_a_pipe_and_redraws_on_a_terminal():
     for bar in (ProgressBar(stream=piped), ProgressBar(stream=tty)):
         for job in events:
             bar(job)
-    assert piped.getvalue().splitlines() == ["running: block 1 of 2", "running: block 2 of 2", "succeeded: done"]
+    assert piped.getvalue().splitlines() == ["  0.0 % running: block 1 of 2", " 50.0 % running: block 2 of 2",
+                                             "100.0 % succeeded: done"]
     assert "\r" not in piped.getvalue() and tty.getvalue().count("\r") == 101 and tty.getvalue().endswith("\n")

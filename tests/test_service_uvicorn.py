@@ -60,7 +60,8 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
 
             # --- the CLI, as a user runs it
             out = _cli(server, "sweep", "--axes", "y", "--frequencies", "20,80", "--cycles", "3", "--wait")
-            assert "100.0 %" in out.stderr and "[####" in out.stderr  # the progress bar
+            # into a pipe the progress is a line per message, each with its percentage, ending at 100 %
+            assert out.stderr.splitlines()[-1] == "100.0 % succeeded: done" and "\r" not in out.stderr
             cli_dataset = out.stdout.split("dataset ")[1].split()[0]
             assert api.dataset(cli_dataset)["blocks"][1]["frequency_hz"] == 80.0
             out = _cli(server, "identify", "--axis", "y", "--datasets", f"{dataset_id},{cli_dataset}")

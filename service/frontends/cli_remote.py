@@ -316,16 +316,19 @@ class ProgressBar:
 
     def __call__(self, job: dict) -> None:
         ended = job["state"] in ("succeeded", "failed", "cancelled")
+        percent = f"{job['progress'] * 100:5.1f} %"
         if self.redraw:
             filled = int(round(job["progress"] * self.width))
-            line = (f"\r[{'#' * filled}{'-' * (self.width - filled)}] {job['progress'] * 100:5.1f} % "
+            line = (f"\r[{'#' * filled}{'-' * (self.width - filled)}] {percent} "
                     f"{job['state']}: {(job.get('message') or '')[:50]:<50}")
-        else:
-            line = f"{job['state']}: {job.get('message') or ''}\n"
-        if line != self._last and (self.redraw or ended or job.get("message")):
+            key = line
+        else:  # a new line only when the state or the message changes; the percentage it was reached at
+            key = (job["state"], job.get("message") or "")
+            line = f"{percent} {job['state']}: {job.get('message') or ''}\n"
+        if key != self._last and (self.redraw or ended or job.get("message")):
             self.stream.write(line)
             self.stream.flush()
-            self._last = line
+            self._last = key
         if ended and self.redraw:
             self.stream.write("\n")
             self.stream.flush()
