@@ -11,7 +11,7 @@ from service.usecases.acquire import sweep_and_wait
 from service.usecases.discover import diagnose_model, history, imported_datasets, refine_params
 from service.usecases.discover_run import discover
 from service.runtime.jobs import JobManager
-from service.usecases.identify import identify
+from service.usecases.identify import identify, require_fit_memory
 from service.science.errors import FieldError
 from service.store import Store
 
@@ -57,6 +57,7 @@ def start_discovery(model_id: str, body: DiscoverRequest, store: Store = Depends
         raise FieldError("allow_experiments", f"model {model_id} describes bench {owner!r}: its experiments must run "
                          f"on that bench, so start the discovery at its service ({bench['url'] if bench else 'its URL'}),"
                          f" or here without allow_experiments")
+    require_fit_memory(store, list(row["datasets"]), field="model_id")     # 422 before a job is queued
     params = {"model_id": model_id, **body.model_dump()}
 
     def run_experiment(ctx, sweep_body: dict) -> dict:

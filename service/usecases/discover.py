@@ -8,7 +8,7 @@ from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
 from service.science.fitting.validation import BlockSplit, other_axes
 from service.store import Store
-from service.usecases.identify import load_model, load_records
+from service.usecases.identify import load_model, load_records, require_fit_memory
 
 
 def model_effects(row: dict) -> list[str]:
@@ -59,6 +59,7 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
     row = store.get_model(model_id)
     datasets = list(row["datasets"]) + [d for d in (extra_datasets or []) if d not in row["datasets"]]
     if records is None:
+        require_fit_memory(store, datasets, field="extra_datasets" if extra_datasets else "model_id")
         records = load_records(store, datasets, row["axis"], field="extra_datasets")
     n_ops = int(row["options"].get("n_operators", 10))
     basis = load_model(row).as_composite()   # a stored composite fit, or the one a paper's model stands for
@@ -151,6 +152,8 @@ def refine_params(store: Store, model_id: str, add: str | None, remove: str | No
     chosen = ["hysteresis"] + refined_effects(row, add, remove, effects)
     if datasets:
         load_records(store, datasets, row["axis"])  # FieldError naming datasets
+    require_fit_memory(store, list(row["datasets"]) + [d for d in datasets or [] if d not in row["datasets"]],
+                       field="datasets" if datasets else "model_id")
     return {"axis": row["axis"], "datasets": list(row["datasets"]) + [d for d in datasets if d not in row["datasets"]],
             "effects": chosen, "model": "composite", "n_operators": int(row["options"].get("n_operators", 10)),
             "parent_id": model_id}

@@ -18,6 +18,7 @@ from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.effects import EFFECT_NAMES, ordered
 from service.science.errors import FieldError
+from service.science.fitting.memory import memory_shortfall
 from service.science.fitting.validation import evaluate_record, split_blocks, trained_loops_v
 from service.science.fitting.validation import metrics as sample_metrics
 from service.science.models.registry import MODELS, model_for, model_from_dict
@@ -47,6 +48,21 @@ def load_record(store: Store, dataset_id: str, axis: str, field: str = "datasets
 def load_records(store: Store, dataset_ids: list[str], axis: str, field: str = "datasets") -> list[Record]:
     """One Record per dataset for ``axis`` (``load_record``)."""
     return [load_record(store, dataset_id, axis, field) for dataset_id in dataset_ids]
+
+
+def require_fit_memory(store: Store, dataset_ids: list[str], field: str = "datasets") -> None:
+    """FieldError naming ``field`` if fitting or diagnosing on these datasets (every sample of each)
+    would need more memory than this machine has free (service.science.fitting.memory); unknown ids
+    are left to the loader's own error."""
+    samples = 0
+    for dataset_id in dataset_ids:
+        try:
+            samples += int(store.get_dataset(dataset_id)["samples"])
+        except NotFoundError:
+            continue
+    shortfall = memory_shortfall(samples)
+    if shortfall is not None:
+        raise FieldError(field, f"dataset{'s' if len(dataset_ids) > 1 else ''} {', '.join(dataset_ids)}: {shortfall}")
 
 
 def load_model(row: dict):
@@ -107,6 +123,7 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
         raise FieldError("effects", str(exc)) from None
     if not datasets:
         raise FieldError("datasets", "give at least one dataset id")
+    require_fit_memory(store, datasets)
     training_samples = 0
     for dataset_id in datasets:
         try:

@@ -14,7 +14,7 @@ from service.science.data.record import Record
 from service.science.fitting.metrics import rms
 from service.store import Store, utc_now
 from service.usecases.discover import block_title, diagnose_model, history
-from service.usecases.identify import load_model, load_records
+from service.usecases.identify import load_model, load_records, require_fit_memory
 
 #: dataset row fields the report shows
 DATASET_FIELDS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "blocks", "plan", "partial",
@@ -47,6 +47,7 @@ def _gather(store: Store, model_id: str) -> dict:
     row = store.get_model(model_id)
     steps = history(store, model_id)
     dataset_rows = [store.get_dataset(d) for d in row["datasets"]]
+    require_fit_memory(store, list(row["datasets"]), field="model_id")
     records = load_records(store, row["datasets"], row["axis"])
     diagnosis = diagnose_model(store, model_id, records=records)
     model = load_model(row)

@@ -99,24 +99,6 @@ def shared_effect_columns(max_bytes: int = SCOPE_BUDGET_BYTES) -> Iterator[None]
         _SCOPE.reset(token)
 
 
-def stacked_columns(blocks: list, rows: np.ndarray | None = None) -> np.ndarray:
-    """The blocks' columns side by side (n × Σ widths), at ``rows`` (sample indices) if given; kept
-    within a ``shared_effect_columns`` scope while the blocks' arrays are the memo's own (a
-    diagnosis stacks the same blocks for every candidate fit: 47 MB a sweep, 0.06–0.3 s each)."""
-    def compute():
-        return np.hstack([b.columns if rows is None else b.columns[rows] for b in blocks])
-
-    memo = _SCOPE.get()
-    if memo is None:
-        return compute()
-    parts = tuple(part for block in blocks for part in block.parts)
-    if any(part.flags.writeable for part in parts):    # not memoised itself: could change under a key
-        return compute()
-    splits = tuple(tuple(block.part_rows) for block in blocks)
-    key_rows = None if rows is None else (rows.shape, hash(np.ascontiguousarray(rows).tobytes()))
-    return memo.get(parts, ("stacked", splits, key_rows), compute)
-
-
 def effect_blocks(sources: tuple, params: tuple, compute: Callable[[], list]) -> list:
     """``compute()`` (an effect's blocks for a record context made of ``sources`` arrays and
     ``params``), kept within a ``shared_effect_columns`` scope, else computed afresh."""

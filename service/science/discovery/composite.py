@@ -22,8 +22,7 @@ from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import sensitivity_sign
 from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIXED_POINT_ITERATIONS,
                                                          composite_inverse, invert_transforms)
-from service.science.discovery.column_memo import (effect_blocks, play_outputs, shared_effect_columns,
-                                                  stacked_columns)
+from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.base import sum_of_taps
 from service.science.effects.dynamics import NO_MODE
@@ -141,8 +140,7 @@ class CompositeModel:
         sources = (drive.u_v, drive.u_other_v, drive.x_other_um, drive.temp_c, ctx.du, ctx.ddu)
         params = (ctx.fs_hz, self.u_origin_v, np.asarray(self.thresholds_v, dtype=float).tobytes(),
                   tuple(sorted(self.scales.items())))
-        out = [Block.make("weights_um_per_v", ctx.p, lower=0.0),
-               *effect_blocks((drive.u_v,), ("offset_um", ctx.n), lambda: [Block.make("offset_um", np.ones(ctx.n))])]
+        out = [Block.make("weights_um_per_v", ctx.p, lower=0.0), Block.make("offset_um", np.ones(ctx.n))]
         for name in self.effects:
             out += effect_blocks(sources, (name, *params), lambda name=name: EFFECTS[name].blocks(ctx))
         return out
@@ -213,9 +211,9 @@ class CompositeModel:
         target = np.concatenate([r.require_x()[i] for r, i in zip(records, rows)])
         self.sign = sensitivity_sign(np.concatenate([r.u_v[i] for r, i in zip(records, rows)]), target)
         if self.transforms:   # the transforms (filters, delays) need every sample of every column
-            a_raw = [stacked_columns(blocks) for blocks in raw]
+            a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
         else:                 # only the training rows are ever read
-            a_raw = [stacked_columns(blocks, i) for blocks, i in zip(raw, rows)]
+            a_raw = [np.hstack([b.columns[i] for b in blocks]) for blocks, i in zip(raw, rows)]
             rows = [slice(None)] * len(records)
         target = self.sign * target    # fitted in the actuator's own direction (bounded weights ≥ 0)
 
