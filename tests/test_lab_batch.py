@@ -18,7 +18,7 @@ import pytest
 
 from service.frontends.cli import main as cli_main
 from service.lab.address import StoreAddress, open_store
-from service.lab.batch import batch_discover, comparable, plan_batch
+from service.lab.batch import batch_discover, comparable, discover_one, plan_batch
 from service.lab.emulated import record_emulated_sweep
 from service.science.errors import FieldError
 
@@ -31,6 +31,16 @@ def y_only(tmp_path):
     address = StoreAddress.of(None, tmp_path / "store")
     row = record_emulated_sweep(open_store(address), "default", 0, bench_id="bench-a", axes=("y",))
     return address, row
+
+
+def test_a_dataset_the_worker_has_no_memory_for_is_skipped_saying_why(y_only, monkeypatch):
+    from service.science.fitting import memory
+
+    address, row = y_only
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: 10**6)          # 1 MB free
+    out = discover_one(address, row["id"], "y")
+    assert out["status"] == "skipped" and f"{row['samples']:,} samples" in out["reason"], out
+    assert "0.0 GB free" in out["reason"] and open_store(address).list_models() == []
 
 
 def test_plan_skips_what_cannot_be_diagnosed_and_names_bad_fields(y_only):

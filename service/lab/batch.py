@@ -28,7 +28,7 @@ from service.science.models.registry import model_for
 from service.store import NotFoundError, Store, clean_json
 from service.usecases.discover import diagnose_model
 from service.usecases.discover_run import discover
-from service.usecases.identify import load_record, store_model
+from service.usecases.identify import load_record, require_fit_memory, store_model
 
 AXES = ("y", "z")
 #: fields of a result row that name stored rows (differ between two runs of the same batch)
@@ -90,6 +90,7 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
     row = store.get_dataset(dataset_id)
     out = {"bench_id": row.get("bench_id"), "dataset_id": dataset_id, "dataset_name": row["name"], "axis": axis}
     try:
+        require_fit_memory(store, [dataset_id])       # this worker's free memory, not the planner's
         record = load_record(store, dataset_id, axis, row=row)
     except FieldError as exc:
         return {**out, "status": "skipped", "reason": exc.message}
