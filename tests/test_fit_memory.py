@@ -21,7 +21,8 @@ SWEEP = {"axes": ["y"], "frequencies_hz": [10, 100], "cycles": 4}
 def test_shortfall_names_the_samples_the_need_and_what_is_free():
     assert memory_shortfall(1_000_000, available_bytes=8 * 10**9) is None          # 2 GB of 8 GB
     text = memory_shortfall(10_000_000, available_bytes=8 * 10**9)                 # 20 GB of 8 GB
-    assert "10,000,000 samples" in text and "20.0 GB" in text and "8.0 GB free" in text
+    assert "10,000,000 samples" in text and "about 20.0 GB" in text
+    assert "the 6.4 GB a fit may use (80 % of the 8.0 GB free" in text
     # the usable share: 4.2 GB wanted of 5 GB free is more than 80 % of it
     assert memory_shortfall(2_100_000, available_bytes=5 * 10**9) is not None
     assert memory_shortfall(1_900_000, available_bytes=5 * 10**9) is None

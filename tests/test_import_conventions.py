@@ -84,6 +84,8 @@ def test_a_header_of_words_is_refused_with_the_mapping_it_suggests():
 @pytest.mark.parametrize("content", [
     # a European spreadsheet: semicolons, decimal commas (with and without a header)
     _text("t;u_y;x_y", (T, U, X), sep=";", decimal=","),
+    # and with a units row under the header (a new user's file: refused as "'0,000' is not a number")
+    _text("t;u_y;x_y\nms;V;nm", (T * 1e3, U, X * 1e3), sep=";", decimal=","),
     # MATLAB/Octave comments before the header, Windows line endings
     ("% exported by MATLAB R2023b\r\n% stage 2, gauge 1\r\n" + _text("t,u_y,x_y", (T, U, X)).replace("\n", "\r\n")),
     # quoted numbers, a spreadsheet's trailing rows of empty fields

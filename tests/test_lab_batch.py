@@ -40,7 +40,7 @@ def test_a_dataset_the_worker_has_no_memory_for_is_skipped_saying_why(y_only, mo
     monkeypatch.setattr(memory, "available_memory_bytes", lambda: 10**6)          # 1 MB free
     out = discover_one(address, row["id"], "y")
     assert out["status"] == "skipped" and f"{row['samples']:,} samples" in out["reason"], out
-    assert "0.0 GB free" in out["reason"] and open_store(address).list_models() == []
+    assert "0.0 GB free" in out["reason"] and "GB a fit may use" in out["reason"] and open_store(address).list_models() == []
 
 
 def test_plan_skips_what_cannot_be_diagnosed_and_names_bad_fields(y_only):

@@ -150,10 +150,10 @@ def refine_params(store: Store, model_id: str, add: str | None, remove: str | No
     FieldError names ``add``, ``remove``, ``effects`` or ``datasets`` at fault."""
     row = store.get_model(model_id)
     chosen = ["hysteresis"] + refined_effects(row, add, remove, effects)
+    require_fit_memory(store, list(row["datasets"]) + [d for d in datasets or [] if d not in row["datasets"]],
+                       field="datasets" if datasets else "model_id")   # before any array is read
     if datasets:
         load_records(store, datasets, row["axis"])  # FieldError naming datasets
-    require_fit_memory(store, list(row["datasets"]) + [d for d in datasets or [] if d not in row["datasets"]],
-                       field="datasets" if datasets else "model_id")
     return {"axis": row["axis"], "datasets": list(row["datasets"]) + [d for d in datasets if d not in row["datasets"]],
             "effects": chosen, "model": "composite", "n_operators": int(row["options"].get("n_operators", 10)),
             "parent_id": model_id}

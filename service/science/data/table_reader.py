@@ -72,9 +72,10 @@ class TableReader:
 
     # ------------------------------------------------------------------ layout
     def _sniff(self, delimiter: str | None) -> Layout:
-        """The layout from the first two lines that are neither blank nor comments: a header (and a
-        units row under it), or the first data row."""
-        lines = self._meaningful_lines(2)
+        """The layout from the first lines that are neither blank nor comments: a header (and a
+        units row under it), or the first data row; the first data row says whether the numbers
+        are written with decimal commas."""
+        lines = self._meaningful_lines(3)
         if not lines:
             raise DataError("file", "is empty")
         (first_no, text), following = lines[0], lines[1:]
@@ -95,7 +96,9 @@ class TableReader:
             self._rewind_to(following[0][0] + 1)
         else:
             self._rewind_to(first_no + 1)
-        decimal_comma = bool(next_fields is not None and units is None and _numbers(next_fields, sep))
+        data_line = (following[1:] if units is not None else following)[:1]
+        data_fields = _split(data_line[0][1], sep) if data_line else None
+        decimal_comma = bool(data_fields is not None and _numbers(data_fields, sep))
         return Layout([n.lower() for n in names], sep, len(fields), names, units, decimal_comma)
 
     def _meaningful_lines(self, count: int) -> list[tuple[int, str]]:

@@ -41,6 +41,7 @@ def memory_shortfall(n_samples: int, available_bytes: int | None = None) -> str 
     need = fit_memory_bytes(n_samples)
     if free is None or need <= USABLE_SHARE * free:
         return None
-    return (f"{n_samples:,} samples need about {need / 1e9:.1f} GB to fit and diagnose, and this machine has "
-            f"{free / 1e9:.1f} GB free: fit on fewer or shorter datasets (import a part of the record), "
-            "or on a machine with more memory")
+    return (f"{n_samples:,} samples need about {need / 1e9:.1f} GB to fit and diagnose, more than the "
+            f"{USABLE_SHARE * free / 1e9:.1f} GB a fit may use ({100 * USABLE_SHARE:.0f} % of the "
+            f"{free / 1e9:.1f} GB free on this machine): fit on fewer or shorter datasets (import a part of the "
+            "record), or on a machine with more memory")
