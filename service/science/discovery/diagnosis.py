@@ -60,7 +60,8 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
         r = sig.get("rate_r")
         return f"{growth}, and follows u̇·u (|r| = {r:.2f}): rate dependence" if r is not None else growth
     if name == "dynamics":
-        return f"{growth}: a resonance above the drive band"
+        return (f"{growth}; a resonance above the drive band adds a part that grows as f² (the output's "
+                "acceleration), which the held-out test weighs: dynamics")
     if name == "creep":
         v = sig.get("cycle_mean_um_per_decade")
         return ("the per-cycle mean residual moves " + (_fmt_nm(v) if v is not None else "?") +
