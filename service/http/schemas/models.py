@@ -127,7 +127,10 @@ class Candidate(BaseModel):
     model_config = OPEN
     effect: str
     kind: str | None = Field(default=None, description="physical | capacity")
-    score: float | None = None
+    score: float | None = Field(default=None, description=(
+        "0..1: the share of the reference's held-out mean square above the noise floor that adding the "
+        "effect removes (the reference: the model for capacity, the model + the flexible base for physics); "
+        "the claim is decided by the held-out test, not by the score"))
     expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
     evidence: str | None = None
 

@@ -21,7 +21,7 @@ COARSE_ZETAS = (0.01, 0.03, 0.1, 0.3)
 #: "no mode": where a composite's searches start; filtering with it is the identity (shows_mode)
 NO_MODE = {"fn_hz": 1e12, "zeta": 1.0}
 #: the searches' grids of fn are spaced up to GRID_SHARE of the sample rate and go on at that spacing
-#: up to SEARCH_SHARE (the clamp's 0.45: a 700 Hz mode sampled at 2 kHz was never searched)
+#: up to SEARCH_SHARE, where the clamp puts the highest mode (a 700 Hz mode sampled at 2 kHz was never searched)
 GRID_SHARE, SEARCH_SHARE = 0.3, 0.45
 
 
@@ -150,8 +150,8 @@ class Dynamics(Effect):
         return {"fn_hz": fn2, "zeta": min(z2, MAX_ZETA)}
 
     def clamp(self, theta, fs_hz):
-        """ζ within [MIN_ZETA, MAX_ZETA], the mode below 0.45 fs (the bilinear map's prewarp)."""
-        return {"fn_hz": float(np.clip(theta["fn_hz"], 1.0, 0.45 * fs_hz)),
+        """ζ within [MIN_ZETA, MAX_ZETA], the mode below SEARCH_SHARE·fs (the bilinear map's prewarp)."""
+        return {"fn_hz": float(np.clip(theta["fn_hz"], 1.0, SEARCH_SHARE * fs_hz)),
                 "zeta": float(np.clip(theta["zeta"], MIN_ZETA, MAX_ZETA))}
 
     def refine(self, theta, cost, fine: bool = False, bracket=None):

@@ -72,7 +72,7 @@ export function renderDiagnosis(box, model, d, opts) {
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}"${f.block ? ` data-block="${esc(f.block)}"` : ''}>${f.block
       ? `${esc(f.block)}: held-out residual RMS ${fmtLength(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
     <h3>Candidate effects <span class="muted">(claimed physics first, largest held-out gain first; then the others; model capacity last)</span></h3>
-    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num">score</th><th class="num">expected RMS after</th><th>evidence</th><th></th></tr>
+    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num" title="the share of the reference's held-out error above the noise floor that the effect removes (0–1); whether it is claimed is the held-out test's answer, in the evidence">score</th><th class="num">expected RMS after</th><th>evidence</th><th></th></tr>
     ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${c === leading ? ' class="best"' : ''}>
       <td>${i + 1}</td><td>${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmtLength(c.expected_rms_um, 4)}</td>
       <td class="evidence">${describe(c.evidence)}</td>
