@@ -106,3 +106,21 @@ def test_a_fractional_period_gives_the_noise_and_no_more(period, cornered):
     noisy = clean + sigma * np.random.default_rng(1).standard_normal(clean.size)
     assert repeatability(noisy, period)["noise_um"] == pytest.approx(sigma, rel=0.08)
     assert repeatability(clean, period)["noise_um"] < (1e-9 if cornered else 5e-4)     # µm
+
+
+def test_a_record_without_noise_gets_a_verdict_in_words_not_nan():
+    """A simulated record (another lab's model output, imported as a user did over REST: 1 Hz at
+    1 kHz, every cycle the same to the last digit) has no noise to measure in any block: the verdict
+    said "up to nan× a block's own noise"."""
+    from service.science.data.segmentation import blocks_without_table
+    from service.science.discovery.diagnosis import diagnose
+    from service.science.discovery.records import records_from_arrays
+
+    t = np.arange(4000) / 1000.0
+    u = np.round(50 - 50 * np.cos(2 * np.pi * t), 4)                  # as written in the file: 0.1 mV,
+    x = np.round(0.12 * u - 1.2 * np.sin(2 * np.pi * t), 6)            # 1 pm
+    record = records_from_arrays({"u_y_v": u, "x_y_um": x}, 1000.0, blocks_without_table({"y": u}, 1000.0),
+                                 ("y",), "simulated:")[0]
+    d = diagnose([record])
+    assert d["noise_floor_um"] < 1e-9 and d["verdict"] == "complete" and not d["at_noise_floor"]
+    assert "nan" not in d["verdict_text"] and "no block's own noise could be measured" in d["verdict_text"]

@@ -361,9 +361,11 @@ def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor
                 f"repeat (amplitude changes, holds). No physical effect in the library removes it{where}")
     else:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
+        per_block = (f"up to {ratio:.1f}× a block's own noise" if ratio is not None else
+                     "no block's own noise could be measured: none repeats a cycle, or none shows any noise")
         text = (f"complete as far as the effects library goes, but NOT at the noise floor: {rep} of the "
-                f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise (up to "
-                f"{ratio if ratio is not None else float('nan'):.1f}× a block's own noise). No physical "
+                f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise "
+                f"({per_block}). No physical "
                 f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
                 f"outside the library{where}")
     cap = helpful_capacity(candidates)
