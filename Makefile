@@ -23,7 +23,7 @@ PYTEST_WORKERS ?= auto
 PYTEST_XDIST   := -n $(PYTEST_WORKERS) --dist loadgroup --no-loadscope-reorder
 FAST_TESTS     := not slow and not realtime and not browser and not postgres
 
-.PHONY: run test test-fast install clean browser
+.PHONY: run test test-fast lint install clean browser
 
 # --no-compile: pip would byte-compile all 12 000 modules of the packages (half its time); only
 # those imported are compiled, once, when first imported (see PYTHONDONTWRITEBYTECODE above).
@@ -75,7 +75,14 @@ test: $(CORE_STAMP)
 	cat $(WARM_LOG)-emulator.log $(WARM_LOG)-models.log; \
 	[ $$setup -eq 0 ] || exit $$setup; \
 	[ $$failed -eq 0 ] || { echo "evcbench warm failed (above)" >&2; exit 1; }
+	$(MAKE) --no-print-directory lint
 	$(PY) -m pytest -q $(PYTEST_XDIST)
+
+## The lint gate (part of `make test`): ruff's lint and format check, and the import-linter contracts
+## that hold the layers (pyproject.toml, [tool.importlinter]).
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 ## The edit loop: the same, less the tests marked slow, realtime, browser or postgres (pyproject.toml).
 test-fast: $(STAMP)

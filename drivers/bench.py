@@ -15,13 +15,14 @@ Safety, in order of defence:
    (the compiled point-by-point runner), so a stop pre-empts a run within one control period.
 4. Every run, stop, close or failure ends with the DAQ output at 0 V.
 """
+
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Mapping
 
 import numpy as np
 
@@ -43,7 +44,7 @@ class BenchBusy(DriverError):
 class RunInterrupted(DriverError):
     """A run stopped early (cancel, device fault, sensor loss). ``record`` holds the data so far."""
 
-    def __init__(self, reason: str, record: "BenchRecord", stopped: bool = False):
+    def __init__(self, reason: str, record: BenchRecord, stopped: bool = False):
         super().__init__(reason)
         self.reason = reason
         self.record = record
@@ -54,7 +55,7 @@ class BenchSession:
     """What a loop holds while it owns the bench: ``stop_flag`` (uint8[1], non-zero = stop; compiled
     loops poll it), ``feed(samples)`` for the watchdog and ``interrupted()``: the reason to stop now."""
 
-    def __init__(self, bench: "Bench"):
+    def __init__(self, bench: Bench):
         self.bench = bench
         self.stop_flag = bench._stop_flag
         self.feed = bench.watchdog.feed
@@ -88,34 +89,38 @@ class _Acquired:
     """The samples of one buffered run in preallocated arrays, so adding a block and viewing the
     record so far cost O(block), never O(run) (a long sweep must not look like a stalled loop)."""
 
-    def __init__(self, bench: "Bench", n: int, rate_hz: float):
+    def __init__(self, bench: Bench, n: int, rate_hz: float):
         self.bench, self.n, self.rate_hz, self.done = bench, n, rate_hz, 0
         self.u = {a: np.empty(n) for a in bench.axes}
         self.x = {a: np.empty(n) for a in bench.axes}
-        reading = getattr(bench.parts.daq, "temperature_c", None)   # optional (drivers.interfaces.Daq)
+        reading = getattr(bench.parts.daq, "temperature_c", None)  # optional (drivers.interfaces.Daq)
         self._temperature_c = reading if callable(reading) else None
-        self.temp: np.ndarray | None = None    # °C per sample, where the DAQ has a thermometer
+        self.temp: np.ndarray | None = None  # °C per sample, where the DAQ has a thermometer
 
     def add(self, u_blocks: Mapping[str, np.ndarray], ai: np.ndarray) -> None:
         parts, k = self.bench.parts, len(ai)
         for a in self.bench.axes:
-            self.u[a][self.done:self.done + k] = u_blocks[a]
-            self.x[a][self.done:self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
+            self.u[a][self.done : self.done + k] = u_blocks[a]
+            self.x[a][self.done : self.done + k] = ai[:, parts.ai_channel[a]] * parts.sensors[a].scale_um_per_v
         temp = self._temperature_c() if self._temperature_c is not None else None
         if temp is not None:
             if self.temp is None:
                 self.temp = np.full(self.n, np.nan)
-            self.temp[self.done:self.done + k] = temp
+            self.temp[self.done : self.done + k] = temp
         self.done += k
 
     def last_x_um(self, k: int) -> dict[str, np.ndarray]:
         """The last ``k`` displacement samples per axis (µm), as views."""
-        return {a: v[self.done - k:self.done] for a, v in self.x.items()}
+        return {a: v[self.done - k : self.done] for a, v in self.x.items()}
 
     def record(self) -> BenchRecord:
-        extra = {} if self.temp is None else {"temp_c": self.temp[:self.done]}
-        return BenchRecord(sample_rate_hz=self.rate_hz, u_cmd_v={a: v[:self.done] for a, v in self.u.items()},
-                           x_um={a: v[:self.done] for a, v in self.x.items()}, extra=extra)
+        extra = {} if self.temp is None else {"temp_c": self.temp[: self.done]}
+        return BenchRecord(
+            sample_rate_hz=self.rate_hz,
+            u_cmd_v={a: v[: self.done] for a, v in self.u.items()},
+            x_um={a: v[: self.done] for a, v in self.x.items()},
+            extra=extra,
+        )
 
     def interrupted(self, reason: str, stopped: bool = False) -> RunInterrupted:
         record = self.record()
@@ -136,8 +141,10 @@ class Bench(LimitsMixin):
             lo = rated_min_v if v_min_v is None else v_min_v
             hi = rated_max_v if v_max_v is None else v_max_v
             if lo < rated_min_v or hi > rated_max_v or lo >= hi:
-                raise LimitError(f"actuator range {lo:g}–{hi:g} V is outside the {axis} stack's rating "
-                                 f"{rated_min_v:g}–{rated_max_v:g} V")
+                raise LimitError(
+                    f"actuator range {lo:g}–{hi:g} V is outside the {axis} stack's rating "
+                    f"{rated_min_v:g}–{rated_max_v:g} V"
+                )
             self.limits[axis] = AxisLimits(
                 v_min_v=max(lo, amp.output_limits_v[0]),
                 v_max_v=min(hi, amp.output_limits_v[1]),
@@ -149,10 +156,10 @@ class Bench(LimitsMixin):
         self._lock = threading.RLock()
         self._stop_flag = np.zeros(1, dtype=np.uint8)  # shared with compiled loops
         self._stop_reason: str | None = None
-        self._idle = threading.Event()                # set while no session runs
-        self._plans = 0                               # plans running (plan_scope): a stop latches for them
+        self._idle = threading.Event()  # set while no session runs
+        self._plans = 0  # plans running (plan_scope): a stop latches for them
         self._idle.set()
-        self.tripped: str | None = None                 # the watchdog's reason, latched for the session
+        self.tripped: str | None = None  # the watchdog's reason, latched for the session
         self._last_u_v = {axis: 0.0 for axis in self.axes}
         #: time.monotonic() (s) when the DAQ output last reached 0 V (a write_idle returned)
         self.last_zero_monotonic_s: float | None = None
@@ -194,12 +201,14 @@ class Bench(LimitsMixin):
         hook = getattr(self.parts.daq, "stepping_hook", None)
         return callable(hook) and hook() is not None
 
-    def execute(self, plan: Callable, *args, on_event: Callable | None = None,
-                should_stop: Callable[[], bool] | None = None):
+    def execute(
+        self, plan: Callable, *args, on_event: Callable | None = None, should_stop: Callable[[], bool] | None = None
+    ):
         """Run ``plan(bench, emit, *args)`` on this bench and return its result: the one way a job
         runs a plan, here in the caller's thread (service.runtime.engine runs the same call in the
         bench's own process). ``emit(*payload)`` passes events to ``on_event``; after each one,
         ``should_stop()`` true raises the stop flag, so the plan's loop stops within one period."""
+
         def emit(*payload) -> None:
             if on_event is not None:
                 on_event(*payload)
@@ -207,7 +216,7 @@ class Bench(LimitsMixin):
                 self.request_stop()
 
         with self.plan_scope():
-            if should_stop is not None and should_stop():   # stopped before the plan began: it holds
+            if should_stop is not None and should_stop():  # stopped before the plan began: it holds
                 self.request_stop()
             return plan(self, emit, *args)
 
@@ -266,9 +275,15 @@ class Bench(LimitsMixin):
                 finally:
                     self._idle.set()
 
-    def run(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, *, block_samples: int = RUN_BLOCK_SAMPLES,
-            on_block: Callable[[BenchRecord, float], None] | None = None,
-            should_stop: Callable[[], bool] | None = None) -> BenchRecord:
+    def run(
+        self,
+        u_v: Mapping[str, np.ndarray],
+        sample_rate_hz: float,
+        *,
+        block_samples: int = RUN_BLOCK_SAMPLES,
+        on_block: Callable[[BenchRecord, float], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+    ) -> BenchRecord:
         """Stream a planned waveform through the bench in buffered blocks and return the record.
 
         ``u_v`` maps axis → actuator volts; axes left out are held at 0 V. ``on_block`` gets the
@@ -286,8 +301,9 @@ class Bench(LimitsMixin):
         with self.session(period_s=block_samples / sample_rate_hz, name="a buffered run") as session:
             actual = self.parts.daq.configure(sample_rate_hz)
             if abs(actual - sample_rate_hz) > 1e-9 * sample_rate_hz:
-                raise LimitError(f"sample rate {sample_rate_hz} Hz is not a divisor of the DAQ timebase; "
-                                 f"use {actual} Hz")
+                raise LimitError(
+                    f"sample rate {sample_rate_hz} Hz is not a divisor of the DAQ timebase; use {actual} Hz"
+                )
             daq = self.parts.daq
             n_ao = daq.capabilities.ao_channels
             commands = {axis: np.asarray(u_v.get(axis, np.zeros(n)), dtype=float) for axis in self.axes}
@@ -303,14 +319,14 @@ class Bench(LimitsMixin):
                 for axis in self.axes:
                     blocks[axis] = self.clamp_block(axis, commands[axis][start:stop], previous[axis], actual)
                     ao[:, self.parts.ao_channel[axis]] = blocks[axis] / self.parts.amplifiers[axis].gain_v_per_v
-                why = session.interrupted()   # right before the write: at most this one block follows a stop
+                why = session.interrupted()  # right before the write: at most this one block follows a stop
                 if why:
                     raise acquired.interrupted(why, stopped=not self.tripped)
                 previous = {axis: float(blocks[axis][-1]) for axis in self.axes}
                 try:
                     ai = daq.write_read(ao)
                 except DriverError as exc:  # a transport failed mid-run: keep the blocks measured so far
-                    why = session.interrupted()   # a write abandoned by a stop or a watchdog trip says so
+                    why = session.interrupted()  # a write abandoned by a stop or a watchdog trip says so
                     raise acquired.interrupted(why or f"daq: {exc}", stopped=bool(why) and not self.tripped) from exc
                 acquired.add(blocks, ai)
                 self.live.push(blocks, acquired.last_x_um(len(ai)))
@@ -339,8 +355,9 @@ class Bench(LimitsMixin):
         except Exception:
             self._to_zero()
             raise
-        return {axis: float(ai[self.parts.ai_channel[axis]]) * self.parts.sensors[axis].scale_um_per_v
-                for axis in self.axes}
+        return {
+            axis: float(ai[self.parts.ai_channel[axis]]) * self.parts.sensors[axis].scale_um_per_v for axis in self.axes
+        }
 
     def stop(self, reason: str = "emergency stop", wait_s: float | None = None) -> bool:
         """Emergency stop: raise the stop flag and abort the DAQ's output, let the running loop write
@@ -355,16 +372,21 @@ class Bench(LimitsMixin):
         answered = self._idle.wait(self.safety.stop_wait_s if wait_s is None else wait_s)
         zero_s = self.last_zero_monotonic_s if running and answered else None
         if not answered:
-            self._to_zero()              # the loop did not answer (stalled): 0 V from this thread
+            self._to_zero()  # the loop did not answer (stalled): 0 V from this thread
         elif self._lock.acquire(blocking=False):
-            try:                         # no loop owns the bench: make sure anyway
+            try:  # no loop owns the bench: make sure anyway
                 self._to_zero()
             finally:
                 self._lock.release()
         if zero_s is None or zero_s < requested_s:
             zero_s = self.last_zero_monotonic_s
-        self.last_stop = {"reason": reason, "requested_monotonic_s": requested_s, "zero_monotonic_s": zero_s,
-                          "loop_answered": running and answered, "output_v": self.output_v()}
+        self.last_stop = {
+            "reason": reason,
+            "requested_monotonic_s": requested_s,
+            "zero_monotonic_s": zero_s,
+            "loop_answered": running and answered,
+            "output_v": self.output_v(),
+        }
         return running and answered
 
     def _on_watchdog_trip(self, reason: str) -> None:
@@ -381,7 +403,7 @@ class Bench(LimitsMixin):
             self.watchdog.close()
             self.parts.daq.close()
 
-    def __enter__(self) -> "Bench":
+    def __enter__(self) -> Bench:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -400,16 +422,29 @@ class Bench(LimitsMixin):
             "axes": list(self.axes),
             "sample_rate_hz": daq.sample_rate_hz,
             "daq": daq.capabilities.as_dict(),
-            "amplifiers": {a: {"gain_v_per_v": amp.gain_v_per_v, **amp.status().as_dict()}
-                           for a, amp in self.parts.amplifiers.items()},
-            "sensors": {a: {"scale_um_per_v": s.scale_um_per_v, "range_um": list(s.range_um),
-                            **s.status().as_dict()} for a, s in self.parts.sensors.items()},
-            "limits": {a: {**lim.as_dict(), "max_frequency_hz_at_full_range":
-                           lim.max_frequency_hz(lim.v_max_v - lim.v_min_v)} for a, lim in self.limits.items()},
-            "safety": {**self.safety.__dict__, "watchdog_last_trip": self.watchdog.last_trip,
-                       "stop_requested": bool(self._stop_flag[0]), "running": self.running},
-            "modes": {"buffered": daq.capabilities.buffered, "point_by_point": daq.capabilities.point_by_point,
-                      "point_by_point_reason": daq.capabilities.point_by_point_reason},
+            "amplifiers": {
+                a: {"gain_v_per_v": amp.gain_v_per_v, **amp.status().as_dict()}
+                for a, amp in self.parts.amplifiers.items()
+            },
+            "sensors": {
+                a: {"scale_um_per_v": s.scale_um_per_v, "range_um": list(s.range_um), **s.status().as_dict()}
+                for a, s in self.parts.sensors.items()
+            },
+            "limits": {
+                a: {**lim.as_dict(), "max_frequency_hz_at_full_range": lim.max_frequency_hz(lim.v_max_v - lim.v_min_v)}
+                for a, lim in self.limits.items()
+            },
+            "safety": {
+                **self.safety.__dict__,
+                "watchdog_last_trip": self.watchdog.last_trip,
+                "stop_requested": bool(self._stop_flag[0]),
+                "running": self.running,
+            },
+            "modes": {
+                "buffered": daq.capabilities.buffered,
+                "point_by_point": daq.capabilities.point_by_point,
+                "point_by_point_reason": daq.capabilities.point_by_point_reason,
+            },
             # real-time pacing of an emulated DAQ: periods paced and overruns (a real DAQ has none)
             "timing": daq.timing() if callable(getattr(daq, "timing", None)) else {"realtime": False},
         }
@@ -422,8 +457,11 @@ class Bench(LimitsMixin):
         if self.running or not self._lock.acquire(blocking=False):
             raise BenchBusy("a run owns the bench; stop it before resetting faults")
         try:
-            cleared = [f"amplifier {a}: {st.fault_reason or 'fault'}" for a, amp in self.parts.amplifiers.items()
-                       if (st := amp.status()).fault]
+            cleared = [
+                f"amplifier {a}: {st.fault_reason or 'fault'}"
+                for a, amp in self.parts.amplifiers.items()
+                if (st := amp.status()).fault
+            ]
             if self.tripped:
                 cleared.append(f"watchdog: {self.tripped}")
             for amp in self.parts.amplifiers.values():

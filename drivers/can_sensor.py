@@ -26,6 +26,7 @@ go to the DAQ's AI and the bus carries configuration, EMCY and error frames only
 ``timeout_s``, a sequence gap, an error frame saying bus-off, or a failing transmit raise
 DriverError naming the node and the cause; bus-off and lost frames also latch the sensor status.
 """
+
 from __future__ import annotations
 
 import struct
@@ -44,22 +45,35 @@ COB_SYNC, COB_EMCY, COB_TPDO, COB_SDO_TX, COB_SDO_RX = 0x080, 0x080, 0x180, 0x58
 TPDO_FORMAT = "<iBH"
 STATUS_DROPOUT, STATUS_SATURATED = 0x01, 0x02
 EMCY_SENSOR = 0x7300
-CAN_ERR_BUSOFF = 0x040           # SocketCAN error class bits carried in an error frame's identifier
-CAN_ERR_CLASSES = {0x001: "TX timeout", 0x002: "arbitration lost", 0x004: "controller problem",
-                   0x008: "protocol violation", 0x010: "transceiver status", 0x020: "no ACK on transmission",
-                   0x040: "bus-off", 0x080: "bus error", 0x100: "controller restarted"}
+CAN_ERR_BUSOFF = 0x040  # SocketCAN error class bits carried in an error frame's identifier
+CAN_ERR_CLASSES = {
+    0x001: "TX timeout",
+    0x002: "arbitration lost",
+    0x004: "controller problem",
+    0x008: "protocol violation",
+    0x010: "transceiver status",
+    0x020: "no ACK on transmission",
+    0x040: "bus-off",
+    0x080: "bus error",
+    0x100: "controller restarted",
+}
 OD = {
-    (0x1000, 0): ("device_type", 4, False, 0, 2 ** 32 - 1),
+    (0x1000, 0): ("device_type", 4, False, 0, 2**32 - 1),
     (0x1001, 0): ("error_register", 1, False, 0, 255),
     (0x2000, 0): ("resolution_nm", 4, True, 1, 1000),
     (0x2001, 0): ("scale_ppm", 4, True, 500_000, 2_000_000),
     (0x2002, 0): ("filter_hz", 2, True, 0, 50_000),
-    (0x2003, 0): ("range_nm", 4, False, 1, 2 ** 31 - 1),
+    (0x2003, 0): ("range_nm", 4, False, 1, 2**31 - 1),
 }
 OD_INDEX = {entry[0]: key for key, entry in OD.items()}
-SDO_ABORTS = {0x05040000: "SDO protocol timed out", 0x05040001: "command specifier not valid",
-              0x06010002: "attempt to write a read-only object", 0x06020000: "object does not exist",
-              0x06070010: "data type length mismatch", 0x06090030: "value range exceeded"}
+SDO_ABORTS = {
+    0x05040000: "SDO protocol timed out",
+    0x05040001: "command specifier not valid",
+    0x06010002: "attempt to write a read-only object",
+    0x06020000: "object does not exist",
+    0x06070010: "data type length mismatch",
+    0x06090030: "value range exceeded",
+}
 
 
 def sdo_size_cs(size: int, *, read: bool) -> int:
@@ -74,8 +88,16 @@ def sdo_abort(index: int, sub: int, code: int) -> bytes:
 class CanGaugeBus:
     """The host side of one CAN bus carrying gauge nodes ``{axis: node_id}``; not thread-safe."""
 
-    def __init__(self, node_ids: dict[str, int], *, interface: str = "virtual", channel: str = "evc",
-                 bus=None, timeout_s: float = 0.5, bitrate: int | None = None):
+    def __init__(
+        self,
+        node_ids: dict[str, int],
+        *,
+        interface: str = "virtual",
+        channel: str = "evc",
+        bus=None,
+        timeout_s: float = 0.5,
+        bitrate: int | None = None,
+    ):
         if bus is None:
             if can is None:
                 raise DriverError("python-can is not installed: pip install python-can")
@@ -104,14 +126,15 @@ class CanGaugeBus:
         size = {0x4F: 1, 0x4B: 2, 0x43: 4}.get(data[0])
         if size is None:
             raise DriverError(f"CAN node {self.node_ids[axis]}: bad SDO read response {data.hex(' ')}")
-        return int.from_bytes(data[4:4 + size], "little")
+        return int.from_bytes(data[4 : 4 + size], "little")
 
     def sdo_write(self, axis: str, name: str, value: int) -> None:
         index, sub = OD_INDEX[name]
         size = OD[(index, sub)][1]
         payload = int(value).to_bytes(size, "little") + bytes(4 - size)
-        data = self._sdo(axis, bytes([sdo_size_cs(size, read=False)]) + index.to_bytes(2, "little")
-                         + bytes([sub]) + payload)
+        data = self._sdo(
+            axis, bytes([sdo_size_cs(size, read=False)]) + index.to_bytes(2, "little") + bytes([sub]) + payload
+        )
         if data[0] != 0x60:
             raise DriverError(f"CAN node {self.node_ids[axis]}: bad SDO write response {data.hex(' ')}")
 
@@ -129,8 +152,10 @@ class CanGaugeBus:
             if data[0] == 0x80:
                 code = int.from_bytes(data[4:8], "little")
                 why = SDO_ABORTS.get(code, "unknown abort code")
-                raise DriverError(f"CAN node {node}: SDO abort 0x{code:08X} ({why}) on "
-                                  f"0x{int.from_bytes(data[1:3], 'little'):04X}:{data[3]:02X}")
+                raise DriverError(
+                    f"CAN node {node}: SDO abort 0x{code:08X} ({why}) on "
+                    f"0x{int.from_bytes(data[1:3], 'little'):04X}:{data[3]:02X}"
+                )
             return data
 
     # ------------------------------------------------------------------ SYNC / TPDO
@@ -151,14 +176,20 @@ class CanGaugeBus:
         remaining = n * len(self.node_ids)
         while remaining:
             deadline = time.monotonic() + self.timeout_s
-            msg = self._recv(deadline, "TPDO burst (got " + ", ".join(
-                f"{count[a]} of {n} from node {self.node_ids[a]}" for a in self.node_ids) + ")")
+            msg = self._recv(
+                deadline,
+                "TPDO burst (got "
+                + ", ".join(f"{count[a]} of {n} from node {self.node_ids[a]}" for a in self.node_ids)
+                + ")",
+            )
             axis = self._axis_by_tpdo.get(msg.arbitration_id)
             if axis is None or count[axis] >= n:
                 continue
             if len(msg.data) != struct.calcsize(TPDO_FORMAT):
-                self._fail(f"CAN node {self.node_ids[axis]}: TPDO of {len(msg.data)} bytes, expected 7: "
-                           f"{bytes(msg.data).hex(' ')}")
+                self._fail(
+                    f"CAN node {self.node_ids[axis]}: TPDO of {len(msg.data)} bytes, expected 7: "
+                    f"{bytes(msg.data).hex(' ')}"
+                )
             pos_nm, status, seq = struct.unpack(TPDO_FORMAT, bytes(msg.data))
             expected = self._seq[axis]
             if expected is not None and seq != expected:
@@ -234,8 +265,9 @@ class CanDisplacementSensor:
     """One gauge node as a DisplacementSensor. ``scale_um_per_v`` is nominal (range / 10 V):
     readings arrive in nm; the composed DAQ presents them to the Bench as volts on that scale."""
 
-    def __init__(self, bus: CanGaugeBus, axis: str, *, resolution_nm: int = 1, filter_hz: int = 0,
-                 scale_ppm: int = 1_000_000):
+    def __init__(
+        self, bus: CanGaugeBus, axis: str, *, resolution_nm: int = 1, filter_hz: int = 0, scale_ppm: int = 1_000_000
+    ):
         self.bus, self.axis = bus, axis
         self.node_id = bus.node_ids[axis]
         bus.sdo_write(axis, "resolution_nm", resolution_nm)
@@ -253,9 +285,11 @@ class CanDisplacementSensor:
             return SensorStatus(ok=False, saturated=False, reason=f"gauge {self.axis}: {self.bus.failure}")
         s = self.bus.node_status[self.axis]
         if s & STATUS_DROPOUT:
-            return SensorStatus(ok=False, saturated=False,
-                                reason=f"gauge {self.axis} (CAN node {self.node_id}): dropout, signal lost")
+            return SensorStatus(
+                ok=False, saturated=False, reason=f"gauge {self.axis} (CAN node {self.node_id}): dropout, signal lost"
+            )
         if s & STATUS_SATURATED:
-            return SensorStatus(ok=False, saturated=True,
-                                reason=f"gauge {self.axis} (CAN node {self.node_id}): saturated")
+            return SensorStatus(
+                ok=False, saturated=True, reason=f"gauge {self.axis} (CAN node {self.node_id}): saturated"
+            )
         return SensorStatus(ok=True, saturated=False, reason=None)

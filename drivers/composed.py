@@ -27,10 +27,11 @@ checked by drivers.emulated.config)::
 "emulated" endpoints need daq = "emulated": the world that simulates the physics serves them.
 Physical amplifier constants (gain, slew, current, load) come from ``axes.<axis>.amplifier``.
 """
+
 from __future__ import annotations
 
 import uuid
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -41,8 +42,17 @@ AXES = ("y", "z")
 _ALLOWED = {
     "": {"daq", "amplifier", "sensors", "nidaq"},
     "amplifier": {"kind", "port", "channels", "timeout_s", "retries"},
-    "sensors": {"kind", "interface", "channel", "node_ids", "timeout_s", "resolution_nm", "filter_hz", "bitrate",
-                "positions"},
+    "sensors": {
+        "kind",
+        "interface",
+        "channel",
+        "node_ids",
+        "timeout_s",
+        "resolution_nm",
+        "filter_hz",
+        "bitrate",
+        "positions",
+    },
 }
 
 
@@ -56,10 +66,25 @@ def check_transport(t: dict) -> dict:
             if key not in keys:
                 raise ValueError(f"transport.{section + '.' if section else ''}{key}: unknown key")
     daq = t.get("daq", "emulated")
-    amp = {"kind": "emulated", "port": "emulated", "channels": {"y": "x", "z": "y"}, "timeout_s": 0.2, "retries": 2,
-           **t.get("amplifier", {})}
-    sen = {"kind": "emulated", "interface": "virtual", "channel": "emulated", "node_ids": {"y": 1, "z": 2},
-           "timeout_s": 0.5, "resolution_nm": 1, "filter_hz": 0, "positions": "can", **t.get("sensors", {})}
+    amp = {
+        "kind": "emulated",
+        "port": "emulated",
+        "channels": {"y": "x", "z": "y"},
+        "timeout_s": 0.2,
+        "retries": 2,
+        **t.get("amplifier", {}),
+    }
+    sen = {
+        "kind": "emulated",
+        "interface": "virtual",
+        "channel": "emulated",
+        "node_ids": {"y": 1, "z": 2},
+        "timeout_s": 0.5,
+        "resolution_nm": 1,
+        "filter_hz": 0,
+        "positions": "can",
+        **t.get("sensors", {}),
+    }
     if daq not in ("emulated", "nidaq"):
         raise ValueError(f"transport.daq: must be 'emulated' or 'nidaq', got {daq!r}")
     if amp["kind"] not in ("emulated", "serial"):
@@ -68,14 +93,21 @@ def check_transport(t: dict) -> dict:
         raise ValueError(f"transport.sensors.positions: must be 'can' or 'ai', got {sen['positions']!r}")
     if sen["kind"] not in ("emulated", "can"):
         raise ValueError(f"transport.sensors.kind: must be 'emulated' or 'can', got {sen['kind']!r}")
-    if daq == "nidaq" and "emulated" in (amp["kind"], sen["kind"], amp["port"] if amp["kind"] == "serial" else "",
-                                        sen["channel"] if sen["kind"] == "can" else ""):
+    if daq == "nidaq" and "emulated" in (
+        amp["kind"],
+        sen["kind"],
+        amp["port"] if amp["kind"] == "serial" else "",
+        sen["channel"] if sen["kind"] == "can" else "",
+    ):
         raise ValueError("transport.daq: 'nidaq' drives real hardware; emulated parts need daq = 'emulated'")
     if set(amp["channels"]) != set(AXES) or len(set(amp["channels"].values())) != 2:
         raise ValueError(f"transport.amplifier.channels: need distinct channels for y and z, got {amp['channels']}")
     ids = sen["node_ids"]
-    if set(ids) != set(AXES) or len(set(ids.values())) != 2 or not all(isinstance(v, int) and 1 <= v <= 127
-                                                                       for v in ids.values()):
+    if (
+        set(ids) != set(AXES)
+        or len(set(ids.values())) != 2
+        or not all(isinstance(v, int) and 1 <= v <= 127 for v in ids.values())
+    ):
         raise ValueError(f"transport.sensors.node_ids: need distinct ids 1..127 for y and z, got {ids}")
     return {"daq": daq, "amplifier": amp, "sensors": sen, "nidaq": t.get("nidaq", {})}
 
@@ -87,8 +119,9 @@ class ComposedDaq:
     far and idles. "ai": the AI columns stay; EMCY and error frames are handled after each block
     and show in the sensors' status (the Bench then stops with the block kept)."""
 
-    def __init__(self, inner, can_bus=None, sensors=None, ai_channel=None, closers=(), emulators=None,
-                 positions: str = "can"):
+    def __init__(
+        self, inner, can_bus=None, sensors=None, ai_channel=None, closers=(), emulators=None, positions: str = "can"
+    ):
         self.inner, self.can_bus, self.sensors, self.positions = inner, can_bus, sensors or {}, positions
         self.ai_channel = ai_channel or {"y": 0, "z": 1}
         self.capabilities = inner.capabilities
@@ -181,14 +214,20 @@ def open_from_config(cfg: dict, seed: int = 0) -> Bench:
         else:
             can_bus = None
         if world is not None:
-            world.faults.transports.update(emulators)   # serial / CAN faults act on the wire
+            world.faults.transports.update(emulators)  # serial / CAN faults act on the wire
         if world is not None and emulators:
             from drivers.emulated.wire import WireDaq
 
             daq = WireDaq(daq, emulators.get("serial"), emulators.get("can"))
         # closers[0] is the inner DAQ's close, which ComposedDaq.close calls first itself
-        composed = ComposedDaq(daq, can_bus, sensors if can_bus else None, closers=closers[1:], emulators=emulators,
-                               positions=t["sensors"]["positions"])
+        composed = ComposedDaq(
+            daq,
+            can_bus,
+            sensors if can_bus else None,
+            closers=closers[1:],
+            emulators=emulators,
+            positions=t["sensors"]["positions"],
+        )
     except Exception:
         for close in reversed(closers):
             try:
@@ -198,8 +237,15 @@ def open_from_config(cfg: dict, seed: int = 0) -> Bench:
         raise
     kinds = f"daq={t['daq']}, amplifier={t['amplifier']['kind']}, sensors={t['sensors']['kind']}"
     resonance = {ax: world.resonance_hz(ax) for ax in AXES} if world is not None else {}
-    parts = BenchParts(daq=composed, amplifiers=amps, sensors=sensors, resonance_hz=resonance,
-                       backend=f"composed:{cfg.get('name', '?')} ({kinds})", config=cfg, world=world)
+    parts = BenchParts(
+        daq=composed,
+        amplifiers=amps,
+        sensors=sensors,
+        resonance_hz=resonance,
+        backend=f"composed:{cfg.get('name', '?')} ({kinds})",
+        config=cfg,
+        world=world,
+    )
     return Bench(parts)
 
 
@@ -217,8 +263,9 @@ def _serial_amplifiers(cfg, a, world, emulators, closers):
         closers.append(responder.close)
         port = responder.port
     axes_cfg = {axis: cfg["axes"][axis]["amplifier"] for axis in AXES}
-    ctl, amps = open_amplifiers(port, axes_cfg, channel_map=a["channels"], timeout_s=a["timeout_s"],
-                                retries=a["retries"])
+    ctl, amps = open_amplifiers(
+        port, axes_cfg, channel_map=a["channels"], timeout_s=a["timeout_s"], retries=a["retries"]
+    )
     closers.append(ctl.close)
     return amps
 
@@ -233,13 +280,17 @@ def _can_sensors(s, world, emulators, closers):
         from drivers.emulated.wire import EmulatedGaugeNodes
 
         channel = f"evc-emulated-{uuid.uuid4().hex[:8]}"
-        nodes = EmulatedGaugeNodes(world, s["node_ids"], interface=s["interface"], channel=channel,
-                                   stream=s["positions"] == "can")
+        nodes = EmulatedGaugeNodes(
+            world, s["node_ids"], interface=s["interface"], channel=channel, stream=s["positions"] == "can"
+        )
         emulators["can"] = nodes
         closers.append(nodes.close)
-    bus = CanGaugeBus(s["node_ids"], interface=s["interface"], channel=channel, timeout_s=s["timeout_s"],
-                      bitrate=s.get("bitrate"))
+    bus = CanGaugeBus(
+        s["node_ids"], interface=s["interface"], channel=channel, timeout_s=s["timeout_s"], bitrate=s.get("bitrate")
+    )
     closers.append(bus.close)
-    sensors = {axis: CanDisplacementSensor(bus, axis, resolution_nm=s["resolution_nm"], filter_hz=s["filter_hz"])
-               for axis in AXES}
+    sensors = {
+        axis: CanDisplacementSensor(bus, axis, resolution_nm=s["resolution_nm"], filter_hz=s["filter_hz"])
+        for axis in AXES
+    }
     return bus, sensors

@@ -6,10 +6,12 @@ every other voltage is at the actuator (within the stack's rating, 0–150 V on 
 
 This module imports nothing from ``service``: drivers know no service.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 

@@ -7,7 +7,7 @@ benches of a lab, the workers of the test suite. numba 0.68's cache is not safe 
 first free data-file number, writes the index, then the data file. Two processes that save two
 signatures of one function at the same time both take number 1. The index then names one
 signature and file 1 holds the other's machine code, and every later process that loads that
-signature runs the wrong code, silently. tests/test_jit_cache.py shows the lost save; without
+signature runs the wrong code, silently. tests/unit/drivers/test_jit_cache.py shows the lost save; without
 the lock it fails.
 
 Here the index's read-modify-write and the data file are written under an exclusive ``flock`` on a
@@ -15,6 +15,7 @@ lock file beside the index, and loads hold a shared one, so a reader never sees 
 whose data file another writer is still choosing. Where the lock file cannot be made (a read-only
 cache), numba's own behaviour is kept.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -39,7 +40,7 @@ def index_lock(index_path: str, mode: int):
         fcntl.flock(fd, mode)
         yield
     finally:
-        os.close(fd)                       # closing the descriptor releases the lock
+        os.close(fd)  # closing the descriptor releases the lock
 
 
 def _install() -> None:

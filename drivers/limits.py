@@ -2,7 +2,10 @@
 
 ``LimitsMixin`` expects ``self.limits`` (axis → AxisLimits); ``drivers.bench.Bench`` inherits it.
 """
+
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -43,17 +46,20 @@ class LimitsMixin:
             raise LimitError(
                 f"{vpp_v:g} Vpp at {frequency_hz:g} Hz needs {need_a * 1e3:.0f} mA; the amplifier's "
                 f"limit is {lim.current_limit_a * 1e3:.0f} mA (largest frequency at this amplitude: "
-                f"{lim.max_frequency_hz(vpp_v):.1f} Hz)")
+                f"{lim.max_frequency_hz(vpp_v):.1f} Hz)"
+            )
         slew = np.pi * frequency_hz * vpp_v
         if slew > lim.slew_limit_v_per_s:
             raise LimitError(
                 f"{vpp_v:g} Vpp at {frequency_hz:g} Hz slews at {slew / 1e3:.1f} V/ms; the amplifier's "
-                f"limit is {lim.slew_limit_v_per_s / 1e3:.1f} V/ms")
+                f"limit is {lim.slew_limit_v_per_s / 1e3:.1f} V/ms"
+            )
         if np.isfinite(lim.first_resonance_hz) and frequency_hz > RESONANCE_FRACTION * lim.first_resonance_hz:
             raise LimitError(
                 f"{frequency_hz:g} Hz is above {RESONANCE_FRACTION:g} × the {axis} axis's first resonance "
                 f"({lim.first_resonance_hz:g} Hz); a non-resonant drive must stay below "
-                f"{RESONANCE_FRACTION * lim.first_resonance_hz:.1f} Hz")
+                f"{RESONANCE_FRACTION * lim.first_resonance_hz:.1f} Hz"
+            )
 
     def check_waveform(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float) -> None:
         """Refuse a planned waveform that would leave the limits. Raises LimitError saying why."""
@@ -69,7 +75,8 @@ class LimitsMixin:
             if u.max() > lim.v_max_v or u.min() < lim.v_min_v:
                 raise LimitError(
                     f"u_{axis} spans {u.min():.1f}–{u.max():.1f} V; the actuator limit is "
-                    f"{lim.v_min_v:g}–{lim.v_max_v:g} V")
+                    f"{lim.v_min_v:g}–{lim.v_max_v:g} V"
+                )
             if len(u) > 1:
                 rate = float(np.max(np.abs(np.diff(u)))) * sample_rate_hz
                 need_a = rate * lim.capacitance_f
@@ -77,11 +84,13 @@ class LimitsMixin:
                     raise LimitError(
                         f"u_{axis} changes at up to {rate / 1e3:.1f} V/ms, which needs {need_a * 1e3:.0f} mA "
                         f"into {lim.capacitance_f * 1e6:.2f} µF; the amplifier's limit is "
-                        f"{lim.current_limit_a * 1e3:.0f} mA")
+                        f"{lim.current_limit_a * 1e3:.0f} mA"
+                    )
                 if rate > lim.slew_limit_v_per_s * _RATE_CHECK_MARGIN:
                     raise LimitError(
                         f"u_{axis} changes at up to {rate / 1e3:.1f} V/ms; the amplifier's slew limit is "
-                        f"{lim.slew_limit_v_per_s / 1e3:.1f} V/ms")
+                        f"{lim.slew_limit_v_per_s / 1e3:.1f} V/ms"
+                    )
 
     def clamp(self, axis: str, u_v: float, previous_v: float, dt_s: float) -> float:
         """Clamp one command to the voltage range and to the largest step the limits allow."""

@@ -9,11 +9,12 @@ samples ever kept) and get the new cursor back, so polling costs only what is ne
 Each call to ``begin`` starts a run: its time restarts at 0 s and its samples carry the run's
 number, so a reader can tell one job's signals from the next. No service code is imported here.
 """
+
 from __future__ import annotations
 
 import math
 import threading
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -32,13 +33,13 @@ class LiveMonitor:
         self.capacity = int(capacity)
         # columns: t_s, run, then u_v per axis, then x_um per axis
         self._buf = np.zeros((self.capacity, 2 + 2 * len(self.axes)))
-        self._total = 0          # samples ever kept (the cursor)
+        self._total = 0  # samples ever kept (the cursor)
         self._run = 0
         self._label = ""
         self._source_rate_hz = 0.0
         self._stride = 1
-        self._phase = 0          # source samples to skip before the next kept one
-        self._t_index = 0        # source samples seen in this run
+        self._phase = 0  # source samples to skip before the next kept one
+        self._t_index = 0  # source samples seen in this run
         self._lock = threading.Lock()
 
     def begin(self, sample_rate_hz: float, label: str = "") -> int:
@@ -77,16 +78,16 @@ class LiveMonitor:
             rows[:, 0] = (t0 + kept) / self._source_rate_hz
             rows[:, 1] = self._run
             axes = len(self.axes)
-            rows[:, 2:2 + axes] = u_v[first::stride]
-            rows[:, 2 + axes:] = x_um[first::stride]
-            self._append(rows[-self.capacity:])
+            rows[:, 2 : 2 + axes] = u_v[first::stride]
+            rows[:, 2 + axes :] = x_um[first::stride]
+            self._append(rows[-self.capacity :])
 
     def _append(self, rows: np.ndarray) -> None:
         """Write ``rows`` after the newest kept sample, wrapping around the ring (lock held)."""
         start = self._total % self.capacity
         head = min(len(rows), self.capacity - start)
-        self._buf[start:start + head] = rows[:head]
-        self._buf[:len(rows) - head] = rows[head:]
+        self._buf[start : start + head] = rows[:head]
+        self._buf[: len(rows) - head] = rows[head:]
         self._total += len(rows)
 
     def since(self, cursor: int | None = None, max_points: int = 2000) -> dict:
@@ -95,15 +96,22 @@ class LiveMonitor:
         max_points = max(1, int(max_points))
         with self._lock:
             first = max(0, self._total - self.capacity)
-            start = (max(first, self._total - max_points) if cursor is None
-                     else min(max(int(cursor), first), self._total))
+            start = (
+                max(first, self._total - max_points) if cursor is None else min(max(int(cursor), first), self._total)
+            )
             n = self._total - start
             stride = max(1, math.ceil(n / max_points))
             pos = (start + np.arange(0, n, stride)) % self.capacity
             rows = self._buf[pos].copy()
-            out = {"cursor": self._total, "first": first, "run": self._run, "label": self._label,
-                   "rate_hz": self._source_rate_hz / self._stride if self._source_rate_hz else self.rate_hz,
-                   "stride": stride, "dropped": max(0, first - int(cursor)) if cursor is not None else 0}
+            out = {
+                "cursor": self._total,
+                "first": first,
+                "run": self._run,
+                "label": self._label,
+                "rate_hz": self._source_rate_hz / self._stride if self._source_rate_hz else self.rate_hz,
+                "stride": stride,
+                "dropped": max(0, first - int(cursor)) if cursor is not None else 0,
+            }
         out["t_s"] = rows[:, 0].tolist()
         out["runs"] = rows[:, 1].astype(int).tolist()
         for j, axis in enumerate(self.axes):
@@ -119,7 +127,7 @@ def _columns(signals: Mapping[str, np.ndarray], axes: Sequence[str], n: int) -> 
         values = signals.get(axis)
         if values is not None:
             values = np.asarray(values, dtype=float)[:n]
-            out[:len(values), j] = values
+            out[: len(values), j] = values
     return out
 
 

@@ -15,21 +15,23 @@ actuator sees a short hold between blocks; a turnaround longer than the hold is 
 (-200290), reported as such. The Bench's per-block status checks (serial, CAN) are part of
 the turnaround. USB X Series devices have no hardware-timed single-point mode.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from drivers.interfaces import DaqCapabilities, DriverError, LimitError, NotSupportedError
 
-POINT_BY_POINT_REASON = ("a USB X-Series DAQ has no hardware-timed single-point mode; "
-                         "use buffered streaming (write_read)")
+POINT_BY_POINT_REASON = (
+    "a USB X-Series DAQ has no hardware-timed single-point mode; use buffered streaming (write_read)"
+)
 ERRORS = {
     -200279: "the application is not keeping up with the hardware acquisition (AI buffer overflow): "
-             "read larger blocks or lower the sample rate",
+    "read larger blocks or lower the sample rate",
     -200290: "AO underflow: the host did not write the next block before the buffer emptied; "
-             "increase hold_s or the block size",
+    "increase hold_s or the block size",
     -200621: "AO underflow: onboard memory emptied before the host wrote more data",
     -200018: "the DAC conversion was attempted before data was available (underflow)",
     -200284: "some or all requested samples have not yet been acquired (read timed out)",
@@ -60,19 +62,36 @@ def _nidaqmx():
 class NidaqDaq:
     """Two AO (``ao0:1``), ``ai_count`` AI (``ai0:<n-1>``, gauges first) on ``device``; volts at the terminals."""
 
-    def __init__(self, device: str = "Dev1", ao_channels: str = "ao0:1", ai_channels: str = "ai0:3",
-                 ai_count: int = 4, range_v: float = 10.0, timebase_hz: float = 100e6,
-                 max_sample_rate_hz: float = 250e3, sample_rate_hz: float = 20e3, hold_s: float = 0.05,
-                 terminal_config: str = "DIFF", timeout_s: float = 2.0):
+    def __init__(
+        self,
+        device: str = "Dev1",
+        ao_channels: str = "ao0:1",
+        ai_channels: str = "ai0:3",
+        ai_count: int = 4,
+        range_v: float = 10.0,
+        timebase_hz: float = 100e6,
+        max_sample_rate_hz: float = 250e3,
+        sample_rate_hz: float = 20e3,
+        hold_s: float = 0.05,
+        terminal_config: str = "DIFF",
+        timeout_s: float = 2.0,
+    ):
         self._mx = _nidaqmx()
         self.device, self.range_v, self.timeout_s, self.hold_s = device, float(range_v), float(timeout_s), float(hold_s)
         self._ao_phys, self._ai_phys = f"{device}/{ao_channels}", f"{device}/{ai_channels}"
         self._terminal = terminal_config
         self.capabilities = DaqCapabilities(
-            buffered=True, point_by_point=False, ao_channels=2, ai_channels=int(ai_count),
-            ao_range_v=(-self.range_v, self.range_v), ai_range_v=(-self.range_v, self.range_v), resolution_bits=16,
-            timebase_hz=float(timebase_hz), max_sample_rate_hz=float(max_sample_rate_hz),
-            point_by_point_reason=POINT_BY_POINT_REASON)
+            buffered=True,
+            point_by_point=False,
+            ao_channels=2,
+            ai_channels=int(ai_count),
+            ao_range_v=(-self.range_v, self.range_v),
+            ai_range_v=(-self.range_v, self.range_v),
+            resolution_bits=16,
+            timebase_hz=float(timebase_hz),
+            max_sample_rate_hz=float(max_sample_rate_hz),
+            point_by_point_reason=POINT_BY_POINT_REASON,
+        )
         self._rate = 0.0
         self._ao = self._ai = None
         self._pending_discard = 0
@@ -88,8 +107,9 @@ class NidaqDaq:
         driver reports (``task.timing.samp_clk_rate``)."""
         rate = float(sample_rate_hz)
         if not np.isfinite(rate) or rate <= 0 or rate > self.capabilities.max_sample_rate_hz:
-            raise LimitError(f"sample rate {sample_rate_hz!r} Hz is outside "
-                             f"0..{self.capabilities.max_sample_rate_hz:g} Hz")
+            raise LimitError(
+                f"sample rate {sample_rate_hz!r} Hz is outside 0..{self.capabilities.max_sample_rate_hz:g} Hz"
+            )
         if self._ao is not None and rate == self._requested:
             return self._rate
         self._stop_tasks()
@@ -101,11 +121,16 @@ class NidaqDaq:
             self._ao, self._ai = ao, ai
             ao.ao_channels.add_ao_voltage_chan(self._ao_phys, min_val=-self.range_v, max_val=self.range_v)
             terminal = getattr(c.TerminalConfiguration, self._terminal)
-            ai.ai_channels.add_ai_voltage_chan(self._ai_phys, terminal_config=terminal,
-                                               min_val=-self.range_v, max_val=self.range_v)
+            ai.ai_channels.add_ai_voltage_chan(
+                self._ai_phys, terminal_config=terminal, min_val=-self.range_v, max_val=self.range_v
+            )
             ao.timing.cfg_samp_clk_timing(rate, sample_mode=c.AcquisitionType.CONTINUOUS, samps_per_chan=buffer)
-            ai.timing.cfg_samp_clk_timing(rate, source=f"/{self.device}/ao/SampleClock",
-                                          sample_mode=c.AcquisitionType.CONTINUOUS, samps_per_chan=4 * buffer)
+            ai.timing.cfg_samp_clk_timing(
+                rate,
+                source=f"/{self.device}/ao/SampleClock",
+                sample_mode=c.AcquisitionType.CONTINUOUS,
+                samps_per_chan=4 * buffer,
+            )
             ao.out_stream.regen_mode = c.RegenerationMode.DONT_ALLOW_REGENERATION
             ai.triggers.start_trigger.cfg_dig_edge_start_trig(f"/{self.device}/ao/StartTrigger")
             self._rate = float(ao.timing.samp_clk_rate)
@@ -130,16 +155,18 @@ class NidaqDaq:
         n = ao.shape[0]
         try:
             writers.AnalogMultiChannelWriter(self._ao.out_stream, auto_start=False).write_many_sample(
-                data, timeout=self.timeout_s)
+                data, timeout=self.timeout_s
+            )
             if not self._running:
-                self._ai.start()        # armed: waits for ao/StartTrigger
+                self._ai.start()  # armed: waits for ao/StartTrigger
                 self._ao.start()
                 self._running = True
             reader = readers.AnalogMultiChannelReader(self._ai.in_stream)
             if self._pending_discard:
                 junk = np.empty((self.capabilities.ai_channels, self._pending_discard))
-                reader.read_many_sample(junk, number_of_samples_per_channel=self._pending_discard,
-                                        timeout=self.timeout_s)
+                reader.read_many_sample(
+                    junk, number_of_samples_per_channel=self._pending_discard, timeout=self.timeout_s
+                )
             out = np.empty((self.capabilities.ai_channels, n))
             reader.read_many_sample(out, number_of_samples_per_channel=n, timeout=self.timeout_s + n / self._rate)
             self._pending_discard = hold

@@ -27,6 +27,7 @@ fails (unplugged USB adapter: the OS reports an error or end of file) is *lost*:
 Status never raises: a failed exchange shows as ``fault=True`` with the reason, so a running
 Bench stops with RunInterrupted (data kept, output driven to 0 V by the DAQ).
 """
+
 from __future__ import annotations
 
 import re
@@ -97,8 +98,9 @@ class Mdt693b:
             if serial is None:
                 raise DriverError("pyserial is not installed: pip install pyserial")
             try:
-                link = serial.serial_for_url(port, baudrate=BAUDRATE, bytesize=8, parity="N", stopbits=1,
-                                             timeout=0.01, write_timeout=timeout_s)
+                link = serial.serial_for_url(
+                    port, baudrate=BAUDRATE, bytesize=8, parity="N", stopbits=1, timeout=0.01, write_timeout=timeout_s
+                )
             except (OSError, ValueError, getattr(serial, "SerialException", OSError)) as exc:
                 raise DriverError(f"MDT693B: cannot open serial port {port!r}: {exc}") from exc
         self.port = port or getattr(link, "port", "?")
@@ -126,10 +128,10 @@ class Mdt693b:
                     last = exc
                     self._flush()
                     continue
-                body = raw[:-len(PROMPT)]
+                body = raw[: -len(PROMPT)]
                 echo = command.encode() + CR
                 if body.startswith(echo):
-                    body = body[len(echo):]
+                    body = body[len(echo) :]
                 if body.rstrip(b"\r\n") == NOT_DEFINED:
                     raise SerialLinkError("refused", f"MDT693B on {self.port}: {command!r} -> CMD_NOT_DEFINED")
                 if frame.body.match(body):
@@ -174,8 +176,10 @@ class Mdt693b:
             if isinstance(exc, SerialLinkError):
                 raise
             raise SerialLinkError("lost", f"MDT693B: serial port {self.port} lost: {exc}") from exc
-        raise SerialLinkError("timeout", f"MDT693B on {self.port}: no reply to {command!r} within "
-                                         f"{self.timeout_s:g} s (got {bytes(reply)!r})")
+        raise SerialLinkError(
+            "timeout",
+            f"MDT693B on {self.port}: no reply to {command!r} within {self.timeout_s:g} s (got {bytes(reply)!r})",
+        )
 
     def _flush(self) -> None:
         """Drop late bytes of a failed exchange so they cannot be read as the next reply."""
@@ -193,9 +197,18 @@ class SerialAmplifier:
     controller as ``<ch>min=`` / ``<ch>max=`` and read back; slew, current and load describe the
     hardware and come from the bench configuration (the command set cannot report them)."""
 
-    def __init__(self, controller: Mdt693b, axis: str, channel: str, *, gain_v_per_v: float,
-                 output_limits_v: tuple[float, float], slew_limit_v_per_s: float, current_limit_a: float,
-                 load_capacitance_f: float):
+    def __init__(
+        self,
+        controller: Mdt693b,
+        axis: str,
+        channel: str,
+        *,
+        gain_v_per_v: float,
+        output_limits_v: tuple[float, float],
+        slew_limit_v_per_s: float,
+        current_limit_a: float,
+        load_capacitance_f: float,
+    ):
         if channel not in CHANNELS:
             raise DriverError(f"MDT693B channel must be one of {CHANNELS}, got {channel!r}")
         self.controller, self.axis, self.channel = controller, axis, channel
@@ -212,8 +225,9 @@ class SerialAmplifier:
         vlimit = c.query("vlimit?")
         lo, hi = max(0.0, float(v_min_v)), min(vlimit, float(v_max_v))
         if lo >= hi:
-            raise DriverError(f"MDT693B {self.channel}: limits {v_min_v}..{v_max_v} V leave nothing "
-                              f"within 0..{vlimit} V")
+            raise DriverError(
+                f"MDT693B {self.channel}: limits {v_min_v}..{v_max_v} V leave nothing within 0..{vlimit} V"
+            )
         c.set(f"{self.channel}min", lo)
         c.set(f"{self.channel}max", hi)
         got = (c.query(f"{self.channel}min?"), c.query(f"{self.channel}max?"))
@@ -245,25 +259,52 @@ class SerialAmplifier:
         try:
             out = self.controller.query(f"{self.channel}voltage?")
         except DriverError as exc:
-            return AmplifierStatus(enabled=self._enabled, fault=True, fault_reason=f"serial: {exc}",
-                                   output_v=float("nan"), current_a=float("nan"), current_limited=False)
-        return AmplifierStatus(enabled=self._enabled, fault=False, fault_reason=None, output_v=out,
-                               current_a=float("nan"), current_limited=False)
+            return AmplifierStatus(
+                enabled=self._enabled,
+                fault=True,
+                fault_reason=f"serial: {exc}",
+                output_v=float("nan"),
+                current_a=float("nan"),
+                current_limited=False,
+            )
+        return AmplifierStatus(
+            enabled=self._enabled,
+            fault=False,
+            fault_reason=None,
+            output_v=out,
+            current_a=float("nan"),
+            current_limited=False,
+        )
 
 
-def open_amplifiers(port: str | None, axes_cfg: dict, *, channel_map: dict | None = None, link=None,
-                    timeout_s: float = 0.2, retries: int = 2) -> tuple[Mdt693b, dict[str, SerialAmplifier]]:
+def open_amplifiers(
+    port: str | None,
+    axes_cfg: dict,
+    *,
+    channel_map: dict | None = None,
+    link=None,
+    timeout_s: float = 0.2,
+    retries: int = 2,
+) -> tuple[Mdt693b, dict[str, SerialAmplifier]]:
     """Open the controller and one SerialAmplifier per axis. ``axes_cfg[axis]`` holds gain_v_per_v,
     output_min_v, output_max_v, slew_limit_v_per_s, current_limit_a, load_capacitance_f."""
     ctl = Mdt693b(port, link=link, timeout_s=timeout_s, retries=retries)
     try:
         ctl.identify()
         mapping = {**DEFAULT_CHANNEL_MAP, **(channel_map or {})}
-        amps = {axis: SerialAmplifier(
-            ctl, axis, mapping[axis], gain_v_per_v=c["gain_v_per_v"],
-            output_limits_v=(c["output_min_v"], c["output_max_v"]), slew_limit_v_per_s=c["slew_limit_v_per_s"],
-            current_limit_a=c["current_limit_a"], load_capacitance_f=c["load_capacitance_f"])
-            for axis, c in axes_cfg.items()}
+        amps = {
+            axis: SerialAmplifier(
+                ctl,
+                axis,
+                mapping[axis],
+                gain_v_per_v=c["gain_v_per_v"],
+                output_limits_v=(c["output_min_v"], c["output_max_v"]),
+                slew_limit_v_per_s=c["slew_limit_v_per_s"],
+                current_limit_a=c["current_limit_a"],
+                load_capacitance_f=c["load_capacitance_f"],
+            )
+            for axis, c in axes_cfg.items()
+        }
     except Exception:
         ctl.close()
         raise

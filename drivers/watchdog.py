@@ -15,15 +15,21 @@ Drivers know no service: this module knows only the ``Daq`` protocol. Configurat
     stop_wait_s = 0.5           # emergency stop: how long to wait for the loop to reach 0 V itself
     unread_limit_s = 10.0       # a run whose measured samples nobody has taken for this long stops at 0 V
 """
+
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Callable
 
-_LIMITS = {"watchdog_periods": (1.0, 1000.0), "watchdog_min_s": (0.001, 3600.0),
-           "watchdog_poll_s": (0.0005, 1.0), "stop_wait_s": (0.0, 60.0), "unread_limit_s": (0.1, 3600.0)}
+_LIMITS = {
+    "watchdog_periods": (1.0, 1000.0),
+    "watchdog_min_s": (0.001, 3600.0),
+    "watchdog_poll_s": (0.0005, 1.0),
+    "stop_wait_s": (0.0, 60.0),
+    "unread_limit_s": (0.1, 3600.0),
+}
 
 
 @dataclass(frozen=True)
@@ -39,7 +45,7 @@ class SafetyConfig:
     unread_limit_s: float = 10.0
 
     @classmethod
-    def from_config(cls, section: dict | None) -> "SafetyConfig":
+    def from_config(cls, section: dict | None) -> SafetyConfig:
         """Validate a ``[safety]`` table; raises ValueError naming the bad key."""
         section = section or {}
         if not isinstance(section, dict):
@@ -118,7 +124,7 @@ class Watchdog:
 
     def _watch(self) -> None:
         while not self._closed:
-            if not self._armed:      # parked (no polling) until arm() or close() wakes it
+            if not self._armed:  # parked (no polling) until arm() or close() wakes it
                 self._wake.wait()
                 self._wake.clear()
                 continue
@@ -146,12 +152,21 @@ class Watchdog:
             failure = ""
         zero_at_s = time.monotonic()
         zero_v_s = zero_at_s - decided_s
-        reason = (f"watchdog: no sample written for {stalled_s:.2f} s during {self.name} (limit "
-                  f"{self.timeout_s:.2f} s = max({self.config.watchdog_periods:g} periods of "
-                  f"{self.period_s * 1e3:.1f} ms, {self.config.watchdog_min_s:g} s)); "
-                  f"{zero} {zero_v_s * 1e3:.1f} ms after the trip{failure}")
-        self.last_trip = {"reason": reason, "timeout_s": self.timeout_s, "stalled_s": stalled_s,
-                          "samples_fed": fed, "at_monotonic_s": decided_s, "zero_v_s": zero_v_s,
-                          "zero_v_at_monotonic_s": zero_at_s, "fed_during_zero_v": self._fed - fed}
+        reason = (
+            f"watchdog: no sample written for {stalled_s:.2f} s during {self.name} (limit "
+            f"{self.timeout_s:.2f} s = max({self.config.watchdog_periods:g} periods of "
+            f"{self.period_s * 1e3:.1f} ms, {self.config.watchdog_min_s:g} s)); "
+            f"{zero} {zero_v_s * 1e3:.1f} ms after the trip{failure}"
+        )
+        self.last_trip = {
+            "reason": reason,
+            "timeout_s": self.timeout_s,
+            "stalled_s": stalled_s,
+            "samples_fed": fed,
+            "at_monotonic_s": decided_s,
+            "zero_v_s": zero_v_s,
+            "zero_v_at_monotonic_s": zero_at_s,
+            "fed_during_zero_v": self._fed - fed,
+        }
         if self.on_trip is not None:
             self.on_trip(reason)

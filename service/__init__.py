@@ -1,4 +1,5 @@
 """EVC Bench service: sweeps, hysteresis identification, discovery and control of a piezo bench."""
+
 import os as _os
 from importlib import metadata as _metadata
 

@@ -2,18 +2,18 @@
 
 In-process apps (``create_app`` under TestClient) keep the bench in the test's own process
 (``EVCBENCH_ENGINE=inline``) so that tests can reach into the emulator (fault injection, output
-log). Services started as real processes (tests/live_server.py, service_load.spawn_service) run
-the product's default, the bench engine in its own process; tests/test_engine_process.py drives
+log). Services started as real processes (tests/support/live_server.py, service_load.spawn_service) run
+the product's default, the bench engine in its own process; tests/system/test_engine_process.py drives
 that path through the API as well.
 
 Shared here, once per session (per xdist worker):
 
 - ``sweeps``: emulator sweeps (``sweep_records``) that several files ask for with the same
   arguments; each test gets its own copy.
-- ``postgres_url``: a private PostgreSQL cluster (tests/pg_server.py) for the store tests.
+- ``postgres_url``: a private PostgreSQL cluster (tests/support/pg_server.py) for the store tests.
 
 Per test: ``store``, a fresh SQLite store in the test's tmp_path (a file that defines its own
-``store``, e.g. tests/test_service_store.py's SQLite-and-PostgreSQL one, overrides it).
+``store``, e.g. tests/unit/service/test_service_store.py's SQLite-and-PostgreSQL one, overrides it).
 
 Markers (pyproject.toml): ``slow``, ``realtime``, ``browser``, ``postgres``; ``make test-fast``
 leaves out all four. ``make test`` runs everything on every core (pytest-xdist, ``--dist
@@ -21,6 +21,7 @@ loadgroup``): tests that share an expensive module fixture carry an ``xdist_grou
 worker builds it, and ``pytest_collection_modifyitems`` below puts the long tests first so that
 the workers finish together.
 """
+
 from __future__ import annotations
 
 import copy
@@ -35,7 +36,7 @@ os.environ.setdefault("EVCBENCH_ENGINE", "inline")
 # its index, so two processes compiling one kernel at once keep each one's machine code.
 
 #: Run order under xdist: the marks of a test, heaviest first (a test's weight is its heaviest mark's);
-#: ``first`` before all (tests/test_warmup.py reads the cache `make test` filled before any test ran)
+#: ``first`` before all (tests/system/test_warmup.py reads the cache `make test` filled before any test ran)
 WEIGHTS = {"first": 4, "slow": 3, "browser": 2, "realtime": 2, "postgres": 1}
 
 
@@ -43,7 +44,7 @@ def _weight(item: pytest.Item) -> int:
     return max((w for mark, w in WEIGHTS.items() if item.get_closest_marker(mark)), default=0)
 
 
-@pytest.hookimpl(tryfirst=True)     # before xdist's own hook sends the worker's collection
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook sends the worker's collection
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Under ``--dist loadgroup``, a worker's node ids carry their group (``…@name``), which is how
     the controller keeps a group on one worker. pytest-xdist sets ``item._nodeid`` for that, which
@@ -55,13 +56,14 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     from _pytest.nodeid import coerce_node_id
 
     for item in session.items:
-        names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
-                        for m in item.iter_markers("xdist_group")})
+        names = sorted(
+            {str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group")}
+        )
         if names and "@" not in item.nodeid:
             item._id = coerce_node_id(f"{item.nodeid}@{'_'.join(names)}")
 
 
-@pytest.hookimpl(tryfirst=True)      # before xdist reads the groups (it appends them to the node ids)
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups (it appends them to the node ids)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The PostgreSQL tests share one worker (one cluster). Under xdist the slow tests go first,
     then the real-time, browser and PostgreSQL ones, then the rest, so that the workers finish together.
@@ -81,7 +83,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if item.get_closest_marker("postgres"):
             item.add_marker(pytest.mark.xdist_group("postgres"))
     if not os.environ.get("PYTEST_XDIST_WORKER"):
-        return                            # one process: the files' own order
+        return  # one process: the files' own order
     units: dict[str, list[int]] = {}
     for index, item in enumerate(items):
         group = item.get_closest_marker("xdist_group")
@@ -124,7 +126,7 @@ def postgres_url():
     """A private PostgreSQL cluster for the session (each xdist worker that asks starts its own, in
     its own temp dir on a free port). If it cannot start, the tests error (loudly), unless
     EVCBENCH_SKIP_POSTGRES=1 asks to skip them."""
-    from pg_server import postgres_server
+    from tests.support.pg_server import postgres_server
 
     if os.environ.get("EVCBENCH_SKIP_POSTGRES") == "1":
         pytest.skip("EVCBENCH_SKIP_POSTGRES=1: PostgreSQL store tests skipped on request")

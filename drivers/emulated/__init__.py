@@ -11,6 +11,7 @@ Configurations live in fixtures/benches/ (``list_benches()``); ``load_config`` r
 family is chosen per axis (``[axes.<axis>.piezo.hysteresis] family``: preisach, the default,
 bouc_wen or maxwell_slip; clean benches base, bw_base, ms_base and their hidden-effect variants).
 """
+
 from __future__ import annotations
 
 from drivers.bench import Bench
@@ -19,8 +20,16 @@ from drivers.emulated.devices import EmulatedAmplifier, EmulatedDaq, EmulatedSen
 from drivers.emulated.world import FAULT_KINDS, World
 from drivers.interfaces import BenchParts
 
-__all__ = ["open_bench", "load_config", "list_benches", "World", "EmulatedDaq", "EmulatedAmplifier",
-           "EmulatedSensor", "FAULT_KINDS"]
+__all__ = [
+    "open_bench",
+    "load_config",
+    "list_benches",
+    "World",
+    "EmulatedDaq",
+    "EmulatedAmplifier",
+    "EmulatedSensor",
+    "FAULT_KINDS",
+]
 
 
 def open_bench(name_or_path: str = "default", seed: int | None = None, overrides: dict | None = None) -> Bench:
@@ -40,7 +49,13 @@ def open_bench(name_or_path: str = "default", seed: int | None = None, overrides
         return open_from_config(cfg, seed)
     world = World(cfg, seed)
     daq, amps, sensors = build_devices(world)
-    parts = BenchParts(daq=daq, amplifiers=amps, sensors=sensors,
-                       resonance_hz={ax: world.resonance_hz(ax) for ax in ("y", "z")},
-                       backend=f"emulated:{cfg['name']}", config=cfg, world=world)
+    parts = BenchParts(
+        daq=daq,
+        amplifiers=amps,
+        sensors=sensors,
+        resonance_hz={ax: world.resonance_hz(ax) for ax in ("y", "z")},
+        backend=f"emulated:{cfg['name']}",
+        config=cfg,
+        world=world,
+    )
     return Bench(parts)

@@ -9,6 +9,7 @@
 Numba compilation is excluded (one warm-up call); each figure is the best of a few repeats.
 ``families`` repeats the compiled modes with each hysteresis family switched in on the same bench.
 """
+
 from __future__ import annotations
 
 import time
@@ -34,7 +35,7 @@ def _compiled_modes(bench: str, overrides: dict | None, ref: np.ndarray, ao: np.
     b = open_bench(bench, seed=0, overrides=overrides)
     world, daq = b.parts.world, b.parts.daq
     daq.configure(REALTIME_RATE_HZ)
-    world.closed_loop(ref[:100], 0.5, 2000.0)                                # compile/warm up
+    world.closed_loop(ref[:100], 0.5, 2000.0)  # compile/warm up
     daq.write_read(ao[:100])
     daq.step([0.0, 0.0])
     daq.write_idle()
@@ -52,18 +53,24 @@ def run_emulator_benchmark(seconds: float = 2.0, bench: str = "default", repeats
     n = max(int(seconds * REALTIME_RATE_HZ), 100)
     t = np.arange(n) / REALTIME_RATE_HZ
     ref = np.column_stack([3.0 - 2.5 * np.cos(2 * np.pi * 100 * t), 4.5 - 4.0 * np.sin(2 * np.pi * 100 * t)])
-    ao = np.column_stack([3.0 - 3.0 * np.cos(2 * np.pi * 100 * t)] * 2)   # 0–120 V at the actuator
+    ao = np.column_stack([3.0 - 3.0 * np.cos(2 * np.pi * 100 * t)] * 2)  # 0–120 V at the actuator
     b, t_point, t_buf = _compiled_modes(bench, None, ref, ao, repeats)
     daq = b.parts.daq
     family = b.parts.config["axes"]["y"]["piezo"]["hysteresis"].get("family", "preisach")
-    families = {family: {"realtime_factor_point": n / t_point / REALTIME_RATE_HZ,
-                         "realtime_factor_buffered": n / t_buf / REALTIME_RATE_HZ}}
+    families = {
+        family: {
+            "realtime_factor_point": n / t_point / REALTIME_RATE_HZ,
+            "realtime_factor_buffered": n / t_buf / REALTIME_RATE_HZ,
+        }
+    }
     for other in FAMILIES:
         if other not in families:
             fb, tp, tb = _compiled_modes(bench, {"axes.*.piezo.hysteresis.family": other}, ref, ao, repeats)
             fb.close()
-            families[other] = {"realtime_factor_point": n / tp / REALTIME_RATE_HZ,
-                               "realtime_factor_buffered": n / tb / REALTIME_RATE_HZ}
+            families[other] = {
+                "realtime_factor_point": n / tp / REALTIME_RATE_HZ,
+                "realtime_factor_buffered": n / tb / REALTIME_RATE_HZ,
+            }
     n_py = min(n, 20000)
     rows = ao[:n_py].tolist()
 

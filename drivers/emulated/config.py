@@ -5,6 +5,7 @@ stands on several parents (a hidden effect on another hysteresis family: see ``_
 dotted keys (``{"daq.latency.samples": 3}``); ``axes.*.…`` applies to both axes. Every leaf is
 checked against ``RULES``; a bad or unknown key raises ValueError naming it.
 """
+
 from __future__ import annotations
 
 import copy
@@ -15,24 +16,44 @@ BENCH_DIR = Path(__file__).resolve().parents[2] / "fixtures" / "benches"
 AXES = ("y", "z")
 
 EFFECTS = (
-    "daq.quantisation", "daq.latency", "ambient.drift", "coupling",
-    "axes.*.amplifier.bandwidth", "axes.*.amplifier.noise",
-    "axes.*.piezo.hysteresis", "axes.*.piezo.rate_dependence", "axes.*.piezo.creep",
-    "axes.*.piezo.asymmetry", "axes.*.piezo.temperature", "axes.*.flexure.dynamics",
-    "axes.*.gauge.bandwidth", "axes.*.gauge.noise", "axes.*.gauge.nonlinearity", "axes.*.gauge.drift",
+    "daq.quantisation",
+    "daq.latency",
+    "ambient.drift",
+    "coupling",
+    "axes.*.amplifier.bandwidth",
+    "axes.*.amplifier.noise",
+    "axes.*.piezo.hysteresis",
+    "axes.*.piezo.rate_dependence",
+    "axes.*.piezo.creep",
+    "axes.*.piezo.asymmetry",
+    "axes.*.piezo.temperature",
+    "axes.*.flexure.dynamics",
+    "axes.*.gauge.bandwidth",
+    "axes.*.gauge.noise",
+    "axes.*.gauge.nonlinearity",
+    "axes.*.gauge.drift",
 )
 
 # leaf path -> ("num" | "int", min, max) | ("bool",) | ("str", allowed values or None)
 RULES: dict[str, tuple] = {
-    "name": ("str", None), "description": ("str", None), "seed": ("int", 0, 2 ** 63 - 1),
-    "daq.timebase_hz": ("num", 1e6, 1e10), "daq.sample_rate_hz": ("num", 1.0, 1e8),
-    "daq.max_sample_rate_hz": ("num", 1.0, 1e8), "daq.range_v": ("num", 0.1, 100.0),
-    "daq.resolution_bits": ("int", 8, 24), "daq.monitor_ratio_v_per_v": ("num", 1e-4, 1.0),
-    "daq.latency.samples": ("int", 0, 1000), "daq.realtime": ("bool",),
-    "ambient.temperature_c": ("num", -40.0, 100.0), "ambient.thermometer": ("bool",),
+    "name": ("str", None),
+    "description": ("str", None),
+    "seed": ("int", 0, 2**63 - 1),
+    "daq.timebase_hz": ("num", 1e6, 1e10),
+    "daq.sample_rate_hz": ("num", 1.0, 1e8),
+    "daq.max_sample_rate_hz": ("num", 1.0, 1e8),
+    "daq.range_v": ("num", 0.1, 100.0),
+    "daq.resolution_bits": ("int", 8, 24),
+    "daq.monitor_ratio_v_per_v": ("num", 1e-4, 1.0),
+    "daq.latency.samples": ("int", 0, 1000),
+    "daq.realtime": ("bool",),
+    "ambient.temperature_c": ("num", -40.0, 100.0),
+    "ambient.thermometer": ("bool",),
     "ambient.drift.rate_c_per_s": ("num", -1.0, 1.0),
-    "ambient.drift.cycle_amplitude_c": ("num", 0.0, 20.0), "ambient.drift.cycle_period_s": ("num", 1.0, 1e7),
-    "coupling.y_from_z": ("num", -0.5, 0.5), "coupling.z_from_y": ("num", -0.5, 0.5),
+    "ambient.drift.cycle_amplitude_c": ("num", 0.0, 20.0),
+    "ambient.drift.cycle_period_s": ("num", 1.0, 1e7),
+    "coupling.y_from_z": ("num", -0.5, 0.5),
+    "coupling.z_from_y": ("num", -0.5, 0.5),
     "axes.*.amplifier.gain_v_per_v": ("num", 0.1, 1000.0),
     "axes.*.amplifier.output_min_v": ("num", -1000.0, 0.0),
     "axes.*.amplifier.output_max_v": ("num", 1.0, 1000.0),
@@ -63,7 +84,7 @@ RULES: dict[str, tuple] = {
     "axes.*.piezo.hysteresis.maxwell_slip.threshold_log_sigma": ("num", 0.0, 3.0),
     "axes.*.piezo.hysteresis.maxwell_slip.slip_fraction": ("num", 0.01, 0.99),
     "axes.*.piezo.hysteresis.maxwell_slip.elastic_fraction": ("num", 0.0, 0.9),
-    "axes.*.piezo.hysteresis.maxwell_slip.distribution_seed": ("int", 0, 2 ** 32 - 1),
+    "axes.*.piezo.hysteresis.maxwell_slip.distribution_seed": ("int", 0, 2**32 - 1),
     "axes.*.piezo.rate_dependence.relaxation_s": ("num", 0.0, 10.0),
     "axes.*.piezo.rate_dependence.relaxing_fraction": ("num", 0.0, 1.0),
     "axes.*.piezo.creep.rate_per_decade": ("num", 0.0, 0.5),
@@ -89,9 +110,15 @@ for _effect in EFFECTS:
 FAMILY_KEY = "axes.*.piezo.hysteresis.family"
 #: the family's own table: required when the family is selected, ignored otherwise
 FAMILY_TABLES = {family: f"axes.*.piezo.hysteresis.{family}." for family in ("bouc_wen", "maxwell_slip")}
-OPTIONAL = {"seed", "description", "daq.realtime", "ambient.thermometer", FAMILY_KEY,
-            "axes.*.piezo.rate_dependence.relaxing_fraction",
-            *(k for k in RULES if any(k.startswith(prefix) for prefix in FAMILY_TABLES.values()))}
+OPTIONAL = {
+    "seed",
+    "description",
+    "daq.realtime",
+    "ambient.thermometer",
+    FAMILY_KEY,
+    "axes.*.piezo.rate_dependence.relaxing_fraction",
+    *(k for k in RULES if any(k.startswith(prefix) for prefix in FAMILY_TABLES.values())),
+}
 CHECKED_ELSEWHERE = ("transport", "safety", "faults", "emulator")
 
 
@@ -173,7 +200,7 @@ def _expand_overrides(overrides: dict) -> dict:
         if "*" in parts:
             i = parts.index("*")
             for ax in AXES:
-                nested = deep_merge(nested, _expand_overrides({".".join(parts[:i] + [ax] + parts[i + 1:]): value}))
+                nested = deep_merge(nested, _expand_overrides({".".join(parts[:i] + [ax] + parts[i + 1 :]): value}))
             continue
         node: dict = {}
         cur = node
@@ -260,10 +287,12 @@ def _check_family(ax: str, hyst: dict, present: set) -> None:
             raise ValueError(f"{rule_path.replace('*', ax)}: missing (needed by family = {family!r})")
     if family == "bouc_wen":
         bw = hyst["bouc_wen"]
-        if bw["hysteretic_gain"] > (1.0 + bw["gamma_over_beta"]) / 2.0:   # slope 1 − 2A/(1 + γ/β) after a reversal
-            raise ValueError(f"axes.{ax}.piezo.hysteresis.bouc_wen.hysteretic_gain: {bw['hysteretic_gain']!r} exceeds "
-                             f"(1 + gamma_over_beta)/2 = {(1.0 + bw['gamma_over_beta']) / 2.0:g}: the strain would "
-                             "fall while the drive rises after a reversal")
+        if bw["hysteretic_gain"] > (1.0 + bw["gamma_over_beta"]) / 2.0:  # slope 1 − 2A/(1 + γ/β) after a reversal
+            raise ValueError(
+                f"axes.{ax}.piezo.hysteresis.bouc_wen.hysteretic_gain: {bw['hysteretic_gain']!r} exceeds "
+                f"(1 + gamma_over_beta)/2 = {(1.0 + bw['gamma_over_beta']) / 2.0:g}: the strain would "
+                "fall while the drive rises after a reversal"
+            )
 
 
 def load_config(name_or_path: str = "default", overrides: dict | None = None) -> dict:

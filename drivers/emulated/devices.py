@@ -4,18 +4,17 @@ EmulatedDaq (NI USB-6361 class, buffered and point-by-point), EmulatedAmplifier 
 per axis) and EmulatedSensor (one capacitance gauge per axis). AI channels: 0 gauge Y,
 1 gauge Z, 2 amplifier monitor Y, 3 amplifier monitor Z.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
-
 import threading
+from collections.abc import Sequence
 
 import numpy as np
 
 from drivers.emulated import kernels as K
 from drivers.emulated.world import AXES, World
-from drivers.interfaces import (AmplifierStatus, DaqCapabilities, DriverError, LimitError, OutputAborted,
-                                SensorStatus)
+from drivers.interfaces import AmplifierStatus, DaqCapabilities, DriverError, LimitError, OutputAborted, SensorStatus
 
 
 class EmulatedDaq:
@@ -26,10 +25,17 @@ class EmulatedDaq:
         daq = world.config["daq"]
         self.timebase_hz = float(daq["timebase_hz"])
         self.capabilities = DaqCapabilities(
-            buffered=True, point_by_point=True, ao_channels=2, ai_channels=4,
-            ao_range_v=(-world.range_v, world.range_v), ai_range_v=(-world.range_v, world.range_v),
-            resolution_bits=world.bits, timebase_hz=self.timebase_hz,
-            max_sample_rate_hz=float(daq["max_sample_rate_hz"]), latency_samples=world.latency)
+            buffered=True,
+            point_by_point=True,
+            ao_channels=2,
+            ai_channels=4,
+            ao_range_v=(-world.range_v, world.range_v),
+            ai_range_v=(-world.range_v, world.range_v),
+            resolution_bits=world.bits,
+            timebase_hz=self.timebase_hz,
+            max_sample_rate_hz=float(daq["max_sample_rate_hz"]),
+            latency_samples=world.latency,
+        )
         self._closed = False
         #: set by ``abort`` (a stop): buffered writes are refused until the next session begins
         self._aborted = threading.Event()
@@ -48,8 +54,10 @@ class EmulatedDaq:
         divisor = max(1, round(self.timebase_hz / rate))
         actual = self.timebase_hz / divisor
         if actual > self.capabilities.max_sample_rate_hz * (1 + 1e-12):
-            raise LimitError(f"sample rate {rate:g} Hz exceeds this DAQ's {self.capabilities.max_sample_rate_hz:g} Hz "
-                             f"for {self.capabilities.ai_channels} AI channels")
+            raise LimitError(
+                f"sample rate {rate:g} Hz exceeds this DAQ's {self.capabilities.max_sample_rate_hz:g} Hz "
+                f"for {self.capabilities.ai_channels} AI channels"
+            )
         return actual
 
     def temperature_c(self) -> np.ndarray | None:
@@ -69,8 +77,9 @@ class EmulatedDaq:
             raise LimitError("AO data contains NaN or infinite values; nothing was written")
         peak = float(np.max(np.abs(ao))) if ao.size else 0.0
         if peak > self.world.range_v * (1 + 1e-9):
-            raise LimitError(f"AO data reaches {peak:.4f} V, outside the ±{self.world.range_v:g} V range; "
-                             "nothing was written")
+            raise LimitError(
+                f"AO data reaches {peak:.4f} V, outside the ±{self.world.range_v:g} V range; nothing was written"
+            )
 
     def write_read(self, ao_daq_v: np.ndarray) -> np.ndarray:
         """Buffered: write an (n, 2) block of DAQ volts, return the (n, 4) AI block. A scheduled
@@ -99,7 +108,7 @@ class EmulatedDaq:
             faults.fire_due()
         run_part(ao)
         self.world.output_log.record("block")
-        if self._thermometer:   # the whole block's, also when a fault cut it in two
+        if self._thermometer:  # the whole block's, also when a fault cut it in two
             self._block_temp_c = np.concatenate(temps)
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
@@ -126,8 +135,9 @@ class EmulatedDaq:
             raise ValueError(f"AO sample must have 2 values, got {len(ao_daq_v)}")
         a0, a1 = float(ao_daq_v[0]), float(ao_daq_v[1])
         if not (abs(a0) <= self.world.range_v * (1 + 1e-9) and abs(a1) <= self.world.range_v * (1 + 1e-9)):
-            raise LimitError(f"AO sample ({a0}, {a1}) V is outside ±{self.world.range_v:g} V or not finite; "
-                             "nothing was written")
+            raise LimitError(
+                f"AO sample ({a0}, {a1}) V is outside ±{self.world.range_v:g} V or not finite; nothing was written"
+            )
         return self.world.step(a0, a1)
 
     def stepping_hook(self):
@@ -208,12 +218,19 @@ class EmulatedAmplifier:
         fault = bool(sa[K.S_FAULT] > 0.5)
         reason = None
         if fault:
-            reason = (f"over-current: {sa[K.S_FAULT_I] * 1e3:.0f} mA demanded (limit {self.current_limit_a * 1e3:.0f} mA) "
-                      f"for {sa[K.S_FAULT_T] * 1e3:.1f} ms")
+            reason = (
+                f"over-current: {sa[K.S_FAULT_I] * 1e3:.0f} mA demanded (limit {self.current_limit_a * 1e3:.0f} mA) "
+                f"for {sa[K.S_FAULT_T] * 1e3:.1f} ms"
+            )
             reason += self.world.injected_note("amplifier_overcurrent", self.axis)
-        return AmplifierStatus(enabled=bool(sa[K.S_ENABLED] > 0.5), fault=fault, fault_reason=reason,
-                               output_v=float(sa[K.S_VP]), current_a=float(sa[K.S_IA]),
-                               current_limited=bool(sa[K.S_CLIM] > 0.5))
+        return AmplifierStatus(
+            enabled=bool(sa[K.S_ENABLED] > 0.5),
+            fault=fault,
+            fault_reason=reason,
+            output_v=float(sa[K.S_VP]),
+            current_a=float(sa[K.S_IA]),
+            current_limited=bool(sa[K.S_CLIM] > 0.5),
+        )
 
 
 class EmulatedSensor:
@@ -231,14 +248,18 @@ class EmulatedSensor:
         sa = self.world.sa[self._a]
         if sa[K.S_DROP] > 0.5:
             why = self.world.injected_note("sensor_dropout", self.axis) or " (signal lost)"
-            return SensorStatus(ok=False, saturated=False,
-                                reason=f"gauge {self.axis}: dropout{why}, output stuck at 0 V")
+            return SensorStatus(
+                ok=False, saturated=False, reason=f"gauge {self.axis}: dropout{why}, output stuck at 0 V"
+            )
         if sa[K.S_SAT] > 0.5 or sa[K.S_SATN] > 0:
             v = sa[K.S_GV]
-            return SensorStatus(ok=False, saturated=True,
-                                reason=f"gauge {self.axis}: saturated{self.world.injected_note('sensor_saturation', self.axis)} "
-                                       f"({int(sa[K.S_SATN])} samples at ±{self.world.range_v:g} V, "
-                                       f"last {v:+.2f} V): target outside ±{self.range_um[1]:g} µm")
+            return SensorStatus(
+                ok=False,
+                saturated=True,
+                reason=f"gauge {self.axis}: saturated{self.world.injected_note('sensor_saturation', self.axis)} "
+                f"({int(sa[K.S_SATN])} samples at ±{self.world.range_v:g} V, "
+                f"last {v:+.2f} V): target outside ±{self.range_um[1]:g} µm",
+            )
         return SensorStatus(ok=True, saturated=False, reason=None)
 
 

@@ -2,7 +2,7 @@
 
 Each is rate independent: the state moves with the input increment du (V) alone, whatever the
 time it took, and the integration does not depend on how du is cut into samples. Neither is a
-sum of play operators (DESIGN.md §2: the emulator never uses the model family the service fits).
+sum of play operators (a house rule: the emulator never uses the model family the service fits).
 
 - Bouc–Wen (Bouc 1967, Wen 1976; the piezo form of Low & Guo 1995): a hysteretic voltage h lags
   the drive, dh = A·du − β·|du|·|h|^(n−1)·h − γ·du·|h|^n, and the switched strain is ∝ u − h.
@@ -16,6 +16,7 @@ sum of play operators (DESIGN.md §2: the emulator never uses the model family t
 Called from ``kernels.switched_update``; these functions take scalars and row views only, so they
 know nothing of the world's array layout.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,9 +28,9 @@ from drivers.jit import njit
 def _bw_rate(h, sgn, a_gain, beta, gamma, n):
     """dh/d|u| of Bouc–Wen for a move of sign ``sgn`` (β, γ in 1/V^n)."""
     ah = abs(h)
-    if n == 1.0:                         # the usual piezo form: no powers
+    if n == 1.0:  # the usual piezo form: no powers
         return sgn * a_gain - beta * h - gamma * sgn * ah
-    pn = ah ** n
+    pn = ah**n
     return sgn * a_gain - beta * h * (pn / ah if ah > 0.0 else 0.0) - gamma * sgn * pn
 
 

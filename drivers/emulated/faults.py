@@ -21,6 +21,7 @@ the real drivers' error handling runs. Faults come from the ``[faults]`` table o
 configuration (``[faults.sensor_dropout] axis = "z"  after_s = 0.4``) or from ``add`` (the
 service's admin endpoint). ``clear`` removes every fault and recovers what can recover.
 """
+
 from __future__ import annotations
 
 import math
@@ -44,7 +45,7 @@ KINDS: dict[str, tuple[bool, str | None, str]] = {
 }
 #: the faults the world itself carries out (the ones that act on an axis's device)
 WORLD_KINDS = tuple(kind for kind, (needs_axis, _, _) in KINDS.items() if needs_axis)
-STALL_MAX_S = 30.0   # a stalled write gives up after this long even if nobody writes 0 V
+STALL_MAX_S = 30.0  # a stalled write gives up after this long even if nobody writes 0 V
 
 
 class FaultUnavailable(ValueError):
@@ -102,7 +103,7 @@ class FaultInjector:
 
     def __init__(self, world, config_section=None):
         self.world = world
-        self.transports: dict[str, object] = {}   # "serial" → Mdt693bResponder, "can" → EmulatedGaugeNodes
+        self.transports: dict[str, object] = {}  # "serial" → Mdt693bResponder, "can" → EmulatedGaugeNodes
         self._faults: list[Fault] = []
         self._next_id = 1
         self._t0_s = 0.0
@@ -112,8 +113,14 @@ class FaultInjector:
             self.add(kind, axis, after_s, source="config", check_transport=False)
 
     # ------------------------------------------------------------------ schedule
-    def add(self, kind: str, axis: str | None = None, after_s: float = 0.0, source: str = "api",
-            check_transport: bool = True) -> Fault:
+    def add(
+        self,
+        kind: str,
+        axis: str | None = None,
+        after_s: float = 0.0,
+        source: str = "api",
+        check_transport: bool = True,
+    ) -> Fault:
         """Schedule a fault; FaultRequestError names a bad kind, axis or time, FaultUnavailable a missing part."""
         if kind not in KINDS:
             raise FaultRequestError("fault", f"unknown fault {kind!r} (known: {', '.join(KINDS)})")
@@ -125,8 +132,10 @@ class FaultInjector:
         if not math.isfinite(after_s) or after_s < 0:
             raise FaultRequestError("after_s", f"must be a non-negative number of seconds, got {after_s!r}")
         if check_transport and transport and transport not in self.transports:
-            raise FaultUnavailable(f"fault: {kind} needs the {transport} transport, which this bench does not "
-                                   f"have (use a wire bench such as default_wire)")
+            raise FaultUnavailable(
+                f"fault: {kind} needs the {transport} transport, which this bench does not "
+                f"have (use a wire bench such as default_wire)"
+            )
         with self._lock:
             fault = Fault(self._next_id, kind, axis, float(after_s), source)
             self._next_id += 1
@@ -144,7 +153,7 @@ class FaultInjector:
         with self._lock:
             fired = {f.kind for f in self._faults if f.state == "fired"}
             self._faults.clear()
-        self._idle.set()   # release a stalled write
+        self._idle.set()  # release a stalled write
         self.world.clear_faults()
         serial, can = self.transports.get("serial"), self.transports.get("can")
         if serial is not None:
@@ -170,7 +179,7 @@ class FaultInjector:
     def samples_until_due(self, n: int) -> int | None:
         """Samples (0..n-1) that can be written before the next armed fault fires, or None if none
         fires within the next ``n`` samples."""
-        if not self._faults:   # the common case, checked once per block or period: no lock, no list
+        if not self._faults:  # the common case, checked once per block or period: no lock, no list
             return None
         dt = 1.0 / self.world.sample_rate_hz
         now = self.session_time_s()
@@ -206,11 +215,15 @@ class FaultInjector:
         elif f.kind == "can_bus_off":
             self.transports["can"].inject("bus_off")
         elif f.kind == "daq_underflow":
-            raise DriverError(f"AO buffer underflow at t={t_s:.2f} s (injected): the host did not supply "
-                              "samples in time and the DAQ stopped the task")
+            raise DriverError(
+                f"AO buffer underflow at t={t_s:.2f} s (injected): the host did not supply "
+                "samples in time and the DAQ stopped the task"
+            )
         elif f.kind == "loop_stall":
             t0 = time.monotonic()
             self._idle.clear()
             self._idle.wait(STALL_MAX_S)
-            raise DriverError(f"the loop stalled at t={t_s:.2f} s (injected) for {time.monotonic() - t0:.2f} s "
-                              "until the output was driven to 0 V; this write was abandoned")
+            raise DriverError(
+                f"the loop stalled at t={t_s:.2f} s (injected) for {time.monotonic() - t0:.2f} s "
+                "until the output was driven to 0 V; this write was abandoned"
+            )

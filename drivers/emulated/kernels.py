@@ -17,32 +17,117 @@ Maxwell-slip (families.py); no play operator and no Prandtl-Ishlinskii appear. `
 hold the family's memory and table: Preisach turning points, prefix sums and Everett table;
 Maxwell-slip element deflections in ``tp`` and slip limits and weights in ``ev[a, 0]``, ``ev[a, 1]``.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from drivers.jit import drop_stale_caches, njit
 
 from drivers.emulated import families
 from drivers.emulated.families import bouc_wen_step, maxwell_slip_step
+from drivers.jit import drop_stale_caches, njit
 
 # ---- global parameters pg[...]
-(G_DT_S, G_LSB_AO_V, G_LSB_AI_V, G_RANGE_V, G_LATENCY, G_MON_RATIO, G_T0_C, G_TRATE_C_PER_S,
- G_TAMP_C, G_TOMEGA_RAD_S, G_QUANT_ON, NG) = range(12)
+(
+    G_DT_S,
+    G_LSB_AO_V,
+    G_LSB_AI_V,
+    G_RANGE_V,
+    G_LATENCY,
+    G_MON_RATIO,
+    G_T0_C,
+    G_TRATE_C_PER_S,
+    G_TAMP_C,
+    G_TOMEGA_RAD_S,
+    G_QUANT_ON,
+    NG,
+) = range(12)
 # ---- global state sg[...]
 SG_T_S, SG_RING, SG_TEMP_C, NSG = range(4)
 # ---- per-axis parameters pa[axis, ...]
-(A_GAIN, A_VMIN_V, A_VMAX_V, A_SLEW_DV, A_CUR_DV, A_CAP_F, A_BW_ALPHA, A_NOISE_V, A_FAULT_S, A_OC_RESET_S,
- P_DI_UM_PER_V, P_KSW_UM, P_HYST_ON, P_LIN_UM_PER_V, P_RELAX_ALPHA, P_Q_UM_PER_V2, P_SAT_INV,
- P_TC_PER_C, P_TREF_C, P_NCREEP, P_GRID_LO_V, P_GRID_INV_STEP, P_GRID_N, P_S0,
- F_ON, F_AD00, F_AD01, F_AD10, F_AD11, F_BD0, F_BD1, C_FROM_OTHER,
- S_V_PER_UM, S_BW_ALPHA, S_NOISE_UM, S_NL_UM, S_RANGE_UM, S_DRIFT_UM,
- P_FAMILY, P_BW_A, P_BW_BETA, P_BW_GAMMA, P_BW_N, P_BW_STEP_V, P_MS_N, P_MS_ELASTIC, P_RELAX_FRAC, NPA) = range(48)
+(
+    A_GAIN,
+    A_VMIN_V,
+    A_VMAX_V,
+    A_SLEW_DV,
+    A_CUR_DV,
+    A_CAP_F,
+    A_BW_ALPHA,
+    A_NOISE_V,
+    A_FAULT_S,
+    A_OC_RESET_S,
+    P_DI_UM_PER_V,
+    P_KSW_UM,
+    P_HYST_ON,
+    P_LIN_UM_PER_V,
+    P_RELAX_ALPHA,
+    P_Q_UM_PER_V2,
+    P_SAT_INV,
+    P_TC_PER_C,
+    P_TREF_C,
+    P_NCREEP,
+    P_GRID_LO_V,
+    P_GRID_INV_STEP,
+    P_GRID_N,
+    P_S0,
+    F_ON,
+    F_AD00,
+    F_AD01,
+    F_AD10,
+    F_AD11,
+    F_BD0,
+    F_BD1,
+    C_FROM_OTHER,
+    S_V_PER_UM,
+    S_BW_ALPHA,
+    S_NOISE_UM,
+    S_NL_UM,
+    S_RANGE_UM,
+    S_DRIFT_UM,
+    P_FAMILY,
+    P_BW_A,
+    P_BW_BETA,
+    P_BW_GAMMA,
+    P_BW_N,
+    P_BW_STEP_V,
+    P_MS_N,
+    P_MS_ELASTIC,
+    P_RELAX_FRAC,
+    NPA,
+) = range(48)
 # ---- per-axis state sa[axis, ...]
-(S_VOUT, S_VP, S_IA, S_CLIM, S_OCT, S_OCQ, S_OCPEAK, S_FAULT, S_FAULT_I, S_FAULT_T, S_ENABLED,
- S_UCUR, S_TOP, S_XSW, S_XFAST, S_XPZ, S_FP, S_FV, S_XTOOL, S_G, S_GOFF, S_GV, S_SAT, S_SATN,
- S_DROP, S_PEAKV, S_PEAKI, S_HV, NSA) = range(29)
+(
+    S_VOUT,
+    S_VP,
+    S_IA,
+    S_CLIM,
+    S_OCT,
+    S_OCQ,
+    S_OCPEAK,
+    S_FAULT,
+    S_FAULT_I,
+    S_FAULT_T,
+    S_ENABLED,
+    S_UCUR,
+    S_TOP,
+    S_XSW,
+    S_XFAST,
+    S_XPZ,
+    S_FP,
+    S_FV,
+    S_XTOOL,
+    S_G,
+    S_GOFF,
+    S_GV,
+    S_SAT,
+    S_SATN,
+    S_DROP,
+    S_PEAKV,
+    S_PEAKI,
+    S_HV,
+    NSA,
+) = range(29)
 # ---- diagnostics per sample (diag[k, ...])
 (D_AO_Y, D_AO_Z, D_VP_Y, D_VP_Z, D_I_Y, D_I_Z, D_X_Y, D_X_Z, D_TEMP_C, ND) = range(10)
 
@@ -50,9 +135,9 @@ SG_T_S, SG_RING, SG_TEMP_C, NSG = range(4)
 FAMILIES = ("preisach", "bouc_wen", "maxwell_slip")
 FAM_PREISACH, FAM_BOUC_WEN, FAM_MAXWELL_SLIP = range(3)
 
-NOISE_COLS = 4          # amplifier Y, amplifier Z, gauge Y, gauge Z
-STACK_DEPTH = 512       # turning points kept per axis
-_NL_SHAPE = 1.5 * math.sqrt(3.0)   # makes max |s^3 - s| over [-1, 1] equal to 1
+NOISE_COLS = 4  # amplifier Y, amplifier Z, gauge Y, gauge Z
+STACK_DEPTH = 512  # turning points kept per axis
+_NL_SHAPE = 1.5 * math.sqrt(3.0)  # makes max |s^3 - s| over [-1, 1] equal to 1
 
 
 @njit(cache=True, inline="always")
@@ -87,8 +172,9 @@ def everett(ev, a, alpha, beta, lo, inv_h, n):
         j = n - 2
     fx = x - i
     fy = y - j
-    return ((ev[a, i, j] * (1.0 - fx) + ev[a, i + 1, j] * fx) * (1.0 - fy)
-            + (ev[a, i, j + 1] * (1.0 - fx) + ev[a, i + 1, j + 1] * fx) * fy)
+    return (ev[a, i, j] * (1.0 - fx) + ev[a, i + 1, j] * fx) * (1.0 - fy) + (
+        ev[a, i, j + 1] * (1.0 - fx) + ev[a, i + 1, j + 1] * fx
+    ) * fy
 
 
 @njit(cache=True)
@@ -104,8 +190,8 @@ def preisach_update(pa, sa, tp, ps, ev, a, u):
     u = min(max(u, lo), lo + (n - 1) / inv_h)
     ucur = sa[a, S_UCUR]
     top = int(sa[a, S_TOP])
-    if top % 2 == 0:                      # rising: top is a minimum
-        if u < ucur:                      # reversal: ucur becomes a maximum
+    if top % 2 == 0:  # rising: top is a minimum
+        if u < ucur:  # reversal: ucur becomes a maximum
             if top + 1 >= STACK_DEPTH:
                 top -= 2
             top += 1
@@ -116,8 +202,8 @@ def preisach_update(pa, sa, tp, ps, ev, a, u):
         else:
             while top >= 2 and u >= tp[a, top - 1]:
                 top -= 2
-    else:                                 # falling: top is a maximum
-        if u > ucur:                      # reversal: ucur becomes a minimum
+    else:  # falling: top is a maximum
+        if u > ucur:  # reversal: ucur becomes a minimum
             if top + 1 >= STACK_DEPTH:
                 top -= 2
             top += 1
@@ -182,8 +268,9 @@ def _other_family_update(pa, sa, tp, ev, a, u):
     du = u - sa[a, S_UCUR]
     sa[a, S_UCUR] = u
     if pa[a, P_FAMILY] == FAM_BOUC_WEN:
-        h = bouc_wen_step(sa[a, S_HV], du, pa[a, P_BW_A], pa[a, P_BW_BETA], pa[a, P_BW_GAMMA], pa[a, P_BW_N],
-                          pa[a, P_BW_STEP_V])
+        h = bouc_wen_step(
+            sa[a, S_HV], du, pa[a, P_BW_A], pa[a, P_BW_BETA], pa[a, P_BW_GAMMA], pa[a, P_BW_N], pa[a, P_BW_STEP_V]
+        )
         sa[a, S_HV] = h
         return u - h
     return u - maxwell_slip_step(tp[a], ev[a, 0], ev[a, 1], int(pa[a, P_MS_N]), pa[a, P_MS_ELASTIC], du)
@@ -226,8 +313,8 @@ def _amplifier(pg, pa, sa, a, vin, nz):
     ia = pa[a, A_CAP_F] * dv / dt
     sa[a, S_IA] = ia
     sa[a, S_CLIM] = 1.0 if limited else 0.0
-    if limited:                           # an over-current episode lasts until the limit has
-        sa[a, S_OCT] += dt                # been clear for A_OC_RESET_S; its limited time adds up
+    if limited:  # an over-current episode lasts until the limit has
+        sa[a, S_OCT] += dt  # been clear for A_OC_RESET_S; its limited time adds up
         sa[a, S_OCQ] = 0.0
         sa[a, S_OCPEAK] = max(sa[a, S_OCPEAK], need_a)
     else:
@@ -263,10 +350,11 @@ def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
         xeq = math.tanh(xeq * inv_sat) / inv_sat
     slow = sa[a, S_XSW] + (xeq - sa[a, S_XSW]) * pa[a, P_RELAX_ALPHA]
     sa[a, S_XSW] = slow
-    frac = pa[a, P_RELAX_FRAC]          # the relaxing fraction lags, the rest follows at once (1: exactly `slow`)
+    frac = pa[a, P_RELAX_FRAC]  # the relaxing fraction lags, the rest follows at once (1: exactly `slow`)
     xsw = frac * slow + (1.0 - frac) * xeq
     xfast = (pa[a, P_DI_UM_PER_V] * u + xsw + pa[a, P_Q_UM_PER_V2] * u * u) * (
-        1.0 + pa[a, P_TC_PER_C] * (temp_c - pa[a, P_TREF_C]))
+        1.0 + pa[a, P_TC_PER_C] * (temp_c - pa[a, P_TREF_C])
+    )
     sa[a, S_XFAST] = xfast
     xc = 0.0
     for m in range(int(pa[a, P_NCREEP])):
@@ -371,8 +459,7 @@ def world_sample(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, ao0, ao1, noise, 
 def run_block(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, ao, noise, n0, out, diag):
     """Buffered streaming: one world_sample per row of ``ao`` (n, 2)."""
     for k in range(ao.shape[0]):
-        world_sample(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, ao[k, 0], ao[k, 1],
-                     noise, n0 + k, out, k, diag)
+        world_sample(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, ao[k, 0], ao[k, 1], noise, n0 + k, out, k, diag)
 
 
 @njit(cache=True, nogil=True)
@@ -390,8 +477,9 @@ def run_idle(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, max_n, thr
 
 
 @njit(cache=True, nogil=True)
-def run_closed_loop(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, n, ref_um, kp, ki,
-                    um_per_v, gain, v_lo, v_hi, out, diag):
+def run_closed_loop(
+    pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, n, ref_um, kp, ki, um_per_v, gain, v_lo, v_hi, out, diag
+):
     """Causal point-by-point loop: each AO sample is computed from the previous AI sample
     (PI control of both axes towards ``ref_um[k, axis]``), as a real-time target would; the command
     is held within ``v_lo[axis]``–``v_hi[axis]`` (V, the stack's rating)."""
@@ -407,8 +495,9 @@ def run_closed_loop(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, noise, n0, n, 
         integ1 += ki * e1 * dt
         u0 = min(max(kp * e0 + integ0, v_lo[0]), v_hi[0])
         u1 = min(max(kp * e1 + integ1, v_lo[1]), v_hi[1])
-        world_sample(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, u0 / gain[0], u1 / gain[1],
-                     noise, n0 + k, out, k, diag)
+        world_sample(
+            pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, u0 / gain[0], u1 / gain[1], noise, n0 + k, out, k, diag
+        )
         last0 = out[k, 0]
         last1 = out[k, 1]
     return n

@@ -12,6 +12,7 @@ separate ``evcbench serve`` process applied, e.g. after SIGTERM::
     output_log = "/tmp/evc/output.jsonl"   # optional file; "" = memory only
     output_log_keep = 1000                 # entries kept in memory
 """
+
 from __future__ import annotations
 
 import json
@@ -19,7 +20,6 @@ import threading
 from collections import deque
 
 from drivers.emulated.config import AXES
-
 
 
 def check_config(section) -> dict:
@@ -31,8 +31,8 @@ def check_config(section) -> dict:
     path = section.setdefault("output_log", "")
     keep = section.setdefault("output_log_keep", 1000)
     if not isinstance(path, str):
-        raise ValueError(f"emulator.output_log: must be a file path or \"\", got {path!r}")
-    if isinstance(keep, bool) or not isinstance(keep, int) or not 1 <= keep <= 10 ** 6:
+        raise ValueError(f'emulator.output_log: must be a file path or "", got {path!r}')
+    if isinstance(keep, bool) or not isinstance(keep, int) or not 1 <= keep <= 10**6:
         raise ValueError(f"emulator.output_log_keep: must be an integer in 1..1000000, got {keep!r}")
     return section
 
@@ -76,5 +76,10 @@ class OutputLog:
 
 def _entry(raw: tuple) -> dict:
     t_s, event, ao, vout, extra = raw
-    return {"t_s": round(t_s, 6), "event": event, "daq_ao_v": {a: float(ao[i]) for i, a in enumerate(AXES)},
-            "amplifier_v": {a: float(vout[i]) for i, a in enumerate(AXES)}, **extra}
+    return {
+        "t_s": round(t_s, 6),
+        "event": event,
+        "daq_ao_v": {a: float(ao[i]) for i, a in enumerate(AXES)},
+        "amplifier_v": {a: float(vout[i]) for i, a in enumerate(AXES)},
+        **extra,
+    }

@@ -12,6 +12,7 @@ counts once. ``idle`` (the output parked at 0 V between runs) stops the clock.
 
 Counters: ``periods`` (blocks paced), ``overruns``, ``max_late_s`` (worst lateness seen).
 """
+
 from __future__ import annotations
 
 import threading
@@ -67,5 +68,9 @@ class Pacer:
 
     def counters(self) -> dict:
         """``{"realtime": True, "periods", "overruns", "max_late_ms"}``."""
-        return {"realtime": True, "periods": self.periods, "overruns": self.overruns,
-                "max_late_ms": round(self.max_late_s * 1e3, 3)}
+        return {
+            "realtime": True,
+            "periods": self.periods,
+            "overruns": self.overruns,
+            "max_late_ms": round(self.max_late_s * 1e3, 3),
+        }

@@ -5,6 +5,7 @@
 - Maxwell-slip: the elements' slip limits and weights, drawn from a seeded distribution
   (families.maxwell_slip_step), never the paper's 0, 6, …, 54 V grid.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,14 +20,14 @@ def everett_table(hyst: dict, lo_v: float, step_v: float, n: int, refine: int = 
     c = 0.5 * (al - be)
     b = 0.5 * (al + be)
     c0 = float(hyst["coercive_mode_v"])
-    mu = (c / c0 ** 2) * np.exp(-c / c0) * np.exp(-0.5 * ((b - hyst["bias_center_v"]) / hyst["bias_width_v"]) ** 2)
+    mu = (c / c0**2) * np.exp(-c / c0) * np.exp(-0.5 * ((b - hyst["bias_center_v"]) / hyst["bias_width_v"]) ** 2)
     mu = np.where(c > 0, mu, 0.0)
-    mu[np.diag_indices_from(mu)] *= 0.5          # diagonal cells are half inside the triangle
+    mu[np.diag_indices_from(mu)] *= 0.5  # diagonal cells are half inside the triangle
     mass = mu * h * h
-    cum = np.cumsum(mass, axis=0)                 # alpha' <= alpha
+    cum = np.cumsum(mass, axis=0)  # alpha' <= alpha
     cum = np.cumsum(cum[:, ::-1], axis=1)[:, ::-1]  # beta' >= beta
     table = np.zeros((n, n))
-    table[1:, :n - 1] = cum[refine - 1::refine, ::refine]
+    table[1:, : n - 1] = cum[refine - 1 :: refine, ::refine]
     return table
 
 

@@ -5,6 +5,7 @@ it. Noise comes from ``numpy.random.default_rng(seed)`` in fixed chunks of unit 
 consumed in sample order, so a run is reproducible whatever its block partition and whatever
 other emulators in the process do.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,17 +14,17 @@ import numpy as np
 from scipy.linalg import expm
 
 from drivers.emulated import kernels as K
-from drivers.emulated.tables import bouc_wen_coefficients, everett_table, slip_elements
-from drivers.emulated.pacing import Pacer
 from drivers.emulated.faults import WORLD_KINDS, FaultInjector
 from drivers.emulated.output_log import OutputLog
+from drivers.emulated.pacing import Pacer
+from drivers.emulated.tables import bouc_wen_coefficients, everett_table, slip_elements
 from drivers.interfaces import OutputAborted
 from drivers.limits import stack_rating_v
 
 AXES = ("y", "z")
-NOISE_CHUNK = 1 << 16       # samples of noise generated at a time
-IDLE_THRESHOLD_V = 0.010    # write_idle waits until |amplifier output| < 10 mV ...
-IDLE_CAP_S = 0.020          # ... for at most 20 ms
+NOISE_CHUNK = 1 << 16  # samples of noise generated at a time
+IDLE_THRESHOLD_V = 0.010  # write_idle waits until |amplifier output| < 10 mV ...
+IDLE_CAP_S = 0.020  # ... for at most 20 ms
 FAULT_KINDS = WORLD_KINDS  # the kinds inject_fault takes (faults.py)
 
 
@@ -44,7 +45,7 @@ class World:
         daq = config["daq"]
         self.range_v = float(daq["range_v"])
         self.bits = int(daq["resolution_bits"])
-        self.lsb_v = 2 * self.range_v / 2 ** self.bits
+        self.lsb_v = 2 * self.range_v / 2**self.bits
         self.latency = int(round(daq["latency"]["samples"] * _on(daq["latency"])))
         self.pg = np.zeros(K.NG)
         self.sg = np.zeros(K.NSG)
@@ -60,21 +61,21 @@ class World:
         self.ca = np.zeros((2, m))
         self.cs = np.zeros((2, m))
         for a, (tau, w) in enumerate(n_modes):
-            self.creep_tau_s[a, :len(tau)] = tau
-            self.cw[a, :len(w)] = w
+            self.creep_tau_s[a, : len(tau)] = tau
+            self.cw[a, : len(w)] = w
             self.pa[a, K.P_NCREEP] = len(tau)
         self._build_static()
         self.sample_rate_hz = 0.0
         self.set_sample_rate(float(daq["sample_rate_hz"]))
         self._injected: dict[str, dict[str, float | None]] = {k: {} for k in FAULT_KINDS}  # kind → axis → at_s
         self._saturation_offset_um = np.zeros(2)
-        self.last_ao = np.zeros(2)   # last AO row written through run/step (DAQ volts)
+        self.last_ao = np.zeros(2)  # last AO row written through run/step (DAQ volts)
         #: ``[daq] realtime = true``: blocks take wall time at the sample clock (see pacing.py)
         self.pacer = Pacer() if daq.get("realtime", False) else None
         self.last_diag = K.empty_diag(0)
         self._scratch_out = np.zeros((1, K.NOISE_COLS))
         self._scratch_diag = K.empty_diag(1)
-        self._scratch_ao = np.zeros((1, 2))      # step's one AO row (V), for the buffered loop's kernel
+        self._scratch_ao = np.zeros((1, 2))  # step's one AO row (V), for the buffered loop's kernel
         self.reset_state()
         self._compile()
         self.faults = FaultInjector(self, config.get("faults"))
@@ -84,8 +85,9 @@ class World:
         """Compile (or load from numba's cache) the run and idle kernels with zero-length calls, so
         the first run does not spend seconds compiling while the watchdog guards it."""
         self.run(np.zeros((0, 2)))
-        K.run_idle(*self._kernel_args(), self._noise, self._cursor, 0, IDLE_THRESHOLD_V, self._scratch_out,
-                   self._scratch_diag)
+        K.run_idle(
+            *self._kernel_args(), self._noise, self._cursor, 0, IDLE_THRESHOLD_V, self._scratch_out, self._scratch_diag
+        )
 
     # ------------------------------------------------------------------ construction
     @staticmethod
@@ -151,7 +153,7 @@ class World:
         size = max(t.shape[0] for t in self.tables)
         self.ev = np.zeros((2, size, size))
         for a, table in enumerate(self.tables):
-            self.ev[a, :table.shape[0], :table.shape[1]] = table
+            self.ev[a, : table.shape[0], : table.shape[1]] = table
         for a, ax in enumerate(AXES):  # switched strain for a virgin 0 -> reference_v excursion
             hyst = cfg["axes"][ax]["piezo"]["hysteresis"]
             s0 = K.switched_reset(self.pa, self.sa, self.tp, self.ps, self.ev, a, True, 0.0)
@@ -167,8 +169,9 @@ class World:
         if family == "preisach":
             return everett_table(hyst, lo_v, step_v, n)
         if family == "bouc_wen":
-            (pa[a, K.P_BW_A], pa[a, K.P_BW_BETA], pa[a, K.P_BW_GAMMA], pa[a, K.P_BW_N],
-             pa[a, K.P_BW_STEP_V]) = bouc_wen_coefficients(hyst["bouc_wen"])
+            (pa[a, K.P_BW_A], pa[a, K.P_BW_BETA], pa[a, K.P_BW_GAMMA], pa[a, K.P_BW_N], pa[a, K.P_BW_STEP_V]) = (
+                bouc_wen_coefficients(hyst["bouc_wen"])
+            )
             return np.zeros((2, 2))
         limits_v, weights = slip_elements(hyst["maxwell_slip"])
         pa[a, K.P_MS_N] = len(limits_v)
@@ -204,7 +207,7 @@ class World:
                 m = np.zeros((3, 3))
                 m[0, 1] = 1.0
                 m[1, 0], m[1, 1], m[1, 2] = -wn * wn, -2 * z * wn, wn * wn
-                e = expm(m * dt)   # zero-order-hold discretisation of x'' + 2ζωx' + ω²x = ω²u
+                e = expm(m * dt)  # zero-order-hold discretisation of x'' + 2ζωx' + ω²x = ω²u
                 pa[a, K.F_AD00], pa[a, K.F_AD01], pa[a, K.F_AD10], pa[a, K.F_AD11] = e[0, 0], e[0, 1], e[1, 0], e[1, 1]
                 pa[a, K.F_BD0], pa[a, K.F_BD1] = e[0, 2], e[1, 2]
 
@@ -232,8 +235,9 @@ class World:
         for a, ax in enumerate(AXES):
             hyst = self.config["axes"][ax]["piezo"]["hysteresis"]
             virgin = hyst["initial_state"] == "virgin"
-            self.pa[a, K.P_S0] = K.switched_reset(self.pa, self.sa, self.tp, self.ps, self.ev, a, virgin,
-                                                  float(hyst["reference_v"]))
+            self.pa[a, K.P_S0] = K.switched_reset(
+                self.pa, self.sa, self.tp, self.ps, self.ev, a, virgin, float(hyst["reference_v"])
+            )
             self.sa[a, K.S_ENABLED] = 1.0
             self.sa[a, K.S_GOFF] = self.config["axes"][ax]["gauge"]["offset_um"]
         for kind in self._injected:
@@ -246,8 +250,9 @@ class World:
 
     def _ensure_noise(self, n: int) -> None:
         while self._noise.shape[0] - self._cursor < n:
-            self._noise = np.concatenate([self._noise[self._cursor:],
-                                          self._rng.standard_normal((NOISE_CHUNK, K.NOISE_COLS))])
+            self._noise = np.concatenate(
+                [self._noise[self._cursor :], self._rng.standard_normal((NOISE_CHUNK, K.NOISE_COLS))]
+            )
             self._cursor = 0
 
     def run(self, ao_daq_v: np.ndarray) -> np.ndarray:
@@ -256,7 +261,7 @@ class World:
         n = ao.shape[0]
         if self.pacer is not None:
             self.pacer.tick(n, self.sample_rate_hz)
-            if self.pacer.aborted.is_set():     # stopped while waiting for the block's slot
+            if self.pacer.aborted.is_set():  # stopped while waiting for the block's slot
                 raise OutputAborted("the output was stopped; the block was not played")
         out = np.empty((n, K.NOISE_COLS))
         diag = K.empty_diag(n)
@@ -289,8 +294,15 @@ class World:
             self.pacer.stop_clock()
         max_n = max(int(math.ceil(IDLE_CAP_S * self.sample_rate_hz)), self.latency + 1)
         self._ensure_noise(max_n)
-        used = K.run_idle(*self._kernel_args(), self._noise, self._cursor, max_n, IDLE_THRESHOLD_V,
-                          self._scratch_out, self._scratch_diag)
+        used = K.run_idle(
+            *self._kernel_args(),
+            self._noise,
+            self._cursor,
+            max_n,
+            IDLE_THRESHOLD_V,
+            self._scratch_out,
+            self._scratch_diag,
+        )
         self._cursor += used
         self.last_ao[:] = 0.0
         return int(used)
@@ -315,8 +327,21 @@ class World:
         um_per_v = np.array([self.config["axes"][ax]["gauge"]["scale_um_per_v"] for ax in AXES], dtype=float)
         gain = self.pa[:, K.A_GAIN].copy()
         rating = np.array([stack_rating_v(self.config, ax) for ax in AXES])
-        K.run_closed_loop(*self._kernel_args(), self._noise, self._cursor, n, ref, kp, ki, um_per_v, gain,
-                          rating[:, 0].copy(), rating[:, 1].copy(), out, diag)
+        K.run_closed_loop(
+            *self._kernel_args(),
+            self._noise,
+            self._cursor,
+            n,
+            ref,
+            kp,
+            ki,
+            um_per_v,
+            gain,
+            rating[:, 0].copy(),
+            rating[:, 1].copy(),
+            out,
+            diag,
+        )
         self._cursor += n
         self.last_diag = diag
         return out
@@ -360,7 +385,7 @@ class World:
         ``at_s`` is the session time to quote in status reasons. Scheduled faults: ``self.faults``."""
         if kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(FAULT_KINDS)}")
-        for ax in (AXES if axis is None else (axis,)):
+        for ax in AXES if axis is None else (axis,):
             a = self.axis_index(ax)
             self._injected[kind][ax] = at_s
             if kind == "sensor_dropout":
@@ -371,8 +396,9 @@ class World:
                 self.sa[a, K.S_GOFF] += jump
             else:
                 self.sa[a, K.S_FAULT] = 1.0
-                self.sa[a, K.S_FAULT_I] = max(abs(self.sa[a, K.S_IA]), self.pa[a, K.A_CUR_DV] * self.pa[a, K.A_CAP_F]
-                                              / self.pg[K.G_DT_S] * 1.25)
+                self.sa[a, K.S_FAULT_I] = max(
+                    abs(self.sa[a, K.S_IA]), self.pa[a, K.A_CUR_DV] * self.pa[a, K.A_CAP_F] / self.pg[K.G_DT_S] * 1.25
+                )
                 self.sa[a, K.S_FAULT_T] = self.pa[a, K.A_FAULT_S]
 
     def clear_faults(self) -> None:
@@ -394,7 +420,7 @@ class World:
         self._injected["amplifier_overcurrent"].pop(AXES[a], None)
 
     def injected_note(self, kind: str, axis: str) -> str:
-        """" (injected at t=0.41 s)" for an injected fault, "" otherwise (for status reasons)."""
+        """ " (injected at t=0.41 s)" for an injected fault, "" otherwise (for status reasons)."""
         if axis not in self._injected.get(kind, ()):
             return ""
         at_s = self._injected[kind][axis]

@@ -1,5 +1,6 @@
 """The ``evcbench`` command line: serve the API, run benchmarks, and drive a running service
 (sweep, import, identify, compare, jobs, datasets, models: see service/frontends/cli_remote.py)."""
+
 from __future__ import annotations
 
 import argparse
@@ -18,7 +19,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     try:
         settings = _serve_settings(args)
-    except ValueError as exc:           # a bad --stop-port, EVCBENCH_* value or bench id: one line
+    except ValueError as exc:  # a bad --stop-port, EVCBENCH_* value or bench id: one line
         print(f"evcbench serve: {exc}", file=sys.stderr)
         return 2
     from service.frontends.cli_tokens import serve_refusal
@@ -65,15 +66,18 @@ def _cmd_warm(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(exc, file=sys.stderr)
         return 2
-    print(json.dumps(took) if args.json else
-          "compiled into numba's cache: " + ", ".join(f"{part} {s:.1f} s" for part, s in took.items()))
+    print(
+        json.dumps(took)
+        if args.json
+        else "compiled into numba's cache: " + ", ".join(f"{part} {s:.1f} s" for part, s in took.items())
+    )
     return 0
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from service.perf import get_benchmark
-
     import inspect
+
+    from service.perf import get_benchmark
 
     try:
         benchmark = get_benchmark(args.name)
@@ -133,9 +137,11 @@ def _cmd_store_repair(args: argparse.Namespace) -> int:
     return 0 if args.dry_run or report["after"]["ok"] else 1
 
 
-ARRAY_URL_HELP = ("the lab's shared array location: a path or file:// URL (an NFS mount) or s3://bucket/prefix "
-                  "(endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); default <data-dir>/arrays; "
-                  "env EVCBENCH_ARRAY_URL")
+ARRAY_URL_HELP = (
+    "the lab's shared array location: a path or file:// URL (an NFS mount) or s3://bucket/prefix "
+    "(endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); default <data-dir>/arrays; "
+    "env EVCBENCH_ARRAY_URL"
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -143,23 +149,37 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     serve = sub.add_parser("serve", help="start the REST service")
-    serve.add_argument("--host", help="bind address (default 127.0.0.1; any other address needs auth on and "
-                       "a token from `evcbench token create`)")
+    serve.add_argument(
+        "--host",
+        help="bind address (default 127.0.0.1; any other address needs auth on and "
+        "a token from `evcbench token create`)",
+    )
     serve.add_argument("--port", type=int, help="TCP port (default 8000)")
-    serve.add_argument("--stop-port", type=int, help="the emergency stop's own port, served by the bench engine "
-                       "(default: any free one, named in GET /api/bench and the log; env EVCBENCH_STOP_PORT)")
+    serve.add_argument(
+        "--stop-port",
+        type=int,
+        help="the emergency stop's own port, served by the bench engine "
+        "(default: any free one, named in GET /api/bench and the log; env EVCBENCH_STOP_PORT)",
+    )
     serve.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
     serve.add_argument("--bench", help="bench config name in fixtures/benches/ or a path (default: default)")
     serve.add_argument("--seed", type=int, help="seed of the emulated bench's noise")
-    serve.add_argument("--database-url", help="SQLAlchemy URL of the metadata database "
-                       "(default: SQLite in the data dir; env EVCBENCH_DATABASE_URL)")
-    serve.add_argument("--auth", choices=("tokens", "off"),
-                       help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)")
+    serve.add_argument(
+        "--database-url",
+        help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir; env EVCBENCH_DATABASE_URL)",
+    )
+    serve.add_argument(
+        "--auth", choices=("tokens", "off"), help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)"
+    )
     serve.add_argument("--array-url", help=ARRAY_URL_HELP)
-    serve.add_argument("--bench-id", help="this bench's id in a lab of services on one database (default: from "
-                       "--bench, e.g. 'creep'; env EVCBENCH_BENCH_ID)")
-    serve.add_argument("--public-url", help="where the lab reaches this service (default http://HOST:PORT; env "
-                       "EVCBENCH_PUBLIC_URL)")
+    serve.add_argument(
+        "--bench-id",
+        help="this bench's id in a lab of services on one database (default: from "
+        "--bench, e.g. 'creep'; env EVCBENCH_BENCH_ID)",
+    )
+    serve.add_argument(
+        "--public-url", help="where the lab reaches this service (default http://HOST:PORT; env EVCBENCH_PUBLIC_URL)"
+    )
     serve.set_defaults(func=_cmd_serve)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
@@ -168,8 +188,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--duration", type=float, help="service: seconds of load (default 60)")
     bench.set_defaults(func=_cmd_bench)
 
-    warm = sub.add_parser("warm", help="compile the kernels into numba's cache now, so that the first sweep, fit "
-                          "or tracking run of a fresh install does not wait for the compiler")
+    warm = sub.add_parser(
+        "warm",
+        help="compile the kernels into numba's cache now, so that the first sweep, fit "
+        "or tracking run of a fresh install does not wait for the compiler",
+    )
     warm.add_argument("parts", nargs="*", help="emulator, models, loop (default: all)")
     warm.add_argument("--json", action="store_true", help="print one JSON object: seconds per part")
     warm.set_defaults(func=_cmd_warm)
@@ -180,8 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     def store_verb(name: str, help_text: str, func) -> argparse.ArgumentParser:
         verb = store_sub.add_parser(name, help=help_text)
         verb.add_argument("--data-dir", type=Path, help="store directory (default ./var)")
-        verb.add_argument("--database-url",
-                          help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)")
+        verb.add_argument(
+            "--database-url", help="SQLAlchemy URL of the metadata database (default: SQLite in the data dir)"
+        )
         verb.add_argument("--array-url", help=ARRAY_URL_HELP)
         verb.add_argument("--json", action="store_true", help="print one JSON object")
         verb.set_defaults(func=func)
@@ -189,19 +213,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     check = store_verb("check", "report inconsistencies between rows and files; exit 1 if any", _cmd_store_check)
     check.add_argument("--quick", action="store_true", help="skip the SHA-256 of every array file")
-    check.add_argument("--offline", action="store_true",
-                       help="no service runs on this store: a queued or running job is a problem too")
-    repair = store_verb("repair", "fix what `store check` finds, never deleting a dataset row (the service must "
-                        "be stopped); exit 1 if problems remain", _cmd_store_repair)
+    check.add_argument(
+        "--offline", action="store_true", help="no service runs on this store: a queued or running job is a problem too"
+    )
+    repair = store_verb(
+        "repair",
+        "fix what `store check` finds, never deleting a dataset row (the service must "
+        "be stopped); exit 1 if problems remain",
+        _cmd_store_repair,
+    )
     repair.add_argument("--dry-run", action="store_true", help="change nothing; say what would be done")
 
-    from service.frontends import cli_lab
-    from service.frontends import cli_remote
-    from service.frontends import cli_tokens
+    from service.frontends import cli_lab, cli_remote, cli_tokens
 
     cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
     cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
-    cli_lab.add_commands(sub)     # lab batch (on the store, in process or on Dask)
+    cli_lab.add_commands(sub)  # lab batch (on the store, in process or on Dask)
     return parser
 
 

@@ -1,5 +1,6 @@
 """CLI verbs that talk to a running service over REST: sweep, import, identify, compare, discover,
 jobs, datasets, models (with rename, tag, annotate and delete). Long jobs show a text progress bar on stderr; results go to stdout."""
+
 from __future__ import annotations
 
 import argparse
@@ -14,12 +15,19 @@ from service.frontends.client import DEFAULT_URL, ApiError, Client
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register the remote verbs on the ``evcbench`` sub-parser."""
+
     def remote(name: str, help_text: str, func) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text)
-        p.add_argument("--url", default=os.environ.get("EVCBENCH_URL", DEFAULT_URL),
-                       help=f"service address (default {DEFAULT_URL}, env EVCBENCH_URL)")
-        p.add_argument("--token", help="API token (default: env EVCBENCH_TOKEN, or for a local service "
-                       "<data dir>/admin.token, the data dir from EVCBENCH_DATA_DIR or ./var)")
+        p.add_argument(
+            "--url",
+            default=os.environ.get("EVCBENCH_URL", DEFAULT_URL),
+            help=f"service address (default {DEFAULT_URL}, env EVCBENCH_URL)",
+        )
+        p.add_argument(
+            "--token",
+            help="API token (default: env EVCBENCH_TOKEN, or for a local service "
+            "<data dir>/admin.token, the data dir from EVCBENCH_DATA_DIR or ./var)",
+        )
         p.add_argument("--json", action="store_true", help="print the raw JSON answer")
         p.set_defaults(func=lambda args: _guarded(func, args))
         return p
@@ -43,7 +51,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--wait", action="store_true", help="follow the job to its end with a progress bar")
 
     p = remote("import", "import a CSV or table file as a dataset", _import)
-    p.add_argument("file", help="CSV with header t,u_y,x_y,u_z,x_z (s, V at the actuator, µm; units written in the names are converted: 'Time [ms]', x_y_nm) or a headerless table with --columns")
+    p.add_argument(
+        "file",
+        help="CSV with header t,u_y,x_y,u_z,x_z (s, V at the actuator, µm; units written in the names are converted: 'Time [ms]', x_y_nm) or a headerless table with --columns",
+    )
     p.add_argument("--columns", help='JSON column mapping for headerless files, e.g. \'{"u":0,"x":4}\'')
     p.add_argument("--sample-rate-hz", type=float, help="needed when the file has no t column")
     p.add_argument("--axis", default="y", help="axis of a single-axis (u, x) file (default y)")
@@ -62,16 +73,27 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("model_id")
     p.add_argument("--dataset", required=True, help="dataset id")
 
-    p = remote("discover", "run the discovery loop from a model: diagnose, add the missing effect, refit, "
-                           "repeat; then capacity down to the noise floor", _discover)
+    p = remote(
+        "discover",
+        "run the discovery loop from a model: diagnose, add the missing effect, refit, "
+        "repeat; then capacity down to the noise floor",
+        _discover,
+    )
     p.add_argument("model_id")
-    p.add_argument("--allow-experiments", action="store_true",
-                   help="run the sweep the loop needs on the bench when it is free (else it stops and names it)")
-    p.add_argument("--continue-past-ambiguity", action="store_true",
-                   help="at an ambiguity it may not test, add the leading claimed effect and go on (else it stops "
-                        "there and names the sweep that would tell the two apart)")
-    p.add_argument("--max-steps", type=int, default=8, help="steps at most, the model's own diagnosis the first "
-                                                             "(1–12, default 8)")
+    p.add_argument(
+        "--allow-experiments",
+        action="store_true",
+        help="run the sweep the loop needs on the bench when it is free (else it stops and names it)",
+    )
+    p.add_argument(
+        "--continue-past-ambiguity",
+        action="store_true",
+        help="at an ambiguity it may not test, add the leading claimed effect and go on (else it stops "
+        "there and names the sweep that would tell the two apart)",
+    )
+    p.add_argument(
+        "--max-steps", type=int, default=8, help="steps at most, the model's own diagnosis the first (1–12, default 8)"
+    )
 
     p = remote("jobs", "list jobs, show one, follow it, or cancel it", _jobs)
     p.add_argument("job_id", nargs="?")
@@ -101,17 +123,29 @@ def _tidy_options(p: argparse.ArgumentParser, dependents: str) -> None:
 
 # ---------------------------------------------------------------------- verbs
 def _sweep(api: Client, args) -> int:
-    plan = {"axes": _list(args.axes), "waveform": args.waveform, "cycles": args.cycles, "v_min": args.v_min,
-            "v_max": args.v_max, "settle_s": args.settle_s, "sample_rate_hz": args.sample_rate_hz,
-            "together": not args.separate, "hold_s": args.hold_s, "f_start_hz": args.f_start_hz,
-            "f_stop_hz": args.f_stop_hz, "duration_s": args.duration_s, "name": args.name}
+    plan = {
+        "axes": _list(args.axes),
+        "waveform": args.waveform,
+        "cycles": args.cycles,
+        "v_min": args.v_min,
+        "v_max": args.v_max,
+        "settle_s": args.settle_s,
+        "sample_rate_hz": args.sample_rate_hz,
+        "together": not args.separate,
+        "hold_s": args.hold_s,
+        "f_start_hz": args.f_start_hz,
+        "f_stop_hz": args.f_stop_hz,
+        "duration_s": args.duration_s,
+        "name": args.name,
+    }
     if args.waveform in ("sine", "multisine"):
         plan["frequencies_hz"] = [float(f) for f in _list(args.frequencies)]
     if args.levels:
         plan["levels_v"] = [float(v) for v in _list(args.levels)]
     started = api.start_sweep(**plan)
-    print(f"sweep job {started['job_id']}: {started['samples']} samples, {started['duration_s']:.2f} s",
-          file=sys.stderr)
+    print(
+        f"sweep job {started['job_id']}: {started['samples']} samples, {started['duration_s']:.2f} s", file=sys.stderr
+    )
     if not args.wait:
         return _emit(args, started, f"job {started['job_id']} {started['state']}")
     job = api.wait(started["job_id"], ProgressBar())
@@ -121,11 +155,21 @@ def _sweep(api: Client, args) -> int:
 
 
 def _import(api: Client, args) -> int:
-    row = api.import_dataset(args.file, name=args.name, axis=args.axis, columns=args.columns,
-                             sample_rate_hz=args.sample_rate_hz, delimiter=args.delimiter)
+    row = api.import_dataset(
+        args.file,
+        name=args.name,
+        axis=args.axis,
+        columns=args.columns,
+        sample_rate_hz=args.sample_rate_hz,
+        delimiter=args.delimiter,
+    )
     notes = "".join(f"\n  note: {note}" for note in row.get("import_notes") or [])
-    return _emit(args, row, f"dataset {row['id']}: axes {','.join(row['axes'])}, {row['samples']} samples "
-                            f"at {row['sample_rate_hz']:g} Hz{notes}")
+    return _emit(
+        args,
+        row,
+        f"dataset {row['id']}: axes {','.join(row['axes'])}, {row['samples']} samples "
+        f"at {row['sample_rate_hz']:g} Hz{notes}",
+    )
 
 
 def _identify(api: Client, args) -> int:
@@ -137,8 +181,12 @@ def _identify(api: Client, args) -> int:
         return _finish(args, job, "")
     model = api.model(job["result"]["model_id"])
     m = model["metrics"]
-    return _emit(args, model, f"model {model['id']} ({model['kind']}, axis {model['axis']}): train RMS "
-                              f"{_um(m['train_rms_um'])}, held-out RMS {_um(m['validation_rms_um'])}")
+    return _emit(
+        args,
+        model,
+        f"model {model['id']} ({model['kind']}, axis {model['axis']}): train RMS "
+        f"{_um(m['train_rms_um'])}, held-out RMS {_um(m['validation_rms_um'])}",
+    )
 
 
 def _compare(api: Client, args) -> int:
@@ -147,64 +195,102 @@ def _compare(api: Client, args) -> int:
         print(json.dumps(result["metrics"], indent=2))
         return 0
     m = result["metrics"]
-    print(f"model {args.model_id} vs dataset {args.dataset} (axis {result['axis']}, "
-          f"{'used in the fit' if result['used_in_fit'] else 'not used in the fit'})")
-    print(f"{'block':>5} {'kind':>9} {'f_hz':>8} {'train_rms_um':>13} {'heldout_rms_um':>15} "
-          f"{'heldout_max_um':>15} {'heldout_fit_pct':>16}")
+    print(
+        f"model {args.model_id} vs dataset {args.dataset} (axis {result['axis']}, "
+        f"{'used in the fit' if result['used_in_fit'] else 'not used in the fit'})"
+    )
+    print(
+        f"{'block':>5} {'kind':>9} {'f_hz':>8} {'train_rms_um':>13} {'heldout_rms_um':>15} "
+        f"{'heldout_max_um':>15} {'heldout_fit_pct':>16}"
+    )
     for b in m["per_block"]:
-        print(f"{b['index']:>5} {b['kind']:>9} {_num(b['frequency_hz'], '.4g'):>8} {_num(b['train']['rms_um']):>13} "
-              f"{_num(b['validation']['rms_um']):>15} {_num(b['validation']['max_abs_um']):>15} "
-              f"{_num(b['validation']['fit_pct'], '.2f'):>16}")
+        print(
+            f"{b['index']:>5} {b['kind']:>9} {_num(b['frequency_hz'], '.4g'):>8} {_num(b['train']['rms_um']):>13} "
+            f"{_num(b['validation']['rms_um']):>15} {_num(b['validation']['max_abs_um']):>15} "
+            f"{_num(b['validation']['fit_pct'], '.2f'):>16}"
+        )
     o = m["overall"]
-    print(f"overall: RMS {_um(o['rms_um'])}, max {_um(o['max_abs_um'])}, fit {_num(o['fit_pct'], '.2f')} %; "
-          f"mean held-out RMS {_um(m['validation_rms_um'])}")
+    print(
+        f"overall: RMS {_um(o['rms_um'])}, max {_um(o['max_abs_um'])}, fit {_num(o['fit_pct'], '.2f')} %; "
+        f"mean held-out RMS {_um(m['validation_rms_um'])}"
+    )
     return 0
 
 
 def _discover(api: Client, args) -> int:
     bar = ProgressBar()
 
-    def progress(job: dict) -> None:   # each step's line as it is stored, then the bar
+    def progress(job: dict) -> None:  # each step's line as it is stored, then the bar
         steps = (job.get("result") or {}).get("steps") or []
-        for step in steps[len(seen):]:
-            print(f"\rstep {step['step']}: {' + '.join(step['effects']):<50} {step['model_id']}  held-out "
-                  f"{_nm(step['validation_rms_um'])}, noise floor {_nm(step['noise_floor_um'])}", file=sys.stderr)
+        for step in steps[len(seen) :]:
+            print(
+                f"\rstep {step['step']}: {' + '.join(step['effects']):<50} {step['model_id']}  held-out "
+                f"{_nm(step['validation_rms_um'])}, noise floor {_nm(step['noise_floor_um'])}",
+                file=sys.stderr,
+            )
         seen[:] = steps
         bar(job)
 
     seen: list = []
-    job = api.discover(args.model_id, args.allow_experiments, args.max_steps, on_progress=progress,
-                       continue_past_ambiguity=args.continue_past_ambiguity)
+    job = api.discover(
+        args.model_id,
+        args.allow_experiments,
+        args.max_steps,
+        on_progress=progress,
+        continue_past_ambiguity=args.continue_past_ambiguity,
+    )
     return _finish(args, job, discovery_text(job["result"]) if job.get("result") else "")
 
 
 def discovery_text(result: dict) -> str:
     """A discover job's result in words: final model, effects found with their parameters, what remains."""
-    lines = [f"final model {result['final_model_id']}: {' + '.join(result['effects'] or [])} "
-             f"(stopped: {result['stopped']})"]
+    lines = [
+        f"final model {result['final_model_id']}: {' + '.join(result['effects'] or [])} (stopped: {result['stopped']})"
+    ]
     for step in result["steps"]:
-        change = (f"+{step['added']}" if step["added"] else
-                  f"+data {step['experiment_dataset_id']}" if step.get("experiment_dataset_id") else "")
-        lines.append(f"  step {step['step']} {change:<18} {step['model_id']}  "
-                     f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}"
-                     + ("  (over the experiment's data too: not comparable with the step before)"
-                        if step.get("experiment_dataset_id") else ""))
+        change = (
+            f"+{step['added']}"
+            if step["added"]
+            else f"+data {step['experiment_dataset_id']}"
+            if step.get("experiment_dataset_id")
+            else ""
+        )
+        lines.append(
+            f"  step {step['step']} {change:<18} {step['model_id']}  "
+            f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}"
+            + (
+                "  (over the experiment's data too: not comparable with the step before)"
+                if step.get("experiment_dataset_id")
+                else ""
+            )
+        )
     for ran in result["experiments"]:
-        lines.append(f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
-                     f"{ran['sweep_job_id']}), " + ("resolved" if ran.get("resolved") else "not resolved by it"))
+        lines.append(
+            f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
+            f"{ran['sweep_job_id']}), " + ("resolved" if ran.get("resolved") else "not resolved by it")
+        )
     for found in result["effects_found"]:
         figures = ", ".join(f"{k} {v:.4g}" for k, v in found["parameters"].items())
-        lines.append(f"found {found['effect']}" + (f": {figures}" if figures else "") + f"\n  evidence: {found['evidence']}")
+        lines.append(
+            f"found {found['effect']}" + (f": {figures}" if figures else "") + f"\n  evidence: {found['evidence']}"
+        )
     remains = result.get("remains") or {}
     if remains:
-        lines.append(f"remains: held-out {_nm(remains['validation_rms_um'])} = {remains['ratio_to_noise_floor']:.2f}× "
-                     f"the noise floor ({_nm(remains['noise_floor_um'])}): {remains['verdict_text']}")
+        lines.append(
+            f"remains: held-out {_nm(remains['validation_rms_um'])} = {remains['ratio_to_noise_floor']:.2f}× "
+            f"the noise floor ({_nm(remains['noise_floor_um'])}): {remains['verdict_text']}"
+        )
     if result.get("needed_experiment"):
         need = result["needed_experiment"]
-        lines.append(f"an experiment would help ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
-                     " — or run again with --allow-experiments"
-                     + ("" if result["stopped"] != "needs_experiment" else
-                        ", or with --continue-past-ambiguity to add the leading effect and go on"))
+        lines.append(
+            f"an experiment would help ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
+            " — or run again with --allow-experiments"
+            + (
+                ""
+                if result["stopped"] != "needs_experiment"
+                else ", or with --continue-past-ambiguity to add the leading effect and go on"
+            )
+        )
     return "\n".join(lines)
 
 
@@ -222,8 +308,12 @@ def _jobs(api: Client, args) -> int:
     if args.watch:
         return _finish(args, api.wait(args.job_id, ProgressBar()), "")
     job = api.job(args.job_id)
-    return _emit(args, job, f"job {job['id']} {job['kind']}: {job['state']} {job['progress'] * 100:.0f} % "
-                            f"{job['message'] or ''}\nresult: {json.dumps(job['result'])}\nerror: {job['error']}")
+    return _emit(
+        args,
+        job,
+        f"job {job['id']} {job['kind']}: {job['state']} {job['progress'] * 100:.0f} % "
+        f"{job['message'] or ''}\nresult: {json.dumps(job['result'])}\nerror: {job['error']}",
+    )
 
 
 def _stop(api: Client, args) -> int:
@@ -231,15 +321,19 @@ def _stop(api: Client, args) -> int:
     volts = ", ".join(f"{axis} {0.0 if abs(v) < 0.005 else v:.2f} V" for axis, v in out["output_v"].items())
     zero = out.get("zero_after_request_ms")
     queued, running = out["cancelled_queued_job_ids"], out["cancelled_job_id"]
-    by_engine = queued is None              # the stop port: the service cancels the jobs after it
+    by_engine = queued is None  # the stop port: the service cancels the jobs after it
     if by_engine:
         queued_text = "the service cancels any (the bench runs none until it has)"
     else:
         queued_text = ", ".join(queued) + " cancelled" if queued else "none"
     running_text = "none" if not running else f"{running} {'(the service cancels it)' if by_engine else 'cancelled'}"
-    lines = [f"stopped on the {out.get('door', 'service route')}"
-             + (f", 0 V {zero:.1f} ms after the stop reached the bench" if zero is not None else ""),
-             f"outputs: {volts}", f"running job: {running_text}", f"queued bench jobs: {queued_text}"]
+    lines = [
+        f"stopped on the {out.get('door', 'service route')}"
+        + (f", 0 V {zero:.1f} ms after the stop reached the bench" if zero is not None else ""),
+        f"outputs: {volts}",
+        f"running job: {running_text}",
+        f"queued bench jobs: {queued_text}",
+    ]
     if out.get("stop_port_refusal"):
         lines.append(f"(the stop port was not used: {out['stop_port_refusal']})")
     return _emit(args, out, "\n".join(lines))
@@ -258,8 +352,10 @@ def _tidy(args, label, delete, record_id: str) -> tuple[dict, str] | None:
     """Apply --rename/--tags/--notes or --delete to ``record_id``; (answer, words) or None if none was given."""
     if args.delete:
         gone = delete(record_id, cascade=args.cascade)
-        return gone, (f"deleted datasets {', '.join(gone['datasets']) or 'none'}, models "
-                      f"{', '.join(gone['models']) or 'none'}; freed {gone['freed_bytes']} bytes")
+        return gone, (
+            f"deleted datasets {', '.join(gone['datasets']) or 'none'}, models "
+            f"{', '.join(gone['models']) or 'none'}; freed {gone['freed_bytes']} bytes"
+        )
     labels = {}
     if args.rename is not None:
         labels["name"] = args.rename
@@ -281,9 +377,15 @@ def _datasets(api: Client, args) -> int:
         row = api.dataset(args.dataset_id)
         return _emit(args, row, json.dumps({k: v for k, v in row.items() if k != "config"}, indent=2))
     rows = api.datasets()
-    return _emit(args, rows, "\n".join(
-        f"{r['id']}  {r['source']:<6} {','.join(r['axes']):<4} {r['samples']:>9} samples "
-        f"{r['sample_rate_hz']:>8g} Hz {'partial ' if r['partial'] else ''}{r['name']}" for r in rows))
+    return _emit(
+        args,
+        rows,
+        "\n".join(
+            f"{r['id']}  {r['source']:<6} {','.join(r['axes']):<4} {r['samples']:>9} samples "
+            f"{r['sample_rate_hz']:>8g} Hz {'partial ' if r['partial'] else ''}{r['name']}"
+            for r in rows
+        ),
+    )
 
 
 def _models(api: Client, args) -> int:
@@ -291,8 +393,11 @@ def _models(api: Client, args) -> int:
         html = api.model_report(args.model_id)
         with open(args.report, "w", encoding="utf-8") as out:
             out.write(html)
-        return _emit(args, {"model_id": args.model_id, "report": args.report, "bytes": len(html.encode())},
-                     f"report of {args.model_id}: {args.report} ({len(html.encode()) / 1024:.0f} kB)")
+        return _emit(
+            args,
+            {"model_id": args.model_id, "report": args.report, "bytes": len(html.encode())},
+            f"report of {args.model_id}: {args.report} ({len(html.encode()) / 1024:.0f} kB)",
+        )
     done = args.model_id and _tidy(args, api.label_model, api.delete_model, args.model_id)
     if done:
         return _emit(args, *done)
@@ -300,9 +405,15 @@ def _models(api: Client, args) -> int:
         row = api.model(args.model_id)
         return _emit(args, row, json.dumps(row, indent=2))
     rows = api.models()
-    return _emit(args, rows, "\n".join(
-        f"{r['id']}  {r['kind']:<10} axis {r['axis']}  held-out RMS {_um(r['metrics']['validation_rms_um'])}  "
-        f"datasets {','.join(r['datasets'])}" for r in rows))
+    return _emit(
+        args,
+        rows,
+        "\n".join(
+            f"{r['id']}  {r['kind']:<10} axis {r['axis']}  held-out RMS {_um(r['metrics']['validation_rms_um'])}  "
+            f"datasets {','.join(r['datasets'])}"
+            for r in rows
+        ),
+    )
 
 
 # ---------------------------------------------------------------------- helpers
@@ -319,8 +430,10 @@ class ProgressBar:
         percent = f"{job['progress'] * 100:5.1f} %"
         if self.redraw:
             filled = int(round(job["progress"] * self.width))
-            line = (f"\r[{'#' * filled}{'-' * (self.width - filled)}] {percent} "
-                    f"{job['state']}: {(job.get('message') or '')[:50]:<50}")
+            line = (
+                f"\r[{'#' * filled}{'-' * (self.width - filled)}] {percent} "
+                f"{job['state']}: {(job.get('message') or '')[:50]:<50}"
+            )
             key = line
         else:  # a new line only when the state or the message changes; the percentage it was reached at
             key = (job["state"], job.get("message") or "")
@@ -342,8 +455,11 @@ def _guarded(func, args) -> int:
         field = f" [{exc.field}]" if exc.field else ""
         print(f"error {exc.status_code}{field}: {exc.detail}", file=sys.stderr)
         if exc.status_code == 401:
-            print("hint: pass --token or set EVCBENCH_TOKEN; a local service's admin token is <data dir>/admin.token, "
-                  "found when EVCBENCH_DATA_DIR (default ./var) names that data dir", file=sys.stderr)
+            print(
+                "hint: pass --token or set EVCBENCH_TOKEN; a local service's admin token is <data dir>/admin.token, "
+                "found when EVCBENCH_DATA_DIR (default ./var) names that data dir",
+                file=sys.stderr,
+            )
         return 2
     except httpx.TransportError as exc:
         print(f"error: cannot reach the service at {args.url}: {exc}", file=sys.stderr)
@@ -353,8 +469,12 @@ def _guarded(func, args) -> int:
 def _finish(args, job: dict, text: str) -> int:
     if job["state"] == "succeeded":
         return _emit(args, job, text)
-    _emit(args, job, f"job {job['id']} {job['state']}: {job.get('error') or job.get('message')}"
-                     + (f"; {text}" if text and job.get("result") else ""))
+    _emit(
+        args,
+        job,
+        f"job {job['id']} {job['state']}: {job.get('error') or job.get('message')}"
+        + (f"; {text}" if text and job.get("result") else ""),
+    )
     return 1
 
 

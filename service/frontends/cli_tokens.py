@@ -7,6 +7,7 @@
 ``--data-dir`` / ``--database-url`` (or EVCBENCH_DATA_DIR / EVCBENCH_DATABASE_URL) pick the store,
 as for ``evcbench serve``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -14,16 +15,19 @@ import json
 import sys
 from pathlib import Path
 
-from service.security import auth
 from service.runtime.settings import Settings
+from service.security import auth
 from service.store import Store, utc_now
 
 
 def open_store(data_dir: Path | None = None, database_url: str | None = None, array_url: str | None = None) -> Store:
     """The store ``serve`` would open with the same options (defaults from the environment)."""
     defaults = Settings()
-    settings = Settings(data_dir=data_dir or defaults.data_dir, database_url=database_url or defaults.database_url,
-                        array_url=array_url or defaults.array_url)
+    settings = Settings(
+        data_dir=data_dir or defaults.data_dir,
+        database_url=database_url or defaults.database_url,
+        array_url=array_url or defaults.array_url,
+    )
     return Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
 
 
@@ -42,16 +46,26 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = verb("create", "issue a token and print it once (only its SHA-256 is stored)", _create)
     p.add_argument("--name", required=True, help="who or what uses it, e.g. 'alice' or 'ci'")
-    p.add_argument("--scope", default="read", choices=auth.SCOPES,
-                   help="read (GET only) ⊂ operate (sweeps, trajectories, stop, jobs, imports) ⊂ admin "
-                        "(token management); default read")
+    p.add_argument(
+        "--scope",
+        default="read",
+        choices=auth.SCOPES,
+        help="read (GET only) ⊂ operate (sweeps, trajectories, stop, jobs, imports) ⊂ admin "
+        "(token management); default read",
+    )
     p.add_argument("--output", type=Path, help="write the token to this file (mode 0600) instead of stdout")
-    p.add_argument("--if-missing", action="store_true",
-                   help="do nothing if an active cli/api token already exists (container start-up)")
+    p.add_argument(
+        "--if-missing",
+        action="store_true",
+        help="do nothing if an active cli/api token already exists (container start-up)",
+    )
     verb("list", "list tokens (no secrets)", _list)
-    p = verb("revoke", "revoke a token: requests with it get 401 at once (a running service's emergency "
-                 "stop still takes it for up to 5 s if it saw it lately, its bench engine's stop port for up to 2 s)",
-             _revoke)
+    p = verb(
+        "revoke",
+        "revoke a token: requests with it get 401 at once (a running service's emergency "
+        "stop still takes it for up to 5 s if it saw it lately, its bench engine's stop port for up to 2 s)",
+        _revoke,
+    )
     p.add_argument("token_id", help="the token's id (tok_…), from `evcbench token list`")
 
 
@@ -60,21 +74,20 @@ def _create(args: argparse.Namespace) -> int:
     try:
         existing = auth.remote_tokens(store)
         if args.if_missing and existing:
-            print(f"a token already exists ({existing[0]['id']}, {existing[0]['name']}): none created",
-                  file=sys.stderr)
+            print(f"a token already exists ({existing[0]['id']}, {existing[0]['name']}): none created", file=sys.stderr)
             return 0
         plaintext, record = auth.issue(store, args.name, args.scope, "cli")
     finally:
         store.close()
     if args.output:
         auth.write_secret(args.output, plaintext)
-        print(f"token {record['id']} ({record['name']}, {record['scope']}) written to {args.output}",
-              file=sys.stderr)
+        print(f"token {record['id']} ({record['name']}, {record['scope']}) written to {args.output}", file=sys.stderr)
     elif args.json:
         print(json.dumps({**record, "token": plaintext}))
     else:
-        print(f"token {record['id']} ({record['name']}, scope {record['scope']}); shown once, keep it:",
-              file=sys.stderr)
+        print(
+            f"token {record['id']} ({record['name']}, scope {record['scope']}); shown once, keep it:", file=sys.stderr
+        )
         print(plaintext)
     return 0
 
@@ -142,6 +155,8 @@ def stop_port_refusal(settings: Settings) -> str | None:
     try:
         socket.create_server((settings.host, settings.stop_port), family=family).close()
     except OSError as exc:
-        return f"the stop port {settings.host}:{settings.stop_port} cannot listen ({exc.strerror or exc}): " \
-               "pick another with --stop-port, or 0 for any free port"
+        return (
+            f"the stop port {settings.host}:{settings.stop_port} cannot listen ({exc.strerror or exc}): "
+            "pick another with --stop-port, or 0 for any free port"
+        )
     return None

@@ -10,13 +10,14 @@ Every non-2xx answer raises ApiError with the server's ``detail`` and the ``fiel
 The API token is ``token=``, else $EVCBENCH_TOKEN, else (for a loopback URL) the local service's
 bootstrap token in <data_dir>/admin.token (data_dir: ``data_dir=``, $EVCBENCH_DATA_DIR or ./var).
 """
+
 from __future__ import annotations
 
 import json
 import os
 import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
 
 import httpx
 import numpy as np
@@ -57,8 +58,14 @@ class Client:
     """Talks to one service. ``http`` may be any httpx.Client (e.g. FastAPI's TestClient), whose
     own headers then carry the token unless ``token`` is given."""
 
-    def __init__(self, base_url: str = DEFAULT_URL, timeout_s: float = 60.0, http: httpx.Client | None = None,
-                 token: str | None = None, data_dir: str | Path | None = None):
+    def __init__(
+        self,
+        base_url: str = DEFAULT_URL,
+        timeout_s: float = 60.0,
+        http: httpx.Client | None = None,
+        token: str | None = None,
+        data_dir: str | Path | None = None,
+    ):
         self._data_dir = Path(data_dir or os.environ.get("EVCBENCH_DATA_DIR") or "var")
         if http is None:
             http = httpx.Client(base_url=base_url.rstrip("/"), timeout=timeout_s)
@@ -67,14 +74,14 @@ class Client:
             http.headers["Authorization"] = f"Bearer {token}"
         self.http = http
         self._stop_url: str | None | object = _NOT_LOOKED_UP
-        self._stop_http: httpx.Client | None = None      # the stop port's own client, made by prepare_stop
+        self._stop_http: httpx.Client | None = None  # the stop port's own client, made by prepare_stop
 
     def close(self) -> None:
         self.http.close()
         if self._stop_http is not None:
             self._stop_http.close()
 
-    def __enter__(self) -> "Client":
+    def __enter__(self) -> Client:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -99,18 +106,22 @@ class Client:
         url, refusal = self.prepare_stop(), None
         if url is not None:
             try:
-                response = self._stop_http.post(url, headers={"Authorization": self.http.headers.get("Authorization", "")})
+                response = self._stop_http.post(
+                    url, headers={"Authorization": self.http.headers.get("Authorization", "")}
+                )
                 if response.status_code == 200:
                     return response.json()
                 refusal = f"{response.status_code}: {_detail(response)}"
-            except httpx.TransportError as exc:      # unreachable from here (a firewall): the service's own route
+            except httpx.TransportError as exc:  # unreachable from here (a firewall): the service's own route
                 refusal = f"unreachable ({type(exc).__name__})"
         try:
             answer = self._request("POST", "/api/bench/stop", timeout=STOP_ROUTE_TIMEOUT_S)
         except httpx.TransportError as exc:
-            raise ApiError(503, f"the service did not take the emergency stop within {STOP_ROUTE_TIMEOUT_S:g} s "
-                                f"({type(exc).__name__})" + (f"; its stop port: {refusal}" if refusal else
-                                                             "; it names no stop port")) from None
+            raise ApiError(
+                503,
+                f"the service did not take the emergency stop within {STOP_ROUTE_TIMEOUT_S:g} s "
+                f"({type(exc).__name__})" + (f"; its stop port: {refusal}" if refusal else "; it names no stop port"),
+            ) from None
         return answer if refusal is None else {**answer, "stop_port_refusal": refusal}
 
     def prepare_stop(self) -> str | None:
@@ -118,11 +129,18 @@ class Client:
         ``GET /api/bench`` names, with ``?bench_id=`` so that another bench's port refuses it),
         looked up once; None if the service has no stop port."""
         if self._stop_url is _NOT_LOOKED_UP:
-            host = self.http.base_url.host       # "testserver": an in-process test client has no network
+            host = self.http.base_url.host  # "testserver": an in-process test client has no network
             found = None if host in ("", "testserver") else self._stop_port_lookup()
-            self._stop_url = None if found is None else str(self.http.base_url.copy_with(
-                port=found["stop_port"], path="/api/bench/stop", params={"bench_id": found["bench_id"]}))
-            if self._stop_url is not None:    # made here, not at the press: a client costs tens of ms to make
+            self._stop_url = (
+                None
+                if found is None
+                else str(
+                    self.http.base_url.copy_with(
+                        port=found["stop_port"], path="/api/bench/stop", params={"bench_id": found["bench_id"]}
+                    )
+                )
+            )
+            if self._stop_url is not None:  # made here, not at the press: a client costs tens of ms to make
                 self._stop_http = httpx.Client(timeout=STOP_PORT_TIMEOUT)
         return self._stop_url
 
@@ -182,7 +200,7 @@ class Client:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         try:
             for event, job in self.events(job_id):
-                if event == "error":   # the stream ended because the token is no longer valid
+                if event == "error":  # the stream ended because the token is no longer valid
                     raise ApiError(job.get("status", 401), job.get("detail", "event stream refused"), job.get("field"))
                 if on_progress:
                     on_progress(job)
@@ -212,19 +230,37 @@ class Client:
         started = self.start_sweep(**plan)
         return self.wait(started["job_id"], on_progress) if wait else self.job(started["job_id"])
 
-    def import_dataset(self, file: str | Path | bytes, *, filename: str | None = None, name: str | None = None,
-                       axis: str | None = None, columns: dict | str | None = None,
-                       sample_rate_hz: float | None = None, delimiter: str | None = None) -> dict:
+    def import_dataset(
+        self,
+        file: str | Path | bytes,
+        *,
+        filename: str | None = None,
+        name: str | None = None,
+        axis: str | None = None,
+        columns: dict | str | None = None,
+        sample_rate_hz: float | None = None,
+        delimiter: str | None = None,
+    ) -> dict:
         """Upload a CSV/table (a path, streamed from disk, or bytes) as a dataset; returns its record."""
-        form = {"name": name, "axis": axis, "sample_rate_hz": sample_rate_hz, "delimiter": delimiter,
-                "columns": json.dumps(columns) if isinstance(columns, dict) else columns}
+        form = {
+            "name": name,
+            "axis": axis,
+            "sample_rate_hz": sample_rate_hz,
+            "delimiter": delimiter,
+            "columns": json.dumps(columns) if isinstance(columns, dict) else columns,
+        }
         form = {k: str(v) for k, v in form.items() if v is not None}
         if isinstance(file, (str, Path)):
             with open(file, "rb") as handle:
-                return self._request("POST", "/api/datasets", data=form,
-                                     files={"file": (filename or Path(file).name, handle, "text/csv")})
-        return self._request("POST", "/api/datasets", data=form,
-                             files={"file": (filename or "upload.csv", file, "text/csv")})
+                return self._request(
+                    "POST",
+                    "/api/datasets",
+                    data=form,
+                    files={"file": (filename or Path(file).name, handle, "text/csv")},
+                )
+        return self._request(
+            "POST", "/api/datasets", data=form, files={"file": (filename or "upload.csv", file, "text/csv")}
+        )
 
     def datasets(self) -> list[dict]:
         return self._request("GET", "/api/datasets")
@@ -260,7 +296,7 @@ class Client:
                 values = np.asarray(chunk[name])
                 if name not in out:
                     out[name] = np.empty(header["samples"], dtype=values.dtype)
-                out[name][start:start + values.size] = values
+                out[name][start : start + values.size] = values
         return out
 
     def label_dataset(self, dataset_id: str, **labels) -> dict:
@@ -274,8 +310,9 @@ class Client:
 
     def _ndjson(self, dataset_id: str) -> Iterator[dict]:
         """The objects of ``GET /api/datasets/{id}/data?format=ndjson``: the header, then the chunks."""
-        with self.http.stream("GET", f"/api/datasets/{dataset_id}/data", params={"format": "ndjson"},
-                              timeout=None) as response:
+        with self.http.stream(
+            "GET", f"/api/datasets/{dataset_id}/data", params={"format": "ndjson"}, timeout=None
+        ) as response:
             if response.status_code >= 400:
                 response.read()
                 self._raise(response)
@@ -284,15 +321,35 @@ class Client:
                     yield json.loads(line)
 
     # ------------------------------------------------------------------ models
-    def start_identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
-                       effects: Sequence[str] = ("hysteresis",), n_operators: int = 10, name: str | None = None) -> dict:
-        body = {"axis": axis, "datasets": list(datasets), "model": model, "effects": list(effects),
-                "n_operators": n_operators, **({"name": name} if name else {})}
+    def start_identify(
+        self,
+        axis: str,
+        datasets: Sequence[str],
+        model: str = "static_pi",
+        effects: Sequence[str] = ("hysteresis",),
+        n_operators: int = 10,
+        name: str | None = None,
+    ) -> dict:
+        body = {
+            "axis": axis,
+            "datasets": list(datasets),
+            "model": model,
+            "effects": list(effects),
+            "n_operators": n_operators,
+            **({"name": name} if name else {}),
+        }
         return self._request("POST", "/api/models", json=body)
 
-    def identify(self, axis: str, datasets: Sequence[str], model: str = "static_pi",
-                 effects: Sequence[str] = ("hysteresis",), n_operators: int = 10,
-                 on_progress: ProgressCallback | None = None, name: str | None = None) -> dict:
+    def identify(
+        self,
+        axis: str,
+        datasets: Sequence[str],
+        model: str = "static_pi",
+        effects: Sequence[str] = ("hysteresis",),
+        n_operators: int = 10,
+        on_progress: ProgressCallback | None = None,
+        name: str | None = None,
+    ) -> dict:
         """Identify and wait (``name``: the model's label); returns the stored model. ApiError if the
         job did not succeed."""
         started = self.start_identify(axis, datasets, model, effects, n_operators, name)
@@ -326,15 +383,28 @@ class Client:
         """Delete a model (ApiError 409 naming its children unless ``cascade``)."""
         return self._request("DELETE", f"/api/models/{model_id}", params={"cascade": cascade})
 
-    def discover(self, model_id: str, allow_experiments: bool = False, max_steps: int = 8, wait: bool = True,
-                 on_progress: ProgressCallback | None = None, continue_past_ambiguity: bool = False) -> dict:
+    def discover(
+        self,
+        model_id: str,
+        allow_experiments: bool = False,
+        max_steps: int = 8,
+        wait: bool = True,
+        on_progress: ProgressCallback | None = None,
+        continue_past_ambiguity: bool = False,
+    ) -> dict:
         """Run the discovery loop from a model (POST /api/models/{id}/discover). With ``wait`` the
         finished job (its ``result``: steps, final_model_id, effects_found, remains, needed_experiment),
         ``on_progress`` called with the job at each step; else the queued job. It stops at an
         ambiguity it may not test (``stopped`` "needs_experiment") unless ``continue_past_ambiguity``."""
-        started = self._request("POST", f"/api/models/{model_id}/discover",
-                                json={"allow_experiments": allow_experiments, "max_steps": max_steps,
-                                      "continue_past_ambiguity": continue_past_ambiguity})
+        started = self._request(
+            "POST",
+            f"/api/models/{model_id}/discover",
+            json={
+                "allow_experiments": allow_experiments,
+                "max_steps": max_steps,
+                "continue_past_ambiguity": continue_past_ambiguity,
+            },
+        )
         return self.wait(started["job_id"], on_progress) if wait else self.job(started["job_id"])
 
     def compare(self, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:

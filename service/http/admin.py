@@ -10,6 +10,7 @@ A fault fires ``after_s`` emulated seconds into the bench session (one sweep or 
 is running or starts next (drivers/emulated/faults.py); the job then fails with the reason, its
 samples so far are stored as a partial dataset and the output is at 0 V.
 """
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, HTTPException
@@ -47,8 +48,7 @@ def add_fault(body: FaultRequest, bench: Bench = Depends(get_bench)) -> dict:
 def list_faults(bench: Bench = Depends(get_bench)) -> dict:
     """The scheduled faults (armed or fired, with the session time they fired at) and the known kinds."""
     injector = _injector(bench)
-    return {"faults": injector.list(), "kinds": list(KINDS),
-            "transports": sorted(injector.transports)}
+    return {"faults": injector.list(), "kinds": list(KINDS), "transports": sorted(injector.transports)}
 
 
 @router.delete("/faults", response_model=FaultsCleared)

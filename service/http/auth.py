@@ -6,12 +6,13 @@ event stream (/api/jobs/{id}/events), because a browser's EventSource cannot sen
 Refusals are 401 (no, unknown or revoked token) or 403 (scope too low), in the API's error format.
 The access log shows such a query token as ``token=***``.
 """
+
 from __future__ import annotations
 
 import logging
 import re
+from collections.abc import Callable
 from functools import partial
-from typing import Callable
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
@@ -26,8 +27,10 @@ QUERY_TOKEN_PATH = re.compile(r"^/api/jobs/[^/]+/events$")
 #: When auth is off every request acts with this record.
 AUTH_OFF = {"id": None, "name": "auth off", "scope": "admin", "origin": None, "scopes": ["read", "operate", "admin"]}
 
-BEARER = HTTPBearer(auto_error=False, description="An API token: `evcbench token create`, or "
-                                                   "<data_dir>/admin.token on the service's machine")
+BEARER = HTTPBearer(
+    auto_error=False,
+    description="An API token: `evcbench token create`, or <data_dir>/admin.token on the service's machine",
+)
 
 
 def require_token(request: Request, credentials: HTTPAuthorizationCredentials | None = Depends(BEARER)) -> dict:
@@ -39,14 +42,17 @@ def require_token(request: Request, credentials: HTTPAuthorizationCredentials | 
     query_token = request.query_params.get("token")
     if token is None and query_token is not None:
         if not QUERY_TOKEN_PATH.match(path):
-            raise AuthError(401, "?token= is accepted only on /api/jobs/{id}/events; send the header "
-                                 "'Authorization: Bearer <token>'", field="token")
+            raise AuthError(
+                401,
+                "?token= is accepted only on /api/jobs/{id}/events; send the header 'Authorization: Bearer <token>'",
+                field="token",
+            )
         token = query_token
     try:
         record = authenticate(request.app.state.store, token)
     except AuthError:
         if token:
-            recent_tokens(request.app).forget_token(token)      # revoked elsewhere: the stop refuses it too
+            recent_tokens(request.app).forget_token(token)  # revoked elsewhere: the stop refuses it too
         raise
     recent_tokens(request.app).remember(token, record)
     authorize(record, required_scope(request.method, path))
@@ -108,5 +114,6 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(AuthError)
     async def _auth(_request: Request, exc: AuthError) -> JSONResponse:
         headers = {"WWW-Authenticate": "Bearer"} if exc.status_code == 401 else None
-        return JSONResponse(status_code=exc.status_code, content={"detail": exc.detail, "field": exc.field},
-                            headers=headers)
+        return JSONResponse(
+            status_code=exc.status_code, content={"detail": exc.detail, "field": exc.field}, headers=headers
+        )

@@ -1,5 +1,6 @@
 """GET /api/bench: backend, axes, amplifier and sensor state, limits; POST /api/bench/stop;
 POST /api/bench/reset; GET /api/bench/live."""
+
 from __future__ import annotations
 
 import asyncio
@@ -9,7 +10,6 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials
 
 from drivers.bench import BenchBusy
-
 from service.http.auth import AUTH_ERRORS, BEARER, require_token_for_stop
 from service.http.schemas.bench import BenchState, EmergencyStop, FaultsReset, LiveSignals
 from service.runtime.priority import SAFETY_NICE, set_thread_nice
@@ -23,13 +23,18 @@ router = APIRouter(tags=["bench"])
 def bench_state(request: Request) -> dict:
     """The bench's devices, their present state and its hard limits (actuator volts, amperes, hertz)."""
     state = request.app.state
-    return {**state.bench.describe(), "bench_id": state.settings.bench_id, "running_job_id": state.jobs.running_bench_job}
+    return {
+        **state.bench.describe(),
+        "bench_id": state.settings.bench_id,
+        "running_job_id": state.jobs.running_bench_job,
+    }
 
 
 #: The emergency stop's own thread: it never waits for the request thread pool that downloads,
 #: imports and other routes share.
-_STOP_EXECUTOR = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-estop", initializer=set_thread_nice,
-                                    initargs=(SAFETY_NICE,))
+_STOP_EXECUTOR = ThreadPoolExecutor(
+    max_workers=1, thread_name_prefix="evc-estop", initializer=set_thread_nice, initargs=(SAFETY_NICE,)
+)
 
 
 #: The stop's own router: its token is checked on the stop's thread (require_token_for_stop inside
@@ -52,9 +57,21 @@ async def emergency_stop(request: Request, credentials: HTTPAuthorizationCredent
     submitted afterwards run normally. ``zero_after_request_ms`` is the engine's measured time from
     receiving the stop to the 0 V write. Needs an ``operate`` token, checked on the stop's own thread."""
     out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, _authorized_stop, request, credentials)
-    return {"stopped": True, "door": "service route", **{k: out[k] for k in ("cancelled_job_id", "cancelled_queued_job_ids", "loop_answered",
-                                                    "output_v", "zero_after_request_ms")},
-            "zero_monotonic_s": out["stop"]["zero_monotonic_s"]}
+    return {
+        "stopped": True,
+        "door": "service route",
+        **{
+            k: out[k]
+            for k in (
+                "cancelled_job_id",
+                "cancelled_queued_job_ids",
+                "loop_answered",
+                "output_v",
+                "zero_after_request_ms",
+            )
+        },
+        "zero_monotonic_s": out["stop"]["zero_monotonic_s"],
+    }
 
 
 @router.post("/bench/reset", response_model=FaultsReset)
@@ -73,12 +90,19 @@ def reset_faults(request: Request) -> dict:
 
 
 @router.get("/bench/live", response_model=LiveSignals, response_model_exclude_unset=True)
-def bench_live(request: Request, since: int | None = Query(default=None, ge=0, description=(
-                   "cursor from the previous answer; omitted: the latest max_points samples")),
-               max_points: int = Query(default=2000, ge=1, le=20_000)) -> dict:
+def bench_live(
+    request: Request,
+    since: int | None = Query(
+        default=None, ge=0, description=("cursor from the previous answer; omitted: the latest max_points samples")
+    ),
+    max_points: int = Query(default=2000, ge=1, le=20_000),
+) -> dict:
     """Live signals of whatever the bench streams (any job): decimated t_s, u_<axis>_v and
     x_<axis>_um since ``since``, with the cursor for the next call. ``runs`` numbers each
     sample's run (time restarts at 0 s with every run); ``running_job_id`` names the job."""
     state = request.app.state
-    return {**state.bench.live.since(since, max_points), "axes": list(state.bench.axes),
-            "running_job_id": state.jobs.running_bench_job}
+    return {
+        **state.bench.live.since(since, max_points),
+        "axes": list(state.bench.axes),
+        "running_job_id": state.jobs.running_bench_job,
+    }

@@ -1,4 +1,5 @@
 """Datasets: import (multipart CSV, parsed as a stream), list, describe, and download (streamed)."""
+
 from __future__ import annotations
 
 from typing import Literal
@@ -20,10 +21,29 @@ from service.usecases.imports import import_table
 router = APIRouter(prefix="/datasets", tags=["datasets"])
 
 MAX_UPLOAD_BYTES = 200 * 1024 * 1024
-SUMMARY_KEYS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "partial", "partial_reason",
-                "created_at", "started_at", "finished_at", "job_id", "tags", "notes", "bench_id")
-MEDIA_TYPES = {"json": "application/json", "csv": "text/csv", "ndjson": "application/x-ndjson",
-               "hdf5": "application/x-hdf5"}
+SUMMARY_KEYS = (
+    "id",
+    "name",
+    "source",
+    "axes",
+    "samples",
+    "sample_rate_hz",
+    "partial",
+    "partial_reason",
+    "created_at",
+    "started_at",
+    "finished_at",
+    "job_id",
+    "tags",
+    "notes",
+    "bench_id",
+)
+MEDIA_TYPES = {
+    "json": "application/json",
+    "csv": "text/csv",
+    "ndjson": "application/x-ndjson",
+    "hdf5": "application/x-hdf5",
+}
 _RATE_TEXT = f"{SAMPLE_RATE_RANGE_HZ[0]:g} Hz – {SAMPLE_RATE_RANGE_HZ[1] / 1e6:g} MHz"
 
 
@@ -34,10 +54,17 @@ def dataset_view(row: DatasetRow, full: bool = True) -> dict:
     view["n_blocks"] = len(row["blocks"])
     if full:
         plan = row["plan"] if isinstance(row["plan"], dict) else {}
-        view.update(blocks=row["blocks"], plan=row["plan"], config=row["config"], units=row["units"],
-                    drive_range_v=plan.get("drive_range_v"), import_notes=plan.get("notes") or [],
-                    software_version=row["software_version"],
-                    file=row["file"], sha256=row["sha256"])
+        view.update(
+            blocks=row["blocks"],
+            plan=row["plan"],
+            config=row["config"],
+            units=row["units"],
+            drive_range_v=plan.get("drive_range_v"),
+            import_notes=plan.get("notes") or [],
+            software_version=row["software_version"],
+            file=row["file"],
+            sha256=row["sha256"],
+        )
     return view
 
 
@@ -47,8 +74,9 @@ async def import_dataset(
     file: UploadFile = File(..., description="CSV (header t,u_y,x_y,… or u,x) or a headerless table"),
     name: str | None = Form(None, max_length=200),
     axis: str | None = Form(None, description="y or z, for single-axis files with columns u, x"),
-    columns: str | None = Form(None, description='JSON mapping, e.g. {"u": 0, "x": 4} (0-based); '
-                                                 "columns it does not name are ignored"),
+    columns: str | None = Form(
+        None, description='JSON mapping, e.g. {"u": 0, "x": 4} (0-based); columns it does not name are ignored'
+    ),
     sample_rate_hz: float | None = Form(None, description=f"needed when the file has no t column ({_RATE_TEXT})"),
     delimiter: str | None = Form(None, description="comma | tab | semicolon | whitespace (default: guess)"),
     store: Store = Depends(get_store),
@@ -65,8 +93,13 @@ async def import_dataset(
     """
     if file.size is not None and file.size > MAX_UPLOAD_BYTES:
         raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
-    options = {"filename": file.filename, "columns": columns, "axis": axis, "sample_rate_hz": sample_rate_hz,
-               "delimiter": delimiter}
+    options = {
+        "filename": file.filename,
+        "columns": columns,
+        "axis": axis,
+        "sample_rate_hz": sample_rate_hz,
+        "delimiter": delimiter,
+    }
     row = await run_bulk(import_table, store, file.file, name or file.filename or "imported", options)
     return dataset_view(row)
 
@@ -91,9 +124,11 @@ def label_dataset(dataset_id: str, body: DatasetLabelsUpdate, store: Store = Dep
 
 
 @router.delete("/{dataset_id}", response_model=Deleted)
-def delete_dataset(dataset_id: str, cascade: bool = Query(False, description="also delete the models fitted on "
-                                                          "it and every model refined from them"),
-                   store: Store = Depends(get_store)) -> dict:
+def delete_dataset(
+    dataset_id: str,
+    cascade: bool = Query(False, description="also delete the models fitted on it and every model refined from them"),
+    store: Store = Depends(get_store),
+) -> dict:
     """Delete a dataset and its arrays. Refused with 409 naming the models fitted on it (``dependents``)
     unless ``cascade=true``; the store stays consistent (``evcbench store check``)."""
     return store.delete_dataset(dataset_id, cascade)
@@ -101,12 +136,16 @@ def delete_dataset(dataset_id: str, cascade: bool = Query(False, description="al
 
 @router.get("/{dataset_id}/data", response_model=None, responses=DATASET_DOWNLOADS)
 @with_figures(rate_range=_RATE_TEXT, json_max_points=JSON_DEFAULT_MAX_POINTS)
-def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "hdf5"] = "json",
-                     max_points: int | None = Query(None, ge=2, description="json: at most this many points per "
-                                                    f"column (default {JSON_DEFAULT_MAX_POINTS})"),
-                     start: int = Query(0, ge=0, description="first sample (0-based)"),
-                     stop: int | None = Query(None, ge=1, description="end sample, exclusive (default: the last)"),
-                     store: Store = Depends(get_store)) -> StreamingResponse:
+def get_dataset_data(
+    dataset_id: str,
+    format: Literal["json", "csv", "ndjson", "hdf5"] = "json",
+    max_points: int | None = Query(
+        None, ge=2, description=f"json: at most this many points per column (default {JSON_DEFAULT_MAX_POINTS})"
+    ),
+    start: int = Query(0, ge=0, description="first sample (0-based)"),
+    stop: int | None = Query(None, ge=1, description="end sample, exclusive (default: the last)"),
+    store: Store = Depends(get_store),
+) -> StreamingResponse:
     """The samples, streamed: memory does not grow with the dataset.
 
     - ``json`` (default): ``{{"id", "sample_rate_hz", "samples", "stride", "decimated",
@@ -123,8 +162,15 @@ def get_dataset_data(dataset_id: str, format: Literal["json", "csv", "ndjson", "
     does not match).
     """
     route = f"/api/datasets/{dataset_id}/data?format="
-    chunks = export_chunks(store, dataset_id, format, start=start, stop=stop, max_points=max_points,
-                           full_resolution={"csv": route + "csv", "ndjson": route + "ndjson"})
+    chunks = export_chunks(
+        store,
+        dataset_id,
+        format,
+        start=start,
+        stop=stop,
+        max_points=max_points,
+        full_resolution={"csv": route + "csv", "ndjson": route + "ndjson"},
+    )
     suffix = "h5" if format == "hdf5" else format
     headers = {} if format == "json" else {"Content-Disposition": f'attachment; filename="{dataset_id}.{suffix}"'}
     return StreamingResponse(iterate_bulk(chunks), media_type=MEDIA_TYPES[format], headers=headers)

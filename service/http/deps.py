@@ -1,4 +1,5 @@
 """Request dependencies: the store, the job manager and the bench of the running app."""
+
 from __future__ import annotations
 
 from fastapi import Request

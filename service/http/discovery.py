@@ -1,4 +1,5 @@
 """Discovery routes under /models: diagnosis, refine and discover (jobs) and history. No science here."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
@@ -7,27 +8,29 @@ from drivers.bench import Bench
 from service.http.deps import get_bench, get_jobs, get_store
 from service.http.schemas.common import JobQueued
 from service.http.schemas.models import Diagnosis, DiscoverRequest, History, RefineRequest
+from service.runtime.jobs import JobManager
+from service.science.errors import FieldError
+from service.store import Store
 from service.usecases.acquire import sweep_and_wait
 from service.usecases.discover import diagnose_model, history, imported_datasets, refine_params
 from service.usecases.discover_run import discover
-from service.runtime.jobs import JobManager
 from service.usecases.identify import identify, require_fit_memory
-from service.science.errors import FieldError
-from service.store import Store
 
 router = APIRouter(prefix="/models", tags=["discovery"])
 
 
 @router.get("/{model_id}/diagnosis", response_model=Diagnosis, response_model_exclude_unset=True)
-def get_diagnosis(model_id: str, extra_datasets: list[str] = Query(default=[]),
-                  store: Store = Depends(get_store)) -> dict:
+def get_diagnosis(
+    model_id: str, extra_datasets: list[str] = Query(default=[]), store: Store = Depends(get_store)
+) -> dict:
     """Residual RMS, noise floor, verdict, ranked candidates with evidence, failures, ambiguity."""
     return diagnose_model(store, model_id, extra_datasets)
 
 
 @router.post("/{model_id}/refine", status_code=202, response_model=JobQueued)
-def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store),
-           jobs: JobManager = Depends(get_jobs)) -> dict:
+def refine(
+    model_id: str, body: RefineRequest, store: Store = Depends(get_store), jobs: JobManager = Depends(get_jobs)
+) -> dict:
     """Queue a refit with another effect set on the same data; the new model's parent is ``model_id``."""
     params = refine_params(store, model_id, body.add, body.remove, body.effects, body.datasets)
     job = jobs.submit("refine", params, lambda ctx: identify(ctx, store, **params), needs_bench=False)
@@ -35,8 +38,13 @@ def refine(model_id: str, body: RefineRequest, store: Store = Depends(get_store)
 
 
 @router.post("/{model_id}/discover", status_code=202, response_model=JobQueued)
-def start_discovery(model_id: str, body: DiscoverRequest, store: Store = Depends(get_store),
-                    jobs: JobManager = Depends(get_jobs), bench: Bench = Depends(get_bench)) -> dict:
+def start_discovery(
+    model_id: str,
+    body: DiscoverRequest,
+    store: Store = Depends(get_store),
+    jobs: JobManager = Depends(get_jobs),
+    bench: Bench = Depends(get_bench),
+) -> dict:
     """Queue the discovery loop from ``model_id`` (a compute job: it never holds the bench). Each step
     is stored as a model whose parent is the previous step and reported as progress (the steps so far
     are the job's ``result`` while it runs). The result: ``steps`` (model_id, effects, added,
@@ -45,26 +53,36 @@ def start_discovery(model_id: str, body: DiscoverRequest, store: Store = Depends
     floor, per block), ``stopped`` and ``needed_experiment`` (a /api/sweeps body) when it stopped for one.
     In a lab, ``allow_experiments`` is refused (422) for a model of another bench: its experiments
     would run on this service's hardware."""
-    row = store.get_model(model_id)                # 404 before anything is queued
+    row = store.get_model(model_id)  # 404 before anything is queued
     imported = imported_datasets(store, row["datasets"]) if body.allow_experiments else []
     if imported:
-        raise FieldError("allow_experiments", f"model {model_id} was fitted on imported data ({', '.join(imported)}), "
-                         "recorded on another stage: this bench's experiments would measure a different stack. Run "
-                         "the experiment it names on that stage and import it, or ask without allow_experiments")
+        raise FieldError(
+            "allow_experiments",
+            f"model {model_id} was fitted on imported data ({', '.join(imported)}), "
+            "recorded on another stage: this bench's experiments would measure a different stack. Run "
+            "the experiment it names on that stage and import it, or ask without allow_experiments",
+        )
     owner = row.get("bench_id")
-    if body.allow_experiments and owner not in (None, store.bench_id):   # a lab: experiments on its own bench
+    if body.allow_experiments and owner not in (None, store.bench_id):  # a lab: experiments on its own bench
         bench = store.benches.get(owner)
-        raise FieldError("allow_experiments", f"model {model_id} describes bench {owner!r}: its experiments must run "
-                         f"on that bench, so start the discovery at its service ({bench['url'] if bench else 'its URL'}),"
-                         f" or here without allow_experiments")
-    require_fit_memory(store, list(row["datasets"]), field="model_id")     # 422 before a job is queued
+        raise FieldError(
+            "allow_experiments",
+            f"model {model_id} describes bench {owner!r}: its experiments must run "
+            f"on that bench, so start the discovery at its service ({bench['url'] if bench else 'its URL'}),"
+            f" or here without allow_experiments",
+        )
+    require_fit_memory(store, list(row["datasets"]), field="model_id")  # 422 before a job is queued
     params = {"model_id": model_id, **body.model_dump()}
 
     def run_experiment(ctx, sweep_body: dict) -> dict:
         return sweep_and_wait(ctx, jobs, bench, store, sweep_body, name=f"experiment of discovery from {model_id}")
 
-    job = jobs.submit("discover", params, lambda ctx: discover(ctx, store, run_experiment=run_experiment,
-                                                               bench_jobs=jobs.bench_jobs, **params), needs_bench=False)
+    job = jobs.submit(
+        "discover",
+        params,
+        lambda ctx: discover(ctx, store, run_experiment=run_experiment, bench_jobs=jobs.bench_jobs, **params),
+        needs_bench=False,
+    )
     return {"job_id": job["id"], "state": job["state"]}
 
 

@@ -1,15 +1,15 @@
 """Error responses: every 4xx carries ``detail`` in words, naming the field at fault in ``field``."""
+
 from __future__ import annotations
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from service.science.errors import FieldError
 from service.runtime.jobs import OtherBenchJob, QueueFull
+from service.science.errors import FieldError
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError
 from service.store.tidy import InUseError
-
 
 #: the Retry-After (s) of a 503 for an unreachable shared array location
 ARRAY_STORE_RETRY_AFTER_S = 30
@@ -26,11 +26,12 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = [{"field": _field_of(e.get("loc", ())), "message": e.get("msg", "invalid")}
-                  for e in exc.errors()]
+        errors = [{"field": _field_of(e.get("loc", ())), "message": e.get("msg", "invalid")} for e in exc.errors()]
         detail = "; ".join(f"{e['field']}: {e['message']}" for e in errors) or "invalid request"
-        return JSONResponse(status_code=422, content={"detail": detail, "field": errors[0]["field"] if errors
-                                                      else None, "errors": errors})
+        return JSONResponse(
+            status_code=422,
+            content={"detail": detail, "field": errors[0]["field"] if errors else None, "errors": errors},
+        )
 
     @app.exception_handler(FieldError)
     async def _field(_request: Request, exc: FieldError) -> JSONResponse:
@@ -42,19 +43,23 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(InUseError)
     async def _in_use(_request: Request, exc: InUseError) -> JSONResponse:
-        return JSONResponse(status_code=409, content={"detail": str(exc), "field": "cascade",
-                                                      "dependents": exc.dependents})
+        return JSONResponse(
+            status_code=409, content={"detail": str(exc), "field": "cascade", "dependents": exc.dependents}
+        )
 
     @app.exception_handler(QueueFull)
     async def _queue_full(_request: Request, exc: QueueFull) -> JSONResponse:
-        return JSONResponse(status_code=429, headers={"Retry-After": str(int(exc.retry_after_s))},
-                            content={"detail": str(exc), "field": None, "queue": exc.queue,
-                                     "queued": exc.queued, "limit": exc.limit})
+        return JSONResponse(
+            status_code=429,
+            headers={"Retry-After": str(int(exc.retry_after_s))},
+            content={"detail": str(exc), "field": None, "queue": exc.queue, "queued": exc.queued, "limit": exc.limit},
+        )
 
     @app.exception_handler(OtherBenchJob)
     async def _other_bench(_request: Request, exc: OtherBenchJob) -> JSONResponse:
-        return JSONResponse(status_code=409, content={"detail": str(exc), "field": exc.field,
-                                                      "bench_id": exc.bench_id, "url": exc.url})
+        return JSONResponse(
+            status_code=409, content={"detail": str(exc), "field": exc.field, "bench_id": exc.bench_id, "url": exc.url}
+        )
 
     @app.exception_handler(IntegrityError)
     async def _integrity(_request: Request, exc: IntegrityError) -> JSONResponse:
@@ -62,5 +67,8 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ArrayStoreUnavailable)
     async def _array_store(_request: Request, exc: ArrayStoreUnavailable) -> JSONResponse:
-        return JSONResponse(status_code=503, headers={"Retry-After": str(ARRAY_STORE_RETRY_AFTER_S)},
-                            content={"detail": str(exc), "field": None, "array_store": exc.url})
+        return JSONResponse(
+            status_code=503,
+            headers={"Retry-After": str(ARRAY_STORE_RETRY_AFTER_S)},
+            content={"detail": str(exc), "field": None, "array_store": exc.url},
+        )

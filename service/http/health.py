@@ -1,4 +1,5 @@
 """GET /api/health: is the service up, and which bench does it drive."""
+
 from __future__ import annotations
 
 import time
@@ -15,5 +16,10 @@ router = APIRouter(tags=["health"])
 def health(request: Request) -> dict:
     """Liveness plus the software version and the bench backend."""
     state = request.app.state
-    return {"status": "ok", "version": __version__, "backend": state.bench.parts.backend,
-            "store": state.store.backend, "uptime_s": round(time.time() - state.started_at, 3)}
+    return {
+        "status": "ok",
+        "version": __version__,
+        "backend": state.bench.parts.backend,
+        "store": state.store.backend,
+        "uptime_s": round(time.time() - state.started_at, 3),
+    }

@@ -1,4 +1,5 @@
 """Jobs: GET /api/jobs, GET /api/jobs/{id}, GET /api/jobs/{id}/events (SSE), DELETE /api/jobs/{id}."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query, Request
@@ -14,8 +15,9 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
 @router.get("", response_model=list[Job])
-def list_jobs(limit: int = Query(100, ge=1, le=1000), bench_id: str | None = BENCH_FILTER,
-              jobs: JobManager = Depends(get_jobs)) -> list[dict]:
+def list_jobs(
+    limit: int = Query(100, ge=1, le=1000), bench_id: str | None = BENCH_FILTER, jobs: JobManager = Depends(get_jobs)
+) -> list[dict]:
     """The newest jobs first (of every bench of the lab): id, kind, state, progress (0..1), message,
     result, error, timestamps, bench_id."""
     return jobs.list(limit, bench_id=bench_id)
@@ -28,14 +30,16 @@ def get_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
 
 
 @router.get("/{job_id}/events", response_class=StreamingResponse, responses=JOB_EVENTS)
-async def job_events(job_id: str, request: Request, token: dict = Depends(require_token),
-                     jobs: JobManager = Depends(get_jobs)) -> StreamingResponse:
+async def job_events(
+    job_id: str, request: Request, token: dict = Depends(require_token), jobs: JobManager = Depends(get_jobs)
+) -> StreamingResponse:
     """Server-sent events: ``progress`` on every change (data: the job as JSON), then ``end``. If the
     token is revoked meanwhile, the stream ends with ``error`` (data: ``{"detail", "field", "status"}``)."""
     jobs.store.get_job(job_id)  # 404 before the stream opens
     events = jobs.events(job_id, recheck=token_recheck(request, token))  # ends if the token is revoked
-    return StreamingResponse(events, media_type="text/event-stream",
-                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+    return StreamingResponse(
+        events, media_type="text/event-stream", headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+    )
 
 
 @router.delete("/{job_id}", status_code=202, response_model=Job)

@@ -1,4 +1,5 @@
 """The lab of benches (several services on one store): GET /api/lab/benches, GET /api/lab/compare."""
+
 from __future__ import annotations
 
 from typing import Literal
@@ -22,8 +23,10 @@ def lab_benches(store: Store = Depends(get_store)) -> dict:
 
 
 @router.get("/compare", response_model=LabComparison)
-def lab_compare(axis: Literal["y", "z"] = Query(..., description="the axis whose newest models are compared"),
-                store: Store = Depends(get_store)) -> dict:
+def lab_compare(
+    axis: Literal["y", "z"] = Query(..., description="the axis whose newest models are compared"),
+    store: Store = Depends(get_store),
+) -> dict:
     """Per bench, its newest model of ``axis``: effects, held-out RMS, noise floor and the physical
     parameters discovery fitted (resonance Hz and damping, creep per decade, delay µs, drift,
     coupling), so a stage that differs or drifts stands out. 422 naming ``axis`` otherwise."""

@@ -2,29 +2,43 @@
 
 Diagnosis, refine and history live in service.http.discovery under the same ``/models`` prefix.
 """
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
 
 from service.http.deps import get_jobs, get_store
-from service.science.data.export import JSON_DEFAULT_MAX_POINTS
 from service.http.schemas.common import BENCH_FILTER, Deleted, JobQueued, LabelsUpdate, with_figures
 from service.http.schemas.models import Comparison, Model, ModelRequest
 from service.runtime.jobs import JobManager
-from service.usecases.identify import check_identify_request, compare, identify
+from service.science.data.export import JSON_DEFAULT_MAX_POINTS
 from service.store import ModelRow, Store
+from service.usecases.identify import check_identify_request, compare, identify
 
 router = APIRouter(prefix="/models", tags=["models"])
 
 
 def model_view(row: ModelRow) -> dict:
     """A model record as the API shows it (units in the field names of parameters and metrics)."""
-    return {"id": row["id"], "axis": row["axis"], "kind": row["kind"], "effects": row["effects"],
-            "parent_id": row["parent_id"], "datasets": row["datasets"], "options": row["options"],
-            "parameters": row["parameters"], "parameters_sha256": row["parameters_sha256"],
-            "metrics": row["metrics"], "software_version": row["software_version"], "job_id": row["job_id"],
-            "created_at": row["created_at"], "name": row["name"], "tags": row["tags"], "notes": row["notes"],
-            "bench_id": row.get("bench_id")}
+    return {
+        "id": row["id"],
+        "axis": row["axis"],
+        "kind": row["kind"],
+        "effects": row["effects"],
+        "parent_id": row["parent_id"],
+        "datasets": row["datasets"],
+        "options": row["options"],
+        "parameters": row["parameters"],
+        "parameters_sha256": row["parameters_sha256"],
+        "metrics": row["metrics"],
+        "software_version": row["software_version"],
+        "job_id": row["job_id"],
+        "created_at": row["created_at"],
+        "name": row["name"],
+        "tags": row["tags"],
+        "notes": row["notes"],
+        "bench_id": row.get("bench_id"),
+    }
 
 
 @router.post("", status_code=202, response_model=JobQueued)
@@ -56,19 +70,26 @@ def label_model(model_id: str, body: LabelsUpdate, store: Store = Depends(get_st
 
 
 @router.delete("/{model_id}", response_model=Deleted)
-def delete_model(model_id: str, cascade: bool = Query(False, description="also delete every model refined "
-                                                      "from it"), store: Store = Depends(get_store)) -> dict:
+def delete_model(
+    model_id: str,
+    cascade: bool = Query(False, description="also delete every model refined from it"),
+    store: Store = Depends(get_store),
+) -> dict:
     """Delete a model. Refused with 409 naming its children (``dependents``) unless ``cascade=true``."""
     return store.delete_model(model_id, cascade)
 
 
 @router.get("/{model_id}/compare", response_model=Comparison, response_model_exclude_unset=True)
 @with_figures(json_max_points=JSON_DEFAULT_MAX_POINTS)
-def compare_model(model_id: str, dataset: str = Query(..., description="dataset id"),
-                  max_points: int | None = Query(None, ge=2, description=(
-                      f"at most this many points per array (default {JSON_DEFAULT_MAX_POINTS})")),
-                  arrays: bool = Query(True, description="false: metrics only"),
-                  store: Store = Depends(get_store)) -> dict:
+def compare_model(
+    model_id: str,
+    dataset: str = Query(..., description="dataset id"),
+    max_points: int | None = Query(
+        None, ge=2, description=(f"at most this many points per array (default {JSON_DEFAULT_MAX_POINTS})")
+    ),
+    arrays: bool = Query(True, description="false: metrics only"),
+    store: Store = Depends(get_store),
+) -> dict:
     """Measured vs predicted displacement (µm), the residual, and RMS / max / fit % metrics over
     all blocks and per block, split into training and held-out cycles.
 

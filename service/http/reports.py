@@ -1,27 +1,34 @@
 """The model report: GET /api/models/{id}/report, one self-contained HTML file (service.usecases.report)."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import HTMLResponse
 
 from service.http.deps import get_store
+from service.http.schemas.models import ReportFigures
 from service.runtime.bulk import run_bulk
 from service.store import Store
-from service.http.schemas.models import ReportFigures
 from service.usecases.report import model_figures, model_report
 
 router = APIRouter(prefix="/models", tags=["reports"])
 
 #: HTML has no response model: the OpenAPI document names its media type and says what it holds
-REPORT_RESPONSES = {200: {"content": {"text/html": {"schema": {"type": "string"}}},
-                          "description": "the report: one HTML file with inline SVG figures, no script"},
-                    404: {"description": "no model with that id"}}
+REPORT_RESPONSES = {
+    200: {
+        "content": {"text/html": {"schema": {"type": "string"}}},
+        "description": "the report: one HTML file with inline SVG figures, no script",
+    },
+    404: {"description": "no model with that id"},
+}
 
 
 @router.get("/{model_id}/report", response_class=HTMLResponse, responses=REPORT_RESPONSES)
-async def get_report(model_id: str, download: bool = Query(False, description="answer as an attachment "
-                                                           "(<model-id>-report.html)"),
-                     store: Store = Depends(get_store)) -> HTMLResponse:
+async def get_report(
+    model_id: str,
+    download: bool = Query(False, description="answer as an attachment (<model-id>-report.html)"),
+    store: Store = Depends(get_store),
+) -> HTMLResponse:
     """The model as one self-contained HTML page: the model, its datasets, the lineage with the RMS of
     each step, the diagnosis (verdict, noise floor, candidates with evidence, what the data cannot
     test), the fitted parameters, per block the loop and the residual over the held-out cycles and the

@@ -1,4 +1,5 @@
 """POST /api/sweeps: check a characterisation plan against the bench, then queue it as a bench job."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
@@ -12,13 +13,23 @@ from service.usecases.acquire import queue_sweep
 
 router = APIRouter(tags=["sweeps"])
 
+
 @router.post("/sweeps", status_code=202, response_model=SweepQueued)
-def start_sweep(body: SweepRequest, bench: Bench = Depends(get_bench), store: Store = Depends(get_store),
-                jobs: JobManager = Depends(get_jobs)) -> dict:
+def start_sweep(
+    body: SweepRequest,
+    bench: Bench = Depends(get_bench),
+    store: Store = Depends(get_store),
+    jobs: JobManager = Depends(get_jobs),
+) -> dict:
     """Queue a sweep; the job's result is ``{"dataset_id"}``. Refused with 422 (naming the field)
     if the plan leaves the bench's voltage, current or slew limits: nothing is queued then."""
     values = body.model_dump()
     name = values.pop("name")
     job, planned = queue_sweep(jobs, bench, store, values, name)
-    return {"job_id": job["id"], "state": job["state"], "samples": planned.samples,
-            "duration_s": planned.duration_s, "blocks": planned.blocks}
+    return {
+        "job_id": job["id"],
+        "state": job["state"],
+        "samples": planned.samples,
+        "duration_s": planned.duration_s,
+        "blocks": planned.blocks,
+    }

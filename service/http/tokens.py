@@ -1,13 +1,14 @@
 """Token management (admin scope): GET/POST /api/admin/tokens, DELETE /api/admin/tokens/{id}."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request
 
-from service.security import auth
 from service.http.auth import recent_tokens
 from service.http.deps import get_store
 from service.http.schemas.admin import NewToken, Token, TokenRequest
 from service.runtime.stop_port_link import refresh_stop_tokens
+from service.security import auth
 from service.store import NotFoundError, Store, utc_now
 
 router = APIRouter(prefix="/admin/tokens", tags=["admin"])

@@ -1,6 +1,7 @@
 """POST /api/trajectories: check an ellipse and its controller against the bench, then run it as a
 bench job (FF + PID + ILC through service.science.control, the path the control benchmark measures):
 the checks and the job live in service.usecases.track."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
@@ -18,23 +19,31 @@ router = APIRouter(tags=["trajectories"])
 
 
 @router.post("/trajectories", status_code=202, response_model=JobQueued)
-def start_trajectory(body: TrajectoryRequest, bench: Bench = Depends(get_bench), store: Store = Depends(get_store),
-                     jobs: JobManager = Depends(get_jobs)) -> dict:
+def start_trajectory(
+    body: TrajectoryRequest,
+    bench: Bench = Depends(get_bench),
+    store: Store = Depends(get_store),
+    jobs: JobManager = Depends(get_jobs),
+) -> dict:
     """Queue a tracking run; the result has max_error_y_um, max_error_z_um, rms_error_um,
     relative_error_pct, error_per_period_um and dataset_id. Refused with 422 naming the field if the
     mode, the current, the resonance or the voltage forbid it: nothing is queued then."""
     ellipse = body.ellipse()
     controller = check_trajectory(bench, store, ellipse, body.controller.model_dump(), body.mode)
     params = body.model_dump()
-    job = jobs.submit("trajectory", params,
-                      lambda ctx: run_trajectory(ctx, bench, store, ellipse, controller, body.mode, params, body.name),
-                      needs_bench=True)
+    job = jobs.submit(
+        "trajectory",
+        params,
+        lambda ctx: run_trajectory(ctx, bench, store, ellipse, controller, body.mode, params, body.name),
+        needs_bench=True,
+    )
     return {"job_id": job["id"], "state": job["state"]}
 
 
 @router.post("/trajectories/span-sweeps", response_model=list[SweepRequest])
-def trajectory_span_sweeps(body: TrajectoryRequest, bench: Bench = Depends(get_bench),
-                           store: Store = Depends(get_store)) -> list[dict]:
+def trajectory_span_sweeps(
+    body: TrajectoryRequest, bench: Bench = Depends(get_bench), store: Store = Depends(get_store)
+) -> list[dict]:
     """The sweeps (one per axis, ready for POST /api/sweeps) over the voltages this ellipse needs by its
     feedforward models, ± 5 V within the bench's limits: identify models on them for the run. Nothing
     runs; 422 naming controller.feedforward_model_<axis> when an axis has no model."""

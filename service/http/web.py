@@ -3,6 +3,7 @@ library installed by npm into web/node_modules), and GET / sending a browser the
 
 The dashboard uses only the REST API and its event streams; this module holds no logic.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

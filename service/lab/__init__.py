@@ -5,6 +5,7 @@ identification, diagnosis and a bounded discovery loop over many datasets, in pr
 cluster, one task per dataset and axis; ``emulated`` records emulated sweeps into a store (the
 benchmark's and the tests' datasets).
 """
+
 from service.lab.address import StoreAddress, open_store
 
 __all__ = ["StoreAddress", "open_store"]

@@ -4,6 +4,7 @@ store itself (a Store holds an engine and connections, which never travel to ano
 Each process keeps one open Store per address (``open_store``), so the tasks a worker runs share
 its connections instead of creating the tables' metadata again for every dataset.
 """
+
 from __future__ import annotations
 
 import threading
@@ -24,7 +25,7 @@ class StoreAddress:
     array_url: str | None = None
 
     @classmethod
-    def of(cls, database_url: str | None, data_dir: str | Path, array_url: str | None = None) -> "StoreAddress":
+    def of(cls, database_url: str | None, data_dir: str | Path, array_url: str | None = None) -> StoreAddress:
         """The address of a store; ``database_url`` None means the embedded SQLite file in
         ``data_dir``, as ``evcbench serve`` opens it (Settings.resolved_database_url)."""
         settings = Settings(data_dir=Path(data_dir).resolve(), database_url=database_url)

@@ -15,10 +15,11 @@ On a cluster a worker that dies mid-task loses nothing: the scheduler runs the t
 another worker (up to ``distributed.scheduler.allowed-failures`` deaths per task). A task run twice
 stores its models twice; the result names the run that finished.
 """
+
 from __future__ import annotations
 
 import uuid
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from service.lab.address import StoreAddress, open_store
 from service.science.discovery.parameters import physical_parameters
@@ -71,7 +72,12 @@ def plan_batch(store: Store, dataset_ids: Sequence[str] | None = None, axes: Seq
     plan = []
     for row in rows:
         for axis in axes:
-            entry = {"bench_id": row.get("bench_id"), "dataset_id": row["id"], "dataset_name": row["name"], "axis": axis}
+            entry = {
+                "bench_id": row.get("bench_id"),
+                "dataset_id": row["id"],
+                "dataset_name": row["name"],
+                "axis": axis,
+            }
             if axis not in row["axes"]:
                 entry.update(status="skipped", reason=f"no {axis} axis (the dataset has {', '.join(row['axes'])})")
             elif not split_blocks(row["blocks"], row["samples"], row["sample_rate_hz"], axis):
@@ -80,8 +86,15 @@ def plan_batch(store: Store, dataset_ids: Sequence[str] | None = None, axes: Seq
     return plan
 
 
-def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int = 0, n_operators: int = 10,
-                 batch_id: str | None = None, continue_past_ambiguity: bool = False) -> dict:
+def discover_one(
+    address: StoreAddress,
+    dataset_id: str,
+    axis: str,
+    steps: int = 0,
+    n_operators: int = 10,
+    batch_id: str | None = None,
+    continue_past_ambiguity: bool = False,
+) -> dict:
     """One task: identify the hysteresis model of ``axis`` of a stored dataset, diagnose it, and run
     the discovery loop for at most ``steps`` added effects (a batch runs no experiment: the loop stops
     at an ambiguity, ``stopped`` "needs_experiment", unless ``continue_past_ambiguity``). A JSON-safe row (µm; ``status`` "ok", or
@@ -90,43 +103,80 @@ def discover_one(address: StoreAddress, dataset_id: str, axis: str, steps: int =
     row = store.get_dataset(dataset_id)
     out = {"bench_id": row.get("bench_id"), "dataset_id": dataset_id, "dataset_name": row["name"], "axis": axis}
     try:
-        require_fit_memory(store, [dataset_id])       # this worker's free memory, not the planner's
+        require_fit_memory(store, [dataset_id])  # this worker's free memory, not the planner's
         record = load_record(store, dataset_id, axis, row=row)
     except FieldError as exc:
         return {**out, "status": "skipped", "reason": exc.message}
     if not record.training_mask(own_axis_only=True).any():
-        return {**out, "status": "skipped", "reason": "no training data: every block is too short to hold out "
-                                                      "its last cycle and keep one for the fit"}
-    labels = {"tags": [f"batch:{batch_id}"] if batch_id else []}     # the bench: the dataset's (Store.add_model)
+        return {
+            **out,
+            "status": "skipped",
+            "reason": "no training data: every block is too short to hold out its last cycle and keep one for the fit",
+        }
+    labels = {"tags": [f"batch:{batch_id}"] if batch_id else []}  # the bench: the dataset's (Store.add_model)
     estimator = model_for("composite", ["hysteresis"], n_operators)
     estimator.fit([record])
     base = store_model(store, estimator, [record], axis, [dataset_id], ["hysteresis"], n_operators, None, None, labels)
     d = diagnose_model(store, base["id"], records=[record])
-    out.update({
-        "status": "ok", "model_id": base["id"], "parameters_sha256": base["parameters_sha256"],
-        "train_rms_um": d["train_rms_um"], "held_out_rms_um": d["residual_rms_um"],
-        "noise_floor_um": d["noise_floor_um"], "at_noise_floor": d["at_noise_floor"], "verdict": d["verdict"],
-        "claimed_effects": [c["effect"] for c in d["candidates"] if c["claimed"] and c["kind"] == "physical"],
-        "ambiguous": d["ambiguity"]["effects"] if d.get("ambiguity") else None,
-        "candidates": [{k: c[k] for k in ("effect", "kind", "claimed", "p_value", "expected_rms_um")}
-                       for c in d["candidates"] if c["testable"]],
-        # the loop's figures; with steps = 0 the loop does not run and the base model is the final one
-        "final_model_id": base["id"], "effects": ["hysteresis"], "effects_found": [],
-        "held_out_rms_after_um": d["residual_rms_um"], "physical_parameters": physical_parameters(estimator),
-        "stopped": None})
+    out.update(
+        {
+            "status": "ok",
+            "model_id": base["id"],
+            "parameters_sha256": base["parameters_sha256"],
+            "train_rms_um": d["train_rms_um"],
+            "held_out_rms_um": d["residual_rms_um"],
+            "noise_floor_um": d["noise_floor_um"],
+            "at_noise_floor": d["at_noise_floor"],
+            "verdict": d["verdict"],
+            "claimed_effects": [c["effect"] for c in d["candidates"] if c["claimed"] and c["kind"] == "physical"],
+            "ambiguous": d["ambiguity"]["effects"] if d.get("ambiguity") else None,
+            "candidates": [
+                {k: c[k] for k in ("effect", "kind", "claimed", "p_value", "expected_rms_um")}
+                for c in d["candidates"]
+                if c["testable"]
+            ],
+            # the loop's figures; with steps = 0 the loop does not run and the base model is the final one
+            "final_model_id": base["id"],
+            "effects": ["hysteresis"],
+            "effects_found": [],
+            "held_out_rms_after_um": d["residual_rms_um"],
+            "physical_parameters": physical_parameters(estimator),
+            "stopped": None,
+        }
+    )
     if steps > 0:
-        run = discover(_BatchContext(), store, base["id"], max_steps=steps + 1, labels=labels,
-                       continue_past_ambiguity=continue_past_ambiguity)
-        out.update({"final_model_id": run["final_model_id"], "effects": run["effects"],
-                    "effects_found": [e["effect"] for e in run["effects_found"]],
-                    "held_out_rms_after_um": run["remains"]["validation_rms_um"],
-                    "physical_parameters": run["final_parameters"], "stopped": run["stopped"]})
+        run = discover(
+            _BatchContext(),
+            store,
+            base["id"],
+            max_steps=steps + 1,
+            labels=labels,
+            continue_past_ambiguity=continue_past_ambiguity,
+        )
+        out.update(
+            {
+                "final_model_id": run["final_model_id"],
+                "effects": run["effects"],
+                "effects_found": [e["effect"] for e in run["effects_found"]],
+                "held_out_rms_after_um": run["remains"]["validation_rms_um"],
+                "physical_parameters": run["final_parameters"],
+                "stopped": run["stopped"],
+            }
+        )
     return clean_json(out)
 
 
-def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = None, axes: Sequence[str] = AXES,
-                   steps: int = 0, n_operators: int = 10, client=None, on_result: ResultCallback | None = None,
-                   cancelled: Callable[[], bool] | None = None, continue_past_ambiguity: bool = False) -> dict:
+def batch_discover(
+    address: StoreAddress,
+    dataset_ids: Sequence[str] | None = None,
+    axes: Sequence[str] = AXES,
+    steps: int = 0,
+    n_operators: int = 10,
+    client=None,
+    on_result: ResultCallback | None = None,
+    cancelled: Callable[[], bool] | None = None,
+    continue_past_ambiguity: bool = False,
+) -> dict:
     """Run ``discover_one`` for every dataset (all of the store's when ``dataset_ids`` is None) and
     axis: in this process when ``client`` is None, else as one task each on the Dask cluster of
     ``client`` (a distributed.Client). Returns ``{"batch_id", "steps", "n_operators", "ran", "ok",
@@ -154,20 +204,43 @@ def batch_discover(address: StoreAddress, dataset_ids: Sequence[str] | None = No
             if stop():
                 break
             try:
-                row = discover_one(address, plan[i]["dataset_id"], plan[i]["axis"], steps, n_operators, batch_id,
-                                   continue_past_ambiguity)
+                row = discover_one(
+                    address,
+                    plan[i]["dataset_id"],
+                    plan[i]["axis"],
+                    steps,
+                    n_operators,
+                    batch_id,
+                    continue_past_ambiguity,
+                )
             except Exception as exc:  # noqa: BLE001 - one dataset's failure is its row, not the batch's
                 row = _failed(plan[i], exc)
             arrived(i, row)
     else:
-        _run_on_cluster(client, address, plan, todo, arrived, stop, steps=steps, n_operators=n_operators,
-                        batch_id=batch_id, continue_past_ambiguity=continue_past_ambiguity)
+        _run_on_cluster(
+            client,
+            address,
+            plan,
+            todo,
+            arrived,
+            stop,
+            steps=steps,
+            n_operators=n_operators,
+            batch_id=batch_id,
+            continue_past_ambiguity=continue_past_ambiguity,
+        )
     for i in todo:
         if i not in done:
             results[i] = {**plan[i], "status": "cancelled"}
     count = {s: sum(1 for r in results if r.get("status") == s) for s in ("ok", "skipped", "failed", "cancelled")}
-    return {"batch_id": batch_id, "steps": steps, "n_operators": n_operators, "ran": len(todo), **count,
-            "results": results}
+    return {
+        "batch_id": batch_id,
+        "steps": steps,
+        "n_operators": n_operators,
+        "ran": len(todo),
+        **count,
+        "results": results,
+    }
 
 
 def _run_on_cluster(client, address, plan, todo, arrived, stop, **options) -> None:
@@ -175,8 +248,14 @@ def _run_on_cluster(client, address, plan, todo, arrived, stop, **options) -> No
     each row to ``arrived`` as it comes; the rest cancelled once ``stop()``."""
     from distributed import wait
 
-    futures = client.map(discover_one, [address] * len(todo), [plan[i]["dataset_id"] for i in todo],
-                         [plan[i]["axis"] for i in todo], pure=False, **options)
+    futures = client.map(
+        discover_one,
+        [address] * len(todo),
+        [plan[i]["dataset_id"] for i in todo],
+        [plan[i]["axis"] for i in todo],
+        pure=False,
+        **options,
+    )
     index = {f.key: i for f, i in zip(futures, todo)}
     pending = set(futures)
     while pending:

@@ -3,13 +3,14 @@ worker tcp://…`` started by hand, or EVCBENCH_DASK_SCHEDULER), or a LocalClust
 processes (one thread each: a task's least squares use one BLAS thread, service/__init__.py) with no
 dashboard. ``distributed`` is imported here only, so nothing else of the service needs it.
 """
+
 from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 #: how many worker deaths a task may see before the scheduler gives up on it (KilledWorker): one
 #: killed or lost worker costs a retry; a task that itself kills every worker it lands on (out of
@@ -19,8 +20,10 @@ ALLOWED_FAILURES = 3
 #: unset: setting it turns off glibc's adaptive mmap threshold, so every large numpy temporary is
 #: mmap'ed, page-faulted and unmapped anew, and a diagnosis took twice the CPU time on a worker as in
 #: process (4.5–5.2 s against 2.2–2.3 s, /tmp measurement on this machine, 2026-12-02)
-WORKER_CONFIG = {"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
-                 "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+WORKER_CONFIG = {
+    "distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+}
 #: the same as a Dask config file, for a scheduler and workers started by hand (DASK_CONFIG=<this dir>;
 #: a DASK_* variable cannot say it: Dask lower-cases the variable's name)
 CONFIG_DIR = Path(__file__).resolve().parent / "dask"
@@ -45,9 +48,17 @@ def dask_client(scheduler: str | None = None, local_workers: int | None = None) 
         if n < 1:
             raise ValueError(f"local_workers: must be 1 or more, not {n}")
         # no dashboard; the scheduler's own HTTP routes (health, metrics) on a free port, not 8787
-        with LocalCluster(n_workers=n, processes=True, threads_per_worker=1, dashboard_address=None,
-                          scheduler_kwargs={"dashboard_address": ":0"}, silence_logs=logging.ERROR) as cluster, \
-                Client(cluster) as client:
+        with (
+            LocalCluster(
+                n_workers=n,
+                processes=True,
+                threads_per_worker=1,
+                dashboard_address=None,
+                scheduler_kwargs={"dashboard_address": ":0"},
+                silence_logs=logging.ERROR,
+            ) as cluster,
+            Client(cluster) as client,
+        ):
             yield client
 
 

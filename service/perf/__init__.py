@@ -2,10 +2,11 @@
 
 They are run by ``evcbench bench <name> --json``, never as timed assertions in the tests.
 """
+
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from collections.abc import Callable
 
 # name -> "module:function"; imported lazily so one benchmark's dependencies never slow another.
 BENCHMARKS: dict[str, str] = {

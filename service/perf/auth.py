@@ -7,6 +7,7 @@ hash looked up in the store, revocation and scope checked) and one with ``auth =
 answering GET /api/bench through an in-process client. Requests alternate between the two so both see the same machine load; ``ratio`` is
 p50 with auth / p50 without.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -17,9 +18,9 @@ from pathlib import Path
 
 from fastapi.testclient import TestClient
 
-from service.security import auth
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
+from service.security import auth
 
 PATH = "/api/bench"
 
@@ -46,10 +47,15 @@ def run_auth_benchmark(requests: int = 400, warmup: int = 20) -> dict:
                 if i >= warmup:
                     times_ms[mode].append(elapsed)
     p50 = {mode: statistics.median(t) for mode, t in times_ms.items()}
-    return {"path": PATH, "requests_each": requests, "client": "in-process (httpx via TestClient)",
-            "p50_ms_auth_tokens": round(p50["tokens"], 4), "p50_ms_auth_off": round(p50["off"], 4),
-            "p50_overhead_ms": round(p50["tokens"] - p50["off"], 4),
-            "ratio": round(p50["tokens"] / p50["off"], 3)}
+    return {
+        "path": PATH,
+        "requests_each": requests,
+        "client": "in-process (httpx via TestClient)",
+        "p50_ms_auth_tokens": round(p50["tokens"], 4),
+        "p50_ms_auth_off": round(p50["off"], 4),
+        "p50_overhead_ms": round(p50["tokens"] - p50["off"], 4),
+        "ratio": round(p50["tokens"] / p50["off"], 3),
+    }
 
 
 if __name__ == "__main__":

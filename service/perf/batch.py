@@ -17,6 +17,7 @@ CPU time the workers spent in the batch, and ``cpu_share_per_worker`` that over 
 workers: near 1 when each worker had a core to itself. ``load_average`` is the machine's before and
 after: on a shared machine other processes take their turns too, and the ratio shows it.
 """
+
 from __future__ import annotations
 
 import os
@@ -81,15 +82,21 @@ def run_batch_benchmark(n_datasets: int = 64, rounds: int = 2, spin_tasks: int =
         for i in range(n_datasets):
             bench = BENCHES[i % len(BENCHES)]
             ids.append(record_emulated_sweep(store, bench, seed=i, bench_id=f"bench-{bench}", axes=("y",))["id"])
-        out = {"datasets": n_datasets, "axes": ["y"], "sweep": "10, 50 Hz x 4 cycles", "rounds": rounds,
-               "seed_s": time.perf_counter() - t0, "load_average": {"before": list(os.getloadavg())}}
+        out = {
+            "datasets": n_datasets,
+            "axes": ["y"],
+            "sweep": "10, 50 Hz x 4 cycles",
+            "rounds": rounds,
+            "seed_s": time.perf_counter() - t0,
+            "load_average": {"before": list(os.getloadavg())},
+        }
         runs = {n: {"wall_s": [], "workers_cpu_s": [], "spin_wall_s": []} for n in (1, 2)}
         results = {}
         with dask_client(local_workers=1) as one, dask_client(local_workers=2) as two:
             clients = {1: one, 2: two}
             for client in clients.values():
                 client.run(warm_up, address, ids[0])
-            for _ in range(rounds):                  # alternate, so that both see the machine's load alike
+            for _ in range(rounds):  # alternate, so that both see the machine's load alike
                 for n, client in clients.items():
                     result, wall, cpu_s = _timed_batch(client, address, ids)
                     results.setdefault(n, []).append(result)
@@ -98,9 +105,13 @@ def run_batch_benchmark(n_datasets: int = 64, rounds: int = 2, spin_tasks: int =
                     runs[n]["spin_wall_s"].append(_timed_spin(client, spin_tasks, spin_cpu_s))
         for n, run in runs.items():
             best = min(run["wall_s"])
-            run.update(best_wall_s=best, datasets_per_s=n_datasets / best, ok=[r["ok"] for r in results[n]],
-                       failed=[r["failed"] for r in results[n]],
-                       cpu_share_per_worker=[c / w / n for c, w in zip(run["workers_cpu_s"], run["wall_s"])])
+            run.update(
+                best_wall_s=best,
+                datasets_per_s=n_datasets / best,
+                ok=[r["ok"] for r in results[n]],
+                failed=[r["failed"] for r in results[n]],
+                cpu_share_per_worker=[c / w / n for c, w in zip(run["workers_cpu_s"], run["wall_s"])],
+            )
         out["runs"] = {f"{n}_workers": run for n, run in runs.items()}
         out["speedup"] = runs[1]["best_wall_s"] / runs[2]["best_wall_s"]
         out["spin_speedup"] = min(runs[1]["spin_wall_s"]) / min(runs[2]["spin_wall_s"])

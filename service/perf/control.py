@@ -13,14 +13,15 @@
   (all three are listed). ``closed_loop_cpu_realtime_factor`` divides by the process's CPU time
   instead of the wall time: what the loop costs, without the time the OS gave to other processes.
 """
+
 from __future__ import annotations
 
 import os
 import time
 
 import numpy as np
-from drivers.jit import njit
 
+from drivers.jit import njit
 from service.science.control import kernels as CK
 from service.science.control.ilc import HarmonicILC
 from service.science.control.loop import PIDGains
@@ -48,9 +49,27 @@ def controller_cost_us(n: int = 400_000, period: int = 200, harmonics: int = 20)
     def once(m):
         x, u = np.zeros((m, 2)), np.zeros((m, 2))
         t0 = time.perf_counter()
-        CK.point_by_point_runner(_pass_through)(wargs, noise, 0, ref[:m], uff[:m], pid_p, np.zeros((2, CK.NPS)),
-                              np.zeros(2), lim, trip, np.zeros(2), np.ones(2), np.zeros(2), 1 / SAMPLE_RATE_HZ,
-                              x, u, np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
+        CK.point_by_point_runner(_pass_through)(
+            wargs,
+            noise,
+            0,
+            ref[:m],
+            uff[:m],
+            pid_p,
+            np.zeros((2, CK.NPS)),
+            np.zeros(2),
+            lim,
+            trip,
+            np.zeros(2),
+            np.ones(2),
+            np.zeros(2),
+            1 / SAMPLE_RATE_HZ,
+            x,
+            u,
+            np.zeros((1, 4)),
+            np.zeros((1, 10)),
+            np.zeros(1, np.uint8),
+        )
         return time.perf_counter() - t0
 
     once(1000)
@@ -64,10 +83,13 @@ def controller_cost_us(n: int = 400_000, period: int = 200, harmonics: int = 20)
     t0 = time.perf_counter()
     for _ in range(reps):
         ilc.learning, ilc.best_rms_um, ilc.best_learnable_um = True, np.inf, np.inf
-        ilc.update(err, base_v=base, limits_v=lims, applied_v=ilc.u_v)   # with the Ĝ refinement
+        ilc.update(err, base_v=base, limits_v=lims, applied_v=ilc.u_v)  # with the Ĝ refinement
     ilc_per_period = (time.perf_counter() - t0) / reps
-    return {"pid_us_per_sample": per_sample * 1e6, "ilc_update_us_per_period": ilc_per_period * 1e6,
-            "controller_us_per_sample": (per_sample + ilc_per_period / period) * 1e6}
+    return {
+        "pid_us_per_sample": per_sample * 1e6,
+        "ilc_update_us_per_period": ilc_per_period * 1e6,
+        "controller_us_per_sample": (per_sample + ilc_per_period / period) * 1e6,
+    }
 
 
 def closed_loop(cycles: int = 100, repeats: int = 3) -> dict:
@@ -81,7 +103,7 @@ def closed_loop(cycles: int = 100, repeats: int = 3) -> dict:
     bench = open_bench("default", seed=1)
     models = {ax: identify(bench, ax, "static_pi") for ax in bench.axes}
     ctl = Controller(feedforward=models, pid=ILC_PID, ilc=True)
-    track(bench, Ellipse((1, 5), (1, 9), 20.0, 100.0, 3), ctl)          # warm-up (JIT)
+    track(bench, Ellipse((1, 5), (1, 9), 20.0, 100.0, 3), ctl)  # warm-up (JIT)
     runs = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -90,23 +112,32 @@ def closed_loop(cycles: int = 100, repeats: int = 3) -> dict:
     bench.close()
     _, wall, result, rec, ref = min(runs, key=lambda r: r[0])
     simulated = rec.samples / ref.sample_rate_hz
-    return {"closed_loop_realtime_factor": result["loop_realtime_factor"], "closed_loop_simulated_s": simulated,
-            "closed_loop_wall_s": result["loop_wall_s"],
-            "closed_loop_cpu_realtime_factor": result["loop_cpu_realtime_factor"],
-            "end_to_end_realtime_factor": simulated / wall,
-            "end_to_end_note": "track() incl. the static-PI inverse of the whole reference and the multisine response measurement",
-            "closed_loop_relative_error_pct": result.get("relative_error_pct"),
-            "closed_loop_rms_error_um": result.get("rms_error_um"),
-            "closed_loop_realtime_factor_all_runs": [round(r[2]["loop_realtime_factor"], 1) for r in runs]}
+    return {
+        "closed_loop_realtime_factor": result["loop_realtime_factor"],
+        "closed_loop_simulated_s": simulated,
+        "closed_loop_wall_s": result["loop_wall_s"],
+        "closed_loop_cpu_realtime_factor": result["loop_cpu_realtime_factor"],
+        "end_to_end_realtime_factor": simulated / wall,
+        "end_to_end_note": "track() incl. the static-PI inverse of the whole reference and the multisine response measurement",
+        "closed_loop_relative_error_pct": result.get("relative_error_pct"),
+        "closed_loop_rms_error_um": result.get("rms_error_um"),
+        "closed_loop_realtime_factor_all_runs": [round(r[2]["loop_realtime_factor"], 1) for r in runs],
+    }
 
 
 def run_control_benchmark() -> dict:
     cost = controller_cost_us()
     period_us = 1e6 / SAMPLE_RATE_HZ
-    out = {"sample_rate_hz": SAMPLE_RATE_HZ, "sample_period_us": period_us, **cost,
-           "margin": period_us / cost["controller_us_per_sample"], "margin_goal": 50,
-           **closed_loop(), "closed_loop_realtime_factor_goal": 50,
-           "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS")}
+    out = {
+        "sample_rate_hz": SAMPLE_RATE_HZ,
+        "sample_period_us": period_us,
+        **cost,
+        "margin": period_us / cost["controller_us_per_sample"],
+        "margin_goal": 50,
+        **closed_loop(),
+        "closed_loop_realtime_factor_goal": 50,
+        "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+    }
     return out
 
 

@@ -10,6 +10,7 @@ On a shared machine, OpenBLAS's threads contend with other work and slow the sma
 factorisations of the LS far more than the PSO's products: compare runs with the same
 ``OPENBLAS_NUM_THREADS`` (reported in the result).
 """
+
 from __future__ import annotations
 
 import json
@@ -21,17 +22,27 @@ import numpy as np
 from scipy.signal import lfilter
 
 from service.science.data.record import Record
-from service.science.models import DynamicPI, StaticPI, equal_thresholds
+from service.science.data.signals import biased_sine
 from service.science.fitting.metrics import rms
 from service.science.fitting.pi_family import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, fit_metrics
-from service.science.data.signals import biased_sine
+from service.science.models import DynamicPI, StaticPI, equal_thresholds
 
 FREQUENCIES_HZ = (1.0, 10.0, 50.0, 100.0)
 SAMPLE_RATE_HZ = 20_000.0
 CYCLES = 5
 NOISE_RMS_UM = 0.005
-PAPER_WEIGHTS_Y_UM_PER_V = [0.01354, 0.02790, 4.3634e-8, 0.004014, 0.007765,
-                            3.3995e-14, 6.8298e-13, 8.9564e-13, 8.0574e-13, 7.0060e-15]
+PAPER_WEIGHTS_Y_UM_PER_V = [
+    0.01354,
+    0.02790,
+    4.3634e-8,
+    0.004014,
+    0.007765,
+    3.3995e-14,
+    6.8298e-13,
+    8.9564e-13,
+    8.0574e-13,
+    7.0060e-15,
+]
 PAPER_ALPHA_Y = [-8.4632e-7, -3.9336e-6, 1.4926e-6, -3.0164e-6]  # µm·ms/V²
 PAPER_BETA_Y = [2.5880e-7, 9.6875e-7, 2.1025e-6, 1.3017e-6]  # µm·ms²/V²
 
@@ -69,8 +80,10 @@ def lagged_pi_loops(tau_s: float = 3e-4, seed: int = 0, noise_rms_um: float = 0.
     pi = static_truth()
     a = np.exp(-1.0 / (SAMPLE_RATE_HZ * tau_s))
     rng = np.random.default_rng(seed)
-    return [d.with_x(pi.predict(lfilter([1.0 - a], [1.0, -a], d.u_v)) + rng.normal(0.0, noise_rms_um, d.n_samples))
-            for d in paper_drives()]
+    return [
+        d.with_x(pi.predict(lfilter([1.0 - a], [1.0, -a], d.u_v)) + rng.normal(0.0, noise_rms_um, d.n_samples))
+        for d in paper_drives()
+    ]
 
 
 def _timed(fn):

@@ -9,6 +9,7 @@ The token comes from $EVCBENCH_TOKEN. A plain subprocess, not a multiprocessing 
 shared with the benchmark but two pipes (a spawned child rebuilding a shared semaphore failed with
 FileNotFoundError on a loaded CI machine, and its counts never came).
 """
+
 from __future__ import annotations
 
 import json

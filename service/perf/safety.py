@@ -14,6 +14,7 @@ output log, so the machine's speed does not enter; the watchdog's are wall-clock
   0.25 and 1 s (4 periods = 40 ms, so the floor sets the timeout): measured last-write → 0 V time
   beside the configured timeout.
 """
+
 from __future__ import annotations
 
 import random
@@ -27,9 +28,9 @@ from drivers.emulated import open_bench
 from service.science.control.session import SAMPLE_RATE_HZ
 
 FS = SAMPLE_RATE_HZ
-BLOCK = RUN_BLOCK_SAMPLES                 # a sweep's control period: one buffered block
+BLOCK = RUN_BLOCK_SAMPLES  # a sweep's control period: one buffered block
 TRAJECTORY_HZ = 100.0
-PERIOD = round(FS / TRAJECTORY_HZ)       # a trajectory's control period: one ellipse period
+PERIOD = round(FS / TRAJECTORY_HZ)  # a trajectory's control period: one ellipse period
 
 
 def _sine(seconds: float, hz: float = 5.0) -> np.ndarray:
@@ -54,8 +55,11 @@ def _trajectory(bench, cycles: int) -> None:
 
 def _zero_after(world, t_s: float) -> float:
     """Emulated time the first 0 V write at or after ``t_s`` began."""
-    return next(e["zero_from_t_s"] for e in world.output_log.entries()
-                if e["event"] == "idle" and e["zero_from_t_s"] >= t_s - 1e-9)
+    return next(
+        e["zero_from_t_s"]
+        for e in world.output_log.entries()
+        if e["event"] == "idle" and e["zero_from_t_s"] >= t_s - 1e-9
+    )
 
 
 def _stop_once(bench, run, period: int, rng: random.Random) -> dict:
@@ -85,17 +89,22 @@ def _stop_once(bench, run, period: int, rng: random.Random) -> dict:
 
 def _summary(runs: list[dict], period: int) -> dict:
     s = np.array([r["samples"] for r in runs])
-    return {"control_period_samples": period, "runs": len(runs), "samples_after_stop_max": int(s.max()),
-            "samples_after_stop_median": float(np.median(s)), "periods_max": float(s.max() / period),
-            "stop_call_wall_ms_max": max(r["wall_ms"] for r in runs),
-            "loop_answered": all(r["answered"] for r in runs)}
+    return {
+        "control_period_samples": period,
+        "runs": len(runs),
+        "samples_after_stop_max": int(s.max()),
+        "samples_after_stop_median": float(np.median(s)),
+        "periods_max": float(s.max() / period),
+        "stop_call_wall_ms_max": max(r["wall_ms"] for r in runs),
+        "loop_answered": all(r["answered"] for r in runs),
+    }
 
 
 def stop_latency(repeats: int = 5) -> dict:
     rng = random.Random(0)
     bench = open_bench("default", seed=1)
     try:
-        _trajectory(bench, 5)   # compile the point-by-point runner once, outside the measurement
+        _trajectory(bench, 5)  # compile the point-by-point runner once, outside the measurement
         sweep = [_stop_once(bench, lambda: _sweep(bench, 60.0), BLOCK, rng) for _ in range(repeats)]
         traj = [_stop_once(bench, lambda: _trajectory(bench, 3000), PERIOD, rng) for _ in range(repeats)]
     finally:
@@ -105,8 +114,12 @@ def stop_latency(repeats: int = 5) -> dict:
 
 def fault_latency() -> dict:
     out = {}
-    cases = [("sensor_dropout", "z", "sweep"), ("sensor_saturation", "y", "sweep"),
-             ("amplifier_overcurrent", "y", "sweep"), ("sensor_dropout", "z", "trajectory")]
+    cases = [
+        ("sensor_dropout", "z", "sweep"),
+        ("sensor_saturation", "y", "sweep"),
+        ("amplifier_overcurrent", "y", "sweep"),
+        ("sensor_dropout", "z", "trajectory"),
+    ]
     for kind, axis, run in cases:
         bench = open_bench("default", seed=1)
         try:
@@ -127,14 +140,24 @@ def fault_latency() -> dict:
 def watchdog_latency() -> list[dict]:
     rows = []
     for configured_s in (0.1, 0.25, 1.0):
-        bench = open_bench("default", seed=1, overrides={"safety": {"watchdog_min_s": configured_s},
-                                                         "faults": {"loop_stall": {"after_s": 0.3}}})
+        bench = open_bench(
+            "default",
+            seed=1,
+            overrides={"safety": {"watchdog_min_s": configured_s}, "faults": {"loop_stall": {"after_s": 0.3}}},
+        )
         try:
             _trajectory(bench, 60)
             trip = bench.watchdog.last_trip
-            rows.append({"watchdog_min_s": configured_s, "periods": bench.safety.watchdog_periods,
-                         "period_s": bench.watchdog.period_s, "timeout_s": trip["timeout_s"],
-                         "measured_s": trip["stalled_s"], "ratio": trip["stalled_s"] / trip["timeout_s"]})
+            rows.append(
+                {
+                    "watchdog_min_s": configured_s,
+                    "periods": bench.safety.watchdog_periods,
+                    "period_s": bench.watchdog.period_s,
+                    "timeout_s": trip["timeout_s"],
+                    "measured_s": trip["stalled_s"],
+                    "ratio": trip["stalled_s"] / trip["timeout_s"],
+                }
+            )
         finally:
             bench.close()
     return rows
@@ -145,5 +168,10 @@ def run_safety_benchmark() -> dict:
     a sweep with the service under load (service.perf.safety_load)."""
     from service.perf.safety_load import run_safety_under_load
 
-    return {"stop": stop_latency(), "faults": fault_latency(), "watchdog": watchdog_latency(),
-            "sample_rate_hz": FS, "under_load": run_safety_under_load()}
+    return {
+        "stop": stop_latency(),
+        "faults": fault_latency(),
+        "watchdog": watchdog_latency(),
+        "sample_rate_hz": FS,
+        "under_load": run_safety_under_load(),
+    }

@@ -17,6 +17,7 @@ Figures, side by side in one run:
   the emulated DAQ's real-time overruns;
 * ``rss_mb``: peak resident memory of the web process and of the engine process.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,17 +27,16 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-
-from typing import Callable
 
 import httpx
 import numpy as np
 
 from service.frontends.client import Client
+from service.perf.service_load import spawn_service
 from service.runtime.stop_port import STOP_PATH
 from service.security.auth import read_bootstrap_token
-from service.perf.service_load import spawn_service
 
 SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5}
 LONG_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1], "cycles": 30}
@@ -71,10 +71,12 @@ def _start_load(url: str, token: str, dataset_id: str, csv_path: Path) -> list[s
     once the first downloaded bytes flow, so the stops are pressed under load."""
     env = {**os.environ, "EVCBENCH_TOKEN": token}
     cmd = [sys.executable, "-m", "service.perf.load_client"]
-    procs = [subprocess.Popen([*cmd, "download", url, dataset_id], stdout=subprocess.PIPE, text=True, env=env)
-             for _ in range(DOWNLOADERS)]
+    procs = [
+        subprocess.Popen([*cmd, "download", url, dataset_id], stdout=subprocess.PIPE, text=True, env=env)
+        for _ in range(DOWNLOADERS)
+    ]
     procs.append(subprocess.Popen([*cmd, "upload", url, str(csv_path)], stdout=subprocess.PIPE, text=True, env=env))
-    procs[0].stdout.readline()      # "flowing" (or "" if the client died: its counts will say so)
+    procs[0].stdout.readline()  # "flowing" (or "" if the client died: its counts will say so)
     return procs
 
 
@@ -93,8 +95,9 @@ def _stop_load(procs: list[subprocess.Popen]) -> dict:
     return counts
 
 
-def _press(client: httpx.Client, rng: random.Random, press: Callable[[], dict],
-           window_s: tuple[float, float] = PRESS_WINDOW_S) -> dict:
+def _press(
+    client: httpx.Client, rng: random.Random, press: Callable[[], dict], window_s: tuple[float, float] = PRESS_WINDOW_S
+) -> dict:
     """Start a long sweep, press the stop (``press``: through one door) at a random moment of it
     (``window_s``: seconds after it runs, uniform), return the figures."""
     job = client.post("/api/sweeps", json=LONG_SWEEP).json()
@@ -105,25 +108,37 @@ def _press(client: httpx.Client, rng: random.Random, press: Callable[[], dict],
     t_answer = time.monotonic()
     done = _wait(client, job["job_id"], ("succeeded", "failed", "cancelled"))
     zero = answer.get("zero_monotonic_s")
-    return {"answer_ms": (t_answer - t_send) * 1e3,
-            "zero_ms": (zero - t_send) * 1e3 if zero is not None else float("inf"),
-            "engine_ms": float("inf") if answer.get("zero_after_request_ms") is None else answer["zero_after_request_ms"],
-            "output_v_max": max(abs(v) for v in answer["output_v"].values()), "door": answer.get("door"),
-            "job_state": done["state"], "cancelled": answer["cancelled_job_id"] == job["job_id"]}
+    return {
+        "answer_ms": (t_answer - t_send) * 1e3,
+        "zero_ms": (zero - t_send) * 1e3 if zero is not None else float("inf"),
+        "engine_ms": float("inf") if answer.get("zero_after_request_ms") is None else answer["zero_after_request_ms"],
+        "output_v_max": max(abs(v) for v in answer["output_v"].values()),
+        "door": answer.get("door"),
+        "job_state": done["state"],
+        "cancelled": answer["cancelled_job_id"] == job["job_id"],
+    }
 
 
 def _stats(values: list[float]) -> dict:
     a = np.asarray(values, dtype=float)
-    return {"p50": round(float(np.percentile(a, 50)), 2), "p99": round(float(np.percentile(a, 99)), 2),
-            "max": round(float(a.max()), 2), "n": int(a.size)}
+    return {
+        "p50": round(float(np.percentile(a, 50)), 2),
+        "p99": round(float(np.percentile(a, 99)), 2),
+        "max": round(float(a.max()), 2),
+        "n": int(a.size),
+    }
 
 
 def _summary(presses: list[dict]) -> dict:
     landed = [p["output_v_max"] < 0.05 and p["cancelled"] and p["job_state"] == "cancelled" for p in presses]
-    return {"zero_ms": _stats([p["zero_ms"] for p in presses]), "answer_ms": _stats([p["answer_ms"] for p in presses]),
-            "engine_zero_ms": _stats([p["engine_ms"] for p in presses]),
-            "doors": sorted({p["door"] for p in presses}),
-            "every_stop_landed": all(landed), "not_landed": [p for p, ok in zip(presses, landed) if not ok]}
+    return {
+        "zero_ms": _stats([p["zero_ms"] for p in presses]),
+        "answer_ms": _stats([p["answer_ms"] for p in presses]),
+        "engine_zero_ms": _stats([p["engine_ms"] for p in presses]),
+        "doors": sorted({p["door"] for p in presses}),
+        "every_stop_landed": all(landed),
+        "not_landed": [p for p, ok in zip(presses, landed) if not ok],
+    }
 
 
 def peak_rss_mb(pid: int) -> float:
@@ -134,8 +149,13 @@ def peak_rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int = 0, sweep: dict | None = None,
-                          press_window_s: tuple[float, float] = PRESS_WINDOW_S) -> dict:
+def run_safety_under_load(
+    presses: int = 10,
+    import_mb: float = 50.0,
+    seed: int = 0,
+    sweep: dict | None = None,
+    press_window_s: tuple[float, float] = PRESS_WINDOW_S,
+) -> dict:
     """The figures above, from one service started for this run (see the module docstring).
     ``sweep``: the body of the sweep that seeds the downloads and runs under load (default ``SWEEP``);
     ``press_window_s``: when the stop is pressed in each long sweep (s after it runs)."""
@@ -147,8 +167,10 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
         try:
             token = read_bootstrap_token(tmp / "data")
             headers = {"Authorization": f"Bearer {token}"}
-            with httpx.Client(base_url=url, headers=headers, timeout=600) as client, \
-                    Client(url, token=token, data_dir=tmp / "data") as user:
+            with (
+                httpx.Client(base_url=url, headers=headers, timeout=600) as client,
+                Client(url, token=token, data_dir=tmp / "data") as user,
+            ):
                 engine = client.get("/api/bench").json()["engine"]
                 # the stop port as the CLI and scripts press it (Client.stop_bench: the port it reads
                 # from <data dir>/stop_port.json, ?bench_id=, the fallback), and the service's route
@@ -156,14 +178,16 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                 doors = {"stop_port": user.stop_bench, "service_route": lambda: client.post(STOP_PATH).json()}
                 seeded = client.post("/api/sweeps", json=sweep).json()
                 dataset_id = _wait(client, seeded["job_id"], ("succeeded",))["result"]["dataset_id"]
-                idle = {door: [_press(client, rng, press, press_window_s) for _ in range(max(3, presses // 3))]
-                        for door, press in doors.items()}
+                idle = {
+                    door: [_press(client, rng, press, press_window_s) for _ in range(max(3, presses // 3))]
+                    for door, press in doors.items()
+                }
                 csv_path = write_import_csv(tmp / "load.csv", import_mb)
                 load = _start_load(url, token, dataset_id, csv_path)
                 try:
                     time.sleep(2.0)
                     loaded = {door: [] for door in doors}
-                    for _ in range(presses):           # the two doors alternate: the same load for both
+                    for _ in range(presses):  # the two doors alternate: the same load for both
                         for door, press in doors.items():
                             loaded[door].append(_press(client, rng, press, press_window_s))
                     before = client.get("/api/bench").json()
@@ -174,19 +198,25 @@ def run_safety_under_load(presses: int = 10, import_mb: float = 50.0, seed: int 
                     counts = _stop_load(load)
                 trip = after["safety"].get("watchdog_last_trip")
                 return {
-                    "stop_idle": _summary(idle["stop_port"]), "stop_under_load": _summary(loaded["stop_port"]),
+                    "stop_idle": _summary(idle["stop_port"]),
+                    "stop_under_load": _summary(loaded["stop_port"]),
                     "stop_idle_service_route": _summary(idle["service_route"]),
                     "stop_under_load_service_route": _summary(loaded["service_route"]),
                     "sweep_under_load": {
-                        "state": swept["state"], "error": swept["error"],
+                        "state": swept["state"],
+                        "error": swept["error"],
                         "watchdog_trips": int(trip is not None and trip != before["safety"].get("watchdog_last_trip")),
                         "overruns": after["timing"].get("overruns", 0) - before["timing"].get("overruns", 0),
-                        "periods": after["timing"].get("periods", 0) - before["timing"].get("periods", 0)},
-                    "load": {"downloaders": DOWNLOADERS, "downloads_completed": counts["downloads"],
-                             "download_mb": round(counts["download_bytes"] / 1e6, 1),
-                             "import_mb": round(csv_path.stat().st_size / 1e6, 1),
-                             "imports_completed": counts["imports"],
-                             "import_status": sorted(counts["import_status"])},
+                        "periods": after["timing"].get("periods", 0) - before["timing"].get("periods", 0),
+                    },
+                    "load": {
+                        "downloaders": DOWNLOADERS,
+                        "downloads_completed": counts["downloads"],
+                        "download_mb": round(counts["download_bytes"] / 1e6, 1),
+                        "import_mb": round(csv_path.stat().st_size / 1e6, 1),
+                        "imports_completed": counts["imports"],
+                        "import_status": sorted(counts["import_status"]),
+                    },
                     "rss_mb": {"web": round(peak_rss_mb(proc.pid), 1), "engine": round(peak_rss_mb(engine["pid"]), 1)},
                 }
         finally:

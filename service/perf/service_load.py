@@ -22,6 +22,7 @@ pool), so a slow answer does not lower the load. Reported:
   ``timing``, before and after);
 - ``job_state``, ``job_error``, ``job_rms_error_um`` of the trajectory.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,17 +39,25 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from service.security.auth import read_bootstrap_token
 from service.science.control.session import SCANNED_PID
+from service.security.auth import read_bootstrap_token
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = "default_realtime"
 FREQUENCY_HZ = 100.0
 #: PID without a feedforward model (service.science.control.session.SCANNED_PID): tracks the ellipse stably.
-PID = {**{f"{gain}_{axis}": getattr(SCANNED_PID[axis], gain) for axis in SCANNED_PID for gain in ("kp", "ki", "kd")},
-       "tf_s": SCANNED_PID["y"].tf_s}
-ELLIPSE = {"shape": "ellipse", "amplitude_y_um": 5.0, "amplitude_z_um": 10.0, "frequency_hz": FREQUENCY_HZ,
-           "mode": "point_by_point", "controller": {"pid": PID}}
+PID = {
+    **{f"{gain}_{axis}": getattr(SCANNED_PID[axis], gain) for axis in SCANNED_PID for gain in ("kp", "ki", "kd")},
+    "tf_s": SCANNED_PID["y"].tf_s,
+}
+ELLIPSE = {
+    "shape": "ellipse",
+    "amplitude_y_um": 5.0,
+    "amplitude_z_um": 10.0,
+    "frequency_hz": FREQUENCY_HZ,
+    "mode": "point_by_point",
+    "controller": {"pid": PID},
+}
 
 
 def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, headers: dict | None = None) -> dict:
@@ -68,11 +77,17 @@ def run_service_benchmark(duration_s: float = 60.0, rate_hz: float = 50.0, heade
                 proc.kill()
 
 
-def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.0,
-                  seed: int = 1, extra_env: dict[str, str] | None = None,
-                  own_group: bool = False) -> tuple[subprocess.Popen, str]:
+def spawn_service(
+    data_dir: Path,
+    bench: str,
+    log: Path,
+    timeout_s: float = 120.0,
+    seed: int = 1,
+    extra_env: dict[str, str] | None = None,
+    own_group: bool = False,
+) -> tuple[subprocess.Popen, str]:
     """``evcbench serve`` on a free loopback port; returns (process, base URL) once /api/health answers
-    (RuntimeError with the log's tail if it exits or stays silent). Also tests/live_server.py's.
+    (RuntimeError with the log's tail if it exits or stays silent). Also tests/support/live_server.py's.
     The service sees no EVCBENCH_* variable of this process, only those of ``extra_env``.
     ``own_group``: in a process group of its own (with its bench engine), as a shell starts `make run`."""
     with socket.socket() as sock:
@@ -81,10 +96,29 @@ def spawn_service(data_dir: Path, bench: str, log: Path, timeout_s: float = 120.
     env = {k: v for k, v in os.environ.items() if not k.startswith("EVCBENCH_")}
     env["OPENBLAS_NUM_THREADS"] = "1"
     env.update(extra_env or {})
-    proc = subprocess.Popen([sys.executable, "-m", "service.frontends.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-                             "--data-dir", str(data_dir), "--bench", bench, "--seed", str(seed)],
-                            cwd=ROOT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT,
-                            start_new_session=own_group)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "service.frontends.cli",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--data-dir",
+            str(data_dir),
+            "--bench",
+            bench,
+            "--seed",
+            str(seed),
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=log.open("ab"),
+        stderr=subprocess.STDOUT,
+        start_new_session=own_group,
+    )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + timeout_s
     # one client for the whole wait: each httpx.get builds a client, and its TLS context loads the
@@ -111,24 +145,36 @@ def _measure(client: httpx.Client, duration_s: float, rate_hz: float) -> dict:
     # long enough to outlast the load: the measurement starts once the job runs
     job_id = _start_trajectory(client, cycles=int(math.ceil((duration_s + 2.0) * FREQUENCY_HZ)))
     _wait(client, job_id, ("running",), timeout_s=60)
-    paths = [f"/api/jobs/{job_id}", "/api/bench", f"/api/datasets/{dataset_id}/data?max_points=1000", "/api/datasets",
-             "/api/health"]
+    paths = [
+        f"/api/jobs/{job_id}",
+        "/api/bench",
+        f"/api/datasets/{dataset_id}/data?max_points=1000",
+        "/api/datasets",
+        "/api/health",
+    ]
     latencies_ms, errors, span_s = _fire(client, paths, duration_s, rate_hz)
     job = _wait(client, job_id, ("succeeded", "failed", "cancelled"), timeout_s=duration_s + 120)
     after = client.get("/api/bench").json()["timing"]
     lat = np.asarray(latencies_ms)
     result = job.get("result") or {}
     return {
-        "duration_s": duration_s, "target_rate_hz": rate_hz, "requests": len(latencies_ms),
-        "achieved_rate_hz": round(len(latencies_ms) / span_s, 2), "errors": errors,
+        "duration_s": duration_s,
+        "target_rate_hz": rate_hz,
+        "requests": len(latencies_ms),
+        "achieved_rate_hz": round(len(latencies_ms) / span_s, 2),
+        "errors": errors,
         "p50_ms": round(float(np.percentile(lat, 50)), 2) if lat.size else None,
         "p99_ms": round(float(np.percentile(lat, 99)), 2) if lat.size else None,
         "max_ms": round(float(lat.max()), 2) if lat.size else None,
         "job_overruns": after.get("overruns", 0) - before.get("overruns", 0),
         "job_periods": after.get("periods", 0) - before.get("periods", 0),
         "realtime": after.get("realtime", False),
-        "job_state": job["state"], "job_error": job["error"], "job_rms_error_um": result.get("rms_error_um"),
-        "endpoints": paths, "bench": BENCH, "cpu_count": os.cpu_count(),
+        "job_state": job["state"],
+        "job_error": job["error"],
+        "job_rms_error_um": result.get("rms_error_um"),
+        "endpoints": paths,
+        "bench": BENCH,
+        "cpu_count": os.cpu_count(),
     }
 
 
@@ -169,8 +215,11 @@ def _import_dataset(client: httpx.Client) -> str:
     t = np.arange(4000) / 2000.0
     u = 60 - 60 * np.cos(2 * np.pi * t)
     rows = "\n".join(f"{a:.6f},{b:.4f},{b * 0.05:.5f}" for a, b in zip(t, u))
-    r = client.post("/api/datasets", files={"file": ("load.csv", f"t,u,x\n{rows}\n", "text/csv")},
-                    data={"axis": "y", "name": "load benchmark"})
+    r = client.post(
+        "/api/datasets",
+        files={"file": ("load.csv", f"t,u,x\n{rows}\n", "text/csv")},
+        data={"axis": "y", "name": "load benchmark"},
+    )
     r.raise_for_status()
     return r.json()["id"]
 

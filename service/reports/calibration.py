@@ -11,6 +11,7 @@ non-negative weights by NNLS, free offset) fitted on the 1 Hz loop.
 The play operator here is a self-contained reference for calibration only; the emulator never
 uses it (its hysteresis is a Preisach model).
 """
+
 from __future__ import annotations
 
 import sys
@@ -46,8 +47,9 @@ def predict_static_pi(u: np.ndarray, w: np.ndarray, c: float, thresholds: np.nda
     return play_outputs(np.ascontiguousarray(u, dtype=float), np.asarray(thresholds, dtype=float)) @ w + c
 
 
-def biased_sine(frequency_hz: float, cycles: int = CYCLES, fs: float = SAMPLE_RATE_HZ,
-                v_max: float = 120.0) -> np.ndarray:
+def biased_sine(
+    frequency_hz: float, cycles: int = CYCLES, fs: float = SAMPLE_RATE_HZ, v_max: float = 120.0
+) -> np.ndarray:
     """The paper's 0 → ``v_max`` biased sine (V), ``cycles`` periods at ``fs``."""
     return signals.biased_sine(frequency_hz, cycles, fs, 0.0, v_max).value
 
@@ -62,7 +64,7 @@ def loop_width(u: np.ndarray, x: np.ndarray, bin_v: float = 1.0) -> float:
     that rises first then falls; branches are averaged in ``bin_v`` bins against noise."""
     half = int(np.argmax(u))
     edges = np.arange(u.min(), u.max() + bin_v, bin_v)
-    rise = _binned(u[:half + 1], x[:half + 1], edges)
+    rise = _binned(u[: half + 1], x[: half + 1], edges)
     fall = _binned(u[half:], x[half:], edges)
     ok = ~np.isnan(rise) & ~np.isnan(fall)
     return float(np.max(fall[ok] - rise[ok]))
@@ -73,11 +75,16 @@ def _binned(u, x, edges):
     sums = np.bincount(idx, weights=x, minlength=len(edges))
     counts = np.bincount(idx, minlength=len(edges))
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)[:len(edges) - 1]
+        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)[: len(edges) - 1]
 
 
-def run_loops(bench_name: str = "default", seed: int = 0, frequencies_hz=FREQUENCIES_HZ,
-              overrides: dict | None = None, axes: tuple[str, ...] = ("y", "z")) -> dict:
+def run_loops(
+    bench_name: str = "default",
+    seed: int = 0,
+    frequencies_hz=FREQUENCIES_HZ,
+    overrides: dict | None = None,
+    axes: tuple[str, ...] = ("y", "z"),
+) -> dict:
     """One fresh bench per (frequency, axis), the other axis held at 0 V. Returns
     {axis: {f: (u_cmd, x_um)}}. Each run's seed depends on its frequency and axis only, so one
     axis swept alone (``axes``) gives the same records as both."""
@@ -101,13 +108,23 @@ def run_loops(bench_name: str = "default", seed: int = 0, frequencies_hz=FREQUEN
 def measure_calibration(bench_name: str = "default", seed: int = 0, overrides: dict | None = None) -> dict:
     """Strokes, loop widths and static-PI RMS errors per axis (see module docstring)."""
     data = run_loops(bench_name, seed, FREQUENCIES_HZ, overrides)
-    result: dict = {"bench": bench_name, "seed": seed, "sample_rate_hz": SAMPLE_RATE_HZ, "cycles": CYCLES,
-                    "frequencies_hz": list(FREQUENCIES_HZ), "axes": {}}
+    result: dict = {
+        "bench": bench_name,
+        "seed": seed,
+        "sample_rate_hz": SAMPLE_RATE_HZ,
+        "cycles": CYCLES,
+        "frequencies_hz": list(FREQUENCIES_HZ),
+        "axes": {},
+    }
     for axis, loops in data.items():
         u1, x1 = loops[1.0]
         w, c = fit_static_pi(u1, x1)
-        ax: dict = {"pi_weights_um_per_v": [float(v) for v in w], "pi_offset_um": float(c),
-                    "pi_weight_sum_um_per_v": float(np.sum(w)), "per_frequency": {}}
+        ax: dict = {
+            "pi_weights_um_per_v": [float(v) for v in w],
+            "pi_offset_um": float(c),
+            "pi_weight_sum_um_per_v": float(np.sum(w)),
+            "per_frequency": {},
+        }
         for f, (u, x) in loops.items():
             uc, xc = last_cycle(u, x, f)
             stroke = float(xc.max() - xc.min())
@@ -120,9 +137,13 @@ def measure_calibration(bench_name: str = "default", seed: int = 0, overrides: d
                 "pi_refit_rms_um": rms(x - predict_static_pi(u, w_f, c_f)),
             }
         pf = ax["per_frequency"]
-        ax.update(stroke_um=pf[1.0]["stroke_um"], loop_width_pct=pf[1.0]["loop_width_pct"],
-                  pi_rms_1hz_um=pf[1.0]["pi_1hz_rms_um"], pi_rms_100hz_um=pf[100.0]["pi_1hz_rms_um"],
-                  pi_refit_rms_100hz_um=pf[100.0]["pi_refit_rms_um"])
+        ax.update(
+            stroke_um=pf[1.0]["stroke_um"],
+            loop_width_pct=pf[1.0]["loop_width_pct"],
+            pi_rms_1hz_um=pf[1.0]["pi_1hz_rms_um"],
+            pi_rms_100hz_um=pf[100.0]["pi_1hz_rms_um"],
+            pi_refit_rms_100hz_um=pf[100.0]["pi_refit_rms_um"],
+        )
         result["axes"][axis] = ax
     return result
 
@@ -154,7 +175,7 @@ def sweep_pi_rms(bench_name: str, seed: int = 0) -> dict:
         sol, _ = nnls(a, x, maxiter=50 * a.shape[1])
         e = x - a @ sol
         out[axis] = rms(e)
-        sq, n = sq + float(np.sum(e ** 2)), n + len(e)
+        sq, n = sq + float(np.sum(e**2)), n + len(e)
     out["both"] = float(np.sqrt(sq / n))
     return out
 
@@ -177,12 +198,14 @@ def rating_rows(bench_name: str = "default", seed: int = 0) -> list[str]:
             uc, xc = last_cycle(record.u_cmd_v[axis], record.x_um[axis], 1.0)
             top = int(np.argmax(uc))
             mid = v_max / 2
-            rising = np.interp(mid, uc[:top + 1], xc[:top + 1])
+            rising = np.interp(mid, uc[: top + 1], xc[: top + 1])
             falling = np.interp(mid, uc[top:][::-1], xc[top:][::-1])
             last = slice(top - int(0.02 * SAMPLE_RATE_HZ), top + 1)
             slope = np.polyfit(uc[last], xc[last], 1)[0]
-            rows.append(f"| 0–{v_max:g} V | {axis.upper()} | {xc.min():.3f} | {xc.max():.3f} | "
-                        f"{falling - rising:.3f} (at {mid:g} V) | {slope:.3f} |")
+            rows.append(
+                f"| 0–{v_max:g} V | {axis.upper()} | {xc.min():.3f} | {xc.max():.3f} | "
+                f"{falling - rising:.3f} (at {mid:g} V) | {slope:.3f} |"
+            )
     return rows
 
 
@@ -203,9 +226,11 @@ def write_report(path: str | Path = "docs/calibration.md", bench_name: str = "de
 
     res = measure_calibration(bench_name, seed)
     res["variants"] = {name: sweep_pi_rms(name, seed) for name in ("base",) + VARIANTS}
-    res["fit_markdown"] = fit_markdown({axis: v["rms_um"] for axis, v in
-                                        reproduce(bench_name, seed, with_pso=False).items()},
-                                       res["axes"]["z"]["per_frequency"][100.0]["stroke_um"], bench_name)
+    res["fit_markdown"] = fit_markdown(
+        {axis: v["rms_um"] for axis, v in reproduce(bench_name, seed, with_pso=False).items()},
+        res["axes"]["z"]["per_frequency"][100.0]["stroke_um"],
+        bench_name,
+    )
     res["rating_rows"] = rating_rows(bench_name, seed)
     data = run_loops(bench_name, seed)
     fig, axs = plt.subplots(1, 2, figsize=(11, 4.6))
@@ -251,33 +276,64 @@ def _markdown(res: dict, img: Path) -> str:
     ]
     paper_sum = {"y": 0.0534, "z": 0.0772}
     for label, key, pkey, fmt in rows:
-        py = fmt.format(PAPER["y"][pkey]) if pkey else ("10–15 (target)" if "width" in label else f"{paper_sum['y']:.4f}")
-        pz = fmt.format(PAPER["z"][pkey]) if pkey else ("10–15 (target)" if "width" in label else f"{paper_sum['z']:.4f}")
+        py = (
+            fmt.format(PAPER["y"][pkey])
+            if pkey
+            else ("10–15 (target)" if "width" in label else f"{paper_sum['y']:.4f}")
+        )
+        pz = (
+            fmt.format(PAPER["z"][pkey])
+            if pkey
+            else ("10–15 (target)" if "width" in label else f"{paper_sum['z']:.4f}")
+        )
         lines.append(f"| {label} | {fmt.format(y[key])} | {py} | {fmt.format(z[key])} | {pz} |")
-    lines += ["", "Per frequency:", "",
-              "| axis | f (Hz) | stroke (µm) | loop width (%) | PI (1 Hz fit) RMS (µm) | PI refit RMS (µm) |",
-              "|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Per frequency:",
+        "",
+        "| axis | f (Hz) | stroke (µm) | loop width (%) | PI (1 Hz fit) RMS (µm) | PI refit RMS (µm) |",
+        "|---|---|---|---|---|---|",
+    ]
     for axis in ("y", "z"):
         for f, v in res["axes"][axis]["per_frequency"].items():
-            lines.append(f"| {axis.upper()} | {f:g} | {v['stroke_um']:.3f} | {v['loop_width_pct']:.1f} | "
-                         f"{v['pi_1hz_rms_um']:.4f} | {v['pi_refit_rms_um']:.4f} |")
+            lines.append(
+                f"| {axis.upper()} | {f:g} | {v['stroke_um']:.3f} | {v['loop_width_pct']:.1f} | "
+                f"{v['pi_1hz_rms_um']:.4f} | {v['pi_refit_rms_um']:.4f} |"
+            )
     lines += ["", f"![hysteresis loops at 1, 10, 50 and 100 Hz]({img.as_posix()})", "", NOTES]
     if "fit_markdown" in res:
         lines += ["", res["fit_markdown"]]
     if "rating_rows" in res:
-        lines += ["", RATING, "", "| drive | axis | min (µm) | max (µm) | loop width at mid-voltage (µm) | "
-                  "top slope (µm/V) |", "|---|---|---|---|---|---|", *res["rating_rows"], "", RATING_TEST]
+        lines += [
+            "",
+            RATING,
+            "",
+            "| drive | axis | min (µm) | max (µm) | loop width at mid-voltage (µm) | top slope (µm/V) |",
+            "|---|---|---|---|---|---|",
+            *res["rating_rows"],
+            "",
+            RATING_TEST,
+        ]
     if "variants" in res:
         base = res["variants"]["base"]["both"]
-        lines += ["", "## Hidden-effect variants", "",
-                  "Static-PI RMS left on a characterisation sweep (`sweep_pi_rms`: each axis driven alone at "
-                  "1, 10, 50, 100 Hz, 5 cycles; one 10-operator PI per axis over all its records). Each variant is "
-                  "`base` plus one effect; the test suite requires ≥ 2× base.", "",
-                  "| bench | Y RMS (µm) | Z RMS (µm) | both (µm) | × base |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "## Hidden-effect variants",
+            "",
+            "Static-PI RMS left on a characterisation sweep (`sweep_pi_rms`: each axis driven alone at "
+            "1, 10, 50, 100 Hz, 5 cycles; one 10-operator PI per axis over all its records). Each variant is "
+            "`base` plus one effect; the test suite requires ≥ 2× base.",
+            "",
+            "| bench | Y RMS (µm) | Z RMS (µm) | both (µm) | × base |",
+            "|---|---|---|---|---|",
+        ]
         for name, v in res["variants"].items():
             lines.append(f"| {name} | {v['y']:.4f} | {v['z']:.4f} | {v['both']:.4f} | {v['both'] / base:.1f} |")
-        lines += ["", "On `base` the gauge noise is 3 nm rms; the rest of its residual is the mismatch between a "
-                  "continuous, bias-dependent Preisach density and 10 discrete PI thresholds."]
+        lines += [
+            "",
+            "On `base` the gauge noise is 3 nm rms; the rest of its residual is the mismatch between a "
+            "continuous, bias-dependent Preisach density and 10 discrete PI thresholds.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -306,7 +362,7 @@ keeps switching, the saturation of the switched strain grows (the slope at the t
 runs on, and nothing clamps at 120 V. Measured on the default bench (seed 0), third cycle of a 1 Hz
 biased sine, Y and Z driven together (`rating_rows`). The loop width is descending − ascending at
 mid-voltage; the top slope is the fit over the last 20 ms of the rise:"""
-RATING_TEST = """`tests/test_emulator_bench.py::test_stack_rating_is_the_limit_and_the_stack_moves_on_to_150_v`
+RATING_TEST = """`tests/unit/drivers/test_emulator_bench.py::test_stack_rating_is_the_limit_and_the_stack_moves_on_to_150_v`
 checks that 140 V is accepted and 151 V refused, and that a slow ramp's end position rises at every
 10 V step from 120 to 150 V on both axes."""
 
@@ -318,5 +374,10 @@ if __name__ == "__main__":  # pragma: no cover
         sys.exit(fit_main(sys.argv[1:]))
     out = write_report(sys.argv[1] if len(sys.argv) > 1 else "docs/calibration.md")
     for axis, v in out["axes"].items():
-        print(axis, {k: round(v[k], 4) for k in ("stroke_um", "loop_width_pct", "pi_rms_1hz_um",
-                                                  "pi_rms_100hz_um", "pi_refit_rms_100hz_um")})
+        print(
+            axis,
+            {
+                k: round(v[k], 4)
+                for k in ("stroke_um", "loop_width_pct", "pi_rms_1hz_um", "pi_rms_100hz_um", "pi_refit_rms_100hz_um")
+            },
+        )

@@ -16,6 +16,7 @@ axis: the same records and fits as ``python -m service.reports.reproduction``, s
 are the reproduction's. Search: bounded Nelder–Mead on the parameters mapped to [0, 1] (log-mapped
 where the bound spans a decade or more), from the bench's current values.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,19 +33,24 @@ from service.reports.calibration import PAPER, last_cycle, loop_width, run_loops
 from service.reports.reproduction import PAPER_TABLE6_UM, identify_axis, sweep_series
 
 TABLE_FREQUENCIES_HZ = (10.0, 100.0)
-MODELS = ("dynamic_joint", "grpi", "static")     # Table 6's columns, in the paper's order
-CELL_TOLERANCE = 0.35                            # each cell within ±35 % of the paper's
-REDUCTION_TOLERANCE = 0.15                       # dynamic PI's reduction at 10 Hz within 15 points
+MODELS = ("dynamic_joint", "grpi", "static")  # Table 6's columns, in the paper's order
+CELL_TOLERANCE = 0.35  # each cell within ±35 % of the paper's
+REDUCTION_TOLERANCE = 0.15  # dynamic PI's reduction at 10 Hz within 15 points
 STROKE_TOLERANCE = 0.03
 #: the strain coefficients one stroke factor multiplies (see the module docstring)
-STRAIN_KEYS = ("piezo.reversible_um_per_v", "piezo.hysteresis.switched_um",
-               "piezo.asymmetry.electrostrictive_um_per_v2", "piezo.asymmetry.saturation_um")
+STRAIN_KEYS = (
+    "piezo.reversible_um_per_v",
+    "piezo.hysteresis.switched_um",
+    "piezo.asymmetry.electrostrictive_um_per_v2",
+    "piezo.asymmetry.saturation_um",
+)
 
 
 @dataclass(frozen=True)
 class Parameter:
     """One fitted physical parameter of an axis: its config key under ``axes.<axis>.``, its bound
     and why the bound is physical."""
+
     key: str
     low: float
     high: float
@@ -68,26 +74,49 @@ class Parameter:
 
 
 PARAMETERS = (
-    Parameter("piezo.rate_dependence.relaxation_s", 1e-4, 3e-2,
-              "Debye time of the slow domain-wall motion: from 0.1 ms (the bench's former value) to 30 ms, where it "
-              "would merge into the creep modes (10 ms to 1000 s)"),
-    Parameter("piezo.rate_dependence.relaxing_fraction", 0.0, 0.4,
-              "share of the switched strain that lags: 0 (none) to 0.4 (at most ~30 % of the stroke lost at high "
-              "rate), a cap so that the 100 Hz loop cannot collapse; the fitted value stays well inside it"),
-    Parameter("piezo.asymmetry.saturation_um", 3.0, 60.0,
-              "soft saturation (tanh) scale of the switched strain: 3 µm (strongly saturating at 120 V, "
-              "loop visibly bent over) to 60 µm (practically linear)"),
-    Parameter("piezo.asymmetry.electrostrictive_um_per_v2", 0.0, 3e-5,
-              "u² strain: 0 to 3e-5 µm/V², i.e. up to 0.43 µm (5–7 % of the stroke) at 120 V"),
-    Parameter("piezo.creep.rate_per_decade", 0.01, 0.02,
-              "log(t) creep: 1–2 % per decade of time (DESIGN §6)"),
-    Parameter("flexure.dynamics.damping_ratio", 0.02, 0.1,
-              "first-mode damping of a bolted, preloaded flexure: from 0.02 (the paper's Table 1 gives Q_m = 45, "
-              "ζ ≈ 0.011 for the ceramic alone) to 0.1, the most that still leaves the FEM mode a resonance "
-              "(peak ≥ 4× the low-frequency gain, within 2 % of f_n: tests/test_emulator_stages.py)"),
-    Parameter("gauge.bandwidth.bandwidth_hz", 2e3, 1e5,
-              "capacitance-gauge low-pass: 2–100 kHz, the range such gauge electronics are set to (DESIGN §6: "
-              "0.3–5 nm noise depending on bandwidth; the noise is not refitted)"),
+    Parameter(
+        "piezo.rate_dependence.relaxation_s",
+        1e-4,
+        3e-2,
+        "Debye time of the slow domain-wall motion: from 0.1 ms (the bench's former value) to 30 ms, where it "
+        "would merge into the creep modes (10 ms to 1000 s)",
+    ),
+    Parameter(
+        "piezo.rate_dependence.relaxing_fraction",
+        0.0,
+        0.4,
+        "share of the switched strain that lags: 0 (none) to 0.4 (at most ~30 % of the stroke lost at high "
+        "rate), a cap so that the 100 Hz loop cannot collapse; the fitted value stays well inside it",
+    ),
+    Parameter(
+        "piezo.asymmetry.saturation_um",
+        3.0,
+        60.0,
+        "soft saturation (tanh) scale of the switched strain: 3 µm (strongly saturating at 120 V, "
+        "loop visibly bent over) to 60 µm (practically linear)",
+    ),
+    Parameter(
+        "piezo.asymmetry.electrostrictive_um_per_v2",
+        0.0,
+        3e-5,
+        "u² strain: 0 to 3e-5 µm/V², i.e. up to 0.43 µm (5–7 % of the stroke) at 120 V",
+    ),
+    Parameter("piezo.creep.rate_per_decade", 0.01, 0.02, "log(t) creep: 1–2 % per decade of time"),
+    Parameter(
+        "flexure.dynamics.damping_ratio",
+        0.02,
+        0.1,
+        "first-mode damping of a bolted, preloaded flexure: from 0.02 (the paper's Table 1 gives Q_m = 45, "
+        "ζ ≈ 0.011 for the ceramic alone) to 0.1, the most that still leaves the FEM mode a resonance "
+        "(peak ≥ 4× the low-frequency gain, within 2 % of f_n: tests/unit/drivers/test_emulator_stages.py)",
+    ),
+    Parameter(
+        "gauge.bandwidth.bandwidth_hz",
+        2e3,
+        1e5,
+        "capacitance-gauge low-pass: 2–100 kHz, the range such gauge electronics are set to ("
+        "0.3–5 nm noise depending on bandwidth; the noise is not refitted)",
+    ),
 )
 
 
@@ -105,7 +134,7 @@ def current_values(axis: str, bench: str = "default") -> dict[str, float]:
         node = cfg
         for part in key.split("."):
             node = node.get(part, {})
-        out[key] = float(node) if node != {} else 1.0     # relaxing_fraction is optional, 1 by default
+        out[key] = float(node) if node != {} else 1.0  # relaxing_fraction is optional, 1 by default
     return out
 
 
@@ -130,8 +159,12 @@ def measure_axis(axis: str, values: dict[str, float], bench: str = "default", se
     u, x = last_cycle(loops[0].u_v, loops[0].x_um, 1.0)
     stroke = float(np.ptp(x))
     fitted = identify_axis(loops, seed, with_pso=False)
-    return {"rms_um": fitted["rms_um"], "stroke_um": stroke, "loop_width_pct": 100.0 * loop_width(u, x) / stroke,
-            "values": values}
+    return {
+        "rms_um": fitted["rms_um"],
+        "stroke_um": stroke,
+        "loop_width_pct": 100.0 * loop_width(u, x) / stroke,
+        "values": values,
+    }
 
 
 def cells(rms_um: dict) -> dict[tuple[str, float], float]:
@@ -147,19 +180,34 @@ def target_checks(axis: str, rms_um: dict, stroke_um: float | None = None) -> li
         paper = dict(zip(MODELS, PAPER_TABLE6_UM[axis][f]))
         for m in MODELS:
             ratio = got[(m, f)] / paper[m]
-            out.append((f"{axis.upper()} {f:g} Hz {m} within ±35 %", abs(ratio - 1.0) <= CELL_TOLERANCE,
-                        f"{got[(m, f)]:.4f} vs {paper[m]:.4f} ({ratio:.2f}×)"))
+            out.append(
+                (
+                    f"{axis.upper()} {f:g} Hz {m} within ±35 %",
+                    abs(ratio - 1.0) <= CELL_TOLERANCE,
+                    f"{got[(m, f)]:.4f} vs {paper[m]:.4f} ({ratio:.2f}×)",
+                )
+            )
         d, g, s = (got[(m, f)] for m in MODELS)
         out.append((f"{axis.upper()} {f:g} Hz dynamic < GRPI", d < g, f"{d:.4f} < {g:.4f}"))
         if paper["grpi"] <= paper["static"]:
             out.append((f"{axis.upper()} {f:g} Hz GRPI ≤ static", g <= s, f"{g:.4f} ≤ {s:.4f}"))
     red, red_paper = 1.0 - got[("dynamic_joint", 10.0)] / got[("static", 10.0)], paper_reduction(axis)
-    out.append((f"{axis.upper()} 10 Hz reduction within 15 points", abs(red - red_paper) <= REDUCTION_TOLERANCE,
-                f"{100 * red:.1f} % vs {100 * red_paper:.1f} %"))
+    out.append(
+        (
+            f"{axis.upper()} 10 Hz reduction within 15 points",
+            abs(red - red_paper) <= REDUCTION_TOLERANCE,
+            f"{100 * red:.1f} % vs {100 * red_paper:.1f} %",
+        )
+    )
     if stroke_um is not None:
         ratio = stroke_um / PAPER[axis]["stroke_um"]
-        out.append((f"{axis.upper()} 1 Hz stroke within 3 %", abs(ratio - 1.0) <= STROKE_TOLERANCE,
-                    f"{stroke_um:.2f} vs {PAPER[axis]['stroke_um']:.2f} µm"))
+        out.append(
+            (
+                f"{axis.upper()} 1 Hz stroke within 3 %",
+                abs(ratio - 1.0) <= STROKE_TOLERANCE,
+                f"{stroke_um:.2f} vs {PAPER[axis]['stroke_um']:.2f} µm",
+            )
+        )
     return out
 
 
@@ -175,7 +223,7 @@ PI_1HZ_MARGIN = 1.8
 
 def _band(miss: float) -> float:
     """Squared excess beyond a band, in band widths (0 inside), plus a gentle pull to its centre."""
-    return max(0.0, abs(miss) - 1.0) ** 2 * 100.0 + CENTRE_PULL * miss ** 2
+    return max(0.0, abs(miss) - 1.0) ** 2 * 100.0 + CENTRE_PULL * miss**2
 
 
 def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
@@ -187,7 +235,7 @@ def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
     for (m, f), value in got.items():
         paper = PAPER_TABLE6_UM[axis][f][MODELS.index(m)]
         miss = math.log(value / paper) / math.log(1.0 + CELL_TOLERANCE)
-        parts[f"{m}@{f:g}"] = _band(miss) if f == 10.0 else WEIGHT_100HZ * miss ** 2
+        parts[f"{m}@{f:g}"] = _band(miss) if f == 10.0 else WEIGHT_100HZ * miss**2
     red = 1.0 - got[("dynamic_joint", 10.0)] / got[("static", 10.0)]
     parts["reduction@10"] = _band((red - paper_reduction(axis)) / REDUCTION_TOLERANCE)
     for f in TABLE_FREQUENCIES_HZ:
@@ -202,8 +250,15 @@ def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
     return float(sum(parts.values())), parts
 
 
-def fit_axis(axis: str, evaluations: int = 150, bench: str = "default", seed: int = 0,
-             log=None, start: dict[str, float] | None = None, step: float = 0.25) -> dict:
+def fit_axis(
+    axis: str,
+    evaluations: int = 150,
+    bench: str = "default",
+    seed: int = 0,
+    log=None,
+    start: dict[str, float] | None = None,
+    step: float = 0.25,
+) -> dict:
     """Bounded Nelder–Mead over ``PARAMETERS`` from ``start`` (default: the bench's values), the initial
     simplex ``step`` wide in the [0, 1] coordinates.
     Returns the best {"objective", "parts", "values", "measured", "evaluations"}."""
@@ -223,23 +278,37 @@ def fit_axis(axis: str, evaluations: int = 150, bench: str = "default", seed: in
         measured = measure_axis(axis, values, bench, seed)
         value, parts = objective(axis, measured)
         cache[key] = value
-        record = {"n": len(cache), "s": round(time.perf_counter() - began, 1), "objective": value,
-                  "values": {p.key: values[p.key] for p in PARAMETERS},
-                  "cells": {f"{m}@{f:g}": v for (m, f), v in cells(measured["rms_um"]).items()},
-                  "static_1hz_um": measured["rms_um"]["static"]["1 Hz"]}
+        record = {
+            "n": len(cache),
+            "s": round(time.perf_counter() - began, 1),
+            "objective": value,
+            "values": {p.key: values[p.key] for p in PARAMETERS},
+            "cells": {f"{m}@{f:g}": v for (m, f), v in cells(measured["rms_um"]).items()},
+            "static_1hz_um": measured["rms_um"]["static"]["1 Hz"],
+        }
         if log is not None:
             log.write(json.dumps({"axis": axis, **record}) + "\n")
             log.flush()
         if value < best["objective"]:
             best.update(objective=value, parts=parts, values=measured["values"], measured=measured)
-            print(f"[{axis} #{len(cache)} {record['s']:.0f} s] objective {value:.3f}: "
-                  + ", ".join(f"{k} {v:.4f}" for k, v in record["cells"].items()), flush=True)
+            print(
+                f"[{axis} #{len(cache)} {record['s']:.0f} s] objective {value:.3f}: "
+                + ", ".join(f"{k} {v:.4f}" for k, v in record["cells"].items()),
+                flush=True,
+            )
         return value
 
-    simplex = [x0] + [np.clip(x0 + np.where(np.arange(len(x0)) == i, step if x0[i] < 1 - step else -step, 0.0), 0, 1)
-                      for i in range(len(x0))]
-    minimize(evaluate, x0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * len(x0),
-             options={"maxfev": evaluations, "initial_simplex": np.array(simplex), "xatol": 5e-3, "fatol": 1e-3})
+    simplex = [x0] + [
+        np.clip(x0 + np.where(np.arange(len(x0)) == i, step if x0[i] < 1 - step else -step, 0.0), 0, 1)
+        for i in range(len(x0))
+    ]
+    minimize(
+        evaluate,
+        x0,
+        method="Nelder-Mead",
+        bounds=[(0.0, 1.0)] * len(x0),
+        options={"maxfev": evaluations, "initial_simplex": np.array(simplex), "xatol": 5e-3, "fatol": 1e-3},
+    )
     best["evaluations"] = len(cache)
     return best
 
@@ -254,16 +323,23 @@ def toml_lines(axis: str, values: dict[str, float]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m service.reports.calibration --fit",
-                                     description="Fit the bench's physical parameters to the paper's Table 6.")
+    parser = argparse.ArgumentParser(
+        prog="python -m service.reports.calibration --fit",
+        description="Fit the bench's physical parameters to the paper's Table 6.",
+    )
     parser.add_argument("--fit", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--axis", choices=("y", "z"), action="append", help="axis to fit (default: both)")
     parser.add_argument("--evaluations", type=int, default=150, help="sweeps per axis (each ≈ 2–3 s)")
     parser.add_argument("--bench", default="default")
     parser.add_argument("--step", type=float, default=0.25, help="initial simplex size in [0, 1] coordinates")
     parser.add_argument("--log", help="append every evaluation as a JSON line to this file")
-    parser.add_argument("--start", action="append", default=[], metavar="KEY=VALUE",
-                        help="start the search here instead of the bench's value (KEY under axes.<axis>.)")
+    parser.add_argument(
+        "--start",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="start the search here instead of the bench's value (KEY under axes.<axis>.)",
+    )
     args = parser.parse_args(argv)
     start = {}
     for item in args.start:

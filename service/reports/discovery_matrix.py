@@ -15,6 +15,7 @@ a fresh hysteresis model, as a user would over REST. Figures:
 * **several effects**: diagnose, add the top claimed effect, diagnose again: are all hidden effects
   named within as many rounds as there are effects.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,12 +29,24 @@ from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.records import sweep_records
 
-EFFECTS = ("rate_dependence", "creep", "dynamics", "delay", "cross_coupling", "drift", "asymmetry",
-           "sensor_nonlinearity")
+EFFECTS = (
+    "rate_dependence",
+    "creep",
+    "dynamics",
+    "delay",
+    "cross_coupling",
+    "drift",
+    "asymmetry",
+    "sensor_nonlinearity",
+)
 FAMILIES = {"preisach": "", "bouc_wen": "bw_", "maxwell_slip": "ms_"}
-SEVERAL = {"two_rate_dependence_creep": ("rate_dependence", "creep"), "two_dynamics_drift": ("dynamics", "drift"),
-           "two_delay_cross_coupling": ("delay", "cross_coupling"), "two_asymmetry_creep": ("asymmetry", "creep"),
-           "three_creep_dynamics_cross_coupling": ("creep", "dynamics", "cross_coupling")}
+SEVERAL = {
+    "two_rate_dependence_creep": ("rate_dependence", "creep"),
+    "two_dynamics_drift": ("dynamics", "drift"),
+    "two_delay_cross_coupling": ("delay", "cross_coupling"),
+    "two_asymmetry_creep": ("asymmetry", "creep"),
+    "three_creep_dynamics_cross_coupling": ("creep", "dynamics", "cross_coupling"),
+}
 CLEAN = {"preisach": "base", "bouc_wen": "bw_base", "maxwell_slip": "ms_base"}
 
 
@@ -48,9 +61,18 @@ def one_effect(bench: str, effect: str, seed: int = 0, axis: str = "y") -> dict:
     top = d["candidates"][0]
     right = top["effect"] == effect and top.get("claimed", False)
     after = fit_composite([rec], [top["effect"]]).evaluate([rec])["validation_rms_um"] if top.get("claimed") else None
-    return {"bench": bench, "effect": effect, "axis": axis, "seed": seed, "top": top["effect"],
-            "claimed": _claims(d), "right": bool(right), "before_um": d["residual_rms_um"], "after_um": after,
-            "drop": None if after is None else 1.0 - after / d["residual_rms_um"]}
+    return {
+        "bench": bench,
+        "effect": effect,
+        "axis": axis,
+        "seed": seed,
+        "top": top["effect"],
+        "claimed": _claims(d),
+        "right": bool(right),
+        "before_um": d["residual_rms_um"],
+        "after_um": after,
+        "drop": None if after is None else 1.0 - after / d["residual_rms_um"],
+    }
 
 
 def clean(bench: str, family: str, together: bool, seed: int) -> list[dict]:
@@ -59,9 +81,17 @@ def clean(bench: str, family: str, together: bool, seed: int) -> list[dict]:
     out = []
     for axis, rec in recs.items():
         d = diagnose([rec])
-        out.append({"bench": bench, "family": family, "drives": "collinear" if together else "independent",
-                    "seed": seed, "axis": axis, "claimed": _claims(d),
-                    "not_testable": [c["effect"] for c in d["not_testable"]]})
+        out.append(
+            {
+                "bench": bench,
+                "family": family,
+                "drives": "collinear" if together else "independent",
+                "seed": seed,
+                "axis": axis,
+                "claimed": _claims(d),
+                "not_testable": [c["effect"] for c in d["not_testable"]],
+            }
+        )
     return out
 
 
@@ -87,15 +117,29 @@ def _logged(row):
 
 def run(seeds=(0,), families=tuple(FAMILIES), clean_seeds=(0, 1, 2, 3)) -> dict:
     t0 = time.perf_counter()
-    singles = [_logged(one_effect(prefix + e, e, seed)) for prefix in (FAMILIES[f] for f in families)
-               for e in EFFECTS for seed in seeds]
-    cleans = [_logged(row) for f in families for together in (False, True) for seed in clean_seeds
-              for row in clean(CLEAN[f], f, together, seed)]
+    singles = [
+        _logged(one_effect(prefix + e, e, seed))
+        for prefix in (FAMILIES[f] for f in families)
+        for e in EFFECTS
+        for seed in seeds
+    ]
+    cleans = [
+        _logged(row)
+        for f in families
+        for together in (False, True)
+        for seed in clean_seeds
+        for row in clean(CLEAN[f], f, together, seed)
+    ]
     multi = [_logged(several(b, h)) for b, h in SEVERAL.items()]
     false_claims = sum(1 for c in cleans if c["claimed"])
-    return {"one_effect": singles, "clean": cleans, "several": multi,
-            "false_claim_rate": false_claims / max(len(cleans), 1), "clean_diagnoses": len(cleans),
-            "seconds": time.perf_counter() - t0}
+    return {
+        "one_effect": singles,
+        "clean": cleans,
+        "several": multi,
+        "false_claim_rate": false_claims / max(len(cleans), 1),
+        "clean_diagnoses": len(cleans),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def false_claim_upper_bound(claims: int, diagnoses: int, confidence: float = 0.95) -> float:
@@ -109,25 +153,38 @@ def false_claim_upper_bound(claims: int, diagnoses: int, confidence: float = 0.9
 
 
 def markdown(result: dict) -> str:
-    rows = ["| bench | hidden | top candidate | claimed | held-out before → after refine (nm) | drop |",
-            "|---|---|---|---|---|---|"]
+    rows = [
+        "| bench | hidden | top candidate | claimed | held-out before → after refine (nm) | drop |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in result["one_effect"]:
         after = "—" if r["after_um"] is None else f"{r['after_um'] * 1e3:.1f}"
         drop = "—" if r["drop"] is None else f"{100 * r['drop']:.0f} %"
-        rows.append(f"| {r['bench']} | {r['effect']} | {'**' + r['top'] + '**' if r['right'] else r['top']} | "
-                    f"{', '.join(r['claimed']) or 'none'} | {r['before_um'] * 1e3:.1f} → {after} | {drop} |")
+        rows.append(
+            f"| {r['bench']} | {r['effect']} | {'**' + r['top'] + '**' if r['right'] else r['top']} | "
+            f"{', '.join(r['claimed']) or 'none'} | {r['before_um'] * 1e3:.1f} → {after} | {drop} |"
+        )
     rows += ["", "| clean bench | drives | seed | axis | claimed | not testable |", "|---|---|---|---|---|---|"]
     for c in result["clean"]:
-        rows.append(f"| {c['bench']} | {c['drives']} | {c['seed']} | {c['axis']} | {', '.join(c['claimed']) or 'none'} "
-                    f"| {', '.join(c['not_testable']) or '—'} |")
+        rows.append(
+            f"| {c['bench']} | {c['drives']} | {c['seed']} | {c['axis']} | {', '.join(c['claimed']) or 'none'} "
+            f"| {', '.join(c['not_testable']) or '—'} |"
+        )
     claims, n = round(result["false_claim_rate"] * result["clean_diagnoses"]), result["clean_diagnoses"]
-    rows += ["", f"False-claim rate on clean benches: {result['false_claim_rate']:.1%} of {n} diagnoses "
-                 f"({claims} with a claim); one-sided 95 % upper bound (Clopper–Pearson) "
-                 f"{false_claim_upper_bound(claims, n):.1%}.", "",
-             "| bench | hidden | named in order | all named |", "|---|---|---|---|"]
+    rows += [
+        "",
+        f"False-claim rate on clean benches: {result['false_claim_rate']:.1%} of {n} diagnoses "
+        f"({claims} with a claim); one-sided 95 % upper bound (Clopper–Pearson) "
+        f"{false_claim_upper_bound(claims, n):.1%}.",
+        "",
+        "| bench | hidden | named in order | all named |",
+        "|---|---|---|---|",
+    ]
     for m in result["several"]:
-        rows.append(f"| {m['bench']} | {', '.join(m['hidden'])} | {', '.join(m['named']) or 'none'} | "
-                    f"{'yes' if m['all_named'] else 'no'} |")
+        rows.append(
+            f"| {m['bench']} | {', '.join(m['hidden'])} | {', '.join(m['named']) or 'none'} | "
+            f"{'yes' if m['all_named'] else 'no'} |"
+        )
     return "\n".join(rows)
 
 
@@ -148,8 +205,11 @@ def main(argv=None) -> int:
     if args.json:
         with open(args.json, "w") as f:
             json.dump(result, f, indent=1, default=str)
-    print(markdown(result) if args.markdown else json.dumps(
-        {k: result[k] for k in ("false_claim_rate", "clean_diagnoses", "seconds")}, indent=1))
+    print(
+        markdown(result)
+        if args.markdown
+        else json.dumps({k: result[k] for k in ("false_claim_rate", "clean_diagnoses", "seconds")}, indent=1)
+    )
     return 0
 
 

@@ -7,6 +7,7 @@ figures as vectors.
 Pure rendering: it takes rows, dicts and decimated arrays (service.usecases.report gathers them),
 and knows no store or HTTP.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,10 @@ pre{background:#f5f5f5;padding:8px;overflow-x:auto;font-size:.8em;white-space:pr
 svg text{fill:#222}svg .title{font-weight:600;font-size:11.5px}footer{margin-top:2em;color:#666;font-size:.85em}
 @media print{body{margin:0;max-width:none}pre{white-space:pre-wrap}svg.figure{page-break-inside:avoid}}"""
 
-PDF_NOTE = ("For a PDF, open this file in a browser and print it to PDF (Print → Save as PDF): the "
-            "figures are SVG and stay vectors. The file needs no network and no script.")
+PDF_NOTE = (
+    "For a PDF, open this file in a browser and print it to PDF (Print → Save as PDF): the "
+    "figures are SVG and stay vectors. The file needs no network and no script."
+)
 
 
 @dataclass
@@ -55,9 +58,11 @@ def _num(value, digits: int = 4) -> str:
 def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
     """An HTML table (``head`` None: no header row); cells are already-escaped HTML; columns in
     ``numeric`` right-aligned."""
-    cls = lambda i: ' class="num"' if i in numeric else ""   # noqa: E731
-    out = [f"<table{attrs}>" + ("<tr>" + "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(head)) + "</tr>"
-                                if head else "")]
+    cls = lambda i: ' class="num"' if i in numeric else ""  # noqa: E731
+    out = [
+        f"<table{attrs}>"
+        + ("<tr>" + "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(head)) + "</tr>" if head else "")
+    ]
     out += ["<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows]
     return "".join(out) + "</table>"
 
@@ -76,11 +81,17 @@ def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
     loop.line(b.u_v, b.x_model_um * factor, "model", COLOURS[1], width=1.0)
     residual = b.x_um - b.x_model_um
     rf, ru = length_unit(float(np.max(np.abs(residual))) if residual.size else 1.0)
-    res = Panel(520, 300, f"residual, held-out RMS {fmt_length(b.held_out_rms_um)}", "time in the held-out cycles (ms)",
-                f"measured − model ({ru})")
+    res = Panel(
+        520,
+        300,
+        f"residual, held-out RMS {fmt_length(b.held_out_rms_um)}",
+        "time in the held-out cycles (ms)",
+        f"measured − model ({ru})",
+    )
     res.line(b.t_s * 1e3, residual * rf, "residual", COLOURS[3]).hline(0.0, "")
-    return figure([loop, res], f"{mark}{b.title} ({b.dataset_id}): loop and residual",
-                  frame="#C62828" if worst else None)
+    return figure(
+        [loop, res], f"{mark}{b.title} ({b.dataset_id}): loop and residual", frame="#C62828" if worst else None
+    )
 
 
 def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
@@ -88,8 +99,16 @@ def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
     rms = [s["validation_rms_um"] for s in steps]
     known = [v for v in rms if v] + ([noise_floor_um] if noise_floor_um else [])
     factor, unit = length_unit(max(known) if known else 1.0)
-    panel = Panel(1040, 320, "Error history: held-out RMS per step", "lineage step",
-                  f"held-out RMS ({unit}, log scale)", log_y=True, integer_x=True, legend="bottom-right")
+    panel = Panel(
+        1040,
+        320,
+        "Error history: held-out RMS per step",
+        "lineage step",
+        f"held-out RMS ({unit}, log scale)",
+        log_y=True,
+        integer_x=True,
+        legend="bottom-right",
+    )
     if noise_floor_um:
         panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_length(noise_floor_um)}")
         panel.hline(2 * noise_floor_um * factor, "2× noise floor")
@@ -117,56 +136,98 @@ def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]
 
 def _model_section(row: dict, description: dict) -> str:
     m = row["metrics"]
-    labels = [[k, escape(str(v))] for k, v in (("name", row.get("name")), ("tags", ", ".join(row.get("tags") or [])),
-                                                ("notes", row.get("notes"))) if v]
-    facts = [["model", f"<code>{escape(row['id'])}</code>"], *labels, ["kind", escape(row["kind"])],
-             ["axis", escape(row["axis"].upper())], ["effects", escape(" + ".join(row["effects"]))],
-             ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
-             ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
-             ["training RMS", fmt_length(m.get("train_rms_um"), 4)],
-             ["held-out RMS", f'<span id="model-heldout">{fmt_length(m.get("validation_rms_um"), 4)}</span>'],
-             ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
-             ["created", escape(row["created_at"])], ["software", escape(row["software_version"])],
-             ["parameters SHA-256", f"<code>{escape(row['parameters_sha256'])}</code>"]]
+    labels = [
+        [k, escape(str(v))]
+        for k, v in (("name", row.get("name")), ("tags", ", ".join(row.get("tags") or [])), ("notes", row.get("notes")))
+        if v
+    ]
+    facts = [
+        ["model", f"<code>{escape(row['id'])}</code>"],
+        *labels,
+        ["kind", escape(row["kind"])],
+        ["axis", escape(row["axis"].upper())],
+        ["effects", escape(" + ".join(row["effects"]))],
+        ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
+        ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
+        ["training RMS", fmt_length(m.get("train_rms_um"), 4)],
+        ["held-out RMS", f'<span id="model-heldout">{fmt_length(m.get("validation_rms_um"), 4)}</span>'],
+        ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
+        ["created", escape(row["created_at"])],
+        ["software", escape(row["software_version"])],
+        ["parameters SHA-256", f"<code>{escape(row['parameters_sha256'])}</code>"],
+    ]
     text = _table(None, facts)
     words = [[escape(k), escape(v)] for k, v in description.items() if v]
     params = {k: v for k, v in row["parameters"].items() if k not in ("model", "config")}
     values = [[f"<code>{escape(name)}</code>", str(n), escape(text)] for name, n, text in parameter_rows(params)]
-    return ("<h2>1. Model</h2>" + text + "<h2>2. Fitted parameters</h2>"
-            + (_table(["effect", "fitted, in words"], words) if words else "")
-            + _table(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
-            + "<details><summary>Every stored parameter (<code>model.to_dict()</code>, JSON)</summary><pre>"
-            + escape(json.dumps({"config": row["parameters"].get("config"), **params})) + "</pre></details>")
+    return (
+        "<h2>1. Model</h2>"
+        + text
+        + "<h2>2. Fitted parameters</h2>"
+        + (_table(["effect", "fitted, in words"], words) if words else "")
+        + _table(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
+        + "<details><summary>Every stored parameter (<code>model.to_dict()</code>, JSON)</summary><pre>"
+        + escape(json.dumps({"config": row["parameters"].get("config"), **params}))
+        + "</pre></details>"
+    )
 
 
 def _datasets_section(datasets: list[dict], axis: str) -> str:
     rows = []
     for d in datasets:
-        blocks = "; ".join(f"{b.get('index')}: {b.get('kind')}"
-                           + (f" {b['frequency_hz']:g} Hz × {b.get('cycles')}" if b.get("frequency_hz") else "")
-                           + (f" ({'+'.join(b['axes']).upper()})" if b.get("axes") else "") for b in d["blocks"])
+        blocks = "; ".join(
+            f"{b.get('index')}: {b.get('kind')}"
+            + (f" {b['frequency_hz']:g} Hz × {b.get('cycles')}" if b.get("frequency_hz") else "")
+            + (f" ({'+'.join(b['axes']).upper()})" if b.get("axes") else "")
+            for b in d["blocks"]
+        )
         label = " · ".join(x for x in (d.get("name"), ", ".join(d.get("tags") or []), d.get("notes")) if x)
-        rows.append([f"<code>{escape(d['id'])}</code>", escape(label), escape(d["source"]),
-                     escape(",".join(d["axes"]).upper()), str(d["samples"]), f"{d['sample_rate_hz']:g}",
-                     "partial: " + escape(d["partial_reason"] or "") if d.get("partial") else "complete",
-                     escape(blocks)])
-    return (f"<h2>3. Data</h2><p>Axis {escape(axis.upper())} of these datasets; the last ⌈20 %⌉ cycles of every "
-            "block are held out of the fit.</p>"
-            + _table(["dataset", "name · tags · notes", "source", "axes", "samples", "rate (Hz)", "state", "blocks"],
-                     rows, {4, 5}))
+        rows.append(
+            [
+                f"<code>{escape(d['id'])}</code>",
+                escape(label),
+                escape(d["source"]),
+                escape(",".join(d["axes"]).upper()),
+                str(d["samples"]),
+                f"{d['sample_rate_hz']:g}",
+                "partial: " + escape(d["partial_reason"] or "") if d.get("partial") else "complete",
+                escape(blocks),
+            ]
+        )
+    return (
+        f"<h2>3. Data</h2><p>Axis {escape(axis.upper())} of these datasets; the last ⌈20 %⌉ cycles of every "
+        "block are held out of the fit.</p>"
+        + _table(
+            ["dataset", "name · tags · notes", "source", "axes", "samples", "rate (Hz)", "state", "blocks"],
+            rows,
+            {4, 5},
+        )
+    )
 
 
 def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
-    rows = [[str(i + 1), f"<code>{escape(s['model_id'])}</code>", escape(s["change"] or "first fit"),
-             escape(" + ".join(s["effects"])),
-             f'<span class="rms-train">{fmt_length(s["train_rms_um"], 4)}</span>',
-             f'<span class="rms-heldout">{fmt_length(s["validation_rms_um"], 4)}</span>',
-             _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–"]
-            for i, s in enumerate(steps)]
-    return ("<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model.</p>"
-            + _table(["step", "model", "change", "effects", "training RMS", "held-out RMS", "× noise floor"], rows,
-                     {0, 4, 5, 6}, ' id="lineage"')
-            + history_figure(steps, noise_floor_um))
+    rows = [
+        [
+            str(i + 1),
+            f"<code>{escape(s['model_id'])}</code>",
+            escape(s["change"] or "first fit"),
+            escape(" + ".join(s["effects"])),
+            f'<span class="rms-train">{fmt_length(s["train_rms_um"], 4)}</span>',
+            f'<span class="rms-heldout">{fmt_length(s["validation_rms_um"], 4)}</span>',
+            _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–",
+        ]
+        for i, s in enumerate(steps)
+    ]
+    return (
+        "<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model.</p>"
+        + _table(
+            ["step", "model", "change", "effects", "training RMS", "held-out RMS", "× noise floor"],
+            rows,
+            {0, 4, 5, 6},
+            ' id="lineage"',
+        )
+        + history_figure(steps, noise_floor_um)
+    )
 
 
 def _experiment(body: dict) -> str:
@@ -175,57 +236,93 @@ def _experiment(body: dict) -> str:
 
 def _diagnosis_section(d: dict) -> str:
     cands = [c for c in d.get("candidates") or [] if c.get("testable", True)]
-    rows = [[escape(c["effect"]), escape(c.get("kind") or ""), "yes" if c.get("claimed") else "no",
-             _num(c.get("score"), 3), fmt_length(c.get("expected_rms_um"), 4), escape(c.get("evidence") or "")]
-            for c in cands]
-    untestable = "".join(f"<li><b>{escape(c['effect'])}</b>: {escape(c.get('reason') or '')}"
-                         f"{_experiment(c['experiment']) if c.get('experiment') else ''}</li>"
-                         for c in d.get("not_testable") or [])
+    rows = [
+        [
+            escape(c["effect"]),
+            escape(c.get("kind") or ""),
+            "yes" if c.get("claimed") else "no",
+            _num(c.get("score"), 3),
+            fmt_length(c.get("expected_rms_um"), 4),
+            escape(c.get("evidence") or ""),
+        ]
+        for c in cands
+    ]
+    untestable = "".join(
+        f"<li><b>{escape(c['effect'])}</b>: {escape(c.get('reason') or '')}"
+        f"{_experiment(c['experiment']) if c.get('experiment') else ''}</li>"
+        for c in d.get("not_testable") or []
+    )
     amb = d.get("ambiguity")
-    return ("<h2>5. Diagnosis</h2>"
-            f'<p class="verdict">Verdict: <span id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
-            f"{escape(str(d.get('verdict')))}</span></p>"
-            f"<p id=\"verdict-text\">{escape(d.get('verdict_text') or '')}</p>"
-            f"<p>Held-out RMS {fmt_length(d.get('residual_rms_um'), 4)} · noise floor "
-            f"<span id=\"noise-floor\">{fmt_length(d.get('noise_floor_um'), 4)}</span>"
-            + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "") + "</p>"
-            + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
-            + "<h3>Candidate effects (best first)</h3>"
-            + _table(["effect", "kind", "claimed", "score", "held-out RMS with it", "evidence"], rows, {3, 4},
-                     ' id="candidates"')
-            + (f"<h3>Not testable with this data</h3><ul id=\"not-testable\">{untestable}</ul>" if untestable else "")
-            + (f"<h3>Ambiguity</h3><p id=\"ambiguity\">{escape(amb.get('text') or '')}</p>"
-               + (_experiment(amb["experiment"]) if amb.get("experiment") else "") if amb else ""))
+    return (
+        "<h2>5. Diagnosis</h2>"
+        f'<p class="verdict">Verdict: <span id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
+        f"{escape(str(d.get('verdict')))}</span></p>"
+        f'<p id="verdict-text">{escape(d.get("verdict_text") or "")}</p>'
+        f"<p>Held-out RMS {fmt_length(d.get('residual_rms_um'), 4)} · noise floor "
+        f'<span id="noise-floor">{fmt_length(d.get("noise_floor_um"), 4)}</span>'
+        + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "")
+        + "</p>"
+        + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
+        + "<h3>Candidate effects (best first)</h3>"
+        + _table(
+            ["effect", "kind", "claimed", "score", "held-out RMS with it", "evidence"], rows, {3, 4}, ' id="candidates"'
+        )
+        + (f'<h3>Not testable with this data</h3><ul id="not-testable">{untestable}</ul>' if untestable else "")
+        + (
+            f'<h3>Ambiguity</h3><p id="ambiguity">{escape(amb.get("text") or "")}</p>'
+            + (_experiment(amb["experiment"]) if amb.get("experiment") else "")
+            if amb
+            else ""
+        )
+    )
 
 
 def _blocks_section(blocks: list[BlockCurves], axis: str, worst: int | None) -> str:
-    figs = "".join(f'<div class="block-figure{" worst" if i == worst else ""}">{block_figure(b, axis, i == worst)}</div>'
-                   for i, b in enumerate(blocks))
-    return ("<h2>6. Measured against model, block by block</h2><p>Each block's held-out cycles (never fitted): "
-            f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve. "
-            "The block the diagnosis names worst is framed in red.</p>" + figs)
+    figs = "".join(
+        f'<div class="block-figure{" worst" if i == worst else ""}">{block_figure(b, axis, i == worst)}</div>'
+        for i, b in enumerate(blocks)
+    )
+    return (
+        "<h2>6. Measured against model, block by block</h2><p>Each block's held-out cycles (never fitted): "
+        f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve. "
+        "The block the diagnosis names worst is framed in red.</p>" + figs
+    )
 
 
 def _reproduce_section(commands: dict[str, str]) -> str:
     parts = [("curl", "REST (curl)"), ("cli", "evcbench CLI"), ("python", "Python client")]
-    return ("<h2>7. Reproduce</h2><p>The requests that record the datasets again (their stored plans) and fit the "
-            "lineage step by step on the new ids. On another bench, or a later day, the figures differ by the "
-            "bench's noise and drift.</p>"
-            + "".join(f'<h3>{title}</h3><pre id="reproduce-{key}">{escape(commands[key])}</pre>'
-                      for key, title in parts))
+    return (
+        "<h2>7. Reproduce</h2><p>The requests that record the datasets again (their stored plans) and fit the "
+        "lineage step by step on the new ids. On another bench, or a later day, the figures differ by the "
+        "bench's noise and drift.</p>"
+        + "".join(f'<h3>{title}</h3><pre id="reproduce-{key}">{escape(commands[key])}</pre>' for key, title in parts)
+    )
 
 
-def render_report(model_row: dict, description: dict, datasets: list[dict], steps: list[dict], diagnosis: dict,
-                  blocks: list[BlockCurves], commands: dict[str, str], generated_at: str,
-                  worst: int | None = None) -> str:
+def render_report(
+    model_row: dict,
+    description: dict,
+    datasets: list[dict],
+    steps: list[dict],
+    diagnosis: dict,
+    blocks: list[BlockCurves],
+    commands: dict[str, str],
+    generated_at: str,
+    worst: int | None = None,
+) -> str:
     """The whole report as HTML text; ``worst``: the index in ``blocks`` of the block the diagnosis
     names worst (marked)."""
     title = f"Model {model_row['id']}: {model_row['kind']}, axis {model_row['axis'].upper()}"
-    return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{escape(title)}</title><style>{CSS}</style></head><body>"
-            f"<h1>{escape(title)}</h1><p class=\"muted\">{escape(' + '.join(model_row['effects']))} · "
-            f"EVC Bench report generated {escape(generated_at)}</p>"
-            + _model_section(model_row, description) + _datasets_section(datasets, model_row["axis"])
-            + _lineage_section(steps, diagnosis.get("noise_floor_um")) + _diagnosis_section(diagnosis)
-            + _blocks_section(blocks, model_row["axis"], worst) + _reproduce_section(commands)
-            + f"<footer><p>{escape(PDF_NOTE)}</p></footer></body></html>")
+    return (
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+        f"<title>{escape(title)}</title><style>{CSS}</style></head><body>"
+        f'<h1>{escape(title)}</h1><p class="muted">{escape(" + ".join(model_row["effects"]))} · '
+        f"EVC Bench report generated {escape(generated_at)}</p>"
+        + _model_section(model_row, description)
+        + _datasets_section(datasets, model_row["axis"])
+        + _lineage_section(steps, diagnosis.get("noise_floor_um"))
+        + _diagnosis_section(diagnosis)
+        + _blocks_section(blocks, model_row["axis"], worst)
+        + _reproduce_section(commands)
+        + f"<footer><p>{escape(PDF_NOTE)}</p></footer></body></html>"
+    )

@@ -6,6 +6,7 @@ Ids change when the steps are run again, so the text keeps them in variables: ``
 for the datasets and ``M1``, ``M2``, … for the lineage's models (``M1`` the root).
 Pure text: no store, no HTTP.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,7 +39,7 @@ def dataset_request(row: dict) -> dict:
         return {"kind": "trajectory", "body": dict(plan)}
     body = {k: v for k, v in plan.items() if k not in PLAN_FIGURES}
     chirp = [b for b in row.get("blocks") or [] if b.get("kind") == "chirp"]
-    if body.get("waveform") == "chirp" and chirp:   # the stored duration_s is the whole plan's: the chirp's
+    if body.get("waveform") == "chirp" and chirp:  # the stored duration_s is the whole plan's: the chirp's
         body["duration_s"] = round((chirp[0]["stop"] - chirp[0]["start"]) / row["sample_rate_hz"], 6)
     body["name"] = row.get("name")
     return {"kind": "sweep", "body": body}
@@ -106,8 +107,11 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
     md = _vars([s["model_id"] for s in steps], "M")
     names = {**ds, **md}
     curl, cli = [_SHELL_PRELUDE], ["# needs jq; --url/--token or EVCBENCH_URL/EVCBENCH_TOKEN as for every verb"]
-    py = ["from service.frontends.client import Client", "",
-          'api = Client("http://127.0.0.1:8000", token="evc_…")   # an operate-scope token']
+    py = [
+        "from service.frontends.client import Client",
+        "",
+        'api = Client("http://127.0.0.1:8000", token="evc_…")   # an operate-scope token',
+    ]
     for row in dataset_rows:
         req, var = dataset_request(row), ds[row["id"]]
         note = f"# {var} = {row['id']} ({row.get('name')}, {req['kind']})"
@@ -118,50 +122,74 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
         if req["kind"] == "import":
             form = " ".join(f"-F {shlex.quote(f'{k}={v}')}" for k, v in body.items() if k != "filename")
             fname = body.get("filename") or "FILE.csv"
-            curl.append(f'{var}=$(curl -sf -X POST "$URL/api/datasets" -H "$AUTH" -F file=@{shlex.quote(fname)} '
-                        f'{form} | jq -r .id)   # the original file: {fname}')
-            cli.append(f"{var}=$(evcbench import {shlex.quote(fname)} --json"
-                       + "".join(f" --{k.replace('_', '-')} {shlex.quote(str(v))}" for k, v in body.items()
-                                 if k not in ("filename",)) + " | jq -r .id)")
-            py.append(f"{var.lower()} = api.import_dataset({fname!r}, "
-                      + ", ".join(f"{k}={v!r}" for k, v in body.items() if k != "filename") + ')["id"]')
+            curl.append(
+                f'{var}=$(curl -sf -X POST "$URL/api/datasets" -H "$AUTH" -F file=@{shlex.quote(fname)} '
+                f"{form} | jq -r .id)   # the original file: {fname}"
+            )
+            cli.append(
+                f"{var}=$(evcbench import {shlex.quote(fname)} --json"
+                + "".join(
+                    f" --{k.replace('_', '-')} {shlex.quote(str(v))}" for k, v in body.items() if k not in ("filename",)
+                )
+                + " | jq -r .id)"
+            )
+            py.append(
+                f"{var.lower()} = api.import_dataset({fname!r}, "
+                + ", ".join(f"{k}={v!r}" for k, v in body.items() if k != "filename")
+                + ')["id"]'
+            )
         elif req["kind"] == "trajectory":
             curl.append(f"{var}=$(wait_job $(post /trajectories '{_json(body)}') dataset_id)")
             cli.append(f"# {var}: a trajectory run; no evcbench verb runs one: use the curl or Python lines")
-            py.append(f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_py(body, {})}).json()'
-                      f'["job_id"])["result"]["dataset_id"]')
+            py.append(
+                f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_py(body, {})}).json()'
+                f'["job_id"])["result"]["dataset_id"]'
+            )
         else:
             curl.append(f"{var}=$(wait_job $(post /sweeps '{_json(body)}') dataset_id)")
             cli.append(f"{var}=$({_cli_sweep(body)})")
             py.append(f'{var.lower()} = api.sweep(**{_py(body, {})})["result"]["dataset_id"]')
     kind, n_ops = root["kind"], int((root.get("options") or {}).get("n_operators", 10))
     first = steps[0]
-    effects = list(root["effects"])     # as requested (a dynamic PI's rate dependence is its kind's, not asked)
-    body = {"axis": root["axis"], "datasets": first["datasets"], "model": kind, "effects": effects,
-            "n_operators": n_ops}
+    effects = list(root["effects"])  # as requested (a dynamic PI's rate dependence is its kind's, not asked)
+    body = {
+        "axis": root["axis"],
+        "datasets": first["datasets"],
+        "model": kind,
+        "effects": effects,
+        "n_operators": n_ops,
+    }
     m1 = md[first["model_id"]]
     for out in (curl, cli, py):
         out.append(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(effects)}")
     curl.append(f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names)}') model_id)")
-    cli.append(f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
-               + ",".join(f"${ds[d]}" for d in first["datasets"]) + f" --model {kind} --effects "
-               + ",".join(effects) + f" --n-operators {n_ops} --json | jq -r .id)")
-    py.append(f"{m1.lower()} = api.identify({root['axis']!r}, [" + ", ".join(ds[d].lower() for d in first["datasets"])
-              + f"], model={kind!r}, effects={effects!r}, n_operators={n_ops})[\"id\"]")
+    cli.append(
+        f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
+        + ",".join(f"${ds[d]}" for d in first["datasets"])
+        + f" --model {kind} --effects "
+        + ",".join(effects)
+        + f" --n-operators {n_ops} --json | jq -r .id)"
+    )
+    py.append(
+        f"{m1.lower()} = api.identify({root['axis']!r}, ["
+        + ", ".join(ds[d].lower() for d in first["datasets"])
+        + f'], model={kind!r}, effects={effects!r}, n_operators={n_ops})["id"]'
+    )
     for prev, step in zip(steps, steps[1:]):
         var, parent = md[step["model_id"]], md[prev["model_id"]]
         body = refine_body(step, prev)
         for out in (curl, cli, py):
             out.append(f"# {var} = {step['model_id']}: {step['change']}")
-        curl.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') "
-                    "model_id)")
-        cli.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') "
-                   "model_id)   # refine has no evcbench verb: the curl helpers above")
+        curl.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') model_id)")
+        cli.append(
+            f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') "
+            "model_id)   # refine has no evcbench verb: the curl helpers above"
+        )
         args = ", ".join(f"{k}={_py(v, names)}" for k, v in body.items())
         py.append(f'{var.lower()} = api.refine({parent.lower()}, {args})["id"]')
     last = md[steps[-1]["model_id"]]
     curl.append(f'curl -sf -H "$AUTH" "$URL/api/models/${last}/report?download=true" -o "${last}-report.html"')
     cli.append(f"evcbench models ${last} --report ${last}-report.html")
     py.append(f'open(f"{{{last.lower()}}}-report.html", "w").write(api.model_report({last.lower()}))')
-    cli.insert(1, _SHELL_PRELUDE.split("\n", 1)[1])    # the refine lines use the same two helpers
+    cli.insert(1, _SHELL_PRELUDE.split("\n", 1)[1])  # the refine lines use the same two helpers
     return {"curl": "\n".join(curl), "cli": "\n".join(cli), "python": "\n".join(py)}

@@ -6,11 +6,12 @@ API's answer to a POST (a job's final record for job endpoints, the JSON for
 ``/api/trajectories/span-sweeps``), raising ``Refused`` on a 422. ``UseCases.post`` answers it in
 process (service.usecases.*); tests pass a TestClient-backed ``post`` and must get the same figures.
 """
+
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from service.http.schemas.datasets import SweepRequest
 from service.http.schemas.models import ModelRequest
@@ -33,13 +34,17 @@ FIRST_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles":
 #: other axis's drive.
 EFFECTS = ["hysteresis", "asymmetry", "creep", "delay", "dynamics"]
 #: the report's rows: controller bodies on top of the feedforward models
-ROWS = {"b FF only": {},
-        "c FF + PID (auto)": {"pid": "auto"},
-        "d FF + PID (auto) + ILC": {"pid": "auto", "ilc": True},
-        "d' FF + ILC": {"ilc": True},
-        "e FF + PID (paper gains)": {"pid": "paper"},
-        "f FF + PID (issue 6's scanned gains) + ILC": {"pid": {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1,
-                                                               "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4}, "ilc": True}}
+ROWS = {
+    "b FF only": {},
+    "c FF + PID (auto)": {"pid": "auto"},
+    "d FF + PID (auto) + ILC": {"pid": "auto", "ilc": True},
+    "d' FF + ILC": {"ilc": True},
+    "e FF + PID (paper gains)": {"pid": "paper"},
+    "f FF + PID (issue 6's scanned gains) + ILC": {
+        "pid": {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1, "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4},
+        "ilc": True,
+    },
+}
 ENDED = ("succeeded", "failed", "cancelled")
 
 Post = Callable[[str, dict], object]
@@ -80,14 +85,18 @@ class UseCases:
                 values = SweepRequest(**body).model_dump()
                 name = values.pop("name")
                 planned, plan = plan_sweep(self.bench, values)
-                return self._wait(self.jobs.submit(
-                    "sweep", plan, lambda ctx: run_sweep(ctx, self.bench, self.store, planned, plan, name), True))
+                return self._wait(
+                    self.jobs.submit(
+                        "sweep", plan, lambda ctx: run_sweep(ctx, self.bench, self.store, planned, plan, name), True
+                    )
+                )
             if path == "/api/models":
                 req = ModelRequest(**body)
                 check_identify_request(self.store, req.axis, req.datasets, req.effects, req.model)
                 params = req.model_dump()
-                return self._wait(self.jobs.submit("identify", params,
-                                                   lambda ctx: identify(ctx, self.store, **params), False))
+                return self._wait(
+                    self.jobs.submit("identify", params, lambda ctx: identify(ctx, self.store, **params), False)
+                )
             req = TrajectoryRequest(**body)
             if path == "/api/trajectories/span-sweeps":
                 return span_sweeps(self.bench, self.store, req.ellipse(), req.controller.model_dump())
@@ -95,8 +104,16 @@ class UseCases:
                 ellipse = req.ellipse()
                 controller = check_trajectory(self.bench, self.store, ellipse, req.controller.model_dump(), req.mode)
                 params = req.model_dump()
-                return self._wait(self.jobs.submit("trajectory", params, lambda ctx: run_trajectory(
-                    ctx, self.bench, self.store, ellipse, controller, req.mode, params, req.name), True))
+                return self._wait(
+                    self.jobs.submit(
+                        "trajectory",
+                        params,
+                        lambda ctx: run_trajectory(
+                            ctx, self.bench, self.store, ellipse, controller, req.mode, params, req.name
+                        ),
+                        True,
+                    )
+                )
         except FieldError as exc:
             raise Refused(exc.field, exc.message) from None
         raise ValueError(f"no such endpoint: POST {path}")
@@ -112,8 +129,10 @@ def first_models(post: Post, effects: list[str] = EFFECTS) -> dict[str, str]:
     """axis → composite model id (hysteresis + ``effects``) identified on ``FIRST_SWEEP`` (the default
     0–120 V sweep)."""
     dataset_id = _result(post("/api/sweeps", FIRST_SWEEP))["dataset_id"]
-    return {ax: _result(post("/api/models", {"axis": ax, "datasets": [dataset_id], "effects": effects}))["model_id"]
-            for ax in ("y", "z")}
+    return {
+        ax: _result(post("/api/models", {"axis": ax, "datasets": [dataset_id], "effects": effects}))["model_id"]
+        for ax in ("y", "z")
+    }
 
 
 def ff_body(model_ids: dict[str, str]) -> dict:
@@ -129,7 +148,9 @@ def identify_for(post: Post, case_body: dict, first: dict[str, str], effects: li
     for body in bodies:
         (axis,) = body["axes"]
         dataset_id = _result(post("/api/sweeps", body))["dataset_id"]
-        out[axis] = _result(post("/api/models", {"axis": axis, "datasets": [dataset_id], "effects": effects}))["model_id"]
+        out[axis] = _result(post("/api/models", {"axis": axis, "datasets": [dataset_id], "effects": effects}))[
+            "model_id"
+        ]
     return out
 
 

@@ -2,12 +2,13 @@
 what a killed process of this bench left: see service.runtime.heartbeat and service.runtime.recovery)
 and the bench at start-up, mounts the routers, and at shut-down stops the jobs (a running sweep keeps
 its partial data), closes the bench at 0 V and marks the bench stopped."""
+
 from __future__ import annotations
 
 import time
-from pathlib import Path
+from collections.abc import Callable
 from contextlib import asynccontextmanager
-from typing import Callable
+from pathlib import Path
 
 from fastapi import FastAPI
 
@@ -17,9 +18,9 @@ from service.http import admin as admin_api
 from service.http import auth as auth_api
 from service.http import bench as bench_api
 from service.http import datasets as datasets_api
+from service.http import discovery as discovery_api
 from service.http import errors as errors_api
 from service.http import health as health_api
-from service.http import discovery as discovery_api
 from service.http import jobs as jobs_api
 from service.http import lab as lab_api
 from service.http import models as models_api
@@ -28,22 +29,34 @@ from service.http import sweeps as sweeps_api
 from service.http import tokens as tokens_api
 from service.http import trajectories as trajectories_api
 from service.http import web as web_api
-from service.runtime.heartbeat import Heartbeat, claim, new_instance, register, running_state
 from service.runtime.heap import freeze_heap
+from service.runtime.heartbeat import Heartbeat, claim, new_instance, register, running_state
 from service.runtime.jobs import JobManager
 from service.runtime.recovery import recover
-from service.security.auth import ensure_bootstrap_token
-from service.security.binding import auth_refusal
 from service.runtime.settings import Settings
 from service.runtime.stop_port_link import StopPortLink
+from service.security.auth import ensure_bootstrap_token
+from service.security.binding import auth_refusal
 from service.store import Store
 from service.usecases.recorder import bench_snapshot
 
 #: Routers mounted under /api, in the order they appear in the docs. Every one but health needs a
 #: token (service/http/auth.py): read for GET/HEAD, operate for writes, admin under /api/admin.
-ROUTERS = (health_api.router, bench_api.stop_router, bench_api.router, jobs_api.router, sweeps_api.router,
-           datasets_api.router, models_api.router, discovery_api.router, reports_api.router,
-           trajectories_api.router, lab_api.router, tokens_api.router, admin_api.router)
+ROUTERS = (
+    health_api.router,
+    bench_api.stop_router,
+    bench_api.router,
+    jobs_api.router,
+    sweeps_api.router,
+    datasets_api.router,
+    models_api.router,
+    discovery_api.router,
+    reports_api.router,
+    trajectories_api.router,
+    lab_api.router,
+    tokens_api.router,
+    admin_api.router,
+)
 #: Mounted without the router-level token check: health needs none; the emergency stop checks its
 #: token itself, on its own thread (service/http/bench.py)
 OPEN_ROUTERS = (health_api.router, bench_api.stop_router)
@@ -55,8 +68,12 @@ def open_configured_bench(settings: Settings) -> Bench:
     if settings.engine == "process":
         from service.runtime.engine import open_engine
 
-        return open_engine(settings.bench, seed=settings.seed, stop_address=(settings.host, settings.stop_port),
-                           bench_id=settings.bench_id)
+        return open_engine(
+            settings.bench,
+            seed=settings.seed,
+            stop_address=(settings.host, settings.stop_port),
+            bench_id=settings.bench_id,
+        )
     from drivers.emulated import open_bench
 
     return open_bench(settings.bench, seed=settings.seed)
@@ -76,13 +93,12 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
         Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
         app.state.settings = settings
         app.state.started_at = time.time()
-        app.state.store = store = Store(settings.resolved_database_url, settings.data_dir,
-                                        array_url=settings.array_url)
-        store.bench_id = settings.bench_id            # every row it adds carries it; it recovers only its own
+        app.state.store = store = Store(settings.resolved_database_url, settings.data_dir, array_url=settings.array_url)
+        store.bench_id = settings.bench_id  # every row it adds carries it; it recovers only its own
         app.state.instance = instance = new_instance()
         heartbeat = None
         try:
-            claim(store, settings, instance)          # BenchIdInUse before anything is recovered
+            claim(store, settings, instance)  # BenchIdInUse before anything is recovered
             app.state.recovery = recover(store)
             if settings.auth == "tokens":
                 ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
@@ -91,12 +107,24 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 app.state.jobs = JobManager(store, on_cancel_bench=app.state.bench.cancel_plan)
                 # the engine's stop port (an engine in its own process has one): its tokens, its jobs
                 app.state.stop_port_link = link = (
-                    None if getattr(app.state.bench, "stop_port", None) is None
-                    else StopPortLink(app.state.bench, store, app.state.jobs, settings.auth == "off",
-                                      announce=(settings.data_dir, settings.port, settings.bench_id)).start())
+                    None
+                    if getattr(app.state.bench, "stop_port", None) is None
+                    else StopPortLink(
+                        app.state.bench,
+                        store,
+                        app.state.jobs,
+                        settings.auth == "off",
+                        announce=(settings.data_dir, settings.port, settings.bench_id),
+                    ).start()
+                )
                 register(store.benches, settings, instance, "idle", bench_snapshot(app.state.bench))
-                heartbeat = Heartbeat(settings.resolved_database_url, settings.bench_id, instance,
-                                      settings.heartbeat_s, lambda: running_state(app.state.jobs)).start()
+                heartbeat = Heartbeat(
+                    settings.resolved_database_url,
+                    settings.bench_id,
+                    instance,
+                    settings.heartbeat_s,
+                    lambda: running_state(app.state.jobs),
+                ).start()
                 freeze_heap()  # what start-up loaded is never scanned again by the collector
                 try:
                     yield
@@ -108,17 +136,20 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 app.state.bench.close()
         finally:
             if heartbeat is not None:
-                heartbeat.stop()                      # after the bench is at 0 V and closed: state "stopped"
+                heartbeat.stop()  # after the bench is at 0 V and closed: state "stopped"
             store.close()
 
-    app = FastAPI(title="EVC Bench", version=__version__, lifespan=lifespan,
-                  description="Characterise, model and control a two-axis piezo EVC bench. Units live in "
-                              "field names: _v volts at the actuator, _um micrometres, _hz, _s.")
+    app = FastAPI(
+        title="EVC Bench",
+        version=__version__,
+        lifespan=lifespan,
+        description="Characterise, model and control a two-axis piezo EVC bench. Units live in "
+        "field names: _v volts at the actuator, _um micrometres, _hz, _s.",
+    )
     app.state.settings = settings  # also before start-up, for tests that seed tokens
     errors_api.install(app)
     auth_api.install(app)
     for router in ROUTERS:
-        app.include_router(router, prefix="/api",
-                           dependencies=[] if router in OPEN_ROUTERS else auth_api.REQUIRE_TOKEN)
+        app.include_router(router, prefix="/api", dependencies=[] if router in OPEN_ROUTERS else auth_api.REQUIRE_TOKEN)
     web_api.mount(app)  # the dashboard's static files at /web, after the API routes
     return app

@@ -6,12 +6,14 @@ that short requests (and the token check of an emergency stop) need, and from co
 CPU on equal terms with the event loop: on Linux each bulk thread lowers its own scheduling
 priority (``nice`` +10, best effort; a thread may always lower its own priority).
 """
+
 from __future__ import annotations
 
 import asyncio
+from collections.abc import AsyncIterator, Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
-from typing import AsyncIterator, Callable, Iterator, TypeVar
+from typing import TypeVar
 
 from service.runtime.priority import BULK_NICE, set_thread_nice
 
@@ -21,8 +23,9 @@ BULK_WORKERS = 4
 T = TypeVar("T")
 
 
-_POOL = ThreadPoolExecutor(max_workers=BULK_WORKERS, thread_name_prefix="evc-bulk", initializer=set_thread_nice,
-                           initargs=(BULK_NICE,))
+_POOL = ThreadPoolExecutor(
+    max_workers=BULK_WORKERS, thread_name_prefix="evc-bulk", initializer=set_thread_nice, initargs=(BULK_NICE,)
+)
 
 
 async def run_bulk(fn: Callable[..., T], *args) -> T:

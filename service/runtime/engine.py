@@ -8,14 +8,15 @@ engine, which owns it. Why a process (docs/architecture.md, "The safety path"): 
 watchdog and the stop then share neither the interpreter lock nor the event loop with downloads,
 imports and fits, so a busy request cannot delay a sample or a stop.
 """
+
 from __future__ import annotations
 
 import logging
 import multiprocessing
 import threading
 import time
+from collections.abc import Callable, Mapping
 from types import SimpleNamespace
-from typing import Callable, Mapping
 
 import numpy as np
 
@@ -71,7 +72,7 @@ class _RemoteFaults:
     def __init__(self, command: _Channel):
         self._command = command
 
-    def add(self, kind: str, axis: str | None = None, after_s: float = 0.0) -> "_FaultView":
+    def add(self, kind: str, axis: str | None = None, after_s: float = 0.0) -> _FaultView:
         return _FaultView(self._command.call("faults_add", kind, axis, after_s))
 
     def list(self) -> list[dict]:
@@ -97,14 +98,21 @@ def _parts(facts: dict, command: _Channel) -> SimpleNamespace:
     """The static figures of the engine's parts, shaped as ``drivers.interfaces.BenchParts``."""
     axes = facts["axes"]
     return SimpleNamespace(
-        backend=facts["backend"], config=facts["config"], resonance_hz=facts["resonance_hz"],
-        ao_channel=facts["ao_channel"], ai_channel=facts["ai_channel"],
-        amplifiers={a: SimpleNamespace(gain_v_per_v=facts["gain_v_per_v"][a],
-                                       load_capacitance_f=facts["load_capacitance_f"][a]) for a in axes},
-        sensors={a: SimpleNamespace(scale_um_per_v=facts["scale_um_per_v"][a], range_um=facts["range_um"][a])
-                 for a in axes},
+        backend=facts["backend"],
+        config=facts["config"],
+        resonance_hz=facts["resonance_hz"],
+        ao_channel=facts["ao_channel"],
+        ai_channel=facts["ai_channel"],
+        amplifiers={
+            a: SimpleNamespace(gain_v_per_v=facts["gain_v_per_v"][a], load_capacitance_f=facts["load_capacitance_f"][a])
+            for a in axes
+        },
+        sensors={
+            a: SimpleNamespace(scale_um_per_v=facts["scale_um_per_v"][a], range_um=facts["range_um"][a]) for a in axes
+        },
         daq=SimpleNamespace(capabilities=facts["capabilities"], sample_rate_hz=facts["sample_rate_hz"]),
-        world=SimpleNamespace(faults=_RemoteFaults(command)) if facts["emulated"] else None)
+        world=SimpleNamespace(faults=_RemoteFaults(command)) if facts["emulated"] else None,
+    )
 
 
 #: the arrays of a BenchRecord that hold one value per sample, by field name
@@ -148,14 +156,14 @@ class _Assembled:
         for key, values in rows.items():
             if key not in self.arrays:
                 self.arrays[key] = np.full(self.n, np.nan)
-            self.arrays[key][start:start + len(values)] = values
+            self.arrays[key][start : start + len(values)] = values
             self.done = start + len(values)
 
     def record(self, sample_rate_hz: float, reason: str | None = None) -> BenchRecord:
         """The record so far (views); ``reason`` marks it partial."""
         fields = {field: {} for field in _ROW_FIELDS}
         for (field, name), values in self.arrays.items():
-            fields[field][name] = values[:self.done]
+            fields[field][name] = values[: self.done]
         return BenchRecord(sample_rate_hz, partial=reason is not None, reason=reason, **fields)
 
 
@@ -180,8 +188,9 @@ class EngineBench(LimitsMixin):
         #: called with the reason after the stop port stopped the bench (the app cancels the jobs)
         self.on_port_stop: Callable[[str], None] | None = None
         if notice_conn is not None:
-            threading.Thread(target=self._hear_notices, args=(notice_conn,), name="evc-engine-notice",
-                             daemon=True).start()
+            threading.Thread(
+                target=self._hear_notices, args=(notice_conn,), name="evc-engine-notice", daemon=True
+            ).start()
 
     # ------------------------------------------------------------------ facts
     @property
@@ -262,8 +271,10 @@ class EngineBench(LimitsMixin):
 
     # ------------------------------------------------------------------ queries
     def describe(self) -> dict:
-        return {**self._command.call("describe"),
-                "engine": {"process": "separate", "pid": self.engine_pid, "stop_port": self.stop_port}}
+        return {
+            **self._command.call("describe"),
+            "engine": {"process": "separate", "pid": self.engine_pid, "stop_port": self.stop_port},
+        }
 
     def output_v(self) -> dict[str, float]:
         return self._command.call("output_v")
@@ -278,8 +289,9 @@ class EngineBench(LimitsMixin):
         return self._command.call("clear_faults")
 
     # ------------------------------------------------------------------ plans
-    def execute(self, plan: Callable, *args, on_event: Callable | None = None,
-                should_stop: Callable[[], bool] | None = None):
+    def execute(
+        self, plan: Callable, *args, on_event: Callable | None = None, should_stop: Callable[[], bool] | None = None
+    ):
         """Run ``plan(bench, emit, *args)`` in the engine (``plan`` and ``args`` must pickle: a
         module-level function and plain data); ``on_event(*payload)`` gets each event here. A
         true ``should_stop()`` (looked at on every event and every 50 ms) asks the engine to stop."""
@@ -313,9 +325,15 @@ class EngineBench(LimitsMixin):
         except (EOFError, OSError, BrokenPipeError) as exc:
             raise EngineUnavailable(f"the bench engine process is gone (plan: {exc})") from None
 
-    def run(self, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, *, block_samples: int = RUN_BLOCK_SAMPLES,
-            on_block: Callable[[BenchRecord, float], None] | None = None,
-            should_stop: Callable[[], bool] | None = None) -> BenchRecord:
+    def run(
+        self,
+        u_v: Mapping[str, np.ndarray],
+        sample_rate_hz: float,
+        *,
+        block_samples: int = RUN_BLOCK_SAMPLES,
+        on_block: Callable[[BenchRecord, float], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+    ) -> BenchRecord:
         """``Bench.run`` in the engine: ``on_block`` sees the record so far here, as it would there."""
         self.check_waveform(u_v, sample_rate_hz)
         assembled = _Assembled(len(np.asarray(next(iter(u_v.values())))))
@@ -326,8 +344,9 @@ class EngineBench(LimitsMixin):
                 on_block(assembled.record(sample_rate_hz), fraction)
 
         u_plain = {a: np.asarray(v, dtype=float) for a, v in u_v.items()}
-        start, rows, actual_hz, ending = self.execute(run_buffered, u_plain, float(sample_rate_hz), int(block_samples),
-                                                      on_event=on_event, should_stop=should_stop)
+        start, rows, actual_hz, ending = self.execute(
+            run_buffered, u_plain, float(sample_rate_hz), int(block_samples), on_event=on_event, should_stop=should_stop
+        )
         assembled.add(start, rows)
         if ending is None:
             return assembled.record(actual_hz)
@@ -348,18 +367,26 @@ class EngineBench(LimitsMixin):
             self._process.join(1.0)
 
 
-def open_engine(bench_name: str, seed: int | None = None, overrides: dict | None = None,
-                timeout_s: float = START_TIMEOUT_S, stop_address: tuple[str, int] | None = None,
-                bench_id: str | None = None) -> EngineBench:
+def open_engine(
+    bench_name: str,
+    seed: int | None = None,
+    overrides: dict | None = None,
+    timeout_s: float = START_TIMEOUT_S,
+    stop_address: tuple[str, int] | None = None,
+    bench_id: str | None = None,
+) -> EngineBench:
     """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
     ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench.
     ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there, for the
     bench ``bench_id`` (service.runtime.stop_port)."""
-    ctx = multiprocessing.get_context("spawn")   # a fresh interpreter: no inherited locks or threads
-    pipes = [ctx.Pipe() for _ in range(3)] + [ctx.Pipe(duplex=False)]    # the last: notices, engine → here
-    process = ctx.Process(target=engine_main, name="evc-bench-engine",
-                          args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address, bench_id),
-                          daemon=True)
+    ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no inherited locks or threads
+    pipes = [ctx.Pipe() for _ in range(3)] + [ctx.Pipe(duplex=False)]  # the last: notices, engine → here
+    process = ctx.Process(
+        target=engine_main,
+        name="evc-bench-engine",
+        args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address, bench_id),
+        daemon=True,
+    )
     process.start()
     for _, child in pipes:
         child.close()
@@ -373,7 +400,9 @@ def open_engine(bench_name: str, seed: int | None = None, overrides: dict | None
         status, value = plan_conn.recv()
     except (EOFError, OSError):
         process.join(5.0)
-        raise EngineUnavailable(f"the bench engine process exited while starting (exit code {process.exitcode})") from None
+        raise EngineUnavailable(
+            f"the bench engine process exited while starting (exit code {process.exitcode})"
+        ) from None
     if status == "error":
         process.join(5.0)
         raise value

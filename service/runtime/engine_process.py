@@ -22,6 +22,7 @@ its own, so a stop pressed there waits for nothing the web process does.
 If the web process dies (kill -9 included), every pipe reaches end-of-file: this process drives the
 outputs to 0 V, closes the bench and exits. It never imports FastAPI or the store.
 """
+
 from __future__ import annotations
 
 import logging
@@ -47,15 +48,22 @@ def bench_facts(bench: Bench) -> dict:
     static figures (gains, scales, ranges, channels, capabilities), backend and configuration."""
     parts, daq = bench.parts, bench.parts.daq
     return {
-        "axes": bench.axes, "limits": bench.limits, "safety": bench.safety,
-        "backend": parts.backend, "config": parts.config, "resonance_hz": parts.resonance_hz,
-        "ao_channel": parts.ao_channel, "ai_channel": parts.ai_channel,
+        "axes": bench.axes,
+        "limits": bench.limits,
+        "safety": bench.safety,
+        "backend": parts.backend,
+        "config": parts.config,
+        "resonance_hz": parts.resonance_hz,
+        "ao_channel": parts.ao_channel,
+        "ai_channel": parts.ai_channel,
         "gain_v_per_v": {a: amp.gain_v_per_v for a, amp in parts.amplifiers.items()},
         "load_capacitance_f": {a: amp.load_capacitance_f for a, amp in parts.amplifiers.items()},
         "scale_um_per_v": {a: s.scale_um_per_v for a, s in parts.sensors.items()},
         "range_um": {a: tuple(s.range_um) for a, s in parts.sensors.items()},
-        "capabilities": daq.capabilities, "sample_rate_hz": daq.sample_rate_hz,
-        "compiled_stepping": bench.compiled_stepping, "emulated": parts.world is not None,
+        "capabilities": daq.capabilities,
+        "sample_rate_hz": daq.sample_rate_hz,
+        "compiled_stepping": bench.compiled_stepping,
+        "emulated": parts.world is not None,
         "pid": os.getpid(),
     }
 
@@ -99,8 +107,8 @@ class _Stopper:
 
     def __init__(self, bench: Bench):
         self.bench, self._lock = bench, threading.Lock()
-        self.owner: str | None = None            # the job whose plan runs now
-        self._cancelled: dict[str, str] = {}     # job id → reason, for plans yet to come
+        self.owner: str | None = None  # the job whose plan runs now
+        self._cancelled: dict[str, str] = {}  # job id → reason, for plans yet to come
 
     def stop(self, reason: str, wait_s: float | None) -> dict:
         with self._lock:
@@ -157,8 +165,11 @@ COMMANDS = {
     "faults_add": lambda bench, *args: _faults(bench).add(*args).as_dict(),
     "faults_list": lambda bench: {"faults": _faults(bench).list(), "transports": sorted(_faults(bench).transports)},
     "faults_clear": lambda bench: {"cleared": len(_faults(bench).list()), "notes": _faults(bench).clear()},
-    "state": lambda bench: {"running": bench.running, "tripped": bench.tripped,
-                            "interrupt_reason": bench.interrupt_reason()},
+    "state": lambda bench: {
+        "running": bench.running,
+        "tripped": bench.tripped,
+        "interrupt_reason": bench.interrupt_reason(),
+    },
 }
 
 
@@ -210,7 +221,7 @@ class _Outbox:
     def put(self, message: tuple) -> None:
         with self._count_lock:
             if self._unsent == 0:
-                self._waiting_since = time.monotonic()     # the clock starts with the first unsent message
+                self._waiting_since = time.monotonic()  # the clock starts with the first unsent message
             self._unsent += 1
         self._queue.put(message)
 
@@ -234,7 +245,7 @@ class _Outbox:
                 return
             with self._count_lock:
                 self._unsent -= 1
-                self._waiting_since = time.monotonic()    # the reader took one just now
+                self._waiting_since = time.monotonic()  # the reader took one just now
 
 
 def _exit_on_signal(sig: int, _frame) -> None:
@@ -243,15 +254,30 @@ def _exit_on_signal(sig: int, _frame) -> None:
 
 def _port_answer(figures: dict, owner: str | None) -> dict:
     """The stop port's answer: the REST route's fields, from what this process knows."""
-    return {"stopped": True, "door": "stop port", "cancelled_job_id": owner, "cancelled_queued_job_ids": None,
-            "queued_jobs": "the service cancels the bench jobs queued; the engine runs none until it has",
-            "loop_answered": figures["loop_answered"], "output_v": figures["output_v"],
-            "zero_after_request_ms": zero_after_request_ms(figures), "zero_monotonic_s": figures["zero_monotonic_s"]}
+    return {
+        "stopped": True,
+        "door": "stop port",
+        "cancelled_job_id": owner,
+        "cancelled_queued_job_ids": None,
+        "queued_jobs": "the service cancels the bench jobs queued; the engine runs none until it has",
+        "loop_answered": figures["loop_answered"],
+        "output_v": figures["output_v"],
+        "zero_after_request_ms": zero_after_request_ms(figures),
+        "zero_monotonic_s": figures["zero_monotonic_s"],
+    }
 
 
-def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_conn: Connection, command_conn: Connection,
-                plan_conn: Connection, notice_conn: Connection | None = None,
-                stop_address: tuple[str, int] | None = None, bench_id: str | None = None) -> None:
+def engine_main(
+    bench_name: str,
+    seed: int | None,
+    overrides: dict | None,
+    stop_conn: Connection,
+    command_conn: Connection,
+    plan_conn: Connection,
+    notice_conn: Connection | None = None,
+    stop_address: tuple[str, int] | None = None,
+    bench_id: str | None = None,
+) -> None:
     """The process's entry point: open the bench (and the stop port on ``stop_address``, if given),
     say what it is, serve the pipes until the web process closes them (or dies), then leave the
     outputs at 0 V."""
@@ -260,7 +286,7 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
     # this process alone still leaves through ``finally``: the outputs at 0 V.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_signal)
-    set_thread_nice(ENGINE_NICE)      # before any thread starts: they inherit it (service.runtime.priority)
+    set_thread_nice(ENGINE_NICE)  # before any thread starts: they inherit it (service.runtime.priority)
     from drivers.emulated import open_bench
 
     try:
@@ -269,19 +295,20 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
         plan_conn.send(("error", _picklable(exc)))
         return
     from service.science.control.loop import compile_runner
-    compile_runner(bench)                 # now, not in a run: compiling holds the GIL for seconds
+
+    compile_runner(bench)  # now, not in a run: compiling holds the GIL for seconds
     closing, hold, stopper, tokens = threading.Event(), StopHold(), _Stopper(bench), StopTokens()
     notice_lock = threading.Lock()
 
     def press_from_port() -> dict:
-        running = stopper.owner           # read first: the plan ends, and forgets it, as the loop stops
-        figures = stopper.stop(EMERGENCY_STOP, None)           # 0 V first, then everything else
+        running = stopper.owner  # read first: the plan ends, and forgets it, as the loop stops
+        figures = stopper.stop(EMERGENCY_STOP, None)  # 0 V first, then everything else
         seq = hold.press()
         try:
             with notice_lock:
                 notice_conn.send(("emergency_stop", seq, EMERGENCY_STOP))
         except (OSError, AttributeError):
-            pass                          # no web process to tell: the hold stays, nothing runs
+            pass  # no web process to tell: the hold stays, nothing runs
         log.warning("emergency stop on the stop port: outputs at 0 V, job %s stopped", running)
         return _port_answer(figures, running)
 
@@ -292,8 +319,9 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
             log.info("emergency stop port: POST http://%s:%d%s", port.host, port.port, STOP_PATH)
         except OSError as exc:
             bench.close()
-            plan_conn.send(("error", DriverError(f"the stop port could not listen on {stop_address[0]}:"
-                                                 f"{stop_address[1]}: {exc}")))
+            plan_conn.send(
+                ("error", DriverError(f"the stop port could not listen on {stop_address[0]}:{stop_address[1]}: {exc}"))
+            )
             return
 
     def shut_down() -> None:
@@ -302,25 +330,31 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
             bench.request_stop("the web process went away")
 
     def clear_faults() -> dict:
-        hold.release()                    # a reset with the outputs at 0 V also ends a stale hold
+        hold.release()  # a reset with the outputs at 0 V also ends a stale hold
         return bench.clear_faults()
 
-    commands = {**COMMANDS, "clear_faults": lambda _bench: clear_faults(),
-                "release_hold": lambda _bench, seq: hold.release(seq),
-                "stop_tokens": lambda _bench, by_digest, auth_off: tokens.replace(by_digest, auth_off)}
+    commands = {
+        **COMMANDS,
+        "clear_faults": lambda _bench: clear_faults(),
+        "release_hold": lambda _bench, seq: hold.release(seq),
+        "stop_tokens": lambda _bench, by_digest, auth_off: tokens.replace(by_digest, auth_off),
+    }
     for name, conn, handle in (
-            ("evc-engine-stop", stop_conn, stopper.command),
-            ("evc-engine-command", command_conn, lambda m: commands[m[0]](bench, *m[1:]))):
+        ("evc-engine-stop", stop_conn, stopper.command),
+        ("evc-engine-command", command_conn, lambda m: commands[m[0]](bench, *m[1:])),
+    ):
         threading.Thread(target=_serve, args=(conn, handle, None, shut_down), name=name, daemon=True).start()
     plan_conn.send(("ready", {**bench_facts(bench), "stop_port": None if port is None else port.port}))
-    outbox = _Outbox(plan_conn, shut_down)          # from here on the only sender on the plan pipe
+    outbox = _Outbox(plan_conn, shut_down)  # from here on the only sender on the plan pipe
 
     def emit(*payload) -> None:
         outbox.put(("event", payload))
         unread_s = outbox.unsent_for_s()
         if unread_s > bench.safety.unread_limit_s and bench.interrupt_reason() is None:
-            bench.request_stop(f"the service took none of the run's samples for {unread_s:.1f} s (limit "
-                               f"{bench.safety.unread_limit_s:g} s, [safety] unread_limit_s): stopped at 0 V")
+            bench.request_stop(
+                f"the service took none of the run's samples for {unread_s:.1f} s (limit "
+                f"{bench.safety.unread_limit_s:g} s, [safety] unread_limit_s): stopped at 0 V"
+            )
 
     try:
         while not closing.is_set():
@@ -331,19 +365,21 @@ def engine_main(bench_name: str, seed: int | None, overrides: dict | None, stop_
             if message[0] == "close":
                 break
             _, plan, args, job_id = message
-            freeze_heap()                 # no full collection of the engine's heap stalls the run
+            freeze_heap()  # no full collection of the engine's heap stalls the run
             try:
-                with bench.plan_scope():      # a stop from here on holds for the whole plan
-                    stopper.begin(job_id)     # ... and one for this job that came before it
+                with bench.plan_scope():  # a stop from here on holds for the whole plan
+                    stopper.begin(job_id)  # ... and one for this job that came before it
                     if hold.active:
-                        raise DriverError(f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
-                                          "service has cancelled the bench's jobs")
+                        raise DriverError(
+                            f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
+                            "service has cancelled the bench's jobs"
+                        )
                     reply = ("done", plan(bench, emit, *args))
             except Exception as exc:  # noqa: BLE001 - the job that sent the plan reports it
                 reply = ("error", _picklable(exc))
             finally:
                 stopper.end()
-            outbox.put(reply)             # after the plan's events, in order
+            outbox.put(reply)  # after the plan's events, in order
     finally:
         outbox.close()
         if port is not None:

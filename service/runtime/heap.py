@@ -1,4 +1,5 @@
 """Keep the garbage collector's full passes out of real-time work."""
+
 from __future__ import annotations
 
 import gc

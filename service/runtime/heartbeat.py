@@ -11,6 +11,7 @@ at a clean shut-down (the rows: service.store.benches).
 - A bench is ``online`` while its heartbeat is younger than ``OFFLINE_AFTER_HEARTBEATS`` of its own
   intervals (and it has not stopped); an offline bench's datasets and models stay in the store.
 """
+
 from __future__ import annotations
 
 import logging
@@ -18,8 +19,8 @@ import os
 import socket
 import threading
 import uuid
-from datetime import datetime, timezone
-from typing import Callable
+from collections.abc import Callable
+from datetime import UTC, datetime
 
 from service import __version__
 from service.runtime.settings import Settings
@@ -45,7 +46,7 @@ def new_instance() -> str:
 
 def age_s(row: dict, now: datetime | None = None) -> float:
     """Seconds since the row's last heartbeat (clocks of the lab's machines are assumed in step)."""
-    now = now or datetime.now(timezone.utc)
+    now = now or datetime.now(UTC)
     return (now - datetime.fromisoformat(row["heartbeat_at"].replace("Z", "+00:00"))).total_seconds()
 
 
@@ -77,10 +78,12 @@ def held_elsewhere(store: Store, settings: Settings, instance: str | None = None
     """Why another live service holds this bench id (what to do about it, in words), or None."""
     row = store.benches.get(settings.bench_id)
     if row is not None and row["instance"] != instance and is_online(row) and not _holder_is_gone(row):
-        return (f"bench id {settings.bench_id!r} is held by a running service at {row['url']} (instance "
-                f"{row['instance']}, heartbeat {age_s(row):.1f} s ago): give this service its own --bench-id "
-                f"(EVCBENCH_BENCH_ID); if that service is gone, its bench shows offline after "
-                f"{OFFLINE_AFTER_HEARTBEATS * row['heartbeat_s']:g} s")
+        return (
+            f"bench id {settings.bench_id!r} is held by a running service at {row['url']} (instance "
+            f"{row['instance']}, heartbeat {age_s(row):.1f} s ago): give this service its own --bench-id "
+            f"(EVCBENCH_BENCH_ID); if that service is gone, its bench shows offline after "
+            f"{OFFLINE_AFTER_HEARTBEATS * row['heartbeat_s']:g} s"
+        )
     return None
 
 
@@ -96,27 +99,46 @@ def register(rows: BenchRows, settings: Settings, instance: str, state: str, con
     """Insert or replace this bench's row (``config``: the bench's configuration snapshot)."""
     now = utc_now()
     name = (config or {}).get("parameters", {}).get("name") or settings.bench
-    rows.upsert({"id": settings.bench_id, "name": str(name), "bench": settings.bench, "url": settings.public_url,
-                 "config": config, "state": state, "running_job_id": None, "started_at": now, "heartbeat_at": now,
-                 "heartbeat_s": float(settings.heartbeat_s), "software_version": __version__, "instance": instance})
+    rows.upsert(
+        {
+            "id": settings.bench_id,
+            "name": str(name),
+            "bench": settings.bench,
+            "url": settings.public_url,
+            "config": config,
+            "state": state,
+            "running_job_id": None,
+            "started_at": now,
+            "heartbeat_at": now,
+            "heartbeat_s": float(settings.heartbeat_s),
+            "software_version": __version__,
+            "instance": instance,
+        }
+    )
 
 
 class Heartbeat:
     """The heartbeat thread. ``status() -> (state, running_job_id)`` is read at every beat; ``stop``
     ends the thread and writes ``stopped``."""
 
-    def __init__(self, database_url: str, bench_id: str, instance: str, interval_s: float,
-                 status: Callable[[], tuple[str, str | None]]):
+    def __init__(
+        self,
+        database_url: str,
+        bench_id: str,
+        instance: str,
+        interval_s: float,
+        status: Callable[[], tuple[str, str | None]],
+    ):
         self.bench_id, self.instance, self.interval_s, self._status = bench_id, instance, float(interval_s), status
-        self._engine = make_engine(database_url)          # its own pool: never waits for a request's connection
+        self._engine = make_engine(database_url)  # its own pool: never waits for a request's connection
         self._rows = BenchRows(self._engine)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="evc-heartbeat", daemon=True)
-        self.beats = 0                                    # heartbeats written
-        self.failures = 0                                 # heartbeats that could not be written
+        self.beats = 0  # heartbeats written
+        self.failures = 0  # heartbeats that could not be written
         self._taken_over = False
 
-    def start(self) -> "Heartbeat":
+    def start(self) -> Heartbeat:
         self.beat()
         self._thread.start()
         return self
@@ -126,8 +148,9 @@ class Heartbeat:
         try:
             if state is None:
                 state, running_job_id = self._status()
-            written = self._rows.beat(self.bench_id, self.instance, state=state, running_job_id=running_job_id,
-                                      heartbeat_at=utc_now())
+            written = self._rows.beat(
+                self.bench_id, self.instance, state=state, running_job_id=running_job_id, heartbeat_at=utc_now()
+            )
         except Exception as exc:  # noqa: BLE001 - a heartbeat never raises into anything
             self.failures += 1
             if self.failures == 1 or self.failures % 100 == 0:
@@ -135,8 +158,10 @@ class Heartbeat:
             return False
         if not written and not self._taken_over:
             self._taken_over = True
-            log.error("heartbeat: the row of bench %s belongs to another process now; this service no longer "
-                      "writes it", self.bench_id)
+            log.error(
+                "heartbeat: the row of bench %s belongs to another process now; this service no longer writes it",
+                self.bench_id,
+            )
         self.beats += int(written)
         return written
 

@@ -9,6 +9,7 @@ overlays only its own jobs (``store.bench_id``); another bench's are shown as st
 one is refused with ``OtherBenchJob``. Each queue is bounded (``MAX_QUEUED_BENCH_JOBS``,
 ``MAX_QUEUED_COMPUTE_JOBS``): a submission beyond it raises ``QueueFull`` and stores nothing.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -17,9 +18,9 @@ import queue
 import sys
 import threading
 import time
+from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import AsyncIterator, Callable
 
 from service.runtime.heap import freeze_heap
 from service.runtime.priority import WORK_NICE, set_thread_nice
@@ -50,8 +51,10 @@ class QueueFull(Exception):
     "compute"; ``queued`` and ``limit`` count jobs; ``retry_after_s`` is a hint in seconds."""
 
     def __init__(self, queue_name: str, queued: int, limit: int, retry_after_s: float = QUEUE_RETRY_AFTER_S):
-        super().__init__(f"the {queue_name} job queue is full: {queued} {queue_name} jobs queued (limit {limit}); "
-                         f"retry when one has started, or cancel one (DELETE /api/jobs/{{id}})")
+        super().__init__(
+            f"the {queue_name} job queue is full: {queued} {queue_name} jobs queued (limit {limit}); "
+            f"retry when one has started, or cancel one (DELETE /api/jobs/{{id}})"
+        )
         self.queue, self.queued, self.limit, self.retry_after_s = queue_name, queued, limit, retry_after_s
 
 
@@ -62,8 +65,10 @@ class OtherBenchJob(Exception):
 
     def __init__(self, job_id: str, bench_id: str, url: str | None):
         where = f" at {url}" if url else ""
-        super().__init__(f"job {job_id} runs on bench {bench_id!r}; only that bench's service{where} "
-                         f"may cancel it (DELETE /api/jobs/{job_id} there)")
+        super().__init__(
+            f"job {job_id} runs on bench {bench_id!r}; only that bench's service{where} "
+            f"may cancel it (DELETE /api/jobs/{job_id} there)"
+        )
         self.job_id, self.bench_id, self.url = job_id, bench_id, url
 
 
@@ -71,7 +76,7 @@ class OtherBenchJob(Exception):
 class _Live:
     kind: str
     needs_bench: bool
-    fn: Callable[["JobContext"], dict]
+    fn: Callable[[JobContext], dict]
     state: str = "queued"
     progress: float = 0.0
     message: str = "queued"
@@ -79,13 +84,13 @@ class _Live:
     persisted_at: float = 0.0
     cancel: threading.Event = field(default_factory=threading.Event)
     cancel_reason: str | None = None
-    partial: dict | None = None      # the result so far, shown while the job runs (JobContext.progress)
+    partial: dict | None = None  # the result so far, shown while the job runs (JobContext.progress)
 
 
 class JobContext:
     """What a running job sees: its id, a progress reporter and the cancel flag."""
 
-    def __init__(self, manager: "JobManager", job_id: str):
+    def __init__(self, manager: JobManager, job_id: str):
         self._manager, self.job_id = manager, job_id
 
     def progress(self, fraction: float, message: str | None = None, partial: dict | None = None) -> None:
@@ -106,9 +111,14 @@ class JobManager:
     At most ``max_queued_bench_jobs`` bench jobs and ``max_queued_compute_jobs`` other jobs wait
     (running ones are not counted)."""
 
-    def __init__(self, store: Store, on_cancel_bench: Callable[[str], None] | None = None, workers: int = 2,
-                 max_queued_bench_jobs: int = MAX_QUEUED_BENCH_JOBS,
-                 max_queued_compute_jobs: int = MAX_QUEUED_COMPUTE_JOBS):
+    def __init__(
+        self,
+        store: Store,
+        on_cancel_bench: Callable[[str], None] | None = None,
+        workers: int = 2,
+        max_queued_bench_jobs: int = MAX_QUEUED_BENCH_JOBS,
+        max_queued_compute_jobs: int = MAX_QUEUED_COMPUTE_JOBS,
+    ):
         self.store = store
         self._on_cancel_bench = on_cancel_bench
         self._live: dict[str, _Live] = {}
@@ -126,15 +136,15 @@ class JobManager:
         self._bench_thread.start()
 
     # ------------------------------------------------------------------ public
-    def submit(self, kind: str, params: dict | None, fn: Callable[[JobContext], dict],
-               needs_bench: bool) -> dict:
+    def submit(self, kind: str, params: dict | None, fn: Callable[[JobContext], dict], needs_bench: bool) -> dict:
         """Queue a job; ``fn(ctx)`` returns the result dict. Returns the stored job record.
         QueueFull (nothing stored) if its queue already holds its limit of queued jobs."""
         if self._closed:
             raise RuntimeError("the service is shutting down; no new jobs")
         with self._lock:
             queued = self._reserved[needs_bench] + sum(
-                1 for live in self._live.values() if live.needs_bench == needs_bench and live.state == "queued")
+                1 for live in self._live.values() if live.needs_bench == needs_bench and live.state == "queued"
+            )
             limit = self.queue_limits[needs_bench]
             if queued >= limit:
                 raise QueueFull("bench" if needs_bench else "compute", queued, limit)
@@ -286,10 +296,11 @@ class JobManager:
             result = live.fn(JobContext(self, job_id))
         except JobInterrupted as exc:
             state = "cancelled" if live.cancel.is_set() or exc.cancelled else "failed"
-            self._finish(job_id, state, result=exc.result, message=exc.reason,
-                         error=None if state == "cancelled" else exc.reason)
+            self._finish(
+                job_id, state, result=exc.result, message=exc.reason, error=None if state == "cancelled" else exc.reason
+            )
         except Exception as exc:  # the job's failure is its result; the worker lives on
-            if live.cancel.is_set():      # cancelled while it failed (an emergency stop's hold): cancelled
+            if live.cancel.is_set():  # cancelled while it failed (an emergency stop's hold): cancelled
                 self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
             else:
                 self._finish(job_id, "failed", message="failed", error=str(exc) or type(exc).__name__)
@@ -311,11 +322,19 @@ class JobManager:
         live.version += 1
         now = time.monotonic()
         if now - live.persisted_at >= PERSIST_EVERY_S:  # written by another thread: a bench loop never
-            live.persisted_at = now                      # waits for the database (a WAL checkpoint may fsync)
+            live.persisted_at = now  # waits for the database (a WAL checkpoint may fsync)
             self._persister.submit(self.store.update_progress, job_id, live.progress, live.message)
 
-    def _finish(self, job_id: str, state: str, *, result: dict | None = None, error: str | None = None,
-                message: str | None = None, progress: float | None = None) -> None:
+    def _finish(
+        self,
+        job_id: str,
+        state: str,
+        *,
+        result: dict | None = None,
+        error: str | None = None,
+        message: str | None = None,
+        progress: float | None = None,
+    ) -> None:
         live = self._live[job_id]
         fields = {"state": state, "finished_at": utc_now(), "message": message or state, "error": error}
         if result is not None:
@@ -330,8 +349,20 @@ class JobManager:
 
 
 def _public(row: dict) -> dict:
-    keys = ("id", "kind", "state", "progress", "message", "result", "error", "params", "created_at",
-            "started_at", "finished_at", "bench_id")
+    keys = (
+        "id",
+        "kind",
+        "state",
+        "progress",
+        "message",
+        "result",
+        "error",
+        "params",
+        "created_at",
+        "started_at",
+        "finished_at",
+        "bench_id",
+    )
     return {k: row.get(k) for k in keys}
 
 

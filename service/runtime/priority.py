@@ -11,6 +11,7 @@ A thread may always lower its own priority. Raising it above 0 needs CAP_SYS_NIC
 systemd unit can grant it with ``AmbientCapabilities=CAP_SYS_NICE``); without it the thread keeps
 the default priority and the log says so once.
 """
+
 from __future__ import annotations
 
 import logging

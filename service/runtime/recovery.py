@@ -23,13 +23,14 @@ listed in the report.
 Each step is idempotent, so a crash during recovery is recovered at the next start: the dataset
 is stored before the job is updated, and a job that already has a dataset gets no second one.
 """
+
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
-from service.science.data.datasets import units_for
 from service.runtime.heartbeat import is_online
+from service.science.data.datasets import units_for
 from service.store import Store, debris, placement, utc_now
 from service.store.arrays import ArrayStoreUnavailable
 from service.store.chunks import chunk_dir, discard, partial_root, read_chunks, read_meta
@@ -55,8 +56,14 @@ def recover(store: Store) -> dict:
     for job in _unfinished_here(store):
         directory = chunk_dir(store.data_dir, job["id"])
         result = _rebuild(store, job["id"], directory, report) if directory.is_dir() else None
-        store.update_job(job["id"], state="failed", error=INTERRUPTED, message=INTERRUPTED,
-                         finished_at=utc_now(), **({"result": result} if result else {}))
+        store.update_job(
+            job["id"],
+            state="failed",
+            error=INTERRUPTED,
+            message=INTERRUPTED,
+            finished_at=utc_now(),
+            **({"result": result} if result else {}),
+        )
         _discard(store, directory, result, report)
         report["failed_jobs"].append(job["id"])
     root = partial_root(store.data_dir)
@@ -68,7 +75,7 @@ def recover(store: Store) -> dict:
         report["cleaned"] += cleaned
         report["freed_bytes"] += sum(a["bytes"] for a in cleaned if a["done"] and a["action"] == "delete")
         report["problems"] += [f"{a['path']}: {debris.describe(a)}" for a in cleaned if not a["done"]]
-    if owned and store.arrays is not None:   # measurements waiting for the shared location go up if it answers
+    if owned and store.arrays is not None:  # measurements waiting for the shared location go up if it answers
         report["uploaded"] = []
         try:
             report["uploaded"] = placement.flush(store)
@@ -78,9 +85,14 @@ def recover(store: Store) -> dict:
     for action in report["cleaned"]:
         log.warning("recovery: %s: %s", action["path"], debris.describe(action))
     if report["failed_jobs"] or report["datasets"] or report["cleaned"]:
-        log.warning("recovery: %d interrupted job(s) marked failed, %d partial dataset(s) rebuilt, %d file(s) "
-                    "or chunk directories cleared, %s freed", len(report["failed_jobs"]), len(report["datasets"]),
-                    len(report["cleaned"]), debris.format_bytes(report["freed_bytes"]))
+        log.warning(
+            "recovery: %d interrupted job(s) marked failed, %d partial dataset(s) rebuilt, %d file(s) "
+            "or chunk directories cleared, %s freed",
+            len(report["failed_jobs"]),
+            len(report["datasets"]),
+            len(report["cleaned"]),
+            debris.format_bytes(report["freed_bytes"]),
+        )
     return report
 
 
@@ -101,8 +113,12 @@ def claim(store: Store) -> bool:
         return True
     lock = StoreLock(store.data_dir)
     if not lock.acquire():
-        log.error("recovery: another process (pid %s) holds %s: is a second service or `evcbench store repair` "
-                  "running on this data dir? Leftover files are not cleared", lock.owner(), lock.path)
+        log.error(
+            "recovery: another process (pid %s) holds %s: is a second service or `evcbench store repair` "
+            "running on this data dir? Leftover files are not cleared",
+            lock.owner(),
+            lock.path,
+        )
         return False
     store.owner_lock = lock
     return True
@@ -114,9 +130,16 @@ def _discard(store: Store, directory: Path, result: dict | None, report: dict) -
         return
     size = sum(p.stat().st_size for p in directory.rglob("*") if p.is_file())
     discard(directory)
-    report["cleaned"].append({"action": "delete", "kind": "chunks", "path": str(directory.relative_to(store.data_dir)),
-                              "bytes": size, "done": not directory.exists(),
-                              "dataset": (result or {}).get("dataset_id")})
+    report["cleaned"].append(
+        {
+            "action": "delete",
+            "kind": "chunks",
+            "path": str(directory.relative_to(store.data_dir)),
+            "bytes": size,
+            "done": not directory.exists(),
+            "dataset": (result or {}).get("dataset_id"),
+        }
+    )
     report["freed_bytes"] += size
 
 
@@ -137,9 +160,18 @@ def _rebuild(store: Store, job_id: str, directory: Path, report: dict) -> dict |
         return None
     samples = len(next(iter(arrays.values())))
     rate_hz = float(meta["sample_rate_hz"])
-    row = store.add_dataset(arrays, {
-        **meta, "job_id": job_id, "blocks": trim_blocks(meta.get("blocks") or [], samples, rate_hz),
-        "units": meta.get("units") or units_for(arrays), "partial": True, "partial_reason": INTERRUPTED,
-        "finished_at": None}, keep_if_unreachable=True)
+    row = store.add_dataset(
+        arrays,
+        {
+            **meta,
+            "job_id": job_id,
+            "blocks": trim_blocks(meta.get("blocks") or [], samples, rate_hz),
+            "units": meta.get("units") or units_for(arrays),
+            "partial": True,
+            "partial_reason": INTERRUPTED,
+            "finished_at": None,
+        },
+        keep_if_unreachable=True,
+    )
     report["datasets"].append(row["id"])
     return {"dataset_id": row["id"], "samples": row["samples"], "partial": True}

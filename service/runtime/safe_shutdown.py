@@ -7,6 +7,7 @@ period, or 0 V is written from here), then cancels the running bench job with th
 "stopped by SIGTERM" (its samples so far are kept as a partial dataset), and only then lets uvicorn
 shut down normally (lifespan shut-down: the jobs end, the bench closes at 0 V).
 """
+
 from __future__ import annotations
 
 import logging
@@ -20,7 +21,7 @@ log = logging.getLogger("evcbench.safety")
 
 
 def reason_for(sig: int) -> str:
-    """"stopped by SIGTERM" / "stopped by SIGINT"."""
+    """ "stopped by SIGTERM" / "stopped by SIGINT"."""
     try:
         return f"stopped by {signal.Signals(sig).name}"
     except ValueError:
@@ -45,8 +46,11 @@ def safe_state(app: Any, reason: str) -> dict:
             out["cancelled_job_id"], out["cancelled_queued_job_ids"] = cancel_bench_jobs(jobs, reason, running)
         out["output_v"] = stop["output_v"]
         out["zero_after_request_ms"] = zero_after_request_ms(stop)
-    log.warning("%s: outputs at 0 V, %s", reason, f"running job {out['cancelled_job_id']} cancelled"
-                if out["cancelled_job_id"] else "no job was running")
+    log.warning(
+        "%s: outputs at 0 V, %s",
+        reason,
+        f"running job {out['cancelled_job_id']} cancelled" if out["cancelled_job_id"] else "no job was running",
+    )
     return out
 
 
@@ -64,9 +68,13 @@ def install(server: Any, app: Any) -> None:
     def handle_exit(sig: int, frame) -> None:
         try:
             safe_state(app, reason_for(sig))
-        except EngineUnavailable as exc:     # a signal to the process group reached the engine first
-            log.warning("%s: the bench engine had already gone (%s); an engine that leaves on a signal "
-                        "writes 0 V on its way out, one killed outright cannot", reason_for(sig), exc)
+        except EngineUnavailable as exc:  # a signal to the process group reached the engine first
+            log.warning(
+                "%s: the bench engine had already gone (%s); an engine that leaves on a signal "
+                "writes 0 V on its way out, one killed outright cannot",
+                reason_for(sig),
+                exc,
+            )
         except Exception:  # noqa: BLE001 - never keep uvicorn from shutting down
             log.exception("safe state on signal %s failed", sig)
         original(sig, frame)

@@ -1,4 +1,5 @@
 """Service settings, read from the environment (EVCBENCH_*) with safe defaults."""
+
 from __future__ import annotations
 
 import os
@@ -54,8 +55,9 @@ class Settings:
     array_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_ARRAY_URL") or None)
     bench_id: str = field(default_factory=lambda: os.environ.get("EVCBENCH_BENCH_ID", ""))
     public_url: str = field(default_factory=lambda: os.environ.get("EVCBENCH_PUBLIC_URL", ""))
-    heartbeat_s: float = field(default_factory=lambda: float(os.environ.get("EVCBENCH_HEARTBEAT_S")
-                                                             or HEARTBEAT_INTERVAL_S))
+    heartbeat_s: float = field(
+        default_factory=lambda: float(os.environ.get("EVCBENCH_HEARTBEAT_S") or HEARTBEAT_INTERVAL_S)
+    )
 
     def __post_init__(self) -> None:
         if self.auth not in ("tokens", "off"):
@@ -63,14 +65,18 @@ class Settings:
         if self.engine not in ("process", "inline"):
             raise ValueError(f"engine must be 'process' or 'inline', not {self.engine!r}")
         if not 0 <= self.stop_port <= 65535:
-            raise ValueError(f"the stop port (--stop-port, EVCBENCH_STOP_PORT) must lie in 0-65535 (0: any free "
-                             f"port), not {self.stop_port!r}")
+            raise ValueError(
+                f"the stop port (--stop-port, EVCBENCH_STOP_PORT) must lie in 0-65535 (0: any free "
+                f"port), not {self.stop_port!r}"
+            )
         if not self.bench_id:
             object.__setattr__(self, "bench_id", bench_id_for(self.bench))
         if not BENCH_ID_PATTERN.match(self.bench_id):
-            raise ValueError(f"bench_id must be 1-40 lower-case letters, digits, '.', '-' or '_' (starting with a "
-                             f"letter or digit), not {self.bench_id!r}")
-        if not self.public_url:   # a wildcard bind is reached by this machine's name
+            raise ValueError(
+                f"bench_id must be 1-40 lower-case letters, digits, '.', '-' or '_' (starting with a "
+                f"letter or digit), not {self.bench_id!r}"
+            )
+        if not self.public_url:  # a wildcard bind is reached by this machine's name
             host = socket.gethostname() if self.host in ("0.0.0.0", "::", "") else self.host
             object.__setattr__(self, "public_url", f"http://{host}:{self.port}")
         object.__setattr__(self, "public_url", self.public_url.rstrip("/"))

@@ -17,6 +17,7 @@ preflight, so the dashboard, served from the service's port, may press the stop 
 One thread serves every connection (``selectors``): a client that opens a connection and sends
 nothing, or sends slowly, holds no one else up, and is dropped after ``IDLE_TIMEOUT_S``.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -27,8 +28,8 @@ import socket
 import threading
 import time
 import urllib.parse
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 log = logging.getLogger("evcbench.engine")
 
@@ -49,9 +50,19 @@ MAX_CONNECTIONS = 64
 #: How long the browser may reuse a preflight answer (s).
 PREFLIGHT_MAX_AGE_S = 600
 
-_REASONS = {200: "OK", 204: "No Content", 400: "Bad Request", 401: "Unauthorized", 403: "Forbidden",
-            404: "Not Found", 405: "Method Not Allowed", 409: "Conflict", 413: "Payload Too Large",
-            431: "Request Header Fields Too Large", 503: "Service Unavailable"}
+_REASONS = {
+    200: "OK",
+    204: "No Content",
+    400: "Bad Request",
+    401: "Unauthorized",
+    403: "Forbidden",
+    404: "Not Found",
+    405: "Method Not Allowed",
+    409: "Conflict",
+    413: "Payload Too Large",
+    431: "Request Header Fields Too Large",
+    503: "Service Unavailable",
+}
 
 
 class StopTokens:
@@ -74,7 +85,11 @@ class StopTokens:
         if self._auth_off:
             return None
         if not self._loaded:
-            return 503, "the stop port has not received the service's tokens yet: press the stop on the service's port", "authorization"
+            return (
+                503,
+                "the stop port has not received the service's tokens yet: press the stop on the service's port",
+                "authorization",
+            )
         scheme, _, token = (authorization or "").strip().partition(" ")
         token = token.strip()
         if scheme.lower() != "bearer" or not token:
@@ -138,9 +153,14 @@ def _head_end(data: bytearray) -> tuple[int, int]:
 
 def _response(status: int, body: dict | None, origin: str | None, extra: dict[str, str] | None = None) -> bytes:
     payload = b"" if body is None else json.dumps(body).encode()
-    headers = {"Content-Type": "application/json", "Content-Length": str(len(payload)), "Connection": "close",
-               "Cache-Control": "no-store", **(extra or {})}
-    if origin:       # a bearer token is never sent by a browser on its own, so any origin may ask
+    headers = {
+        "Content-Type": "application/json",
+        "Content-Length": str(len(payload)),
+        "Connection": "close",
+        "Cache-Control": "no-store",
+        **(extra or {}),
+    }
+    if origin:  # a bearer token is never sent by a browser on its own, so any origin may ask
         headers.update({"Access-Control-Allow-Origin": origin, "Vary": "Origin"})
     head = f"HTTP/1.1 {status} {_REASONS[status]}\r\n" + "".join(f"{k}: {v}\r\n" for k, v in headers.items())
     return head.encode("latin-1") + b"\r\n" + payload
@@ -154,7 +174,9 @@ class StopPort:
     another bench) learns it and presses the stop on its own service instead. ``serve_forever`` runs
     in the caller's thread until ``close``."""
 
-    def __init__(self, host: str, port: int, press: Callable[[], dict], tokens: StopTokens, bench_id: str | None = None):
+    def __init__(
+        self, host: str, port: int, press: Callable[[], dict], tokens: StopTokens, bench_id: str | None = None
+    ):
         self.press, self.tokens, self.bench_id = press, tokens, bench_id
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self._listener = socket.create_server((host, port), family=family, backlog=64)
@@ -168,7 +190,7 @@ class StopPort:
         self._closing = threading.Event()
         self.presses = 0
 
-    def start(self) -> "StopPort":
+    def start(self) -> StopPort:
         threading.Thread(target=self.serve_forever, name="evc-engine-stop-port", daemon=True).start()
         return self
 
@@ -203,7 +225,7 @@ class StopPort:
                 sock, _ = self._listener.accept()
             except (BlockingIOError, InterruptedError):
                 return
-            except OSError as exc:      # out of descriptors, say: the next select tries again
+            except OSError as exc:  # out of descriptors, say: the next select tries again
                 log.warning("stop port: accept failed: %s", exc)
                 return
             if len(self._open) >= MAX_CONNECTIONS:
@@ -257,8 +279,11 @@ class StopPort:
         """The answer once ``data`` holds a whole request (head and body), else None."""
         end, gap = _head_end(data)
         if end < 0:
-            return _response(431, {"detail": f"request head over {MAX_HEAD_BYTES} bytes", "field": None},
-                             None) if len(data) > MAX_HEAD_BYTES else None
+            return (
+                _response(431, {"detail": f"request head over {MAX_HEAD_BYTES} bytes", "field": None}, None)
+                if len(data) > MAX_HEAD_BYTES
+                else None
+            )
         request = _parse_head(bytes(data[:end]))
         if request is None:
             return _response(400, {"detail": "malformed HTTP request", "field": None}, None)
@@ -268,22 +293,33 @@ class StopPort:
         except ValueError:
             return _response(400, {"detail": "Content-Length is not a number", "field": "content-length"}, origin)
         if length < 0 or length > MAX_BODY_BYTES:
-            return _response(413, {"detail": f"the stop takes no body (at most {MAX_BODY_BYTES} bytes)",
-                                   "field": "content-length"}, origin)
+            return _response(
+                413,
+                {"detail": f"the stop takes no body (at most {MAX_BODY_BYTES} bytes)", "field": "content-length"},
+                origin,
+            )
         if len(data) < end + gap + length:
-            return None                 # the body is still on its way: answering now would reset it
+            return None  # the body is still on its way: answering now would reset it
         return self._handle(request, origin)
 
     def _handle(self, request: _Request, origin: str | None) -> bytes:
         if request.path != STOP_PATH:
             return _response(404, {"detail": f"this port serves only {STOP_PATH}", "field": None}, origin)
         if request.method == "OPTIONS":
-            return _response(204, None, origin, {
-                "Access-Control-Allow-Methods": "POST, OPTIONS",
-                "Access-Control-Allow-Headers": "Authorization, Content-Type",
-                "Access-Control-Max-Age": str(PREFLIGHT_MAX_AGE_S)})
+            return _response(
+                204,
+                None,
+                origin,
+                {
+                    "Access-Control-Allow-Methods": "POST, OPTIONS",
+                    "Access-Control-Allow-Headers": "Authorization, Content-Type",
+                    "Access-Control-Max-Age": str(PREFLIGHT_MAX_AGE_S),
+                },
+            )
         if request.method != "POST":
-            return _response(405, {"detail": f"{STOP_PATH} takes POST", "field": None}, origin, {"Allow": "POST, OPTIONS"})
+            return _response(
+                405, {"detail": f"{STOP_PATH} takes POST", "field": None}, origin, {"Allow": "POST, OPTIONS"}
+            )
         refusal = self.tokens.refusal(request.headers.get("authorization"))
         if refusal is not None:
             status, detail, field_name = refusal
@@ -291,9 +327,15 @@ class StopPort:
             return _response(status, {"detail": detail, "field": field_name}, origin, extra)
         asked = request.query.get("bench_id")
         if asked is not None and self.bench_id is not None and asked != self.bench_id:
-            return _response(409, {"detail": f"this port stops bench {self.bench_id!r}, not {asked!r}: nothing was "
-                                             "stopped; press the stop on that bench's own service", "field": "bench_id"},
-                             origin)
+            return _response(
+                409,
+                {
+                    "detail": f"this port stops bench {self.bench_id!r}, not {asked!r}: nothing was "
+                    "stopped; press the stop on that bench's own service",
+                    "field": "bench_id",
+                },
+                origin,
+            )
         self.presses += 1
         try:
             return _response(200, {**self.press(), "bench_id": self.bench_id}, origin)

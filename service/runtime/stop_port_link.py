@@ -7,6 +7,7 @@ token, and otherwise every ``REFRESH_S``, which is how long a token revoked else
 another service of the lab) may still press the stop there: the stop only drives the outputs to
 0 V and cancels the bench's jobs, so that is the direction to err in.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,8 +29,15 @@ REFRESH_S = 2.0
 class StopPortLink:
     """Connect an ``EngineBench``'s stop port to the app: tokens and job cancellation."""
 
-    def __init__(self, bench: Any, store: Any, jobs: Any, auth_off: bool, refresh_s: float = REFRESH_S,
-                 announce: tuple[Path, int, str] | None = None):
+    def __init__(
+        self,
+        bench: Any,
+        store: Any,
+        jobs: Any,
+        auth_off: bool,
+        refresh_s: float = REFRESH_S,
+        announce: tuple[Path, int, str] | None = None,
+    ):
         """``announce``: (data dir, the service's port, bench id) to write ``STOP_PORT_FILE`` there."""
         self.bench, self.store, self.jobs, self.auth_off = bench, store, jobs, auth_off
         self.announce = announce
@@ -39,7 +47,7 @@ class StopPortLink:
         self._closing = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def start(self) -> "StopPortLink":
+    def start(self) -> StopPortLink:
         """Send the tokens now (before the service answers anyone), then keep them current."""
         self.bench.run_owner = lambda: self.jobs.running_bench_job
         self.bench.on_port_stop = self._cancel_jobs
@@ -48,8 +56,12 @@ class StopPortLink:
         self._thread.start()
         if self.announce is not None:
             data_dir, service_port, bench_id = self.announce
-            write_bytes_atomic(Path(data_dir) / STOP_PORT_FILE, json.dumps(
-                {"service_port": service_port, "stop_port": self.bench.stop_port, "bench_id": bench_id}).encode())
+            write_bytes_atomic(
+                Path(data_dir) / STOP_PORT_FILE,
+                json.dumps(
+                    {"service_port": service_port, "stop_port": self.bench.stop_port, "bench_id": bench_id}
+                ).encode(),
+            )
         return self
 
     def close(self) -> None:

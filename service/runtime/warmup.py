@@ -18,6 +18,7 @@ part after the emulator's in one process, because opening a bench compiles (or l
 (``World._compile``), which a second process would compile again at the same time. The command
 is ``evcbench warm``.
 """
+
 from __future__ import annotations
 
 import time
@@ -74,10 +75,26 @@ def _models() -> None:
     drive = biased_sine(RECORD_FREQUENCY_HZ, RECORD_CYCLES, RECORD_RATE_HZ)
     lagged_v = first_order_lowpass(drive.value, RECORD_LAG_S, RECORD_RATE_HZ)
     n = drive.value.size
-    record = Record(drive.value, 0.1 * lagged_v + 2e-4 * lagged_v ** 2, RECORD_RATE_HZ, du_v_per_s=drive.d1_per_s,
-                    ddu_v_per_s2=drive.d2_per_s2, label="warm-up", axis="y",
-                    blocks=[{"index": 0, "start": 0, "stop": n, "kind": "sine", "frequency_hz": RECORD_FREQUENCY_HZ,
-                             "cycles": RECORD_CYCLES, "axes": ["y"]}])
+    record = Record(
+        drive.value,
+        0.1 * lagged_v + 2e-4 * lagged_v**2,
+        RECORD_RATE_HZ,
+        du_v_per_s=drive.d1_per_s,
+        ddu_v_per_s2=drive.d2_per_s2,
+        label="warm-up",
+        axis="y",
+        blocks=[
+            {
+                "index": 0,
+                "start": 0,
+                "stop": n,
+                "kind": "sine",
+                "frequency_hz": RECORD_FREQUENCY_HZ,
+                "cycles": RECORD_CYCLES,
+                "axes": ["y"],
+            }
+        ],
+    )
     x_ref = record.require_x()
     models = [cls().fit([record]) for cls in PAPER_MODELS.values()]
     models.append(CompositeModel(["operators", "dynamics"]).fit([record]))

@@ -1,4 +1,5 @@
 """Errors that name the request field at fault; the API turns them into 4xx responses."""
+
 from __future__ import annotations
 
 

@@ -6,6 +6,7 @@ nest: read ⊂ operate ⊂ admin, so an admin token can do everything an operate
 
 No web framework here: the FastAPI dependency is service/http/auth.py.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -61,8 +62,16 @@ def issue(store: Store, name: str, scope: str, origin: str) -> tuple[str, dict]:
     if not name:
         raise FieldError("name", "a token needs a name (who or what uses it)")
     plaintext = TOKEN_PREFIX + secrets.token_urlsafe(32)
-    row = {"id": new_id("tok"), "name": name, "scope": scope, "sha256": hash_token(plaintext),
-           "origin": origin, "revoked": False, "created_at": utc_now(), "revoked_at": None}
+    row = {
+        "id": new_id("tok"),
+        "name": name,
+        "scope": scope,
+        "sha256": hash_token(plaintext),
+        "origin": origin,
+        "revoked": False,
+        "created_at": utc_now(),
+        "revoked_at": None,
+    }
     store.tokens.add(row)
     return plaintext, public(row)
 
@@ -110,7 +119,7 @@ class RecentTokens:
 def public(row: dict) -> dict:
     """A token record as shown to users: no hash, and the scopes the token grants."""
     record = {k: v for k, v in row.items() if k != "sha256"}
-    record["scopes"] = list(SCOPES[:SCOPES.index(row["scope"]) + 1])
+    record["scopes"] = list(SCOPES[: SCOPES.index(row["scope"]) + 1])
     return record
 
 
@@ -118,8 +127,11 @@ def authenticate(store: Store, token: str | None) -> dict:
     """The record of a valid token; AuthError(401) says why otherwise (missing, malformed,
     unknown, revoked). The stored and presented hashes are compared in constant time."""
     if not token:
-        raise AuthError(401, "missing API token: send the header 'Authorization: Bearer <token>' "
-                             "(create one with `evcbench token create`)")
+        raise AuthError(
+            401,
+            "missing API token: send the header 'Authorization: Bearer <token>' "
+            "(create one with `evcbench token create`)",
+        )
     if not token.startswith(TOKEN_PREFIX):
         raise AuthError(401, f"malformed API token: tokens start with {TOKEN_PREFIX!r}")
     row = store.tokens.by_hash(hash_token(token))  # by the sha256 itself: only a secret's hash is compared
@@ -151,8 +163,11 @@ def still_valid(store: Store, record: dict) -> str | None:
 def authorize(record: dict, needed: str) -> None:
     """AuthError(403) naming the needed scope if ``record``'s scope is lower."""
     if not scope_allows(record["scope"], needed):
-        raise AuthError(403, f"this request needs the '{needed}' scope; token {record['id']} "
-                             f"({record['name']}) has '{record['scope']}'", field="scope")
+        raise AuthError(
+            403,
+            f"this request needs the '{needed}' scope; token {record['id']} ({record['name']}) has '{record['scope']}'",
+            field="scope",
+        )
 
 
 def read_bootstrap_token(data_dir: str | Path) -> str | None:

@@ -6,6 +6,7 @@ or model: their data and parameters are written once, and may be deleted (servic
 dataset's arrays are written (atomically) before its row; if the row cannot be inserted the
 file is removed again, so a failed request leaves the store as it was.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -13,7 +14,7 @@ import json
 import math
 import threading
 import uuid
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -24,13 +25,24 @@ from sqlalchemy.engine import Engine
 from service import __version__
 from service.store import placement, schema, tables, tidy
 from service.store.arrays import ArrayStoreUnavailable, open_location
-from service.store.files import IntegrityError, StoredArrays, load_npz
 from service.store.benches import BenchRows
+from service.store.files import IntegrityError, StoredArrays, load_npz
 from service.store.rows import DatasetRow, JobRow, ModelRow
 from service.store.tokens import TokenRows
 
-__all__ = ["Store", "NotFoundError", "IntegrityError", "ArrayStoreUnavailable", "StoredArrays", "DatasetRow",
-           "ModelRow", "JobRow", "utc_now", "clean_json", "json_sha256"]
+__all__ = [
+    "Store",
+    "NotFoundError",
+    "IntegrityError",
+    "ArrayStoreUnavailable",
+    "StoredArrays",
+    "DatasetRow",
+    "ModelRow",
+    "JobRow",
+    "utc_now",
+    "clean_json",
+    "json_sha256",
+]
 
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
 
@@ -48,7 +60,7 @@ class NotFoundError(KeyError):
 
 def utc_now() -> str:
     """Now as an ISO-8601 UTC string with microseconds (sorts as text)."""
-    return datetime.now(timezone.utc).isoformat(timespec="microseconds").replace("+00:00", "Z")
+    return datetime.now(UTC).isoformat(timespec="microseconds").replace("+00:00", "Z")
 
 
 def clean_json(value: Any) -> Any:
@@ -118,9 +130,9 @@ class Store:
         #: the shared array location (None: the data dir's arrays/); its URL names it in messages
         self.arrays = open_location(array_url, self.data_dir / placement.CACHE_DIR)
         self.array_url = array_url or None
-        self.flush_lock = threading.Lock()    # one outbox upload at a time (service.store.placement.flush)
+        self.flush_lock = threading.Lock()  # one outbox upload at a time (service.store.placement.flush)
         self.engine = make_engine(database_url)
-        schema.create_schema(self.engine)   # tables, and columns added since the database was created
+        schema.create_schema(self.engine)  # tables, and columns added since the database was created
         #: the API token rows (hashes only; see service.security.auth)
         self.tokens = TokenRows(self.engine)
         #: the lab's registered benches (service.store.benches; service.runtime.heartbeat writes them)
@@ -139,8 +151,7 @@ class Store:
         self.engine.dispose()
 
     # ------------------------------------------------------------------ datasets
-    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict,
-                    keep_if_unreachable: bool = False) -> DatasetRow:
+    def add_dataset(self, arrays: dict[str, np.ndarray], meta: dict, keep_if_unreachable: bool = False) -> DatasetRow:
         """Store a dataset: arrays to a checksummed file (uploaded to the shared location, if any),
         then its row. Returns the record. If the shared location cannot be reached the arrays wait in
         the outbox when ``keep_if_unreachable`` (a measurement), else ArrayStoreUnavailable and nothing
@@ -152,14 +163,26 @@ class Store:
         dataset_id = new_id("ds")
         samples = len(next(iter(arrays.values()))) if arrays else 0
         row = {
-            "id": dataset_id, "name": meta.get("name") or dataset_id, "source": meta["source"],
-            "axes": list(meta["axes"]), "samples": samples, "sample_rate_hz": float(meta["sample_rate_hz"]),
-            "blocks": clean_json(meta.get("blocks", [])), "plan": clean_json(meta.get("plan")),
-            "config": clean_json(meta.get("config")), "units": clean_json(meta.get("units", {})),
-            "software_version": __version__, "partial": bool(meta.get("partial", False)),
-            "partial_reason": meta.get("partial_reason"), "job_id": meta.get("job_id"),
-            "started_at": meta.get("started_at"), "finished_at": meta.get("finished_at"), "created_at": utc_now(),
-            "tags": list(meta.get("tags") or []), "notes": meta.get("notes"), "bench_id": self.bench_id,
+            "id": dataset_id,
+            "name": meta.get("name") or dataset_id,
+            "source": meta["source"],
+            "axes": list(meta["axes"]),
+            "samples": samples,
+            "sample_rate_hz": float(meta["sample_rate_hz"]),
+            "blocks": clean_json(meta.get("blocks", [])),
+            "plan": clean_json(meta.get("plan")),
+            "config": clean_json(meta.get("config")),
+            "units": clean_json(meta.get("units", {})),
+            "software_version": __version__,
+            "partial": bool(meta.get("partial", False)),
+            "partial_reason": meta.get("partial_reason"),
+            "job_id": meta.get("job_id"),
+            "started_at": meta.get("started_at"),
+            "finished_at": meta.get("finished_at"),
+            "created_at": utc_now(),
+            "tags": list(meta.get("tags") or []),
+            "notes": meta.get("notes"),
+            "bench_id": self.bench_id,
         }
         file, digest, remove = placement.place(self, dataset_id, arrays, keep_if_unreachable)
         row.update(file=file, sha256=digest)
@@ -170,7 +193,7 @@ class Store:
             remove()
             raise
         if self.arrays is not None and not placement.pending(file):
-            placement.flush_quietly(self)   # the location answers: earlier measurements waiting go up too
+            placement.flush_quietly(self)  # the location answers: earlier measurements waiting go up too
         return row
 
     def get_dataset(self, dataset_id: str) -> DatasetRow:
@@ -204,13 +227,22 @@ class Store:
         """Store an identified model (axis, kind, effects, datasets, parameters, metrics, …)."""
         parameters = clean_json(record["parameters"])
         row = {
-            "id": new_id("md"), "axis": record["axis"], "kind": record["kind"],
-            "effects": list(record.get("effects", [])), "parent_id": record.get("parent_id"),
-            "datasets": list(record["datasets"]), "options": clean_json(record.get("options")),
-            "parameters": parameters, "parameters_sha256": json_sha256(parameters),
-            "metrics": clean_json(record.get("metrics", {})), "software_version": __version__,
-            "job_id": record.get("job_id"), "created_at": utc_now(),
-            "name": record.get("name"), "tags": list(record.get("tags") or []), "notes": record.get("notes"),
+            "id": new_id("md"),
+            "axis": record["axis"],
+            "kind": record["kind"],
+            "effects": list(record.get("effects", [])),
+            "parent_id": record.get("parent_id"),
+            "datasets": list(record["datasets"]),
+            "options": clean_json(record.get("options")),
+            "parameters": parameters,
+            "parameters_sha256": json_sha256(parameters),
+            "metrics": clean_json(record.get("metrics", {})),
+            "software_version": __version__,
+            "job_id": record.get("job_id"),
+            "created_at": utc_now(),
+            "name": record.get("name"),
+            "tags": list(record.get("tags") or []),
+            "notes": record.get("notes"),
         }
         with self.engine.begin() as conn:
             row["bench_id"] = self._bench_of_datasets(conn, row["datasets"])
@@ -247,10 +279,21 @@ class Store:
 
     # ------------------------------------------------------------------ jobs
     def add_job(self, kind: str, params: dict | None, needs_bench: bool) -> JobRow:
-        row = {"id": new_id("job"), "kind": kind, "needs_bench": needs_bench, "state": "queued",
-               "progress": 0.0, "message": "queued", "params": clean_json(params), "result": None,
-               "error": None, "created_at": utc_now(), "started_at": None, "finished_at": None,
-               "bench_id": self.bench_id}
+        row = {
+            "id": new_id("job"),
+            "kind": kind,
+            "needs_bench": needs_bench,
+            "state": "queued",
+            "progress": 0.0,
+            "message": "queued",
+            "params": clean_json(params),
+            "result": None,
+            "error": None,
+            "created_at": utc_now(),
+            "started_at": None,
+            "finished_at": None,
+            "bench_id": self.bench_id,
+        }
         with self.engine.begin() as conn:
             conn.execute(insert(tables.jobs).values(**row))
         return row
@@ -266,9 +309,12 @@ class Store:
         """Progress (0..1) and message of a job still queued or running; a late write after the job
         ended changes nothing."""
         with self.engine.begin() as conn:
-            conn.execute(update(tables.jobs).where(tables.jobs.c.id == job_id)
-                         .where(tables.jobs.c.state.not_in(TERMINAL_STATES))
-                         .values(progress=progress, message=message))
+            conn.execute(
+                update(tables.jobs)
+                .where(tables.jobs.c.id == job_id)
+                .where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+                .values(progress=progress, message=message)
+            )
 
     def get_job(self, job_id: str) -> JobRow:
         return self._get(tables.jobs, job_id, "job")
@@ -281,8 +327,11 @@ class Store:
         """This bench's jobs neither succeeded, failed nor cancelled (queued or running), oldest first:
         those with this store's ``bench_id`` or none (written before benches had ids); every bench's
         when ``bench_id`` is None. Another bench's jobs are its own service's to run or recover."""
-        query = (select(tables.jobs).where(tables.jobs.c.state.not_in(TERMINAL_STATES))
-                 .order_by(tables.jobs.c.created_at, tables.jobs.c.id))
+        query = (
+            select(tables.jobs)
+            .where(tables.jobs.c.state.not_in(TERMINAL_STATES))
+            .order_by(tables.jobs.c.created_at, tables.jobs.c.id)
+        )
         if self.bench_id is not None:
             query = query.where(or_(tables.jobs.c.bench_id == self.bench_id, tables.jobs.c.bench_id.is_(None)))
         with self.engine.connect() as conn:
@@ -302,8 +351,9 @@ class Store:
             raise NotFoundError(field, record_id)
         return dict(row)
 
-    def _list(self, table, limit: int | None = None, newest_first: bool = False,
-              bench_id: str | None = None) -> list[dict]:
+    def _list(
+        self, table, limit: int | None = None, newest_first: bool = False, bench_id: str | None = None
+    ) -> list[dict]:
         order = table.c.created_at.desc() if newest_first else table.c.created_at
         query = select(table).order_by(order, table.c.id)
         if bench_id is not None:

@@ -16,6 +16,7 @@ A row's ``file`` is then a key relative to the location (``<id>.npz``). Every ob
 npz bytes whose SHA-256 the row holds; a location never changes an object once written.
 A location that cannot be reached raises ``ArrayStoreUnavailable`` (HTTP 503), naming its URL.
 """
+
 from __future__ import annotations
 
 import base64
@@ -23,8 +24,8 @@ import hashlib
 import os
 import shutil
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 from urllib.parse import unquote, urlsplit
 
 from service.store.files import BLOCK_BYTES, IntegrityError, file_sha256, write_atomic
@@ -46,7 +47,7 @@ class ArrayStoreUnavailable(RuntimeError):
         return self.args[0]
 
 
-def open_location(array_url: str | None, cache_dir: Path) -> "DirectoryArrays | S3Arrays | None":
+def open_location(array_url: str | None, cache_dir: Path) -> DirectoryArrays | S3Arrays | None:
     """The location ``array_url`` names (None for the data dir's own ``arrays/``); ``cache_dir`` holds
     local copies of objects read from S3. ValueError naming ``array_url`` if it is malformed."""
     if not array_url:
@@ -56,7 +57,7 @@ def open_location(array_url: str | None, cache_dir: Path) -> "DirectoryArrays | 
         return S3Arrays(array_url, cache_dir)
     if scheme == "file":
         return DirectoryArrays(Path(unquote(urlsplit(array_url).path)))
-    if scheme == "" or len(scheme) == 1:          # a path (or a Windows drive letter)
+    if scheme == "" or len(scheme) == 1:  # a path (or a Windows drive letter)
         return DirectoryArrays(Path(array_url))
     raise ValueError(f"array_url: {array_url!r} is neither a path, a file:// URL nor an s3://bucket/prefix URL")
 
@@ -82,6 +83,7 @@ class DirectoryArrays:
         """Copy the complete file ``local`` to ``key`` atomically; its SHA-256 must stay ``sha256``."""
         self._mounted()
         try:
+
             def fill(handle) -> None:
                 with open(local, "rb") as source:
                     shutil.copyfileobj(source, handle, BLOCK_BYTES)
@@ -171,8 +173,12 @@ class S3Arrays:
             import boto3
             from botocore.config import Config
 
-            config = Config(connect_timeout=5, read_timeout=60, retries={"max_attempts": 3, "mode": "standard"},
-                            s3={"addressing_style": "path"} if self.endpoint_url else None)
+            config = Config(
+                connect_timeout=5,
+                read_timeout=60,
+                retries={"max_attempts": 3, "mode": "standard"},
+                s3={"addressing_style": "path"} if self.endpoint_url else None,
+            )
             self._client = boto3.session.Session().client("s3", endpoint_url=self.endpoint_url, config=config)
         return self._client
 
@@ -210,13 +216,19 @@ class S3Arrays:
             while block := handle.read(BLOCK_BYTES):
                 md5.update(block)
             handle.seek(0)
-            answer = self._call(f"uploading {key}", "put_object", Key=self._name(key), Body=handle,
-                                ChecksumSHA256=checksum, Metadata={"sha256": sha256})
+            answer = self._call(
+                f"uploading {key}",
+                "put_object",
+                Key=self._name(key),
+                Body=handle,
+                ChecksumSHA256=checksum,
+                Metadata={"sha256": sha256},
+            )
         received = answer.get("ChecksumSHA256")
         etag = str(answer.get("ETag", "")).strip('"')
         if received is not None:
             good = received == checksum
-        elif len(etag) == 32 and "-" not in etag:      # a single PUT without KMS: the ETag is the MD5
+        elif len(etag) == 32 and "-" not in etag:  # a single PUT without KMS: the ETag is the MD5
             good = etag == md5.hexdigest()
         else:
             good = self.size(key) == Path(local).stat().st_size
@@ -230,10 +242,10 @@ class S3Arrays:
         cached = self.cache_dir / f"{sha256}.npz"
         try:
             if file_sha256(cached) == sha256:
-                os.utime(cached)                        # recently used: trimmed last
+                os.utime(cached)  # recently used: trimmed last
                 return cached
         except (IntegrityError, FileNotFoundError):
-            pass                                        # not cached (or just trimmed by another thread)
+            pass  # not cached (or just trimmed by another thread)
         try:
             body = self._call(f"reading {key}", "get_object", Key=self._name(key))["Body"]
         except FileNotFoundError:
@@ -243,14 +255,15 @@ class S3Arrays:
             try:
                 for block in body.iter_chunks(BLOCK_BYTES):
                     handle.write(block)
-            except Exception as exc:                     # the connection broke mid-object
+            except Exception as exc:  # the connection broke mid-object
                 raise ArrayStoreUnavailable(self.url, f"reading {key} broke off: {exc}") from exc
 
         digest = write_atomic(cached, fill)
         if digest != sha256:
             cached.unlink(missing_ok=True)
-            raise IntegrityError(f"array object {self.where(key)} is corrupt: sha256 {digest} does not match "
-                                 f"the stored {sha256}")
+            raise IntegrityError(
+                f"array object {self.where(key)} is corrupt: sha256 {digest} does not match the stored {sha256}"
+            )
         self.trim_cache(keep=cached)
         return cached
 
@@ -308,8 +321,12 @@ class S3Arrays:
         """Copy ``key`` to ``to`` (FileExistsError if ``to`` exists), then delete ``key``."""
         if self.size(to) is not None:
             raise FileExistsError(f"{self.where(to)} exists")
-        self._call(f"copying {key}", "copy_object", Key=self._name(to),
-                   CopySource={"Bucket": self.bucket, "Key": self._name(key)})
+        self._call(
+            f"copying {key}",
+            "copy_object",
+            Key=self._name(to),
+            CopySource={"Bucket": self.bucket, "Key": self._name(key)},
+        )
         self.delete(key)
 
     def keys(self) -> Iterator[tuple[str, int, float]]:
@@ -317,10 +334,11 @@ class S3Arrays:
         start = f"{self.prefix}/" if self.prefix else ""
         token, now = None, time.time()
         while True:
-            page = self._call("listing objects", "list_objects_v2", Prefix=start,
-                              **({"ContinuationToken": token} if token else {}))
+            page = self._call(
+                "listing objects", "list_objects_v2", Prefix=start, **({"ContinuationToken": token} if token else {})
+            )
             for item in page.get("Contents", []):
-                key = item["Key"][len(start):]
+                key = item["Key"][len(start) :]
                 if key.endswith(".npz") and not key.startswith(QUARANTINE_PREFIX):
                     yield key, int(item["Size"]), now - item["LastModified"].timestamp()
             if not page.get("IsTruncated"):

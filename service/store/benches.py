@@ -5,6 +5,7 @@ A service registers its bench at start-up (``upsert``), writes a heartbeat every
 table shares the store's metadata, so ``Store`` creates it with the others (an existing database
 gains it at the next start, on SQLite and PostgreSQL alike). No bench ever writes another's row.
 """
+
 from __future__ import annotations
 
 from sqlalchemy import JSON, Column, Float, String, Table, Text, func, select, update
@@ -19,19 +20,20 @@ from service.store.tables import datasets, metadata, models
 BENCH_STATES = ("starting", "idle", "busy", "stopped")
 
 benches = Table(
-    "benches", metadata,
-    Column("id", String(40), primary_key=True),            # the bench id (Settings.bench_id)
-    Column("name", Text, nullable=False),                  # the bench config's own name ([name] of its TOML)
-    Column("bench", Text, nullable=False),                 # the config the service was started with (--bench)
-    Column("url", Text, nullable=False),                   # where the service answers (Settings.public_url)
-    Column("config", JSON, nullable=True),                 # the bench's configuration snapshot
-    Column("state", String(16), nullable=False),           # BENCH_STATES
+    "benches",
+    metadata,
+    Column("id", String(40), primary_key=True),  # the bench id (Settings.bench_id)
+    Column("name", Text, nullable=False),  # the bench config's own name ([name] of its TOML)
+    Column("bench", Text, nullable=False),  # the config the service was started with (--bench)
+    Column("url", Text, nullable=False),  # where the service answers (Settings.public_url)
+    Column("config", JSON, nullable=True),  # the bench's configuration snapshot
+    Column("state", String(16), nullable=False),  # BENCH_STATES
     Column("running_job_id", String(40), nullable=True),
     Column("started_at", String(40), nullable=False),
     Column("heartbeat_at", String(40), nullable=False),
-    Column("heartbeat_s", Float, nullable=False),          # the interval its heartbeat promises (s)
+    Column("heartbeat_s", Float, nullable=False),  # the interval its heartbeat promises (s)
     Column("software_version", String(40), nullable=False),
-    Column("instance", String(40), nullable=False),        # the service process that owns the row now
+    Column("instance", String(40), nullable=False),  # the service process that owns the row now
 )
 
 
@@ -47,8 +49,9 @@ class BenchRows:
         if dialect not in ("postgresql", "sqlite"):
             raise RuntimeError(f"benches: no upsert for the {dialect} dialect")
         statement = (pg_insert if dialect == "postgresql" else sqlite_insert)(benches).values(**row)
-        statement = statement.on_conflict_do_update(index_elements=["id"],
-                                                    set_={k: v for k, v in row.items() if k != "id"})
+        statement = statement.on_conflict_do_update(
+            index_elements=["id"], set_={k: v for k, v in row.items() if k != "id"}
+        )
         with self.engine.begin() as conn:
             conn.execute(statement)
 
@@ -56,8 +59,9 @@ class BenchRows:
         """Set some of state, running_job_id, heartbeat_at on the bench's row while ``instance`` owns
         it; False if it does not (another process took the bench id over) or the row is gone."""
         with self.engine.begin() as conn:
-            result = conn.execute(update(benches).where(benches.c.id == bench_id)
-                                  .where(benches.c.instance == instance).values(**fields))
+            result = conn.execute(
+                update(benches).where(benches.c.id == bench_id).where(benches.c.instance == instance).values(**fields)
+            )
             return bool(result.rowcount)
 
     def get(self, bench_id: str) -> dict | None:
@@ -75,17 +79,32 @@ def latest_models(engine: Engine, axis: str | None = None, parameters: bool = Fa
     """Per bench and axis (or only ``axis``), its newest model (by ``created_at``): id, bench_id,
     axis, kind, effects, metrics, job_id, created_at (and ``parameters`` with their sha256 if asked).
     Models without a bench (stored before benches had ids) are left out. One query (a window)."""
-    columns = [models.c.id, models.c.bench_id, models.c.axis, models.c.kind, models.c.effects, models.c.metrics,
-               models.c.job_id, models.c.created_at]
+    columns = [
+        models.c.id,
+        models.c.bench_id,
+        models.c.axis,
+        models.c.kind,
+        models.c.effects,
+        models.c.metrics,
+        models.c.job_id,
+        models.c.created_at,
+    ]
     if parameters:
         columns += [models.c.parameters, models.c.parameters_sha256]
-    rank = func.row_number().over(partition_by=(models.c.bench_id, models.c.axis),
-                                  order_by=(models.c.created_at.desc(), models.c.id.desc())).label("rank")
+    rank = (
+        func.row_number()
+        .over(
+            partition_by=(models.c.bench_id, models.c.axis), order_by=(models.c.created_at.desc(), models.c.id.desc())
+        )
+        .label("rank")
+    )
     inner = select(*columns, rank).where(models.c.bench_id.is_not(None))
     if axis is not None:
         inner = inner.where(models.c.axis == axis)
     inner = inner.subquery()
-    query = select(*[inner.c[c.name] for c in columns]).where(inner.c.rank == 1).order_by(inner.c.bench_id, inner.c.axis)
+    query = (
+        select(*[inner.c[c.name] for c in columns]).where(inner.c.rank == 1).order_by(inner.c.bench_id, inner.c.axis)
+    )
     with engine.connect() as conn:
         return [dict(row) for row in conn.execute(query).mappings()]
 

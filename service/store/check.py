@@ -22,6 +22,7 @@ unfinished jobs; ``evcbench store repair`` (service.store.repair) clears the res
 quarantine (service.store.quarantine: a missing or corrupt array, a dangling reference, set aside by
 repair) is listed under ``quarantined`` and no longer makes the store inconsistent.
 """
+
 from __future__ import annotations
 
 from service.store import TERMINAL_STATES, Store, debris, placement, quarantine
@@ -60,8 +61,12 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
                     problem(found[0], row["id"], found[1])
         elif not path.is_file():
             copy = restorable.get(row["id"])
-            problem("missing_array", row["id"], f"array file {row['file']} is missing" + (
-                f" (its copy {copy} matches: start-up recovery or store repair moves it back)" if copy else ""))
+            problem(
+                "missing_array",
+                row["id"],
+                f"array file {row['file']} is missing"
+                + (f" (its copy {copy} matches: start-up recovery or store repair moves it back)" if copy else ""),
+            )
         elif not quick and file_sha256(path) != row["sha256"]:
             problem("corrupt_array", row["id"], f"array file {row['file']} does not match its sha256")
         if row["job_id"] and row["job_id"] not in jobs:
@@ -75,8 +80,11 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
     if unreachable is None and store.arrays is not None:
         try:
             for key, size in placement.orphan_objects(store, datasets):
-                problem("orphan_array", key.rsplit(".", 1)[0],
-                        f"{store.arrays.where(key)} belongs to no dataset ({debris.format_bytes(size)})")
+                problem(
+                    "orphan_array",
+                    key.rsplit(".", 1)[0],
+                    f"{store.arrays.where(key)} belongs to no dataset ({debris.format_bytes(size)})",
+                )
         except ArrayStoreUnavailable as exc:
             problem("array_store_unavailable", exc.url, f"{exc}: its objects were not listed")
     root = partial_root(store.data_dir)
@@ -104,12 +112,26 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
         else:
             answering.add((entry["record_id"], entry["kind"]))
     aside = [p for p in debris.quarantine_dir(store.data_dir).glob("*") if p.is_file()]
-    counts = {"datasets": len(datasets), "models": len(models), "jobs": len(jobs),
-              "partial_datasets": sum(bool(row["partial"]) for row in datasets), "quarantined": len(entries),
-              "quarantine_files": len(aside), "quarantine_bytes": sum(p.stat().st_size for p in aside)}
-    quarantined = [{"kind": e["kind"], "id": e["record_id"], "detail": e["detail"], "moved_to": e["moved_to"],
-                    "since": e["created_at"], "resolved": (e["record_id"], e["kind"]) not in answering}
-                   for e in entries]
+    counts = {
+        "datasets": len(datasets),
+        "models": len(models),
+        "jobs": len(jobs),
+        "partial_datasets": sum(bool(row["partial"]) for row in datasets),
+        "quarantined": len(entries),
+        "quarantine_files": len(aside),
+        "quarantine_bytes": sum(p.stat().st_size for p in aside),
+    }
+    quarantined = [
+        {
+            "kind": e["kind"],
+            "id": e["record_id"],
+            "detail": e["detail"],
+            "moved_to": e["moved_to"],
+            "since": e["created_at"],
+            "resolved": (e["record_id"], e["kind"]) not in answering,
+        }
+        for e in entries
+    ]
     return {"ok": not open_problems, "problems": open_problems, "quarantined": quarantined, "counts": counts}
 
 
@@ -119,23 +141,32 @@ def job_problems(job: dict, dataset_ids: set[str], offline: bool) -> list[tuple[
     state, out = job["state"], []
     last_known_at = job["finished_at"] or job["started_at"] or job["created_at"]  # the job's last known time
     if state not in STATES:
-        fix = {"state": "failed", "finished_at": last_known_at,
-               "error": f"unknown state {state!r} (set failed by store repair)"}
+        fix = {
+            "state": "failed",
+            "finished_at": last_known_at,
+            "error": f"unknown state {state!r} (set failed by store repair)",
+        }
         return [("impossible_job", f"unknown state {state!r}", fix)]
     if state in TERMINAL_STATES and not job["finished_at"]:
         out.append(("impossible_job", f"{state} but has no finished_at", {"finished_at": last_known_at}))
     if state == "running" and not job["started_at"]:
         out.append(("impossible_job", "running but has no started_at", {"started_at": job["created_at"]}))
     if state == "failed" and not job["error"]:
-        out.append(("impossible_job", "failed without an error",
-                    {"error": "no error was recorded (set by store repair)"}))
+        out.append(
+            ("impossible_job", "failed without an error", {"error": "no error was recorded (set by store repair)"})
+        )
     if state == "succeeded" and job["progress"] < 1.0:
         out.append(("impossible_job", f"succeeded at progress {job['progress']:.2f}", {"progress": 1.0}))
     result = job["result"] if isinstance(job["result"], dict) else {}
     dataset_id = result.get("dataset_id")
     if dataset_id and dataset_id not in dataset_ids:
-        out.append(("impossible_job", f"result names dataset {dataset_id}, which does not exist",
-                    {"result": {**result, "dataset_id": None, "missing_dataset_id": dataset_id}}))
+        out.append(
+            (
+                "impossible_job",
+                f"result names dataset {dataset_id}, which does not exist",
+                {"result": {**result, "dataset_id": None, "missing_dataset_id": dataset_id}},
+            )
+        )
     if offline and state in ("queued", "running"):
         out.append(("unfinished_job", f"still {state} though no service runs (recovered at the next start)", None))
     return out
@@ -144,17 +175,24 @@ def job_problems(job: dict, dataset_ids: set[str], offline: bool) -> list[tuple[
 def format_report(report: dict) -> str:
     """The report in words, one problem a line."""
     c = report["counts"]
-    head = (f"store: {c['datasets']} datasets ({c['partial_datasets']} partial), {c['models']} models, "
-            f"{c['jobs']} jobs: " + ("consistent" if report["ok"] else f"{len(report['problems'])} problem(s)"))
+    head = (
+        f"store: {c['datasets']} datasets ({c['partial_datasets']} partial), {c['models']} models, "
+        f"{c['jobs']} jobs: " + ("consistent" if report["ok"] else f"{len(report['problems'])} problem(s)")
+    )
     lines = [head] + [f"  {p['kind']}: {p['id']}: {p['detail']}" for p in report["problems"]]
     if report["quarantined"]:
-        lines.append(f"{len(report['quarantined'])} record(s) in quarantine "
-                     "(kept as they are, see `evcbench store repair`):")
-        lines += [f"  {q['kind']}: {q['id']}: {q['detail']} (since {q['since']})"
-                  + (": resolved, lifted at the next repair" if q["resolved"] else "") for q in report["quarantined"]]
+        lines.append(
+            f"{len(report['quarantined'])} record(s) in quarantine (kept as they are, see `evcbench store repair`):"
+        )
+        lines += [
+            f"  {q['kind']}: {q['id']}: {q['detail']} (since {q['since']})"
+            + (": resolved, lifted at the next repair" if q["resolved"] else "")
+            for q in report["quarantined"]
+        ]
     if c["quarantine_files"]:
-        lines.append(f"{c['quarantine_files']} file(s) moved aside in {debris.QUARANTINE_DIR}/arrays/ "
-                     f"({debris.format_bytes(c['quarantine_bytes'])}): "
-                     "delete them once you are sure no database names them")
+        lines.append(
+            f"{c['quarantine_files']} file(s) moved aside in {debris.QUARANTINE_DIR}/arrays/ "
+            f"({debris.format_bytes(c['quarantine_bytes'])}): "
+            "delete them once you are sure no database names them"
+        )
     return "\n".join(lines)
-

@@ -13,6 +13,7 @@ A chunk file is either absent or whole (the rename is atomic); a leftover ``.*.t
 unfinished write and is ignored. Chunks are numbered from 1 without gaps; reading stops at the
 first missing or unreadable one, so what is returned is always a prefix of the acquisition.
 """
+
 from __future__ import annotations
 
 import io
@@ -58,10 +59,10 @@ class ChunkWriter:
         self.rows_per_chunk = max(1, int(round(chunk_s * float(meta["sample_rate_hz"]))))
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_rows = 0
-        self._queued = 0         # chunks handed to the writer thread
-        self._rows_handed = 0    # rows in those chunks
-        self.chunks = 0          # chunk files written
-        self.rows_written = 0    # rows in those files
+        self._queued = 0  # chunks handed to the writer thread
+        self._rows_handed = 0  # rows in those chunks
+        self.chunks = 0  # chunk files written
+        self.rows_written = 0  # rows in those files
         self.error: BaseException | None = None  # the writer's failure, if any (the run goes on)
         write_bytes_atomic(self.directory / META_FILE, json.dumps(clean_json(meta)).encode())
         self._queue: queue.Queue = queue.Queue()
@@ -101,8 +102,14 @@ class ChunkWriter:
 
     def warnings(self) -> list[str]:
         """What a job result should say about the chunks: a write that failed (crash safety was lost)."""
-        return [] if self.error is None else [f"the running record could not be written to disk ({self.error}): "
-                                              "a crash during the run would have lost it"]
+        return (
+            []
+            if self.error is None
+            else [
+                f"the running record could not be written to disk ({self.error}): "
+                "a crash during the run would have lost it"
+            ]
+        )
 
     def _hand_over(self) -> None:
         if not self._pending_rows:
@@ -129,7 +136,11 @@ class ChunkWriter:
                         self.error = exc
                         logging.getLogger(__name__).error(
                             "job %s: writing chunk %d failed (%s); this run is no longer recoverable after a "
-                            "crash, its dataset is still stored when it ends", self.directory.name, number, exc)
+                            "crash, its dataset is still stored when it ends",
+                            self.directory.name,
+                            number,
+                            exc,
+                        )
             finally:
                 self._queue.task_done()
 

@@ -17,6 +17,7 @@
 Nothing here may run while another process writes to the store: the caller holds the store's
 lock (service.store.lock).
 """
+
 from __future__ import annotations
 
 import os
@@ -58,8 +59,10 @@ def find(data_dir: Path, datasets: list[dict]) -> list[dict]:
 
     Paths are relative to the data dir; ``bytes`` is the file's size."""
     data_dir = Path(data_dir)
-    actions = [{"action": "delete", "kind": "temp_file", "path": _rel(p, data_dir), "bytes": _size(p)}
-               for p in temp_files(data_dir)]
+    actions = [
+        {"action": "delete", "kind": "temp_file", "path": _rel(p, data_dir), "bytes": _size(p)}
+        for p in temp_files(data_dir)
+    ]
     local_rows = [row for row in datasets if in_data_dir(row["file"])]
     referenced = {(data_dir / row["file"]).resolve() for row in local_rows}
     aside = quarantine_dir(data_dir)
@@ -68,13 +71,28 @@ def find(data_dir: Path, datasets: list[dict]) -> list[dict]:
             continue
         for path in sorted(arrays_dir.iterdir()):
             if path.is_file() and not is_temp(path) and path.resolve() not in referenced:
-                actions.append({"action": "quarantine", "kind": "orphan_array", "path": _rel(path, data_dir),
-                                "to": _rel(free_name(aside / path.name), data_dir), "bytes": _size(path)})
+                actions.append(
+                    {
+                        "action": "quarantine",
+                        "kind": "orphan_array",
+                        "path": _rel(path, data_dir),
+                        "to": _rel(free_name(aside / path.name), data_dir),
+                        "bytes": _size(path),
+                    }
+                )
     for row in local_rows:
         target, copy = data_dir / row["file"], aside / Path(row["file"]).name
         if not target.exists() and copy.is_file() and file_sha256(copy) == row["sha256"]:
-            actions.append({"action": "restore", "kind": "missing_array", "id": row["id"],
-                            "path": _rel(copy, data_dir), "to": row["file"], "bytes": _size(copy)})
+            actions.append(
+                {
+                    "action": "restore",
+                    "kind": "missing_array",
+                    "id": row["id"],
+                    "path": _rel(copy, data_dir),
+                    "to": row["file"],
+                    "bytes": _size(copy),
+                }
+            )
     return actions
 
 

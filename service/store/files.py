@@ -5,6 +5,7 @@ read a range at a time (``StoredArrays``) without loading the file; files writte
 (``np.savez_compressed``) are still read, their members decompressed as a stream. The checksum
 is computed and verified by reading the file in blocks of ``BLOCK_BYTES``, never whole.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -12,14 +13,15 @@ import os
 import struct
 import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO, Callable
+from typing import BinaryIO
 
 import numpy as np
 
 #: bytes read or written per step (checksums, array members, range reads)
 BLOCK_BYTES = 1 << 20
-_LOCAL_HEADER = struct.Struct("<4s22xHH")   # signature … file name length, extra field length
+_LOCAL_HEADER = struct.Struct("<4s22xHH")  # signature … file name length, extra field length
 _NPY_HEADERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
 
 
@@ -42,7 +44,7 @@ def write_arrays(directory: Path, stem: str, arrays: dict[str, np.ndarray]) -> t
                     np.lib.format.write_array_header_1_0(member, np.lib.format.header_data_from_array_1_0(array))
                     data = memoryview(array.reshape(-1)).cast("B")
                     for start in range(0, len(data), BLOCK_BYTES):
-                        member.write(data[start:start + BLOCK_BYTES])
+                        member.write(data[start : start + BLOCK_BYTES])
 
     return final, write_atomic(final, fill)
 
@@ -88,8 +90,7 @@ def verify_file(path: Path, sha256: str) -> None:
     """IntegrityError naming the file unless its SHA-256 is ``sha256``."""
     digest = file_sha256(path)
     if digest != sha256:
-        raise IntegrityError(f"array file {path} is corrupt: sha256 {digest} does not match the "
-                             f"stored {sha256}")
+        raise IntegrityError(f"array file {path} is corrupt: sha256 {digest} does not match the stored {sha256}")
 
 
 def read_arrays(path: Path, sha256: str) -> dict[str, np.ndarray]:
@@ -104,7 +105,7 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         return {name: npz[name] for name in npz.files}
 
 
-def open_arrays(path: Path, sha256: str) -> "StoredArrays":
+def open_arrays(path: Path, sha256: str) -> StoredArrays:
     """The arrays of an npz file, opened lazily (``StoredArrays``) after checking its SHA-256."""
     verify_file(path, sha256)
     return StoredArrays(path)
@@ -132,13 +133,17 @@ class StoredArrays:
                 skip = member.tell()
             stored = info.compress_type == zipfile.ZIP_STORED and not fortran
             self._members[info.filename[:-4]] = {
-                "info": info, "shape": shape, "dtype": dtype, "skip": skip,
-                "offset": self._data_start(info) + skip if stored else None}
+                "info": info,
+                "shape": shape,
+                "dtype": dtype,
+                "skip": skip,
+                "offset": self._data_start(info) + skip if stored else None,
+            }
         self.names = list(self._members)
         lengths = {m["shape"][0] for m in self._members.values() if len(m["shape"]) == 1}
         self.length = max(lengths) if lengths else 0
 
-    def __enter__(self) -> "StoredArrays":
+    def __enter__(self) -> StoredArrays:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -155,8 +160,7 @@ class StoredArrays:
         """The whole array ``name``: a read-only memory map if stored uncompressed, else loaded."""
         member = self._members[name]
         if member["offset"] is not None and int(np.prod(member["shape"])) > 0:
-            return np.memmap(self.path, dtype=member["dtype"], mode="r", offset=member["offset"],
-                             shape=member["shape"])
+            return np.memmap(self.path, dtype=member["dtype"], mode="r", offset=member["offset"], shape=member["shape"])
         with self._archive.open(member["info"]) as stream:
             return np.lib.format.read_array(stream, allow_pickle=False)
 
@@ -171,7 +175,7 @@ class StoredArrays:
         if len(member["shape"]) != 1:
             return self.column(name)[start:stop:step]
         itemsize = member["dtype"].itemsize
-        block = max(step, BLOCK_BYTES // itemsize // step * step)   # whole steps per block
+        block = max(step, BLOCK_BYTES // itemsize // step * step)  # whole steps per block
         parts = [self._read(member, name, a, min(a + block, stop))[::step] for a in range(start, stop, block)]
         if len(parts) == 1:
             return parts[0]
@@ -182,7 +186,7 @@ class StoredArrays:
         out = np.empty(max(stop - start, 0), dtype=member["dtype"])
         if member["offset"] is not None:
             stream, position = self._handle, member["offset"]
-        else:   # a compressed member: a stream of its own, read forwards (seeking back restarts it)
+        else:  # a compressed member: a stream of its own, read forwards (seeking back restarts it)
             stream = self._streams.get(name)
             if stream is None:
                 stream = self._streams[name] = self._archive.open(member["info"])

@@ -5,6 +5,7 @@ closed; ``evcbench store repair`` takes it too, so the two never touch the same 
 The kernel drops the lock when its process dies, even by ``kill -9``: a lock that cannot be taken
 always means a live owner. The file holds the owner's pid, for messages only.
 """
+
 from __future__ import annotations
 
 import fcntl

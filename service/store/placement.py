@@ -16,11 +16,12 @@ upload that fails keeps the file in the outbox when asked to (a sweep's bench ti
 away) or raises ArrayStoreUnavailable with nothing stored (an import: the user still has the file).
 No lock is held while talking to the location.
 """
+
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from sqlalchemy import select, update
@@ -49,8 +50,9 @@ def pending(file: str) -> bool:
     return file.startswith(f"{OUTBOX_DIR}/")
 
 
-def place(store, dataset_id: str, arrays: dict[str, np.ndarray],
-          keep_if_unreachable: bool) -> tuple[str, str, Callable[[], None]]:
+def place(
+    store, dataset_id: str, arrays: dict[str, np.ndarray], keep_if_unreachable: bool
+) -> tuple[str, str, Callable[[], None]]:
     """Write a new dataset's arrays where the store keeps them; returns (``file`` for the row, SHA-256,
     a function that removes them again if the row cannot be inserted)."""
     location = store.arrays
@@ -65,8 +67,13 @@ def place(store, dataset_id: str, arrays: dict[str, np.ndarray],
         if not keep_if_unreachable:
             path.unlink(missing_ok=True)
             raise
-        log.warning("%s: dataset %s kept in %s/%s, uploaded when the store answers", exc, dataset_id,
-                    store.data_dir, path.relative_to(store.data_dir))
+        log.warning(
+            "%s: dataset %s kept in %s/%s, uploaded when the store answers",
+            exc,
+            dataset_id,
+            store.data_dir,
+            path.relative_to(store.data_dir),
+        )
         return str(path.relative_to(store.data_dir)), digest, lambda: path.unlink(missing_ok=True)
     except BaseException:
         path.unlink(missing_ok=True)
@@ -77,7 +84,7 @@ def place(store, dataset_id: str, arrays: dict[str, np.ndarray],
         location.forget(digest)
         try:
             location.delete(key)
-        except ArrayStoreUnavailable as exc:   # the object stays, named by no row: store check reports it
+        except ArrayStoreUnavailable as exc:  # the object stays, named by no row: store check reports it
             log.error("%s: could not delete %s of a dataset whose row was not stored", exc, location.where(key))
 
     return key, digest, remove
@@ -90,13 +97,18 @@ def local_path(store, row: dict) -> Path:
     if in_data_dir(file):
         path = store.data_dir / file
         if pending(file) and store.arrays is not None and not path.exists():
-            raise ArrayStoreUnavailable(store.arrays.url, f"dataset {row['id']}'s arrays are still in the outbox "
-                                        "of the service that recorded it, uploaded when it reaches the store")
+            raise ArrayStoreUnavailable(
+                store.arrays.url,
+                f"dataset {row['id']}'s arrays are still in the outbox "
+                "of the service that recorded it, uploaded when it reaches the store",
+            )
         verify_file(path, sha256)
         return path
     if store.arrays is None:
-        raise IntegrityError(f"dataset {row['id']}'s arrays are {file} in a shared array location, and this "
-                             "service has none: start it with the lab's --array-url (EVCBENCH_ARRAY_URL)")
+        raise IntegrityError(
+            f"dataset {row['id']}'s arrays are {file} in a shared array location, and this "
+            "service has none: start it with the lab's --array-url (EVCBENCH_ARRAY_URL)"
+        )
     return store.arrays.fetch(file, sha256)
 
 
@@ -128,25 +140,30 @@ def flush(store) -> list[dict]:
     between the upload and the row leaves the row pending, and the next flush uploads it again."""
     if store.arrays is None or not (store.data_dir / OUTBOX_DIR).is_dir():
         return []
-    if not store.flush_lock.acquire(blocking=False):     # another thread of this service is at it
+    if not store.flush_lock.acquire(blocking=False):  # another thread of this service is at it
         return []
     try:
         d = tables.datasets
         with store.engine.connect() as conn:
-            rows = [dict(r) for r in conn.execute(select(d.c.id, d.c.file, d.c.sha256)
-                                                  .where(d.c.file.like(f"{OUTBOX_DIR}/%"))).mappings()]
+            rows = [
+                dict(r)
+                for r in conn.execute(
+                    select(d.c.id, d.c.file, d.c.sha256).where(d.c.file.like(f"{OUTBOX_DIR}/%"))
+                ).mappings()
+            ]
         done = []
         for row in rows:
             path = store.data_dir / row["file"]
             if not path.is_file() or file_sha256(path) != row["sha256"]:
-                continue                        # another service's outbox, or damaged (check says which)
+                continue  # another service's outbox, or damaged (check says which)
             key = f"{row['id']}.npz"
             store.arrays.put(path, key, row["sha256"])
             with store.engine.begin() as conn:
-                moved = conn.execute(update(d).where(d.c.id == row["id"]).where(d.c.file == row["file"])
-                                     .values(file=key)).rowcount
+                moved = conn.execute(
+                    update(d).where(d.c.id == row["id"]).where(d.c.file == row["file"]).values(file=key)
+                ).rowcount
             if not moved:
-                continue                        # another store on this data dir flushed it meanwhile
+                continue  # another store on this data dir flushed it meanwhile
             store.arrays.adopt(path, row["sha256"])
             done.append({"id": row["id"], "key": key, "bytes": store.arrays.size(key) or 0})
             log.warning("outbox: dataset %s uploaded to %s", row["id"], store.arrays.where(key))

@@ -7,6 +7,7 @@ check`` then lists such rows under ``quarantined`` instead of failing on them ag
 an entry is lifted as soon as its problem is gone (the right file put back, see
 service.store.debris.restore).
 """
+
 from __future__ import annotations
 
 from sqlalchemy import delete, insert, select
@@ -15,8 +16,11 @@ from service.store import tables
 
 #: the problems (service.store.check kinds) an entry of each kind stands for: a corrupt array moved
 #: aside is a missing one from then on
-ANSWERS = {"missing_array": ("missing_array",), "corrupt_array": ("missing_array", "corrupt_array"),
-           "dangling_reference": ("dangling_reference",)}
+ANSWERS = {
+    "missing_array": ("missing_array",),
+    "corrupt_array": ("missing_array", "corrupt_array"),
+    "dangling_reference": ("dangling_reference",),
+}
 
 
 def entries(store) -> list[dict]:

@@ -22,6 +22,7 @@ No dataset or model row is ever deleted. Entries whose problem is gone are lifte
 data dir to itself: it takes the lock the running service holds (service.store.lock), so it is
 refused while the service runs, except ``dry_run``, which changes nothing and says what it would do.
 """
+
 from __future__ import annotations
 
 import os
@@ -45,20 +46,33 @@ def repair_store(store: Store, dry_run: bool = False) -> dict:
     "found": [problems before], "actions": [{"kind", "id", "action"}], "freed_bytes", "after": the
     check report after (the one before, for a dry run)}``. StoreBusy if the service runs on it."""
     if not dry_run and not claim(store):
-        raise StoreBusy(f"a process (pid {StoreLock(store.data_dir).owner()}) holds {store.data_dir}/service.lock: "
-                        "stop the service first (`evcbench store repair --dry-run` shows what would be done)")
+        raise StoreBusy(
+            f"a process (pid {StoreLock(store.data_dir).owner()}) holds {store.data_dir}/service.lock: "
+            "stop the service first (`evcbench store repair --dry-run` shows what would be done)"
+        )
     found = check_store(store, offline=True)
     if dry_run:
-        return {"dry_run": True, "found": found["problems"], "actions": _plan(store, found["problems"]),
-                "freed_bytes": 0, "after": found}
+        return {
+            "dry_run": True,
+            "found": found["problems"],
+            "actions": _plan(store, found["problems"]),
+            "freed_bytes": 0,
+            "after": found,
+        }
     recovered = recover(store)
-    actions = [{"kind": "unfinished_job", "id": job_id, "action": f"marked failed ({INTERRUPTED})"}
-               for job_id in recovered["failed_jobs"]]
-    actions += [{"kind": "partial_dataset", "id": dataset_id,
-                 "action": "rebuilt from an interrupted acquisition's chunks"} for dataset_id in recovered["datasets"]]
+    actions = [
+        {"kind": "unfinished_job", "id": job_id, "action": f"marked failed ({INTERRUPTED})"}
+        for job_id in recovered["failed_jobs"]
+    ]
+    actions += [
+        {"kind": "partial_dataset", "id": dataset_id, "action": "rebuilt from an interrupted acquisition's chunks"}
+        for dataset_id in recovered["datasets"]
+    ]
     actions += [_file_action(a) for a in recovered["cleaned"]]
-    actions += [{"kind": "pending_upload", "id": u["id"], "action": f"uploaded from the outbox as {u['key']}"}
-                for u in recovered.get("uploaded", [])]
+    actions += [
+        {"kind": "pending_upload", "id": u["id"], "action": f"uploaded from the outbox as {u['key']}"}
+        for u in recovered.get("uploaded", [])
+    ]
     now, handled, left = utc_now(), set(), check_store(store, offline=True)
     for problem in left["problems"]:
         if (problem["kind"], problem["id"]) not in handled:  # a job's fixes are applied together
@@ -66,10 +80,16 @@ def repair_store(store: Store, dry_run: bool = False) -> dict:
             actions.append(_fix(store, problem, now))
     for entry in (q for q in left["quarantined"] if q["resolved"]):  # e.g. the right file was put back
         quarantine.lift(store, entry["id"], (entry["kind"],))
-        actions.append({"kind": entry["kind"], "id": entry["id"],
-                        "action": "lifted from quarantine (its problem is gone)"})
-    return {"dry_run": False, "found": found["problems"], "actions": actions,
-            "freed_bytes": recovered["freed_bytes"], "after": check_store(store, offline=True)}
+        actions.append(
+            {"kind": entry["kind"], "id": entry["id"], "action": "lifted from quarantine (its problem is gone)"}
+        )
+    return {
+        "dry_run": False,
+        "found": found["problems"],
+        "actions": actions,
+        "freed_bytes": recovered["freed_bytes"],
+        "after": check_store(store, offline=True),
+    }
 
 
 def _fix(store: Store, problem: dict, now: str) -> dict:
@@ -116,32 +136,42 @@ def _plan(store: Store, problems: list[dict]) -> list[dict]:
     cleanup = debris.find(store.data_dir, store.list_datasets())
     restored = {a["id"] for a in cleanup if a["action"] == "restore"}
     plan = [_file_action(a, planned=True) for a in cleanup]
-    words = {"unfinished_job": f"would be marked failed ({INTERRUPTED})",
-             "orphan_chunks": "would become a partial dataset (unless its job has one) and be removed",
-             "corrupt_array": "file would be moved to quarantine/arrays/; the row kept, in quarantine",
-             "missing_array": "row would be kept, in quarantine",
-             "dangling_reference": "row would be kept, in quarantine",
-             "impossible_job": "job row would be set consistent",
-             "pending_upload": "would be uploaded if the shared array location answers",
-             "orphan_array": "object would be moved to the shared location's quarantine/"}
-    restored |= {Path(a["path"]).stem for a in cleanup if a["kind"] == "orphan_array"}   # said above
+    words = {
+        "unfinished_job": f"would be marked failed ({INTERRUPTED})",
+        "orphan_chunks": "would become a partial dataset (unless its job has one) and be removed",
+        "corrupt_array": "file would be moved to quarantine/arrays/; the row kept, in quarantine",
+        "missing_array": "row would be kept, in quarantine",
+        "dangling_reference": "row would be kept, in quarantine",
+        "impossible_job": "job row would be set consistent",
+        "pending_upload": "would be uploaded if the shared array location answers",
+        "orphan_array": "object would be moved to the shared location's quarantine/",
+    }
+    restored |= {Path(a["path"]).stem for a in cleanup if a["kind"] == "orphan_array"}  # said above
     for problem in problems:
-        if problem["kind"] in words and not (problem["kind"] in ("missing_array", "orphan_array")
-                                             and problem["id"] in restored):
+        if problem["kind"] in words and not (
+            problem["kind"] in ("missing_array", "orphan_array") and problem["id"] in restored
+        ):
             plan.append({"kind": problem["kind"], "id": problem["id"], "action": words[problem["kind"]]})
     return plan
 
 
 def _file_action(action: dict, planned: bool = False) -> dict:
     """A debris or chunk action of service.store.debris / service.runtime.recovery as a repair action."""
-    return {"kind": action["kind"], "id": action["path"], "path": action["path"], "bytes": action["bytes"],
-            "action": debris.describe(action, planned)}
+    return {
+        "kind": action["kind"],
+        "id": action["path"],
+        "path": action["path"],
+        "bytes": action["bytes"],
+        "action": debris.describe(action, planned),
+    }
 
 
 def format_repair(report: dict) -> str:
     """The repair report in words."""
-    head = f"store repair{' (dry run: nothing changed)' if report['dry_run'] else ''}: " \
-           f"{len(report['found'])} problem(s) found, {len(report['actions'])} action(s)"
+    head = (
+        f"store repair{' (dry run: nothing changed)' if report['dry_run'] else ''}: "
+        f"{len(report['found'])} problem(s) found, {len(report['actions'])} action(s)"
+    )
     lines = [head] + [f"  {a['kind']}: {a['id']}: {a['action']}" for a in report["actions"]]
     if not report["dry_run"]:
         from service.store.check import format_report

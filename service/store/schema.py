@@ -3,6 +3,7 @@ tables that are missing but never changes one that exists, so every column added
 table since is listed here and added with ``ALTER TABLE … ADD COLUMN`` (SQLite and PostgreSQL
 alike; the column type is compiled for the database's dialect). Old rows read NULL in them, which
 the store shows as the column's default (service.store.Store)."""
+
 from __future__ import annotations
 
 from sqlalchemy import inspect, text
@@ -13,14 +14,14 @@ from service.store import tables
 
 #: columns added to existing tables, per table, in the order they were added
 ADDED_COLUMNS = {
-    "datasets": ("tags", "notes", "bench_id"),           # issue 20: keeping the store tidy; 21: a lab
+    "datasets": ("tags", "notes", "bench_id"),  # issue 20: keeping the store tidy; 21: a lab
     "models": ("name", "tags", "notes", "bench_id"),
     "jobs": ("bench_id",),
 }
 
 
 #: the PostgreSQL advisory lock key that serialises schema creation between services starting at once
-SCHEMA_LOCK_KEY = 0x45564342   # "EVCB"
+SCHEMA_LOCK_KEY = 0x45564342  # "EVCB"
 
 
 def create_schema(engine: Engine) -> list[str]:
@@ -48,8 +49,11 @@ def missing_columns(engine: Engine) -> dict[str, list[str]]:
     """The added columns the database does not have yet, per table."""
     inspector = inspect(engine)
     present = {name: {c["name"] for c in inspector.get_columns(name)} for name in ADDED_COLUMNS}
-    return {name: [c for c in added if c not in present[name]] for name, added in ADDED_COLUMNS.items()
-            if any(c not in present[name] for c in added)}
+    return {
+        name: [c for c in added if c not in present[name]]
+        for name, added in ADDED_COLUMNS.items()
+        if any(c not in present[name] for c in added)
+    }
 
 
 def upgrade(engine: Engine) -> list[str]:

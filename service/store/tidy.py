@@ -9,6 +9,7 @@ if it cannot be reached nothing is deleted). A job whose result names a deleted 
 ``deleted_dataset_id`` (its ``dataset_id`` becomes null, as the check expects), and quarantine
 entries of deleted records are lifted.
 """
+
 from __future__ import annotations
 
 from sqlalchemy import delete, select, update
@@ -25,8 +26,10 @@ class InUseError(Exception):
 
     def __init__(self, field: str, record_id: str, dependents: dict[str, list[str]], why: str):
         names = ", ".join(i for ids in dependents.values() for i in ids)
-        super().__init__(f"{field} {record_id} is in use: {why} {names}; nothing was deleted "
-                         "(ask with cascade=true to delete them as well)")
+        super().__init__(
+            f"{field} {record_id} is in use: {why} {names}; nothing was deleted "
+            "(ask with cascade=true to delete them as well)"
+        )
         self.field, self.record_id, self.dependents = field, record_id, dependents
 
     def __str__(self) -> str:
@@ -80,7 +83,7 @@ def delete_dataset(store, dataset_id: str, cascade: bool = False) -> dict:
     if using and not cascade:
         raise InUseError("dataset", dataset_id, {"models": using}, "models were fitted on it:")
     model_ids = descendants(models, using)
-    freed = placement.size(store, row)   # asks a shared location first: unreachable, nothing is deleted
+    freed = placement.size(store, row)  # asks a shared location first: unreachable, nothing is deleted
     with store.engine.begin() as conn:
         _delete_rows(conn, model_ids, [dataset_id])
     placement.remove(store, row)
@@ -107,11 +110,17 @@ def _delete_rows(conn, model_ids: list[str], dataset_ids: list[str]) -> None:
         conn.execute(delete(tables.models).where(tables.models.c.id.in_(model_ids)))
     if dataset_ids:
         conn.execute(delete(tables.datasets).where(tables.datasets.c.id.in_(dataset_ids)))
-        jobs = conn.execute(select(tables.jobs.c.id, tables.jobs.c.result)
-                            .where(tables.jobs.c.result.is_not(None))).mappings().all()
+        jobs = (
+            conn.execute(select(tables.jobs.c.id, tables.jobs.c.result).where(tables.jobs.c.result.is_not(None)))
+            .mappings()
+            .all()
+        )
         for job in jobs:
             result = job["result"] if isinstance(job["result"], dict) else {}
             if result.get("dataset_id") in dataset_ids:
-                conn.execute(update(tables.jobs).where(tables.jobs.c.id == job["id"]).values(
-                    result={**result, "dataset_id": None, "deleted_dataset_id": result["dataset_id"]}))
+                conn.execute(
+                    update(tables.jobs)
+                    .where(tables.jobs.c.id == job["id"])
+                    .values(result={**result, "dataset_id": None, "deleted_dataset_id": result["dataset_id"]})
+                )
     conn.execute(delete(tables.quarantine).where(tables.quarantine.c.record_id.in_(model_ids + dataset_ids)))

@@ -4,6 +4,7 @@ The run is recorded by service.usecases.recorder: a cancelled or interrupted swe
 samples taken so far as a dataset marked ``partial`` (with the reason), a killed process loses at
 most the last second of them, and the bench leaves its output at 0 V either way.
 """
+
 from __future__ import annotations
 
 import time
@@ -24,7 +25,9 @@ def plan_sweep(bench: Bench, values: dict) -> tuple[PlannedSweep, dict]:
     return planned, {**plan.to_dict(), "samples": planned.samples, "duration_s": planned.duration_s}
 
 
-def queue_sweep(jobs: JobManager, bench: Bench, store: Store, values: dict, name: str | None = None) -> tuple[dict, PlannedSweep]:
+def queue_sweep(
+    jobs: JobManager, bench: Bench, store: Store, values: dict, name: str | None = None
+) -> tuple[dict, PlannedSweep]:
     """Plan a sweep (``plan_sweep``: FieldError naming the field if it leaves the bench's limits) and
     queue it as a bench job; ``(job, planned)``. POST /api/sweeps and the discover job's experiments."""
     planned, plan = plan_sweep(bench, values)
@@ -36,8 +39,9 @@ def queue_sweep(jobs: JobManager, bench: Bench, store: Store, values: dict, name
 SWEEP_POLL_S = 0.2
 
 
-def sweep_and_wait(ctx: JobContext, jobs: JobManager, bench: Bench, store: Store, values: dict,
-                   name: str | None = None) -> dict:
+def sweep_and_wait(
+    ctx: JobContext, jobs: JobManager, bench: Bench, store: Store, values: dict, name: str | None = None
+) -> dict:
     """From inside another job: queue the sweep ``values`` (a /api/sweeps body) and wait until it ends;
     returns the sweep's job. When ``ctx`` is cancelled the sweep is cancelled too (its partial data is
     kept as a dataset) and JobInterrupted is raised."""
@@ -52,15 +56,22 @@ def sweep_and_wait(ctx: JobContext, jobs: JobManager, bench: Bench, store: Store
         time.sleep(SWEEP_POLL_S)
 
 
-def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep, plan: dict,
-              name: str | None = None) -> dict:
+def run_sweep(
+    ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep, plan: dict, name: str | None = None
+) -> dict:
     """Job body: stream ``planned`` through the bench, store the record, return
     ``{"dataset_id", "samples", "partial"}``. On a stop (cancel, fault) the partial record is
     stored and JobInterrupted carries that result."""
     duration = planned.duration_s
-    meta = {"name": name or _default_name(plan), "source": "sweep", "axes": sorted(bench.axes),
-            "sample_rate_hz": planned.sample_rate_hz, "blocks": planned.blocks, "plan": plan,
-            "config": bench_snapshot(bench)}
+    meta = {
+        "name": name or _default_name(plan),
+        "source": "sweep",
+        "axes": sorted(bench.axes),
+        "sample_rate_hz": planned.sample_rate_hz,
+        "blocks": planned.blocks,
+        "plan": plan,
+        "config": bench_snapshot(bench),
+    }
 
     def progress(fraction: float) -> None:
         ctx.progress(0.98 * fraction, f"sweeping: {fraction * duration:.1f} of {duration:.1f} s")
@@ -71,9 +82,13 @@ def run_sweep(ctx: JobContext, bench: Bench, store: Store, planned: PlannedSweep
         if record.samples == 0:
             raise recorder.nothing_kept(f"{stop.reason}; no samples were taken", stop.cancelled)
         ctx.progress(0.99, "storing")
-        row = recorder.keep(record_arrays(record), stop, axes=sorted(record.x_um),
-                            sample_rate_hz=record.sample_rate_hz,
-                            blocks=trim_blocks(planned.blocks, record.samples, record.sample_rate_hz))
+        row = recorder.keep(
+            record_arrays(record),
+            stop,
+            axes=sorted(record.x_um),
+            sample_rate_hz=record.sample_rate_hz,
+            blocks=trim_blocks(planned.blocks, record.samples, record.sample_rate_hz),
+        )
     return recorder.end(row, {"dataset_id": row["id"], "samples": row["samples"], "partial": row["partial"]}, stop)
 
 

@@ -1,5 +1,6 @@
 """Glue between the store and discovery: diagnose a stored model, refine it (add/remove/set effects)
 and walk its lineage. Records are loaded and models identified by service.usecases.identify."""
+
 from __future__ import annotations
 
 from service.science.discovery.composite import fit_composite
@@ -33,12 +34,14 @@ def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
     else:
         what = kind
         held = f"held-out last {(split.held_out[1] - split.held_out[0]) / sample_rate_hz:.3g} s"
-    if together := b.get("frequencies_hz"):    # the axes driven at once, each at its own frequency
+    if together := b.get("frequencies_hz"):  # the axes driven at once, each at its own frequency
         repeats = f", repeating at {f_hz:g} Hz" if f_hz else ", not repeating together"
         own_first = sorted(together.items(), key=lambda item: item[0] != axis)
-        return (f"{' + '.join(f'{a.upper()} {f:g} Hz' for a, f in own_first)} {kind}{repeats} "
-                f"({held.replace('cycle', 'common cycle')})")
-    if others := other_axes(b, axis):        # a block of the other axis (cross-coupling shows there)
+        return (
+            f"{' + '.join(f'{a.upper()} {f:g} Hz' for a, f in own_first)} {kind}{repeats} "
+            f"({held.replace('cycle', 'common cycle')})"
+        )
+    if others := other_axes(b, axis):  # a block of the other axis (cross-coupling shows there)
         return f"{'/'.join(a.upper() for a in others)} {what}, {axis.upper()} undriven ({held})"
     return f"{axis.upper()} {what} ({held})"
 
@@ -62,28 +65,40 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
         require_fit_memory(store, datasets, field="extra_datasets" if extra_datasets else "model_id")
         records = load_records(store, datasets, row["axis"], field="extra_datasets")
     n_ops = int(row["options"].get("n_operators", 10))
-    basis = load_model(row).as_composite()   # a stored composite fit, or the one a paper's model stands for
+    basis = load_model(row).as_composite()  # a stored composite fit, or the one a paper's model stands for
     stands_in = not basis.is_fitted
     if not basis.is_fitted or len(datasets) > len(row["datasets"]):  # (re)fitted, warm at its transforms
         basis = fit_composite(records, basis.effects, n_ops, basis.theta)
     out = diagnose(records, basis.effects, n_ops, model=basis)
     name_failing_blocks(out["failures"], records)
-    if stands_in:   # a paper's model: say which model the figures are of, beside the stored one's own
+    if stands_in:  # a paper's model: say which model the figures are of, beside the stored one's own
         out["diagnosed_as"] = (
             f"the composite {' + '.join(out['effects'])} fitted on the same data, standing for this "
             f"{row['kind']} (held-out {out['residual_rms_um'] * 1e3:.4g} nm; the {row['kind']}'s own "
             f"{(row.get('metrics') or {}).get('validation_rms_um', float('nan')) * 1e3:.4g} nm): its play "
-            "operators are fitted jointly with the effects, so a refine or a discover step starts from it")
+            "operators are fitted jointly with the effects, so a refine or a discover step starts from it"
+        )
     imported = imported_datasets(store, datasets)
-    out.update({"model_id": model_id, "datasets": datasets, "axis": row["axis"],
-                "experiments_run_here": not imported,
-                "experiments_note": None if not imported else (
-                    f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: recorded on another "
-                    "stage, whose experiments this bench cannot run (a different stack behind a different amplifier). "
-                    "Run the experiment on that stage, over the range it names, and import the result")})
+    out.update(
+        {
+            "model_id": model_id,
+            "datasets": datasets,
+            "axis": row["axis"],
+            "experiments_run_here": not imported,
+            "experiments_note": None
+            if not imported
+            else (
+                f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: recorded on another "
+                "stage, whose experiments this bench cannot run (a different stack behind a different amplifier). "
+                "Run the experiment on that stage, over the range it names, and import the result"
+            ),
+        }
+    )
     if out.get("ambiguity"):
-        out["ambiguity"]["then"] = (f"POST /api/sweeps with the experiment body, then GET /api/models/{model_id}"
-                                    "/diagnosis?extra_datasets=<dataset_id> or refine with added datasets")
+        out["ambiguity"]["then"] = (
+            f"POST /api/sweeps with the experiment body, then GET /api/models/{model_id}"
+            "/diagnosis?extra_datasets=<dataset_id> or refine with added datasets"
+        )
     out.pop("metrics", None)
     return out
 
@@ -134,26 +149,46 @@ def history(store: Store, model_id: str) -> list[dict]:
             added = [e for e in effects if e not in prev]
             removed = [e for e in prev if e not in effects]
             data = [d for d in r["datasets"] if d not in prev_data]
-            change = (", ".join([f"+{e}" for e in added] + [f"-{e}" for e in removed] + [f"+data {d}" for d in data])
-                      + (" (held-out RMS over more data)" if data else "")) or "refit"
-        out.append({"model_id": r["id"], "parent_id": r["parent_id"], "effects": ["hysteresis"] + effects,
-                    "change": change, "datasets": list(r["datasets"]), "train_rms_um": r["metrics"].get("train_rms_um"),
-                    "validation_rms_um": r["metrics"].get("validation_rms_um"), "created_at": r["created_at"]})
+            change = (
+                ", ".join([f"+{e}" for e in added] + [f"-{e}" for e in removed] + [f"+data {d}" for d in data])
+                + (" (held-out RMS over more data)" if data else "")
+            ) or "refit"
+        out.append(
+            {
+                "model_id": r["id"],
+                "parent_id": r["parent_id"],
+                "effects": ["hysteresis"] + effects,
+                "change": change,
+                "datasets": list(r["datasets"]),
+                "train_rms_um": r["metrics"].get("train_rms_um"),
+                "validation_rms_um": r["metrics"].get("validation_rms_um"),
+                "created_at": r["created_at"],
+            }
+        )
         prev, prev_data = effects, list(r["datasets"])
     return out
 
 
-def refine_params(store: Store, model_id: str, add: str | None, remove: str | None, effects: list[str] | None,
-                  datasets: list[str]) -> dict:
+def refine_params(
+    store: Store, model_id: str, add: str | None, remove: str | None, effects: list[str] | None, datasets: list[str]
+) -> dict:
     """The identification a refine request asks for: the stored model's axis, datasets (plus
     ``datasets``) and operators, with the effect set changed; ``parent_id`` is ``model_id``.
     FieldError names ``add``, ``remove``, ``effects`` or ``datasets`` at fault."""
     row = store.get_model(model_id)
     chosen = ["hysteresis"] + refined_effects(row, add, remove, effects)
-    require_fit_memory(store, list(row["datasets"]) + [d for d in datasets or [] if d not in row["datasets"]],
-                       field="datasets" if datasets else "model_id")   # before any array is read
+    require_fit_memory(
+        store,
+        list(row["datasets"]) + [d for d in datasets or [] if d not in row["datasets"]],
+        field="datasets" if datasets else "model_id",
+    )  # before any array is read
     if datasets:
         load_records(store, datasets, row["axis"])  # FieldError naming datasets
-    return {"axis": row["axis"], "datasets": list(row["datasets"]) + [d for d in datasets if d not in row["datasets"]],
-            "effects": chosen, "model": "composite", "n_operators": int(row["options"].get("n_operators", 10)),
-            "parent_id": model_id}
+    return {
+        "axis": row["axis"],
+        "datasets": list(row["datasets"]) + [d for d in datasets if d not in row["datasets"]],
+        "effects": chosen,
+        "model": "composite",
+        "n_operators": int(row["options"].get("n_operators", 10)),
+        "parent_id": model_id,
+    }

@@ -6,10 +6,12 @@ queued; ``identify`` is the job body for every model kind (service.science.model
 ``compare`` predicts a stored dataset with a stored model. No branch on the model kind: the
 models' contract (service.science.models.contract) does the rest.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
+from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.datasets import stored_sample_rate_hz
 from service.science.data.export import json_stride
 from service.science.data.record import Record
@@ -22,10 +24,9 @@ from service.science.fitting.memory import memory_shortfall
 from service.science.fitting.validation import evaluate_record, split_blocks, trained_loops_v
 from service.science.fitting.validation import metrics as sample_metrics
 from service.science.models.registry import MODELS, model_for, model_from_dict
-from service.runtime.jobs import JobContext, JobInterrupted
 from service.store import NotFoundError, Store
 
-#: Effect names the identification accepts (DESIGN §5, plus the ``operators`` capacity candidate).
+#: Effect names the identification accepts (the identification's effects, plus the ``operators`` capacity candidate).
 EFFECTS_AVAILABLE = EFFECT_NAMES
 
 
@@ -70,8 +71,7 @@ def load_model(row: dict):
     return model_from_dict(row["parameters"])
 
 
-def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None = None,
-            arrays: bool = True) -> dict:
+def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:
     """Measured, predicted and residual displacement (µm) of a stored dataset, with metrics.
 
     Blocks of a dataset the model was fitted on report train and held-out figures; for any
@@ -93,19 +93,34 @@ def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None
     figures = evaluate_record(record.x_um, predicted, splits, trained=used)
     in_blocks = np.zeros(record.n_samples, dtype=bool)
     for s in splits:
-        in_blocks[s.train[0]:s.held_out[1]] = True
+        in_blocks[s.train[0] : s.held_out[1]] = True
     stride = json_stride(record.n_samples, max_points)
-    signals = {} if not arrays else {
-        "t_s": (np.arange(0, record.n_samples, stride) / row["sample_rate_hz"]).tolist(),
-        "u_v": record.u_v[::stride].tolist(), "x_measured_um": record.x_um[::stride].tolist(),
-        "x_predicted_um": predicted[::stride].tolist(),
-        "residual_um": (record.x_um - predicted)[::stride].tolist()}
+    signals = (
+        {}
+        if not arrays
+        else {
+            "t_s": (np.arange(0, record.n_samples, stride) / row["sample_rate_hz"]).tolist(),
+            "u_v": record.u_v[::stride].tolist(),
+            "x_measured_um": record.x_um[::stride].tolist(),
+            "x_predicted_um": predicted[::stride].tolist(),
+            "residual_um": (record.x_um - predicted)[::stride].tolist(),
+        }
+    )
     return {
-        "model_id": model_id, "dataset_id": dataset_id, "axis": axis, "used_in_fit": used,
-        "sample_rate_hz": row["sample_rate_hz"], "samples": record.n_samples, "stride": stride, **signals,
-        "metrics": {"overall": sample_metrics(record.x_um[in_blocks], predicted[in_blocks]),
-                    "train_rms_um": figures["train_rms_um"], "validation_rms_um": figures["validation_rms_um"],
-                    "per_block": figures["blocks"]},
+        "model_id": model_id,
+        "dataset_id": dataset_id,
+        "axis": axis,
+        "used_in_fit": used,
+        "sample_rate_hz": row["sample_rate_hz"],
+        "samples": record.n_samples,
+        "stride": stride,
+        **signals,
+        "metrics": {
+            "overall": sample_metrics(record.x_um[in_blocks], predicted[in_blocks]),
+            "train_rms_um": figures["train_rms_um"],
+            "validation_rms_um": figures["validation_rms_um"],
+            "per_block": figures["blocks"],
+        },
     }
 
 
@@ -115,8 +130,11 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
         raise FieldError("model", f"unknown model {model!r}; use one of {', '.join(MODELS)}")
     unknown = [e for e in effects if e not in EFFECTS_AVAILABLE]
     if unknown or "hysteresis" not in effects:
-        raise FieldError("effects", f"{', '.join(map(repr, unknown)) or 'an empty list'} is not available: "
-                         f"use {', '.join(map(repr, EFFECTS_AVAILABLE))}, and 'hysteresis' is required")
+        raise FieldError(
+            "effects",
+            f"{', '.join(map(repr, unknown)) or 'an empty list'} is not available: "
+            f"use {', '.join(map(repr, EFFECTS_AVAILABLE))}, and 'hysteresis' is required",
+        )
     try:
         model_for(model, effects)
     except ValueError as exc:
@@ -132,15 +150,27 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
             raise FieldError("datasets", f"no dataset with id {dataset_id!r}") from None
         if axis in row["axes"] and not split_blocks(row["blocks"], row["samples"], row["sample_rate_hz"], axis):
             raise FieldError("datasets", f"dataset {dataset_id} has no block that drives axis {axis}")
-        record = load_record(store, dataset_id, axis, row=row)          # FieldError if unusable
+        record = load_record(store, dataset_id, axis, row=row)  # FieldError if unusable
         training_samples += int(record.training_mask(own_axis_only=True).sum())
     if training_samples == 0:
-        raise FieldError("datasets", "no training data: every block is too short to hold out its last "
-                                     "cycle and keep one for the fit (sweep at least 2 cycles)")
+        raise FieldError(
+            "datasets",
+            "no training data: every block is too short to hold out its last "
+            "cycle and keep one for the fit (sweep at least 2 cycles)",
+        )
 
 
-def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effects: list[str],
-             model: str, n_operators: int, parent_id: str | None = None, name: str | None = None) -> dict:
+def identify(
+    ctx: JobContext,
+    store: Store,
+    axis: str,
+    datasets: list[str],
+    effects: list[str],
+    model: str,
+    n_operators: int,
+    parent_id: str | None = None,
+    name: str | None = None,
+) -> dict:
     """Job body: build the model the request names (``parent_id``: the stored model it refines), fit
     it on the training cycles of every dataset, validate on the held-out ones, store it (labelled
     ``name``, if given) and return
@@ -150,22 +180,49 @@ def identify(ctx: JobContext, store: Store, axis: str, datasets: list[str], effe
     parent = load_model(store.get_model(parent_id)) if parent_id else None
     estimator = model_for(model, effects, n_operators, parent)
     effects = ["hysteresis"] + ordered(effects)
-    ctx.progress(0.1, f"fitting {estimator.name} ({' + '.join(effects)}) on "
-                      f"{sum(int(r.training_mask(own_axis_only=True).sum()) for r in records)} training samples")
-    with shared_effect_columns():        # the fit, and validation's refits and predictions, share columns
+    ctx.progress(
+        0.1,
+        f"fitting {estimator.name} ({' + '.join(effects)}) on "
+        f"{sum(int(r.training_mask(own_axis_only=True).sum()) for r in records)} training samples",
+    )
+    with shared_effect_columns():  # the fit, and validation's refits and predictions, share columns
         estimator.fit(records)
         if ctx.cancelled:
             raise JobInterrupted("cancelled before the model was stored")
         ctx.progress(0.8, "validating on held-out cycles")
-        row = store_model(store, estimator, records, axis, datasets, effects, n_operators, parent_id, ctx.job_id,
-                          {"name": name} if name else None)
+        row = store_model(
+            store,
+            estimator,
+            records,
+            axis,
+            datasets,
+            effects,
+            n_operators,
+            parent_id,
+            ctx.job_id,
+            {"name": name} if name else None,
+        )
     metrics = row["metrics"]
-    return {"model_id": row["id"], "train_rms_um": metrics["train_rms_um"],
-            "validation_rms_um": metrics["validation_rms_um"], "effects": effects}
+    return {
+        "model_id": row["id"],
+        "train_rms_um": metrics["train_rms_um"],
+        "validation_rms_um": metrics["validation_rms_um"],
+        "effects": effects,
+    }
 
 
-def store_model(store: Store, estimator, records: list[Record], axis: str, datasets: list[str], effects: list[str],
-                n_operators: int, parent_id: str | None, job_id: str | None, labels: dict | None = None) -> dict:
+def store_model(
+    store: Store,
+    estimator,
+    records: list[Record],
+    axis: str,
+    datasets: list[str],
+    effects: list[str],
+    n_operators: int,
+    parent_id: str | None,
+    job_id: str | None,
+    labels: dict | None = None,
+) -> dict:
     """Validate a fitted model on the held-out cycles of ``records`` (train/held-out RMS in µm) and
     store it (``parent_id``: the model it refines; ``labels``: more fields of the row, such as its
     bench and tags); the stored row."""
@@ -175,6 +232,17 @@ def store_model(store: Store, estimator, records: list[Record], axis: str, datas
     metrics["noise_floor_um"] = noise_floor(records, [r.x_um - estimator.predict(r) for r in records])["noise_floor_um"]
     # the loops it was trained on: a trajectory checks its own against them without reading the data
     metrics["trained_loops_v"] = trained_loops_v(records)
-    return store.add_model({**(labels or {}), "axis": axis, "kind": estimator.name, "effects": effects,
-                            "parent_id": parent_id, "datasets": datasets, "options": {"n_operators": n_operators},
-                            "parameters": estimator.to_dict(), "metrics": metrics, "job_id": job_id})
+    return store.add_model(
+        {
+            **(labels or {}),
+            "axis": axis,
+            "kind": estimator.name,
+            "effects": effects,
+            "parent_id": parent_id,
+            "datasets": datasets,
+            "options": {"n_operators": n_operators},
+            "parameters": estimator.to_dict(),
+            "metrics": metrics,
+            "job_id": job_id,
+        }
+    )

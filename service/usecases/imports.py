@@ -4,6 +4,7 @@ Measured data is not a command: any drive range is accepted and kept as ``drive_
 units converted and values implausible for a piezo stage are kept as the plan's ``notes``. A
 refused file (FieldError naming the field or column) stores nothing.
 """
+
 from __future__ import annotations
 
 from typing import BinaryIO
@@ -19,9 +20,20 @@ def import_table(store: Store, handle: BinaryIO, name: str, options: dict) -> Da
     axis, sample_rate_hz, delimiter), find its blocks and store it; returns the dataset row.
     Blocking: run it off the event loop."""
     handle.seek(0)
-    table = parse_table(handle, columns=options["columns"], axis=options["axis"],
-                        sample_rate_hz=options["sample_rate_hz"], delimiter=options["delimiter"])
+    table = parse_table(
+        handle,
+        columns=options["columns"],
+        axis=options["axis"],
+        sample_rate_hz=options["sample_rate_hz"],
+        delimiter=options["delimiter"],
+    )
     blocks = blocks_without_table({a: table.arrays[f"u_{a}_v"] for a in table.axes}, table.sample_rate_hz)
-    meta = {"name": name, "source": "import", "axes": table.axes, "sample_rate_hz": table.sample_rate_hz,
-            "blocks": blocks, "plan": {"import": options, "drive_range_v": table.drive_range_v, "notes": table.notes}}
+    meta = {
+        "name": name,
+        "source": "import",
+        "axes": table.axes,
+        "sample_rate_hz": table.sample_rate_hz,
+        "blocks": blocks,
+        "plan": {"import": options, "drive_range_v": table.drive_range_v, "notes": table.notes},
+    }
     return Recorder(store, meta).keep(table.arrays)

@@ -2,9 +2,10 @@
 and one axis's latest models compared across benches (effects, held-out RMS, noise floor, and the
 physical parameters discovery fitted: resonance, creep, delay, drift, coupling). Reads the store
 only: an offline bench's models are compared like any other."""
+
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 from service.runtime.heartbeat import OFFLINE_AFTER_HEARTBEATS, age_s, is_online
 from service.science.discovery.parameters import physical_parameters
@@ -19,7 +20,7 @@ def benches(store: Store) -> dict:
     """``{"benches": [...], "offline_after_heartbeats", "this_bench_id"}``: each bench's row (no
     config snapshot) with ``online``, ``heartbeat_age_s``, ``datasets`` (how many it holds) and
     ``latest_models`` ``{axis: summary | None}``."""
-    now = datetime.now(timezone.utc)
+    now = datetime.now(UTC)
     latest: dict[tuple[str, str], dict] = {(m["bench_id"], m["axis"]): m for m in latest_models(store.engine)}
     counts = dataset_counts(store.engine)
     out = []
@@ -35,7 +36,7 @@ def compare(store: Store, axis: str) -> dict:
     """Per registered bench, its newest model of ``axis`` (None if it has none): the summary plus
     ``parameters`` ``{effect: {name_unit: value}}`` (service.science.discovery.parameters) and
     ``parameter_names``, the union over benches (``effect.name``), in a stable order."""
-    now = datetime.now(timezone.utc)
+    now = datetime.now(UTC)
     latest = {m["bench_id"]: m for m in latest_models(store.engine, axis=axis, parameters=True)}
     rows, names = [], {}
     for row in store.benches.list():
@@ -73,8 +74,18 @@ def noise_floor_um(store: Store, model_row: dict) -> float | None:
 
 
 def _bench_summary(row: dict, now: datetime) -> dict:
-    keys = ("id", "name", "bench", "url", "state", "running_job_id", "started_at", "heartbeat_at", "heartbeat_s",
-            "software_version")
+    keys = (
+        "id",
+        "name",
+        "bench",
+        "url",
+        "state",
+        "running_job_id",
+        "started_at",
+        "heartbeat_at",
+        "heartbeat_s",
+        "software_version",
+    )
     return {**{k: row[k] for k in keys}, "online": is_online(row, now), "heartbeat_age_s": round(age_s(row, now), 3)}
 
 
@@ -82,6 +93,12 @@ def _model_summary(store: Store, model: dict | None) -> dict | None:
     if model is None:
         return None
     metrics = model.get("metrics") or {}
-    return {"id": model["id"], "kind": model["kind"], "effects": model["effects"],
-            "validation_rms_um": metrics.get("validation_rms_um"), "train_rms_um": metrics.get("train_rms_um"),
-            "noise_floor_um": noise_floor_um(store, model), "created_at": model["created_at"]}
+    return {
+        "id": model["id"],
+        "kind": model["kind"],
+        "effects": model["effects"],
+        "validation_rms_um": metrics.get("validation_rms_um"),
+        "train_rms_um": metrics.get("train_rms_um"),
+        "noise_floor_um": noise_floor_um(store, model),
+        "created_at": model["created_at"],
+    }

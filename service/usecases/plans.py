@@ -12,6 +12,7 @@ Axes run ``together`` (the same waveform on every axis at once) or one after the
 others held at 0 V. Samples outside every block (ramps, settling) belong to no block.
 No HTTP and no store here.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,7 +26,7 @@ from service.science.errors import FieldError
 
 WAVEFORMS = ("sine", "step", "chirp", "multisine")
 MAX_SAMPLES = 20_000_000  # 1000 s at 20 kHz: about 0.5 GB of float64 while running
-MAX_CLOCK_DIVISOR = 2 ** 32  # a 32-bit counter divides the DAQ timebase into the sample clock
+MAX_CLOCK_DIVISOR = 2**32  # a 32-bit counter divides the DAQ timebase into the sample clock
 MIN_SAMPLES_PER_CYCLE = 20  # fewer cannot resolve a hysteresis loop (as service.science.models requires)
 
 
@@ -79,8 +80,12 @@ class MultisinePlan(PlanBase):
     waveform = "multisine"
 
 
-PLAN_TYPES: dict[str, type[PlanBase]] = {"sine": SinePlan, "step": StepPlan, "chirp": ChirpPlan,
-                                         "multisine": MultisinePlan}
+PLAN_TYPES: dict[str, type[PlanBase]] = {
+    "sine": SinePlan,
+    "step": StepPlan,
+    "chirp": ChirpPlan,
+    "multisine": MultisinePlan,
+}
 
 
 def plan_from_dict(values: dict) -> PlanBase:
@@ -90,8 +95,7 @@ def plan_from_dict(values: dict) -> PlanBase:
         raise PlanError("waveform", f"unknown waveform {waveform!r}; use one of {', '.join(WAVEFORMS)}")
     cls = PLAN_TYPES[waveform]
     known = set(cls.__dataclass_fields__)
-    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items()
-              if k in known and v is not None}
+    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items() if k in known and v is not None}
     return cls(**kwargs)
 
 
@@ -118,12 +122,18 @@ def check_sample_rate(sample_rate_hz: float, timebase_hz: float = 100e6) -> floa
         raise PlanError("sample_rate_hz", "must be a positive number of hertz")
     divisor = timebase_hz / sample_rate_hz
     if not divisor <= MAX_CLOCK_DIVISOR:
-        raise PlanError("sample_rate_hz", f"{sample_rate_hz:g} Hz is below the slowest clock the "
-                        f"{timebase_hz / 1e6:g} MHz timebase can make ({timebase_hz / MAX_CLOCK_DIVISOR:.3g} Hz)")
+        raise PlanError(
+            "sample_rate_hz",
+            f"{sample_rate_hz:g} Hz is below the slowest clock the "
+            f"{timebase_hz / 1e6:g} MHz timebase can make ({timebase_hz / MAX_CLOCK_DIVISOR:.3g} Hz)",
+        )
     if abs(divisor - round(divisor)) > 1e-9 * divisor or round(divisor) < 1:
         low, high = timebase_hz / math.ceil(divisor), timebase_hz / max(math.floor(divisor), 1)
-        raise PlanError("sample_rate_hz", f"{sample_rate_hz:g} Hz is not a divisor of the "
-                        f"{timebase_hz / 1e6:g} MHz timebase; nearest rates are {low:.6g} and {high:.6g} Hz")
+        raise PlanError(
+            "sample_rate_hz",
+            f"{sample_rate_hz:g} Hz is not a divisor of the "
+            f"{timebase_hz / 1e6:g} MHz timebase; nearest rates are {low:.6g} and {high:.6g} Hz",
+        )
     return float(sample_rate_hz)
 
 
@@ -134,10 +144,17 @@ def build(plan: PlanBase, max_rate_v_per_s: float) -> PlannedSweep:
         raise PlanError("v_max", f"v_max ({plan.v_max:g} V) must exceed v_min ({plan.v_min:g} V)")
     estimate = _planned_seconds(plan) * fs * (1 if plan.together else len(plan.axes))
     if not estimate <= MAX_SAMPLES:  # refuse before allocating anything (also catches inf and NaN)
-        raise PlanError(_length_field(plan), f"the plan lasts about {estimate / fs:.3g} s ({estimate:.3g} samples); "
-                        f"the limit is {MAX_SAMPLES} samples ({MAX_SAMPLES / fs:.0f} s at {fs:g} Hz)")
-    segment_of = {"sine": _sine_segments, "step": _step_segments, "chirp": _chirp_segments,
-                  "multisine": _multisine_segments}[plan.waveform]
+        raise PlanError(
+            _length_field(plan),
+            f"the plan lasts about {estimate / fs:.3g} s ({estimate:.3g} samples); "
+            f"the limit is {MAX_SAMPLES} samples ({MAX_SAMPLES / fs:.0f} s at {fs:g} Hz)",
+        )
+    segment_of = {
+        "sine": _sine_segments,
+        "step": _step_segments,
+        "chirp": _chirp_segments,
+        "multisine": _multisine_segments,
+    }[plan.waveform]
     pieces, blocks = segment_of(plan, fs, max_rate_v_per_s)
     one_axis = _assemble(pieces)
     axes = tuple(plan.axes)
@@ -151,16 +168,20 @@ def build(plan: PlanBase, max_rate_v_per_s: float) -> PlannedSweep:
         u_v = {axis: np.zeros(n * len(axes)) for axis in axes}
         all_blocks = []
         for k, axis in enumerate(axes):
-            u_v[axis][k * n:(k + 1) * n] = one_axis
+            u_v[axis][k * n : (k + 1) * n] = one_axis
             for block in blocks:
-                all_blocks.append({**block, "start": block["start"] + k * n, "stop": block["stop"] + k * n,
-                                   "axes": [axis]})
+                all_blocks.append(
+                    {**block, "start": block["start"] + k * n, "stop": block["stop"] + k * n, "axes": [axis]}
+                )
     for index, block in enumerate(all_blocks):
         block["index"] = index
     planned = PlannedSweep(fs, u_v, all_blocks)
     if planned.samples > MAX_SAMPLES:
-        raise PlanError(_length_field(plan), f"the plan lasts {planned.duration_s:.0f} s "
-                        f"({planned.samples} samples); the limit is {MAX_SAMPLES} samples")
+        raise PlanError(
+            _length_field(plan),
+            f"the plan lasts {planned.duration_s:.0f} s "
+            f"({planned.samples} samples); the limit is {MAX_SAMPLES} samples",
+        )
     return planned
 
 
@@ -187,14 +208,20 @@ def plan_for_bench(plan: PlanBase, bench: Bench) -> PlannedSweep:
     caps = bench.parts.daq.capabilities
     check_sample_rate(plan.sample_rate_hz, caps.timebase_hz)
     if plan.sample_rate_hz > caps.max_sample_rate_hz:
-        raise PlanError("sample_rate_hz", f"{plan.sample_rate_hz:g} Hz is above the DAQ's "
-                        f"{caps.max_sample_rate_hz:g} Hz")
+        raise PlanError(
+            "sample_rate_hz", f"{plan.sample_rate_hz:g} Hz is above the DAQ's {caps.max_sample_rate_hz:g} Hz"
+        )
     fastest = max(_checked_frequencies(plan) + list(getattr(plan, "frequencies_hz", ())), default=0.0)
     if fastest and plan.sample_rate_hz < MIN_SAMPLES_PER_CYCLE * fastest:
-        raise PlanError("sample_rate_hz", f"{plan.sample_rate_hz:g} Hz gives fewer than {MIN_SAMPLES_PER_CYCLE} "
-                        f"samples per cycle at {fastest:g} Hz; a loop needs at least that many")
-    max_rate = min(min(bench.limits[a].slew_limit_v_per_s,
-                       bench.limits[a].current_limit_a / bench.limits[a].capacitance_f) for a in plan.axes)
+        raise PlanError(
+            "sample_rate_hz",
+            f"{plan.sample_rate_hz:g} Hz gives fewer than {MIN_SAMPLES_PER_CYCLE} "
+            f"samples per cycle at {fastest:g} Hz; a loop needs at least that many",
+        )
+    max_rate = min(
+        min(bench.limits[a].slew_limit_v_per_s, bench.limits[a].current_limit_a / bench.limits[a].capacitance_f)
+        for a in plan.axes
+    )
     planned = build(plan, max_rate)
     try:
         bench.check_waveform(planned.u_v, planned.sample_rate_hz)
@@ -242,15 +269,18 @@ def _step_segments(plan: StepPlan, fs: float, max_rate: float):
     levels = plan.levels_v or (plan.v_max,)
     for level in levels:
         if not plan.v_min <= level <= plan.v_max:
-            raise PlanError("levels_v", f"level {level:g} V is outside v_min..v_max "
-                            f"({plan.v_min:g}–{plan.v_max:g} V)")
+            raise PlanError("levels_v", f"level {level:g} V is outside v_min..v_max ({plan.v_min:g}–{plan.v_max:g} V)")
     if plan.hold_s <= 0:
         raise PlanError("hold_s", "must be positive")
     pieces, blocks = _lead_in(plan, fs, max_rate)
     hold = _n(plan.hold_s, fs)
     for level in levels:
-        body = [_ramp(plan.v_min, level, fs, max_rate, fast=True), np.full(hold, float(level)),
-                _ramp(level, plan.v_min, fs, max_rate, fast=True), np.full(hold, plan.v_min)]
+        body = [
+            _ramp(plan.v_min, level, fs, max_rate, fast=True),
+            np.full(hold, float(level)),
+            _ramp(level, plan.v_min, fs, max_rate, fast=True),
+            np.full(hold, plan.v_min),
+        ]
         n = sum(len(p) for p in body)
         blocks.append({**_block(pieces, n, "step", None, None), "level_v": float(level)})
         pieces.extend(body)
@@ -270,7 +300,7 @@ def _chirp_segments(plan: ChirpPlan, fs: float, max_rate: float):
     duration = cycles / ((f0 + f1) / 2)
     n = int(round(duration * fs))
     t = np.arange(n) / fs
-    phase = 2 * np.pi * (f0 * t + (f1 - f0) * t ** 2 / (2 * duration))
+    phase = 2 * np.pi * (f0 * t + (f1 - f0) * t**2 / (2 * duration))
     pieces, blocks = _lead_in(plan, fs, max_rate)
     blocks.append({**_block(pieces, n, "chirp", None, cycles), "f_start_hz": f0, "f_stop_hz": f1})
     pieces.append(plan.v_min + (plan.v_max - plan.v_min) * (1 - np.cos(phase)) / 2)
@@ -286,8 +316,11 @@ def _multisine_segments(plan: MultisinePlan, fs: float, max_rate: float):
     base = freqs[0]
     harmonics = [f / base for f in freqs]
     if any(abs(h - round(h)) > 1e-6 for h in harmonics):
-        raise PlanError("frequencies_hz", f"multisine frequencies must be integer multiples of the "
-                        f"lowest ({base:g} Hz) so that the signal is periodic")
+        raise PlanError(
+            "frequencies_hz",
+            f"multisine frequencies must be integer multiples of the "
+            f"lowest ({base:g} Hz) so that the signal is periodic",
+        )
     if plan.cycles < 1:
         raise PlanError("cycles", "must be at least 1")
     period_n = int(round(fs / base))
@@ -313,8 +346,14 @@ def _lead_in(plan: PlanBase, fs: float, max_rate: float):
 
 def _block(pieces: list[np.ndarray], n: int, kind: str, frequency_hz, cycles) -> dict:
     start = sum(len(p) for p in pieces)
-    return {"index": 0, "start": start, "stop": start + n, "kind": kind, "cycles": cycles,
-            "frequency_hz": None if frequency_hz is None else float(frequency_hz)}
+    return {
+        "index": 0,
+        "start": start,
+        "stop": start + n,
+        "kind": kind,
+        "cycles": cycles,
+        "frequency_hz": None if frequency_hz is None else float(frequency_hz),
+    }
 
 
 def _ramp(v0: float, v1: float, fs: float, max_rate: float, fast: bool = False) -> np.ndarray:
@@ -365,7 +404,8 @@ def _checked_frequencies(plan: PlanBase) -> list[float]:
 
 def _frequency_field(plan: PlanBase) -> str:
     return {"sine": "frequencies_hz", "multisine": "frequencies_hz", "chirp": "f_stop_hz"}.get(
-        plan.waveform, "levels_v")
+        plan.waveform, "levels_v"
+    )
 
 
 def _length_field(plan: PlanBase) -> str:

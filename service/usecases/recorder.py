@@ -14,10 +14,11 @@ the recorder keeps what they measured:
 
 The chunks are removed once the dataset is stored, or when nothing is to be kept.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable, Mapping
 
 import numpy as np
 
@@ -41,10 +42,13 @@ class Stop:
 
 def bench_snapshot(bench: Bench) -> dict:
     """The full configuration of the bench: backend, every driver/emulator parameter, limits."""
-    return {"backend": bench.parts.backend, "parameters": bench.parts.config,
-            "limits": {axis: lim.as_dict() for axis, lim in bench.limits.items()},
-            "amplifier_gain_v_per_v": {a: amp.gain_v_per_v for a, amp in bench.parts.amplifiers.items()},
-            "sensor_scale_um_per_v": {a: s.scale_um_per_v for a, s in bench.parts.sensors.items()}}
+    return {
+        "backend": bench.parts.backend,
+        "parameters": bench.parts.config,
+        "limits": {axis: lim.as_dict() for axis, lim in bench.limits.items()},
+        "amplifier_gain_v_per_v": {a: amp.gain_v_per_v for a, amp in bench.parts.amplifiers.items()},
+        "sensor_scale_um_per_v": {a: s.scale_um_per_v for a, s in bench.parts.sensors.items()},
+    }
 
 
 def record_arrays(record: BenchRecord, start: int = 0) -> dict[str, np.ndarray]:
@@ -76,7 +80,7 @@ class Recorder:
             self.meta.update(job_id=ctx.job_id, started_at=utc_now())
             self._chunks = ChunkWriter(store.data_dir, ctx.job_id, self.meta)
 
-    def __enter__(self) -> "Recorder":
+    def __enter__(self) -> Recorder:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -96,11 +100,17 @@ class Recorder:
         """True once the job was cancelled (the bench then stops at its next block or period)."""
         return self.ctx is not None and self.ctx.cancelled
 
-    def run(self, bench: Bench, u_v: Mapping[str, np.ndarray], sample_rate_hz: float,
-            progress: Callable[[float], None] | None = None) -> tuple[BenchRecord, Stop | None]:
+    def run(
+        self,
+        bench: Bench,
+        u_v: Mapping[str, np.ndarray],
+        sample_rate_hz: float,
+        progress: Callable[[float], None] | None = None,
+    ) -> tuple[BenchRecord, Stop | None]:
         """``bench.run`` a buffered waveform (volts at the actuator, hertz), each block's new rows
         appended and ``progress(fraction done)`` called; returns the record (so far, on a stop) and
         the Stop, None if it ran to the end."""
+
         def on_block(record: BenchRecord, fraction: float) -> None:
             self.append(record_arrays(record, start=self.rows_seen))  # the new rows only
             if progress is not None:
@@ -121,17 +131,24 @@ class Recorder:
     def keep(self, arrays: Mapping[str, np.ndarray], stop: Stop | None = None, **meta) -> DatasetRow:
         """Store ``arrays`` as the dataset (``meta`` overrides what was known at the start), partial
         with ``stop.reason`` when the run stopped early; the chunks are removed. Returns the row."""
-        final = {**self.meta, **meta, "units": units_for(arrays), "partial": stop is not None,
-                 "partial_reason": None if stop is None else stop.reason}
+        final = {
+            **self.meta,
+            **meta,
+            "units": units_for(arrays),
+            "partial": stop is not None,
+            "partial_reason": None if stop is None else stop.reason,
+        }
         if self.ctx is not None:
             final["finished_at"] = utc_now()
-        try:   # a measurement is kept (in the outbox) if the shared array location is down; an import is not
+        try:  # a measurement is kept (in the outbox) if the shared array location is down; an import is not
             row = self.store.add_dataset(dict(arrays), final, keep_if_unreachable=self.ctx is not None)
         finally:
             self.close()
         if placement.pending(row["file"]):
-            self._pending = (f"the arrays wait on this service's disk ({row['file']}) for the shared array store "
-                             f"{self.store.array_url}, which did not answer; they are uploaded when it does")
+            self._pending = (
+                f"the arrays wait on this service's disk ({row['file']}) for the shared array store "
+                f"{self.store.array_url}, which did not answer; they are uploaded when it does"
+            )
         return row
 
     def end(self, row: DatasetRow, result: dict, stop: Stop | None) -> dict:
@@ -141,8 +158,11 @@ class Recorder:
             result["warnings"] = result.get("warnings", []) + self.warnings()
         if stop is None:
             return result
-        raise JobInterrupted(f"{stop.message or stop.reason}: {row['samples']} samples kept as partial dataset "
-                             f"{row['id']}", result, cancelled=stop.cancelled)
+        raise JobInterrupted(
+            f"{stop.message or stop.reason}: {row['samples']} samples kept as partial dataset {row['id']}",
+            result,
+            cancelled=stop.cancelled,
+        )
 
     @staticmethod
     def nothing_kept(message: str, cancelled: bool) -> JobInterrupted:

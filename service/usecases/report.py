@@ -3,6 +3,7 @@
 The model's datasets are read once: the same records feed the diagnosis and the per-block
 figures, and of each record only its blocks' held-out cycles, decimated, are kept for the page.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,8 +18,20 @@ from service.usecases.discover import block_title, diagnose_model, history
 from service.usecases.identify import load_model, load_records, require_fit_memory
 
 #: dataset row fields the report shows
-DATASET_FIELDS = ("id", "name", "source", "axes", "samples", "sample_rate_hz", "blocks", "plan", "partial",
-                  "partial_reason", "tags", "notes")
+DATASET_FIELDS = (
+    "id",
+    "name",
+    "source",
+    "axes",
+    "samples",
+    "sample_rate_hz",
+    "blocks",
+    "plan",
+    "partial",
+    "partial_reason",
+    "tags",
+    "notes",
+)
 
 
 def block_curves(record: Record, predicted, dataset_id: str) -> list[BlockCurves]:
@@ -32,12 +45,20 @@ def block_curves(record: Record, predicted, dataset_id: str) -> list[BlockCurves
         keep = decimate(b - a)
         x, p, u = record.x_um[a:b], predicted[a:b], record.u_v[a:b]
         train = slice(*s.train)
-        out.append(BlockCurves(
-            title=block_title(record.axis or "y", s, record.sample_rate_hz), dataset_id=dataset_id,
-            block_index=s.block.get("index"), frequency_hz=s.block.get("frequency_hz"),
-            t_s=np.arange(b - a)[keep] / record.sample_rate_hz,
-            u_v=u[keep].copy(), x_um=x[keep].copy(), x_model_um=p[keep].copy(), held_out_rms_um=rms(x - p),
-            train_rms_um=rms(record.x_um[train] - predicted[train]) if s.train[1] > s.train[0] else None))
+        out.append(
+            BlockCurves(
+                title=block_title(record.axis or "y", s, record.sample_rate_hz),
+                dataset_id=dataset_id,
+                block_index=s.block.get("index"),
+                frequency_hz=s.block.get("frequency_hz"),
+                t_s=np.arange(b - a)[keep] / record.sample_rate_hz,
+                u_v=u[keep].copy(),
+                x_um=x[keep].copy(),
+                x_model_um=p[keep].copy(),
+                held_out_rms_um=rms(x - p),
+                train_rms_um=rms(record.x_um[train] - predicted[train]) if s.train[1] > s.train[0] else None,
+            )
+        )
     return out
 
 
@@ -54,9 +75,15 @@ def _gather(store: Store, model_id: str) -> dict:
     blocks = []
     for i, (dataset_id, record) in enumerate(zip(row["datasets"], records)):
         blocks += block_curves(record, model.predict(record), dataset_id)
-        records[i] = None          # this record's arrays are no longer needed
-    return {"row": row, "steps": steps, "dataset_rows": dataset_rows, "diagnosis": diagnosis, "model": model,
-            "blocks": blocks}
+        records[i] = None  # this record's arrays are no longer needed
+    return {
+        "row": row,
+        "steps": steps,
+        "dataset_rows": dataset_rows,
+        "diagnosis": diagnosis,
+        "model": model,
+        "blocks": blocks,
+    }
 
 
 def worst_block(diagnosis: dict, blocks: list[BlockCurves]) -> int | None:
@@ -77,9 +104,17 @@ def model_report(store: Store, model_id: str) -> str:
     row, steps, dataset_rows = g["row"], g["steps"], g["dataset_rows"]
     description = g["model"].describe() if hasattr(g["model"], "describe") else {}
     root = store.get_model(steps[0]["model_id"])
-    return render_report(row, description, [{k: r.get(k) for k in DATASET_FIELDS} for r in dataset_rows], steps,
-                         g["diagnosis"], g["blocks"], commands(dataset_rows, steps, root), utc_now(),
-                         worst_block(g["diagnosis"], g["blocks"]))
+    return render_report(
+        row,
+        description,
+        [{k: r.get(k) for k in DATASET_FIELDS} for r in dataset_rows],
+        steps,
+        g["diagnosis"],
+        g["blocks"],
+        commands(dataset_rows, steps, root),
+        utc_now(),
+        worst_block(g["diagnosis"], g["blocks"]),
+    )
 
 
 def model_figures(store: Store, model_id: str) -> dict:
@@ -88,11 +123,24 @@ def model_figures(store: Store, model_id: str) -> dict:
     g = _gather(store, model_id)
     d, blocks = g["diagnosis"], g["blocks"]
     worst = worst_block(d, blocks)
-    return {"model_id": model_id, "axis": g["row"]["axis"], "noise_floor_um": d.get("noise_floor_um"),
-            "verdict": d.get("verdict"), "worst_block": worst,
-            "history_svg": history_figure(g["steps"], d.get("noise_floor_um")),
-            "blocks": [{"title": b.title, "dataset_id": b.dataset_id, "block_index": b.block_index,
-                        "frequency_hz": b.frequency_hz, "held_out_rms_um": b.held_out_rms_um,
-                        "train_rms_um": b.train_rms_um, "worst": i == worst,
-                        "svg": block_figure(b, g["row"]["axis"], worst=i == worst)}
-                       for i, b in enumerate(blocks)]}
+    return {
+        "model_id": model_id,
+        "axis": g["row"]["axis"],
+        "noise_floor_um": d.get("noise_floor_um"),
+        "verdict": d.get("verdict"),
+        "worst_block": worst,
+        "history_svg": history_figure(g["steps"], d.get("noise_floor_um")),
+        "blocks": [
+            {
+                "title": b.title,
+                "dataset_id": b.dataset_id,
+                "block_index": b.block_index,
+                "frequency_hz": b.frequency_hz,
+                "held_out_rms_um": b.held_out_rms_um,
+                "train_rms_um": b.train_rms_um,
+                "worst": i == worst,
+                "svg": block_figure(b, g["row"]["axis"], worst=i == worst),
+            }
+            for i, b in enumerate(blocks)
+        ],
+    }

@@ -5,6 +5,7 @@ process by default) and recorded by service.usecases.recorder: measured and refe
 chunked to disk period by period and stored as one dataset, partial with its reason when a trip
 or a stop ends the run early.
 """
+
 from __future__ import annotations
 
 from drivers.bench import Bench
@@ -12,18 +13,19 @@ from service.runtime.jobs import JobContext
 from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, untrained_turning_points
 from service.science.control.ilc_stability import learning_refusal, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, PIDGains, StopRequested, TrackRecord
-from service.science.control.session import (PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays,
-                                             track_plan)
-from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
+from service.science.control.session import PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
+from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
 from service.science.errors import FieldError
 from service.science.fitting.validation import trained_loops_v
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, Store
 from service.usecases.identify import load_model, load_records
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
-def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz: float,
-                     mode: str = "point_by_point") -> Controller:
+
+def build_controller(
+    bench: Bench, store: Store, controller: dict, frequency_hz: float, mode: str = "point_by_point"
+) -> Controller:
     """The controller a request describes (``ControllerRequest`` fields as a dict): stored models as
     feedforward per axis, PID gains (chosen and predicted by service.science.control.tuning.choose_pid
     on the bench's plant, for a trajectory at ``frequency_hz``), ILC. FieldError names
@@ -40,8 +42,11 @@ def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz:
         except NotFoundError:
             raise FieldError(field, f"no model {model_id!r}") from None
         if row.get("axis") not in (None, ax):
-            raise FieldError(field, f"model {model_id} was identified on the {row['axis'].upper()} axis, not "
-                             f"{ax.upper()}: its hysteresis and dynamics are the other stack's")
+            raise FieldError(
+                field,
+                f"model {model_id} was identified on the {row['axis'].upper()} axis, not "
+                f"{ax.upper()}: its hysteresis and dynamics are the other stack's",
+            )
         try:
             models[ax] = load_model(row)
         except Exception as exc:  # a model that cannot be rebuilt or inverted
@@ -52,24 +57,45 @@ def build_controller(bench: Bench, store: Store, controller: dict, frequency_hz:
     if spec is not None:
         if isinstance(spec, dict):
             spec = {ax: (spec[f"kp_{ax}"], spec[f"ki_{ax}"], spec[f"kd_{ax}"], spec["tf_s"]) for ax in ("y", "z")}
-        damped = frozenset(ax for ax, model in models.items()
-                           if plants.get(ax) is not None and feedforward_inverts_mode(model, plants[ax].resonance_hz))
-        gains, report, warnings = choose_pid(spec, plants, {"tuned": TUNED_PID, "paper": PAPER_PID},
-                                             frequency_hz=frequency_hz, force=controller.get("force", False),
-                                             damped_axes=damped)
+        damped = frozenset(
+            ax
+            for ax, model in models.items()
+            if plants.get(ax) is not None and feedforward_inverts_mode(model, plants[ax].resonance_hz)
+        )
+        gains, report, warnings = choose_pid(
+            spec,
+            plants,
+            {"tuned": TUNED_PID, "paper": PAPER_PID},
+            frequency_hz=frequency_hz,
+            force=controller.get("force", False),
+            damped_axes=damped,
+        )
         report["warnings"] = warnings
         pid = {ax: PIDGains(*g) for ax, g in gains.items()}
     ilc_report = None
     if controller["ilc"]:
         try:
-            predicted = predict_plan(plants, gains, controller["ilc_gain"], frequency_hz, controller["ilc_harmonics"],
-                                     latency_periods=0 if mode == "point_by_point" else QUEUED_BLOCKS - 1)
+            predicted = predict_plan(
+                plants,
+                gains,
+                controller["ilc_gain"],
+                frequency_hz,
+                controller["ilc_harmonics"],
+                latency_periods=0 if mode == "point_by_point" else QUEUED_BLOCKS - 1,
+            )
         except ValueError as exc:
             raise FieldError("controller.ilc", str(exc)) from None
         ilc_report = {"axes": {p.axis: p.as_dict() for p in predicted}, "refusal": learning_refusal(predicted)}
-    return Controller(feedforward=models, pid=pid, ilc=controller["ilc"], ilc_gain=controller["ilc_gain"],
-                      ilc_harmonics=controller["ilc_harmonics"], allow_saturation=controller["allow_saturation"],
-                      pid_report=report, ilc_report=ilc_report)
+    return Controller(
+        feedforward=models,
+        pid=pid,
+        ilc=controller["ilc"],
+        ilc_gain=controller["ilc_gain"],
+        ilc_harmonics=controller["ilc_harmonics"],
+        allow_saturation=controller["allow_saturation"],
+        pid_report=report,
+        ilc_report=ilc_report,
+    )
 
 
 def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: dict, mode: str) -> Controller:
@@ -92,7 +118,7 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
         raise FieldError("body", str(exc)) from None
     if u_ff is not None:
         warnings.extend(extrapolated_loops(store, bench, controller, u_ff[ref.steady]))
-    built.planned = (ref, u_ff, warnings)      # the run uses this drive: the engine computes nothing
+    built.planned = (ref, u_ff, warnings)  # the run uses this drive: the engine computes nothing
     return built
 
 
@@ -108,12 +134,14 @@ def extrapolated_loops(store: Store, bench: Bench, controller: dict, u_steady_v)
             continue
         row = store.get_model(model_id)
         loops = row["metrics"].get("trained_loops_v")
-        if loops is None:                    # identified before models recorded their loops
+        if loops is None:  # identified before models recorded their loops
             try:
                 loops = trained_loops_v(load_records(store, row["datasets"], axis))
             except (FieldError, NotFoundError, IntegrityError, ArrayStoreUnavailable) as exc:
-                out.append(f"{axis.upper()}: the feedforward model's datasets could not be read ({exc}), so "
-                           "whether it was fitted on loops near this trajectory's was not checked")
+                out.append(
+                    f"{axis.upper()}: the feedforward model's datasets could not be read ({exc}), so "
+                    "whether it was fitted on loops near this trajectory's was not checked"
+                )
                 continue
         column = u_steady_v[:, i]
         why = untrained_turning_points(loops, axis, (float(column.min()), float(column.max())))
@@ -133,37 +161,63 @@ def span_sweeps(bench: Bench, store: Store, ellipse: Ellipse, controller: dict) 
     for i, axis in enumerate(bench.axes):
         model = built.feedforward.get(axis)
         if model is None:
-            raise FieldError(f"controller.feedforward_model_{axis}", "the span is read from the axis's feedforward "
-                             "model: identify one on a default (0–120 V) sweep first")
+            raise FieldError(
+                f"controller.feedforward_model_{axis}",
+                "the span is read from the axis's feedforward model: identify one on a default (0–120 V) sweep first",
+            )
         lim = bench.limits[axis]
         v_min, v_max = drive_span_v(model, ref.x_um[ref.steady, i], SAMPLE_RATE_HZ, (lim.v_min_v, lim.v_max_v))
-        bodies.append({"axes": [axis], "frequencies_hz": list(SWEEP_FREQUENCIES_HZ), "cycles": 5,
-                       "v_min": round(v_min, 1), "v_max": round(v_max, 1),
-                       "name": f"{axis} span {v_min:.0f}–{v_max:.0f} V for a {ellipse.frequency_hz:g} Hz ellipse"})
+        bodies.append(
+            {
+                "axes": [axis],
+                "frequencies_hz": list(SWEEP_FREQUENCIES_HZ),
+                "cycles": 5,
+                "v_min": round(v_min, 1),
+                "v_max": round(v_max, 1),
+                "name": f"{axis} span {v_min:.0f}–{v_max:.0f} V for a {ellipse.frequency_hz:g} Hz ellipse",
+            }
+        )
     return bodies
 
 
-def run_trajectory(ctx: JobContext, bench: Bench, store: Store, ellipse: Ellipse, controller: Controller,
-                   mode: str, params: dict, name: str | None) -> dict:
+def run_trajectory(
+    ctx: JobContext,
+    bench: Bench,
+    store: Store,
+    ellipse: Ellipse,
+    controller: Controller,
+    mode: str,
+    params: dict,
+    name: str | None,
+) -> dict:
     """Job body: track, report the error per period as progress, store measured and reference traces;
     returns the metrics (``max_error_y_um``, ``max_error_z_um``, ``rms_error_um``,
     ``relative_error_pct``, ``error_per_period_um``, …) and ``dataset_id``."""
     total = ellipse.cycles + 2 * RAMP_PERIODS  # the steady cycles and both ramps
-    meta = {"name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}", "source": "trajectory",
-            "axes": list(bench.axes), "sample_rate_hz": SAMPLE_RATE_HZ, "blocks": [], "plan": params,
-            "config": bench_snapshot(bench)}
+    meta = {
+        "name": name or f"ellipse {ellipse.frequency_hz:g} Hz {mode}",
+        "source": "trajectory",
+        "axes": list(bench.axes),
+        "sample_rate_hz": SAMPLE_RATE_HZ,
+        "blocks": [],
+        "plan": params,
+        "config": bench_snapshot(bench),
+    }
     with Recorder(store, meta, ctx) as recorder:
+
         def on_period(p: int, arrays: dict, last_error_um: float | None) -> None:
             recorder.append(arrays)
-            msg = f"period {p + 1}/{total}" + (f": error {last_error_um * 1e3:.1f} nm RMS"
-                                                if last_error_um is not None else "")
+            msg = f"period {p + 1}/{total}" + (
+                f": error {last_error_um * 1e3:.1f} nm RMS" if last_error_um is not None else ""
+            )
             ctx.progress(min(0.97, (p + 1) / total), msg)
 
         try:
             result, rec, _ = recorder.execute(bench, track_plan, ellipse, controller, mode, on_event=on_period)
         except StopRequested as exc:
-            raise recorder.nothing_kept(f"{exc.reason} while measuring the response for the ILC; nothing stored",
-                                        cancelled=True) from None
+            raise recorder.nothing_kept(
+                f"{exc.reason} while measuring the response for the ILC; nothing stored", cancelled=True
+            ) from None
         stop = tracking_stop(result, rec)
         row = recorder.keep(trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, 0, rec.samples), stop)
     result["dataset_id"] = row["id"]

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Make sure a PostgreSQL server (Debian's package) is installed for the store tests.
-# The tests start their own throw-away cluster in a temp dir (tests/pg_server.py); this
+# The tests start their own throw-away cluster in a temp dir (tests/support/pg_server.py); this
 # script only installs the binaries when initdb/pg_ctl cannot be found.
 # EVCBENCH_SKIP_POSTGRES=1 skips it (the PostgreSQL tests are then skipped, on purpose).
 set -euo pipefail

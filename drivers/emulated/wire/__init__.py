@@ -7,9 +7,10 @@
   stream positions, its AI gauge columns are NaN: positions exist on the host only as they
   arrive over CAN.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -56,7 +57,7 @@ class WireDaq:
         if not self.nodes.stream:
             return ai
         ai = np.array(ai, copy=True)
-        for ax, ch in CHANNEL.items():
+        for ch in CHANNEL.values():
             ai[..., ch] = np.nan
         return ai
 

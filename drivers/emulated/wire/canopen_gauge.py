@@ -11,6 +11,7 @@ One thread serves every node on one bus. Per node (id n), see drivers/can_sensor
 Samples reach a node through ``capture``: the wire DAQ hands over each block's gauge readings
 (µm, as the gauge's ADC saw them on the shared sample clock) before the driver's SYNC.
 """
+
 from __future__ import annotations
 
 import struct
@@ -19,8 +20,21 @@ from collections import deque
 
 import numpy as np
 
-from drivers.can_sensor import (CAN_ERR_BUSOFF, COB_EMCY, COB_SDO_RX, COB_SDO_TX, COB_SYNC, COB_TPDO, EMCY_SENSOR,
-                                OD, STATUS_DROPOUT, STATUS_SATURATED, TPDO_FORMAT, sdo_abort, sdo_size_cs)
+from drivers.can_sensor import (
+    CAN_ERR_BUSOFF,
+    COB_EMCY,
+    COB_SDO_RX,
+    COB_SDO_TX,
+    COB_SYNC,
+    COB_TPDO,
+    EMCY_SENSOR,
+    OD,
+    STATUS_DROPOUT,
+    STATUS_SATURATED,
+    TPDO_FORMAT,
+    sdo_abort,
+    sdo_size_cs,
+)
 from drivers.emulated import kernels as K
 
 try:
@@ -32,8 +46,14 @@ except ImportError:  # pragma: no cover
 class _Node:
     def __init__(self, axis: str, node_id: int, range_nm: int):
         self.axis, self.node_id = axis, node_id
-        self.values = {"device_type": 0x00020194, "error_register": 0, "resolution_nm": 1, "scale_ppm": 1_000_000,
-                       "filter_hz": 0, "range_nm": range_nm}
+        self.values = {
+            "device_type": 0x00020194,
+            "error_register": 0,
+            "resolution_nm": 1,
+            "scale_ppm": 1_000_000,
+            "filter_hz": 0,
+            "range_nm": range_nm,
+        }
         self.buffer: deque[tuple[np.ndarray, int]] = deque()
         self.seq = 0
         self.filtered = None
@@ -43,8 +63,9 @@ class _Node:
 class EmulatedGaugeNodes:
     """CANopen gauge nodes ``{axis: node_id}`` bound to a World, on ``can.Bus(interface, channel)``."""
 
-    def __init__(self, world, node_ids: dict[str, int], interface: str = "virtual", channel: str = "evc",
-                 stream: bool = True):
+    def __init__(
+        self, world, node_ids: dict[str, int], interface: str = "virtual", channel: str = "evc", stream: bool = True
+    ):
         if can is None:
             raise RuntimeError("python-can is not installed")
         self.world, self.stream = world, stream  # stream False: positions go to the DAQ's AI, not the bus
@@ -68,8 +89,9 @@ class EmulatedGaugeNodes:
             self.sample_rate_hz = self.world.sample_rate_hz
             for axis, node in self.nodes.items():
                 sa = self.world.sa[self.world.axis_index(axis)]
-                status = (STATUS_DROPOUT if sa[K.S_DROP] > 0.5 else 0) | \
-                         (STATUS_SATURATED if sa[K.S_SAT] > 0.5 or sa[K.S_SATN] > 0 else 0)
+                status = (STATUS_DROPOUT if sa[K.S_DROP] > 0.5 else 0) | (
+                    STATUS_SATURATED if sa[K.S_SAT] > 0.5 or sa[K.S_SATN] > 0 else 0
+                )
                 if self.stream:
                     node.buffer.append((np.asarray(x_um[axis], dtype=float).copy(), status))
                 elif status and not self.fault:
@@ -80,8 +102,9 @@ class EmulatedGaugeNodes:
             raise ValueError(f"unknown CAN fault {kind!r}")
         self.fault = kind
         if kind == "bus_off":
-            self.bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, is_extended_id=False,
-                                      data=bytes(8)))
+            self.bus.send(
+                can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, is_extended_id=False, data=bytes(8))
+            )
 
     def clear(self) -> None:
         self.fault = None
@@ -138,7 +161,7 @@ class EmulatedGaugeNodes:
             node.filtered = y
             x_nm = out
         res = v["resolution_nm"]
-        return np.clip(np.round(x_nm / res) * res, -2 ** 31, 2 ** 31 - 1)
+        return np.clip(np.round(x_nm / res) * res, -(2**31), 2**31 - 1)
 
     def _sdo(self, node: _Node, data: bytes) -> None:
         if len(data) != 8:
@@ -152,15 +175,17 @@ class EmulatedGaugeNodes:
         name, size, writable, lo, hi = entry
         if cs == 0x40:
             value = node.values[name]
-            self._send(reply_cob, bytes([sdo_size_cs(size, read=True)]) + data[1:4]
-                       + int(value).to_bytes(4, "little", signed=False))
+            self._send(
+                reply_cob,
+                bytes([sdo_size_cs(size, read=True)]) + data[1:4] + int(value).to_bytes(4, "little", signed=False),
+            )
         elif cs in (0x2F, 0x2B, 0x23):
             if not writable:
                 self._send(reply_cob, sdo_abort(index, sub, 0x06010002))
             elif cs != sdo_size_cs(size, read=False):
                 self._send(reply_cob, sdo_abort(index, sub, 0x06070010))
             else:
-                value = int.from_bytes(data[4:4 + size], "little")
+                value = int.from_bytes(data[4 : 4 + size], "little")
                 if not lo <= value <= hi:
                     self._send(reply_cob, sdo_abort(index, sub, 0x06090030))
                 else:

@@ -10,6 +10,7 @@ is a DC set-point that ``WireDaq`` sums into the modulation path. Faults for tes
 ``mode = "garble" | "silent"`` and ``unplug()`` (closes the master side: the port reads EIO).
 ``transcript`` holds every (received command, reply) pair as bytes.
 """
+
 from __future__ import annotations
 
 import os

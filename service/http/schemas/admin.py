@@ -1,4 +1,5 @@
 """Admin: fault injection on the emulated bench and API tokens."""
+
 from __future__ import annotations
 
 from typing import Literal

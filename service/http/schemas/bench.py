@@ -1,4 +1,5 @@
 """Health, the bench's state and live signals, the emergency stop and the reset."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -57,7 +58,9 @@ class SafetyState(BaseModel):
     watchdog_min_s: float
     watchdog_poll_s: float
     stop_wait_s: float
-    unread_limit_s: float = Field(description="a run whose samples the service has not taken for this long stops at 0 V (s)")
+    unread_limit_s: float = Field(
+        description="a run whose samples the service has not taken for this long stops at 0 V (s)"
+    )
     watchdog_last_trip: dict[str, Any] | None
     stop_requested: bool
     running: bool
@@ -82,10 +85,13 @@ class BenchState(BaseModel):
     limits: dict[str, AxisLimits]
     safety: SafetyState
     modes: Modes
-    timing: dict[str, Any] = Field(description="real-time pacing of an emulated DAQ: realtime, periods, "
-                                               "overruns, max_late_ms")
-    engine: dict[str, Any] | None = Field(default=None, description="the bench engine process, when separate: "
-                                          "process, pid, stop_port (its own emergency-stop port)")
+    timing: dict[str, Any] = Field(
+        description="real-time pacing of an emulated DAQ: realtime, periods, overruns, max_late_ms"
+    )
+    engine: dict[str, Any] | None = Field(
+        default=None,
+        description="the bench engine process, when separate: process, pid, stop_port (its own emergency-stop port)",
+    )
     bench_id: str = Field(description="this service's bench (a lab's id; the stop port takes it as ?bench_id=)")
     running_job_id: str | None
 
@@ -116,8 +122,10 @@ class EmergencyStop(BaseModel):
     """Outputs at 0 V; the job that owned the bench and those queued behind it cancelled."""
 
     stopped: bool
-    door: str = Field(description="'service route' here; 'stop port' when pressed on the engine's own port "
-                                  "(GET /api/bench: engine.stop_port), which answers with the same fields")
+    door: str = Field(
+        description="'service route' here; 'stop port' when pressed on the engine's own port "
+        "(GET /api/bench: engine.stop_port), which answers with the same fields"
+    )
     cancelled_job_id: str | None
     cancelled_queued_job_ids: list[str]
     loop_answered: bool | None = Field(description="a running loop wrote the 0 V itself")

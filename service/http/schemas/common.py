@@ -1,4 +1,5 @@
 """Models shared by several resources: the answer that queues a job, and a job."""
+
 from __future__ import annotations
 
 from typing import Any, Literal
@@ -11,10 +12,16 @@ OPEN = ConfigDict(extra="allow")
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 #: The ``?bench_id=`` of the list routes: only that bench's rows (a lab sees every bench's by default).
-BENCH_FILTER = Query(None, min_length=1, max_length=40, pattern=r"^[a-z0-9][a-z0-9._-]*$",
-                     description="only the rows of this bench (GET /api/lab/benches lists them)")
-BENCH_ID_FIELD = Field(default=None, description="the bench (GET /api/lab/benches) it belongs to; null: stored "
-                                                 "before benches had ids")
+BENCH_FILTER = Query(
+    None,
+    min_length=1,
+    max_length=40,
+    pattern=r"^[a-z0-9][a-z0-9._-]*$",
+    description="only the rows of this bench (GET /api/lab/benches lists them)",
+)
+BENCH_ID_FIELD = Field(
+    default=None, description="the bench (GET /api/lab/benches) it belongs to; null: stored before benches had ids"
+)
 
 
 class LabelsUpdate(BaseModel):
@@ -83,7 +90,9 @@ class Job(BaseModel):
 def with_figures(**figures):
     """A decorator that puts ``figures`` into an endpoint's docstring (shown in /docs) before the
     route reads it: ``{name}`` fields; literal braces are doubled."""
+
     def decorate(endpoint):
         endpoint.__doc__ = endpoint.__doc__.format(**figures)
         return endpoint
+
     return decorate

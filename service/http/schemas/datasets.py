@@ -1,4 +1,5 @@
 """Sweeps (the request and its queued answer) and datasets (summary, record, JSON download)."""
+
 from __future__ import annotations
 
 from typing import Any, Literal
@@ -18,7 +19,7 @@ class SweepRequest(BaseModel):
     waveform: Literal["sine", "step", "chirp", "multisine"] = "sine"
     frequencies_hz: list[float] = Field(default=[1.0, 10.0, 50.0, 100.0], min_length=1, max_length=100)
     cycles: int = Field(default=5, ge=1, le=100_000)
-    v_min: float = 0.0    # checked against the bench's limits (service.usecases.plans), naming the field
+    v_min: float = 0.0  # checked against the bench's limits (service.usecases.plans), naming the field
     v_max: float = 120.0
     settle_s: float = Field(default=0.2, ge=0.0, le=600.0)
     sample_rate_hz: float = Field(default=20_000.0, gt=0.0, le=2_000_000.0)
@@ -47,8 +48,9 @@ class SweepRequest(BaseModel):
 
 
 Block = dict[str, Any]
-BLOCKS = Field(description="the block table: index, kind, axes, start and stop (samples), frequency_hz, "
-                           "cycles, … per block")
+BLOCKS = Field(
+    description="the block table: index, kind, axes, start and stop (samples), frequency_hz, cycles, … per block"
+)
 
 
 class SweepQueued(BaseModel):
@@ -91,9 +93,12 @@ class Dataset(DatasetSummary):
     config: dict[str, Any] | None = Field(description="the bench's configuration at the time (None for imports)")
     units: dict[str, str] = Field(description="column → unit")
     drive_range_v: dict[str, list[float]] | None = Field(description="imports: the drive's (min, max) per axis")
-    import_notes: list[str] = Field(default=[], description="imports: units converted to s, V, µm, °C (from "
-                                    "'Time [ms]', 'x_y_nm', a units row, …) and values implausible for a "
-                                    "piezo stage, with the unit that may be meant")
+    import_notes: list[str] = Field(
+        default=[],
+        description="imports: units converted to s, V, µm, °C (from "
+        "'Time [ms]', 'x_y_nm', a units row, …) and values implausible for a "
+        "piezo stage, with the unit that may be meant",
+    )
     software_version: str
     file: str = Field(description="the arrays' file, relative to the data dir")
     sha256: str

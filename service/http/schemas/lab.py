@@ -1,5 +1,6 @@
 """The lab: the registered benches (state, heartbeat, latest model per axis) and one axis's latest
 models compared across benches. Lengths in µm, times in s, timestamps ISO-8601 UTC."""
+
 from __future__ import annotations
 
 from typing import Literal
@@ -16,8 +17,9 @@ class LatestModel(BaseModel):
     effects: list[str]
     validation_rms_um: float | None = Field(description="held-out RMS (mean over blocks)")
     train_rms_um: float | None
-    noise_floor_um: float | None = Field(description="from its metrics, or the discovery step that stored it; "
-                                                     "null if neither knows it")
+    noise_floor_um: float | None = Field(
+        description="from its metrics, or the discovery step that stored it; null if neither knows it"
+    )
     created_at: str
 
 
@@ -56,7 +58,8 @@ class LabBenches(BaseModel):
 class ComparedModel(LatestModel):
     parameters: dict[str, dict[str, float | None]] = Field(
         description="per effect its fitted physical parameters, units in the names (resonance_hz, damping_ratio, "
-                    "creep_pct_per_decade, delay_us, drift_nm_per_s, coupling_ratio, …)")
+        "creep_pct_per_decade, delay_us, drift_nm_per_s, coupling_ratio, …)"
+    )
 
 
 class ComparedBench(BenchSummary):

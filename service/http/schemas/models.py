@@ -1,4 +1,5 @@
 """Models: identification and refine requests, a model, a comparison, a diagnosis, a lineage."""
+
 from __future__ import annotations
 
 from typing import Any, Literal
@@ -16,8 +17,11 @@ class ModelRequest(BaseModel):
     axis: Literal["y", "z"]
     datasets: list[str] = Field(min_length=1, max_length=100)
     effects: list[str] = Field(default=["hysteresis"])
-    model: str = Field(default="static_pi", description="static_pi | dynamic_pi | grpi | composite "
-                                                        "(static PI + effects; implied by any effect beyond hysteresis)")
+    model: str = Field(
+        default="static_pi",
+        description="static_pi | dynamic_pi | grpi | composite "
+        "(static PI + effects; implied by any effect beyond hysteresis)",
+    )
     n_operators: int = Field(default=10, ge=1, le=100)
     name: str | None = Field(default=None, max_length=200, description="the model's label, as PATCH sets it")
 
@@ -58,8 +62,10 @@ class ModelMetrics(BaseModel):
     per_dataset: list[dict[str, Any]] | None = None
     held_out: str | None = Field(default=None, description="what was held out of the fit")
     trained_loops_v: list[list[float]] | None = Field(
-        default=None, description="[min, max] V of the drive over each training stretch of the axis's own "
-                                  "blocks: the loops the model has seen (a trajectory warns beyond them)")
+        default=None,
+        description="[min, max] V of the drive over each training stretch of the axis's own "
+        "blocks: the loops the model has seen (a trajectory warns beyond them)",
+    )
 
 
 class Model(BaseModel):
@@ -127,10 +133,14 @@ class Candidate(BaseModel):
     model_config = OPEN
     effect: str
     kind: str | None = Field(default=None, description="physical | capacity")
-    score: float | None = Field(default=None, description=(
-        "0..1: the share of the reference's held-out mean square above the noise floor that adding the "
-        "effect removes (the reference: the model for capacity, the model + the flexible base for physics); "
-        "the claim is decided by the held-out test, not by the score"))
+    score: float | None = Field(
+        default=None,
+        description=(
+            "0..1: the share of the reference's held-out mean square above the noise floor that adding the "
+            "effect removes (the reference: the model for capacity, the model + the flexible base for physics); "
+            "the claim is decided by the held-out test, not by the score"
+        ),
+    )
     expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
     evidence: str | None = None
 
@@ -161,13 +171,21 @@ class Diagnosis(BaseModel):
     candidates: list[Candidate] | None = None
     failures: list[Failure] | None = None
     ambiguity: dict[str, Any] | None = None
-    experiments_run_here: bool | None = Field(default=None, description=(
-        "false when the model's data were imported (recorded on another stage): the experiments it names "
-        "must run there, and allow_experiments is refused"))
+    experiments_run_here: bool | None = Field(
+        default=None,
+        description=(
+            "false when the model's data were imported (recorded on another stage): the experiments it names "
+            "must run there, and allow_experiments is refused"
+        ),
+    )
     experiments_note: str | None = None
-    diagnosed_as: str | None = Field(default=None, description=(
-        "for a paper's model (static/dynamic PI, GRPI): the composite that stands for it in the diagnosis, "
-        "and both held-out figures"))
+    diagnosed_as: str | None = Field(
+        default=None,
+        description=(
+            "for a paper's model (static/dynamic PI, GRPI): the composite that stands for it in the diagnosis, "
+            "and both held-out figures"
+        ),
+    )
 
 
 class HistoryStep(BaseModel):
@@ -212,6 +230,8 @@ class ReportFigures(BaseModel):
     noise_floor_um: float | None
     verdict: str | None
     worst_block: int | None = Field(description="index in blocks of the block the diagnosis names worst")
-    history_svg: str = Field(description="the error history: held-out RMS per lineage step, log scale, the "
-                                         "noise-floor band and the 2× line, each step labelled with its change")
+    history_svg: str = Field(
+        description="the error history: held-out RMS per lineage step, log scale, the "
+        "noise-floor band and the 2× line, each step labelled with its change"
+    )
     blocks: list[BlockFigure]

@@ -1,4 +1,5 @@
 """The tracking request: an ellipse in YOZ and its controller (feedforward, PID, ILC)."""
+
 from __future__ import annotations
 
 from typing import Literal
@@ -25,12 +26,16 @@ class ControllerRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     feedforward_model_y: str | None = None
     feedforward_model_z: str | None = None
-    pid: PIDRequest | Literal["auto", "tuned", "paper"] | None = Field(default=None, description=(
-        '"auto": tuned per axis on the plant identified on the bench (the feedforward model\'s largest '
-        'slope, the flexure mode, the loop delay) for a 60° phase margin, 6 dB gain margin and a delay '
-        'margin of 3× the loop delay; "tuned": what auto gives on the default bench; "paper": the '
-        "paper's gains, refused (422 with their predicted margins) unless force; or explicit gains, "
-        "refused when predicted unstable. The result's pid reports the gains and predicted margins."))
+    pid: PIDRequest | Literal["auto", "tuned", "paper"] | None = Field(
+        default=None,
+        description=(
+            '"auto": tuned per axis on the plant identified on the bench (the feedforward model\'s largest '
+            "slope, the flexure mode, the loop delay) for a 60° phase margin, 6 dB gain margin and a delay "
+            'margin of 3× the loop delay; "tuned": what auto gives on the default bench; "paper": the '
+            "paper's gains, refused (422 with their predicted margins) unless force; or explicit gains, "
+            "refused when predicted unstable. The result's pid reports the gains and predicted margins."
+        ),
+    )
     #: run a PID refused by its predicted margins anyway (the divergence watch still trips it to 0 V)
     force: bool = False
     ilc: bool = False
@@ -68,5 +73,6 @@ class TrajectoryRequest(BaseModel):
     def ellipse(self) -> Ellipse:
         yr = self.y_range_um or (self.min_y_um, self.min_y_um + self.amplitude_y_um)
         zr = self.z_range_um or (self.min_z_um, self.min_z_um + self.amplitude_z_um)
-        return Ellipse(tuple(map(float, yr)), tuple(map(float, zr)), self.inclination_deg, self.frequency_hz,
-                       self.cycles)
+        return Ellipse(
+            tuple(map(float, yr)), tuple(map(float, zr)), self.inclination_deg, self.frequency_hz, self.cycles
+        )

@@ -13,6 +13,7 @@ path differs by the term R·r only, so when the tracking is perfect the section 
 feedforward, identified in open loop, stays valid. The compiled loop runs it as a biquad
 (``biquad``: bilinear transform with the section's frequency pre-warped).
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -20,7 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 #: the highest section frequency, as a share of the loop's sample rate, at which the compiled
-#: biquad still has the designed response (2 % at 0.05, 6 % at 0.1: tests/test_control_damping.py);
+#: biquad still has the designed response (2 % at 0.05, 6 % at 0.1: tests/unit/science/test_control_damping.py);
 #: a mode above it is left undamped (a trajectory far below it hardly excites it)
 MAX_FREQUENCY_SHARE = 0.1
 
@@ -43,7 +44,7 @@ class ModeDamping:
         """R(j2πf) (V/µm)."""
         s = 2j * np.pi * np.asarray(f_hz, dtype=float)
         w = 2 * np.pi * self.frequency_hz
-        return -self.gain_v_per_um * w ** 2 / (s ** 2 + 2 * self.damping_ratio * w * s + w ** 2)
+        return -self.gain_v_per_um * w**2 / (s**2 + 2 * self.damping_ratio * w * s + w**2)
 
     def biquad(self, sample_rate_hz: float) -> tuple[float, float, float, float, float]:
         """(b0, b1, b2, a1, a2) of the section at ``sample_rate_hz`` (a0 = 1): bilinear transform,
@@ -52,7 +53,7 @@ class ModeDamping:
         if not 0.0 < self.frequency_hz < sample_rate_hz / 2:
             raise ValueError(f"a damping section at {self.frequency_hz:g} Hz cannot run at {sample_rate_hz:g} Hz")
         w = 2 * np.pi * self.frequency_hz
-        c = w / np.tan(w / (2 * sample_rate_hz))          # pre-warped s = c·(z − 1)/(z + 1)
+        c = w / np.tan(w / (2 * sample_rate_hz))  # pre-warped s = c·(z − 1)/(z + 1)
         z = self.damping_ratio
         a0 = c * c + 2 * z * w * c + w * w
         k = -self.gain_v_per_um * w * w / a0

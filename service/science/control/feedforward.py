@@ -4,6 +4,7 @@ A feedforward model is any model of the contract (service.science.models.contrac
 ``inverse`` gives the drive, its ``predict`` checks that the inverse converged, its
 ``stack_demand_um`` and ``judges_stroke`` serve the stroke check (service.science.control.safety).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,8 +20,14 @@ SWEEP_FREQUENCIES_HZ = (1.0, 10.0, 50.0, 100.0)
 PAPER_LOOPS_HZ = {"static_pi": (1.0,), "dynamic_pi": SWEEP_FREQUENCIES_HZ, "grpi": SWEEP_FREQUENCIES_HZ}
 
 
-def sine_loops(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 3,
-               sample_rate_hz: float = 20_000.0, v_max: float = 120.0) -> list[Record]:
+def sine_loops(
+    bench: Bench,
+    axis: str,
+    frequencies_hz=SWEEP_FREQUENCIES_HZ,
+    cycles: int = 3,
+    sample_rate_hz: float = 20_000.0,
+    v_max: float = 120.0,
+) -> list[Record]:
     """0–v_max biased sines on one axis, one bench run per frequency (each from rest)."""
     out = []
     for f in frequencies_hz:
@@ -71,23 +78,37 @@ def inverse_miss_um(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rate_hz
 COMPOSITE_EFFECTS = ("delay", "dynamics")
 
 
-def sweep_record(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 5,
-                 v_range=(0.0, 120.0)):
+def sweep_record(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 5, v_range=(0.0, 120.0)):
     """One axis's sine sweep between ``v_range`` (V) at ``frequencies_hz``, ``cycles`` each, run on
     ``bench`` as one record (the discovery path: service.usecases.plans plan, discovery records)."""
     from service.science.discovery.records import _arrays, records_from_arrays
     from service.usecases.plans import SinePlan, plan_for_bench, trim_blocks
 
-    planned = plan_for_bench(SinePlan(axes=(axis,), frequencies_hz=tuple(frequencies_hz), cycles=cycles,
-                                           v_min=float(v_range[0]), v_max=float(v_range[1])), bench)
+    planned = plan_for_bench(
+        SinePlan(
+            axes=(axis,),
+            frequencies_hz=tuple(frequencies_hz),
+            cycles=cycles,
+            v_min=float(v_range[0]),
+            v_max=float(v_range[1]),
+        ),
+        bench,
+    )
     rec = bench.run(planned.u_v, planned.sample_rate_hz)
     blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
     (record,) = records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, (axis,), f"{axis}:")
     return record
 
 
-def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequencies_hz=SWEEP_FREQUENCIES_HZ,
-                       cycles: int = 5, n_operators: int = 10, v_range=(0.0, 120.0)):
+def identify_composite(
+    bench: Bench,
+    axis: str,
+    effects=COMPOSITE_EFFECTS,
+    frequencies_hz=SWEEP_FREQUENCIES_HZ,
+    cycles: int = 5,
+    n_operators: int = 10,
+    v_range=(0.0, 120.0),
+):
     """Fit a discovery composite model (hysteresis + ``effects``) on ``sweep_record`` of one axis
     (the paper's 0–120 V by default)."""
     from service.science.discovery.composite import fit_composite
@@ -99,8 +120,9 @@ def identify_composite(bench: Bench, axis: str, effects=COMPOSITE_EFFECTS, frequ
 SPAN_MARGIN_V = 5.0
 
 
-def drive_span_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, limits_v: tuple[float, float],
-                 margin_v: float = SPAN_MARGIN_V) -> tuple[float, float]:
+def drive_span_v(
+    model, x_ref_um: np.ndarray, sample_rate_hz: float, limits_v: tuple[float, float], margin_v: float = SPAN_MARGIN_V
+) -> tuple[float, float]:
     """(min, max) V of the model's feedforward drive for ``x_ref_um`` (the reference's steady part),
     widened by ``margin_v`` on each side and kept within ``limits_v`` (the axis's hard limits): the
     span to sweep so that a model fitted on it knows the minor loops the trajectory runs."""
@@ -108,8 +130,9 @@ def drive_span_v(model, x_ref_um: np.ndarray, sample_rate_hz: float, limits_v: t
     return max(limits_v[0], float(np.min(u)) - margin_v), min(limits_v[1], float(np.max(u)) + margin_v)
 
 
-def identify_composite_for(bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, margin_v: float = SPAN_MARGIN_V,
-                           sample_rate_hz: float = 20_000.0) -> dict:
+def identify_composite_for(
+    bench: Bench, ellipse, effects=COMPOSITE_EFFECTS, margin_v: float = SPAN_MARGIN_V, sample_rate_hz: float = 20_000.0
+) -> dict:
     """Composite feedforward models per axis fitted on the voltages ``ellipse`` needs: a full-range
     (0–120 V) fit gives the drive span of the reference's steady part, then each axis is swept again
     over that span ± ``margin_v`` (V) and refitted (each model's ``fit_range_v`` says the span). The
@@ -150,8 +173,10 @@ def untrained_turning_points(loops_v, axis: str, needed_v: tuple[float, float]) 
     if min(distance) <= TURNING_POINT_TOLERANCE * needed_pp:
         return None
     a, b = loops_v[int(np.argmin(distance))]
-    return (f"{axis.upper()}: this trajectory drives {lo:.0f}–{hi:.0f} V, but the feedforward model was fitted on "
-            f"loops whose turning points are {min(distance):.0f} V or more away from those (closest "
-            f"{a:.0f}–{b:.0f} V). A piezo's minor loops depend on their turning points, so this one is "
-            f"extrapolated: identify on the sweeps POST /api/trajectories/span-sweeps offers (the Trajectories "
-            f"page's \"Sweep the span it needs\")")
+    return (
+        f"{axis.upper()}: this trajectory drives {lo:.0f}–{hi:.0f} V, but the feedforward model was fitted on "
+        f"loops whose turning points are {min(distance):.0f} V or more away from those (closest "
+        f"{a:.0f}–{b:.0f} V). A piezo's minor loops depend on their turning points, so this one is "
+        f"extrapolated: identify on the sweeps POST /api/trajectories/span-sweeps offers (the Trajectories "
+        f'page\'s "Sweep the span it needs")'
+    )

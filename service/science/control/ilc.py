@@ -16,9 +16,11 @@ a small part) rather than the total: it stops learning when that has not fallen 
 periods (resuming if the total rises 1.25× above its best, e.g. by creep), and falls back to the best
 correction with half the gain if the total grows 3× (divergence).
 """
+
 from __future__ import annotations
 
 import numpy as np
+
 from drivers.jit import njit
 
 #: Ĝ's prior is trusted to this fraction of |G₀| (one standard deviation)
@@ -42,7 +44,7 @@ def multisine(period: int, harmonics: int, amplitude_v: float, seed: int = 0) ->
 def period_spectra(x: np.ndarray, period: int, harmonics: int) -> np.ndarray:
     """Normalised DFT (x's unit) at harmonics 0..K of each whole period: (periods, K+1[, ...])."""
     m = len(x) // period
-    return np.fft.rfft(x[:m * period].reshape(m, period, *x.shape[1:]), axis=1)[:, :harmonics + 1] / period
+    return np.fft.rfft(x[: m * period].reshape(m, period, *x.shape[1:]), axis=1)[:, : harmonics + 1] / period
 
 
 def frf_from_periods(u_v: np.ndarray, x_um: np.ndarray, period: int, harmonics: int) -> tuple[np.ndarray, float]:
@@ -62,8 +64,16 @@ class HarmonicILC:
     """Per-axis harmonic ILC on one period. ``g`` (2, K+1) measured responses G₀ (µm/V);
     ``noise_var_um2`` (2,) σ² per axis (see the module doc; None: no SNR gating)."""
 
-    def __init__(self, g: np.ndarray, period: int, gain: float = 0.2, patience: int = 15,
-                 min_improvement: float = 0.01, noise_var_um2=None, adapt: bool = True):
+    def __init__(
+        self,
+        g: np.ndarray,
+        period: int,
+        gain: float = 0.2,
+        patience: int = 15,
+        min_improvement: float = 0.01,
+        noise_var_um2=None,
+        adapt: bool = True,
+    ):
         self.g0 = np.asarray(g, dtype=complex)
         self.g = self.g0.copy()
         self.harmonics = self.g.shape[1] - 1
@@ -71,8 +81,11 @@ class HarmonicILC:
             raise ValueError(f"harmonics: {self.harmonics} exceed the period's Nyquist limit ({period // 2})")
         self.period, self.gain = period, float(gain)
         self.patience, self.min_improvement = patience, min_improvement
-        self.noise_var = (np.zeros(2) if noise_var_um2 is None    # no noise known: every harmonic learns at γ
-                          else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy())
+        self.noise_var = (
+            np.zeros(2)
+            if noise_var_um2 is None  # no noise known: every harmonic learns at γ
+            else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy()
+        )
         self.adapt = adapt
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
@@ -89,10 +102,10 @@ class HarmonicILC:
         self._sue = np.zeros((2, self.harmonics + 1), dtype=complex)
         self._see = np.zeros((2, self.harmonics + 1))
         self._n = 0.0
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None      # (E, applied U) (2, K+1) of the last period
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None  # (E, applied U) (2, K+1) of the last period
         k = np.arange(self.harmonics + 1)[:, None]
         phase = 2 * np.pi * k * np.arange(period)[None, :] / period
-        self._cos, self._sin = np.cos(phase), np.sin(phase)        # (K+1, period) DFT tables
+        self._cos, self._sin = np.cos(phase), np.sin(phase)  # (K+1, period) DFT tables
         self._zeros = np.zeros((period, 2))
         compile_kernels()
 
@@ -105,13 +118,27 @@ class HarmonicILC:
         spectrum(np.ascontiguousarray(applied_v), self._cos, self._sin, A)
         if self._prev is not None:
             self._n = FORGET * self._n + 1.0
-            blend_response(E, A, self._prev[0], self._prev[1], self._suu, self._sue, self._see, self._n,
-                           self.g0, self.noise_var, PRIOR_REL_SD, FORGET, self.g)
+            blend_response(
+                E,
+                A,
+                self._prev[0],
+                self._prev[1],
+                self._suu,
+                self._sue,
+                self._see,
+                self._n,
+                self.g0,
+                self.noise_var,
+                PRIOR_REL_SD,
+                FORGET,
+                self.g,
+            )
         self._prev = (E, A)
 
     # ------------------------------------------------------------------ one period
-    def update(self, error_um: np.ndarray, base_v: np.ndarray | None = None, limits_v=None,
-               applied_v: np.ndarray | None = None) -> np.ndarray:
+    def update(
+        self, error_um: np.ndarray, base_v: np.ndarray | None = None, limits_v=None, applied_v: np.ndarray | None = None
+    ) -> np.ndarray:
         """Learn from one period's error (period, 2) µm; returns the correction (period, 2) V to apply next.
 
         ``applied_v`` is the correction that was actually applied during that period (the loop may
@@ -119,18 +146,18 @@ class HarmonicILC:
         feedforward's period, V) and ``limits_v`` (lo, hi) per axis, the total command is projected
         into the limits, so the learned correction cannot wind up against the clamp."""
         error_um = np.ascontiguousarray(error_um)
-        E = np.empty((2, self.harmonics + 1), dtype=complex)                       # normalised DFT, µm
+        E = np.empty((2, self.harmonics + 1), dtype=complex)  # normalised DFT, µm
         rms, learnable = spectrum(error_um, self._cos, self._sin, E)
         self.history_um.append(rms)
         self._refine_response(E, applied_v)
         self.best_rms_um = min(self.best_rms_um, rms)
-        if not self.learning:                 # paused: resume if the plant has drifted away
+        if not self.learning:  # paused: resume if the plant has drifted away
             if rms > self.resume_factor * self.best_rms_um:
                 self.learning, self.stale = True, 0
                 self.best_rms_um, self.best_learnable_um = rms, learnable
                 self.resumed += 1
             return self.u_v
-        if rms > 3.0 * self.best_rms_um:     # diverging: back to the best correction, half the gain
+        if rms > 3.0 * self.best_rms_um:  # diverging: back to the best correction, half the gain
             self.u_v, self.gain = self.best_u_v.copy(), 0.5 * self.gain
             self.best_rms_um, self.best_learnable_um, self.stale = np.inf, np.inf, 0
             self.reverts += 1
@@ -144,17 +171,28 @@ class HarmonicILC:
             self.stale += 1
             if self.stale >= self.patience:
                 self.learning = False
-                self.stop_reason = (f"learnable error stopped falling (best {self.best_learnable_um * 1e3:.1f} nm "
-                                    f"RMS in harmonics 0–{self.harmonics}); learning paused, resumes if the "
-                                    f"error rises {self.resume_factor:g}×")
+                self.stop_reason = (
+                    f"learnable error stopped falling (best {self.best_learnable_um * 1e3:.1f} nm "
+                    f"RMS in harmonics 0–{self.harmonics}); learning paused, resumes if the "
+                    f"error rises {self.resume_factor:g}×"
+                )
                 return self.u_v
         self.u_v = self.u_v.copy()
         if base_v is None or limits_v is None:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
         coef_re, coef_im = np.empty((2, self.harmonics + 1)), np.empty((2, self.harmonics + 1))
         learning_coefficients(E, self.g, self.gain, SNR_GATE * self.noise_var, NOISE_GAIN_FACTOR, coef_re, coef_im)
-        learn_step(E, coef_re, coef_im, self._cos, self._sin, self.u_v, np.ascontiguousarray(base_v),
-                   np.asarray(limits_v[0], dtype=float), np.asarray(limits_v[1], dtype=float))
+        learn_step(
+            E,
+            coef_re,
+            coef_im,
+            self._cos,
+            self._sin,
+            self.u_v,
+            np.ascontiguousarray(base_v),
+            np.asarray(limits_v[0], dtype=float),
+            np.asarray(limits_v[1], dtype=float),
+        )
         return self.u_v
 
 
@@ -206,7 +244,7 @@ def blend_response(E, A, E_prev, A_prev, suu, sue, see, n, g0, noise_var, prior_
                 g[a, k] = g0[a, k]
                 continue
             est = (sue[a, k] + w0 * g0[a, k]) / (suu[a, k] + w0)
-            g[a, k] = est.real + 0j if k == 0 else est           # DC gain is real
+            g[a, k] = est.real + 0j if k == 0 else est  # DC gain is real
 
 
 @njit(cache=True, fastmath=True, nogil=True)
@@ -260,8 +298,21 @@ def compile_kernels() -> None:
     E, A = np.zeros((2, 2), dtype=complex), np.zeros((2, 2), dtype=complex)
     spectrum(e, cos_t, sin_t, E)
     g = np.ones((2, 2), dtype=complex)
-    blend_response(E, A, E.copy(), A.copy(), np.zeros((2, 2)), np.zeros((2, 2), dtype=complex), np.zeros((2, 2)),
-                   2.0, g, np.zeros(2), PRIOR_REL_SD, FORGET, g.copy())
+    blend_response(
+        E,
+        A,
+        E.copy(),
+        A.copy(),
+        np.zeros((2, 2)),
+        np.zeros((2, 2), dtype=complex),
+        np.zeros((2, 2)),
+        2.0,
+        g,
+        np.zeros(2),
+        PRIOR_REL_SD,
+        FORGET,
+        g.copy(),
+    )
     re, im = np.zeros((2, 2)), np.zeros((2, 2))
     learning_coefficients(E, g, 0.1, np.zeros(2), 0.25, re, im)
     learn_step(E, re, im, cos_t, sin_t, np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(2), np.ones(2))

@@ -13,6 +13,7 @@ Without a PID the ratio is a positive real number and the factor does not depend
 With a PID that leaves thin margins, T's peak moves with the gain and the ratio's phase passes 90°:
 no learning gain converges then.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -59,14 +60,20 @@ def closed_loop_um_per_v(plant: AxisPlant, pid: tuple | None, f_hz: np.ndarray) 
     return p / (1.0 + controller_response(pid, f) * p)
 
 
-def gain_ratios(plant: AxisPlant, pid: tuple | None, frequency_hz: float, harmonics: int,
-                share: float = MINOR_LOOP_SHARE) -> np.ndarray:
+def gain_ratios(
+    plant: AxisPlant, pid: tuple | None, frequency_hz: float, harmonics: int, share: float = MINOR_LOOP_SHARE
+) -> np.ndarray:
     """G/Ĝ (harmonics+1, BAND_POINTS²): the closed loop at each plant gain of the band over the one
     at each other, per harmonic 0..K of ``frequency_hz``."""
     f = frequency_hz * np.arange(harmonics + 1)
     gains = plant.gain_um_per_v * np.linspace(share, 1.0, BAND_POINTS)
-    t = np.stack([closed_loop_um_per_v(AxisPlant(g, plant.resonance_hz, plant.damping_ratio, plant.delay_s),
-                                       pid, f) for g in gains], axis=1)          # (K+1, band)
+    t = np.stack(
+        [
+            closed_loop_um_per_v(AxisPlant(g, plant.resonance_hz, plant.damping_ratio, plant.delay_s), pid, f)
+            for g in gains
+        ],
+        axis=1,
+    )  # (K+1, band)
     return (t[:, :, None] / t[:, None, :]).reshape(len(f), -1)
 
 
@@ -83,8 +90,16 @@ def factors(gain: float, ratios: np.ndarray, latency_periods: int = 0) -> np.nda
     return np.maximum(np.abs(0.5 * (1 + root)), np.abs(0.5 * (1 - root)))
 
 
-def predict_learning(axis: str, plant: AxisPlant | None, pid: tuple | None, gain: float, frequency_hz: float,
-                     harmonics: int, latency_periods: int = 0, share: float = MINOR_LOOP_SHARE) -> LearningPrediction:
+def predict_learning(
+    axis: str,
+    plant: AxisPlant | None,
+    pid: tuple | None,
+    gain: float,
+    frequency_hz: float,
+    harmonics: int,
+    latency_periods: int = 0,
+    share: float = MINOR_LOOP_SHARE,
+) -> LearningPrediction:
     """``LearningPrediction`` of learning gain ``gain`` on harmonics 0..``harmonics`` of ``frequency_hz``
     around ``plant`` under ``pid`` (see the module doc), corrections applied ``latency_periods`` late.
     Without a PID the plant may be None (the band's ratios are then share..1/share at every harmonic)."""
@@ -118,29 +133,41 @@ def learning_refusal(predictions: list[LearningPrediction]) -> tuple[str, str] |
     bad = [p for p in predictions if p.factor >= LIMIT]
     if not bad:
         return None
-    parts = [f"{p.axis.upper()}: predicted convergence factor {p.factor:.2f} per period at harmonic "
-             f"{p.worst_harmonic} (≥ {LIMIT:g}: diverges)" for p in bad]
+    parts = [
+        f"{p.axis.upper()}: predicted convergence factor {p.factor:.2f} per period at harmonic "
+        f"{p.worst_harmonic} (≥ {LIMIT:g}: diverges)"
+        for p in bad
+    ]
     if all(p.max_gain > 0 for p in bad):
         top = min(p.max_gain for p in bad)
-        return "controller.ilc_gain", (f"ILC learning gain {bad[0].gain:g} is predicted to diverge: " + "; ".join(parts)
-                                       + f". A learning gain ≤ {np.floor(top * 100) / 100:.2f} converges on this plant "
-                                       "and PID over the amplitude band")
-    return "controller.ilc", ("ILC learning is predicted to diverge at any learning gain with this PID: "
-                              + "; ".join(parts) + ". The closed loop's response moves by more than 90° between the "
-                              "small-signal and full-swing gain of the piezo (thin PID margins); use \"pid\": \"auto\" "
-                              "or no PID under ILC")
+        return "controller.ilc_gain", (
+            f"ILC learning gain {bad[0].gain:g} is predicted to diverge: "
+            + "; ".join(parts)
+            + f". A learning gain ≤ {np.floor(top * 100) / 100:.2f} converges on this plant "
+            "and PID over the amplitude band"
+        )
+    return "controller.ilc", (
+        "ILC learning is predicted to diverge at any learning gain with this PID: "
+        + "; ".join(parts)
+        + ". The closed loop's response moves by more than 90° between the "
+        'small-signal and full-swing gain of the piezo (thin PID margins); use "pid": "auto" '
+        "or no PID under ILC"
+    )
 
 
-def predict_plan(plants: dict, gains: dict | None, gain: float, frequency_hz: float, harmonics: int,
-                 latency_periods: int = 0) -> list[LearningPrediction]:
+def predict_plan(
+    plants: dict, gains: dict | None, gain: float, frequency_hz: float, harmonics: int, latency_periods: int = 0
+) -> list[LearningPrediction]:
     """One ``LearningPrediction`` per axis of ``plants`` (axis → AxisPlant or None) under ``gains``
     (axis → (kp, ki, kd, tf_s), or None without PID). ValueError when a PID axis has no plant."""
     out = []
     for axis, plant in plants.items():
         pid = None if gains is None else gains.get(axis)
         if pid is not None and plant is None:
-            raise ValueError(f"the {axis.upper()} learning cannot be predicted under a PID without the axis's plant "
-                             f"(give controller.feedforward_model_{axis})")
+            raise ValueError(
+                f"the {axis.upper()} learning cannot be predicted under a PID without the axis's plant "
+                f"(give controller.feedforward_model_{axis})"
+            )
         out.append(predict_learning(axis, plant, pid, gain, frequency_hz, harmonics, latency_periods))
     return out
 
@@ -154,11 +181,16 @@ def learning_diagnosis(ilc, report: dict | None) -> str:
         said = "the ILC had not learned yet (tripped before the first steady period)"
     else:
         trend = "rising" if len(h) > 1 and h[-1] > 1.5 * np.min(h) else "not rising"
-        said = (f"the ILC had learned for {len(h)} periods, error {h[0]:.1f} → {h[-1]:.1f} nm RMS per period "
-                f"(best {np.min(h):.1f}, {trend}; {ilc.reverts} reverts{': ' + ilc.stop_reason if ilc.stop_reason else ''})")
+        said = (
+            f"the ILC had learned for {len(h)} periods, error {h[0]:.1f} → {h[-1]:.1f} nm RMS per period "
+            f"(best {np.min(h):.1f}, {trend}; {ilc.reverts} reverts{': ' + ilc.stop_reason if ilc.stop_reason else ''})"
+        )
     if report:
-        said += "; predicted convergence factor " + ", ".join(
-            f"{a.upper()} {p['factor']:.2f}" for a, p in report["axes"].items()) + f" (≥ {LIMIT:g} diverges)"
+        said += (
+            "; predicted convergence factor "
+            + ", ".join(f"{a.upper()} {p['factor']:.2f}" for a, p in report["axes"].items())
+            + f" (≥ {LIMIT:g} diverges)"
+        )
     else:
         said += "; its convergence was not predicted"
     return said

@@ -8,6 +8,7 @@ Arrays per axis (row 0 = Y, row 1 = Z):
   lim[a]   = (v_min V, v_max V, max step V/sample, amplifier gain V/V)
   trip[a]  = (error limit µm, samples over the limit to trip, sensor range µm)
 """
+
 from __future__ import annotations
 
 import types
@@ -25,7 +26,7 @@ L_VMIN, L_VMAX, L_STEP, L_GAIN, NL = range(5)
 T_ERR, T_N, T_RANGE, NT = range(4)
 OK, TRIP_ERROR, TRIP_RANGE, STOPPED = 0, 1, 2, 3
 TRIP_REASONS = {TRIP_ERROR: "tracking error diverged", TRIP_RANGE: "sensor at the end of its range or lost"}
-STOP_CHECK_SAMPLES = 32   # the runner polls its stop flag every this many samples (≤ 50)
+STOP_CHECK_SAMPLES = 32  # the runner polls its stop flag every this many samples (≤ 50)
 
 
 @njit(cache=True)
@@ -64,8 +65,27 @@ def pid_step(p, s, e_um, u_ff, u_prev, vmin, vmax, step, dt):
     return u
 
 
-def _runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last, dt,
-            x_out, u_out, ai, diag, stop):
+def _runner(
+    wargs,
+    noise,
+    n0,
+    ref_um,
+    uff_v,
+    pid_p,
+    pid_s,
+    u_last,
+    lim,
+    trip,
+    over,
+    um_per_v,
+    y_last,
+    dt,
+    x_out,
+    u_out,
+    ai,
+    diag,
+    stop,
+):
     """The per-sample loop (see ``point_by_point_runner``). ``STEP``, the plant's compiled step, is
     a global of the function object compiled: this module's (the emulator's step, cached) or a copy
     of it with another step in its globals."""
@@ -76,13 +96,32 @@ def _runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, ov
             return k, STOPPED
         for a in range(2):
             e = ref_um[k, a] - y_last[a]
-            u = pid_step(pid_p[a], pid_s[a], e, uff_v[k, a], u_last[a], lim[a, L_VMIN], lim[a, L_VMAX],
-                         lim[a, L_STEP], dt)
+            u = pid_step(
+                pid_p[a], pid_s[a], e, uff_v[k, a], u_last[a], lim[a, L_VMIN], lim[a, L_VMAX], lim[a, L_STEP], dt
+            )
             u_last[a] = u
             u_out[k, a] = u
             ao[a] = u / lim[a, L_GAIN]
-        STEP(wargs[0], wargs[1], wargs[2], wargs[3], wargs[4], wargs[5], wargs[6], wargs[7], wargs[8],
-             wargs[9], wargs[10], ao[0], ao[1], noise, n0 + k, ai, 0, diag)
+        STEP(
+            wargs[0],
+            wargs[1],
+            wargs[2],
+            wargs[3],
+            wargs[4],
+            wargs[5],
+            wargs[6],
+            wargs[7],
+            wargs[8],
+            wargs[9],
+            wargs[10],
+            ao[0],
+            ao[1],
+            noise,
+            n0 + k,
+            ai,
+            0,
+            diag,
+        )
         status = OK
         for a in range(2):
             y = ai[0, a] * um_per_v[a]

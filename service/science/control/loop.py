@@ -7,10 +7,11 @@ correction learned from period j first reaches period j+2; no per-sample feedbac
 Every run is a ``Bench.session``: the watchdog is fed once per period, the stop flag is polled by the
 compiled runner (every ≤ 50 samples) and between blocks, and every trip, stop or end leaves the DAQ at 0 V.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -23,8 +24,8 @@ from service.science.control.safety import stepping_hook
 from service.science.control.trajectory import Reference
 from service.science.fitting.metrics import rms
 
-QUEUED_BLOCKS = 2   # buffered streaming: blocks in flight ahead of the one being measured
-SETTLE_S = 0.05     # 0 V held before each run so earlier motion has died out
+QUEUED_BLOCKS = 2  # buffered streaming: blocks in flight ahead of the one being measured
+SETTLE_S = 0.05  # 0 V held before each run so earlier motion has died out
 
 
 class StopRequested(RuntimeError):
@@ -68,13 +69,23 @@ class TrackRecord:
     ilc_stop_reason: str | None = None
 
 
-def trip_limits(bench: Bench, ref: Reference, error_fraction: float = 1.0, error_floor_um: float = 0.5,
-                trip_samples: int | None = None) -> np.ndarray:
+def trip_limits(
+    bench: Bench,
+    ref: Reference,
+    error_fraction: float = 1.0,
+    error_floor_um: float = 0.5,
+    trip_samples: int | None = None,
+) -> np.ndarray:
     """Per axis (error limit µm, samples over it to trip, sensor range µm)."""
     pp = np.ptp(ref.x_um, axis=0)
     n = trip_samples or max(5, ref.period // 20)
-    return np.array([[error_fraction * pp[i] + error_floor_um, n, 0.98 * bench.parts.sensors[a].range_um[1]]
-                     for i, a in enumerate(bench.axes)], dtype=float)
+    return np.array(
+        [
+            [error_fraction * pp[i] + error_floor_um, n, 0.98 * bench.parts.sensors[a].range_um[1]]
+            for i, a in enumerate(bench.axes)
+        ],
+        dtype=float,
+    )
 
 
 def compile_runner(bench: Bench):
@@ -88,18 +99,43 @@ def compile_runner(bench: Bench):
     runner = CK.point_by_point_runner(step_fn)
     noise, n0 = take_noise(0)
     empty = np.zeros((0, 2))
-    runner(args, noise, n0, empty, empty.copy(), np.zeros((2, CK.NPID)), np.zeros((2, CK.NPS)), np.zeros(2),
-           np.zeros((2, CK.NL)), np.zeros((2, CK.NT)), np.zeros(2), np.zeros(2), np.zeros(2), 1.0, empty.copy(),
-           empty.copy(), np.zeros((1, 4)), np.zeros((1, 10)), np.zeros(1, np.uint8))
+    runner(
+        args,
+        noise,
+        n0,
+        empty,
+        empty.copy(),
+        np.zeros((2, CK.NPID)),
+        np.zeros((2, CK.NPS)),
+        np.zeros(2),
+        np.zeros((2, CK.NL)),
+        np.zeros((2, CK.NT)),
+        np.zeros(2),
+        np.zeros(2),
+        np.zeros(2),
+        1.0,
+        empty.copy(),
+        empty.copy(),
+        np.zeros((1, 4)),
+        np.zeros((1, 10)),
+        np.zeros(1, np.uint8),
+    )
     return runner, args, take_noise
 
 
 class Tracker:
     """Runs ``ref`` with feedforward ``u_ff_v`` (n, 2), optional per-axis PID and optional ILC."""
 
-    def __init__(self, bench: Bench, ref: Reference, u_ff_v: np.ndarray | None, mode: str = "point_by_point",
-                 pid: dict[str, PIDGains] | None = None, ilc: HarmonicILC | None = None,
-                 trip: np.ndarray | None = None):
+    def __init__(
+        self,
+        bench: Bench,
+        ref: Reference,
+        u_ff_v: np.ndarray | None,
+        mode: str = "point_by_point",
+        pid: dict[str, PIDGains] | None = None,
+        ilc: HarmonicILC | None = None,
+        trip: np.ndarray | None = None,
+    ):
         self.bench, self.ref, self.mode, self.ilc = bench, ref, mode, ilc
         n = ref.x_um.shape[0]
         self.u_ff = np.zeros((n, 2)) if u_ff_v is None else np.ascontiguousarray(u_ff_v, dtype=float)
@@ -108,13 +144,24 @@ class Tracker:
             if pid and pid.get(axis) is not None:
                 self.pid_p[i] = pid[axis].row(ref.sample_rate_hz)
         self.fs = ref.sample_rate_hz
-        self.lim = np.array([[bench.limits[a].v_min_v, bench.limits[a].v_max_v,
-                              min(bench.limits[a].slew_limit_v_per_s,
-                                  bench.limits[a].current_limit_a / bench.limits[a].capacitance_f) / self.fs,
-                              bench.parts.amplifiers[a].gain_v_per_v] for a in bench.axes])
+        self.lim = np.array(
+            [
+                [
+                    bench.limits[a].v_min_v,
+                    bench.limits[a].v_max_v,
+                    min(
+                        bench.limits[a].slew_limit_v_per_s,
+                        bench.limits[a].current_limit_a / bench.limits[a].capacitance_f,
+                    )
+                    / self.fs,
+                    bench.parts.amplifiers[a].gain_v_per_v,
+                ]
+                for a in bench.axes
+            ]
+        )
         self.trip = trip_limits(bench, ref) if trip is None else trip
         self._ilc_limits = (self.lim[:, CK.L_VMIN].copy(), self.lim[:, CK.L_VMAX].copy())
-        self._ilc_applied: dict[int, np.ndarray] = {}   # period → the ILC correction its command carried
+        self._ilc_applied: dict[int, np.ndarray] = {}  # period → the ILC correction its command carried
         self.um_per_v = np.array([bench.parts.sensors[a].scale_um_per_v for a in bench.axes])
 
     def _command(self, p: int) -> np.ndarray:
@@ -122,7 +169,7 @@ class Tracker:
         u = self.u_ff[s].copy()
         if self.ilc is not None:
             u += self.ref.envelope[s, None] * self.ilc.u_v
-            self._ilc_applied[p] = self.ilc.u_v          # the ILC publishes a new array per update
+            self._ilc_applied[p] = self.ilc.u_v  # the ILC publishes a new array per update
         return u
 
     def _learn(self, p: int, rec: TrackRecord) -> None:
@@ -133,14 +180,15 @@ class Tracker:
         s = slice(p * self.ref.period, (p + 1) * self.ref.period)
         err = self.ref.x_um[s] - rec.x_um[s]
         if self.ilc is not None:
-            base = self.u_ff[self.ref.steady][:self.ref.period]
+            base = self.u_ff[self.ref.steady][: self.ref.period]
             self.ilc.update(err, base_v=base, limits_v=self._ilc_limits, applied_v=applied)
             rec.error_per_period_um.append(self.ilc.history_um[-1])
         else:
             rec.error_per_period_um.append(rms(err))
 
-    def run(self, on_period: Callable[[int, TrackRecord], None] | None = None,
-            should_stop: Callable[[], bool] | None = None) -> TrackRecord:
+    def run(
+        self, on_period: Callable[[int, TrackRecord], None] | None = None, should_stop: Callable[[], bool] | None = None
+    ) -> TrackRecord:
         """Run every period; returns the record (``tripped`` says why it ended early)."""
         n = self.ref.x_um.shape[0]
         rec = TrackRecord(x_um=np.full((n, 2), np.nan), u_v=np.zeros((n, 2)), ref_um=self.ref.x_um, samples=0)
@@ -157,7 +205,7 @@ class Tracker:
                 else:
                     self._run_buffered(rec, on_period, should_stop, session)
             except DriverError as exc:  # a transport or the DAQ failed mid-run: keep what was measured
-                if not self._interrupted(rec, session):   # unless a stop or the watchdog abandoned the write
+                if not self._interrupted(rec, session):  # unless a stop or the watchdog abandoned the write
                     rec.tripped = f"daq: {exc}"
         if self.ilc is not None:
             rec.ilc_stop_reason = self.ilc.stop_reason
@@ -189,7 +237,7 @@ class Tracker:
     def _end_period(self, p, rec, on_period, should_stop, session) -> bool:
         session.feed(self.ref.period)
         s = slice(p * self.ref.period, rec.samples)
-        self.bench.live.push_columns(rec.u_v[s], rec.x_um[s])     # u_v, x_um columns are in bench.axes order
+        self.bench.live.push_columns(rec.u_v[s], rec.x_um[s])  # u_v, x_um columns are in bench.axes order
         reason = self.bench.fault_reason()
         if reason:
             rec.tripped = f"{reason} (tripped at t={rec.samples / self.fs:.2f} s)"
@@ -222,10 +270,27 @@ class Tracker:
             s = slice(p * N, (p + 1) * N)
             noise, n0 = take_noise(N)
             x, u = np.zeros((N, 2)), np.zeros((N, 2))
-            done, status = runner(args, noise, n0, self.ref.x_um[s], self._command(p),
-                                                 self.pid_p, pid_s, u_last, self.lim, self.trip, over,
-                                                 self.um_per_v, y_last, 1.0 / self.fs, x, u, ai, diag,
-                                                 session.stop_flag)
+            done, status = runner(
+                args,
+                noise,
+                n0,
+                self.ref.x_um[s],
+                self._command(p),
+                self.pid_p,
+                pid_s,
+                u_last,
+                self.lim,
+                self.trip,
+                over,
+                self.um_per_v,
+                y_last,
+                1.0 / self.fs,
+                x,
+                u,
+                ai,
+                diag,
+                session.stop_flag,
+            )
             rec.x_um[s][:done], rec.u_v[s][:done] = x[:done], u[:done]
             rec.samples = p * N + done
             if status == CK.STOPPED:

@@ -1,5 +1,6 @@
 """Safety checks before a trajectory runs: modes the backend can run, current, slew, resonance,
 voltage and sensor range. Each refusal is a ``ControlRefused`` naming the field and the reason."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +8,6 @@ import numpy as np
 from drivers.bench import Bench
 from drivers.interfaces import LimitError
 from service.science.errors import FieldError
-
 
 #: A hysteresis-only feedforward ignores the flexure's dynamic gain (+13 % at 100 Hz on Z), so a demand
 #: up to this factor beyond the axis's voltage limit is clipped (feedback/ILC make up the rest); beyond it, refused.
@@ -37,8 +37,7 @@ def available_modes(bench: Bench) -> dict[str, str | None]:
         pbp = caps.point_by_point_reason or "this DAQ has no point-by-point mode"
     elif not bench.compiled_stepping:
         pbp = "this DAQ offers no compiled stepping hook, so a 20 kHz per-sample loop cannot run in real time"
-    return {"point_by_point": pbp,
-            "buffered": None if caps.buffered else "this DAQ has no buffered streaming mode"}
+    return {"point_by_point": pbp, "buffered": None if caps.buffered else "this DAQ has no buffered streaming mode"}
 
 
 def check_mode(bench: Bench, mode: str, pid: bool) -> None:
@@ -49,13 +48,17 @@ def check_mode(bench: Bench, mode: str, pid: bool) -> None:
     if modes[mode] is not None:
         raise ControlRefused("mode", f"{mode} is not available on {bench.parts.backend}: {modes[mode]}")
     if mode == "buffered" and pid:
-        raise ControlRefused("controller.pid", "per-sample PID needs point-by-point mode: buffered streaming "
-                             "returns each measurement a block (one period or more) after the command left, so "
-                             "feedback every sample is impossible; use ilc (it learns between periods)")
+        raise ControlRefused(
+            "controller.pid",
+            "per-sample PID needs point-by-point mode: buffered streaming "
+            "returns each measurement a block (one period or more) after the command left, so "
+            "feedback every sample is impossible; use ilc (it learns between periods)",
+        )
 
 
-def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | None, frequency_hz: float,
-                     steady: slice = slice(None)) -> None:
+def check_trajectory(
+    bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | None, frequency_hz: float, steady: slice = slice(None)
+) -> None:
     """Refuse a reference outside the sensor range, a feedforward beyond the axis's voltage limits
     (``bench.limits``, the stack's rating), or a drive whose
     current, slew or frequency the amplifier and flexure cannot take (Bench.check_sine, at the
@@ -73,8 +76,11 @@ def check_trajectory(bench: Bench, x_ref_um: np.ndarray, u_ff_v: np.ndarray | No
             u = u_ff_v[steady, i]
             slack = vpp * (VOLTAGE_MARGIN - 1)
             if np.max(u) > v_max + slack or np.min(u) < v_min - slack:
-                raise ControlRefused(field, f"{axis} reference needs {np.min(u):.1f}–{np.max(u):.1f} V by the "
-                                     f"feedforward model; the actuator limit is {v_min:g}–{v_max:g} V")
+                raise ControlRefused(
+                    field,
+                    f"{axis} reference needs {np.min(u):.1f}–{np.max(u):.1f} V by the "
+                    f"feedforward model; the actuator limit is {v_min:g}–{v_max:g} V",
+                )
             vpp = max(float(np.ptp(u)), 1.0)
         try:
             bench.check_sine(axis, vpp, frequency_hz)
@@ -95,9 +101,16 @@ def model_stroke_um(model, sample_rate_hz: float, v_max: float) -> float:
     return float(np.max(model.predict(slow, sample_rate_hz=sample_rate_hz)))
 
 
-def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: np.ndarray, u_ff_v: np.ndarray,
-                 models: dict, sample_rate_hz: float,
-                 steady: slice = slice(None)) -> tuple[dict[str, str], list[str]]:
+def check_stroke(
+    bench: Bench,
+    ranges_um: dict,
+    frequency_hz: float,
+    x_ref_um: np.ndarray,
+    u_ff_v: np.ndarray,
+    models: dict,
+    sample_rate_hz: float,
+    steady: slice = slice(None),
+) -> tuple[dict[str, str], list[str]]:
     """(refusals {axis: reason}, warnings): per axis, why a requested range lies beyond what the axis can reach
     within its actuator limits (``bench.limits``), judged by the feedforward model's demand over
     the ``steady`` samples.
@@ -116,12 +129,17 @@ def check_stroke(bench: Bench, ranges_um: dict, frequency_hz: float, x_ref_um: n
             continue
         lo, hi = ranges_um[axis]
         need = float(np.max(model.stack_demand_um(x_ref_um[:, i], sample_rate_hz)[steady]))
-        via = (f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)" if model.judges_stroke
-               else " (by a model without flexure dynamics, which overstates the voltage near a resonance)")
-        text = (f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {hi:g} µm{via}: "
-                f"{np.min(u):.1f}–{np.max(u):.1f} V by the feedforward model; the axis reaches "
-                f"{model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at {v_max:g} V, so the range is beyond "
-                f"the stroke")
+        via = (
+            f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)"
+            if model.judges_stroke
+            else " (by a model without flexure dynamics, which overstates the voltage near a resonance)"
+        )
+        text = (
+            f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {hi:g} µm{via}: "
+            f"{np.min(u):.1f}–{np.max(u):.1f} V by the feedforward model; the axis reaches "
+            f"{model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at {v_max:g} V, so the range is beyond "
+            f"the stroke"
+        )
         if model.judges_stroke:
             refusals[axis] = text
         else:

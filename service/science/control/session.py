@@ -1,10 +1,11 @@
 """One tracking experiment end to end: reference, safety checks, feedforward, ILC learning filter
 (measured on the bench), the run, and the metrics. Used by the API, the report and the benchmark."""
+
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -12,7 +13,7 @@ from drivers.bench import Bench
 from service.science.control.feedforward import INVERSE_TOLERANCE_SHARE, feedforward_v, inverse_miss_um
 from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
 from service.science.control.ilc_stability import learning_diagnosis
-from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, TrackRecord, Tracker
+from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, Tracker, TrackRecord
 from service.science.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
 from service.science.control.trajectory import Ellipse, Reference, reference
 from service.science.fitting.metrics import rms
@@ -48,9 +49,17 @@ class Controller:
     planned: tuple[Reference, np.ndarray | None, list[str]] | None = None
 
 
-def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarray, centre_um: np.ndarray,
-                     mode: str, pid: dict[str, PIDGains] | None, amplitude_v: float = 10.0,
-                     periods: int = 16) -> tuple[np.ndarray, np.ndarray]:
+def measure_response(
+    bench: Bench,
+    period: int,
+    harmonics: int,
+    bias_v: np.ndarray,
+    centre_um: np.ndarray,
+    mode: str,
+    pid: dict[str, PIDGains] | None,
+    amplitude_v: float = 10.0,
+    periods: int = 16,
+) -> tuple[np.ndarray, np.ndarray]:
     """G(k) (2, K+1) µm/V from the feedforward input to the gauges, and the noise variance σ² (2,) µm²
     of one period's normalised DFT per axis: a multisine on top of ``bias_v`` in the same loop (PID
     or not) that the ILC will learn in; reference held at ``centre_um``."""
@@ -58,15 +67,21 @@ def measure_response(bench: Bench, period: int, harmonics: int, bias_v: np.ndarr
     n = (ramp + periods) * period
     env = np.ones(n)
     w = 0.5 - 0.5 * np.cos(np.pi * np.arange(ramp * period) / (ramp * period))
-    env[:ramp * period] = w
+    env[: ramp * period] = w
     ms = np.stack([multisine(period, harmonics, amplitude_v, seed=i) for i in range(2)], axis=1)
     inj = np.tile(ms, (ramp + periods, 1)) * env[:, None]
     u = env[:, None] * bias_v[None, :] + inj
-    ref = Reference(x_um=env[:, None] * centre_um[None, :], envelope=env, sample_rate_hz=SAMPLE_RATE_HZ,
-                    period=period, ramp_periods=ramp, cycles=periods - ramp)   # ramp in, no ramp out
+    ref = Reference(
+        x_um=env[:, None] * centre_um[None, :],
+        envelope=env,
+        sample_rate_hz=SAMPLE_RATE_HZ,
+        period=period,
+        ramp_periods=ramp,
+        cycles=periods - ramp,
+    )  # ramp in, no ramp out
     trip = np.array([[1e3, 1e9, 0.98 * bench.parts.sensors[a].range_um[1]] for a in bench.axes])
     rec = Tracker(bench, ref, u, mode=mode, pid=pid, trip=trip).run()
-    if rec.stopped:   # an emergency stop or a signal: the tracking run must not start afterwards
+    if rec.stopped:  # an emergency stop or a signal: the tracking run must not start afterwards
         raise StopRequested(rec.stop_reason or "stopped on request")
     if rec.tripped:
         raise RuntimeError(f"response measurement stopped: {rec.tripped}")
@@ -84,34 +99,49 @@ def metrics(rec: TrackRecord, ref: Reference, v_limits: np.ndarray, eval_periods
     e = ref.x_um[start:end] - rec.x_um[start:end]
     pp = np.ptp(ref.steady_period(), axis=0)
     mx = np.max(np.abs(e), axis=0)
-    return {"max_error_y_um": float(mx[0]), "max_error_z_um": float(mx[1]),
-            "rms_error_um": rms(e), "rms_error_y_um": rms(e[:, 0]), "rms_error_z_um": rms(e[:, 1]),
-            "relative_error_pct": float(100 * np.max(mx / pp)), "evaluated_periods": int((end - start) // ref.period),
-            "command_max_v": {a: float(np.max(rec.u_v[start:end, i])) for i, a in enumerate("yz")},
-            "command_at_limit_pct": float(100 * np.mean((rec.u_v[start:end] >= v_limits[:, 1] - 1e-3) | (rec.u_v[start:end] <= v_limits[:, 0] + 1e-3)))}
+    return {
+        "max_error_y_um": float(mx[0]),
+        "max_error_z_um": float(mx[1]),
+        "rms_error_um": rms(e),
+        "rms_error_y_um": rms(e[:, 0]),
+        "rms_error_z_um": rms(e[:, 1]),
+        "relative_error_pct": float(100 * np.max(mx / pp)),
+        "evaluated_periods": int((end - start) // ref.period),
+        "command_max_v": {a: float(np.max(rec.u_v[start:end, i])) for i, a in enumerate("yz")},
+        "command_at_limit_pct": float(
+            100 * np.mean((rec.u_v[start:end] >= v_limits[:, 1] - 1e-3) | (rec.u_v[start:end] <= v_limits[:, 0] + 1e-3))
+        ),
+    }
 
 
 #: why an inverse misses, unless the model says so itself (its ``inverse_advice``)
-INVERSE_ADVICE = ("The model's output is not monotone in the drive along this reference (or jumps, as "
-                  "segment-switched rate terms do), so no drive makes it follow: refit without the effect that "
-                  "makes it so, or use hysteresis + delay + dynamics")
+INVERSE_ADVICE = (
+    "The model's output is not monotone in the drive along this reference (or jumps, as "
+    "segment-switched rate terms do), so no drive makes it follow: refit without the effect that "
+    "makes it so, or use hysteresis + delay + dynamics"
+)
 
 
-def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequency_hz: float,
-                  steady: slice) -> None:
+def check_inverse(model, axis: str, u_v: np.ndarray, x_ref_um: np.ndarray, frequency_hz: float, steady: slice) -> None:
     """Refuse a feedforward drive the model itself says misses the reference (a diverged inverse)."""
     miss = inverse_miss_um(model, u_v, x_ref_um, SAMPLE_RATE_HZ, steady)
     span = float(np.ptp(x_ref_um[steady]))
     if miss > INVERSE_TOLERANCE_SHARE * span:
         name = type(model).__name__
-        raise ControlRefused(f"controller.feedforward_model_{axis}", (
-            f"the {name} model's inverse does not converge at {frequency_hz:g} Hz: its own prediction of the "
-            f"feedforward drive misses the {axis.upper()} reference by {miss:.3g} µm RMS "
-            f"({100 * miss / span:.0f} % of its {span:.3g} µm range). " + getattr(model, "inverse_advice", INVERSE_ADVICE)))
+        raise ControlRefused(
+            f"controller.feedforward_model_{axis}",
+            (
+                f"the {name} model's inverse does not converge at {frequency_hz:g} Hz: its own prediction of the "
+                f"feedforward drive misses the {axis.upper()} reference by {miss:.3g} µm RMS "
+                f"({100 * miss / span:.0f} % of its {span:.3g} µm range). "
+                + getattr(model, "inverse_advice", INVERSE_ADVICE)
+            ),
+        )
 
 
-def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
-         warnings: list[str] | None = None) -> tuple[Reference, np.ndarray | None]:
+def plan(
+    bench: Bench, ellipse: Ellipse, controller: Controller, mode: str, warnings: list[str] | None = None
+) -> tuple[Reference, np.ndarray | None]:
     """Reference and feedforward (V), after every safety check (raises ControlRefused). A range beyond
     the stroke (by a feedforward model with flexure dynamics) is refused unless
     ``controller.allow_saturation``, when its reason is appended to ``warnings`` instead; a
@@ -128,12 +158,22 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
                 u_ff[:, i] = feedforward_v(model, ref.x_um[:, i], SAMPLE_RATE_HZ, v_limits=(-np.inf, np.inf))
                 check_inverse(model, axis, u_ff[:, i], ref.x_um[:, i], ellipse.frequency_hz, steady)
         check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady)
-        reasons, soft = check_stroke(bench, {"y": ellipse.y_range_um, "z": ellipse.z_range_um},
-                                     ellipse.frequency_hz, ref.x_um, u_ff, controller.feedforward, SAMPLE_RATE_HZ,
-                                     steady=steady)
+        reasons, soft = check_stroke(
+            bench,
+            {"y": ellipse.y_range_um, "z": ellipse.z_range_um},
+            ellipse.frequency_hz,
+            ref.x_um,
+            u_ff,
+            controller.feedforward,
+            SAMPLE_RATE_HZ,
+            steady=steady,
+        )
         if reasons and not controller.allow_saturation:
-            raise ControlRefused(f"{next(iter(reasons))}_range_um", "; ".join(reasons.values()) + " (set "
-                                 "controller.allow_saturation to run it with the command clamped at the axis's voltage limits)")
+            raise ControlRefused(
+                f"{next(iter(reasons))}_range_um",
+                "; ".join(reasons.values()) + " (set "
+                "controller.allow_saturation to run it with the command clamped at the axis's voltage limits)",
+            )
         if warnings is not None:
             warnings.extend([*reasons.values(), *soft])
         lims = [bench.limits[axis] for axis in bench.axes]
@@ -143,9 +183,14 @@ def plan(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str,
     return ref, u_ff
 
 
-def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "point_by_point",
-          on_period: Callable[[int, TrackRecord], None] | None = None,
-          should_stop: Callable[[], bool] | None = None) -> tuple[dict, TrackRecord, Reference]:
+def track(
+    bench: Bench,
+    ellipse: Ellipse,
+    controller: Controller,
+    mode: str = "point_by_point",
+    on_period: Callable[[int, TrackRecord], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> tuple[dict, TrackRecord, Reference]:
     """Run one experiment; returns (result dict, record, reference)."""
     if controller.planned is not None:
         ref, u_ff, said = controller.planned
@@ -156,20 +201,37 @@ def track(bench: Bench, ellipse: Ellipse, controller: Controller, mode: str = "p
     ilc = None
     if controller.ilc:
         steady = ref.steady_period()
-        bias = (np.mean(u_ff[ref.steady][:ref.period], axis=0) if u_ff is not None
-                else np.full(2, 60.0))
-        g, noise_var = measure_response(bench, ref.period, controller.ilc_harmonics, bias, steady.mean(axis=0), mode,
-                             controller.pid, amplitude_v=10.0 if controller.pid is None else 4.0)
+        bias = np.mean(u_ff[ref.steady][: ref.period], axis=0) if u_ff is not None else np.full(2, 60.0)
+        g, noise_var = measure_response(
+            bench,
+            ref.period,
+            controller.ilc_harmonics,
+            bias,
+            steady.mean(axis=0),
+            mode,
+            controller.pid,
+            amplitude_v=10.0 if controller.pid is None else 4.0,
+        )
         ilc = HarmonicILC(g, ref.period, gain=controller.ilc_gain, noise_var_um2=noise_var)
     t0, c0 = time.perf_counter(), time.process_time()
     rec = Tracker(bench, ref, u_ff, mode=mode, pid=controller.pid, ilc=ilc).run(on_period, should_stop)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    result = {"mode": mode, "samples": rec.samples, "tripped": rec.tripped, "stopped": rec.stopped,
-              "loop_wall_s": wall, "loop_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / wall,
-              "loop_cpu_s": cpu, "loop_cpu_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / max(cpu, 1e-9),
-              "error_per_period_um": rec.error_per_period_um, "ilc_stop_reason": rec.ilc_stop_reason,
-              "reference_peak_to_peak_um": ellipse.peak_to_peak_um, "warnings": warnings,
-              "pid": controller.pid_report, "ilc": controller.ilc_report}
+    result = {
+        "mode": mode,
+        "samples": rec.samples,
+        "tripped": rec.tripped,
+        "stopped": rec.stopped,
+        "loop_wall_s": wall,
+        "loop_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / wall,
+        "loop_cpu_s": cpu,
+        "loop_cpu_realtime_factor": (rec.samples / ref.sample_rate_hz + SETTLE_S) / max(cpu, 1e-9),
+        "error_per_period_um": rec.error_per_period_um,
+        "ilc_stop_reason": rec.ilc_stop_reason,
+        "reference_peak_to_peak_um": ellipse.peak_to_peak_um,
+        "warnings": warnings,
+        "pid": controller.pid_report,
+        "ilc": controller.ilc_report,
+    }
     if rec.tripped and ilc is not None:
         result["tripped"] = f"{rec.tripped}; {learning_diagnosis(ilc, controller.ilc_report)}"
     if rec.tripped is None and not rec.stopped:

@@ -9,6 +9,7 @@ A sampled loop has at least one sample of latency plus half a sample of hold (75
 plus the DAQ's own pipeline (``loop_delay_s``); a USB DAQ in a software loop, ~1 ms.
 ``delay_margin`` is the older question without delay or derivative filter (kept for the notes).
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -77,10 +78,10 @@ def controller_response(gains: tuple, f_hz: np.ndarray) -> np.ndarray:
 def plant_response(plant: AxisPlant, f_hz: np.ndarray) -> np.ndarray:
     """G(jω) (µm/V) of ``plant`` (without a mode when its resonance is not finite)."""
     s = 2j * np.pi * np.asarray(f_hz, dtype=float)
-    if not np.isfinite(plant.resonance_hz):          # no mode declared or identified: gain and delay
+    if not np.isfinite(plant.resonance_hz):  # no mode declared or identified: gain and delay
         return plant.gain_um_per_v * np.exp(-s * plant.delay_s)
     wn = 2 * np.pi * plant.resonance_hz
-    mode = wn ** 2 / (s ** 2 + 2 * plant.damping_ratio * wn * s + wn ** 2)
+    mode = wn**2 / (s**2 + 2 * plant.damping_ratio * wn * s + wn**2)
     return plant.gain_um_per_v * mode * np.exp(-s * plant.delay_s)
 
 
@@ -92,16 +93,16 @@ def margins_of(loop: np.ndarray, f_hz: np.ndarray, delay_s: float) -> LoopMargin
     1 + L must rise by exactly +90° with an integrator (from −90° to 0°), by 0° without one; each
     encirclement of −1 takes 360° off."""
     mag = np.abs(loop)
-    turn = np.angle(1.0 + loop)                                # the phase of 1 + L, then its steps
-    steps = np.diff(turn)                                      # wrapped to (−π, π]: the angle of each
-    steps -= 2 * np.pi * np.round(steps / (2 * np.pi))         # step's ratio (1 + L[k+1])/(1 + L[k])
+    turn = np.angle(1.0 + loop)  # the phase of 1 + L, then its steps
+    steps = np.diff(turn)  # wrapped to (−π, π]: the angle of each
+    steps -= 2 * np.pi * np.round(steps / (2 * np.pi))  # step's ratio (1 + L[k+1])/(1 + L[k])
     wind = turn[0] + np.sum(steps)
     stable = abs(wind) < np.pi / 2
     cross = np.flatnonzero(np.diff(np.sign(mag - 1.0)) != 0)
     if len(cross):
-        phase_deg = np.degrees(np.angle(loop[cross]))          # (−180°, 180°]: a derivative's lead counts
-        pm_i = 180.0 - np.abs(phase_deg)                       # the angle to −1 either way round
-        lag_room_rad = np.radians(np.mod(phase_deg + 180.0, 360.0))   # a delay only turns the phase back
+        phase_deg = np.degrees(np.angle(loop[cross]))  # (−180°, 180°]: a derivative's lead counts
+        pm_i = 180.0 - np.abs(phase_deg)  # the angle to −1 either way round
+        lag_room_rad = np.radians(np.mod(phase_deg + 180.0, 360.0))  # a delay only turns the phase back
         w_i = 2 * np.pi * f_hz[cross]
         worst = int(np.argmin(pm_i))
         pm, fc = float(pm_i[worst]), float(f_hz[cross[worst]])
@@ -115,8 +116,9 @@ def margins_of(loop: np.ndarray, f_hz: np.ndarray, delay_s: float) -> LoopMargin
     return LoopMargins(bool(stable), fc, pm, gm, dm, float(delay_s))
 
 
-def loop_margins(kp: float, ki: float, kd: float, tf_s: float, plant: AxisPlant,
-                 f_hz: np.ndarray = GRID_HZ, damping=None) -> LoopMargins:
+def loop_margins(
+    kp: float, ki: float, kd: float, tf_s: float, plant: AxisPlant, f_hz: np.ndarray = GRID_HZ, damping=None
+) -> LoopMargins:
     """Predicted ``LoopMargins`` of PID (kp V/µm, ki V/(µm·s), kd V·s/µm, derivative filter tf_s s),
     with the mode ``damping`` section in parallel when given, on ``plant``."""
     loop = controller_response((kp, ki, kd, tf_s, damping), f_hz) * plant_response(plant, f_hz)
@@ -125,19 +127,26 @@ def loop_margins(kp: float, ki: float, kd: float, tf_s: float, plant: AxisPlant,
 
 @dataclass(frozen=True)
 class DelayMargin:
-    crossover_hz: float       #: highest frequency where |C·G| = 1
-    phase_margin_deg: float   #: at that crossover, without delay
-    delay_margin_s: float     #: the pure delay that brings the phase margin to 0
+    crossover_hz: float  #: highest frequency where |C·G| = 1
+    phase_margin_deg: float  #: at that crossover, without delay
+    delay_margin_s: float  #: the pure delay that brings the phase margin to 0
 
 
-def delay_margin(kp: float, ki: float, kd: float, gain_um_per_v: float, resonance_hz: float,
-                 damping_ratio: float, f_max_hz: float = 1e6) -> DelayMargin:
+def delay_margin(
+    kp: float,
+    ki: float,
+    kd: float,
+    gain_um_per_v: float,
+    resonance_hz: float,
+    damping_ratio: float,
+    f_max_hz: float = 1e6,
+) -> DelayMargin:
     """Crossover, phase margin and delay margin of PID (kp V/µm, ki V/(µm·s), kd V·s/µm) on the
     second-order axis above (gain µm/V, first mode in Hz, damping ratio). Unfiltered derivative."""
     w = 2 * np.pi * np.logspace(0, np.log10(f_max_hz), 200_000)
     s = 1j * w
     wn = 2 * np.pi * resonance_hz
-    loop = (kp + ki / s + kd * s) * gain_um_per_v * wn ** 2 / (s ** 2 + 2 * damping_ratio * wn * s + wn ** 2)
+    loop = (kp + ki / s + kd * s) * gain_um_per_v * wn**2 / (s**2 + 2 * damping_ratio * wn * s + wn**2)
     above = np.abs(loop) >= 1.0
     if not above.any():
         return DelayMargin(float("nan"), float("inf"), float("inf"))

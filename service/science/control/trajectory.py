@@ -4,6 +4,7 @@ The ellipse's long axis makes ``inclination_deg`` with Z. Each axis is a sine at
 ``frequency_hz`` whose span (µm) and minimum come from the range form ``y_range_um=(1, 6)``
 or the amplitude form (peak-to-peak ``amplitude_y_um`` above ``min_y_um``, default 1 µm).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -42,8 +43,11 @@ class Ellipse:
         if not (np.isfinite(a2) and np.isfinite(b2)):
             raise FieldError("y_range_um", f"spans of {2 * ay:g} µm (Y) and {2 * az:g} µm (Z) are too large to sample")
         if a2 < 0 or b2 < 0 or (a2 < b2):
-            raise FieldError("inclination_deg", f"no ellipse inclined {self.inclination_deg:g}° to Z has "
-                             f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm")
+            raise FieldError(
+                "inclination_deg",
+                f"no ellipse inclined {self.inclination_deg:g}° to Z has "
+                f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm",
+            )
         return float(np.sqrt(a2)), float(np.sqrt(b2))
 
     @property
@@ -62,8 +66,11 @@ def validate(e: Ellipse) -> None:
         raise FieldError("cycles", f"must lie in 1–10000, got {e.cycles}")
     duration_s = (e.cycles + 2 * RAMP_PERIODS) / e.frequency_hz
     if duration_s > MAX_DURATION_S:
-        raise FieldError("cycles", f"{e.cycles} cycles at {e.frequency_hz:g} Hz (with the start and stop ramps) "
-                         f"last {duration_s:.3g} s; a trajectory may last at most {MAX_DURATION_S:g} s")
+        raise FieldError(
+            "cycles",
+            f"{e.cycles} cycles at {e.frequency_hz:g} Hz (with the start and stop ramps) "
+            f"last {duration_s:.3g} s; a trajectory may last at most {MAX_DURATION_S:g} s",
+        )
     if not -90 <= e.inclination_deg <= 90:
         raise FieldError("inclination_deg", f"must lie in −90–90°, got {e.inclination_deg}")
     e.semi_axes_um()
@@ -92,7 +99,7 @@ class Reference:
 
     def steady_period(self) -> np.ndarray:
         """One steady-state period (period, 2) in µm."""
-        return self.x_um[self.steady][:self.period]
+        return self.x_um[self.steady][: self.period]
 
 
 def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = RAMP_PERIODS) -> Reference:
@@ -103,8 +110,9 @@ def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = RAMP_PERIOD
     validate(e)
     period = int(round(sample_rate_hz / e.frequency_hz))
     if abs(period * e.frequency_hz - sample_rate_hz) > 1e-6 * sample_rate_hz:
-        raise FieldError("frequency_hz", f"{e.frequency_hz:g} Hz is not a whole number of samples at "
-                         f"{sample_rate_hz:g} Hz")
+        raise FieldError(
+            "frequency_hz", f"{e.frequency_hz:g} Hz is not a whole number of samples at {sample_rate_hz:g} Hz"
+        )
     periods = 2 * ramp_periods + e.cycles
     n = periods * period
     phase = 2 * np.pi * np.arange(n) / period
@@ -118,7 +126,13 @@ def reference(e: Ellipse, sample_rate_hz: float, ramp_periods: int = RAMP_PERIOD
     if r:
         w = 0.5 - 0.5 * np.cos(np.pi * np.arange(r) / r)
         env[:r] = w
-        env[n - r:] = w[::-1]
+        env[n - r :] = w[::-1]
     x = np.stack([env * (cy + y), env * (cz + z)], axis=1)
-    return Reference(x_um=x, envelope=env, sample_rate_hz=float(sample_rate_hz), period=period,
-                     ramp_periods=ramp_periods, cycles=e.cycles)
+    return Reference(
+        x_um=x,
+        envelope=env,
+        sample_rate_hz=float(sample_rate_hz),
+        period=period,
+        ramp_periods=ramp_periods,
+        cycles=e.cycles,
+    )

@@ -13,6 +13,7 @@ damping ratio and ``ASSUMED_DAMPING``) and the loop's delay
 rest allows, subject to ``Targets``: phase margin, gain margin and delay margin (a multiple of the
 loop's own delay), with the derivative filter fixed (``TF_S``).
 """
+
 from __future__ import annotations
 
 import functools
@@ -23,8 +24,16 @@ import numpy as np
 from service.science.control.damping import ModeDamping, realisable
 from service.science.control.safety import ControlRefused
 from service.science.control.session import SAMPLE_RATE_HZ
-from service.science.control.stability import (GRID_HZ, AxisPlant, LoopMargins, loop_delay_s, loop_margins,
-                                               margins_of, pid_response, plant_response)
+from service.science.control.stability import (
+    GRID_HZ,
+    AxisPlant,
+    LoopMargins,
+    loop_delay_s,
+    loop_margins,
+    margins_of,
+    pid_response,
+    plant_response,
+)
 
 #: damping ratio assumed for a flexure mode no model has identified (lighter than typical: a safe guess)
 ASSUMED_DAMPING = 0.02
@@ -54,13 +63,18 @@ class Targets:
             out.append(f"gain margin {m.gain_margin_db:.1f} dB < {self.gain_margin_db:g} dB")
         need_s = self.delay_margin_factor * m.loop_delay_s
         if not m.delay_margin_s >= need_s:
-            out.append(f"delay margin {m.delay_margin_s * 1e6:.0f} µs < {self.delay_margin_factor:g} × the loop's "
-                       f"{m.loop_delay_s * 1e6:.0f} µs delay")
+            out.append(
+                f"delay margin {m.delay_margin_s * 1e6:.0f} µs < {self.delay_margin_factor:g} × the loop's "
+                f"{m.loop_delay_s * 1e6:.0f} µs delay"
+            )
         return out
 
     def as_dict(self) -> dict:
-        return {"phase_margin_deg": self.phase_margin_deg, "gain_margin_db": self.gain_margin_db,
-                "delay_margin_factor": self.delay_margin_factor}
+        return {
+            "phase_margin_deg": self.phase_margin_deg,
+            "gain_margin_db": self.gain_margin_db,
+            "delay_margin_factor": self.delay_margin_factor,
+        }
 
 
 def largest_slope_um_per_v(model, sample_rate_hz: float, span_v: float = SLOPE_SPAN_V) -> float:
@@ -115,8 +129,16 @@ class Tuned:
         return (self.kp, self.ki, self.kd, self.tf_s, self.damping)
 
 
-def _best_ki(plant: AxisPlant, targets: Targets, kp: float, kd: float, ki_grid: np.ndarray,
-             f_hz: np.ndarray, responses: list[np.ndarray], extra: np.ndarray | float = 0.0) -> float:
+def _best_ki(
+    plant: AxisPlant,
+    targets: Targets,
+    kp: float,
+    kd: float,
+    ki_grid: np.ndarray,
+    f_hz: np.ndarray,
+    responses: list[np.ndarray],
+    extra: np.ndarray | float = 0.0,
+) -> float:
     """The largest ki on ``ki_grid`` (rising) for which (kp, ki, kd) beside the response ``extra``
     (V/µm on ``f_hz``: a damping section) meets ``targets`` on every plant response of ``responses``
     (``checked_plants``); 0 if none."""
@@ -200,14 +222,23 @@ def expected_error(plant: AxisPlant, controller: np.ndarray, band_hz: np.ndarray
 def damping_candidates(plant: AxisPlant, sample_rate_hz: float = SAMPLE_RATE_HZ) -> list[ModeDamping | None]:
     """None and every PPF section of the grid above on ``plant``'s mode that a loop at
     ``sample_rate_hz`` runs as designed (damping.realisable; none for a mode it cannot see)."""
-    return [None] + [ModeDamping(share / plant.gain_um_per_v, detune * plant.resonance_hz, ratio)
-                     for share in DAMPING_SHARES for ratio in DAMPING_RATIOS for detune in DAMPING_DETUNES
-                     if np.isfinite(plant.resonance_hz) and realisable(detune * plant.resonance_hz, sample_rate_hz)]
+    return [None] + [
+        ModeDamping(share / plant.gain_um_per_v, detune * plant.resonance_hz, ratio)
+        for share in DAMPING_SHARES
+        for ratio in DAMPING_RATIOS
+        for detune in DAMPING_DETUNES
+        if np.isfinite(plant.resonance_hz) and realisable(detune * plant.resonance_hz, sample_rate_hz)
+    ]
 
 
-@functools.lru_cache(maxsize=64)     # a pure function of frozen inputs; a search takes seconds
-def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = DESIGN_FREQUENCY_HZ,
-         damp: bool = False, sample_rate_hz: float = SAMPLE_RATE_HZ) -> Tuned:
+@functools.lru_cache(maxsize=64)  # a pure function of frozen inputs; a search takes seconds
+def tune(
+    plant: AxisPlant,
+    targets: Targets = Targets(),
+    frequency_hz: float = DESIGN_FREQUENCY_HZ,
+    damp: bool = False,
+    sample_rate_hz: float = SAMPLE_RATE_HZ,
+) -> Tuned:
     """The PID meeting ``targets`` on ``plant`` that tracks a trajectory at ``frequency_hz`` best, with
     the largest ki (integral action against creep and drift) that kp, kd leave.
 
@@ -215,9 +246,12 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
     PPF section on the mode beside the PID, and best = the least ``expected_error`` over the
     harmonics up to the mode; first the section (``_pick_section``), then the PID beside it
     (``_search_pid``). ValueError when no gain set meets the targets."""
-    f_hz = GRID_HZ[::3]            # the search reads a coarser grid; the answer is checked on the fine one
-    strict = Targets(targets.phase_margin_deg + SEARCH_SLACK[0], targets.gain_margin_db + SEARCH_SLACK[1],
-                     targets.delay_margin_factor * SEARCH_SLACK[2])
+    f_hz = GRID_HZ[::3]  # the search reads a coarser grid; the answer is checked on the fine one
+    strict = Targets(
+        targets.phase_margin_deg + SEARCH_SLACK[0],
+        targets.gain_margin_db + SEARCH_SLACK[1],
+        targets.delay_margin_factor * SEARCH_SLACK[2],
+    )
     band_hz = design_harmonics(plant, frequency_hz) if damp else np.array([float(frequency_hz)])
 
     def cost_of(c_band: np.ndarray) -> float:
@@ -227,7 +261,7 @@ def tune(plant: AxisPlant, targets: Targets = Targets(), frequency_hz: float = D
 
     damping = _pick_section(plant, strict, f_hz, band_hz, cost_of, sample_rate_hz) if damp else None
     kp, ki, kd = _search_pid(plant, targets, strict, f_hz, band_hz, cost_of, damping)
-    for _ in range(40):                 # the fine grid may see a sliver the coarse one did not: back off
+    for _ in range(40):  # the fine grid may see a sliver the coarse one did not: back off
         misses = worst_failures(targets, (kp, ki, kd, TF_S, damping), plant)
         if not misses:
             return Tuned(kp, ki, kd, TF_S, loop_margins(kp, ki, kd, TF_S, plant, damping=damping), damping)
@@ -239,8 +273,9 @@ def _ki_grid(plant: AxisPlant) -> np.ndarray:
     return np.logspace(0, 5, 41) / plant.gain_um_per_v
 
 
-def _pick_section(plant: AxisPlant, strict: Targets, f_hz: np.ndarray, band_hz: np.ndarray,
-                  cost_of, sample_rate_hz: float) -> ModeDamping | None:
+def _pick_section(
+    plant: AxisPlant, strict: Targets, f_hz: np.ndarray, band_hz: np.ndarray, cost_of, sample_rate_hz: float
+) -> ModeDamping | None:
     """The candidate section (or None) that, beside the largest integral gain it allows within
     ``strict``, leaves the least ``cost_of`` its controller on ``band_hz``."""
     responses = [plant_response(p, f_hz) for p in checked_plants(plant)]
@@ -257,13 +292,20 @@ def _pick_section(plant: AxisPlant, strict: Targets, f_hz: np.ndarray, band_hz: 
     return best
 
 
-def _search_pid(plant: AxisPlant, targets: Targets, strict: Targets, f_hz: np.ndarray, band_hz: np.ndarray,
-                cost_of, damping: ModeDamping | None) -> tuple[float, float, float]:
+def _search_pid(
+    plant: AxisPlant,
+    targets: Targets,
+    strict: Targets,
+    f_hz: np.ndarray,
+    band_hz: np.ndarray,
+    cost_of,
+    damping: ModeDamping | None,
+) -> tuple[float, float, float]:
     """(kp, ki, kd) beside ``damping`` with the least ``cost_of``: a coarse grid over kp and kd (ki by
     a rising scan to the largest that meets ``strict``), then a finer grid around the best."""
     responses = [plant_response(p, f_hz) for p in checked_plants(plant)]
-    extra, extra_band = ((0.0, 0.0) if damping is None else (damping.response(f_hz), damping.response(band_hz)))
-    scale = 1.0 / plant.gain_um_per_v            # gains in units of the plant's inverse gain
+    extra, extra_band = (0.0, 0.0) if damping is None else (damping.response(f_hz), damping.response(band_hz))
+    scale = 1.0 / plant.gain_um_per_v  # gains in units of the plant's inverse gain
     best, best_cost = (0.0, 0.0, 0.0), np.inf
     kp_grid = scale * np.logspace(-3, 1, 17)
     kd_grid = scale * np.concatenate(([0.0], np.logspace(-6, -3, 13)))
@@ -279,8 +321,9 @@ def _search_pid(plant: AxisPlant, targets: Targets, strict: Targets, f_hz: np.nd
                     best, best_cost = (float(kp), ki, float(kd)), cost
         kp0, ki0, kd0 = best
         if ki0 == 0.0:
-            raise ValueError("no PID meets the targets on this plant: " + ", ".join(f"{k} {v}" for k, v in
-                                                                                    targets.as_dict().items()))
+            raise ValueError(
+                "no PID meets the targets on this plant: " + ", ".join(f"{k} {v}" for k, v in targets.as_dict().items())
+            )
         kp_grid = kp0 * np.logspace(-0.25, 0.25, 9)
         kd_grid = np.concatenate(([0.0], kd0 * np.logspace(-0.25, 0.25, 9))) if kd0 > 0 else kd_grid[:4]
         ki_grid = ki0 * np.logspace(-0.3, 0.3, 41)
@@ -289,7 +332,7 @@ def _search_pid(plant: AxisPlant, targets: Targets, strict: Targets, f_hz: np.nd
 
 #: "auto" on the default bench (seed 0), plant from the static PI identified on its 1 Hz 0–120 V loop
 #: (service.science.control.feedforward.identify; no flexure dynamics, so no damping section);
-#: tests/test_control_gains.py recomputes it
+#: tests/api/test_control_gains.py recomputes it
 TUNED_PID = {"y": (0.6095, 252.6, 0.0, TF_S), "z": (0.4188, 121.5, 3.627e-4, TF_S)}
 #: PID presets a request may name besides "auto" and explicit gains
 PRESETS = ("auto", "tuned", "paper")
@@ -317,14 +360,26 @@ def bench_plants(bench, models: dict, sample_rate_hz: float) -> dict:
     """axis → ``AxisPlant`` from the axis's feedforward model (None without one), the bench's first
     resonance and the loop delay of a per-sample loop on its DAQ at ``sample_rate_hz``."""
     delay = loop_delay_s(sample_rate_hz, getattr(bench.parts.daq.capabilities, "latency_samples", 0))
-    return {axis: (None if models.get(axis) is None else
-                   plant_from_model(models[axis], bench.limits[axis].first_resonance_hz, delay, sample_rate_hz))
-            for axis in bench.axes}
+    return {
+        axis: (
+            None
+            if models.get(axis) is None
+            else plant_from_model(models[axis], bench.limits[axis].first_resonance_hz, delay, sample_rate_hz)
+        )
+        for axis in bench.axes
+    }
 
 
-def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), force: bool = False,
-               frequency_hz: float = DESIGN_FREQUENCY_HZ, field: str = "controller.pid",
-               damped_axes: frozenset = frozenset()) -> tuple[dict, dict, list[str]]:
+def choose_pid(
+    spec,
+    plants: dict,
+    presets: dict,
+    targets: Targets = Targets(),
+    force: bool = False,
+    frequency_hz: float = DESIGN_FREQUENCY_HZ,
+    field: str = "controller.pid",
+    damped_axes: frozenset = frozenset(),
+) -> tuple[dict, dict, list[str]]:
     """The gains per axis a request's ``spec`` names ("auto", a key of ``presets`` (axis → PIDGains-like),
     or axis → (kp, ki, kd, tf_s)), with their predicted margins on ``plants`` (axis → AxisPlant, or
     None where no identified model gives the plant); "auto" tunes for a trajectory at ``frequency_hz``,
@@ -341,8 +396,11 @@ def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), 
     for axis, plant in plants.items():
         if name == "auto":
             if plant is None:
-                raise ControlRefused(field, f'"auto" tunes on the plant identified on the bench: give '
-                                     f"controller.feedforward_model_{axis} (its largest slope is the {axis.upper()} gain)")
+                raise ControlRefused(
+                    field,
+                    f'"auto" tunes on the plant identified on the bench: give '
+                    f"controller.feedforward_model_{axis} (its largest slope is the {axis.upper()} gain)",
+                )
             try:
                 tuned = tune(plant, targets, frequency_hz, damp=axis in damped_axes)
             except ValueError as exc:
@@ -350,24 +408,43 @@ def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), 
             g = tuned.gains()
         else:
             p = presets[name][axis] if name in presets else spec[axis]
-            g = ((float(p[0]), float(p[1]), float(p[2]), float(p[3]), p[4] if len(p) > 4 else None)
-                 if isinstance(p, tuple) else (p.kp, p.ki, p.kd, p.tf_s, p.damping))
+            g = (
+                (float(p[0]), float(p[1]), float(p[2]), float(p[3]), p[4] if len(p) > 4 else None)
+                if isinstance(p, tuple)
+                else (p.kp, p.ki, p.kd, p.tf_s, p.damping)
+            )
         gains[axis] = g
-        entry = {"kp": g[0], "ki": g[1], "kd": g[2], "tf_s": g[3], "damping": None if g[4] is None else g[4].as_dict(),
-                 "plant": None, "margins": None, "failures": []}
+        entry = {
+            "kp": g[0],
+            "ki": g[1],
+            "kd": g[2],
+            "tf_s": g[3],
+            "damping": None if g[4] is None else g[4].as_dict(),
+            "plant": None,
+            "margins": None,
+            "failures": [],
+        }
         if plant is None:
             warnings.append(f"{axis.upper()} PID margins not predicted: no feedforward model gives the plant")
         else:
             margins = loop_margins(*g[:4], plant, damping=g[4])
             fails = targets.failures(margins)
             entry.update(plant=plant.as_dict(), margins=margins.as_dict(), failures=fails)
-            section = "" if g[4] is None else (f", mode damping {g[4].gain_v_per_um:.3g} V/µm at "
-                                               f"{g[4].frequency_hz:.0f} Hz ζ {g[4].damping_ratio:g}")
-            said = (f"{axis.upper()} kp {g[0]:.4g} V/µm, ki {g[1]:.4g} V/(µm·s), kd {g[2]:.4g} V·s/µm{section}: "
-                    f"{'stable' if margins.stable else 'UNSTABLE'}, phase margin {margins.phase_margin_deg:.1f}°, gain "
-                    f"margin {margins.gain_margin_db:.1f} dB, delay margin {margins.delay_margin_s * 1e6:.0f} µs "
-                    f"(on {plant.gain_um_per_v:.3g} µm/V, {plant.resonance_hz:.1f} Hz ζ {plant.damping_ratio:.3g}, "
-                    f"{plant.delay_s * 1e6:.0f} µs delay)")
+            section = (
+                ""
+                if g[4] is None
+                else (
+                    f", mode damping {g[4].gain_v_per_um:.3g} V/µm at "
+                    f"{g[4].frequency_hz:.0f} Hz ζ {g[4].damping_ratio:g}"
+                )
+            )
+            said = (
+                f"{axis.upper()} kp {g[0]:.4g} V/µm, ki {g[1]:.4g} V/(µm·s), kd {g[2]:.4g} V·s/µm{section}: "
+                f"{'stable' if margins.stable else 'UNSTABLE'}, phase margin {margins.phase_margin_deg:.1f}°, gain "
+                f"margin {margins.gain_margin_db:.1f} dB, delay margin {margins.delay_margin_s * 1e6:.0f} µs "
+                f"(on {plant.gain_um_per_v:.3g} µm/V, {plant.resonance_hz:.1f} Hz ζ {plant.damping_ratio:.3g}, "
+                f"{plant.delay_s * 1e6:.0f} µs delay)"
+            )
             without_mode = [f for f in worst_failures(targets, g, plant) if f.endswith("without the flexure mode")]
             entry["failures_without_mode"] = without_mode
             if name == "paper" or not margins.stable:
@@ -375,15 +452,23 @@ def choose_pid(spec, plants: dict, presets: dict, targets: Targets = Targets(), 
             elif fails:
                 warnings.append(said + f"; misses: {', '.join(fails)}")
             if without_mode and name != "paper":
-                warnings.append(f"{axis.upper()}: if the stage's mode is not where the bench declares it: "
-                                + ", ".join(without_mode))
+                warnings.append(
+                    f"{axis.upper()}: if the stage's mode is not where the bench declares it: "
+                    + ", ".join(without_mode)
+                )
         report["axes"][axis] = entry
     if name == "paper" and not force and not refusals:
         refusals.append("the paper's gains cannot be judged without a feedforward model per axis")
     if refusals and not force:
-        why = ('the paper\'s gains (eq. 19 units) are refused: ' if name == "paper" else
-               "these gains are predicted unstable: ")
-        raise ControlRefused(field, why + "; ".join(refusals) + ' (use "auto", or set controller.force to run '
-                             "them anyway; the divergence watch trips the run to 0 V)")
+        why = (
+            "the paper's gains (eq. 19 units) are refused: "
+            if name == "paper"
+            else "these gains are predicted unstable: "
+        )
+        raise ControlRefused(
+            field,
+            why + "; ".join(refusals) + ' (use "auto", or set controller.force to run '
+            "them anyway; the divergence watch trips the run to 0 V)",
+        )
     warnings.extend(refusals)
     return gains, report, warnings

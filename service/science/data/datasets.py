@@ -1,7 +1,7 @@
 """Dataset arrays: parse CSV/whitespace tables (with a column mapping) as a stream, and validate.
 
 Arrays inside the service are named with units: ``t_s``, ``u_y_v``, ``x_y_um``, ``u_z_v``,
-``x_z_um``, ``temp_c``. Files follow DESIGN.md §4: a header row ``t,u_y,x_y,u_z,x_z[,temp_c]``
+``x_z_um``, ``temp_c``. Files follow the dataset CSV format: a header row ``t,u_y,x_y,u_z,x_z[,temp_c]``
 (``t`` in seconds, volts at the actuator, micrometres), or ``u,x`` plus an ``axis``. Headerless
 or foreign files need ``columns``, a mapping such as ``{"u": 0, "x": 4}`` (0-based indices or
 header names; a value may also be ``{"column": 4, "scale": 1.0, "offset": 0.0}`` or
@@ -16,6 +16,7 @@ conversion). Measured data is not a command: any drive range is accepted and rec
 (``drive_range_v``); values implausible for a piezo stage (a stroke of millimetres, a sample rate
 under 100 Hz) are accepted with a note saying which unit may be meant. No HTTP and no store here.
 """
+
 from __future__ import annotations
 
 import io
@@ -30,20 +31,49 @@ from drivers.interfaces import AXES
 from service.science.data.table_reader import DataError, Layout, TableReader
 from service.science.data.units import SERVICE_UNIT, conversion, known_units, quantity_of_unit, split_unit
 
-__all__ = ["DataError", "ParsedTable", "parse_table", "check_sample_rate", "units_for", "ordered_names",
-           "csv_name", "stored_sample_rate_hz", "SAMPLE_RATE_RANGE_HZ", "CANONICAL", "UNITS"]
+__all__ = [
+    "DataError",
+    "ParsedTable",
+    "parse_table",
+    "check_sample_rate",
+    "units_for",
+    "ordered_names",
+    "csv_name",
+    "stored_sample_rate_hz",
+    "SAMPLE_RATE_RANGE_HZ",
+    "CANONICAL",
+    "UNITS",
+]
 
 #: sample rates (Hz) an imported record may have, given or implied by its time column
 SAMPLE_RATE_RANGE_HZ = (1.0, 10e6)
 MIN_ROWS = 10
 # canonical column name -> internal array name
-CANONICAL = {"t": "t_s", "temp_c": "temp_c", "u": "u", "x": "x",
-             **{f"u_{a}": f"u_{a}_v" for a in AXES}, **{f"x_{a}": f"x_{a}_um" for a in AXES}}
+CANONICAL = {
+    "t": "t_s",
+    "temp_c": "temp_c",
+    "u": "u",
+    "x": "x",
+    **{f"u_{a}": f"u_{a}_v" for a in AXES},
+    **{f"x_{a}": f"x_{a}_um" for a in AXES},
+}
 # header spellings accepted for each canonical name (our own export and the internal names)
-ALIASES = {"t_s": "t", "time": "t", "time_s": "t", **{f"u_{a}_v": f"u_{a}" for a in AXES},
-           **{f"x_{a}_um": f"x_{a}" for a in AXES}, "u_v": "u", "x_um": "x"}
-UNITS = {"t_s": "s", "temp_c": "°C", **{f"u_{a}_v": "V" for a in AXES}, **{f"x_{a}_um": "µm" for a in AXES},
-         **{f"ref_{a}_um": "µm" for a in AXES}}
+ALIASES = {
+    "t_s": "t",
+    "time": "t",
+    "time_s": "t",
+    **{f"u_{a}_v": f"u_{a}" for a in AXES},
+    **{f"x_{a}_um": f"x_{a}" for a in AXES},
+    "u_v": "u",
+    "x_um": "x",
+}
+UNITS = {
+    "t_s": "s",
+    "temp_c": "°C",
+    **{f"u_{a}_v": "V" for a in AXES},
+    **{f"x_{a}_um": "µm" for a in AXES},
+    **{f"ref_{a}_um": "µm" for a in AXES},
+}
 
 
 #: what a piezo stage plausibly does; beyond it an import is accepted with a note on the unit
@@ -68,8 +98,14 @@ class ParsedTable:
         return len(self.arrays["t_s"])
 
 
-def parse_table(source: bytes | BinaryIO, *, columns: dict | str | None = None, axis: str | None = None,
-                sample_rate_hz: float | None = None, delimiter: str | None = None) -> ParsedTable:
+def parse_table(
+    source: bytes | BinaryIO,
+    *,
+    columns: dict | str | None = None,
+    axis: str | None = None,
+    sample_rate_hz: float | None = None,
+    delimiter: str | None = None,
+) -> ParsedTable:
     """Parse and validate an uploaded table (bytes, or a binary file object read as a stream).
 
     The options and the first line decide the layout and the column mapping, so a request that
@@ -90,8 +126,9 @@ def parse_table(source: bytes | BinaryIO, *, columns: dict | str | None = None, 
     for name, data in arrays.items():
         if not np.isfinite(data).all():
             bad = np.flatnonzero(~np.isfinite(data))
-            raise DataError(csv_name(name), f"row {int(bad[0]) + 1} of the data is NaN or infinite "
-                                            f"({bad.size} such values)")
+            raise DataError(
+                csv_name(name), f"row {int(bad[0]) + 1} of the data is NaN or infinite ({bad.size} such values)"
+            )
     axes = [a for a in AXES if f"u_{a}_v" in arrays]
     drive_range_v = {a: [float(arrays[f"u_{a}_v"].min()), float(arrays[f"u_{a}_v"].max())] for a in axes}
     rate = _sample_rate(arrays.pop("t_s", None), sample_rate_hz)
@@ -111,8 +148,12 @@ def check_sample_rate(sample_rate_hz: float | None, field: str = "sample_rate_hz
     except (TypeError, ValueError):
         raise DataError(field, f"must be a number of hertz, got {sample_rate_hz!r}") from None
     if not (math.isfinite(value) and low <= value <= high):
-        raise DataError(field, f"{value:g} Hz is outside {low:g} Hz–{high / 1e6:g} MHz" if math.isfinite(value)
-                        else f"must be a finite number of hertz in {low:g} Hz–{high / 1e6:g} MHz")
+        raise DataError(
+            field,
+            f"{value:g} Hz is outside {low:g} Hz–{high / 1e6:g} MHz"
+            if math.isfinite(value)
+            else f"must be a finite number of hertz in {low:g} Hz–{high / 1e6:g} MHz",
+        )
     return value
 
 
@@ -122,8 +163,9 @@ def stored_sample_rate_hz(row: dict, field: str = "datasets") -> float:
     try:
         return check_sample_rate(row["sample_rate_hz"])
     except DataError as exc:
-        raise DataError(field, f"dataset {row['id']}: sample_rate_hz {exc.message}; import it again with a "
-                               "sample rate in range") from None
+        raise DataError(
+            field, f"dataset {row['id']}: sample_rate_hz {exc.message}; import it again with a sample rate in range"
+        ) from None
 
 
 def units_for(arrays) -> dict[str, str]:
@@ -138,7 +180,7 @@ def ordered_names(names) -> list[str]:
 
 
 def csv_name(name: str) -> str:
-    """The DESIGN §4 column name of an internal array name (``u_y_v`` → ``u_y``)."""
+    """The dataset CSV's column name of an internal array name (``u_y_v`` → ``u_y``)."""
     inverse = {v: k for k, v in CANONICAL.items()}
     return inverse.get(name, name)
 
@@ -169,8 +211,14 @@ class ColumnSpec:
 
 
 #: the quantity of each canonical column
-QUANTITY = {"t": "time", "temp_c": "temperature", "u": "voltage", "x": "length",
-            **{f"u_{a}": "voltage" for a in AXES}, **{f"x_{a}": "length" for a in AXES}}
+QUANTITY = {
+    "t": "time",
+    "temp_c": "temperature",
+    "u": "voltage",
+    "x": "length",
+    **{f"u_{a}": "voltage" for a in AXES},
+    **{f"x_{a}": "length" for a in AXES},
+}
 
 
 def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> tuple[dict[str, ColumnSpec], list[str]]:
@@ -179,32 +227,39 @@ def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> tup
     header, given = layout.header, mapping is not None
     if mapping is None:
         if header is None:
-            raise DataError("columns", 'the file has no header row; give a column mapping such as '
-                                       '{"u": 0, "x": 4} (0-based column indices)')
+            raise DataError(
+                "columns",
+                'the file has no header row; give a column mapping such as {"u": 0, "x": 4} (0-based column indices)',
+            )
         mapping = {}
         for index, written in enumerate(layout.written):
             canonical = _canonical(written)
             if canonical is not None and canonical not in mapping:
                 mapping[canonical] = index
         if not any(QUANTITY[name] in ("voltage", "length") for name in mapping):
-            raise DataError("file", f"no known columns in header {layout.written}; expected t, u_y, x_y, u_z, "
-                                    "x_z, temp_c or u, x (a unit may follow: t_ms, 'x_y [nm]')"
-                                    + _suggested_mapping(layout.written))
+            raise DataError(
+                "file",
+                f"no known columns in header {layout.written}; expected t, u_y, x_y, u_z, "
+                "x_z, temp_c or u, x (a unit may follow: t_ms, 'x_y [nm]')" + _suggested_mapping(layout.written),
+            )
     specs, notes = {}, []
     for name, spec in mapping.items():
         canonical = ALIASES.get(name, name)
         if canonical not in CANONICAL:
-            raise DataError("columns", f"unknown column name {name!r}; use t, u_y, x_y, u_z, x_z, "
-                                       "temp_c, or u and x with an axis")
+            raise DataError(
+                "columns", f"unknown column name {name!r}; use t, u_y, x_y, u_z, x_z, temp_c, or u and x with an axis"
+            )
         field = "columns" if given else csv_name(CANONICAL[canonical])
         specs[canonical] = _column_spec(canonical, name, spec, layout, notes, field)
     return _name_axes(specs, axis), notes
 
 
 #: words other labs name their columns with, for the mapping a refusal suggests (never applied unasked)
-COLUMN_WORDS = {"t": ("t", "time", "zeit", "temps", "tiempo"),
-                "u": ("u", "v", "voltage", "drive", "input", "command", "spannung", "vin", "ua"),
-                "x": ("x", "displacement", "position", "pos", "disp", "gauge", "sensor", "weg", "output", "d")}
+COLUMN_WORDS = {
+    "t": ("t", "time", "zeit", "temps", "tiempo"),
+    "u": ("u", "v", "voltage", "drive", "input", "command", "spannung", "vin", "ua"),
+    "x": ("x", "displacement", "position", "pos", "disp", "gauge", "sensor", "weg", "output", "d"),
+}
 
 
 def _suggested_mapping(written: list[str]) -> str:
@@ -217,8 +272,10 @@ def _suggested_mapping(written: list[str]) -> str:
             found[key] = hits[0]
     if "u" not in found or "x" not in found:
         return ""
-    return (f"; if {', '.join(repr(found[k]) + ' is ' + k for k in found)}, give columns "
-            f"{json.dumps(found, ensure_ascii=False)} and the axis (units in the names are converted)")
+    return (
+        f"; if {', '.join(repr(found[k]) + ' is ' + k for k in found)}, give columns "
+        f"{json.dumps(found, ensure_ascii=False)} and the axis (units in the names are converted)"
+    )
 
 
 def _canonical(written: str) -> str | None:
@@ -281,7 +338,7 @@ def _column_spec(canonical: str, name: str, spec, layout: Layout, notes: list[st
         explicit_scale = "scale" in spec
         if spec.get("unit") is not None:
             if not isinstance(spec["unit"], str):
-                raise DataError("columns", f"{name}: unit must be text such as \"nm\", not {spec['unit']!r}")
+                raise DataError("columns", f'{name}: unit must be text such as "nm", not {spec["unit"]!r}')
             given_unit = spec["unit"].strip().lower()
         spec = spec["column"]
     if isinstance(spec, bool) or not isinstance(spec, (int, str)):
@@ -291,11 +348,12 @@ def _column_spec(canonical: str, name: str, spec, layout: Layout, notes: list[st
             raise DataError("columns", f"{name}: no column named {spec!r} in the header {layout.written}")
         index = header.index(spec.lower())
     elif not 0 <= spec < width:
-        raise DataError("columns", f"{name}: column {spec} does not exist; the file has {width} columns "
-                                   f"(0-based: 0..{width - 1})")
+        raise DataError(
+            "columns", f"{name}: column {spec} does not exist; the file has {width} columns (0-based: 0..{width - 1})"
+        )
     else:
         index = spec
-    if explicit_scale:               # the mapping's scale is the whole conversion
+    if explicit_scale:  # the mapping's scale is the whole conversion
         return ColumnSpec(index, scale, offset)
     unit, where = (given_unit, f"the mapping's unit {given_unit!r}") if given_unit else _written_unit(index, layout)
     if unit is None:
@@ -306,14 +364,19 @@ def _column_spec(canonical: str, name: str, spec, layout: Layout, notes: list[st
         other = quantity_of_unit(unit)
         what = f"a {other} unit" if other else "a unit this service does not know"
         prefix = "" if csv_name(CANONICAL[canonical]) == field else f"{name}: "
-        raise DataError(field, f"{prefix}{where} gives {what}, not one of {quantity} ({known_units(quantity)}); "
-                        f"map the column as {{\"column\": {index}, \"scale\": <{SERVICE_UNIT[quantity]} per value>}} "
-                        "if it is right")
+        raise DataError(
+            field,
+            f"{prefix}{where} gives {what}, not one of {quantity} ({known_units(quantity)}); "
+            f'map the column as {{"column": {index}, "scale": <{SERVICE_UNIT[quantity]} per value>}} '
+            "if it is right",
+        )
     unit_scale, unit_offset = factor
     if (unit_scale, unit_offset) != (1.0, 0.0):
-        notes.append(f"{csv_name(CANONICAL[canonical]) if canonical in CANONICAL else name}: {where} gives {unit}; "
-                     f"converted to {SERVICE_UNIT[quantity]}"
-                     + (f" (× {unit_scale:g})" if unit_offset == 0.0 else f" ({unit_offset:+g})"))
+        notes.append(
+            f"{csv_name(CANONICAL[canonical]) if canonical in CANONICAL else name}: {where} gives {unit}; "
+            f"converted to {SERVICE_UNIT[quantity]}"
+            + (f" (× {unit_scale:g})" if unit_offset == 0.0 else f" ({unit_offset:+g})")
+        )
     return ColumnSpec(index, unit_scale, unit_offset + offset, unit)
 
 
@@ -322,8 +385,9 @@ def _name_axes(values: dict, axis: str | None) -> dict:
     arrays: dict = {}
     if "u" in values or "x" in values:
         if axis not in AXES:
-            raise DataError("axis", f"a single-axis file (columns u, x) needs axis set to one of "
-                                    f"{', '.join(AXES)}; got {axis!r}")
+            raise DataError(
+                "axis", f"a single-axis file (columns u, x) needs axis set to one of {', '.join(AXES)}; got {axis!r}"
+            )
         if f"u_{axis}" in values or f"x_{axis}" in values:
             raise DataError("columns", f"both u/x and u_{axis}/x_{axis} are given")
         values = {({"u": f"u_{axis}", "x": f"x_{axis}"}.get(k, k)): v for k, v in values.items()}
@@ -349,15 +413,17 @@ def _sample_rate(t: np.ndarray | None, sample_rate_hz: float | None) -> float:
     if dt.min() <= 0:
         raise DataError("t", f"time must increase; row {int(np.argmax(dt <= 0)) + 2} does not")
     index = np.arange(t.size) - 0.5 * (t.size - 1)
-    mean = float(index @ (t - t.mean()) / (index @ index))        # least-squares step (s)
+    mean = float(index @ (t - t.mean()) / (index @ index))  # least-squares step (s)
     if max(float(dt.max()) - mean, mean - float(dt.min())) > 0.01 * mean and not _rounded_grid(t, mean):
-        raise DataError("t", "the samples are not evenly spaced (spacing varies by more than 1 %); if the time "
-                             "stamps are jittered but the samples were clocked evenly, leave t out of the "
-                             "columns and give sample_rate_hz")
+        raise DataError(
+            "t",
+            "the samples are not evenly spaced (spacing varies by more than 1 %); if the time "
+            "stamps are jittered but the samples were clocked evenly, leave t out of the "
+            "columns and give sample_rate_hz",
+        )
     rate = float(f"{1.0 / mean:.10g}")  # drop float noise of the time column
     if sample_rate_hz is not None and abs(rate - sample_rate_hz) > 0.01 * sample_rate_hz:
-        raise DataError("sample_rate_hz", f"{sample_rate_hz:g} Hz disagrees with the time column "
-                                          f"({rate:.6g} Hz)")
+        raise DataError("sample_rate_hz", f"{sample_rate_hz:g} Hz disagrees with the time column ({rate:.6g} Hz)")
     if sample_rate_hz is None:
         check_sample_rate(rate, field="t")
     return float(sample_rate_hz if sample_rate_hz is not None else rate)
@@ -368,7 +434,7 @@ def _rounded_grid(t: np.ndarray, step_s: float) -> bool:
     0.0007, 0.0010 s): every stamp a multiple of 10⁻ᵏ s, none further than half of that from the grid."""
     grid = t.mean() + step_s * (np.arange(t.size) - 0.5 * (t.size - 1))
     for k in range(10):
-        quantum = 10.0 ** -k
+        quantum = 10.0**-k
         scaled = t / quantum
         if np.max(np.abs(scaled - np.round(scaled))) <= 1e-6 * max(1.0, float(np.max(np.abs(scaled))) * 1e-9):
             return bool(np.max(np.abs(t - grid)) <= 0.5 * quantum * (1 + 1e-6) + abs(step_s) * 1e-9)
@@ -382,8 +448,10 @@ def _read_as(reader: TableReader) -> list[str]:
     if reader.encoding != "utf-8":
         notes.append(f"file: read as {reader.encoding.upper()} text")
     if layout.decimal_comma:
-        notes.append(f"file: numbers written with decimal commas, read as decimal points "
-                     f"(fields separated by {'semicolons' if layout.sep == ';' else 'whitespace'})")
+        notes.append(
+            f"file: numbers written with decimal commas, read as decimal points "
+            f"(fields separated by {'semicolons' if layout.sep == ';' else 'whitespace'})"
+        )
     if layout.units is not None:
         notes.append(f"file: a units row under the header ({', '.join(layout.units)}) gives the columns' units")
     return notes
@@ -395,12 +463,18 @@ def _implausible(arrays: dict[str, np.ndarray], rate_hz: float, time_without_uni
     for name, data in arrays.items():
         span = float(np.ptp(data)) if data.size else 0.0
         if name.startswith("x_") and span > PLAUSIBLE_STROKE_UM:
-            notes.append(f"{csv_name(name)} spans {span:.4g} µm, more than a piezo stage moves; if its values "
-                         f"are nanometres, name the column {csv_name(name)}_nm or '{csv_name(name)} [nm]'")
+            notes.append(
+                f"{csv_name(name)} spans {span:.4g} µm, more than a piezo stage moves; if its values "
+                f"are nanometres, name the column {csv_name(name)}_nm or '{csv_name(name)} [nm]'"
+            )
         if name.startswith("u_") and span > PLAUSIBLE_DRIVE_V:
-            notes.append(f"{csv_name(name)} spans {span:.4g} V; if its values are millivolts, name the column "
-                         f"{csv_name(name)}_mv or '{csv_name(name)} [mV]'")
+            notes.append(
+                f"{csv_name(name)} spans {span:.4g} V; if its values are millivolts, name the column "
+                f"{csv_name(name)}_mv or '{csv_name(name)} [mV]'"
+            )
     if time_without_unit and rate_hz < PLAUSIBLE_MIN_SAMPLE_RATE_HZ:
-        notes.append(f"t implies {rate_hz:.4g} samples per second; if its values are milliseconds, name the "
-                     "column t_ms or 't [ms]'")
+        notes.append(
+            f"t implies {rate_hz:.4g} samples per second; if its values are milliseconds, name the "
+            "column t_ms or 't [ms]'"
+        )
     return notes

@@ -1,15 +1,17 @@
-"""Dataset downloads, encoded a chunk at a time: CSV (DESIGN §4), NDJSON, JSON, HDF5.
+"""Dataset downloads, encoded a chunk at a time: the dataset CSV, NDJSON, JSON, HDF5.
 
 Every encoder is a sync generator over an array source (``StoredArrays`` from the store, or
 ``MemoryArrays`` around a dict): it reads a bounded number of rows, encodes them and yields bytes,
 so memory does not grow with the dataset and no step holds the GIL for more than a few
 milliseconds (Starlette iterates a sync generator in its threadpool). No HTTP and no store here.
 """
+
 from __future__ import annotations
 
 import json
 import tempfile
-from typing import BinaryIO, Iterator
+from collections.abc import Iterator
+from typing import BinaryIO
 
 import numpy as np
 
@@ -62,13 +64,13 @@ def rows_per_chunk(n_columns: int) -> int:
 
 
 def export_names(source) -> list[str]:
-    """The columns of a download: DESIGN §4 order, then any others (e.g. ``ref_y_um``)."""
+    """The columns of a download: the dataset CSV's order, then any others (e.g. ``ref_y_um``)."""
     known = ordered_names(source.names)
     return known + [name for name in source.names if name not in known]
 
 
 def csv_chunks(source) -> Iterator[bytes]:
-    """The DESIGN §4 CSV: header ``t,u_y,x_y,…`` (extra arrays under their own names), then one row
+    """The dataset CSV: header ``t,u_y,x_y,…`` (extra arrays under their own names), then one row
     per sample (``CSV_NUMBER_FORMAT``)."""
     names = export_names(source)
     yield (",".join(csv_name(name) for name in names) + "\n").encode()
@@ -78,8 +80,10 @@ def csv_chunks(source) -> Iterator[bytes]:
         block = source.rows(start, start + step, names=names)
         table = np.column_stack([block[name].astype(float, copy=False) for name in names])
         rows = max(1, FORMAT_VALUES // len(names))
-        yield "".join((row_format * piece.shape[0]) % tuple(piece.ravel().tolist())
-                      for piece in (table[k:k + rows] for k in range(0, table.shape[0], rows))).encode()
+        yield "".join(
+            (row_format * piece.shape[0]) % tuple(piece.ravel().tolist())
+            for piece in (table[k : k + rows] for k in range(0, table.shape[0], rows))
+        ).encode()
 
 
 def to_csv(arrays: dict[str, np.ndarray]) -> str:
@@ -137,10 +141,15 @@ def hdf5_file(source, meta: dict) -> BinaryIO:
             for start in range(0, max(source.length, 1), HDF5_CHUNK_ROWS):
                 for name, values in source.rows(start, start + HDF5_CHUNK_ROWS, names=names).items():
                     if name not in h5:
-                        ds = h5.create_dataset(name, shape=(source.length,), dtype=values.dtype, compression="gzip",
-                                               chunks=(max(1, min(HDF5_CHUNK_ROWS, source.length)),))
+                        ds = h5.create_dataset(
+                            name,
+                            shape=(source.length,),
+                            dtype=values.dtype,
+                            compression="gzip",
+                            chunks=(max(1, min(HDF5_CHUNK_ROWS, source.length)),),
+                        )
                         ds.attrs["unit"] = UNITS.get(name, "")
-                    h5[name][start:start + values.size] = values
+                    h5[name][start : start + values.size] = values
             for key, value in meta.items():
                 if value is not None:
                     h5.attrs[key] = value if isinstance(value, (int, float, str, bool)) else json.dumps(value)

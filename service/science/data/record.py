@@ -8,9 +8,10 @@ other axis's drive and displacement (cross-coupling), and whether the last cycle
 are held out for validation (service.science.fitting.validation).
 Pure numpy: no model, no store, no HTTP.
 """
+
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -57,9 +58,22 @@ class Record:
     cycles of every block out of a fit (validation), False to fit every row.
     """
 
-    def __init__(self, u_v, x_um, sample_rate_hz: float, *, du_v_per_s=None, ddu_v_per_s2=None,
-                 label: str = "", blocks: list | None = None, axis: str | None = None, u_other_v=None,
-                 x_other_um=None, hold_out: bool = False, temp_c=None):
+    def __init__(
+        self,
+        u_v,
+        x_um,
+        sample_rate_hz: float,
+        *,
+        du_v_per_s=None,
+        ddu_v_per_s2=None,
+        label: str = "",
+        blocks: list | None = None,
+        axis: str | None = None,
+        u_other_v=None,
+        x_other_um=None,
+        hold_out: bool = False,
+        temp_c=None,
+    ):
         where = f"record '{label}': " if label else ""
         try:
             fs = float(sample_rate_hz)
@@ -69,8 +83,14 @@ class Record:
             raise ValueError(f"{where}sample_rate_hz must be positive and finite, got {sample_rate_hz}")
         u = finite_array("u_v", u_v, label)
         arrays = {}
-        for name, values in (("x_um", x_um), ("du_v_per_s", du_v_per_s), ("ddu_v_per_s2", ddu_v_per_s2),
-                             ("u_other_v", u_other_v), ("x_other_um", x_other_um), ("temp_c", temp_c)):
+        for name, values in (
+            ("x_um", x_um),
+            ("du_v_per_s", du_v_per_s),
+            ("ddu_v_per_s2", ddu_v_per_s2),
+            ("u_other_v", u_other_v),
+            ("x_other_um", x_other_um),
+            ("temp_c", temp_c),
+        ):
             arrays[name] = None if values is None else finite_array(name, values, label)
             if arrays[name] is not None and arrays[name].size != u.size:
                 raise ValueError(f"{where}u_v has {u.size} samples but {name} has {arrays[name].size}")
@@ -82,30 +102,46 @@ class Record:
         if period < MIN_SAMPLES_PER_CYCLE:
             raise ValueError(
                 f"{where}u_v has only {period:.1f} samples per cycle (dominant period "
-                f"{period / fs * 1e3:.4g} ms at {fs:g} Hz); at least {MIN_SAMPLES_PER_CYCLE} are needed")
+                f"{period / fs * 1e3:.4g} ms at {fs:g} Hz); at least {MIN_SAMPLES_PER_CYCLE} are needed"
+            )
         self.u_v, self.x_um, self.sample_rate_hz, self.label = u, arrays["x_um"], fs, str(label)
         self.u_other_v, self.x_other_um = arrays["u_other_v"], arrays["x_other_um"]
-        self.temp_c = arrays["temp_c"]          #: the stack's temperature (°C) where a thermometer read it
+        self.temp_c = arrays["temp_c"]  #: the stack's temperature (°C) where a thermometer read it
         self.axis, self.hold_out = axis, bool(hold_out)
         self._table = list(blocks) if blocks else None
         self._dominant_period = period
-        self._derivatives = (None if arrays["du_v_per_s"] is None
-                             else (arrays["du_v_per_s"], arrays["ddu_v_per_s2"]))
+        self._derivatives = None if arrays["du_v_per_s"] is None else (arrays["du_v_per_s"], arrays["ddu_v_per_s2"])
         self.analytic_derivatives = self._derivatives is not None
         self._splits: dict[bool, list[BlockSplit]] = {}
 
     @classmethod
-    def from_waveform(cls, waveform: Waveform, x_um=None, label: str = "") -> "Record":
+    def from_waveform(cls, waveform: Waveform, x_um=None, label: str = "") -> Record:
         """A record of a commanded waveform, carrying its exact rates."""
-        return cls(waveform.value, x_um, waveform.sample_rate_hz, du_v_per_s=waveform.d1_per_s,
-                   ddu_v_per_s2=waveform.d2_per_s2, label=label)
+        return cls(
+            waveform.value,
+            x_um,
+            waveform.sample_rate_hz,
+            du_v_per_s=waveform.d1_per_s,
+            ddu_v_per_s2=waveform.d2_per_s2,
+            label=label,
+        )
 
-    def with_x(self, x_um, label: str | None = None) -> "Record":
+    def with_x(self, x_um, label: str | None = None) -> Record:
         """The same drive (and everything else) with another displacement record."""
         du, ddu = self._derivatives if self.analytic_derivatives else (None, None)
-        return Record(self.u_v, x_um, self.sample_rate_hz, du_v_per_s=du, ddu_v_per_s2=ddu,
-                      label=self.label if label is None else label, blocks=self._table, axis=self.axis,
-                      u_other_v=self.u_other_v, x_other_um=self.x_other_um, hold_out=self.hold_out)
+        return Record(
+            self.u_v,
+            x_um,
+            self.sample_rate_hz,
+            du_v_per_s=du,
+            ddu_v_per_s2=ddu,
+            label=self.label if label is None else label,
+            blocks=self._table,
+            axis=self.axis,
+            u_other_v=self.u_other_v,
+            x_other_um=self.x_other_um,
+            hold_out=self.hold_out,
+        )
 
     # -- shape and time ---------------------------------------------------------------
     @property
@@ -154,8 +190,7 @@ class Record:
         if own_axis_only not in self._splits:
             axis = self.axis if own_axis_only else None
             fraction = HELD_OUT_FRACTION if self.hold_out else 0.0
-            self._splits[own_axis_only] = split_blocks(self.blocks, self.n_samples, self.sample_rate_hz, axis,
-                                                       fraction)
+            self._splits[own_axis_only] = split_blocks(self.blocks, self.n_samples, self.sample_rate_hz, axis, fraction)
         return self._splits[own_axis_only]
 
     @property
@@ -231,7 +266,7 @@ class Record:
         return f"Record(label={self.label!r}, n_samples={self.n_samples}, sample_rate_hz={self.sample_rate_hz:g})"
 
 
-def as_record_list(data: "Record | Iterable[Record]") -> list[Record]:
+def as_record_list(data: Record | Iterable[Record]) -> list[Record]:
     """A Record or an iterable of them as a non-empty list (fitted jointly)."""
     items = [data] if isinstance(data, Record) else list(data)
     if not items:

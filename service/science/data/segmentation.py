@@ -8,6 +8,7 @@ median), at least two whole cycles long, and returns them as sweep-style blocks;
 coincide on both axes (driven together) become one block with both axes. Holds, ramps between
 levels and irregular stretches fall outside every block.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,15 +37,17 @@ def steady_runs(u: np.ndarray, sample_rate_hz: float) -> list[dict]:
     half = np.diff(tp).astype(float)
     runs, i = [], 0
     while i < half.size:
-        ref = float(np.median(half[i:i + 5]))          # the run's half period, from its first few
+        ref = float(np.median(half[i : i + 5]))  # the run's half period, from its first few
         j = i
         while j < half.size and abs(half[j] - ref) <= STEADY_HALF_PERIOD_SHARE * ref:
             j += 1
-        if j - i >= 2 * MIN_CYCLES:                     # half periods i..j-1: turning points i..j
-            half_period = int(round((tp[j] - tp[i]) / (j - i)))   # a half period of margin each side
+        if j - i >= 2 * MIN_CYCLES:  # half periods i..j-1: turning points i..j
+            half_period = int(round((tp[j] - tp[i]) / (j - i)))  # a half period of margin each side
             a = max(0, tp[i] - half_period, tp[i - 1] if i > 0 else 0)
             b = min(u.size, tp[j] + half_period + 1, tp[j + 1] + 1 if j + 1 < tp.size else u.size)
-            run = _whole_cycles(u[a:b], a, 2.0 * half_period, mid=0.5 * (u[tp[i]:tp[j] + 1].min() + u[tp[i]:tp[j] + 1].max()))
+            run = _whole_cycles(
+                u[a:b], a, 2.0 * half_period, mid=0.5 * (u[tp[i] : tp[j] + 1].min() + u[tp[i] : tp[j] + 1].max())
+            )
             if run["cycles"] >= MIN_CYCLES:
                 runs.append({**run, "frequency_hz": sample_rate_hz / run["period"]})
         i = max(j, i + 1)
@@ -75,7 +78,7 @@ def _steady_chain(crossings: np.ndarray, period: float) -> np.ndarray:
     if crossings.size < 2:
         return crossings
     run = longest_linked_run(np.abs(np.diff(crossings) - period) <= CROSSING_SHARE * period)
-    return crossings[:1] if run is None else _off_line_ends(crossings[run[0]:run[1]])
+    return crossings[:1] if run is None else _off_line_ends(crossings[run[0] : run[1]])
 
 
 #: an end crossing is dropped when it lies further off the line through the others than this many
@@ -110,8 +113,10 @@ def detect_blocks(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> lis
     frequency) are cut where each starts and stops: each stretch is a block of the axes driven
     there, with ``frequencies_hz`` per axis and the frequency at which they repeat together
     (``joint_frequency_hz``; None if they do not), so that every block is whole cycles of its drive."""
-    found = sorted(((axis, run) for axis, u in drives_v.items() for run in steady_runs(u, sample_rate_hz)),
-                   key=lambda item: (item[1]["start"], item[1]["stop"]))
+    found = sorted(
+        ((axis, run) for axis, u in drives_v.items() for run in steady_runs(u, sample_rate_hz)),
+        key=lambda item: (item[1]["start"], item[1]["stop"]),
+    )
     blocks: list[dict] = []
     for cluster in _overlapping(found):
         blocks += _one_oscillation(cluster) or _stretches(cluster, sample_rate_hz)
@@ -143,8 +148,11 @@ def _one_oscillation(cluster: list) -> list[dict] | None:
     axes = [axis]
     for other_axis, run in rest:
         overlap = min(first["stop"], run["stop"]) - max(first["start"], run["start"])
-        if (other_axis in axes or not _same_frequency(first["frequency_hz"], run["frequency_hz"])
-                or overlap <= 0.5 * min(first["stop"] - first["start"], run["stop"] - run["start"])):
+        if (
+            other_axis in axes
+            or not _same_frequency(first["frequency_hz"], run["frequency_hz"])
+            or overlap <= 0.5 * min(first["stop"] - first["start"], run["stop"] - run["start"])
+        ):
             return None
         axes.append(other_axis)
     return [{**first, "kind": "detected", "axes": axes}]
@@ -162,20 +170,27 @@ def _stretches(cluster: list, sample_rate_hz: float) -> list[dict]:
         if not covering:
             continue
         frequencies = {axis: float(run["frequency_hz"]) for axis, run in covering}
-        if len(covering) == 1:                  # whole cycles of the run, on its own cycle grid
+        if len(covering) == 1:  # whole cycles of the run, on its own cycle grid
             run = covering[0][1]
             period = sample_rate_hz / run["frequency_hz"]
             first = int(np.ceil((lo - run["start"]) / period - 1e-6))
             last = int(np.floor((hi - run["start"]) / period + 1e-6))
-            block = {"start": run["start"] + int(round(first * period)), "cycles": last - first,
-                     "frequency_hz": float(run["frequency_hz"])}
-        else:                                   # whole common cycles, if the stretch holds MIN_CYCLES
+            block = {
+                "start": run["start"] + int(round(first * period)),
+                "cycles": last - first,
+                "frequency_hz": float(run["frequency_hz"]),
+            }
+        else:  # whole common cycles, if the stretch holds MIN_CYCLES
             joint = joint_frequency_hz(list(frequencies.values()))
             cycles = int(np.floor((hi - lo) * joint / sample_rate_hz + 1e-6)) if joint else 0
             periodic = cycles >= MIN_CYCLES
-            block = {"start": int(lo), "cycles": cycles if periodic else None,
-                     "frequency_hz": joint if periodic else None, "frequencies_hz": frequencies,
-                     "joint_frequency_hz": joint}
+            block = {
+                "start": int(lo),
+                "cycles": cycles if periodic else None,
+                "frequency_hz": joint if periodic else None,
+                "frequencies_hz": frequencies,
+                "joint_frequency_hz": joint,
+            }
         if block["frequency_hz"] is None:
             if hi - lo < MIN_CYCLES * sample_rate_hz / min(frequencies.values()):
                 continue
@@ -200,8 +215,14 @@ def joint_frequency_hz(frequencies_hz: list[float]) -> float | None:
     denominator = 1
     for f in frequencies_hz:
         ratio = f / slowest
-        q = next((q for q in range(1, MAX_JOINT_DENOMINATOR + 1)
-                  if abs(ratio * q - round(ratio * q)) <= JOINT_RATIO_SHARE * ratio * q), None)
+        q = next(
+            (
+                q
+                for q in range(1, MAX_JOINT_DENOMINATOR + 1)
+                if abs(ratio * q - round(ratio * q)) <= JOINT_RATIO_SHARE * ratio * q
+            ),
+            None,
+        )
         if q is None:
             return None
         denominator = denominator * q // math.gcd(denominator, q)
@@ -209,8 +230,10 @@ def joint_frequency_hz(frequencies_hz: list[float]) -> float | None:
 
 
 #: why a stretch of an imported record is in no block (it stays in the record: models run through it)
-OUTSIDE_BLOCKS = ("not steady oscillation (a rest, a ramp, or the first cycle out of a rest, before the "
-                  "oscillation is steady): outside the blocks")
+OUTSIDE_BLOCKS = (
+    "not steady oscillation (a rest, a ramp, or the first cycle out of a rest, before the "
+    "oscillation is steady): outside the blocks"
+)
 
 
 def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float) -> list[dict]:
@@ -227,25 +250,47 @@ def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float)
         previous_stop = 0
         for k, block in enumerate(blocks):
             after = n - int(block["stop"]) if k == len(blocks) - 1 else 0
-            block["trimmed"] = {"before_s": max(0, int(block["start"]) - previous_stop) / sample_rate_hz,
-                                "after_s": after / sample_rate_hz, "why": OUTSIDE_BLOCKS}
+            block["trimmed"] = {
+                "before_s": max(0, int(block["start"]) - previous_stop) / sample_rate_hz,
+                "after_s": after / sample_rate_hz,
+                "why": OUTSIDE_BLOCKS,
+            }
             previous_stop = max(previous_stop, int(block["stop"]))
         return blocks
-    whole = {"index": 0, "start": 0, "stop": n, "kind": "imported", "frequency_hz": None, "cycles": None,
-             "axes": list(drives_v)}
+    whole = {
+        "index": 0,
+        "start": 0,
+        "stop": n,
+        "kind": "imported",
+        "frequency_hz": None,
+        "cycles": None,
+        "axes": list(drives_v),
+    }
     if blocks:
         run = blocks[0]
         together = {k: run[k] for k in ("frequencies_hz", "joint_frequency_hz") if k in run}
-        f = run["frequency_hz"]            # None: axes driven at once that do not repeat together
+        f = run["frequency_hz"]  # None: axes driven at once that do not repeat together
         period = sample_rate_hz / (f or min(run["frequencies_hz"].values()))
         before, after = int(run["start"]), n - int(run["stop"])
-        if max(before, after) > period:   # a rest (or a ramp) around the excitation: the block is the
+        if max(before, after) > period:  # a rest (or a ramp) around the excitation: the block is the
             # steady oscillation alone, so its cycles and held-out cycles are the drive's own; the
             # rest stays in the record (the model runs through it) and is reported
-            return [{**whole, "start": int(run["start"]), "stop": int(run["stop"]), "frequency_hz": f,
-                     "cycles": run["cycles"], "axes": run["axes"], **together,
-                     "trimmed": {"before_s": before / sample_rate_hz, "after_s": after / sample_rate_hz,
-                                 "why": OUTSIDE_BLOCKS}}]
+            return [
+                {
+                    **whole,
+                    "start": int(run["start"]),
+                    "stop": int(run["stop"]),
+                    "frequency_hz": f,
+                    "cycles": run["cycles"],
+                    "axes": run["axes"],
+                    **together,
+                    "trimmed": {
+                        "before_s": before / sample_rate_hz,
+                        "after_s": after / sample_rate_hz,
+                        "why": OUTSIDE_BLOCKS,
+                    },
+                }
+            ]
         cycles = int(np.floor(n * f / sample_rate_hz + 1e-9)) if f else None
         whole.update(frequency_hz=f, cycles=cycles, axes=run["axes"], **together)
     return [whole]

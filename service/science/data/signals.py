@@ -4,12 +4,14 @@ Waveforms are generic in their unit (volts for a drive, micrometres for a refere
 ``value`` is in that unit, ``d1_per_s`` in unit/s and ``d2_per_s2`` in unit/s².
 Pure numpy/scipy: no model, no store, no HTTP.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
+
 from drivers.jit import njit
 
 #: A reversal counts as a turning point when it swings by this fraction of the range.
@@ -101,7 +103,7 @@ def prominent_peaks(y: np.ndarray, prominence: float) -> np.ndarray:
     ``scipy.signal.find_peaks(y, prominence=prominence)[0]``, in time linear in the record. (SciPy
     scans from every peak to the nearest higher sample, which is the whole record when the peaks
     are equally high, as in a clean or quantised drive: half a minute for 10 M samples.)"""
-    from scipy.signal import find_peaks   # scipy.signal costs a service 0.7 s of start-up: imported when used
+    from scipy.signal import find_peaks  # scipy.signal costs a service 0.7 s of start-up: imported when used
 
     y = np.ascontiguousarray(y, dtype=float)
     peaks, _ = find_peaks(y)
@@ -116,11 +118,11 @@ def _prominences(y, peaks):
     lowest points on either side before a higher sample. One pass per side with a stack of
     (height, lowest point since the peak below it on the stack): each peak is pushed and popped once."""
     n = peaks.size
-    gaps = np.empty(n + 1)                  # the lowest point before, between and after the peaks
-    gaps[0] = y[:peaks[0] + 1].min()
+    gaps = np.empty(n + 1)  # the lowest point before, between and after the peaks
+    gaps[0] = y[: peaks[0] + 1].min()
     for k in range(n - 1):
-        gaps[k + 1] = y[peaks[k]:peaks[k + 1] + 1].min()
-    gaps[n] = y[peaks[n - 1]:].min()
+        gaps[k + 1] = y[peaks[k] : peaks[k + 1] + 1].min()
+    gaps[n] = y[peaks[n - 1] :].min()
     base = np.empty((2, n))
     heights, lows = np.empty(n), np.empty(n)
     for side in range(2):
@@ -157,7 +159,7 @@ def dominant_period_samples(y: np.ndarray) -> float:
         regular = np.abs(half - np.median(half)) <= STEADY_HALF_PERIOD_SHARE * np.median(half)
         if regular.sum() >= max(1, half.size // 2):
             return 2.0 * float(np.mean(half[regular]))
-        return 2.0 * float(tp[-1] - tp[0]) / (tp.size - 1)   # no regular rhythm (several tones): the mean
+        return 2.0 * float(tp[-1] - tp[0]) / (tp.size - 1)  # no regular rhythm (several tones): the mean
     marks = np.concatenate([[0], tp, [max(y.size - 1, 1)]])
     return 2.0 * float(np.max(np.diff(marks)))
 
@@ -190,21 +192,25 @@ def savgol_derivatives(
 def savgol(y: np.ndarray, window: int, deriv: int, dt_s: float) -> np.ndarray:
     """``scipy.signal.savgol_filter(y, window, SAVGOL_POLYORDER, deriv, dt_s, mode="interp")``
     (unit/s^deriv), by overlap-add FFT when the window is long (the same filter; rounding apart)."""
-    from scipy.signal import oaconvolve, savgol_coeffs, savgol_filter   # see prominent_peaks
+    from scipy.signal import oaconvolve, savgol_coeffs, savgol_filter  # see prominent_peaks
 
     if window <= SAVGOL_DIRECT_MAX_WINDOW:
         return savgol_filter(y, window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s, mode="interp")
     out = oaconvolve(y, savgol_coeffs(window, SAVGOL_POLYORDER, deriv=deriv, delta=dt_s), mode="same")
     # mode="interp"'s edges: the polynomial fitted to the first (last) window, at its first (last) half
     half, t = window // 2, np.arange(window)
-    for fit, edge in ((slice(0, window), slice(0, half)), (slice(y.size - window, y.size), slice(window - half, window))):
+    for fit, edge in (
+        (slice(0, window), slice(0, half)),
+        (slice(y.size - window, y.size), slice(window - half, window)),
+    ):
         poly = np.polyder(np.polyfit(t, y[fit], SAVGOL_POLYORDER), deriv)
         out[fit][edge] = np.polyval(poly, t[edge]) / dt_s**deriv
     return out
 
 
-def drive_derivatives(u_v: np.ndarray, sample_rate_hz: float,
-                      blocks: Sequence[dict] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def drive_derivatives(
+    u_v: np.ndarray, sample_rate_hz: float, blocks: Sequence[dict] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """u̇ (V/s) and ü (V/s²) of a drive: the one estimator every model and record uses.
 
     Without ``blocks``: :func:`savgol_derivatives` over the whole drive (window from its dominant

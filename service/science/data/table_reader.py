@@ -12,12 +12,14 @@ quoted; a semicolon delimiter is guessed from the first line, and then decimal c
 as the columns' units; a header of the column numbers alone (``0,1,2``, as pandas writes it) is a
 header. Columns that are not asked for are never converted.
 """
+
 from __future__ import annotations
 
 import codecs
 import io
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import BinaryIO, Iterator
+from typing import BinaryIO
 
 import numpy as np
 
@@ -28,8 +30,17 @@ from service.science.errors import FieldError
 READ_BLOCK_BYTES = 8 * 1024
 #: a line longer than this is not a table row
 MAX_LINE_BYTES = 1024 * 1024
-DELIMITERS = {"comma": ",", ",": ",", "tab": "\t", "\\t": "\t", "\t": "\t", "semicolon": ";", ";": ";",
-              "whitespace": None, "space": None}
+DELIMITERS = {
+    "comma": ",",
+    ",": ",",
+    "tab": "\t",
+    "\\t": "\t",
+    "\t": "\t",
+    "semicolon": ";",
+    ";": ";",
+    "whitespace": None,
+    "space": None,
+}
 
 
 class DataError(FieldError):
@@ -64,10 +75,10 @@ class TableReader:
         self._handle = handle
         self._size_bytes = _remaining_bytes(handle)
         self._newline: str | None = None
-        self._line_no = 1          # number (1-based) of the first line not yet handed out
-        self.encoding = "utf-8"   #: the encoding the text was read in (utf-16 by its BOM, latin-1 if not UTF-8)
+        self._line_no = 1  # number (1-based) of the first line not yet handed out
+        self.encoding = "utf-8"  #: the encoding the text was read in (utf-16 by its BOM, latin-1 if not UTF-8)
         self._blocks = self._text_blocks()
-        self._first: list[tuple[int, list[str]]] = []     # blocks read ahead by the layout's sniff
+        self._first: list[tuple[int, list[str]]] = []  # blocks read ahead by the layout's sniff
         self.layout = self._sniff(delimiter)
 
     # ------------------------------------------------------------------ layout
@@ -82,7 +93,7 @@ class TableReader:
         sep = DELIMITERS[delimiter] if delimiter not in (None, "", "auto") else _guess_delimiter(text)
         fields = _split(text, sep)
         next_fields = _split(following[0][1], sep) if following else None
-        if _numbers(fields, sep) is None and sep is None and "\t" in text:   # names with spaces, between tabs
+        if _numbers(fields, sep) is None and sep is None and "\t" in text:  # names with spaces, between tabs
             fields = [f.strip() for f in text.split("\t")]
             next_fields = [f.strip() for f in following[0][1].split("\t")] if following else None
         if _numbers(fields, sep) is not None and not _column_numbers(fields, next_fields, sep):
@@ -90,9 +101,12 @@ class TableReader:
             return Layout(None, sep, len(fields), decimal_comma=_numbers(fields, sep))
         names = [f.strip('"') for f in fields]
         units = None
-        if next_fields is not None and len(next_fields) == len(fields) and not any(
-                _is_number(f) or _is_number(f.replace(",", ".")) for f in next_fields):
-            units = [f.strip('"') for f in next_fields]       # a units row under the header
+        if (
+            next_fields is not None
+            and len(next_fields) == len(fields)
+            and not any(_is_number(f) or _is_number(f.replace(",", ".")) for f in next_fields)
+        ):
+            units = [f.strip('"') for f in next_fields]  # a units row under the header
             self._rewind_to(following[0][0] + 1)
         else:
             self._rewind_to(first_no + 1)
@@ -156,15 +170,16 @@ class TableReader:
             if rows.shape[1] == width:
                 return rows[:, usecols]
         except ValueError:
-            pass   # text or blanks in some column, spaces on a blank line, or a real error
+            pass  # text or blanks in some column, spaces on a blank line, or a real error
         kept = self._checked_lines(lines, first_no)
         if not kept:
             return np.empty((0, len(usecols)))
         try:
-            return np.loadtxt(kept, delimiter=sep, comments=COMMENTS, quotechar='"', ndmin=2, usecols=usecols,
-                              dtype=float)
+            return np.loadtxt(
+                kept, delimiter=sep, comments=COMMENTS, quotechar='"', ndmin=2, usecols=usecols, dtype=float
+            )
         except ValueError:
-            pass   # a value that is not a number: find it, for the message
+            pass  # a value that is not a number: find it, for the message
         for k, line in enumerate(lines):
             if not _is_blank(line, sep):
                 fields = _split(line.strip(), sep)
@@ -204,9 +219,10 @@ class TableReader:
                 text = pending + decoder.decode(chunk, final=not chunk)
             except UnicodeDecodeError:
                 if not decoder.encoding.startswith("utf-8"):
-                    raise DataError("file", f"is not valid {decoder.encoding.upper()} text "
-                                            f"(near line {self._line_no})") from None
-                buffered = decoder.getstate()[0]   # bytes of a character the chunk ended inside
+                    raise DataError(
+                        "file", f"is not valid {decoder.encoding.upper()} text (near line {self._line_no})"
+                    ) from None
+                buffered = decoder.getstate()[0]  # bytes of a character the chunk ended inside
                 decoder = _Decoder("latin-1")
                 self.encoding = "latin-1"
                 text = pending + decoder.decode(buffered + chunk, final=not chunk)
@@ -214,8 +230,9 @@ class TableReader:
                 self._newline = "\n" if "\n" in text or "\r" not in text else "\r"
             cut = text.rfind(self._newline or "\n") + 1 if chunk else len(text)
             if cut == 0 and len(text) > MAX_LINE_BYTES:
-                raise DataError("file", f"line {self._line_no} is longer than {MAX_LINE_BYTES // 1024} KiB; "
-                                         "is this a table?")
+                raise DataError(
+                    "file", f"line {self._line_no} is longer than {MAX_LINE_BYTES // 1024} KiB; is this a table?"
+                )
             whole, pending = text[:cut], text[cut:]
             if whole:
                 lines = whole.split(self._newline or "\n")
@@ -246,7 +263,7 @@ class _Growing:
         need = self._n + values.size
         if need > self._data.size:
             self._data.resize(max(need, int(1.5 * self._data.size)), refcheck=False)
-        self._data[self._n:need] = values
+        self._data[self._n : need] = values
         self._n = need
 
     def array(self) -> np.ndarray:
@@ -320,9 +337,13 @@ def _numbers(fields: list[str], sep: str | None) -> bool | None:
 def _column_numbers(fields: list[str], next_fields: list[str] | None, sep: str | None) -> bool:
     """A header of the columns' numbers, 0, 1, 2, … (pandas' to_csv of an unnamed frame), above rows
     of decimals: not a first row of data."""
-    return (len(fields) >= 2 and [f.strip('"') for f in fields] == [str(i) for i in range(len(fields))]
-            and next_fields is not None and _numbers(next_fields, sep) is not None
-            and not all(f.strip('"').lstrip("+-").isdigit() for f in next_fields))
+    return (
+        len(fields) >= 2
+        and [f.strip('"') for f in fields] == [str(i) for i in range(len(fields))]
+        and next_fields is not None
+        and _numbers(next_fields, sep) is not None
+        and not all(f.strip('"').lstrip("+-").isdigit() for f in next_fields)
+    )
 
 
 def _remaining_bytes(handle: BinaryIO) -> int:

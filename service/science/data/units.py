@@ -7,28 +7,47 @@ Here a column name is split into its name and its unit, and the unit into a fact
 kelvin, an offset) to seconds, volts, micrometres or degrees Celsius. A unit that is not one of the
 column's quantity is an error, never a guess.
 """
+
 from __future__ import annotations
 
 import re
 
 #: quantity → unit (lower case) → (scale, offset): value in the service's unit = value·scale + offset
 UNITS_OF = {
-    "time": {"s": (1.0, 0.0), "sec": (1.0, 0.0), "ms": (1e-3, 0.0), "us": (1e-6, 0.0), "µs": (1e-6, 0.0),
-             "μs": (1e-6, 0.0), "ns": (1e-9, 0.0), "min": (60.0, 0.0)},
+    "time": {
+        "s": (1.0, 0.0),
+        "sec": (1.0, 0.0),
+        "ms": (1e-3, 0.0),
+        "us": (1e-6, 0.0),
+        "µs": (1e-6, 0.0),
+        "μs": (1e-6, 0.0),
+        "ns": (1e-9, 0.0),
+        "min": (60.0, 0.0),
+    },
     "voltage": {"v": (1.0, 0.0), "mv": (1e-3, 0.0), "kv": (1e3, 0.0)},
-    "length": {"m": (1e6, 0.0), "mm": (1e3, 0.0), "um": (1.0, 0.0), "µm": (1.0, 0.0), "μm": (1.0, 0.0),
-               "micron": (1.0, 0.0), "microns": (1.0, 0.0), "microm": (1.0, 0.0), "nm": (1e-3, 0.0),
-               "pm": (1e-6, 0.0)},
-    "temperature": {"c": (1.0, 0.0), "°c": (1.0, 0.0), "degc": (1.0, 0.0), "deg c": (1.0, 0.0),
-                    "k": (1.0, -273.15)},
+    "length": {
+        "m": (1e6, 0.0),
+        "mm": (1e3, 0.0),
+        "um": (1.0, 0.0),
+        "µm": (1.0, 0.0),
+        "μm": (1.0, 0.0),
+        "micron": (1.0, 0.0),
+        "microns": (1.0, 0.0),
+        "microm": (1.0, 0.0),
+        "nm": (1e-3, 0.0),
+        "pm": (1e-6, 0.0),
+    },
+    "temperature": {"c": (1.0, 0.0), "°c": (1.0, 0.0), "degc": (1.0, 0.0), "deg c": (1.0, 0.0), "k": (1.0, -273.15)},
 }
 #: the service's unit of each quantity, as messages name it
 SERVICE_UNIT = {"time": "s", "voltage": "V", "length": "µm", "temperature": "°C"}
 
 # "name [unit]", "name (unit)", "name {unit}", "name / unit", "name in unit"
-_WRITTEN_UNIT = (re.compile(r"^(?P<name>.*?)\s*[\[({]\s*(?P<unit>[^\])}]*?)\s*[\])}]\s*$"),
-                 re.compile(r"^(?P<name>.*?)\s*/\s*(?P<unit>[^/]+?)\s*$"),
-                 re.compile(r"^(?P<name>.*?)\s+in\s+(?P<unit>\S+)\s*$", re.IGNORECASE))
+_WRITTEN_UNIT = (
+    re.compile(r"^(?P<name>.*?)\s*[\[({]\s*(?P<unit>[^\])}]*?)\s*[\])}]\s*$"),
+    re.compile(r"^(?P<name>.*?)\s*/\s*(?P<unit>[^/]+?)\s*$"),
+    re.compile(r"^(?P<name>.*?)\s+in\s+(?P<unit>\S+)\s*$", re.IGNORECASE),
+)
 _ALL_UNITS = {unit for units in UNITS_OF.values() for unit in units}
 
 

@@ -1,6 +1,7 @@
 """Where a model fails: its held-out residual broken down by frequency, loop branch and segment
 (signs of u̇, ü), turning points, amplitude, and time; and the signature numbers each effect's
 evidence quotes (lag, growth with frequency, trends, symmetry, coupling)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,7 +16,7 @@ SEGMENTS = ("rising, accelerating", "rising, decelerating", "falling, accelerati
 def _held_rows(rec) -> np.ndarray:
     mask = np.zeros(rec.n_samples, dtype=bool)
     for s in rec.splits:
-        mask[s.held_out[0]:s.held_out[1]] = True
+        mask[s.held_out[0] : s.held_out[1]] = True
     return mask
 
 
@@ -30,10 +31,16 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             rows = slice(*s.held_out)
             f = s.block.get("frequency_hz")
             where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
-            if others := other_axes(s.block, rec.axis):     # the other axis's block: cross-coupling's place
+            if others := other_axes(s.block, rec.axis):  # the other axis's block: cross-coupling's place
                 where += f" that drives {'/'.join(a.upper() for a in others)} ({rec.axis.upper()} undriven)"
-            places.append((f"{rec.label} {where}", rms(res[rows]), "frequency",
-                           {"record": rec.label, "block_index": s.block.get("index"), "frequency_hz": f}))
+            places.append(
+                (
+                    f"{rec.label} {where}",
+                    rms(res[rows]),
+                    "frequency",
+                    {"record": rec.label, "block_index": s.block.get("index"), "frequency_hz": f},
+                )
+            )
         for k, name in enumerate(SEGMENTS):
             m = held & (seg == k)
             places.append((f"{rec.label} {name} branch", rms(res[m]), "branch", {}))
@@ -45,8 +52,10 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             bound = f"u {'<' if 'low' in name else '>'} {lo if 'low' in name else hi:.3g} V"
             places.append((f"{rec.label} {name} ({bound})", rms(res[held & m]), "amplitude", {}))
     places.sort(key=lambda p: -p[1])
-    return [{"where": w, "rms_um": round(v, 6), "by": by, **block,
-             "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"} for w, v, by, block in places[:top]]
+    return [
+        {"where": w, "rms_um": round(v, 6), "by": by, **block, "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"}
+        for w, v, by, block in places[:top]
+    ]
 
 
 def signatures(records, residuals, predictions) -> dict:
@@ -74,7 +83,7 @@ def signatures(records, residuals, predictions) -> dict:
                 period = int(round(rec.period_samples(s) or (b - a)))
                 n_cyc = (b - a) // max(period, 1)
                 if n_cyc >= 2:
-                    means = res[a:a + n_cyc * period].reshape(n_cyc, period).mean(axis=1)
+                    means = res[a : a + n_cyc * period].reshape(n_cyc, period).mean(axis=1)
                     tc = (np.arange(n_cyc) + 0.5) * period / rec.sample_rate_hz
                     trend.append(float(np.polyfit(tc, means, 1)[0]))
                     logslope.append(float(np.polyfit(np.log10(tc), means, 1)[0]))
@@ -87,12 +96,15 @@ def signatures(records, residuals, predictions) -> dict:
         fr = np.array([[f, v] for f, v in rms_f if f and v > 0])
         growth = float(np.polyfit(np.log(fr[:, 0]), np.log(fr[:, 1]), 1)[0])
     fast = [(f, v) for f, v, w in lags if w >= 0.05 * weights.max()] if lags else []  # where a lag is visible
-    return {"lag_ms_by_frequency": {f"{f:g}" if f else "record": round(v * 1e3, 4) for f, v in fast},
-            "lag_ms_spread": float(np.std([v for _, v in fast]) * 1e3) if fast else None,
-            "lag_ms": float(np.average([v for _, v, _ in lags], weights=weights) * 1e3) if lags else None,
-            "rms_growth_exponent": growth, "frequencies_hz": sorted(set(freqs)),
-            "cycle_mean_trend_um_per_s": float(np.median(trend)) if trend else None,
-            "cycle_mean_um_per_decade": float(np.median(logslope)) if logslope else None,
-            "even_fraction": float(np.median(even)) if even else None,
-            "coupling_r": float(np.median(coupling)) if coupling else None,
-            "rate_r": float(np.median(rate_r)) if rate_r else None}
+    return {
+        "lag_ms_by_frequency": {f"{f:g}" if f else "record": round(v * 1e3, 4) for f, v in fast},
+        "lag_ms_spread": float(np.std([v for _, v in fast]) * 1e3) if fast else None,
+        "lag_ms": float(np.average([v for _, v, _ in lags], weights=weights) * 1e3) if lags else None,
+        "rms_growth_exponent": growth,
+        "frequencies_hz": sorted(set(freqs)),
+        "cycle_mean_trend_um_per_s": float(np.median(trend)) if trend else None,
+        "cycle_mean_um_per_decade": float(np.median(logslope)) if logslope else None,
+        "even_fraction": float(np.median(even)) if even else None,
+        "coupling_r": float(np.median(coupling)) if coupling else None,
+        "rate_r": float(np.median(rate_r)) if rate_r else None,
+    }

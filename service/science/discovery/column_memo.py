@@ -12,13 +12,14 @@ lives) and by the numbers that parametrise them. What it returns is read-only: f
   blocks are kept; outside one they are computed each time, so a long-running service holds
   nothing once the scope ends.
 """
+
 from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
-from typing import Callable, Iterator
 
 import numpy as np
 
@@ -57,7 +58,7 @@ class ColumnMemo:
         value = compute()
         size = 0
         for array in _arrays_of(value):
-            array.flags.writeable = False         # shared between fits: nobody may change it in place
+            array.flags.writeable = False  # shared between fits: nobody may change it in place
             size += array.nbytes
         with self._lock:
             old = self._entries.pop(key, None)
@@ -65,8 +66,9 @@ class ColumnMemo:
                 self._bytes -= old[2]
             self._entries[key] = (sources, value, size)
             self._bytes += size
-            while self._entries and (len(self._entries) > self.max_entries
-                                     or (self.max_bytes is not None and self._bytes > self.max_bytes)):
+            while self._entries and (
+                len(self._entries) > self.max_entries or (self.max_bytes is not None and self._bytes > self.max_bytes)
+            ):
                 self._bytes -= self._entries.popitem(last=False)[1][2]
         return value
 
@@ -78,8 +80,11 @@ PLAY_OUTPUTS = ColumnMemo(max_entries=6)
 def play_outputs(u_v: np.ndarray, origin_v: float, thresholds_v: np.ndarray) -> np.ndarray:
     """The play operators' outputs (V) of ``u_v − origin_v`` at ``thresholds_v`` (read-only, memoised)."""
     thresholds_v = np.asarray(thresholds_v, dtype=float)
-    return PLAY_OUTPUTS.get((u_v,), (u_v.shape, float(origin_v), thresholds_v.tobytes()),
-                            lambda: play_operators(u_v - origin_v, thresholds_v))
+    return PLAY_OUTPUTS.get(
+        (u_v,),
+        (u_v.shape, float(origin_v), thresholds_v.tobytes()),
+        lambda: play_operators(u_v - origin_v, thresholds_v),
+    )
 
 
 _SCOPE: ContextVar[ColumnMemo | None] = ContextVar("effect_columns_scope", default=None)

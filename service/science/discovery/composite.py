@@ -10,19 +10,24 @@ It satisfies the model contract (service.science.models.contract): configuration
 ``fit(records)``, ``predict(drive)``, ``inverse`` (service.science.discovery.composite_inverse), the
 stroke check's ``stack_demand_um`` and JSON round trips.
 """
+
 from __future__ import annotations
 
 import copy
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.optimize import minimize
 
 from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import sensitivity_sign
-from service.science.discovery.composite_inverse import (COMPOSITE_LIMITS_V, FIXED_POINT_ITERATIONS,
-                                                         composite_inverse, invert_transforms)
 from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
+from service.science.discovery.composite_inverse import (
+    COMPOSITE_LIMITS_V,
+    FIXED_POINT_ITERATIONS,
+    composite_inverse,
+    invert_transforms,
+)
 from service.science.effects import EFFECTS, RecordContext, ordered
 from service.science.effects.base import sum_of_taps
 from service.science.effects.dynamics import NO_MODE
@@ -41,8 +46,10 @@ JOINT_STEP, JOINT_EVALUATIONS = 0.1, 80
 
 
 #: what an identification of a composite holds out (the stored metrics say it in words)
-HELD_OUT_NOTE = ("last ceil(20 %) of the full cycles of every block; means are over blocks. "
-                 "held_out_frequencies: each frequency left out of the fit in turn")
+HELD_OUT_NOTE = (
+    "last ceil(20 %) of the full cycles of every block; means are over blocks. "
+    "held_out_frequencies: each frequency left out of the fit in turn"
+)
 
 
 class CompositeModel:
@@ -55,25 +62,35 @@ class CompositeModel:
     Learned state: ``thresholds_v``, ``scales``, ``theta``, ``coef``, ``sign``, ``train_rms_um``."""
 
     name = "composite"
-    judges_stroke = True     #: it models the flexure after the stack: its stroke verdict is a refusal
+    judges_stroke = True  #: it models the flexure after the stack: its stroke verdict is a refusal
 
-    def __init__(self, effects: Sequence[str] = (), n_operators: int = 10, *, fixed_theta: dict | None = None,
-                 exclude_frequency_hz: float | None = None, warm_theta: dict | None = None,
-                 local_theta: dict | None = None):
+    def __init__(
+        self,
+        effects: Sequence[str] = (),
+        n_operators: int = 10,
+        *,
+        fixed_theta: dict | None = None,
+        exclude_frequency_hz: float | None = None,
+        warm_theta: dict | None = None,
+        local_theta: dict | None = None,
+    ):
         unknown = [e for e in effects if e not in EFFECTS and e != "hysteresis"]
         if unknown:
             raise ValueError(f"unknown effects {unknown}; known: {', '.join(EFFECTS)}")
-        self._config = {"effects": ordered(effects), "n_operators": int(n_operators),
-                        "fixed_theta": copy.deepcopy(fixed_theta) or None,
-                        "exclude_frequency_hz": None if exclude_frequency_hz is None else float(exclude_frequency_hz),
-                        "warm_theta": copy.deepcopy(warm_theta) or None,
-                        "local_theta": copy.deepcopy(local_theta) or None}
+        self._config = {
+            "effects": ordered(effects),
+            "n_operators": int(n_operators),
+            "fixed_theta": copy.deepcopy(fixed_theta) or None,
+            "exclude_frequency_hz": None if exclude_frequency_hz is None else float(exclude_frequency_hz),
+            "warm_theta": copy.deepcopy(warm_theta) or None,
+            "local_theta": copy.deepcopy(local_theta) or None,
+        }
         self.thresholds_v = None
         self.theta: dict[str, dict] = {}
         self.coef: dict[str, np.ndarray] | None = None
         self.scales: dict = {}
         self.train_rms_um = None
-        self.sign = 1.0          #: −1 when the gauge reads against the drive (see sensitivity_sign)
+        self.sign = 1.0  #: −1 when the gauge reads against the drive (see sensitivity_sign)
 
     # -- configuration ------------------------------------------------------------------
     def get_config(self) -> dict:
@@ -94,12 +111,12 @@ class CompositeModel:
         return self.coef is not None
 
     @classmethod
-    def for_effects(cls, effects: Sequence[str], n_operators: int = 10, parent=None) -> "CompositeModel":
+    def for_effects(cls, effects: Sequence[str], n_operators: int = 10, parent=None) -> CompositeModel:
         """Hysteresis + ``effects``, warm-started at ``parent``'s transforms when it has any."""
         warm = parent.as_composite().theta if parent is not None else None
         return cls(effects, n_operators, warm_theta=warm)
 
-    def as_composite(self) -> "CompositeModel":
+    def as_composite(self) -> CompositeModel:
         """Discovery starts from the model itself."""
         return self
 
@@ -110,12 +127,18 @@ class CompositeModel:
 
     def _context(self, drive: Drive) -> RecordContext:
         du, ddu = drive.derivatives()
-        return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um,
-                            drive.temp_c)
+        return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um, drive.temp_c)
 
-    def context(self, u_v: np.ndarray, sample_rate_hz: float, du: np.ndarray, ddu: np.ndarray,
-                u_other_v: np.ndarray | None = None, x_other_um: np.ndarray | None = None,
-                temp_c: np.ndarray | None = None) -> RecordContext:
+    def context(
+        self,
+        u_v: np.ndarray,
+        sample_rate_hz: float,
+        du: np.ndarray,
+        ddu: np.ndarray,
+        u_other_v: np.ndarray | None = None,
+        x_other_um: np.ndarray | None = None,
+        temp_c: np.ndarray | None = None,
+    ) -> RecordContext:
         """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
         scales (so every effect block has the width its fitted weights have)."""
         origin = self.u_origin_v
@@ -125,39 +148,62 @@ class CompositeModel:
         u_other_v = None if u_other_v is None else u_other_v - origin
         time_scale_s = self.scales.get("time_scale_s")
         if time_scale_s is None:
-            raise ValueError("this composite model was stored before its time scale was kept: refit it "
-                             "(POST /api/models/{id}/refine with its own effects)")
+            raise ValueError(
+                "this composite model was stored before its time scale was kept: refit it "
+                "(POST /api/models/{id}/refine with its own effects)"
+            )
         temp_ref = self.scales.get("temp_ref_c")
         temp_dev = None if temp_c is None or temp_ref is None else np.asarray(temp_c, dtype=float) - temp_ref
-        return RecordContext(u_v, sample_rate_hz, p, du, ddu, u_other_v, p_other, self.scales["min_period_s"],
-                             1.0 / self.scales["min_period_s"], self.scales["u_scale_v"], time_scale_s, x_other_um,
-                             temp_dev)
+        return RecordContext(
+            u_v,
+            sample_rate_hz,
+            p,
+            du,
+            ddu,
+            u_other_v,
+            p_other,
+            self.scales["min_period_s"],
+            1.0 / self.scales["min_period_s"],
+            self.scales["u_scale_v"],
+            time_scale_s,
+            x_other_um,
+            temp_dev,
+        )
 
     def raw_blocks(self, drive: Drive) -> list[Block]:
         """Hysteresis, offset and additive effect blocks of one drive (before transforms); within a
         ``shared_effect_columns`` scope each effect's blocks are built once per record context."""
         ctx = self._context(drive)
         sources = (drive.u_v, drive.u_other_v, drive.x_other_um, drive.temp_c, ctx.du, ctx.ddu)
-        params = (ctx.fs_hz, self.u_origin_v, np.asarray(self.thresholds_v, dtype=float).tobytes(),
-                  tuple(sorted(self.scales.items())))
+        params = (
+            ctx.fs_hz,
+            self.u_origin_v,
+            np.asarray(self.thresholds_v, dtype=float).tobytes(),
+            tuple(sorted(self.scales.items())),
+        )
         out = [Block.make("weights_um_per_v", ctx.p, lower=0.0), Block.make("offset_um", np.ones(ctx.n))]
         for name in self.effects:
             out += effect_blocks(sources, (name, *params), lambda name=name: EFFECTS[name].blocks(ctx))
         return out
 
-    def _transform(self, columns: np.ndarray, sample_rate_hz: float, theta: dict, skip: str | None = None) -> np.ndarray:
+    def _transform(
+        self, columns: np.ndarray, sample_rate_hz: float, theta: dict, skip: str | None = None
+    ) -> np.ndarray:
         for name in self.transforms:
             if name != skip and name in theta:
                 columns = EFFECTS[name].apply(columns, sample_rate_hz, theta[name])
         return columns
 
-    def _transform_rows(self, columns: np.ndarray, sample_rate_hz: float, theta: dict, rows,
-                        skip: str | None = None) -> np.ndarray:
+    def _transform_rows(
+        self, columns: np.ndarray, sample_rate_hz: float, theta: dict, rows, skip: str | None = None
+    ) -> np.ndarray:
         """``_transform(...)[rows]``, the last transform evaluated at ``rows`` alone (the same numbers)."""
         names = [name for name in self.transforms if name != skip and name in theta]
         for name in names[:-1]:
             columns = EFFECTS[name].apply(columns, sample_rate_hz, theta[name])
-        return EFFECTS[names[-1]].apply_rows(columns, sample_rate_hz, theta[names[-1]], rows) if names else columns[rows]
+        return (
+            EFFECTS[names[-1]].apply_rows(columns, sample_rate_hz, theta[names[-1]], rows) if names else columns[rows]
+        )
 
     # -- fitting ------------------------------------------------------------------------
     @property
@@ -171,16 +217,20 @@ class CompositeModel:
         u_max = max(float(np.max(r.u_v)) for r in records) - origin
         n = self.n_operators * (OPERATOR_FACTOR if "operators" in self.effects else 1)
         self.thresholds_v = equal_thresholds(u_max, n)
-        self.scales = {"u_origin_v": origin, "u_scale_v": max(float(np.max(np.abs(r.u_v - origin))) for r in records),
-                       "min_period_s": min(r.min_period_s() for r in records),
-                       "time_scale_s": max(r.n_samples / r.sample_rate_hz for r in records)}
+        self.scales = {
+            "u_origin_v": origin,
+            "u_scale_v": max(float(np.max(np.abs(r.u_v - origin))) for r in records),
+            "min_period_s": min(r.min_period_s() for r in records),
+            "time_scale_s": max(r.n_samples / r.sample_rate_hz for r in records),
+        }
         temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
         if temps:
             self.scales["temp_ref_c"] = float(np.mean(np.concatenate(temps)))
 
-    @shared_effect_columns()     # the warm-started second fit reuses the first's columns
-    def fit(self, records, fixed_theta: dict | None = None,
-            exclude_frequency_hz: float | None = None) -> "CompositeModel":
+    @shared_effect_columns()  # the warm-started second fit reuses the first's columns
+    def fit(
+        self, records, fixed_theta: dict | None = None, exclude_frequency_hz: float | None = None
+    ) -> CompositeModel:
         """Fit on the training rows of ``records`` (every block's, decimated; held-out cycles left
         out when a record holds them out); returns self. ``fixed_theta`` and
         ``exclude_frequency_hz`` override the configuration's for this fit only (kept for callers
@@ -210,12 +260,12 @@ class CompositeModel:
         rows = [r.fit_rows(exclude_frequency_hz) for r in records]
         target = np.concatenate([r.require_x()[i] for r, i in zip(records, rows)])
         self.sign = sensitivity_sign(np.concatenate([r.u_v[i] for r, i in zip(records, rows)]), target)
-        if self.transforms:   # the transforms (filters, delays) need every sample of every column
+        if self.transforms:  # the transforms (filters, delays) need every sample of every column
             a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
-        else:                 # only the training rows are ever read
+        else:  # only the training rows are ever read
             a_raw = [np.hstack([b.columns[i] for b in blocks]) for blocks, i in zip(raw, rows)]
             rows = [slice(None)] * len(records)
-        target = self.sign * target    # fitted in the actuator's own direction (bounded weights ≥ 0)
+        target = self.sign * target  # fitted in the actuator's own direction (bounded weights ≥ 0)
 
         row_local = next((n for n in self.transforms if EFFECTS[n].row_local), None)
 
@@ -244,7 +294,7 @@ class CompositeModel:
             return np.vstack(parts)
 
         def solve_design(a: np.ndarray, extra: Block | None = None):
-            blocks = [Block(nm, (a[:, splits[j]:splits[j + 1]],), lower[j], upper[j]) for j, nm in enumerate(names)]
+            blocks = [Block(nm, (a[:, splits[j] : splits[j + 1]],), lower[j], upper[j]) for j, nm in enumerate(names)]
             return solve_blocks(blocks + ([extra] if extra is not None else []), target)
 
         def solve(theta, exact: str | None = None):
@@ -261,14 +311,18 @@ class CompositeModel:
                 for name in order:
                     if EFFECTS[name].row_local:
                         cache.clear()
-                        theta[name] = self._grid_refine(name, lambda th: solve({**theta, name: th}, exact=name).rms)
+                        theta[name] = self._grid_refine(
+                            name, lambda th, name=name: solve({**theta, name: th}, exact=name).rms
+                        )
                     else:  # harmonics with every weight refitted (already fine), else a grid on the
                         # current prediction refined with the exact cost
                         best = self._harmonic_search(name, a_raw, records, theta)
-                        exact_cost = lambda th: solve({**theta, name: th}).rms  # noqa: E731
+                        exact_cost = lambda th, name=name: solve({**theta, name: th}).rms  # noqa: E731
                         if best is None:
-                            z = [self._transform(a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
-                                 for k, r in enumerate(records)]
+                            z = [
+                                self._transform(a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
+                                for k, r in enumerate(records)
+                            ]
                             best = self._search(name, z, records, rows, target)
                             best = EFFECTS[name].refine(best, exact_cost) if last else best
                         elif last:  # the harmonics ignore bounds and transients: a last exact polish
@@ -284,13 +338,14 @@ class CompositeModel:
         cache: dict = {}
         free = [name for name in self.transforms if name not in fixed_theta]
         local = self._config["local_theta"] or {}
-        if free and set(free) <= set(local):     # refined from where another model found them
+        if free and set(free) <= set(local):  # refined from where another model found them
             theta = {name: dict(fixed_theta.get(name) or local[name]) for name in self.transforms}
-            for name in free:                    # one pass: the exact cost re-solves every weight
+            for name in free:  # one pass: the exact cost re-solves every weight
                 cache.clear()
                 exact = name if EFFECTS[name].row_local else None
-                theta[name] = self._local_refine(name, theta[name], lambda th, name=name, exact=exact: solve(
-                    {**theta, name: th}, exact=exact).rms)
+                theta[name] = self._local_refine(
+                    name, theta[name], lambda th, name=name, exact=exact: solve({**theta, name: th}, exact=exact).rms
+                )
             sol = solve(theta)
         else:
             orders = [free[i:] + free[:i] for i in range(len(free))] or [[]]
@@ -304,23 +359,23 @@ class CompositeModel:
         self.theta = theta
         coef, train_rms = sol.coef, sol.rms
         gauge = self._output_effect()
-        if gauge is not None:   # the gauge's bow of the output, by alternating least squares
+        if gauge is not None:  # the gauge's bow of the output, by alternating least squares
             a = design(theta)
             self.scales["x_mid_um"] = float(0.5 * (target.max() + target.min()))
             self.scales["x_half_um"] = float(0.5 * (target.max() - target.min()))
             mid, half = self.scales["x_mid_um"], self.scales["x_half_um"]
             z = a @ sol.coef
             width = gauge.columns(z[:1], mid, half).shape[1]
-            coef = np.append(sol.coef, np.zeros(width))       # no bow at all, unless a round beats it
+            coef = np.append(sol.coef, np.zeros(width))  # no bow at all, unless a round beats it
             for _ in range(OUTPUT_ROUNDS):
                 sol = solve_design(a, Block.make(gauge.block_name, gauge.columns(z, mid, half)))
-                z = a @ sol.coef[:splits[-1]]         # the output before the gauge with the new weights,
-                err = rms(target - z - gauge.columns(z, mid, half) @ sol.coef[splits[-1]:])  # read as predict does
+                z = a @ sol.coef[: splits[-1]]  # the output before the gauge with the new weights,
+                err = rms(target - z - gauge.columns(z, mid, half) @ sol.coef[splits[-1] :])  # read as predict does
                 if err < train_rms:
                     coef, train_rms = sol.coef, err
             names = names + [gauge.block_name]
             splits = np.append(splits, splits[-1] + width)
-        self.coef = {nm: coef[splits[j]:splits[j + 1]].copy() for j, nm in enumerate(names)}
+        self.coef = {nm: coef[splits[j] : splits[j + 1]].copy() for j, nm in enumerate(names)}
         self.train_rms_um = train_rms
 
     def _output_effect(self):
@@ -352,16 +407,18 @@ class CompositeModel:
         if not hasattr(eff, "harmonic_search"):
             return None
         columns = [self._transform(a, r.sample_rate_hz, theta, skip=name) for a, r in zip(a_raw, records)]
-        return eff.harmonic_search(harmonic_data(records, columns), records[0].sample_rate_hz,
-                                   1.0 / self.scales["min_period_s"])
+        return eff.harmonic_search(
+            harmonic_data(records, columns), records[0].sample_rate_hz, 1.0 / self.scales["min_period_s"]
+        )
 
     def _search(self, name, z, records, rows, target) -> dict:
         """Best parameters of one transform for the current prediction ``z`` (gain and offset free)."""
         eff = EFFECTS[name]
 
         def cost(th):
-            col = np.concatenate([eff.apply(zk[:, None], r.sample_rate_hz, th)[rows[k], 0] for k, (zk, r) in
-                                  enumerate(zip(z, records))])
+            col = np.concatenate(
+                [eff.apply(zk[:, None], r.sample_rate_hz, th)[rows[k], 0] for k, (zk, r) in enumerate(zip(z, records))]
+            )
             a = np.column_stack([col, np.ones_like(col)])
             coef, *_ = np.linalg.lstsq(a, target, rcond=None)
             return float(np.sum((target - a @ coef) ** 2))
@@ -384,9 +441,12 @@ class CompositeModel:
 
         x0 = np.ones(len(keys))
         simplex = np.vstack([x0] + [x0 + JOINT_STEP * np.eye(len(keys))[i] for i in range(len(keys))])
-        res = minimize(lambda x: solve(unpack(x)).rms, x0, method="Nelder-Mead",
-                       options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-6 * sol.rms,
-                                "maxfev": JOINT_EVALUATIONS})
+        res = minimize(
+            lambda x: solve(unpack(x)).rms,
+            x0,
+            method="Nelder-Mead",
+            options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-6 * sol.rms, "maxfev": JOINT_EVALUATIONS},
+        )
         if res.fun < sol.rms:
             best = unpack(res.x)
             return best, solve(best)
@@ -402,8 +462,9 @@ class CompositeModel:
         grid = eff.grid(self._fs, self.scales["min_period_s"], 1.0 / self.scales["min_period_s"])
         values = np.unique([float(g[key]) for g in grid])
         step = float(np.max(np.diff(values))) if values.size > 1 else abs(float(start[key]))
-        return eff.refine(start, cost, bracket=({key: max(float(values[0]), start[key] - step)},
-                                                {key: start[key] + step}))
+        return eff.refine(
+            start, cost, bracket=({key: max(float(values[0]), start[key] - step)}, {key: start[key] + step})
+        )
 
     def _grid_refine(self, name, cost, sample_rate_hz=None) -> dict:
         eff = EFFECTS[name]
@@ -428,16 +489,27 @@ class CompositeModel:
         stack_um = sum(b.columns @ self.coef[b.name] for b in self.raw_blocks(d))
         return self.sign * self.gauge_output(self._transform(stack_um[:, None], d.require_rate(), self.theta)[:, 0])
 
-    def inverse(self, x_ref_um, *, sample_rate_hz: float | None = None, u_limits_v=None,
-                iterations: int = FIXED_POINT_ITERATIONS) -> np.ndarray:
+    def inverse(
+        self,
+        x_ref_um,
+        *,
+        sample_rate_hz: float | None = None,
+        u_limits_v=None,
+        iterations: int = FIXED_POINT_ITERATIONS,
+    ) -> np.ndarray:
         """The drive (V) whose prediction follows the planned reference ``x_ref_um`` (µm; starts and
         ends at rest), the PI inverse searched within ``u_limits_v`` (V; None: −60…180 V, beyond the
         stack's range so that a safety check sees what is needed). service.science.discovery.composite_inverse."""
         self._require_fitted()
         if not sample_rate_hz:
             raise ValueError("sample_rate_hz is needed to invert a composite model's dynamics")
-        return composite_inverse(self, finite_array("x_ref_um", x_ref_um), float(sample_rate_hz), iterations,
-                                 COMPOSITE_LIMITS_V if u_limits_v is None else u_limits_v)
+        return composite_inverse(
+            self,
+            finite_array("x_ref_um", x_ref_um),
+            float(sample_rate_hz),
+            iterations,
+            COMPOSITE_LIMITS_V if u_limits_v is None else u_limits_v,
+        )
 
     def stack_demand_um(self, x_ref_um, sample_rate_hz: float | None = None) -> np.ndarray:
         """What the stack (hysteresis and additive effects) must deliver before the model's linear
@@ -453,7 +525,7 @@ class CompositeModel:
         records = as_record_list(records)
         return evaluate_records(records, [self.predict(r) for r in records])
 
-    @shared_effect_columns()     # the held-out frequencies' refits share the columns
+    @shared_effect_columns()  # the held-out frequencies' refits share the columns
     def validate(self, records) -> dict:
         """``evaluate``, the held-out frequencies (each left out of a refit in turn) and the mean over
         blocks of the largest train and held-out error (µm)."""
@@ -461,8 +533,12 @@ class CompositeModel:
         ev = self.evaluate(records)
         ev["held_out_frequencies"] = held_out_frequency_metrics(records, self.effects, self.n_operators, self.theta)
         blocks = [b for d in ev["per_dataset"] for b in d["blocks"]]
-        return {**ev, "train_max_abs_um": mean_of(blocks, "train", "max_abs_um"),
-                "validation_max_abs_um": mean_of(blocks, "validation", "max_abs_um"), "held_out": HELD_OUT_NOTE}
+        return {
+            **ev,
+            "train_max_abs_um": mean_of(blocks, "train", "max_abs_um"),
+            "validation_max_abs_um": mean_of(blocks, "validation", "max_abs_um"),
+            "held_out": HELD_OUT_NOTE,
+        }
 
     def n_parameters(self) -> int:
         return int(sum(v.size for v in (self.coef or {}).values()) + sum(len(t) for t in self.theta.values()))
@@ -475,12 +551,19 @@ class CompositeModel:
     def to_dict(self) -> dict:
         """``{"model", "config", **learned state}``, JSON-serialisable (floats round-trip exactly)."""
         self._require_fitted()
-        return {"model": self.name, "config": self.get_config(), "thresholds_v": self.thresholds_v.tolist(), "scales": self.scales,
-                "theta": self.theta, "coef": {k: v.tolist() for k, v in self.coef.items()},
-                "train_rms_um": self.train_rms_um, "sign": self.sign}
+        return {
+            "model": self.name,
+            "config": self.get_config(),
+            "thresholds_v": self.thresholds_v.tolist(),
+            "scales": self.scales,
+            "theta": self.theta,
+            "coef": {k: v.tolist() for k, v in self.coef.items()},
+            "train_rms_um": self.train_rms_um,
+            "sign": self.sign,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "CompositeModel":
+    def from_dict(cls, d: dict) -> CompositeModel:
         config, d = split_stored(d, cls.name, ("effects", "n_operators"))
         m = cls(**config)
         m.thresholds_v = np.asarray(d["thresholds_v"], dtype=float)
@@ -509,7 +592,6 @@ def held_out_frequency_metrics(records, effects, n_operators: int = 10, theta: d
         errs = []
         for r in records:
             res = r.x_um - m.predict(r)
-            errs += [rms(res[s.train[0]:s.held_out[1]]) for s in r.splits if s.block.get("frequency_hz") == f]
+            errs += [rms(res[s.train[0] : s.held_out[1]]) for s in r.splits if s.block.get("frequency_hz") == f]
         per.append({"frequency_hz": f, "validation_rms_um": float(np.mean(errs))})
     return {"validation_rms_um": float(np.mean([p["validation_rms_um"] for p in per])), "per_frequency": per}
-

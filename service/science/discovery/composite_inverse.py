@@ -28,6 +28,7 @@ flexure dynamics). Its inverse for a planned reference x_ref (µm):
 
 Units: volts in, micrometres out, seconds and hertz for time and frequency.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -67,8 +68,9 @@ def transform_response(model, frequency_hz: np.ndarray, sample_rate_hz: float) -
     return h
 
 
-def invert_transforms(model, x_um: np.ndarray, sample_rate_hz: float,
-                      max_frequency_hz: float | None = None) -> np.ndarray:
+def invert_transforms(
+    model, x_um: np.ndarray, sample_rate_hz: float, max_frequency_hz: float | None = None
+) -> np.ndarray:
     """w (µm) with T(w) = x for a record that starts and ends at rest (spectral division)."""
     n = x_um.size
     f = np.fft.rfftfreq(n, 1.0 / sample_rate_hz)
@@ -91,17 +93,22 @@ def _stack_um(model, u_v: np.ndarray, sample_rate_hz: float) -> tuple[np.ndarray
     return ctx.p @ model.coef["weights_um_per_v"] + model.coef["offset_um"][0], additive
 
 
-def composite_inverse(model, x_ref_um: np.ndarray, sample_rate_hz: float, iterations: int = FIXED_POINT_ITERATIONS,
-                      u_limits_v=COMPOSITE_LIMITS_V) -> np.ndarray:
+def composite_inverse(
+    model,
+    x_ref_um: np.ndarray,
+    sample_rate_hz: float,
+    iterations: int = FIXED_POINT_ITERATIONS,
+    u_limits_v=COMPOSITE_LIMITS_V,
+) -> np.ndarray:
     """The drive (V) whose model output follows ``x_ref_um`` (see the module docstring), the inner PI
     inverse searched within ``u_limits_v`` (V)."""
-    x = model.sign * np.asarray(x_ref_um, dtype=float)    # in the model's own direction (fitted to sign·x)
-    x = model.undo_gauge(x)                                # what the flexure must do for the gauge to read it
+    x = model.sign * np.asarray(x_ref_um, dtype=float)  # in the model's own direction (fitted to sign·x)
+    x = model.undo_gauge(x)  # what the flexure must do for the gauge to read it
     w = invert_transforms(model, x, sample_rate_hz)
     weights = model.coef["weights_um_per_v"]
     offset = float(model.coef["offset_um"][0])
 
-    origin = model.u_origin_v       # the operators count from it: invert relative to it, answer in V
+    origin = model.u_origin_v  # the operators count from it: invert relative to it, answer in V
 
     def pi_inverse(target):
         limits = (u_limits_v[0] - origin, u_limits_v[1] - origin)
@@ -133,7 +140,7 @@ def composite_inverse(model, x_ref_um: np.ndarray, sample_rate_hz: float, iterat
             step *= 0.5
     if err > HARMONIC_REFINEMENT_SHARE * max(float(np.ptp(x)), 1e-12):
         u = refine_on_harmonics(model, u, np.asarray(x_ref_um, dtype=float), sample_rate_hz)
-    return u          # every accepted step lowered the residual: the last is the best
+    return u  # every accepted step lowered the residual: the last is the best
 
 
 def refine_on_harmonics(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rate_hz: float) -> np.ndarray:
@@ -147,7 +154,7 @@ def refine_on_harmonics(model, u_v: np.ndarray, x_ref_um: np.ndarray, sample_rat
     f0_hz = np.fft.rfftfreq(n, 1.0 / sample_rate_hz)[1 + int(np.argmax(spectrum[1:]))]
     period = max(int(round(sample_rate_hz / f0_hz)), 1)
     swing = np.abs(u_v - u_v[0])
-    envelope = np.maximum.accumulate(swing) * np.maximum.accumulate(swing[::-1])[::-1]   # rises, holds, falls
+    envelope = np.maximum.accumulate(swing) * np.maximum.accumulate(swing[::-1])[::-1]  # rises, holds, falls
     envelope = np.convolve(envelope, np.ones(period) / period, mode="same")
     if not np.any(envelope):
         return u_v

@@ -31,6 +31,7 @@ this rule on clean benches of several hysteresis families is measured by
 ``python -m service.reports.discovery_matrix`` and stated in docs/discovery.md.
 Pure numpy/scipy: no store, no HTTP.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -63,7 +64,7 @@ def _less_mean_from(residual: np.ndarray, split, start: int) -> np.ndarray:
     out = residual.copy()
     cut = split.train[1]
     if cut > start:
-        out[split.train[0]:split.held_out[1]] -= float(np.mean(residual[start:cut]))
+        out[split.train[0] : split.held_out[1]] -= float(np.mean(residual[start:cut]))
     return out
 
 
@@ -104,12 +105,16 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
                 ms0, ms1 = float(np.mean(e0[i:j] ** 2)), float(np.mean(e1[i:j] ** 2))
                 if abs(ms0 - ms1) > TIE_SHARE * (ms0 + ms1):
                     diffs.append(ms0 - ms1)
-    from scipy import stats   # imported when used: scipy.stats costs a service 0.4 s of start-up
+    from scipy import stats  # imported when used: scipy.stats costs a service 0.4 s of start-up
 
     d = np.asarray(diffs)
     p = 1.0 if d.size < 2 or not gains else float(stats.wilcoxon(d, alternative="greater").pvalue)
-    return {"gain_mse_um2": float(np.mean(gains)) if gains else 0.0,
-            "gain_trend_mse_um2": float(np.mean(trend_gains)) if trend_gains else 0.0, "p": p, "segments": int(d.size)}
+    return {
+        "gain_mse_um2": float(np.mean(gains)) if gains else 0.0,
+        "gain_trend_mse_um2": float(np.mean(trend_gains)) if trend_gains else 0.0,
+        "p": p,
+        "segments": int(d.size),
+    }
 
 
 def unseen_block_improvement(records, res_ref, res_trial, frequency_hz: float) -> list[float]:
@@ -135,7 +140,9 @@ def claimed(test: dict, noise_um: float) -> bool:
 
 
 def rule_text(noise_um: float) -> str:
-    return (f"claimed when the held-out improvement over the reference is significant (one-sided signed-rank test over "
-            f"held-out segments, p < {ALPHA:g}) and at least {NOISE_MULTIPLE:g}σ² = "
-            f"{NOISE_MULTIPLE * noise_um**2 * 1e6:.3g} nm² of mean square, with each block's level anchored at its "
-            f"last training cycle or at its training mean (the larger)")
+    return (
+        f"claimed when the held-out improvement over the reference is significant (one-sided signed-rank test over "
+        f"held-out segments, p < {ALPHA:g}) and at least {NOISE_MULTIPLE:g}σ² = "
+        f"{NOISE_MULTIPLE * noise_um**2 * 1e6:.3g} nm² of mean square, with each block's level anchored at its "
+        f"last training cycle or at its training mean (the larger)"
+    )

@@ -13,6 +13,7 @@ Three kinds of candidate, three references:
 The claim rule and its false-claim basis: service/science/discovery/decision.py. Effects the data
 cannot test (service/science/discovery/identifiability.py) are listed apart, never claimed.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +21,13 @@ import numpy as np
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.decision import (NOISE_MULTIPLE, claimed, held_out_improvement, rule_text,
-                                                unseen_block_improvement)
+from service.science.discovery.decision import (
+    NOISE_MULTIPLE,
+    claimed,
+    held_out_improvement,
+    rule_text,
+    unseen_block_improvement,
+)
 from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.symmetry import asymmetry_test
@@ -47,48 +53,70 @@ def _fmt_nm(v_um) -> str:
 
 def _signature_words(name: str, sig: dict, floor: dict) -> str:
     g = sig.get("rms_growth_exponent")
-    growth = ("frequency growth unknown" if g is None else
-              f"the residual {'grows' if g >= 0 else 'falls'} with frequency as f^{g:.2f}")
+    growth = (
+        "frequency growth unknown"
+        if g is None
+        else f"the residual {'grows' if g >= 0 else 'falls'} with frequency as f^{g:.2f}"
+    )
     if name == "delay":
         if sig.get("lag_ms") is None:
             return "no lag can be measured: the model's prediction does not move in any block"
         per = ", ".join(f"{k} Hz: {v:.3g}" for k, v in sig["lag_ms_by_frequency"].items())
         spread = sig.get("lag_ms_spread")
-        return (f"the residual lags the drive by {sig['lag_ms']:.3g} ms (slope-weighted mean; per block {per} ms, spread "
-                f"{spread if spread is None else f'{spread:.2g}'} ms): delay")
+        return (
+            f"the residual lags the drive by {sig['lag_ms']:.3g} ms (slope-weighted mean; per block {per} ms, spread "
+            f"{spread if spread is None else f'{spread:.2g}'} ms): delay"
+        )
     if name == "rate_dependence":
         r = sig.get("rate_r")
         return f"{growth}, and follows u̇·u (|r| = {r:.2f}): rate dependence" if r is not None else growth
     if name == "dynamics":
-        return (f"{growth}; a resonance above the drive band adds a part that grows as f² (the output's "
-                "acceleration), which the held-out test weighs: dynamics")
+        return (
+            f"{growth}; a resonance above the drive band adds a part that grows as f² (the output's "
+            "acceleration), which the held-out test weighs: dynamics"
+        )
     if name == "creep":
         v = sig.get("cycle_mean_um_per_decade")
-        return ("the per-cycle mean residual moves " + (_fmt_nm(v) if v is not None else "?") +
-                " per decade of time within each block, logarithmic in time: creep")
+        return (
+            "the per-cycle mean residual moves "
+            + (_fmt_nm(v) if v is not None else "?")
+            + " per decade of time within each block, logarithmic in time: creep"
+        )
     if name == "drift":
         v = sig.get("cycle_mean_trend_um_per_s")
-        return ("the per-cycle mean residual keeps moving at " + (f"{v * 1e3:.3g} nm/s" if v is not None else "?") +
-                " over the run: drift")
+        return (
+            "the per-cycle mean residual keeps moving at "
+            + (f"{v * 1e3:.3g} nm/s" if v is not None else "?")
+            + " over the run: drift"
+        )
     if name == "asymmetry":
         v = sig.get("even_fraction")
-        shape = (f"a parabola in the drive carries {100 * v:.0f} % of the loop residual: " if v is not None else "")
-        return (shape + "the loop is not point-symmetric about its centre even with finer operators, which draw any "
-                "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
-                "not of time or rate (a gauge's own curvature would bend the output as a function of x instead): "
-                "asymmetry")
+        shape = f"a parabola in the drive carries {100 * v:.0f} % of the loop residual: " if v is not None else ""
+        return (
+            shape + "the loop is not point-symmetric about its centre even with finer operators, which draw any "
+            "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
+            "not of time or rate (a gauge's own curvature would bend the output as a function of x instead): "
+            "asymmetry"
+        )
     if name == "sensor_nonlinearity":
-        return ("the loop's bow follows the measured position x rather than the drive: the gauge's own curvature "
-                "(an unlinearised capacitance probe, a tilted target) — a property of the measurement, not of the "
-                "stack: sensor_nonlinearity")
+        return (
+            "the loop's bow follows the measured position x rather than the drive: the gauge's own curvature "
+            "(an unlinearised capacitance probe, a tilted target) — a property of the measurement, not of the "
+            "stack: sensor_nonlinearity"
+        )
     if name == "cross_coupling":
         r = sig.get("coupling_r")
-        return (f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling" if r is not None
-                else "no block drives the other axis alone, so coupling cannot be seen directly")
+        return (
+            f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling"
+            if r is not None
+            else "no block drives the other axis alone, so coupling cannot be seen directly"
+        )
     if name == "operators":
         rep, nf = floor.get("repeatable_rms_um"), floor.get("noise_floor_um")
-        return (f"the residual repeats cycle to cycle ({_fmt_nm(rep or 0)} repeatable vs {_fmt_nm(nf or 0)} noise): "
-                "the loop shape needs more hysteresis capacity (finer play operators) — not a physical effect")
+        return (
+            f"the residual repeats cycle to cycle ({_fmt_nm(rep or 0)} repeatable vs {_fmt_nm(nf or 0)} noise): "
+            "the loop shape needs more hysteresis capacity (finer play operators) — not a physical effect"
+        )
     return ""
 
 
@@ -114,8 +142,13 @@ class _Fits:
         if key not in self._cache:
             local = {k: v for k, v in (theta or {}).items() if EFFECTS[k].row_local}
             held = {**self.model.theta, **{k: v for k, v in (theta or {}).items() if k not in local}}
-            m = self.model if set(key) == set(self.model.effects) else CompositeModel(
-                list(key), self.model.n_operators, fixed_theta=held, local_theta=local).fit(self.records)
+            m = (
+                self.model
+                if set(key) == set(self.model.effects)
+                else CompositeModel(list(key), self.model.n_operators, fixed_theta=held, local_theta=local).fit(
+                    self.records
+                )
+            )
             preds = [m.predict(r) for r in self.records]
             held_out_um = evaluate_records(self.records, preds)["validation_rms_um"]
             self._cache[key] = (m, [r.x_um - p for r, p in zip(self.records, preds)], held_out_um)
@@ -124,24 +157,34 @@ class _Fits:
     def without(self, effects, frequency_hz: float) -> list[np.ndarray]:
         """The residuals of the model + ``effects`` fitted without the blocks at ``frequency_hz``
         (the model's transforms kept)."""
-        m = CompositeModel(sorted(set(self.model.effects) | set(effects)), self.model.n_operators,
-                           fixed_theta=self.model.theta, exclude_frequency_hz=frequency_hz).fit(self.records)
+        m = CompositeModel(
+            sorted(set(self.model.effects) | set(effects)),
+            self.model.n_operators,
+            fixed_theta=self.model.theta,
+            exclude_frequency_hz=frequency_hz,
+        ).fit(self.records)
         return [r.x_um - m.predict(r) for r in self.records]
 
 
-def _unseen_rates(name: str, fits: "_Fits", records, reference: tuple) -> dict | None:
+def _unseen_rates(name: str, fits: _Fits, records, reference: tuple) -> dict | None:
     """The mean drop in mean square (µm²) that ``name`` gives, over the reference, on the blocks at
     each drive frequency between the lowest and the highest when both were fitted without them
     (``gain_mse_um2``, ``frequencies_hz``); None without such a frequency."""
-    freqs = sorted({s.block["frequency_hz"] for r in records for s in r.splits_of(own_axis_only=True)
-                    if s.block.get("frequency_hz")})
+    freqs = sorted(
+        {
+            s.block["frequency_hz"]
+            for r in records
+            for s in r.splits_of(own_axis_only=True)
+            if s.block.get("frequency_hz")
+        }
+    )
     gains = []
     for f in freqs[1:-1]:
         gains += unseen_block_improvement(records, fits.without(reference, f), fits.without(reference + (name,), f), f)
     return {"gain_mse_um2": float(np.mean(gains)), "frequencies_hz": freqs[1:-1]} if gains else None
 
 
-def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, sig: dict, floor: dict) -> dict:
+def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig: dict, floor: dict) -> dict:
     """One testable candidate: its test against its reference, the claim, and what adding it to
     the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
     eff = EFFECTS[name]
@@ -152,59 +195,119 @@ def _candidate(name, fits: "_Fits", records, noise: float, v0: float, k0: int, s
     _, res_trial, v_trial = fits.get(reference + (name,), theta)
     test = held_out_improvement(records, res_ref, res_trial)
     against = "the model" if not reference else "the model + " + " + ".join(reference)
-    how = (f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm "
-           f"{_test_words(test, noise)}")
+    how = (
+        f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm "
+        f"{_test_words(test, noise)}"
+    )
     is_claimed = claimed(test, noise)
     unseen = _unseen_rates(name, fits, records, reference) if is_claimed and name in UNSEEN_RATE_TESTED else None
     if unseen is not None:
         rates = ", ".join(f"{f:g} Hz" for f in unseen["frequencies_hz"])
         kept = unseen["gain_mse_um2"] >= NOISE_MULTIPLE * noise**2
         drop = unseen["gain_mse_um2"] * 1e6
-        how += (f"; fitted, with its reference, without the {rates} blocks, it "
-                + (f"lowers their mean square by {drop:.3g} nm²" if drop >= 0 else f"raises their mean square by {-drop:.3g} nm²")
-                + f" (a claim needs a drop of at least σ² = {noise**2 * 1e6:.3g} nm²): "
-                + ("it predicts rates it was not fitted on" if kept else
-                   "it does not predict rates it was not fitted on, so what it fits is loop shape, not a rate "
-                   "effect: not claimed"))
+        how += (
+            f"; fitted, with its reference, without the {rates} blocks, it "
+            + (
+                f"lowers their mean square by {drop:.3g} nm²"
+                if drop >= 0
+                else f"raises their mean square by {-drop:.3g} nm²"
+            )
+            + f" (a claim needs a drop of at least σ² = {noise**2 * 1e6:.3g} nm²): "
+            + (
+                "it predicts rates it was not fitted on"
+                if kept
+                else "it does not predict rates it was not fitted on, so what it fits is loop shape, not a rate "
+                "effect: not claimed"
+            )
+        )
         is_claimed = is_claimed and kept
-    return _entry(name, fits, noise, v0, k0, sig, floor, is_claimed, test["p"], test["gain_mse_um2"],
-                  reference, v_ref, how, v_trial)
+    return _entry(
+        name,
+        fits,
+        noise,
+        v0,
+        k0,
+        sig,
+        floor,
+        is_claimed,
+        test["p"],
+        test["gain_mse_um2"],
+        reference,
+        v_ref,
+        how,
+        v_trial,
+    )
 
 
 def _test_words(test: dict, noise: float) -> str:
     """A held-out test's figures in words (both anchorings of the blocks' levels)."""
-    return (f"(p = {test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² "
-            f"of mean square with each block's level anchored at its last training cycle, "
-            f"{test['gain_trend_mse_um2'] * 1e6:.3g} nm² at its training mean; against σ² = {noise**2 * 1e6:.3g} nm²)")
+    return (
+        f"(p = {test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² "
+        f"of mean square with each block's level anchored at its last training cycle, "
+        f"{test['gain_trend_mse_um2'] * 1e6:.3g} nm² at its training mean; against σ² = {noise**2 * 1e6:.3g} nm²)"
+    )
 
 
-def _entry(name, fits: "_Fits", noise, v0, k0, sig, floor, is_claimed: bool, p_value: float, gain: float,
-           reference: tuple, v_ref: float, how: str, v_trial: float | None = None) -> dict:
+def _entry(
+    name,
+    fits: _Fits,
+    noise,
+    v0,
+    k0,
+    sig,
+    floor,
+    is_claimed: bool,
+    p_value: float,
+    gain: float,
+    reference: tuple,
+    v_ref: float,
+    how: str,
+    v_trial: float | None = None,
+) -> dict:
     """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
     (``v_trial``: the held-out RMS of its reference with it, where it was tested against one)."""
     eff = EFFECTS[name]
     v, added, fitted = v0, 0, ""
     if is_claimed or eff.kind == "capacity":
-        own, _, v = fits.get((name,))          # what the user gets by adding it to this model
+        own, _, v = fits.get((name,))  # what the user gets by adding it to this model
         added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
     removed = (v0**2 - v**2) / max(v0**2 - noise**2, 1e-30)
-    evidence = (f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
-                + (f". Added to this model: {v0:.4g} → {v:.4g} µm ({100 * removed:.0f} % of the excess above the "
-                   f"noise floor)" if v != v0 else ". Not claimed, so not fitted into this model")
-                + (f"; fitted {fitted}" if fitted else "") + ".")
-    return {"effect": name, "kind": eff.kind, "testable": True, "claimed": bool(is_claimed), "high": bool(is_claimed),
-            "significant": bool(is_claimed),
-            "score": round(float(np.clip(gain / max(v_ref**2 - noise**2, 1e-30), 0, 1)), 4),
-            "p_value": p_value, "gain_mse_um2": gain, "reference": list(reference), "reference_rms_um": v_ref,
-            "tested_rms_um": v_trial, "expected_rms_um": v, "excess_removed": round(float(removed), 4), "added_parameters": added,
-            "evidence": evidence, "signature": eff.signature}
+    evidence = (
+        f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
+        + (
+            f". Added to this model: {v0:.4g} → {v:.4g} µm ({100 * removed:.0f} % of the excess above the noise floor)"
+            if v != v0
+            else ". Not claimed, so not fitted into this model"
+        )
+        + (f"; fitted {fitted}" if fitted else "")
+        + "."
+    )
+    return {
+        "effect": name,
+        "kind": eff.kind,
+        "testable": True,
+        "claimed": bool(is_claimed),
+        "high": bool(is_claimed),
+        "significant": bool(is_claimed),
+        "score": round(float(np.clip(gain / max(v_ref**2 - noise**2, 1e-30), 0, 1)), 4),
+        "p_value": p_value,
+        "gain_mse_um2": gain,
+        "reference": list(reference),
+        "reference_rms_um": v_ref,
+        "tested_rms_um": v_trial,
+        "expected_rms_um": v,
+        "excess_removed": round(float(removed), 4),
+        "added_parameters": added,
+        "evidence": evidence,
+        "signature": eff.signature,
+    }
 
 
 #: the loop-shape pair: a stack that is not point-symmetric, and a gauge that bows what it reads
 LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
 
-def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple[list[dict], dict | None]:
+def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[list[dict], dict | None]:
     """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
     point-symmetric is tested without a model (a point-symmetric stack of any family has no even
     part; symmetry.py); if it is not, the stack's asymmetry (a function of the drive and the loop's
@@ -216,14 +319,20 @@ def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple
     symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
     test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise)
     even2 = (test["even_rms_um"] or 0.0) ** 2
-    shape = (f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
-             f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
-             f"noise σ = {_fmt_nm(noise)})")
+    shape = (
+        f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
+        f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
+        f"noise σ = {_fmt_nm(noise)})"
+    )
     if not test["claimed"]:
-        gauge = (shape + "; a gauge's bow would show there, so there is none to see (its S-bend alone is a loop "
-                 "shape the flexible base draws)")
-        return [_entry("asymmetry", fits, noise, v0, k0, sig, floor, False, test["p"], even2, (), v0, shape),
-                _entry("sensor_nonlinearity", fits, noise, v0, k0, sig, floor, False, 1.0, 0.0, (), v0, gauge)], None
+        gauge = (
+            shape + "; a gauge's bow would show there, so there is none to see (its S-bend alone is a loop "
+            "shape the flexible base draws)"
+        )
+        return [
+            _entry("asymmetry", fits, noise, v0, k0, sig, floor, False, test["p"], even2, (), v0, shape),
+            _entry("sensor_nonlinearity", fits, noise, v0, k0, sig, floor, False, 1.0, 0.0, (), v0, gauge),
+        ], None
     _, res_a, v_a = fits.get(("asymmetry",))
     _, res_s, v_s = fits.get(("sensor_nonlinearity",))
     gauge_better = held_out_improvement(records, res_a, res_s)
@@ -232,25 +341,46 @@ def _loop_shape_pair(fits: "_Fits", records, noise, v0, k0, sig, floor) -> tuple
         winner, separated = ("sensor_nonlinearity" if claimed(gauge_better, 0.0) else "asymmetry"), True
     else:
         winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
-    h2h = (f"head to head on the model, the stack's asymmetry leaves {v_a:.4g} µm held out and the gauge's "
-           f"curvature {v_s:.4g} µm (p = {stack_better['p']:.2g} that the stack fits better, "
-           f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)")
-    rows = [_entry(name, fits, noise, v0, k0, sig, floor, name == winner,
-                   test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
-                   even2 if name == winner else 0.0,
-                   (), v0, f"{shape}; {h2h}") for name in LOOP_SHAPE]
+    h2h = (
+        f"head to head on the model, the stack's asymmetry leaves {v_a:.4g} µm held out and the gauge's "
+        f"curvature {v_s:.4g} µm (p = {stack_better['p']:.2g} that the stack fits better, "
+        f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)"
+    )
+    rows = [
+        _entry(
+            name,
+            fits,
+            noise,
+            v0,
+            k0,
+            sig,
+            floor,
+            name == winner,
+            test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
+            even2 if name == winner else 0.0,
+            (),
+            v0,
+            f"{shape}; {h2h}",
+        )
+        for name in LOOP_SHAPE
+    ]
     if separated:
         return rows, None
     other = next(n for n in LOOP_SHAPE if n != winner)
     why, body = SEPARATING[frozenset(LOOP_SHAPE)]
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return rows, {"effects": [winner, other], "excess_ratio": None,
-                  "text": (f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
-                           f"(held-out {_fmt_nm(min(v_a, v_s))} and {_fmt_nm(max(v_a, v_s))}); {why}"),
-                  "experiment": experiment_body(records, axes, **body)}
+    return rows, {
+        "effects": [winner, other],
+        "excess_ratio": None,
+        "text": (
+            f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
+            f"(held-out {_fmt_nm(min(v_a, v_s))} and {_fmt_nm(max(v_a, v_s))}); {why}"
+        ),
+        "experiment": experiment_body(records, axes, **body),
+    }
 
 
-@shared_effect_columns()       # its dozen fits share each effect's columns of the same records
+@shared_effect_columns()  # its dozen fits share each effect's columns of the same records
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
     """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
     records = list(records)
@@ -269,13 +399,27 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             continue
         why_not = not_testable(name, records)
         if why_not is not None:
-            untestable.append({**why_not, "kind": eff.kind, "testable": False, "claimed": False, "high": False,
-                               "significant": False, "score": 0.0, "p_value": 1.0, "gain_mse_um2": 0.0,
-                               "expected_rms_um": v0, "excess_removed": 0.0, "added_parameters": 0,
-                               "evidence": f"not testable: {why_not['reason']}", "signature": eff.signature})
+            untestable.append(
+                {
+                    **why_not,
+                    "kind": eff.kind,
+                    "testable": False,
+                    "claimed": False,
+                    "high": False,
+                    "significant": False,
+                    "score": 0.0,
+                    "p_value": 1.0,
+                    "gain_mse_um2": 0.0,
+                    "expected_rms_um": v0,
+                    "excess_removed": 0.0,
+                    "added_parameters": 0,
+                    "evidence": f"not testable: {why_not['reason']}",
+                    "signature": eff.signature,
+                }
+            )
             continue
         if name in LOOP_SHAPE and not set(LOOP_SHAPE) & set(model.effects):
-            if name == LOOP_SHAPE[0]:        # the pair is weighed together, once
+            if name == LOOP_SHAPE[0]:  # the pair is weighed together, once
                 pair, shape_ambiguity = _loop_shape_pair(fits, records, noise, v0, k0, sig, floor)
                 candidates += pair
             continue
@@ -292,16 +436,28 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     held_out_ratio = v0 / noise if noise > 0 else float("inf")
     at_floor = ratio is not None and ratio <= CLEAR_DROP_NOISE and held_out_ratio <= np.hypot(1.0, CLEAR_DROP_NOISE)
     worst = failures(records, res)
-    return {"effects": ["hysteresis"] + model.effects, "residual_rms_um": v0, "train_rms_um": ev["train_rms_um"],
-            "noise_floor_um": noise, "repeatable_rms_um": repeatable,
-            "repeatable_to_noise": ratio, "held_out_to_noise": held_out_ratio, "at_noise_floor": bool(at_floor),
-            "verdict": "missing_effect" if missing else "complete",
-            "verdict_text": _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio,
-                                          held_out_ratio),
-            "candidates": candidates + untestable, "not_testable": untestable, "claim_rule": rule_text(noise),
-            "failures": worst, "signature": sig,
-            "ambiguity": ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical),
-            "noise": floor, "metrics": ev}
+    return {
+        "effects": ["hysteresis"] + model.effects,
+        "residual_rms_um": v0,
+        "train_rms_um": ev["train_rms_um"],
+        "noise_floor_um": noise,
+        "repeatable_rms_um": repeatable,
+        "repeatable_to_noise": ratio,
+        "held_out_to_noise": held_out_ratio,
+        "at_noise_floor": bool(at_floor),
+        "verdict": "missing_effect" if missing else "complete",
+        "verdict_text": _verdict_text(
+            missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio, held_out_ratio
+        ),
+        "candidates": candidates + untestable,
+        "not_testable": untestable,
+        "claim_rule": rule_text(noise),
+        "failures": worst,
+        "signature": sig,
+        "ambiguity": ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical),
+        "noise": floor,
+        "metrics": ev,
+    }
 
 
 def _leading(pair_ambiguity: dict | None, physical: list[dict]) -> dict | None:
@@ -315,16 +471,23 @@ def _leading(pair_ambiguity: dict | None, physical: list[dict]) -> dict | None:
 def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
     """The largest ratio over blocks of the repeatable part to that block's own noise: "at the noise
     floor" must hold at every frequency, not only on average."""
-    ratios = [b["repeatable_um"] / b["noise_um"] for b in per_block
-              if b.get("repeatable_um") is not None and b.get("noise_um") and np.isfinite(b["noise_um"])]
+    ratios = [
+        b["repeatable_um"] / b["noise_um"]
+        for b in per_block
+        if b.get("repeatable_um") is not None and b.get("noise_um") and np.isfinite(b["noise_um"])
+    ]
     return max(ratios) if ratios else None
 
 
 def helpful_capacity(candidates, residual_rms_um: float | None = None) -> list[dict]:
     """Capacity candidates that lower the held-out RMS: those the claim rule passes, and (given the
     model's ``residual_rms_um``) any whose held-out RMS is lower — capacity is validated, not claimed."""
-    return [c for c in candidates if c["kind"] == "capacity" and (
-        c.get("claimed") or (residual_rms_um is not None and c["expected_rms_um"] < residual_rms_um))]
+    return [
+        c
+        for c in candidates
+        if c["kind"] == "capacity"
+        and (c.get("claimed") or (residual_rms_um is not None and c["expected_rms_um"] < residual_rms_um))
+    ]
 
 
 #: a claimed effect that removes less than this share of this model's excess on its own is said to
@@ -332,73 +495,98 @@ def helpful_capacity(candidates, residual_rms_um: float | None = None) -> list[d
 ALONE_GAIN_SHARE = 0.1
 
 
-def _verdict_text(missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None,
-                  held_out_ratio=None) -> str:
+def _verdict_text(
+    missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None, held_out_ratio=None
+) -> str:
     """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
     whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
     if missing:
         top = physical[0]
         tested = ""
         if top.get("tested_rms_um") is not None and top["reference"]:
-            tested = (f"the model + {' + '.join(top['reference'])} {_fmt_nm(top['reference_rms_um'])} → "
-                      f"{_fmt_nm(top['tested_rms_um'])} with it; ")
+            tested = (
+                f"the model + {' + '.join(top['reference'])} {_fmt_nm(top['reference_rms_um'])} → "
+                f"{_fmt_nm(top['tested_rms_um'])} with it; "
+            )
         alone = ""
-        if top["expected_rms_um"] >= v0 - (v0 - noise) * ALONE_GAIN_SHARE:   # its own gain hides in loop shape
-            alone = (f" (alone it gains little here: the rest is a loop shape this model cannot draw; add "
-                     f"{' and '.join(top['reference'])} as well)" if top["reference"] else "")
-        return (f"missing effect: {top['effect']} (p = {top['p_value']:.2g}; {tested}this model's held-out "
-                f"{_fmt_nm(v0)} → {_fmt_nm(top['expected_rms_um'])} with it added{alone}); "
-                f"held-out RMS {v0:.4g} µm against a noise floor of {noise:.3g} µm")
+        if top["expected_rms_um"] >= v0 - (v0 - noise) * ALONE_GAIN_SHARE:  # its own gain hides in loop shape
+            alone = (
+                f" (alone it gains little here: the rest is a loop shape this model cannot draw; add "
+                f"{' and '.join(top['reference'])} as well)"
+                if top["reference"]
+                else ""
+            )
+        return (
+            f"missing effect: {top['effect']} (p = {top['p_value']:.2g}; {tested}this model's held-out "
+            f"{_fmt_nm(v0)} → {_fmt_nm(top['expected_rms_um'])} with it added{alone}); "
+            f"held-out RMS {v0:.4g} µm against a noise floor of {noise:.3g} µm"
+        )
     rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
     if at_floor:
-        text = (f"complete: the remaining {_fmt_nm(v0)} is at the noise floor in every block (repeatable part "
-                f"{rep} against {_fmt_nm(noise)} of noise; at most {ratio:.1f}× a block's own noise)")
+        text = (
+            f"complete: the remaining {_fmt_nm(v0)} is at the noise floor in every block (repeatable part "
+            f"{rep} against {_fmt_nm(noise)} of noise; at most {ratio:.1f}× a block's own noise)"
+        )
     elif ratio is not None and ratio <= CLEAR_DROP_NOISE:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
-        text = (f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual "
-                f"{_fmt_nm(v0)} is {held_out_ratio:.1f}× the {_fmt_nm(noise)} of noise, although the repeated "
-                f"cycles are within {ratio:.1f}× their own noise — the error is where the drive does not "
-                f"repeat (amplitude changes, holds). No physical effect in the library removes it{where}")
+        text = (
+            f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual "
+            f"{_fmt_nm(v0)} is {held_out_ratio:.1f}× the {_fmt_nm(noise)} of noise, although the repeated "
+            f"cycles are within {ratio:.1f}× their own noise — the error is where the drive does not "
+            f"repeat (amplitude changes, holds). No physical effect in the library removes it{where}"
+        )
     else:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
-        per_block = (f"up to {ratio:.1f}× a block's own noise" if ratio is not None else
-                     "no block's own noise could be measured: none repeats a cycle, or none shows any noise")
-        text = (f"complete as far as the effects library goes, but NOT at the noise floor: {rep} of the "
-                f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise "
-                f"({per_block}). No physical "
-                f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
-                f"outside the library{where}")
+        per_block = (
+            f"up to {ratio:.1f}× a block's own noise"
+            if ratio is not None
+            else "no block's own noise could be measured: none repeats a cycle, or none shows any noise"
+        )
+        text = (
+            f"complete as far as the effects library goes, but NOT at the noise floor: {rep} of the "
+            f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise "
+            f"({per_block}). No physical "
+            f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
+            f"outside the library{where}"
+        )
     cap = helpful_capacity(candidates)
     if cap:
-        text += (f"; more hysteresis capacity ({cap[0]['effect']}) would remove {100 * cap[0]['excess_removed']:.0f} % "
-                 f"of the excess (held-out {_fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics")
+        text += (
+            f"; more hysteresis capacity ({cap[0]['effect']}) would remove {100 * cap[0]['excess_removed']:.0f} % "
+            f"of the excess (held-out {_fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics"
+        )
     return text
 
 
 #: pairs of effects that look alike on a sine sweep, and the experiment that separates them
 SEPARATING = {
-    frozenset(LOOP_SHAPE): ("on a quasi-static loop x is itself a function of the drive and the loop's state, so "
-                            "a gauge's bow and a stack's asymmetry bend it alike; they part where x at one drive "
-                            "differs (the branches' width, higher rates), so more cycles at more rates give the "
-                            "head-to-head its power. An independent measurement of x (a second gauge, an "
-                            "interferometer) settles it", {"waveform": "sine",
-                                                          "frequencies_hz": [1.0, 10.0, 50.0, 100.0, 200.0],
-                                                          "cycles": 10}),
-    frozenset(("creep", "drift")): ("a step-hold sweep up and down: creep relaxes logarithmically after each "
-                                    "step and reverses when the drive steps down; drift keeps its direction "
-                                    "and pace regardless of the steps",
-                                    {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0}),
-    frozenset(("delay", "rate_dependence")): ("a higher-frequency sine sweep: a delay is the same time at every "
-                                              "frequency; rate dependence changes the loop shape with rate",
-                                              {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0],
-                                               "cycles": 10}),
-    frozenset(("delay", "dynamics")): ("a higher-frequency sine sweep: a resonance amplifies towards f_n, a "
-                                       "delay only shifts the phase", {"waveform": "sine", "frequencies_hz":
-                                                                        [100.0, 150.0, 200.0], "cycles": 10}),
-    frozenset(("rate_dependence", "dynamics")): ("a higher-frequency sine sweep: a resonance's gain rises as "
-                                                 "f², rate dependence widens the loop",
-                                                 {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0],
-                                                  "cycles": 10}),
+    frozenset(LOOP_SHAPE): (
+        "on a quasi-static loop x is itself a function of the drive and the loop's state, so "
+        "a gauge's bow and a stack's asymmetry bend it alike; they part where x at one drive "
+        "differs (the branches' width, higher rates), so more cycles at more rates give the "
+        "head-to-head its power. An independent measurement of x (a second gauge, an "
+        "interferometer) settles it",
+        {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0, 200.0], "cycles": 10},
+    ),
+    frozenset(("creep", "drift")): (
+        "a step-hold sweep up and down: creep relaxes logarithmically after each "
+        "step and reverses when the drive steps down; drift keeps its direction "
+        "and pace regardless of the steps",
+        {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0},
+    ),
+    frozenset(("delay", "rate_dependence")): (
+        "a higher-frequency sine sweep: a delay is the same time at every "
+        "frequency; rate dependence changes the loop shape with rate",
+        {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
+    ),
+    frozenset(("delay", "dynamics")): (
+        "a higher-frequency sine sweep: a resonance amplifies towards f_n, a delay only shifts the phase",
+        {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
+    ),
+    frozenset(("rate_dependence", "dynamics")): (
+        "a higher-frequency sine sweep: a resonance's gain rises as f², rate dependence widens the loop",
+        {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
+    ),
 }
 
 
@@ -427,8 +615,11 @@ def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
         return None
     why, body = SEPARATING[pair]
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return {"effects": [a["effect"], b["effect"]], "excess_ratio": ratio,
-            "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-                    f"(held-out {_fmt_nm(a['expected_rms_um'])} and "
-                    f"{_fmt_nm(b['expected_rms_um'])}); {why}",
-            "experiment": experiment_body(records, axes, **body)}
+    return {
+        "effects": [a["effect"], b["effect"]],
+        "excess_ratio": ratio,
+        "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
+        f"(held-out {_fmt_nm(a['expected_rms_um'])} and "
+        f"{_fmt_nm(b['expected_rms_um'])}); {why}",
+        "experiment": experiment_body(records, axes, **body),
+    }

@@ -16,6 +16,7 @@ body that would test it, and it is never claimed. The rules, in words:
 - ``temperature``: a ``temp_c`` column that varies by at least MIN_TEMPERATURE_SPAN_K.
 Pure numpy: no store, no HTTP.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -100,37 +101,47 @@ def not_testable(effect: str, records) -> dict | None:
         share = other_axis_independence(records)
         both_axes = experiment_body(records, sorted(set(axes) | {_other(axes[0])}), **RATE_SWEEP, together=False)
         if share is None:
-            return {"effect": effect, "reason": "the record has no drive of the other axis, so its influence "
-                                                "cannot be seen",
-                    "experiment": both_axes}
+            return {
+                "effect": effect,
+                "reason": "the record has no drive of the other axis, so its influence cannot be seen",
+                "experiment": both_axes,
+            }
         if not any(r.u_other_v is not None and np.ptp(r.u_other_v) > 0 for r in records):
-            return {"effect": effect, "reason": "the other axis was not driven (its drive is constant), so its "
-                                                "influence cannot be seen",
-                    "experiment": both_axes}
+            return {
+                "effect": effect,
+                "reason": "the other axis was not driven (its drive is constant), so its influence cannot be seen",
+                "experiment": both_axes,
+            }
         if share < INDEPENDENT_SHARE:
-            return {"effect": effect,
-                    "reason": f"the other axis was driven with this axis's waveform (only {100 * share:.1f} % of its "
-                              "drive is independent of this axis's): collinear drives make coupling "
-                              "indistinguishable from more hysteresis; drive each axis alone",
-                    "experiment": both_axes}
+            return {
+                "effect": effect,
+                "reason": f"the other axis was driven with this axis's waveform (only {100 * share:.1f} % of its "
+                "drive is independent of this axis's): collinear drives make coupling "
+                "indistinguishable from more hysteresis; drive each axis alone",
+                "experiment": both_axes,
+            }
         return None
     if effect == "temperature":
         temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
         span = float(np.ptp(np.concatenate(temps))) if temps else 0.0
         if span < MIN_TEMPERATURE_SPAN_K:
             seen = f"it spans {span:.2f} K" if temps else "the record has no temp_c column"
-            return {"effect": effect,
-                    "reason": f"a temperature effect needs a temp_c column that varies by at least "
-                              f"{MIN_TEMPERATURE_SPAN_K:g} K ({seen}): record the stack's temperature over a run "
-                              "long enough for it to change",
-                    "experiment": experiment_body(records, axes, waveform="sine", frequencies_hz=[1.0], cycles=60)}
+            return {
+                "effect": effect,
+                "reason": f"a temperature effect needs a temp_c column that varies by at least "
+                f"{MIN_TEMPERATURE_SPAN_K:g} K ({seen}): record the stack's temperature over a run "
+                "long enough for it to change",
+                "experiment": experiment_body(records, axes, waveform="sine", frequencies_hz=[1.0], cycles=60),
+            }
         return None
     if effect in RATE_EFFECTS:
         rates = drive_rates_hz(records)
         if len(rates) < 2 or rates[-1] < MIN_RATE_RATIO * rates[0]:
             seen = ", ".join(f"{f:.3g} Hz" for f in rates) or "no periodic block"
-            return {"effect": effect,
-                    "reason": f"{effect} needs at least two drive rates a factor {MIN_RATE_RATIO:g} apart (this data: "
-                              f"{seen}): at one rate it is one fixed loop shape, which the hysteresis base absorbs",
-                    "experiment": experiment_body(records, axes, **RATE_SWEEP)}
+            return {
+                "effect": effect,
+                "reason": f"{effect} needs at least two drive rates a factor {MIN_RATE_RATIO:g} apart (this data: "
+                f"{seen}): at one rate it is one fixed loop shape, which the hysteresis base absorbs",
+                "experiment": experiment_body(records, axes, **RATE_SWEEP),
+            }
     return None

@@ -6,6 +6,7 @@ The decisions are ``discovery_step`` (fit and diagnose one step), ``next_effect`
 next, or None when it stops), ``needed_experiment`` (the sweep it needs before going on) and
 ``stops_at_ambiguity`` (whether it stops there rather than guess between look-alikes): the
 report (``discovery_run``) and the discover job (service.usecases.discover_run) both call them."""
+
 from __future__ import annotations
 
 import json
@@ -17,17 +18,24 @@ from service.science.discovery.diagnosis import diagnose, helpful_capacity
 MAX_STEPS = 8
 
 
-@shared_effect_columns()       # the step's fit and its diagnosis share each effect's columns
-def discovery_step(records, effects, n_operators: int = 10, theta: dict | None = None,
-                   model: CompositeModel | None = None) -> tuple[CompositeModel, dict]:
+@shared_effect_columns()  # the step's fit and its diagnosis share each effect's columns
+def discovery_step(
+    records, effects, n_operators: int = 10, theta: dict | None = None, model: CompositeModel | None = None
+) -> tuple[CompositeModel, dict]:
     """Fit ``hysteresis + effects`` (warm at ``theta``; or take the fitted ``model`` as it is) and
     diagnose it: ``(model, {"effects", "diagnosis", "per_block"})``, per-block validation RMS and
     noise floor in µm."""
     model = model if model is not None else fit_composite(records, effects, n_operators, theta)
     d = diagnose(records, model=model)
-    per_block = [{"dataset_id": ds["dataset_id"], "frequency_hz": b["frequency_hz"],
-                  "validation_rms_um": b["validation"]["rms_um"]}
-                 for ds in d["metrics"]["per_dataset"] for b in ds["blocks"]]
+    per_block = [
+        {
+            "dataset_id": ds["dataset_id"],
+            "frequency_hz": b["frequency_hz"],
+            "validation_rms_um": b["validation"]["rms_um"],
+        }
+        for ds in d["metrics"]["per_dataset"]
+        for b in ds["blocks"]
+    ]
     noise_by_block = [b["noise_um"] for b in d["noise"]["per_block"]]
     for row, nf in zip(per_block, noise_by_block):
         row["noise_floor_um"] = nf
@@ -41,7 +49,7 @@ def next_effect(d: dict) -> str | None:
     if d["verdict"] == "missing_effect":
         return next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])
     # complete as far as physics goes: more capacity if the model is not at the noise floor yet
-    capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])   # only effects not in the model
+    capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])  # only effects not in the model
     if d["at_noise_floor"] or not capacity:
         return None
     return capacity[0]["effect"]
@@ -75,8 +83,9 @@ def stops_at_ambiguity(d: dict, continue_past_ambiguity: bool, done=()) -> dict 
     return needed_experiment(d, stopping=False, done=done)
 
 
-def discovery_run(records, n_operators: int = 10, max_steps: int = MAX_STEPS,
-                  continue_past_ambiguity: bool = False) -> list[dict]:
+def discovery_run(
+    records, n_operators: int = 10, max_steps: int = MAX_STEPS, continue_past_ambiguity: bool = False
+) -> list[dict]:
     """Steps of an automatic discovery: each with effects, diagnosis and per-block validation RMS. It
     stops at an ambiguity (the last step's diagnosis names the separating sweep) unless
     ``continue_past_ambiguity``, as the discover job does without experiments."""
@@ -125,15 +134,19 @@ def markdown(steps: list[dict]) -> str:
     for i, s in enumerate(steps):
         d = s["diagnosis"]
         out.append(f"### Step {i}: {' + '.join(s['effects'])}\n")
-        out.append(f"- held-out RMS {d['residual_rms_um'] * 1e3:.2f} nm, training {d['train_rms_um'] * 1e3:.2f} nm, "
-                   f"noise floor {d['noise_floor_um'] * 1e3:.2f} nm, repeatable part "
-                   f"{(d['repeatable_rms_um'] or 0) * 1e3:.2f} nm")
+        out.append(
+            f"- held-out RMS {d['residual_rms_um'] * 1e3:.2f} nm, training {d['train_rms_um'] * 1e3:.2f} nm, "
+            f"noise floor {d['noise_floor_um'] * 1e3:.2f} nm, repeatable part "
+            f"{(d['repeatable_rms_um'] or 0) * 1e3:.2f} nm"
+        )
         out.append(f"- verdict: **{d['verdict']}** — {d['verdict_text']}")
         for f in d["failures"][:3]:
             out.append(f"- fails worst at: {f['text']}")
         for c in d["candidates"][:3]:
-            out.append(f"- candidate `{c['effect']}` ({c['kind']}), score {c['score']:.2f}, expected "
-                       f"{c['expected_rms_um'] * 1e3:.2f} nm: {c['evidence']}")
+            out.append(
+                f"- candidate `{c['effect']}` ({c['kind']}), score {c['score']:.2f}, expected "
+                f"{c['expected_rms_um'] * 1e3:.2f} nm: {c['evidence']}"
+            )
         if d.get("ambiguity"):
             out.append(f"- ambiguity: {d['ambiguity']['text']}; experiment: `{d['ambiguity']['experiment']}`")
         out.append("")

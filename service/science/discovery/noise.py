@@ -11,12 +11,12 @@ as the median over cycle pairs; ``repeatable_um`` = RMS of the mean cycle with t
 amplitude ramp or across a hold, the residual changes because the drive did, which is not noise.
 With no such pair the noise comes from second differences of the residual.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from service.science.data.signals import longest_linked_run
-
 
 #: half-width (samples) of the windowed-sinc (Lanczos) kernel that resamples cycles of a fractional period
 SINC_HALF_WIDTH = 8
@@ -57,13 +57,13 @@ def sinc_resample(r: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray
     taps = np.arange(-SINC_HALF_WIDTH + 1, SINC_HALF_WIDTH + 1)
     values, gains = np.empty(at.size), np.empty(at.size)
     for lo in range(0, at.size, RESAMPLE_CHUNK):
-        where = at[lo:lo + RESAMPLE_CHUNK]
+        where = at[lo : lo + RESAMPLE_CHUNK]
         base = np.floor(where).astype(np.int64)
         x = taps[None, :] - (where - base)[:, None]
         w = np.sinc(x) * np.sinc(x / SINC_HALF_WIDTH)
         w /= w.sum(axis=1, keepdims=True)
-        values[lo:lo + where.size] = np.sum(r[np.clip(base[:, None] + taps[None, :], 0, r.size - 1)] * w, axis=1)
-        gains[lo:lo + where.size] = np.sum(w * w, axis=1)
+        values[lo : lo + where.size] = np.sum(r[np.clip(base[:, None] + taps[None, :], 0, r.size - 1)] * w, axis=1)
+        gains[lo : lo + where.size] = np.sum(w * w, axis=1)
     return values, gains
 
 
@@ -80,13 +80,18 @@ def repeatability(r: np.ndarray, period_samples: float, drive: np.ndarray | None
     if mat is not None and drive is not None:
         run = longest_linked_run(repeated_cycles(cycles_matrix(np.asarray(drive, dtype=float), period_samples)))
         why = "no two successive cycles with the same drive"
-        mat = None if run is None else mat[run[0]:run[1]]
-        gain = None if gain is None or run is None else gain[run[0]:run[1]]
+        mat = None if run is None else mat[run[0] : run[1]]
+        gain = None if gain is None or run is None else gain[run[0] : run[1]]
     if mat is None:
         d2 = np.diff(r, 2)
         sigma = float(np.std(d2) / np.sqrt(6.0)) if d2.size > 2 else float("nan")
-        return {"noise_um": sigma, "repeatable_um": None, "slow_rms_um": None, "cycles": 0,
-                "method": f"second differences ({why})"}
+        return {
+            "noise_um": sigma,
+            "repeatable_um": None,
+            "slow_rms_um": None,
+            "cycles": 0,
+            "method": f"second differences ({why})",
+        }
     n, m = mat.shape
     mean_cycle = mat.mean(axis=0)
     dev = mat - mean_cycle
@@ -96,9 +101,13 @@ def repeatability(r: np.ndarray, period_samples: float, drive: np.ndarray | None
     lagged = None if lag is None else _lagged_noise_variance(r, period_samples, lag, drive)
     var = lagged if lagged is not None else _successive_cycle_variance(mat, s, gain)
     rep2 = float(np.mean(mean_cycle**2)) - var / n
-    return {"noise_um": float(np.sqrt(var)), "repeatable_um": float(np.sqrt(max(rep2, 0.0))),
-            "slow_rms_um": float(np.sqrt(np.mean(slow**2))), "cycles": int(n),
-            "method": "cycle-to-cycle repeatability"}
+    return {
+        "noise_um": float(np.sqrt(var)),
+        "repeatable_um": float(np.sqrt(max(rep2, 0.0))),
+        "slow_rms_um": float(np.sqrt(np.mean(slow**2))),
+        "cycles": int(n),
+        "method": "cycle-to-cycle repeatability",
+    }
 
 
 #: a fractional period's noise is measured between cycles q ≤ MAX_ALIGNED_CYCLES apart whose
@@ -125,10 +134,10 @@ def _lagged_noise_variance(r: np.ndarray, period_samples: float, lag: int, drive
     m = int(round(period_samples))
     d = r[lag:] - r[:-lag]
     k = d.size // m
-    rows = d[:k * m].reshape(k, m)
+    rows = d[: k * m].reshape(k, m)
     if drive is not None:
         drive = np.asarray(drive, dtype=float)
-        change = drive[lag:][:k * m].reshape(k, m) - drive[:-lag][:k * m].reshape(k, m)
+        change = drive[lag:][: k * m].reshape(k, m) - drive[:-lag][: k * m].reshape(k, m)
         same = np.sqrt(np.mean(change**2, axis=1)) <= SAME_DRIVE_SHARE * (float(np.ptp(drive)) or 1.0)
         rows = rows[same]
     if not rows.size:
@@ -171,9 +180,18 @@ def noise_floor(records, residuals) -> dict:
         for s in rec.splits:
             a, b = s.train[0], s.held_out[1]
             fig = repeatability(res[a:b], rec.period_samples(s), rec.u_v[a:b])
-            per_block.append({"dataset_id": rec.label, "index": s.block.get("index"),
-                              "frequency_hz": s.block.get("frequency_hz"), **fig})
+            per_block.append(
+                {
+                    "dataset_id": rec.label,
+                    "index": s.block.get("index"),
+                    "frequency_hz": s.block.get("frequency_hz"),
+                    **fig,
+                }
+            )
     noise = [b["noise_um"] for b in per_block if np.isfinite(b["noise_um"])]
     rep = [b["repeatable_um"] for b in per_block if b["repeatable_um"] is not None]
-    return {"noise_floor_um": float(np.median(noise)) if noise else None,
-            "repeatable_rms_um": float(np.mean(rep)) if rep else None, "per_block": per_block}
+    return {
+        "noise_floor_um": float(np.median(noise)) if noise else None,
+        "repeatable_rms_um": float(np.mean(rep)) if rep else None,
+        "per_block": per_block,
+    }

@@ -1,6 +1,7 @@
 """The fitted physical parameters of a composite model as numbers, units in the names: each
 effect's ``Effect.parameters`` (resonance_hz and damping_ratio, delay_us, creep_nm_per_decade and
 creep_pct_per_decade, drift_nm_per_s, coupling_ratio, …). Pure numpy: no store, no HTTP."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -2,6 +2,7 @@
 held out by whole cycles: service.science.fitting.validation) with the other axis's drive and
 displacement (for coupling), from dataset-style arrays or an emulated sweep.
 Pure numpy: no store, no HTTP."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,8 +17,18 @@ def record_for_axis(label: str, arrays: dict, sample_rate_hz: float, blocks: lis
     other = [a for a in ("y", "z") if a != axis and f"u_{a}_v" in arrays]
     u_other = arrays[f"u_{other[0]}_v"] if other else None
     x_other = arrays.get(f"x_{other[0]}_um") if other else None
-    return Record(arrays[f"u_{axis}_v"], arrays[f"x_{axis}_um"], sample_rate_hz, label=label, blocks=blocks,
-                  axis=axis, u_other_v=u_other, x_other_um=x_other, hold_out=True, temp_c=arrays.get("temp_c"))
+    return Record(
+        arrays[f"u_{axis}_v"],
+        arrays[f"x_{axis}_um"],
+        sample_rate_hz,
+        label=label,
+        blocks=blocks,
+        axis=axis,
+        u_other_v=u_other,
+        x_other_um=x_other,
+        hold_out=True,
+        temp_c=arrays.get("temp_c"),
+    )
 
 
 def records_from_arrays(arrays: dict, sample_rate_hz: float, blocks: list, axes, label: str = "") -> list[Record]:
@@ -25,9 +36,16 @@ def records_from_arrays(arrays: dict, sample_rate_hz: float, blocks: list, axes,
     return [record_for_axis(f"{label}{axis}", arrays, sample_rate_hz, blocks, axis) for axis in axes]
 
 
-def sweep_records(bench: str, seed: int = 0, frequencies_hz=(1.0, 10.0, 50.0, 100.0), cycles: int = 5,
-                  axes=("y", "z"), together: bool = False, plan: dict | None = None,
-                  overrides: dict | None = None) -> dict[str, Record]:
+def sweep_records(
+    bench: str,
+    seed: int = 0,
+    frequencies_hz=(1.0, 10.0, 50.0, 100.0),
+    cycles: int = 5,
+    axes=("y", "z"),
+    together: bool = False,
+    plan: dict | None = None,
+    overrides: dict | None = None,
+) -> dict[str, Record]:
     """Run a sine characterisation (or ``plan``, a /api/sweeps-style body) on an emulated bench
     (its configuration changed by ``overrides``, dotted keys) and return ``{axis: Record}``."""
     from drivers.emulated import open_bench

@@ -18,6 +18,7 @@ the test cannot mistake a loop shape that the fitted family cannot draw for asym
 Claim rule (as service/science/discovery/decision.py): the even part is significant against the
 noise of the mean cycle (χ² test, p < ALPHA) and its RMS is at least NOISE_MULTIPLE·σ.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -38,7 +39,7 @@ def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
     a, b = split.train[0], split.held_out[1]
     if not period or period < 8:
         return None
-    mat = cycles_matrix(series[a:b], period, even=True)   # a half cycle: exactly M/2 points
+    mat = cycles_matrix(series[a:b], period, even=True)  # a half cycle: exactly M/2 points
     if mat is None or mat.shape[0] < MIN_CYCLES:
         return None
     # a slow trend over the block (creep, drift) is not a loop shape: x(t) + x(t + T/2) grows with it,
@@ -53,7 +54,7 @@ def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
     half = m // 2
     centre = 0.5 * (mean.max() + mean.min())
     even = 0.5 * (mean[:half] + mean[half:]) - centre
-    even = even - even.mean()        # an offset is not asymmetry: the centre's estimate carries noise
+    even = even - even.mean()  # an offset is not asymmetry: the centre's estimate carries noise
     step = max(1, half // (POINTS_PER_CYCLE // 2))
     return even[::step], int(mat.shape[0])
 
@@ -70,7 +71,7 @@ def asymmetry_test(records, residuals, noise_um: float) -> dict:
             if got is None:
                 continue
             even, cycles = got
-            var = noise_um**2 / (2.0 * cycles)        # half the sum of two independent mean-cycle samples
+            var = noise_um**2 / (2.0 * cycles)  # half the sum of two independent mean-cycle samples
             if var > 0:
                 chi2 += float(np.sum(even**2)) / var
                 dof += even.size - 1
@@ -79,9 +80,8 @@ def asymmetry_test(records, residuals, noise_um: float) -> dict:
             used += 1
     if not used or noise_um <= 0:
         return {"even_rms_um": None, "p": 1.0, "blocks": used, "claimed": False}
-    from scipy import stats   # imported when used: scipy.stats costs a service 0.4 s of start-up
+    from scipy import stats  # imported when used: scipy.stats costs a service 0.4 s of start-up
 
     rms = float(np.sqrt(sq / count))
     p = float(stats.chi2.sf(chi2, max(dof, 1)))
-    return {"even_rms_um": rms, "p": p, "blocks": used,
-            "claimed": bool(p < ALPHA and rms >= NOISE_MULTIPLE * noise_um)}
+    return {"even_rms_um": rms, "p": p, "blocks": used, "claimed": bool(p < ALPHA and rms >= NOISE_MULTIPLE * noise_um)}

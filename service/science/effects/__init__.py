@@ -1,5 +1,6 @@
 """The effects library: one module per physical effect plus the ``operators`` capacity
 candidate, registered here in the order a composite model applies them."""
+
 from __future__ import annotations
 
 from service.science.effects.asymmetry import Asymmetry
@@ -15,9 +16,21 @@ from service.science.effects.sensor_nonlinearity import SensorNonlinearity
 from service.science.effects.temperature import Temperature
 
 #: name -> effect, in application order (additive regressors, then transforms, then the gauge)
-EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    RateDependence(), Creep(), Asymmetry(), CrossCoupling(), Drift(), Temperature(), Delay(), Dynamics(),
-    SensorNonlinearity(), Operators())}
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        RateDependence(),
+        Creep(),
+        Asymmetry(),
+        CrossCoupling(),
+        Drift(),
+        Temperature(),
+        Delay(),
+        Dynamics(),
+        SensorNonlinearity(),
+        Operators(),
+    )
+}
 
 #: every name a model may list (``hysteresis`` is the base and always first)
 EFFECT_NAMES = ("hysteresis",) + tuple(EFFECTS)

@@ -3,6 +3,7 @@ a saturating hysteretic strain ∝ S² whose size depends on the field, ∝ u·S
 normalised drive u/u_max and the normalised hysteretic state S = Σ_{i≥1} P_i / u_max.
 (S³ is left out on purpose: it also bends a symmetric Preisach loop, so on a bench without
 asymmetry it would claim the hysteresis model's own shape error as asymmetry.)"""
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,8 +15,10 @@ from service.science.fitting.lsq import Block
 class Asymmetry(Effect):
     point_symmetric = False
     name = "asymmetry"
-    signature = ("the branch-mean residual is an even (parabolic) or saturating function of the "
-                 "drive: the loop is not point-symmetric about its centre")
+    signature = (
+        "the branch-mean residual is an even (parabolic) or saturating function of the "
+        "drive: the loop is not point-symmetric about its centre"
+    )
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         u = ctx.u_v / ctx.u_scale_v

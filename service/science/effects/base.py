@@ -7,6 +7,7 @@ An effect acts on the composite model's design in one of four places (``stage``)
 - ``output``: a static map of the model's output (the gauge's own curvature, sensor_nonlinearity.py);
 - ``capacity``: a change of the hysteresis basis itself (more play operators).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

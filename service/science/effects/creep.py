@@ -6,6 +6,7 @@ shortest drive period up to half the longest record (the same set for every reco
 direction of the last drive change (it reverses when the drive steps down), which a slow drift
 of the lab or the gauge does not.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,15 +24,17 @@ def creep_time_constants_s(min_period_s: float, duration_s: float, per_decade: i
 def first_order_lowpass(x: np.ndarray, tau_s: float, fs_hz: float) -> np.ndarray:
     """Exact-discretised first-order lag of unit DC gain, starting at rest."""
     a = np.exp(-1.0 / (tau_s * fs_hz))
-    from scipy.signal import lfilter   # imported when used: scipy.signal costs a service 0.7 s of start-up
+    from scipy.signal import lfilter  # imported when used: scipy.signal costs a service 0.7 s of start-up
 
     return lfilter([1.0 - a], [1.0, -a], x, axis=0)
 
 
 class Creep(Effect):
     name = "creep"
-    signature = ("the residual keeps moving after each change of the drive level, roughly linearly "
-                 "in log(time); per-cycle mean residual rises with log(t) within each block")
+    signature = (
+        "the residual keeps moving after each change of the drive level, roughly linearly "
+        "in log(time); per-cycle mean residual rises with log(t) within each block"
+    )
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         taus = creep_time_constants_s(ctx.min_period_s, ctx.time_scale_s)

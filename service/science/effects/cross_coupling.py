@@ -3,13 +3,13 @@ other axis's drive through its linear and hysteretic play operators (µm/V), and
 set measured it and the other axis was driven — the other axis's displacement itself (µm/µm), which
 already carries that axis's own hysteresis, creep and flexure mode (all free sign). A feedforward inverse has no measured
 other-axis displacement: that column is zero there."""
+
 from __future__ import annotations
 
 import numpy as np
 
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
-
 
 #: the other axis counts as driven where its drive is away from its level at the record's start (rest)
 #: by more than this share of its span
@@ -35,10 +35,15 @@ class CrossCoupling(Effect):
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         if ctx.p_other is None:
-            return [Block.make("coupling_um_per_v", np.zeros((ctx.n, 2))),
-                    Block.make("coupling_um_per_um", np.zeros(ctx.n))]
-        motion = np.zeros(ctx.n) if ctx.x_other_um is None else np.where(other_axis_driven(ctx.u_other_v),
-                                                                             ctx.x_other_um, 0.0)
+            return [
+                Block.make("coupling_um_per_v", np.zeros((ctx.n, 2))),
+                Block.make("coupling_um_per_um", np.zeros(ctx.n)),
+            ]
+        motion = (
+            np.zeros(ctx.n)
+            if ctx.x_other_um is None
+            else np.where(other_axis_driven(ctx.u_other_v), ctx.x_other_um, 0.0)
+        )
         drive = np.column_stack([ctx.p_other[:, 0], ctx.p_other[:, 1:].sum(axis=1)])
         return [Block.make("coupling_um_per_v", drive), Block.make("coupling_um_per_um", motion)]
 

@@ -1,6 +1,7 @@
 """Delay: the measured output lags the drive by τ (DAQ pipeline, amplifier/gauge lag) — the
 whole model output is evaluated at t − τ, with fractional τ by linear interpolation. τ (s) is
 found by a 1-D search (grid, then golden refinement)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -29,8 +30,10 @@ class Delay(Effect):
     name = "delay"
     stage = "transform"
     row_local = True
-    signature = ("the residual is the model's slope times a constant time: it lags the drive by the "
-                 "same time at every frequency, so it grows in proportion to frequency")
+    signature = (
+        "the residual is the model's slope times a constant time: it lags the drive by the "
+        "same time at every frequency, so it grows in proportion to frequency"
+    )
 
     def grid(self, fs_hz, min_period_s, max_frequency_hz):
         tau_max = min(0.2 * min_period_s, 64.0 / fs_hz)  # a delay is a fraction of the fastest cycle
@@ -63,8 +66,12 @@ class Delay(Effect):
         else:
             step = max(t0 * 0.25, 1e-6)
             lo, hi = max(0.0, t0 - step), t0 + step
-        res = minimize_scalar(lambda t: cost({"delay_s": max(t, 0.0)}), bounds=(lo, hi),
-                              method="bounded", options={"xatol": 1e-7, "maxiter": REFINE_EVALUATIONS})
+        res = minimize_scalar(
+            lambda t: cost({"delay_s": max(t, 0.0)}),
+            bounds=(lo, hi),
+            method="bounded",
+            options={"xatol": 1e-7, "maxiter": REFINE_EVALUATIONS},
+        )
         return {"delay_s": float(max(res.x, 0.0))} if res.fun <= cost(theta) else theta
 
     def describe(self, theta, values):

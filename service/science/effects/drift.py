@@ -2,6 +2,7 @@
 Legendre polynomials of degree 1..3 of the time since the record started, scaled by the longest
 record, so a drift rate (µm/s) is shared by records of different lengths and every record starts
 from the same drift state (the shared offset) (µm)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +16,10 @@ DEGREE = 3
 
 class Drift(Effect):
     name = "drift"
-    signature = ("the per-cycle mean residual moves steadily with time over the whole record, "
-                 "independent of the drive level and of when the drive changed")
+    signature = (
+        "the per-cycle mean residual moves steadily with time over the whole record, "
+        "independent of the drive level and of when the drive changed"
+    )
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         s = 2.0 * ctx.t_s / ctx.time_scale_s - 1.0

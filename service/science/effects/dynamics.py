@@ -1,11 +1,12 @@
 """Dynamics: a flexure resonance after the hysteresis — every column passes through
 ωn²/(s² + 2ζωn s + ωn²) (unit DC gain, bilinear with prewarping at fn). fn (Hz) and ζ come
 from a grid search refined locally; the weights stay linear."""
+
 from __future__ import annotations
 
 import numpy as np
-from drivers.jit import njit
 
+from drivers.jit import njit
 from service.science.effects.base import Effect
 from service.science.effects.harmonics import projected_costs
 from service.science.fitting.lsq import SMALLEST_NORMAL
@@ -58,8 +59,8 @@ def _biquad_about_first_row(b, a, x, rows, out):
             y = b[0] * xi + z1[j]
             z1[j] = b[1] * xi - a[1] * y + z2[j]
             z2[j] = b[2] * xi - a[2] * y
-            if abs(z1[j]) < SMALLEST_NORMAL:   # a column at rest decays into subnormals: 25x slower
-                z1[j] = 0.0                    # in this loop and in every Gram and QR of the design
+            if abs(z1[j]) < SMALLEST_NORMAL:  # a column at rest decays into subnormals: 25x slower
+                z1[j] = 0.0  # in this loop and in every Gram and QR of the design
             if abs(z2[j]) < SMALLEST_NORMAL:
                 z2[j] = 0.0
             if take:
@@ -68,8 +69,9 @@ def _biquad_about_first_row(b, a, x, rows, out):
             r += 1
 
 
-def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: float,
-                     rows: np.ndarray | None = None) -> np.ndarray:
+def resonance_filter(
+    columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: float, rows: np.ndarray | None = None
+) -> np.ndarray:
     """Every column (n_samples,) or (n_samples, m) through the resonance, starting at rest at its
     first sample (so a constant column passes unchanged); at ``rows`` only (rising sample indices)
     when given: the filter still runs over every sample up to the last of them, but a fit's design
@@ -85,15 +87,17 @@ def resonance_filter(columns: np.ndarray, fs_hz: float, fn_hz: float, zeta: floa
         at = np.asarray(rows, dtype=np.int64)
         if at.size > 1 and np.any(np.diff(at) <= 0):
             raise ValueError("rows must rise strictly")
-    if not shows_mode(fn_hz, fs_hz):       # NO_MODE, a composite's identity
+    if not shows_mode(fn_hz, fs_hz):  # NO_MODE, a composite's identity
         return x[at].copy()
-    from scipy.signal import bilinear   # imported when used: scipy.signal costs a service 0.7 s of start-up
+    from scipy.signal import bilinear  # imported when used: scipy.signal costs a service 0.7 s of start-up
 
     wn = 2.0 * fs_hz * np.tan(np.pi * fn_hz / fs_hz)  # prewarped
     b, a = bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs_hz)
-    if b.size != 3 or a.size != 3:   # scipy drops coefficients it finds negligible; the kernel reads three
-        raise ValueError(f"resonance at {fn_hz:g} Hz, damping {zeta:g}, has no second-order digital form at "
-                         f"{fs_hz:g} Hz (coefficients {b}, {a})")
+    if b.size != 3 or a.size != 3:  # scipy drops coefficients it finds negligible; the kernel reads three
+        raise ValueError(
+            f"resonance at {fn_hz:g} Hz, damping {zeta:g}, has no second-order digital form at "
+            f"{fs_hz:g} Hz (coefficients {b}, {a})"
+        )
     out = np.empty((at.size, flat.shape[1]))
     _biquad_about_first_row(b / a[0], a / a[0], flat, at, out)
     return out.reshape((at.size,) + x.shape[1:])
@@ -110,13 +114,18 @@ def digital_response(frequency_hz: np.ndarray, fs_hz: float, fn_hz: np.ndarray, 
 class Dynamics(Effect):
     name = "dynamics"
     stage = "transform"
-    signature = ("the residual grows steeply with drive frequency (about as f²) and is in phase with "
-                 "the acceleration of the output: a resonance above the drive band")
+    signature = (
+        "the residual grows steeply with drive frequency (about as f²) and is in phase with "
+        "the acceleration of the output: a resonance above the drive band"
+    )
 
     def grid(self, fs_hz, min_period_s, max_frequency_hz):
         lo, hi = 1.5 * max_frequency_hz, GRID_SHARE * fs_hz
-        fn = up_to_search_share(np.logspace(np.log10(lo), np.log10(hi), 14), fs_hz) if hi > lo else \
-            np.logspace(np.log10(lo), np.log10(SEARCH_SHARE * fs_hz), 4)
+        fn = (
+            up_to_search_share(np.logspace(np.log10(lo), np.log10(hi), 14), fs_hz)
+            if hi > lo
+            else np.logspace(np.log10(lo), np.log10(SEARCH_SHARE * fs_hz), 4)
+        )
         return [{"fn_hz": float(f), "zeta": z} for f in fn for z in ZETAS]
 
     def apply(self, columns, fs_hz, theta):
@@ -145,20 +154,24 @@ class Dynamics(Effect):
         hi = max(GRID_SHARE * fs_hz, lo * 1.01)
         coarse = up_to_search_share(np.geomspace(lo, hi, int(np.log10(hi / lo) * FN_PER_DECADE) + 2), fs_hz)
         fn0, z0 = best_of(*np.meshgrid(coarse, COARSE_ZETAS))
-        fn1, z1 = best_of(*np.meshgrid(fn0 * np.linspace(0.97, 1.03, 31), np.geomspace(z0 / 4, min(4 * z0, MAX_ZETA), 25)))
+        fn1, z1 = best_of(
+            *np.meshgrid(fn0 * np.linspace(0.97, 1.03, 31), np.geomspace(z0 / 4, min(4 * z0, MAX_ZETA), 25))
+        )
         fn2, z2 = best_of(*np.meshgrid(fn1 * np.linspace(0.995, 1.005, 21), z1 * np.geomspace(0.85, 1.0 / 0.85, 15)))
         return {"fn_hz": fn2, "zeta": min(z2, MAX_ZETA)}
 
     def clamp(self, theta, fs_hz):
         """ζ within [MIN_ZETA, MAX_ZETA], the mode below SEARCH_SHARE·fs (the bilinear map's prewarp)."""
-        return {"fn_hz": float(np.clip(theta["fn_hz"], 1.0, SEARCH_SHARE * fs_hz)),
-                "zeta": float(np.clip(theta["zeta"], MIN_ZETA, MAX_ZETA))}
+        return {
+            "fn_hz": float(np.clip(theta["fn_hz"], 1.0, SEARCH_SHARE * fs_hz)),
+            "zeta": float(np.clip(theta["zeta"], MIN_ZETA, MAX_ZETA)),
+        }
 
     def refine(self, theta, cost, fine: bool = False, bracket=None):
         """Coordinate steps in fn and ζ while the exact cost falls (``fine``: only 0.3 % steps,
         after the harmonic search); a 2-D grid has no bracket."""
         best, best_cost = dict(theta), cost(theta)
-        for factor in ((1.003,) if fine else (1.025, 1.005)):
+        for factor in (1.003,) if fine else (1.025, 1.005):
             for _ in range(2):
                 improved = False
                 steps = (("fn_hz", factor), ("fn_hz", 1 / factor), ("zeta", factor**3), ("zeta", factor**-3))

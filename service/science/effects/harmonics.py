@@ -7,6 +7,7 @@ problem on the harmonics; for many candidates the normal equations are one matri
 (variable projection on a dense grid). Bounds on the weights are ignored here: the search only
 locates the nonlinear parameters, the exact bounded fit follows in the time domain.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -62,8 +63,8 @@ def harmonic_data(records, columns) -> HarmonicData:
             if k_max < 1:
                 continue
             freqs.append(f0 * np.arange(1, k_max + 1))
-            cols.append(np.fft.rfft(ac, axis=0)[1:k_max + 1] / m)
-            xs.append(np.fft.rfft(xc)[1:k_max + 1] / m)
+            cols.append(np.fft.rfft(ac, axis=0)[1 : k_max + 1] / m)
+            xs.append(np.fft.rfft(xc)[1 : k_max + 1] / m)
     if not freqs:
         return HarmonicData(np.zeros(0), np.zeros((0, 0), complex), np.zeros(0, complex))
     return HarmonicData(np.concatenate(freqs), np.vstack(cols), np.concatenate(xs))

@@ -10,15 +10,16 @@ Three families of hysteresis operators beside the model's play operators, all ra
   of a Bouc–Wen-like stack (which settles cycle after cycle) is the base's, not a time effect.
 A loop shape wrong at every frequency alike is a capacity problem; a physical candidate must beat
 this base (service/science/discovery/diagnosis.py)."""
+
 from __future__ import annotations
 
 import numpy as np
-from drivers.jit import njit
 
+from drivers.jit import njit
 from service.science.effects.base import Effect, RecordContext
+from service.science.fitting.lsq import Block
 from service.science.models.base import equal_thresholds
 from service.science.models.kernels import play_operators
-from service.science.fitting.lsq import Block
 
 OPERATOR_FACTOR = 2
 #: Duhem operators' voltage scales, as fractions of the drive's span (V/V)
@@ -49,8 +50,10 @@ class Operators(Effect):
     name = "operators"
     kind = "capacity"
     stage = "capacity"
-    signature = ("the loop shape itself is not matched (residual repeats cycle to cycle, at all "
-                 "frequencies alike): more, finer and other hysteresis operators; a model-capacity change, not physics")
+    signature = (
+        "the loop shape itself is not matched (residual repeats cycle to cycle, at all "
+        "frequencies alike): more, finer and other hysteresis operators; a model-capacity change, not physics"
+    )
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         """Play operators (µm/V weights, free sign: a correction to the main family) of the warped
@@ -59,6 +62,7 @@ class Operators(Effect):
         warped_v = ctx.u_v * np.abs(ctx.u_v) / ctx.u_scale_v
         thresholds = equal_thresholds(ctx.u_scale_v, ctx.p.shape[1])
         scales = np.asarray(DUHEM_SCALES) * ctx.u_scale_v
-        return [Block.make("warped_weights_um_per_v", play_operators(warped_v, thresholds)),
-                Block.make("duhem_weights_um_per_v", duhem_operators(np.ascontiguousarray(ctx.u_v, dtype=float),
-                                                                     scales))]
+        return [
+            Block.make("warped_weights_um_per_v", play_operators(warped_v, thresholds)),
+            Block.make("duhem_weights_um_per_v", duhem_operators(np.ascontiguousarray(ctx.u_v, dtype=float), scales)),
+        ]

@@ -2,20 +2,23 @@
 s(sign u̇, sign ü): α_s u̇ S + β_s ü S with S = Σ P_i (µm·s/V², µm·s²/V²), plus the rate of
 each hysteretic operator Ṗ_i (i ≥ 1; viscous domain-wall motion lags the switched strain only,
 not the reversible r = 0 part — which is what separates it from a pure delay)."""
+
 from __future__ import annotations
 
 import numpy as np
 
 from service.science.effects.base import Effect, RecordContext
-from service.science.models.pi import segment_columns
 from service.science.fitting.lsq import Block
+from service.science.models.pi import segment_columns
 
 
 class RateDependence(Effect):
     point_symmetric = False
     name = "rate_dependence"
-    signature = ("the loop widens or tilts with drive rate: residual grows with frequency, "
-                 "changes sign with u̇ and correlates with u̇·ΣP (not with a pure shift of the whole output)")
+    signature = (
+        "the loop widens or tilts with drive rate: residual grows with frequency, "
+        "changes sign with u̇ and correlates with u̇·ΣP (not with a pure shift of the whole output)"
+    )
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         s = ctx.p.sum(axis=1)

@@ -14,6 +14,7 @@ loop's state, so a gauge's bow and a stack's asymmetry (asymmetry.py) bend the l
 part only where x at one (u, state) differs (the branches' width, rate effects, creep). The
 diagnosis weighs the two head to head (service.science.discovery.diagnosis).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,8 +32,10 @@ class SensorNonlinearity(Effect):
     name = "sensor_nonlinearity"
     stage = "output"
     block_name = "gauge_bow_um"
-    signature = ("the loop's bow follows the measured position x, not the drive: at one drive the "
-                 "ascending and descending branches are bent by different amounts — the gauge's own curvature")
+    signature = (
+        "the loop's bow follows the measured position x, not the drive: at one drive the "
+        "ascending and descending branches are bent by different amounts — the gauge's own curvature"
+    )
 
     @staticmethod
     def columns(z_um: np.ndarray, x_mid_um: float, x_half_um: float) -> np.ndarray:
@@ -50,11 +53,17 @@ class SensorNonlinearity(Effect):
         z = x.copy()
         for _ in range(INVERSE_NEWTON_STEPS):
             e = (z - x_mid_um) / h
-            f = z + h * (c2 * e * e + c3 * e ** 3) - x
+            f = z + h * (c2 * e * e + c3 * e**3) - x
             z = z - f / np.maximum(1.0 + 2.0 * c2 * e + 3.0 * c3 * e * e, 0.1)
         return z
 
     def describe(self, theta, values):
         w = values.get(self.block_name)
-        return "" if w is None else (f"gauge bow {100 * float(w[0]):.3g} % and S-bend {100 * float(w[1]):.3g} % of "
-                                     "the half span at the ends of the range")
+        return (
+            ""
+            if w is None
+            else (
+                f"gauge bow {100 * float(w[0]):.3g} % and S-bend {100 * float(w[1]):.3g} % of "
+                "the half span at the ends of the range"
+            )
+        )

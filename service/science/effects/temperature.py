@@ -3,6 +3,7 @@ PZT stack rise a few 0.1 %/K). Columns: the temperature deviation from the data 
 the normalised drive and the normalised hysteretic state, ΔT·u/u_max and ΔT·S/u_max (µm/K); zero
 where the record carries no temperature (a feedforward inverse, a record without a thermometer).
 Testable only on records whose ``temp_c`` varies (service/science/discovery/identifiability.py)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -4,16 +4,17 @@ Stage 1 fits a static PI (ω ≥ 0 and the offset) on the 1 Hz loop; stage 2 fit
 rate parameters with ω fixed, either exactly (linear least squares) or by the paper's PSO.
 ``DynamicPI.fit`` instead solves everything jointly, which is the optimum of both.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from service.science.data.record import Record, as_record_list
+from service.science.fitting.lsq import solve_blocks, stack_blocks
+from service.science.fitting.pso import PSOResult, pso_minimize
 from service.science.models.base import equal_thresholds
 from service.science.models.contract import Drive
 from service.science.models.pi import DynamicPI, StaticPI
-from service.science.fitting.lsq import solve_blocks, stack_blocks
-from service.science.fitting.pso import PSOResult, pso_minimize
 
 RATE_BLOCKS = ("alpha_um_per_v2_s", "beta_um_per_v2_s2")
 #: Rows per chunk when scoring all particles (bounds the (rows, particles) temporary).
@@ -80,8 +81,9 @@ def fit_dynamic_pi_pso(
             sq += np.einsum("ij,ij->j", err, err)
         return np.sqrt(sq / a.shape[0])
 
-    result = pso_minimize(rms_of_particles, scale, n_particles=n_particles, n_iterations=n_iterations,
-                          seed=seed, **pso_options)
+    result = pso_minimize(
+        rms_of_particles, scale, n_particles=n_particles, n_iterations=n_iterations, seed=seed, **pso_options
+    )
     model.alpha_um_per_v2_s = result.x[:4].copy()
     model.beta_um_per_v2_s2 = result.x[4:].copy()
     model.train_rms_um = result.cost  # eq. 12 over all records

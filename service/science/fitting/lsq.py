@@ -4,10 +4,11 @@ A model (or an effect) contributes column blocks with per-column bounds; blocks 
 the same name from several records are stacked row-wise and all blocks are solved
 jointly, so later effect regressors (creep, delay, drift, ...) simply append blocks.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -29,7 +30,7 @@ class Block:
     upper: np.ndarray
 
     @classmethod
-    def make(cls, name: str, columns, lower=-np.inf, upper=np.inf) -> "Block":
+    def make(cls, name: str, columns, lower=-np.inf, upper=np.inf) -> Block:
         cols = np.asarray(columns, dtype=float)
         if cols.ndim == 1:
             cols = cols[:, None]
@@ -229,8 +230,19 @@ def separable_least_squares(
         return w * solve_blocks(make_blocks(z * scale), b, row_weights).residual
 
     lo, hi = (np.broadcast_to(np.asarray(v, dtype=float), theta0.shape) / scale for v in bounds)
-    res = least_squares(residual, theta0 / scale, bounds=(lo, hi), method="trf", x_scale=1.0,
-                        diff_step=1e-6, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
+    res = least_squares(
+        residual,
+        theta0 / scale,
+        bounds=(lo, hi),
+        method="trf",
+        x_scale=1.0,
+        diff_step=1e-6,
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+        max_nfev=200,
+    )
     theta = res.x * scale
-    return SeparableSolution(theta, solve_blocks(make_blocks(theta), b, row_weights), int(res.nfev), int(res.njev or 0),
-                             str(res.message))
+    return SeparableSolution(
+        theta, solve_blocks(make_blocks(theta), b, row_weights), int(res.nfev), int(res.njev or 0), str(res.message)
+    )

@@ -8,6 +8,7 @@ Z, 17 blocks) it raised the process's peak RSS from 0.34 to 3.63 GB, 1.65 kB a s
 memo's 1 GB bound holds there). A record long enough to exhaust the machine would have the
 kernel kill the service mid-job, so such a request is refused first, naming what it would need.
 """
+
 from __future__ import annotations
 
 #: the peak a fit or diagnosis adds per sample of its records (bytes): the 1.82 kB measured, rounded up
@@ -41,7 +42,9 @@ def memory_shortfall(n_samples: int, available_bytes: int | None = None) -> str 
     need = fit_memory_bytes(n_samples)
     if free is None or need <= USABLE_SHARE * free:
         return None
-    return (f"{n_samples:,} samples need about {need / 1e9:.1f} GB to fit and diagnose, more than the "
-            f"{USABLE_SHARE * free / 1e9:.1f} GB a fit may use ({100 * USABLE_SHARE:.0f} % of the "
-            f"{free / 1e9:.1f} GB free on this machine): fit on fewer or shorter datasets (import a part of the "
-            "record), or on a machine with more memory")
+    return (
+        f"{n_samples:,} samples need about {need / 1e9:.1f} GB to fit and diagnose, more than the "
+        f"{USABLE_SHARE * free / 1e9:.1f} GB a fit may use ({100 * USABLE_SHARE:.0f} % of the "
+        f"{free / 1e9:.1f} GB free on this machine): fit on fewer or shorter datasets (import a part of the "
+        "record), or on a machine with more memory"
+    )

@@ -1,4 +1,5 @@
 """Fit metrics between a measured and a predicted displacement record, and the one RMS helper."""
+
 from __future__ import annotations
 
 import numpy as np

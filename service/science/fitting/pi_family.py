@@ -6,10 +6,10 @@ paper's two-stage and PSO procedures for the dynamic PI, and fit metrics.
 
 Implementation lives in ``service.science.fitting``; this module is the stable surface.
 """
+
 from __future__ import annotations
 
 from service.science.data.record import Record, as_record_list
-from service.science.models import PAPER_MODELS, HysteresisModel
 from service.science.fitting.dynamic import (
     fit_dynamic_pi_pso,
     fit_dynamic_pi_two_stage,
@@ -27,12 +27,13 @@ from service.science.fitting.lsq import (
 )
 from service.science.fitting.metrics import fit_metrics
 from service.science.fitting.pso import PSOResult, pso_minimize
+from service.science.models import PAPER_MODELS, HysteresisModel
 
 #: ``identify("dynamic_pi", ..., method=...)``: the joint exact fit or the paper's procedures.
 DYNAMIC_METHODS = ("joint", "two_stage", "pso")
 
 
-def identify(model_name: str, data: "Record | list[Record]", method: str = "joint", **options) -> HysteresisModel:
+def identify(model_name: str, data: Record | list[Record], method: str = "joint", **options) -> HysteresisModel:
     """Fit the registered model ``model_name`` to ``data`` (one Record or several, jointly).
 
     ``options`` go to the model's constructor (``n_operators``, ``thresholds_v``,
@@ -43,22 +44,37 @@ def identify(model_name: str, data: "Record | list[Record]", method: str = "join
         raise ValueError(f"unknown model {model_name!r}; known: {', '.join(PAPER_MODELS)}")
     if method != "joint":
         if model_name != "dynamic_pi" or method not in DYNAMIC_METHODS:
-            raise ValueError(f"method {method!r} is not available for {model_name!r}; "
-                             f"dynamic_pi takes one of {', '.join(DYNAMIC_METHODS)}, other models 'joint'")
+            raise ValueError(
+                f"method {method!r} is not available for {model_name!r}; "
+                f"dynamic_pi takes one of {', '.join(DYNAMIC_METHODS)}, other models 'joint'"
+            )
         if method == "two_stage":
             return fit_dynamic_pi_two_stage(data, **options)
         return fit_dynamic_pi_pso(data, **options)[0]
     return PAPER_MODELS[model_name](**options).fit(data)
 
 
-def evaluate(model: HysteresisModel, data: "Record | list[Record]") -> list[dict]:
+def evaluate(model: HysteresisModel, data: Record | list[Record]) -> list[dict]:
     """``fit_metrics`` of ``model`` on each record, labelled."""
     return [{"label": s.label, **fit_metrics(s.require_x(), model.predict(s))} for s in as_record_list(data)]
 
 
 __all__ = [
-    "Block", "LsqSolution", "SeparableSolution", "PSOResult", "DYNAMIC_METHODS",
-    "design_matrix", "solve_blocks", "stack_blocks", "separable_least_squares", "pso_minimize",
-    "fit_dynamic_pi_two_stage", "fit_dynamic_pi_pso", "rate_problem", "slowest_record",
-    "fit_metrics", "evaluate", "identify",
+    "Block",
+    "LsqSolution",
+    "SeparableSolution",
+    "PSOResult",
+    "DYNAMIC_METHODS",
+    "design_matrix",
+    "solve_blocks",
+    "stack_blocks",
+    "separable_least_squares",
+    "pso_minimize",
+    "fit_dynamic_pi_two_stage",
+    "fit_dynamic_pi_pso",
+    "rate_problem",
+    "slowest_record",
+    "fit_metrics",
+    "evaluate",
+    "identify",
 ]

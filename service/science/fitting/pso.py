@@ -3,10 +3,11 @@
 Kept to reproduce the paper: the dynamic PI is linear in its parameters, so exact least
 squares (``service.science.fitting.lsq``) reaches the optimum it searches for.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -10,11 +10,12 @@ Metrics per sample set: ``rms_um``, ``max_abs_um`` and MATLAB-style
 ``fit_pct`` = 100·(1 − ‖e‖/‖x − mean(x)‖). Summary figures are the mean over blocks, so a short
 100 Hz block counts as much as a long 1 Hz one. Pure numpy: no HTTP, no store.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -45,14 +46,18 @@ def axis_frequency_hz(block: dict, axis: str | None) -> float | None:
     return (block.get("frequencies_hz") or {}).get(axis) or block.get("frequency_hz")
 
 
-def split_blocks(blocks: Sequence[dict], samples: int, sample_rate_hz: float, axis: str | None = None,
-                 fraction: float = HELD_OUT_FRACTION) -> list[BlockSplit]:
+def split_blocks(
+    blocks: Sequence[dict],
+    samples: int,
+    sample_rate_hz: float,
+    axis: str | None = None,
+    fraction: float = HELD_OUT_FRACTION,
+) -> list[BlockSplit]:
     """Train/held-out ranges per block. Blocks that drive other axes only are skipped when
     ``axis`` is given; an empty block table means one block over the whole record. With
     ``fraction`` 0 nothing is held out: a block's whole cycles (or all its samples) train."""
     if not blocks:
-        blocks = [{"index": 0, "start": 0, "stop": samples, "kind": "imported", "frequency_hz": None,
-                   "cycles": None}]
+        blocks = [{"index": 0, "start": 0, "stop": samples, "kind": "imported", "frequency_hz": None, "cycles": None}]
     out = []
     for block in blocks:
         if other_axes(block, axis):
@@ -81,7 +86,7 @@ def training_mask(splits: Sequence[BlockSplit], samples: int) -> np.ndarray:
     """Boolean mask of the training rows of one record."""
     mask = np.zeros(samples, dtype=bool)
     for s in splits:
-        mask[s.train[0]:s.train[1]] = True
+        mask[s.train[0] : s.train[1]] = True
     return mask
 
 
@@ -93,12 +98,15 @@ def metrics(x_um: np.ndarray, x_hat_um: np.ndarray) -> dict:
         return {"samples": 0, "rms_um": None, "max_abs_um": None, "fit_pct": None}
     figures = fit_metrics(x, x_hat_um)
     fit = figures["fit_percent"]
-    return {"samples": int(x.size), "rms_um": figures["rms_um"], "max_abs_um": figures["max_abs_um"],
-            "fit_pct": fit if math.isfinite(fit) else None}
+    return {
+        "samples": int(x.size),
+        "rms_um": figures["rms_um"],
+        "max_abs_um": figures["max_abs_um"],
+        "fit_pct": fit if math.isfinite(fit) else None,
+    }
 
 
-def evaluate_record(x_um: np.ndarray, x_hat_um: np.ndarray, splits: Sequence[BlockSplit],
-                    trained: bool = True) -> dict:
+def evaluate_record(x_um: np.ndarray, x_hat_um: np.ndarray, splits: Sequence[BlockSplit], trained: bool = True) -> dict:
     """Per-block train and held-out metrics of one record, plus their means.
 
     With ``trained`` False (a record the model never saw) every block row is unseen: the
@@ -112,11 +120,21 @@ def evaluate_record(x_um: np.ndarray, x_hat_um: np.ndarray, splits: Sequence[Blo
         else:
             rows = slice(s.train[0], s.held_out[1])
             train, held = metrics(x_um[:0], x_hat_um[:0]), metrics(x_um[rows], x_hat_um[rows])
-        per_block.append({"index": s.block.get("index"), "kind": s.block.get("kind"),
-                          "frequency_hz": s.block.get("frequency_hz"), "cycles": s.block.get("cycles"),
-                          "train": train, "validation": held})
-    return {"train_rms_um": mean_of(per_block, "train"), "validation_rms_um": mean_of(per_block, "validation"),
-            "blocks": per_block}
+        per_block.append(
+            {
+                "index": s.block.get("index"),
+                "kind": s.block.get("kind"),
+                "frequency_hz": s.block.get("frequency_hz"),
+                "cycles": s.block.get("cycles"),
+                "train": train,
+                "validation": held,
+            }
+        )
+    return {
+        "train_rms_um": mean_of(per_block, "train"),
+        "validation_rms_um": mean_of(per_block, "validation"),
+        "blocks": per_block,
+    }
 
 
 def evaluate_records(records: Sequence, predictions: Sequence[np.ndarray], own_axis_only: bool = False) -> dict:
@@ -127,8 +145,11 @@ def evaluate_records(records: Sequence, predictions: Sequence[np.ndarray], own_a
         fig = evaluate_record(r.x_um, x_hat, r.splits_of(own_axis_only))
         per.append({"dataset_id": r.label, **fig})
         blocks += fig["blocks"]
-    return {"train_rms_um": mean_of(blocks, "train"), "validation_rms_um": mean_of(blocks, "validation"),
-            "per_dataset": per}
+    return {
+        "train_rms_um": mean_of(blocks, "train"),
+        "validation_rms_um": mean_of(blocks, "validation"),
+        "per_dataset": per,
+    }
 
 
 def max_of(per_block: Sequence[dict], part: str) -> float | None:
@@ -161,7 +182,7 @@ def trained_loops_v(records) -> list[list[float]]:
     loops = []
     for rec in records:
         for split in rec.splits_of(own_axis_only=True):
-            u = rec.u_v[split.train[0]:split.train[1]]
+            u = rec.u_v[split.train[0] : split.train[1]]
             if u.size:
                 loops.append([float(np.min(u)), float(np.max(u))])
     return loops

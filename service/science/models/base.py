@@ -2,10 +2,12 @@
 linear-in-parameters fit over design blocks, prediction, validation, JSON round trips and the
 rest of the model contract (service.science.models.contract).
 """
+
 from __future__ import annotations
 
 import copy
-from typing import ClassVar, Sequence
+from collections.abc import Sequence
+from typing import ClassVar
 
 import numpy as np
 
@@ -16,8 +18,10 @@ from service.science.fitting.validation import evaluate_records, max_of
 from service.science.models.contract import UNBOUNDED_V, Drive, split_stored
 
 #: what an identification of the PI family holds out (the stored metrics say it in words)
-HELD_OUT_NOTE = ("last ceil(20 %) of the full cycles of every block (last 20 % of samples where a block has "
-                 "no cycles); means are over blocks")
+HELD_OUT_NOTE = (
+    "last ceil(20 %) of the full cycles of every block (last 20 % of samples where a block has "
+    "no cycles); means are over blocks"
+)
 
 
 def equal_thresholds(u_max_v: float, n_operators: int) -> np.ndarray:
@@ -39,7 +43,7 @@ class HysteresisModel:
 
     name: ClassVar[str] = ""
     rate_dependent: ClassVar[bool] = False
-    judges_stroke: ClassVar[bool] = False        #: no flexure dynamics: a stroke verdict only warns
+    judges_stroke: ClassVar[bool] = False  #: no flexure dynamics: a stroke verdict only warns
     #: the effects the model describes, hysteresis first (the composite discovery starts from)
     described_effects: ClassVar[tuple[str, ...]] = ("hysteresis",)
     _param_names: ClassVar[tuple[str, ...]] = ()
@@ -48,13 +52,16 @@ class HysteresisModel:
 
     def __init__(self, n_operators: int = 10, thresholds_v=None, fit_offset: bool = True):
         given = None if thresholds_v is None else np.asarray(thresholds_v, dtype=float)
-        self._config = {"n_operators": int(n_operators if given is None else len(given)),
-                        "thresholds_v": None if given is None else given.tolist(), "fit_offset": bool(fit_offset)}
+        self._config = {
+            "n_operators": int(n_operators if given is None else len(given)),
+            "thresholds_v": None if given is None else given.tolist(),
+            "fit_offset": bool(fit_offset),
+        }
         self.thresholds_v = None if given is None else given.copy()
         self.weights_um_per_v: np.ndarray | None = None
         self.offset_um = 0.0
         self.train_rms_um: float | None = None
-        self.sign = 1.0       #: −1 when the gauge reads against the drive: fitted to −x, predicts −(…)
+        self.sign = 1.0  #: −1 when the gauge reads against the drive: fitted to −x, predicts −(…)
         #: the drive (V) the operators count from: 0 V, or the lowest drive of the fitted records when
         #: it went below 0 V (a bipolar or negative record); thresholds span the drive above it
         self.u_origin_v = 0.0
@@ -81,8 +88,10 @@ class HysteresisModel:
         """This kind for an identification of ``effects``: the paper's models take only 'hysteresis'
         (the static PI builds a composite for more; see StaticPI)."""
         if set(effects) - {"hysteresis"}:
-            raise ValueError(f"effects beyond 'hysteresis' build a composite model on a static PI; "
-                             f"model {cls.name!r} takes effects ['hysteresis'] only")
+            raise ValueError(
+                f"effects beyond 'hysteresis' build a composite model on a static PI; "
+                f"model {cls.name!r} takes effects ['hysteresis'] only"
+            )
         return cls(n_operators=n_operators)
 
     def as_composite(self):
@@ -141,7 +150,7 @@ class HysteresisModel:
     def stacked_blocks(self, items: Sequence[Record]) -> list[Block]:
         return stack_blocks([self.blocks(Drive.of(s)) for s in items])
 
-    def fit(self, data, row_weights=None) -> "HysteresisModel":
+    def fit(self, data, row_weights=None) -> HysteresisModel:
         """Least squares over all records jointly, with each block's bounds; returns self.
 
         ``row_weights`` (one per sample of the stacked records, ≥ 0) weights the residual;
@@ -213,22 +222,32 @@ class HysteresisModel:
         """``evaluate`` plus the largest train and held-out error (µm) over blocks."""
         ev = self.evaluate(records)
         blocks = [b for d in ev["per_dataset"] for b in d["blocks"]]
-        return {**ev, "train_max_abs_um": max_of(blocks, "train"), "validation_max_abs_um": max_of(blocks, "validation"),
-                "held_out": HELD_OUT_NOTE}
+        return {
+            **ev,
+            "train_max_abs_um": max_of(blocks, "train"),
+            "validation_max_abs_um": max_of(blocks, "validation"),
+            "held_out": HELD_OUT_NOTE,
+        }
 
     # -- serialisation ----------------------------------------------------------------
     def to_dict(self) -> dict:
         """``{"model", "config", **learned state}``, JSON-serialisable (floats round-trip exactly)."""
         self._require_fitted()
-        out = {"model": self.name, "config": self.get_config(), "thresholds_v": self.thresholds_v.tolist(),
-               "u_origin_v": self.u_origin_v, "sign": self.sign, "train_rms_um": self.train_rms_um}
+        out = {
+            "model": self.name,
+            "config": self.get_config(),
+            "thresholds_v": self.thresholds_v.tolist(),
+            "u_origin_v": self.u_origin_v,
+            "sign": self.sign,
+            "train_rms_um": self.train_rms_um,
+        }
         for key in self._param_names:
             val = getattr(self, key)
             out[key] = val.tolist() if isinstance(val, np.ndarray) else float(val)
         return out
 
     @classmethod
-    def from_dict(cls, d: dict) -> "HysteresisModel":
+    def from_dict(cls, d: dict) -> HysteresisModel:
         config, state = split_stored(d, cls.name, cls._config_keys)
         model = cls(**{k: config[k] for k in cls._config_keys if k in config})
         model.thresholds_v = np.asarray(state["thresholds_v"], dtype=float)

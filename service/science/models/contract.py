@@ -29,6 +29,7 @@ is used through these members only; no caller asks which kind it holds.
 - ``to_dict()`` → ``{"model": name, "config": {...}, **state}`` (JSON floats round-trip exactly);
   ``from_dict(d)`` rebuilds it (service.science.models.registry.model_from_dict for any kind).
 """
+
 from __future__ import annotations
 
 from typing import Any, ClassVar, Protocol, runtime_checkable
@@ -57,7 +58,7 @@ class Drive:
         self._estimated = None
 
     @classmethod
-    def of(cls, drive, sample_rate_hz: float | None = None) -> "Drive":
+    def of(cls, drive, sample_rate_hz: float | None = None) -> Drive:
         """``drive`` (a Drive, a Record, or an array of volts at ``sample_rate_hz``) as a Drive."""
         if isinstance(drive, Drive):
             return drive
@@ -97,7 +98,7 @@ class Model(Protocol):
 
     def get_config(self) -> dict[str, Any]: ...
 
-    def fit(self, records) -> "Model": ...
+    def fit(self, records) -> Model: ...
 
     def predict(self, drive, sample_rate_hz: float | None = None) -> np.ndarray: ...
 
@@ -114,10 +115,10 @@ class Model(Protocol):
     def to_dict(self) -> dict: ...
 
     @classmethod
-    def for_effects(cls, effects, n_operators: int = 10, parent=None) -> "Model": ...
+    def for_effects(cls, effects, n_operators: int = 10, parent=None) -> Model: ...
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Model": ...
+    def from_dict(cls, d: dict) -> Model: ...
 
 
 def split_stored(d: dict, name: str, config_keys) -> tuple[dict, dict]:

@@ -5,15 +5,16 @@ h_r = b1 u + b2|u̇| (V; a2, b2 in s); x = Σ ω_i P_{h,r_i}[u] + offset. Weight
 bounded least-squares solve given (a1, a2, b1, b2); those four come from a small outer
 search on the variable-projection residual, started at the static PI (1, 0, 1, 0).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
+from service.science.fitting.lsq import Block, separable_least_squares, stack_blocks
 from service.science.models.base import HysteresisModel
 from service.science.models.contract import Drive
 from service.science.models.inverse import numerical_inverse
 from service.science.models.kernels import envelope_play_operators, grpi_envelopes
-from service.science.fitting.lsq import Block, separable_least_squares, stack_blocks
 
 ENVELOPE_NAMES = ("a1", "a2_s", "b1", "b2_s")
 #: Lower bound on a1, b1: the envelopes must rise with u for the model to be invertible.
@@ -48,7 +49,7 @@ class GRPI(HysteresisModel):
         p = self.operator_outputs(drive, envelope)
         return [Block.make("weights_um_per_v", p, lower=0.0)] + self._offset_blocks(p.shape[0])
 
-    def fit(self, data, row_weights=None) -> "GRPI":
+    def fit(self, data, row_weights=None) -> GRPI:
         """Weights by bounded LS inside a least-squares search over (a1, a2, b1, b2);
         ``row_weights`` as in :meth:`HysteresisModel.fit`."""
         items, target, row_weights = self._prepare(data, row_weights)
@@ -61,8 +62,12 @@ class GRPI(HysteresisModel):
             return stack_blocks([self.blocks(s, tuple(theta)) for s in signals])
 
         sol = separable_least_squares(
-            make_blocks, target, theta0=[1.0, 0.0, 1.0, 0.0], theta_scale=[1.0, a_scale, 1.0, a_scale],
-            bounds=([MIN_ENVELOPE_SLOPE, -np.inf, MIN_ENVELOPE_SLOPE, -np.inf], np.inf), row_weights=row_weights,
+            make_blocks,
+            target,
+            theta0=[1.0, 0.0, 1.0, 0.0],
+            theta_scale=[1.0, a_scale, 1.0, a_scale],
+            bounds=([MIN_ENVELOPE_SLOPE, -np.inf, MIN_ENVELOPE_SLOPE, -np.inf], np.inf),
+            row_weights=row_weights,
         )
         self.set_parameters({**dict(zip(ENVELOPE_NAMES, sol.theta)), **sol.linear.values})
         self.train_rms_um = sol.linear.rms
@@ -72,8 +77,15 @@ class GRPI(HysteresisModel):
     def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None, du_v_per_s=None, refinements: int = 0):
         """Voltage (V) for ``x_ref_um``; |u̇| as in :func:`numerical_inverse`."""
         self._require_fitted()
-        u_v = numerical_inverse(self.in_model_direction(x_ref_um), self.thresholds_v,
-                                self.weights_um_per_v, self.offset_um,
-                                sample_rate_hz, envelope=self.envelope, du_v_per_s=du_v_per_s,
-                                refinements=refinements, u_limits_v=self.inverse_limits(u_limits_v))
+        u_v = numerical_inverse(
+            self.in_model_direction(x_ref_um),
+            self.thresholds_v,
+            self.weights_um_per_v,
+            self.offset_um,
+            sample_rate_hz,
+            envelope=self.envelope,
+            du_v_per_s=du_v_per_s,
+            refinements=refinements,
+            u_limits_v=self.inverse_limits(u_limits_v),
+        )
         return u_v + self.u_origin_v

@@ -7,15 +7,16 @@ exactly by bracketing between breakpoints (no iteration tolerance). Where the ou
 is not monotone in u (a dynamic weight ω_i + φ < 0) the root closest to the previous
 voltage is taken; an unreachable target saturates at the closest reachable output.
 """
+
 from __future__ import annotations
 
 import numpy as np
-from drivers.jit import drop_stale_caches, njit
 
+from drivers.jit import drop_stale_caches, njit
 from service.science.data.record import finite_array
+from service.science.data.signals import drive_derivatives
 from service.science.models import kernels as model_kernels
 from service.science.models.kernels import dynamic_weight_shift, gpi_step, play_operators
-from service.science.data.signals import drive_derivatives
 
 
 def analytic_inverse_parameters(thresholds_v, weights_um_per_v) -> tuple[np.ndarray, np.ndarray]:
@@ -115,8 +116,7 @@ def _invert(x_ref, thresholds, weights, offset, a1, a2, b1, b2, alpha, beta, du,
         for i in range(thresholds.size):
             gains[i] = weights[i] + phi
         c_l, c_r = a2 * abs(du[k]), b2 * abs(du[k])
-        uk = _solve_sample(x_ref[k], a1, c_l, b1, c_r, thresholds, gains, offset, state, u_prev,
-                           u_lo, u_hi, pts, vals)
+        uk = _solve_sample(x_ref[k], a1, c_l, b1, c_r, thresholds, gains, offset, state, u_prev, u_lo, u_hi, pts, vals)
         gpi_step(uk, a1, c_l, b1, c_r, thresholds, gains, offset, state, True)
         u[k] = uk
         u_prev = uk

@@ -5,9 +5,11 @@ Every operator in the package goes through :func:`play`, so eq. 1 and eq. 13 sha
 definition. The scalar/in-place kernels are meant to be called from other numba code
 (controllers run them sample by sample).
 """
+
 from __future__ import annotations
 
 import numpy as np
+
 from drivers.jit import njit
 
 

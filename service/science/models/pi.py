@@ -5,15 +5,16 @@ Both are linear in their parameters once the play-operator outputs P (V) are kno
   dynamic: x = Σ (ω_i + α_s u̇ + β_s ü) P_i + offset = Σ ω_i P_i + (α_s u̇ + β_s ü) Σ_i P_i + offset
 so fitting them is one bounded least-squares solve over their design blocks.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
+from service.science.fitting.lsq import Block
 from service.science.models.base import HysteresisModel
 from service.science.models.contract import Drive
 from service.science.models.inverse import analytic_pi_inverse, numerical_inverse
 from service.science.models.kernels import play_operators, segment_index
-from service.science.fitting.lsq import Block
 
 
 class StaticPI(HysteresisModel):
@@ -45,11 +46,21 @@ class StaticPI(HysteresisModel):
         self._require_fitted()
         x_ref_um = self.in_model_direction(x_ref_um)
         if method == "analytic":
-            return analytic_pi_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v,
-                                       self.offset_um) + self.u_origin_v
+            return (
+                analytic_pi_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v, self.offset_um)
+                + self.u_origin_v
+            )
         if method == "numerical":
-            return numerical_inverse(x_ref_um, self.thresholds_v, self.weights_um_per_v, self.offset_um,
-                                     u_limits_v=self.inverse_limits(u_limits_v)) + self.u_origin_v
+            return (
+                numerical_inverse(
+                    x_ref_um,
+                    self.thresholds_v,
+                    self.weights_um_per_v,
+                    self.offset_um,
+                    u_limits_v=self.inverse_limits(u_limits_v),
+                )
+                + self.u_origin_v
+            )
         raise ValueError(f"unknown inverse method {method!r}: use 'analytic' or 'numerical'")
 
 
@@ -72,8 +83,10 @@ class DynamicPI(HysteresisModel):
     """
 
     #: why a feedforward plan refuses this model's inverse when it misses (service.science.control.session)
-    inverse_advice = ("The paper's dynamic PI inverse diverges at 50–100 Hz (segment-switched weights); use a "
-                      "static_pi or composite model")
+    inverse_advice = (
+        "The paper's dynamic PI inverse diverges at 50–100 Hz (segment-switched weights); use a "
+        "static_pi or composite model"
+    )
 
     name = "dynamic_pi"
     rate_dependent = True
@@ -96,7 +109,7 @@ class DynamicPI(HysteresisModel):
         ] + self._offset_blocks(p.shape[0])
 
     @classmethod
-    def from_static(cls, static: StaticPI) -> "DynamicPI":
+    def from_static(cls, static: StaticPI) -> DynamicPI:
         """A dynamic PI with the static weights/offset and zero rate terms."""
         model = cls(thresholds_v=static.thresholds_v, fit_offset=static.fit_offset)
         model.weights_um_per_v = static.weights_um_per_v.copy()
@@ -105,8 +118,16 @@ class DynamicPI(HysteresisModel):
         model.u_origin_v = static.u_origin_v
         return model
 
-    def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None, du_v_per_s=None, ddu_v_per_s2=None,
-                refinements: int = 0):
+    def inverse(
+        self,
+        x_ref_um,
+        *,
+        sample_rate_hz=None,
+        u_limits_v=None,
+        du_v_per_s=None,
+        ddu_v_per_s2=None,
+        refinements: int = 0,
+    ):
         """Voltage (V) for reference ``x_ref_um`` sampled at ``sample_rate_hz``.
 
         u̇, ü of the answer are ``du_v_per_s``/``ddu_v_per_s2`` when known (a planned waveform),
@@ -114,9 +135,19 @@ class DynamicPI(HysteresisModel):
         ``refinements`` re-solves with the answer's own.
         """
         self._require_fitted()
-        return numerical_inverse(
-            self.in_model_direction(x_ref_um), self.thresholds_v, self.weights_um_per_v, self.offset_um, sample_rate_hz,
-            alpha_um_per_v2_s=self.alpha_um_per_v2_s, beta_um_per_v2_s2=self.beta_um_per_v2_s2,
-            du_v_per_s=du_v_per_s, ddu_v_per_s2=ddu_v_per_s2, refinements=refinements,
-            u_limits_v=self.inverse_limits(u_limits_v),
-        ) + self.u_origin_v
+        return (
+            numerical_inverse(
+                self.in_model_direction(x_ref_um),
+                self.thresholds_v,
+                self.weights_um_per_v,
+                self.offset_um,
+                sample_rate_hz,
+                alpha_um_per_v2_s=self.alpha_um_per_v2_s,
+                beta_um_per_v2_s2=self.beta_um_per_v2_s2,
+                du_v_per_s=du_v_per_s,
+                ddu_v_per_s2=ddu_v_per_s2,
+                refinements=refinements,
+                u_limits_v=self.inverse_limits(u_limits_v),
+            )
+            + self.u_origin_v
+        )

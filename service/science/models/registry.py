@@ -1,6 +1,7 @@
 """Every model kind, by the name it is stored and requested under: the paper's static PI,
 dynamic PI and GRPI, and the discovery composite. Callers rebuild and build models through
 it and never ask which kind they hold (service.science.models.contract)."""
+
 from __future__ import annotations
 
 from service.science.discovery.composite import CompositeModel

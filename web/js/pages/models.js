@@ -12,7 +12,7 @@ import { renderDiscover } from './discover.js';
 const charts = [];
 let controller = null;
 
-// DESIGN §6, Table 6: RMS error in µm (dynamic PI / GRPI / static PI).
+// The paper's Table 6: RMS error in µm (dynamic PI / GRPI / static PI).
 const PAPER_TABLE6 = {
   y: { 10: [0.0586, 0.0933, 0.0991], 100: [0.0812, 0.0985, 0.1075] },
   z: { 10: [0.0901, 0.1449, 0.1406], 100: [0.1039, 0.1326, 0.1513] },

@@ -7,7 +7,7 @@ import { h, runJob, showError } from '../ui.js';
 const charts = [];
 let controller = null;
 
-// DESIGN §6: tracking at 100 Hz, PID gains, and the paper's errors.
+// The paper's tracking at 100 Hz, PID gains, and the paper's errors.
 const PAPER = {
   case1: { label: 'paper case 1 (0°, Y 1–6 µm, Z 1–11 µm)', max_error_y_um: 0.308, max_error_z_um: 0.369, relative_error_pct: 6.2,
            form: { min_y_um: 1, amplitude_y_um: 5, min_z_um: 1, amplitude_z_um: 10, inclination_deg: 0 } },

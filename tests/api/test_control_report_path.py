@@ -1,0 +1,154 @@
+"""Issue 19 §3 and §5 over REST on the emulated default bench: models identified as a user would
+(service.reports.rest_path), auto PID + ILC converges on case 2, a plan whose learning is predicted to
+diverge is refused with the field and the factor, and a row of docs/tracking.md's report comes out
+of the HTTP API with the report's own figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.reports.rest_path import ROWS, Refused, UseCases, first_models, identify_for, measure
+from service.reports.tracking_error_spectrum import error_harmonics
+from service.runtime.app import create_app
+from service.runtime.settings import Settings
+from tests.support.api_client import authed_client, job_ended, wait_job
+
+CASE2 = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclination_deg": 20, "frequency_hz": 100}
+SCANNED = {"kp_y": 1, "ki_y": 300, "kd_y": 0.01, "kp_z": 1, "ki_z": 300, "kd_z": 0.01, "tf_s": 2e-4}
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("control_report_path")]
+
+
+def http_post(client):
+    """``rest_path``'s ``post`` over HTTP: a job's final record, span-sweeps' JSON, Refused on 422."""
+
+    def post(path: str, body: dict):
+        r = client.post(path, json=body)
+        if r.status_code == 422:
+            raise Refused(r.json().get("field", "body"), str(r.json()["detail"]))
+        assert r.status_code in (200, 202), r.text
+        if path.endswith("/span-sweeps"):
+            return r.json()
+        return wait_job(client, r.json()["job_id"], until=job_ended, timeout_s=600.0, poll_s=0.05)
+
+    return post
+
+
+def _app(tmp_path, seed: int):
+    return create_app(Settings(data_dir=tmp_path, bench="default", seed=seed, engine="inline"))
+
+
+@pytest.fixture(scope="module")
+def case2(tmp_path_factory):
+    """(post, feedforward model ids for case 2): seed 1, models as a REST user identifies them."""
+    with authed_client(_app(tmp_path_factory.mktemp("path"), seed=1)) as client:
+        post = http_post(client)
+        first = first_models(post)
+        post.client = client  # for the traces of a run
+        yield post, identify_for(post, {**CASE2, "cycles": 40}, first)
+
+
+def _ff(ids):
+    return {f"feedforward_model_{ax}": mid for ax, mid in ids.items()}
+
+
+def test_learning_predicted_to_diverge_is_refused_naming_the_field_and_factor(case2):
+    post, ff = case2
+    with pytest.raises(Refused) as too_fast:
+        post(
+            "/api/trajectories",
+            {**CASE2, "cycles": 10, "controller": {**_ff(ff), "pid": "auto", "ilc": True, "ilc_gain": 0.8}},
+        )
+    assert too_fast.value.field == "controller.ilc_gain"
+    assert (
+        "predicted convergence factor" in too_fast.value.detail and "converges on this plant" in too_fast.value.detail
+    )
+    with pytest.raises(Refused) as thin:  # issue 19's trip: kp 1, ki 300, kd 0.01 + ILC diverged
+        post("/api/trajectories", {**CASE2, "cycles": 10, "controller": {**_ff(ff), "pid": SCANNED, "ilc": True}})
+    assert thin.value.field == "controller.ilc" and "at any learning gain" in thin.value.detail
+
+
+def test_auto_pid_with_ilc_converges_on_case2(case2):
+    """Measured (seed 1, 40 periods, the damped loop of "auto"): error per period 85 → 3.1–3.4 nm RMS over
+    the last 5 (about 26×), 0.25 % relative, 3.3 nm RMS over the last 5 periods (2× noise: 5.9 nm).
+    Predicted factors Y 0.95, Z 0.95."""
+    post, ff = case2
+    job = post("/api/trajectories", {**CASE2, "cycles": 40, "controller": {**_ff(ff), "pid": "auto", "ilc": True}})
+    assert job["state"] == "succeeded", job
+    res = job["result"]
+    assert res["tripped"] is None
+    assert all(p["factor"] < 1 for p in res["ilc"]["axes"].values())
+    err = res["error_per_period_um"]
+    assert len(err) == 40 and min(err[-5:]) < err[0] / 10  # falls by more than 10× (measured 26×)
+    assert res["relative_error_pct"] <= 0.5
+
+
+def _mode_harmonics_nm(client, result: dict) -> dict[str, float]:
+    """The error's amplitude (nm) at the harmonic next to each axis's mode: Y 5×f (482.6 Hz), Z 3×f (290.7 Hz)."""
+    data = client.get(f"/api/datasets/{result['dataset_id']}/data").json()
+    columns = data.get("columns", data)
+    out = {}
+    for axis, k in (("y", 5), ("z", 3)):
+        harmonics, _ = error_harmonics(
+            np.asarray(columns[f"ref_{axis}_um"], float), np.asarray(columns[f"x_{axis}_um"], float), 200, periods=8
+        )
+        out[axis] = float(harmonics[k] * 1e3)
+    return out
+
+
+def test_auto_pid_damps_the_flexure_modes_on_case2(case2):
+    """The composite feedforward carries the flexure dynamics, so "auto" puts a PPF section on each
+    axis's mode (service.science.control.damping). Measured (seed 1, 20 periods): relative error
+    FF only 4.0 % → FF + PID (auto) 2.4 %; the error at Y's 5×f 39 → 16 nm, at Z's 3×f 40 → 15 nm."""
+    post, ff = case2
+    body = {**CASE2, "cycles": 20}
+    ff_only = post("/api/trajectories", {**body, "controller": _ff(ff)})
+    job = post("/api/trajectories", {**body, "controller": {**_ff(ff), "pid": "auto"}})
+    assert ff_only["state"] == "succeeded" and job["state"] == "succeeded", (ff_only, job)
+    res = job["result"]
+    for axis in ("y", "z"):
+        entry = res["pid"]["axes"][axis]
+        assert entry["damping"] is not None and entry["failures"] == [], entry
+        assert entry["damping"]["frequency_hz"] >= entry["plant"]["resonance_hz"]
+    before, after = _mode_harmonics_nm(post.client, ff_only["result"]), _mode_harmonics_nm(post.client, res)
+    # predicted |S| at the mode's harmonic over the gain band: below 0.6 (tests/unit/science/test_control_damping.py)
+    assert after["y"] < before["y"] / 1.6 and after["z"] < before["z"] / 1.6, (before, after)
+    assert res["relative_error_pct"] <= 3.0  # issue 19's target
+    assert res["relative_error_pct"] < 0.6 * ff_only["result"]["relative_error_pct"]
+
+
+def test_a_report_row_through_the_api_has_the_report_figures(tmp_path):
+    """The same seed and bodies through HTTP (TestClient) and through the report's UseCases give the
+    same numbers: the report and the API cannot drift apart. The models are hysteresis + dynamics
+    (auto still damps both modes; measured 4.5 s a path against 14 s with the report's five effects,
+    which the case2 fixture identifies over HTTP)."""
+    cases, rows = {"case2": {**CASE2, "cycles": 8}}, {"d": ROWS["d FF + PID (auto) + ILC"]}
+    effects = ["hysteresis", "dynamics"]
+    with authed_client(_app(tmp_path / "api", seed=7)) as client:
+        api = measure(http_post(client), cases, rows, effects)["case2"]["rows"]["d"]
+    uc = UseCases(Settings(data_dir=tmp_path / "report", bench="default", seed=7, engine="inline"))
+    try:
+        report = measure(uc.post, cases, rows, effects)["case2"]["rows"]["d"]
+    finally:
+        uc.close()
+    assert api["tripped"] is None and report["tripped"] is None
+    assert all(axis["damping"] is not None for axis in api["pid"]["axes"].values())
+    for key in ("relative_error_pct", "rms_error_um", "max_error_y_um", "max_error_z_um"):
+        assert api[key] == pytest.approx(report[key], rel=1e-9, abs=1e-12), key
+    assert api["error_per_period_um"] == pytest.approx(report["error_per_period_um"], rel=1e-9, abs=1e-12)
+    assert api["pid"]["axes"]["y"]["kp"] == pytest.approx(report["pid"]["axes"]["y"]["kp"], rel=1e-12)
+
+
+def test_a_forced_diverging_plan_trips_to_0v_and_says_why(case2):
+    """``force`` runs the refused plan: issue 6's gains + ILC trip (measured: 132.1 ms, sensor range,
+    the error 43 → 587 nm RMS per period over 10 periods after one revert), and the job's error names
+    the learning's course and its predicted factor (Y 7.08)."""
+    post, ff = case2
+    job = post(
+        "/api/trajectories",
+        {**CASE2, "cycles": 30, "controller": {**_ff(ff), "pid": SCANNED, "ilc": True, "force": True}},
+    )
+    assert job["state"] == "failed", job
+    assert "output set to 0 V" in job["error"] and "the ILC had learned for" in job["error"]
+    assert "predicted convergence factor Y" in job["error"]
