@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 
+from service.science import paper
 from service.science.data import signals
 from service.science.fitting.metrics import rms
 from service.science.models.kernels import play_operators as play_outputs
@@ -28,9 +29,15 @@ SAMPLE_RATE_HZ = 20000.0
 FREQUENCIES_HZ = (1.0, 10.0, 50.0, 100.0)
 CYCLES = 5
 THRESHOLDS_V = np.arange(10) * 6.0
-PAPER = {  # paper values: PI weight sums -> strokes at 120 V; Table 6 and §2.3.1 RMS errors
-    "y": {"stroke_um": 6.4, "pi_rms_1hz_um": 0.0881, "pi_rms_10hz_um": 0.0991, "pi_rms_100hz_um": 0.1075},
-    "z": {"stroke_um": 9.3, "pi_rms_1hz_um": 0.1432, "pi_rms_10hz_um": 0.1406, "pi_rms_100hz_um": 0.1513},
+STATIC = paper.TABLE6_MODELS.index("static_pi")
+PAPER = {  # paper values: PI weight sums -> strokes at 120 V; Table 6 and §2.3.1 RMS errors (µm)
+    axis: {
+        "stroke_um": paper.STROKE_AT_120V_UM[axis],
+        "pi_rms_1hz_um": paper.STATIC_PI_1HZ_RMS_UM[axis],
+        "pi_rms_10hz_um": paper.TABLE6_RMS_UM[axis][10.0][STATIC],
+        "pi_rms_100hz_um": paper.TABLE6_RMS_UM[axis][100.0][STATIC],
+    }
+    for axis in ("y", "z")
 }
 ROOT = Path(__file__).resolve().parents[2]
 

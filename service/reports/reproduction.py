@@ -22,6 +22,7 @@ import numpy as np
 
 from drivers.emulated.config import load_config
 from service.reports.calibration import CYCLES, FREQUENCIES_HZ, SAMPLE_RATE_HZ, run_loops
+from service.science import paper
 from service.science.data.record import Record
 from service.science.data.signals import biased_sine
 from service.science.fitting.metrics import rms
@@ -30,10 +31,7 @@ from service.science.models import GRPI, StaticPI
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Table 6 of the paper, RMS error in µm: {axis: {f_hz: (dynamic PI, GRPI, static PI)}}.
-PAPER_TABLE6_UM = {
-    "y": {10.0: (0.0586, 0.0933, 0.0991), 100.0: (0.0812, 0.0985, 0.1075)},
-    "z": {10.0: (0.0901, 0.1449, 0.1406), 100.0: (0.1039, 0.1326, 0.1513)},
-}
+PAPER_TABLE6_UM = paper.TABLE6_RMS_UM
 MODEL_COLUMNS = ("dynamic_joint", "dynamic_two_stage", "dynamic_pso", "grpi", "static")
 
 

@@ -22,31 +22,18 @@ import numpy as np
 from drivers.emulated import open_bench
 from service.reports.rest_path import EFFECTS, UseCases, measure
 from service.runtime.settings import Settings
+from service.science import paper
 from service.science.control.session import PAPER_PID, SCANNED_PID
 from service.science.control.stability import delay_margin
 from service.science.control.trajectory import RAMP_PERIODS
 
 ROOT = Path(__file__).resolve().parents[2]
 #: the paper's cases as POST /api/trajectories bodies (cycles set by the run)
-CASES = {
-    "case1": {
-        "shape": "ellipse",
-        "y_range_um": [1, 6],
-        "z_range_um": [1, 11],
-        "inclination_deg": 0,
-        "frequency_hz": 100,
-    },
-    "case2": {
-        "shape": "ellipse",
-        "y_range_um": [1, 5],
-        "z_range_um": [1, 9],
-        "inclination_deg": 20,
-        "frequency_hz": 100,
-    },
-}
-PAPER = {"case1": (0.308, 0.369), "case2": (0.154, 0.252)}
-#: the paper's plant per axis: static PI weight sum (µm/V) and FEM first mode (Hz), from the paper
-PAPER_AXES = {"y": (0.053, 482.6), "z": (0.077, 290.7)}
+CASES = {case: spec["body"] for case, spec in paper.TRACKING_CASES.items()}
+#: the paper's maximum errors (µm) per case: (Y, Z)
+PAPER = {case: (spec["max_error_um"]["y"], spec["max_error_um"]["z"]) for case, spec in paper.TRACKING_CASES.items()}
+#: the paper's plant per axis: static PI weight sum (µm/V) and FEM first mode (Hz)
+PAPER_AXES = {axis: (paper.STATIC_PI_WEIGHT_SUM_UM_PER_V[axis], paper.FEM_FIRST_MODE_HZ[axis]) for axis in ("y", "z")}
 #: the rows the "Done when" table of issue 19 reads
 PID_ROW, ILC_ROW = "c FF + PID (auto)", "d FF + PID (auto) + ILC"
 
@@ -273,7 +260,7 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
         lines += [
             "| case | controller | max error Y (µm) | max error Z (µm) | RMS (nm) | relative error (%) | note |",
             "|---|---|---|---|---|---|---|",
-            f"| {case} | **paper** (FF + PID) | {PAPER[case][0]} | {PAPER[case][1]} | — | < 6.2 | Fig. 15 |",
+            f"| {case} | **paper** (FF + PID) | {PAPER[case][0]} | {PAPER[case][1]} | — | < {paper.TRACKING_CASES[case]['relative_error_below_pct']} | Fig. 15 |",
         ]
         for name, r in c["rows"].items():
             lines.append(

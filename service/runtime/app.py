@@ -24,6 +24,7 @@ from service.http import health as health_api
 from service.http import jobs as jobs_api
 from service.http import lab as lab_api
 from service.http import models as models_api
+from service.http import paper as paper_api
 from service.http import reports as reports_api
 from service.http import sweeps as sweeps_api
 from service.http import tokens as tokens_api
@@ -54,6 +55,7 @@ ROUTERS = (
     reports_api.router,
     trajectories_api.router,
     lab_api.router,
+    paper_api.router,
     tokens_api.router,
     admin_api.router,
 )

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.bench import Bench
+from service.science import paper
 from service.science.control.feedforward import INVERSE_TOLERANCE_SHARE, feedforward_v, inverse_miss_um
 from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
 from service.science.control.ilc_stability import learning_diagnosis
@@ -19,7 +20,7 @@ from service.science.control.trajectory import Ellipse, Reference, reference
 from service.science.fitting.metrics import rms
 
 SAMPLE_RATE_HZ = 20_000.0
-PAPER_PID = {"y": PIDGains(kp=50.0, ki=300.0, kd=0.06), "z": PIDGains(kp=70.0, ki=450.0, kd=0.08)}
+PAPER_PID = paper.PID_GAINS
 #: Gains chosen on the emulated default bench by a tracking scan (issue 6; kd damps the 291 Hz Z mode;
 #: the paper's loop gain of ~4 V/µm × 0.09 µm/V makes that mode unstable here, and the divergence
 #: watch trips it). The report's rows use them; a request's "tuned" preset is service.science.control.tuning's.

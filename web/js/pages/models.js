@@ -6,17 +6,13 @@
 import { api, download, esc, fmt, fmtLength, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
+import { paperFigures, table6 } from '../paper.js';
 import { renderDiagnosis } from './diagnosis.js';
 import { renderDiscover } from './discover.js';
 
 const charts = [];
 let controller = null;
 
-// The paper's Table 6: RMS error in µm (dynamic PI / GRPI / static PI).
-const PAPER_TABLE6 = {
-  y: { 10: [0.0586, 0.0933, 0.0991], 100: [0.0812, 0.0985, 0.1075] },
-  z: { 10: [0.0901, 0.1449, 0.1406], 100: [0.1039, 0.1326, 0.1513] },
-};
 
 export async function enter(root, [modelId], query = {}) {
   controller = new AbortController();
@@ -243,7 +239,7 @@ async function renderCompare(el, model, datasetId, diagnosis) {
   }
   const ranges = failureRanges(diagnosis, c, ds.blocks);
   const axis = model.axis;
-  const paper = PAPER_TABLE6[axis] || {};
+  const paper = table6(await paperFigures(signal), axis);  // Table 6: RMS (µm) dynamic PI / GRPI / static PI
   const o = c.metrics.overall;
   el.querySelector('#compare-table').innerHTML = `<p>Dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a>
     (${c.used_in_fit ? 'used in the fit: the held-out cycles are unseen' : 'not used in the fit: all of it is unseen'}) ·

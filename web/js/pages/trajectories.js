@@ -2,18 +2,14 @@
 // per period while ILC learns; the reference and actual ellipse; the errors beside the paper's.
 import { api, esc, fmt, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
+import { paperFigures, trackingCases } from '../paper.js';
 import { h, runJob, showError } from '../ui.js';
 
 const charts = [];
 let controller = null;
 
-// The paper's tracking at 100 Hz, PID gains, and the paper's errors.
-const PAPER = {
-  case1: { label: 'paper case 1 (0°, Y 1–6 µm, Z 1–11 µm)', max_error_y_um: 0.308, max_error_z_um: 0.369, relative_error_pct: 6.2,
-           form: { min_y_um: 1, amplitude_y_um: 5, min_z_um: 1, amplitude_z_um: 10, inclination_deg: 0 } },
-  case2: { label: 'paper case 2 (20°, Y 1–5 µm, Z 1–9 µm)', max_error_y_um: 0.154, max_error_z_um: 0.252, relative_error_pct: 6.2,
-           form: { min_y_um: 1, amplitude_y_um: 4, min_z_um: 1, amplitude_z_um: 8, inclination_deg: 20 } },
-};
+// The paper's tracking cases (GET /api/paper), read on entering the page.
+let PAPER = null;
 // PID: "auto" (the service tunes each axis on the plant identified on the bench, for a 60° phase
 // margin), "tuned" (what auto gives on the default bench), "paper" (refused with its predicted
 // margins unless forced), or custom gains per axis (kp V/µm, ki V/(µm·s), kd V·s/µm), refused when
@@ -23,7 +19,8 @@ const GAINS = ['kp_y', 'ki_y', 'kd_y', 'kp_z', 'ki_z', 'kd_z'];
 export async function enter(root) {
   controller = new AbortController();
   const signal = controller.signal;
-  const [available, models] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal })]);
+  const [available, models, paper] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal }), paperFigures(signal)]);
+  PAPER = trackingCases(paper);
   const options = (axis) => `<option value="">none</option>` + models.filter((m) => m.axis === axis).reverse().map((m) =>
     `<option value="${esc(m.id)}">${esc(m.id)} · ${esc(m.kind)} · ${m.effects.map(esc).join('+')} · ${fmt(m.metrics.validation_rms_um)} µm</option>`).join('');
   root.append(h(`<div>
@@ -44,7 +41,7 @@ export async function enter(root) {
         <label>PID <select name="pid" id="traj-pid"><option value="">none</option>
           <option value="auto">auto (tuned on this bench's identified plant)</option>
           <option value="tuned">tuned (auto on the default bench)</option>
-          <option value="paper">paper gains (Y 50/300/0.06, Z 70/450/0.08)</option>
+          <option value="paper">paper gains (Y ${paperGains(paper, 'y')}, Z ${paperGains(paper, 'z')})</option>
           <option value="custom">custom…</option></select></label>
         <span id="traj-gains" hidden>${GAINS.map((g) => `<label>${g} <input name="${g}" type="number" step="any" min="0" value="0" style="width:80px"></label>`).join('')}</span>
         <label class="check" title="run PID gains refused by their predicted margins (the divergence watch trips them to 0 V)"><input type="checkbox" name="force">force</label>
@@ -72,6 +69,12 @@ export async function enter(root) {
   form.addEventListener('submit', (e) => { e.preventDefault(); run(root); });
   root.querySelector('#traj-span-sweep').addEventListener('click', () => sweepSpan(root));
   renderErrors(root, null);
+}
+
+/** The paper's PID gains of one axis as 'kp/ki/kd' (V/µm, V/(µm·s), V·s/µm). */
+function paperGains(paper, axis) {
+  const g = paper.pid_gains[axis];
+  return `${g.kp}/${g.ki}/${g.kd}`;
 }
 
 /** The per-period errors of a job (in progress or done): the first array whose key names periods. */

@@ -1,0 +1,73 @@
+"""The seed paper's published figures, in one place: the reports, the tests and the dashboard (through
+GET /api/paper) all read them from here, so that a figure is typed once.
+
+Units: µm for displacements and errors, V for voltages, Hz for frequencies, degrees for angles,
+µm/V for the static PI's weight sums, PID gains as PIDGains (kp V/µm, ki V/(µm·s), kd V·s/µm).
+"""
+
+from __future__ import annotations
+
+from service.science.control.loop import PIDGains
+
+#: Table 6 columns, in the paper's order.
+TABLE6_MODELS = ("dynamic_pi", "grpi", "static_pi")
+#: Table 6: RMS error (µm) of the three models, {axis: {drive frequency (Hz): (dynamic PI, GRPI, static PI)}}.
+TABLE6_RMS_UM = {
+    "y": {10.0: (0.0586, 0.0933, 0.0991), 100.0: (0.0812, 0.0985, 0.1075)},
+    "z": {10.0: (0.0901, 0.1449, 0.1406), 100.0: (0.1039, 0.1326, 0.1513)},
+}
+#: §2.3.1: the static PI's RMS error (µm) at 1 Hz.
+STATIC_PI_1HZ_RMS_UM = {"y": 0.0881, "z": 0.1432}
+#: The static PI's weight sums (µm/V): the stroke per volt of the identified stacks.
+STATIC_PI_WEIGHT_SUM_UM_PER_V = {"y": 0.053, "z": 0.077}
+#: Strokes (µm) at the 120 V drive, from those weight sums (Fig. 2's loops).
+STROKE_AT_120V_UM = {"y": 6.4, "z": 9.3}
+#: The FEM's first mode (Hz) per axis: the device as designed.
+FEM_FIRST_MODE_HZ = {"y": 482.6, "z": 290.7}
+#: The compound controller's PID gains (§3).
+PID_GAINS = {"y": PIDGains(kp=50.0, ki=300.0, kd=0.06), "z": PIDGains(kp=70.0, ki=450.0, kd=0.08)}
+#: The tracking experiments (Fig. 14–15): each as a POST /api/trajectories body (its cycles set by the
+#: run), with the measured maximum errors (µm) and the relative error bound (%).
+TRACKING_CASES = {
+    "case1": {
+        "label": "paper case 1 (0°, Y 1–6 µm, Z 1–11 µm)",
+        "body": {
+            "shape": "ellipse",
+            "y_range_um": [1, 6],
+            "z_range_um": [1, 11],
+            "inclination_deg": 0,
+            "frequency_hz": 100,
+        },
+        "max_error_um": {"y": 0.308, "z": 0.369},
+        "relative_error_below_pct": 6.2,
+    },
+    "case2": {
+        "label": "paper case 2 (20°, Y 1–5 µm, Z 1–9 µm)",
+        "body": {
+            "shape": "ellipse",
+            "y_range_um": [1, 5],
+            "z_range_um": [1, 9],
+            "inclination_deg": 20,
+            "frequency_hz": 100,
+        },
+        "max_error_um": {"y": 0.154, "z": 0.252},
+        "relative_error_below_pct": 6.2,
+    },
+}
+
+
+def as_dict() -> dict:
+    """Every figure above as JSON-ready data (what GET /api/paper answers)."""
+    return {
+        "table6_models": list(TABLE6_MODELS),
+        "table6_rms_um": {
+            axis: [{"frequency_hz": f, **dict(zip(TABLE6_MODELS, cells))} for f, cells in rows.items()]
+            for axis, rows in TABLE6_RMS_UM.items()
+        },
+        "static_pi_1hz_rms_um": STATIC_PI_1HZ_RMS_UM,
+        "static_pi_weight_sum_um_per_v": STATIC_PI_WEIGHT_SUM_UM_PER_V,
+        "stroke_at_120v_um": STROKE_AT_120V_UM,
+        "fem_first_mode_hz": FEM_FIRST_MODE_HZ,
+        "pid_gains": {axis: {"kp": g.kp, "ki": g.ki, "kd": g.kd} for axis, g in PID_GAINS.items()},
+        "tracking_cases": TRACKING_CASES,
+    }
