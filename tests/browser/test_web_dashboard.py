@@ -99,20 +99,21 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     for i, block in enumerate(compared["metrics"]["per_block"]):
         assert float(rows.nth(i).get_attribute("data-frequency-hz")) == block["frequency_hz"]
         assert math.isclose(float(rows.nth(i).get_attribute("data-rms")), block["validation"]["rms_um"], rel_tol=1e-9)
-        shown = float(rows.nth(i).locator("td.rms").inner_text())
-        assert math.isclose(shown, block["validation"]["rms_um"], rel_tol=1e-3)
+        shown_nm = float(rows.nth(i).locator("td.rms").inner_text())  # errors are printed in nm
+        assert math.isclose(shown_nm, 1e3 * block["validation"]["rms_um"], rel_tol=1e-3)
     model = server["api"].get(f"/models/{model_id}").json()
     assert math.isclose(
         float(page.get_attribute("#model-validation-rms", "data-value")),
         model["metrics"]["validation_rms_um"],
         rel_tol=1e-9,
     )
-    assert "µm" in page.inner_text("#compare-table") and "0.0586" in page.inner_text("#table6")  # paper column
+    assert "nm" in page.inner_text("#compare-table") and "58.6" in page.inner_text("#table6")  # paper column, in nm
+    assert "µm" not in page.inner_text("#table6")  # one unit for errors
     shot(page, "models")
 
     goto(page, server, "trajectories")
-    assert page.locator("#traj-errors").inner_text().count("0.308") == 1
-    assert "0.154" in page.inner_text("#traj-errors") and "< 6.2" in page.inner_text("#traj-errors")
+    assert page.locator("#traj-errors").inner_text().count("308") == 1  # the paper's 0.308 µm, in nm
+    assert "154" in page.inner_text("#traj-errors") and "< 6.2" in page.inner_text("#traj-errors")
     shot(page, "trajectories")
 
 

@@ -177,7 +177,8 @@ export async function followJob(jobId, onUpdate = () => {}, { signal } = {}) {
 
 export const fmt = (v, digits = 4) => (v === null || v === undefined || Number.isNaN(Number(v))) ? '–'
   : String(Number(Number(v).toPrecision(digits)));
-/** A length given in µm, in the unit that suits it: nm below 1 µm (0.002945 → "2.95 nm"). */
-export const fmtLength = (um, digits = 3) => (um === null || um === undefined || !Number.isFinite(Number(um))) ? '–'
-  : Math.abs(um) < 1 ? `${fmt(um * 1e3, digits)} nm` : `${fmt(um, digits)} µm`;
+/** An error or noise figure given in µm, printed in nm: the one unit for errors and noise across the
+ * API's texts, the dashboard and the report (0.002945 → "2.95 nm", 1.2 → "1200 nm"). */
+export const fmtErrorNm = (um, digits = 3) => (um === null || um === undefined || !Number.isFinite(Number(um))) ? '–'
+  : `${fmt(um * 1e3, digits)} nm`;
 export const esc = (s) => String(s ?? '').replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));

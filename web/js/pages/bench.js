@@ -1,6 +1,6 @@
 // Bench: devices and their state, the hard limits, recent jobs, live signals of any job (u and x
 // per axis, scrolling, from GET /api/bench/live) and the last recording.
-import { api, esc, fmt, followJob } from '../api.js';
+import { api, esc, fmt, fmtErrorNm, followJob } from '../api.js';
 import { lineChart, destroyAll } from '../charts.js';
 import { liveSignals } from '../live.js';
 import { h, jobLine } from '../ui.js';
@@ -59,6 +59,7 @@ export async function enter(root) {
   const jobs = await refreshJobs(root);
   const last = jobs.find((j) => j.result && j.result.dataset_id);
   if (last) await showRecording(root, last.result.dataset_id);
+  else root.querySelector('#last-recording').innerHTML = '<p class="muted" id="no-recording">Nothing recorded yet: run a sweep on the <a href="#/sweeps">Sweeps</a> page, and its drive and displacement appear here.</p>';
   if (bench.running_job_id) follow(root, bench.running_job_id);
 }
 
@@ -110,18 +111,29 @@ async function refreshJobs(root) {
   el.innerHTML = `<tr><th>job</th><th>kind</th><th>state</th><th class="num">progress</th><th>result / error</th><th>created</th></tr>` +
     jobs.map((j) => `<tr><td>${esc(j.id)}</td><td>${esc(j.kind)}</td><td class="state-${j.state}">${j.state}</td>
       <td class="num">${Math.round(100 * j.progress)} %</td>
-      <td class="result">${j.error ? `<span class="bad">${esc(j.error)}</span>` : esc(summary(j.result))}</td>
+      <td class="result">${j.error ? `<span class="bad">${esc(j.error)}</span>` : summary(j.result)}</td>
       <td>${esc(j.created_at)}</td></tr>`).join('');
   return jobs;
 }
 
-/** A job result in a line: ids first, then up to four numbers (rounded). */
+const link = (route) => (id) => `<a href="#/${route}/${esc(id)}">${esc(id)}</a>`;
+/** What a user reads of a job's result, in order: [field, words, how to show it]; the rest (timings,
+ * internals such as loop_cpu_s) stays in the job's JSON. */
+const SUMMARY_FIELDS = [
+  ['dataset_id', 'dataset', link('datasets')],
+  ['model_id', 'model', link('models')],
+  ['final_model_id', 'final model', link('models')],
+  ['validation_rms_um', 'held-out RMS', (v) => fmtErrorNm(v, 4)],
+  ['rms_error_um', 'RMS error', (v) => fmtErrorNm(v, 4)],
+  ['relative_error_pct', 'relative error', (v) => `${fmt(v, 3)} %`],
+  ['stopped', 'ended', (v) => esc(String(v).replace(/_/g, ' '))],
+];
+
+/** A job's result in a line of words (HTML): its dataset or model, and its headline figures. */
 function summary(result) {
   if (!result) return '';
-  const entries = Object.entries(result).filter(([, v]) => v !== null && typeof v !== 'object');
-  const ids = entries.filter(([k]) => k.endsWith('_id'));
-  const numbers = entries.filter(([k, v]) => typeof v === 'number' && /_(um|pct|v|hz|s)$/.test(k)).slice(0, 4);
-  return [...ids, ...numbers].map(([k, v]) => `${k}: ${typeof v === 'number' ? fmt(v) : v}`).join(', ');
+  return SUMMARY_FIELDS.filter(([k]) => result[k] !== null && result[k] !== undefined && typeof result[k] !== 'object')
+    .map(([k, words, show]) => `${words} ${show(result[k])}`).join(' · ');
 }
 
 export function leave() {

@@ -2,6 +2,8 @@
 // the first lines); one dataset's time series, hysteresis loops per frequency block, and exports.
 import { api, download, esc, fmt } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
+import { renderLabels } from '../labels.js';
+import { isImported, originHtml } from '../provenance.js';
 import { h, showError } from '../ui.js';
 
 const charts = [];
@@ -41,11 +43,11 @@ export async function enter(root, [id]) {
 async function refreshList(root) {
   const rows = await api('/datasets', { signal: controller.signal });
   root.querySelector('#dataset-list').innerHTML = `<tr><th>id</th><th>name</th><th>source</th><th>axes</th>
-    <th class="num">samples</th><th class="num">rate (Hz)</th><th class="num">duration (s)</th><th class="num">blocks</th><th>created</th><th title="the bench it was recorded on (a lab: see the Lab page)">bench</th></tr>` +
+    <th class="num">samples</th><th class="num">rate (Hz)</th><th class="num">duration (s)</th><th class="num">blocks</th><th>created</th><th title="the bench it was recorded on (a lab: see the Lab page), or the file it was imported from">origin</th></tr>` +
     rows.slice().reverse().map((d) => `<tr data-dataset-id="${esc(d.id)}"><td><a href="#/datasets/${esc(d.id)}">${esc(d.id)}</a></td>
       <td>${esc(d.name)}${d.partial ? ' <span class="warn">(partial)</span>' : ''}</td><td>${esc(d.source)}</td><td>${d.axes.join(', ')}</td>
       <td class="num">${d.samples}</td><td class="num">${fmt(d.sample_rate_hz)}</td><td class="num">${fmt(d.duration_s)}</td>
-      <td class="num">${d.n_blocks}</td><td>${esc(d.created_at)}</td><td class="bench">${esc(d.bench_id || '—')}</td></tr>`).join('');
+      <td class="num">${d.n_blocks}</td><td>${esc(d.created_at)}</td><td class="bench origin" data-imported="${isImported(d) ? 1 : 0}">${originHtml(d)}</td></tr>`).join('');
 }
 
 // as the service guesses (service/science/data/table_reader.py): a semicolon is never a decimal mark
@@ -161,8 +163,9 @@ function trimmedText(b) {
 async function showDataset(root, id) {
   const ds = await api(`/datasets/${encodeURIComponent(id)}`, { signal: controller.signal });
   root.append(h(`<div>
-    <h1>Dataset <span id="dataset-id">${esc(ds.id)}</span> <span class="muted">${esc(ds.name)}</span></h1>
-    <div class="card"><p id="dataset-summary" data-samples="${ds.samples}" data-sample-rate-hz="${ds.sample_rate_hz}">${esc(ds.source)} · axes ${ds.axes.join(', ')} ·
+    <h1>Dataset <span id="dataset-id">${esc(ds.id)}</span> <span class="muted" id="dataset-name">${esc(ds.name)}</span></h1>
+    <div class="card" id="dataset-labels"></div>
+    <div class="card"><p id="dataset-summary" data-samples="${ds.samples}" data-sample-rate-hz="${ds.sample_rate_hz}"><span id="dataset-origin">${isImported(ds) ? originHtml(ds) : `recorded on ${originHtml(ds)}`}</span> · axes ${ds.axes.join(', ')} ·
       ${ds.samples} samples at ${fmt(ds.sample_rate_hz)} Hz · ${fmt(ds.duration_s)} s · ${ds.n_blocks} blocks${driveRange(ds)}
       ${ds.partial ? ` · <span class="warn">partial: ${esc(ds.partial_reason || '')}</span>` : ''}</p>
       ${(ds.import_notes || []).length ? `<ul id="import-notes" class="muted">${ds.import_notes.map((n) => `<li>${esc(n)}</li>`).join('')}</ul>` : ''}
@@ -176,6 +179,8 @@ async function showDataset(root, id) {
     <div class="card"><div id="ts-chart"></div></div>
     <div class="card"><h2>Hysteresis loops per frequency block</h2><div id="loops" class="grid"></div></div>
   </div>`));
+  renderLabels(root.querySelector('#dataset-labels'), 'datasets', ds, { signal: controller.signal,
+    onSaved: (updated) => { root.querySelector('#dataset-name').textContent = updated.name; } });
   for (const [sel, fmtName] of [['#export-csv', 'csv'], ['#export-hdf5', 'h5']]) {
     root.querySelector(sel).addEventListener('click', (e) => {
       if (!localStorage.getItem('evcbench.token')) return;   // plain link works without a token

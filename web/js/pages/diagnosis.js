@@ -3,7 +3,7 @@
 // about equally well — "Run the experiment that separates A from B": the diagnosis's ready-to-POST
 // sweep, then the diagnosis again with the new dataset added (GET …/diagnosis?extra_datasets=…),
 // shown beside the scores before.
-import { api, esc, fmt, fmtLength } from '../api.js';
+import { api, esc, fmt, fmtErrorNm } from '../api.js';
 import { h, runJob, showError } from '../ui.js';
 
 function describe(value) {
@@ -66,15 +66,15 @@ export function renderDiagnosis(box, model, d, opts) {
       ${d.verdict !== 'complete' ? 'Something is missing from the model.'
         : d.at_noise_floor === false ? 'No effect in the library is missing, but the model is not yet at the noise floor (see below).'
         : 'The model explains the data down to the noise floor.'}
-      Residual RMS <b data-value="${d.residual_rms_um}">${fmtLength(d.residual_rms_um, 4)}</b> · noise floor ${fmtLength(d.noise_floor_um, 4)}</p>
+      Residual RMS <b data-value="${d.residual_rms_um}">${fmtErrorNm(d.residual_rms_um, 4)}</b> · noise floor ${fmtErrorNm(d.noise_floor_um, 4)}</p>
     ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
     ${d.diagnosed_as ? `<p class="muted" id="diagnosed-as">Diagnosed as ${esc(d.diagnosed_as)}.</p>` : ''}
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}"${f.block ? ` data-block="${esc(f.block)}"` : ''}>${f.block
-      ? `${esc(f.block)}: held-out residual RMS ${fmtLength(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
+      ? `${esc(f.block)}: held-out residual RMS ${fmtErrorNm(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
     <h3>Candidate effects <span class="muted">(claimed physics first, largest held-out gain first; then the others; model capacity last)</span></h3>
     <table id="candidates"><tr><th>#</th><th>effect</th><th class="num" title="the share of the reference's held-out error above the noise floor that the effect removes (0–1); whether it is claimed is the held-out test's answer, in the evidence">score</th><th class="num">expected RMS after</th><th>evidence</th><th></th></tr>
     ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${c === leading ? ' class="best"' : ''}>
-      <td>${i + 1}</td><td>${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmtLength(c.expected_rms_um, 4)}</td>
+      <td>${i + 1}</td><td>${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}</td><td class="num">${fmt(c.score, 3)}</td><td class="num">${fmtErrorNm(c.expected_rms_um, 4)}</td>
       <td class="evidence">${describe(c.evidence)}</td>
       <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
     </table>

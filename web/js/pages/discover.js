@@ -3,17 +3,21 @@
 // (GET /api/models/{id}/report/figures: the error history and the per-block loop and residual,
 // the block the diagnosis names worst marked) inlined; and two models of the lineage compared block
 // by block (GET /api/models/{id}/compare?arrays=false on each dataset).
-import { api, esc, fmt, fmtLength } from '../api.js';
+import { api, esc, fmt, fmtErrorNm } from '../api.js';
 import { h, runJob, showError } from '../ui.js';
 
 /** The Discover, Figures and Compare cards for `model`, appended to `el`. */
-export function renderDiscover(el, model, { signal, onModels = () => {} }) {
+export function renderDiscover(el, model, { signal, imported = false, onModels = () => {} }) {
+  // A model of imported data describes another stage: its experiments run there, never on this bench.
+  const experiments = imported
+    ? '<span class="muted" id="experiments-elsewhere-note">the data was recorded on another stage: the experiments it needs are shown to run there</span>'
+    : '<label class="check"><input type="checkbox" name="allow_experiments"> run the experiments it needs on the bench</label>';
   const box = h(`<div>
     <div class="card" id="discover-card"><h2>Discover <span class="muted">(diagnose, add the top claimed effect, refit; until the
       verdict is complete, then more capacity while it validates and the model is not at the noise floor)</span></h2>
       <form id="discover-form" class="inline">
         <label>max steps <input name="max_steps" type="number" min="1" max="12" step="1" value="8"></label>
-        <label class="check"><input type="checkbox" name="allow_experiments"> run the experiments it needs on the bench</label>
+        ${experiments}
         <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> at an ambiguity, add the leading effect and go on</label>
         <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
       </form>
@@ -37,7 +41,7 @@ export function renderDiscover(el, model, { signal, onModels = () => {} }) {
   box.querySelector('#figures-load').addEventListener('click', () => figures(model.id));
   box.querySelector('#discover-form').addEventListener('submit', (e) => {
     e.preventDefault();
-    discover(box, model, state, { signal, onModels, figures });
+    discover(box, model, state, { signal, imported, onModels, figures });
   });
   box.querySelector('#compare-run').addEventListener('click', () => compareModels(box, state, signal));
   box.querySelector('#discover-run').addEventListener('click', (e) => {
@@ -47,7 +51,7 @@ export function renderDiscover(el, model, { signal, onModels = () => {} }) {
   fillLineage(box, model.id, state, signal).catch((e) => showError(box.querySelector('#compare-models'), e));
 }
 
-async function discover(box, model, state, { signal, onModels, figures }) {
+async function discover(box, model, state, { signal, imported, onModels, figures }) {
   const f = new FormData(box.querySelector('#discover-form'));
   const body = { max_steps: Number(f.get('max_steps')), allow_experiments: f.get('allow_experiments') === 'on',
     continue_past_ambiguity: f.get('continue_past_ambiguity') === 'on' };
@@ -58,8 +62,8 @@ async function discover(box, model, state, { signal, onModels, figures }) {
   out.classList.remove('error');
   try {
     const job = await runJob(box.querySelector('#discover-job'), `/models/${encodeURIComponent(model.id)}/discover`, body,
-      'discover', { signal, onUpdate: (j) => { if (j.result?.steps) renderRun(out, j.result, model.axis, signal); } });
-    if (job.result?.steps) renderRun(out, job.result, model.axis, signal);
+      'discover', { signal, onUpdate: (j) => { if (j.result?.steps) renderRun(out, j.result, { signal, imported }); } });
+    if (job.result?.steps) renderRun(out, job.result, { signal, imported });
     if (job.state !== 'succeeded') {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `discover ${job.state}`));
     }
@@ -78,8 +82,9 @@ async function discover(box, model, state, { signal, onModels, figures }) {
 
 const ratio = (r) => (r === null || r === undefined ? '–' : `${fmt(r, 3)}×`);
 
-/** The run so far (the job's partial result while it runs, then its result). */
-function renderRun(out, r, axis, signal) {
+/** The run so far (the job's partial result while it runs, then its result). `imported`: the model's
+ * data came from another stage, so a suggested experiment is shown as the sweep to run there, with no button. */
+function renderRun(out, r, { signal, imported }) {
   const steps = r.steps || [];
   const found = r.effects_found || [];
   const rem = r.remains;
@@ -91,7 +96,7 @@ function renderRun(out, r, axis, signal) {
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
       <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(RMS over more data)</span>` : (s.step ? 'refit' : 'start'))}</td>
       <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
-      <td class="num">${fmtLength(s.validation_rms_um)}</td><td class="num">${fmtLength(s.noise_floor_um)}</td>
+      <td class="num">${fmtErrorNm(s.validation_rms_um)}</td><td class="num">${fmtErrorNm(s.noise_floor_um)}</td>
       <td class="num">${ratio(s.ratio_to_noise_floor)}</td><td>${esc(s.verdict)}${s.ambiguous ? ` <span class="warn">(${s.ambiguous.map(esc).join(' or ')}?)</span>` : ''}</td>
       <td><button type="button" data-figures="${esc(s.model_id)}">figures</button></td></tr>`).join('')}
     </table>
@@ -100,15 +105,16 @@ function renderRun(out, r, axis, signal) {
       ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
         <td>${Object.entries(e.parameters || {}).map(([k, v]) => `<code>${esc(k)}</code> = ${Array.isArray(v) ? v.map((x) => fmt(x)).join(', ') : fmt(v)}`).join('<br>') || '–'}</td>
         <td class="evidence">${esc(e.evidence)}</td></tr>`).join('')}</table>` : ''}
-    ${rem ? `<h3>What remains</h3><p id="discover-remains" data-ratio="${rem.ratio_to_noise_floor ?? ''}">Held-out RMS <b>${fmtLength(rem.validation_rms_um)}</b>
-      against a noise floor of ${fmtLength(rem.noise_floor_um)}: ${ratio(rem.ratio_to_noise_floor)}${rem.at_noise_floor ? ', at the noise floor' : ''}.
+    ${rem ? `<h3>What remains</h3><p id="discover-remains" data-ratio="${rem.ratio_to_noise_floor ?? ''}">Held-out RMS <b>${fmtErrorNm(rem.validation_rms_um)}</b>
+      against a noise floor of ${fmtErrorNm(rem.noise_floor_um)}: ${ratio(rem.ratio_to_noise_floor)}${rem.at_noise_floor ? ', at the noise floor' : ''}.
       <span class="muted">${esc(rem.verdict_text || '')}</span></p>` : ''}
     ${suggested.length ? `<h3>${r.needed_experiment ? 'The experiment it needs' : 'Experiments it suggested'}</h3><ul id="discover-experiments">
       ${suggested.map((x, i) => `<li data-effects="${esc(x.effects.join(','))}">after step ${x.after_step}: ${esc(x.reason || '')}
-        <span class="muted">(not run: ${esc(x.not_run_because || '')})</span>
+        ${imported ? `<span class="muted">Run this sweep on the stage that recorded the data, then import the record and refine with it:</span>`
+          : `<span class="muted">(not run: ${esc(x.not_run_because || '')})</span>`}
         <pre>POST /api/sweeps ${esc(JSON.stringify(x.experiment))}</pre>
-        <button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
-        <div class="experiment-job"></div></li>`).join('')}</ul>` : ''}`;
+        ${imported ? '' : `<button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
+        <div class="experiment-job"></div>`}</li>`).join('')}</ul>` : ''}`;
   out.querySelectorAll('.run-experiment').forEach((b) => b.addEventListener('click', async () => {
     const x = suggested[Number(b.dataset.i)];
     const jobBox = b.nextElementSibling;
@@ -147,14 +153,14 @@ async function showFigures(box, modelId, state, signal) {
   try {
     const f = await api(`/models/${encodeURIComponent(modelId)}/report/figures`, { signal });
     state.figures = f;
-    box.querySelector('#figures-of').textContent = `of ${modelId} · noise floor ${fmtLength(f.noise_floor_um)} · verdict ${f.verdict}`;
+    box.querySelector('#figures-of').textContent = `of ${modelId} · noise floor ${fmtErrorNm(f.noise_floor_um)} · verdict ${f.verdict}`;
     const history = box.querySelector('#figures-history');
     history.replaceChildren(safeSvg(f.history_svg));
     history.dataset.modelId = modelId;
     box.querySelector('#figures-blocks').replaceChildren(...f.blocks.map((b) => {
       const cell = h(`<div class="block-figure${b.worst ? ' worst' : ''}" data-dataset-id="${esc(b.dataset_id)}" data-block-index="${b.block_index ?? ''}"
         data-rms="${b.held_out_rms_um ?? ''}"><h3>${b.worst ? '<span class="bad">▲ worst block (the diagnosis names it)</span> · ' : ''}${esc(b.title)}
-        <span class="muted">· held-out RMS ${fmtLength(b.held_out_rms_um)} · ${esc(b.dataset_id)}</span></h3></div>`);
+        <span class="muted">· held-out RMS ${fmtErrorNm(b.held_out_rms_um)} · ${esc(b.dataset_id)}</span></h3></div>`);
       cell.append(safeSvg(b.svg));
       return cell;
     }));
@@ -198,15 +204,15 @@ async function compareModels(box, state, signal) {
         const unseen = [per[0][k], per[1][k]].some((c) => !c.used_in_fit);
         rows.push(`<tr data-dataset-id="${esc(d)}" data-block-index="${blockA.index}" data-a="${a}" data-b="${b}">
           <td>${esc(name)}${unseen ? ' <span class="muted">(not fitted by both: whole block unseen)</span>' : ''}</td><td>${esc(d)}</td>
-          <td class="num">${fmtLength(a)}</td><td class="num">${fmtLength(b)}</td>
-          <td class="num ${b < a ? 'ok' : 'bad'}">${fmtLength(b - a)}</td><td class="num">${a ? `${fmt(100 * (b - a) / a, 3)} %` : '–'}</td></tr>`);
+          <td class="num">${fmtErrorNm(a)}</td><td class="num">${fmtErrorNm(b)}</td>
+          <td class="num ${b < a ? 'ok' : 'bad'}">${fmtErrorNm(b - a)}</td><td class="num">${a ? `${fmt(100 * (b - a) / a, 3)} %` : '–'}</td></tr>`);
       });
     });
     const effects = (m) => m.effects.map(esc).join(' + ');
     out.innerHTML = `<table id="compare-blocks"><tr><th>block</th><th>dataset</th><th class="num">A: held-out RMS</th><th class="num">B: held-out RMS</th>
         <th class="num">B − A</th><th class="num">change</th></tr>${rows.join('')}
-      <tr class="best"><td>the model's held-out RMS (on its own datasets)</td><td></td><td class="num">${fmtLength(ma.metrics.validation_rms_um)}</td>
-        <td class="num">${fmtLength(mb.metrics.validation_rms_um)}</td><td class="num">${fmtLength(mb.metrics.validation_rms_um - ma.metrics.validation_rms_um)}</td><td></td></tr></table>
+      <tr class="best"><td>the model's held-out RMS (on its own datasets)</td><td></td><td class="num">${fmtErrorNm(ma.metrics.validation_rms_um)}</td>
+        <td class="num">${fmtErrorNm(mb.metrics.validation_rms_um)}</td><td class="num">${fmtErrorNm(mb.metrics.validation_rms_um - ma.metrics.validation_rms_um)}</td><td></td></tr></table>
       <table id="compare-effects"><tr><th></th><th>model</th><th>effects</th><th>only in it</th></tr>
         ${[[ma, mb, 'A'], [mb, ma, 'B']].map(([m, o, tag]) => `<tr data-model-id="${esc(m.id)}"><td>${tag}</td><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td>
           <td>${effects(m)}</td><td>${m.effects.filter((e) => !o.effects.includes(e)).map(esc).join(', ') || '–'}</td></tr>`).join('')}</table>`;

@@ -1,7 +1,7 @@
 // Lab: every bench whose service shares this store (state, online or offline, running job, datasets,
 // newest model per axis), refreshed every 2 s; and one axis's newest models compared across the
 // benches: effects, held-out RMS, noise floor and the physical parameters discovery fitted.
-import { api, esc, fmt, fmtLength } from '../api.js';
+import { api, esc, fmt, fmtErrorNm } from '../api.js';
 import { h, showError } from '../ui.js';
 
 const REFRESH_MS = 2000;
@@ -55,7 +55,7 @@ function modelCell(m) {
   if (!m) return '<td class="muted">none</td>';
   return `<td data-model-id="${esc(m.id)}" data-validation-rms-um="${m.validation_rms_um ?? ''}">
     <a href="#/models/${esc(m.id)}">${esc(m.id)}</a><br><span class="muted">${esc(m.effects.join(' + '))}</span>
-    · held-out ${fmtLength(m.validation_rms_um)}${m.noise_floor_um ? ` · floor ${fmtLength(m.noise_floor_um)}` : ''}</td>`;
+    · held-out ${fmtErrorNm(m.validation_rms_um)}${m.noise_floor_um ? ` · floor ${fmtErrorNm(m.noise_floor_um)}` : ''}</td>`;
 }
 
 async function refreshBenches(root) {
@@ -109,7 +109,7 @@ async function refreshCompare(root) {
           <td><b>${esc(b.id)}</b></td><td class="${s.cls}">${esc(s.key)}</td>
           <td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a><br><span class="muted">${esc(m.kind)}, ${esc(m.created_at)}</span></td>
           <td class="effects">${esc(m.effects.join(' + '))}</td>
-          <td class="num">${fmtLength(m.validation_rms_um)}</td><td class="num">${fmtLength(m.noise_floor_um)}</td>${cells}</tr>`;
+          <td class="num">${fmtErrorNm(m.validation_rms_um)}</td><td class="num">${fmtErrorNm(m.noise_floor_um)}</td>${cells}</tr>`;
       }).join('');
   } catch (err) {
     showError(table, err);

@@ -3,10 +3,12 @@
 // it fails, shaded on the plots; ranked candidate effects with their evidence); Add effect (a refine
 // job; the error-history chart of validation RMS per model version); Separate (the experiment that
 // tells two candidates apart, where the diagnosis offers one).
-import { api, download, esc, fmt, fmtLength, has } from '../api.js';
+import { api, download, esc, fmt, fmtErrorNm, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
+import { renderLabels } from '../labels.js';
 import { paperFigures, table6 } from '../paper.js';
+import { importedIds, isImported, onImportedData } from '../provenance.js';
 import { renderDiagnosis } from './diagnosis.js';
 import { renderDiscover } from './discover.js';
 
@@ -33,7 +35,7 @@ export async function enter(root, [modelId], query = {}) {
         </form>
         <div id="identify-job"></div><div id="identify-error"></div>
       </div>
-      <div class="card"><h2>Stored models</h2><div style="max-height:220px; overflow:auto"><table id="model-list"></table></div></div>
+      <div class="card"><h2>Stored models</h2><div class="scroll-list"><table id="model-list"></table></div></div>
     </div>
     <div id="model-detail"></div>
   </div>`));
@@ -45,9 +47,9 @@ export async function enter(root, [modelId], query = {}) {
 function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
     <th class="num">train RMS</th><th class="num">held-out RMS</th><th title="the bench its datasets came from">bench</th></tr>` + models.slice().reverse().map((m) => `
-    <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a></td><td>${m.axis}</td><td>${esc(m.kind)}</td>
+    <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a>${m.name ? ` <span class="model-name">“${esc(m.name)}”</span>` : ''}${(m.tags || []).map((t) => ` <span class="tag">${esc(t)}</span>`).join('')}</td><td>${m.axis}</td><td>${esc(m.kind)}</td>
       <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
-      <td class="num">${fmtLength(m.metrics.train_rms_um, 4)}</td><td class="num">${fmtLength(m.metrics.validation_rms_um, 4)}</td>
+      <td class="num">${fmtErrorNm(m.metrics.train_rms_um, 4)}</td><td class="num">${fmtErrorNm(m.metrics.validation_rms_um, 4)}</td>
       <td class="bench">${esc(m.bench_id || '—')}</td></tr>`).join('');
 }
 
@@ -62,8 +64,14 @@ async function identify(root) {
   button.disabled = true;
   try {
     const job = await runJob(root.querySelector('#identify-job'), '/models', body, 'identify', { signal: controller.signal });
-    if (job.state === 'succeeded') location.hash = `#/models/${job.result.model_id}`;
-    else showError(err, new Error(job.error || `identification ${job.state}`));
+    if (job.state === 'succeeded') {
+      const id = job.result.model_id;
+      root.querySelector('#identify-job').append(h(`<p class="ok" id="identify-done" data-model-id="${esc(id)}">Model
+        <a href="#/models/${esc(id)}">${esc(id)}</a> identified: held-out RMS ${fmtErrorNm(job.result.validation_rms_um, 4)}.</p>`));
+      const target = `#/models/${id}`;
+      if (location.hash === target) window.dispatchEvent(new HashChangeEvent('hashchange'));   // the same route: render it again
+      else location.hash = target;
+    } else showError(err, new Error(job.error || `identification ${job.state}`));
   } catch (e) {
     showError(err, e);
   } finally {
@@ -78,13 +86,14 @@ async function showModel(el, modelId, query) {
   const [canDiagnose, canRefine, canHistory] = await Promise.all([
     has('GET /api/models/{model_id}/diagnosis'), has('POST /api/models/{model_id}/refine'), has('GET /api/models/{model_id}/history')]);
   el.append(h(`<div>
-    <div class="card"><h2>Model <span id="model-id">${esc(model.id)}</span> <span class="muted">axis ${model.axis} · ${esc(model.kind)} ·
+    <div class="card"><h2>Model <span id="model-id">${esc(model.id)}</span> <span id="model-name">${model.name ? `“${esc(model.name)}”` : ''}</span> <span class="muted">axis ${model.axis} · ${esc(model.kind)} ·
       ${model.effects.map(esc).join(' + ')}${model.parent_id ? ` · refined from <a href="#/models/${esc(model.parent_id)}">${esc(model.parent_id)}</a>` : ''}</span></h2>
-      <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmtLength(model.metrics.validation_rms_um, 4)}</b>
-        · training RMS ${fmtLength(model.metrics.train_rms_um, 4)} · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
+      <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmtErrorNm(model.metrics.validation_rms_um, 4)}</b>
+        · training RMS ${fmtErrorNm(model.metrics.train_rms_um, 4)} · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
       <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label>
         <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
         <span id="report-status" class="muted"></span></div>
+      <div id="model-labels"></div>
     </div>
     <div id="discover"></div>
     <div class="grid-1-2">
@@ -100,8 +109,14 @@ async function showModel(el, modelId, query) {
     `<option value="${esc(d.id)}"${d.id === datasetId ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}${model.datasets.includes(d.id) ? ' (fitted)' : ''}</option>`).join('');
   select.addEventListener('change', () => { location.hash = `#/models/${model.id}?dataset=${select.value}`; });
   el.querySelector('#report-download').addEventListener('click', () => downloadReport(el, model.id));
+  renderLabels(el.querySelector('#model-labels'), 'models', model, { signal, onSaved: async (updated) => {
+    el.querySelector('#model-name').textContent = updated.name ? `“${updated.name}”` : '';
+    const list = document.querySelector('#model-list');
+    if (list) renderModelList(list, await api('/models', { signal }), model.id);
+  } });
   if (await has('POST /api/models/{model_id}/discover')) {
-    renderDiscover(el.querySelector('#discover'), model, { signal, onModels: async () => {
+    const imported = onImportedData(model, importedIds(all));
+    renderDiscover(el.querySelector('#discover'), model, { signal, imported, onModels: async () => {
       const list = document.querySelector('#model-list');
       if (list) renderModelList(list, await api('/models', { signal }), model.id);
     } });
@@ -218,11 +233,11 @@ async function renderHistory(el, model, canHistory) {
   const old = charts.find((c) => c.root && chartEl.contains(c.root));
   if (old) { old.destroy(); charts.splice(charts.indexOf(old), 1); }
   charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
-    yLabel: 'held-out RMS (µm)', series: [{ label: 'held-out RMS (µm)', values: steps.map((s) => s.rms), points: true, width: 2 }],
+    yLabel: 'held-out RMS (nm)', series: [{ label: 'held-out RMS (nm)', values: steps.map((s) => s.rms * 1e3), points: true, width: 2 }],
     height: 220, points: true, integerX: true }));
   el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th></tr>
     ${steps.map((s, i) => `<tr data-rms="${s.rms}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
-      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtLength(s.rms, 4)}</td></tr>`).join('')}</table>`;
+      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtErrorNm(s.rms, 4)}</td></tr>`).join('')}</table>`;
 }
 
 async function renderCompare(el, model, datasetId, diagnosis) {
@@ -239,21 +254,25 @@ async function renderCompare(el, model, datasetId, diagnosis) {
   }
   const ranges = failureRanges(diagnosis, c, ds.blocks);
   const axis = model.axis;
-  const paper = table6(await paperFigures(signal), axis);  // Table 6: RMS (µm) dynamic PI / GRPI / static PI
+  // Table 6 (RMS µm: dynamic PI / GRPI / static PI) is the paper's device: beside data recorded here, not an import
+  const showPaper = !isImported(ds);
+  const paper = showPaper ? table6(await paperFigures(signal), axis) : {};
+  const nm = (um) => (um === null || um === undefined ? '–' : fmt(um * 1e3));  // errors in nm, the one unit for them
+  const paperCells = (p) => (showPaper ? p.concat([null, null, null]).slice(0, 3).map((v) => `<td class="num paper">${nm(v)}</td>`).join('') : '');
   const o = c.metrics.overall;
   el.querySelector('#compare-table').innerHTML = `<p>Dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a>
     (${c.used_in_fit ? 'used in the fit: the held-out cycles are unseen' : 'not used in the fit: all of it is unseen'}) ·
-    RMS over every sample of the blocks that drive ${axis.toUpperCase()} (training and held-out cycles; the table's held-out figures are per block) <b id="compare-overall-rms" data-value="${o.rms_um}">${fmt(o.rms_um)} µm</b> · max |e| ${fmt(o.max_abs_um)} µm · fit ${fmt(o.fit_pct, 4)} %</p>
+    RMS over every sample of the blocks that drive ${axis.toUpperCase()} (training and held-out cycles; the table's held-out figures are per block) <b id="compare-overall-rms" data-value="${o.rms_um}">${fmtErrorNm(o.rms_um, 4)}</b> · max |e| ${fmtErrorNm(o.max_abs_um, 4)} · fit ${fmt(o.fit_pct, 4)} %</p>
     <table id="table6"><tr><th rowspan="2">axis</th><th rowspan="2" class="num">frequency (Hz)</th>
       <th colspan="4">this model (${esc(model.kind)}${model.effects.length > 1 ? ' + ' + model.effects.filter((e) => e !== 'hysteresis').map(esc).join(' + ') : ''})</th>
-      <th colspan="3">paper, Table 6: RMS (µm)</th></tr>
-      <tr><th class="num">held-out RMS (µm)</th><th class="num">training RMS (µm)</th><th class="num">max |e| (µm)</th><th class="num">fit (%)</th>
-      <th class="num">dynamic PI</th><th class="num">GRPI</th><th class="num">static PI</th></tr>
+      ${showPaper ? '<th colspan="3">paper, Table 6: RMS (nm)</th>' : ''}</tr>
+      <tr><th class="num">held-out RMS (nm)</th><th class="num">training RMS (nm)</th><th class="num">max |e| (nm)</th><th class="num">fit (%)</th>
+      ${showPaper ? '<th class="num">dynamic PI</th><th class="num">GRPI</th><th class="num">static PI</th>' : ''}</tr>
       ${c.metrics.per_block.map((b) => { const p = paper[b.frequency_hz] || []; const held = b.validation || b.heldout || b.train; return `<tr data-frequency-hz="${b.frequency_hz}" data-rms="${held?.rms_um}">
         <td>${axis.toUpperCase()}</td><td class="num">${fmt(b.frequency_hz)}</td>
-        <td class="num rms">${fmt(held?.rms_um)}</td><td class="num">${fmt(b.train?.rms_um)}</td><td class="num">${fmt(held?.max_abs_um)}</td><td class="num">${fmt(held?.fit_pct, 4)}</td>
-        <td class="num">${p[0] ?? '–'}</td><td class="num">${p[1] ?? '–'}</td><td class="num">${p[2] ?? '–'}</td></tr>`; }).join('')}
-    </table>${ranges.time.length + ranges.drive.length ? `<p class="warn" id="failure-shading" data-time-ranges="${ranges.time.length}" data-drive-ranges="${ranges.drive.length}" data-time-spans-s="${esc(JSON.stringify(ranges.time))}">Shaded red: where the diagnosis says the model fails (${ranges.time.length} block${ranges.time.length === 1 ? '' : 's'} in time, ${ranges.drive.length} drive range${ranges.drive.length === 1 ? '' : 's'} on the loop).</p>` : ''}`;
+        <td class="num rms">${nm(held?.rms_um)}</td><td class="num">${nm(b.train?.rms_um)}</td><td class="num">${nm(held?.max_abs_um)}</td><td class="num">${fmt(held?.fit_pct, 4)}</td>
+        ${paperCells(p)}</tr>`; }).join('')}
+    </table>${showPaper ? '' : '<p class="muted" id="table6-omitted">Imported data: the paper\'s Table 6 describes its own device, so it is not shown beside another stage\'s record.</p>'}${ranges.time.length + ranges.drive.length ? `<p class="warn" id="failure-shading" data-time-ranges="${ranges.time.length}" data-drive-ranges="${ranges.drive.length}" data-time-spans-s="${esc(JSON.stringify(ranges.time))}">Shaded red: where the diagnosis says the model fails (${ranges.time.length} block${ranges.time.length === 1 ? '' : 's'} in time, ${ranges.drive.length} drive range${ranges.drive.length === 1 ? '' : 's'} on the loop).</p>` : ''}`;
   charts.push(await lineChart(el.querySelector('#compare-time'), { title: 'Displacement over time', xs: c.t_s, xLabel: 'time (s)',
     yLabel: `x_${axis} (µm)`, series: [{ label: 'measured (µm)', values: c.x_measured_um }, { label: 'model (µm)', values: c.x_predicted_um }],
     shade: ranges.time, height: 260 }));
@@ -261,7 +280,7 @@ async function renderCompare(el, model, datasetId, diagnosis) {
     curves: [{ label: 'measured', x: c.u_v, y: c.x_measured_um }, { label: 'model', x: c.u_v, y: c.x_predicted_um }], height: 280,
     xShade: ranges.drive }));
   charts.push(await lineChart(el.querySelector('#compare-residual'), { title: 'Residual (measured − model)', xs: c.t_s, xLabel: 'time (s)',
-    yLabel: 'residual (µm)', series: [{ label: 'residual (µm)', values: c.residual_um, color: '#c2255c' }], shade: ranges.time, height: 280 }));
+    yLabel: 'residual (nm)', series: [{ label: 'residual (nm)', values: c.residual_um.map((v) => v * 1e3), color: '#c2255c' }], shade: ranges.time, height: 280 }));
 }
 
 export function leave() {

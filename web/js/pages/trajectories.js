@@ -1,8 +1,9 @@
 // Trajectories: an ellipse and a controller (inverse-model feedforward, PID, ILC); the live error
 // per period while ILC learns; the reference and actual ellipse; the errors beside the paper's.
-import { api, esc, fmt, has } from '../api.js';
+import { api, esc, fmt, fmtErrorNm, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { paperFigures, trackingCases } from '../paper.js';
+import { importedIds, onImportedData } from '../provenance.js';
 import { h, runJob, showError } from '../ui.js';
 
 const charts = [];
@@ -19,10 +20,20 @@ const GAINS = ['kp_y', 'ki_y', 'kd_y', 'kp_z', 'ki_z', 'kd_z'];
 export async function enter(root) {
   controller = new AbortController();
   const signal = controller.signal;
-  const [available, models, paper] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal }), paperFigures(signal)]);
+  const [available, models, paper, datasets] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal }),
+    paperFigures(signal), api('/datasets', { signal })]);
   PAPER = trackingCases(paper);
-  const options = (axis) => `<option value="">none</option>` + models.filter((m) => m.axis === axis).reverse().map((m) =>
-    `<option value="${esc(m.id)}">${esc(m.id)} · ${esc(m.kind)} · ${m.effects.map(esc).join('+')} · ${fmt(m.metrics.validation_rms_um)} µm</option>`).join('');
+  const imported = importedIds(datasets);
+  const option = (m) => `<option value="${esc(m.id)}">${esc(m.id)}${m.name ? ` “${esc(m.name)}”` : ''} · ${esc(m.kind)} · ${m.effects.map(esc).join('+')} · ${fmtErrorNm(m.metrics.validation_rms_um)}</option>`;
+  // Models of this bench first; those fitted on another stage's imported data are marked apart: their
+  // low held-out RMS describes that stage, not this one.
+  const options = (axis) => {
+    const mine = models.filter((m) => m.axis === axis).reverse();
+    const here = mine.filter((m) => !onImportedData(m, imported));
+    const elsewhere = mine.filter((m) => onImportedData(m, imported));
+    return `<option value="">none</option>` + here.map(option).join('') +
+      (elsewhere.length ? `<optgroup label="fitted on imported data (another stage)" class="imported-models">${elsewhere.map(option).join('')}</optgroup>` : '');
+  };
   root.append(h(`<div>
     <h1>Trajectories</h1>
     ${available ? '' : '<p class="card warn" id="no-trajectories">This service does not offer trajectory tracking yet (POST /api/trajectories).</p>'}
@@ -143,12 +154,13 @@ async function run(root) {
     el.dataset.values = JSON.stringify(values);
     el.dataset.points = String(values.length);
     const xs = values.map((_, i) => i + 1);
+    const nm = values.map((v) => v * 1e3);   // data-values keep the API's µm; the chart draws nm
     if (!periodChart) {   // a promise, so that updates arriving while it is made wait for it
-      periodChart = lineChart(el, { xs, xLabel: 'period', yLabel: 'tracking error (µm)',
-        series: [{ label: 'error per period (µm)', values, points: true, width: 2 }], height: 240, integerX: true });
+      periodChart = lineChart(el, { xs, xLabel: 'period', yLabel: 'tracking error (nm)',
+        series: [{ label: 'error per period (nm)', values: nm, points: true, width: 2 }], height: 240, integerX: true });
       charts.push(await periodChart);
     } else {
-      (await periodChart).setData([xs, values]);
+      (await periodChart).setData([xs, nm]);
     }
   };
   const live = [];   // error per period from the progress messages ("period 7/56: error 312.4 nm RMS")
@@ -201,15 +213,17 @@ async function drawEllipse(root, r, body) {
 }
 
 function renderErrors(root, r, body) {
+  // errors in nm (the one unit for errors; the API's fields are in µm), the relative error in %
+  const shown = (key, v) => (v === undefined || v === null ? '–' : key.endsWith('_um') ? fmt(v * 1e3) : fmt(v));
+  const paperCell = (c, key) => `<td class="num">${c[key] !== undefined ? (key === 'relative_error_pct' ? '< ' : '') + shown(key, c[key]) : '–'}</td>`;
   const row = (label, key, unit) => `<tr data-key="${key}"><td>${label} (${unit})</td>
-    <td class="num" data-value="${r ? r[key] ?? '' : ''}">${r ? fmt(r[key]) : '–'}</td>
-    <td class="num">${PAPER.case1[key] !== undefined ? (key === 'relative_error_pct' ? '< ' : '') + PAPER.case1[key] : '–'}</td>
-    <td class="num">${PAPER.case2[key] !== undefined ? (key === 'relative_error_pct' ? '< ' : '') + PAPER.case2[key] : '–'}</td></tr>`;
+    <td class="num" data-value="${r ? r[key] ?? '' : ''}">${r ? shown(key, r[key]) : '–'}</td>
+    ${paperCell(PAPER.case1, key)}${paperCell(PAPER.case2, key)}</tr>`;
   root.querySelector('#traj-errors').innerHTML = `<tr><th>error</th><th class="num">this run${body ? ` (${fmt(body.frequency_hz)} Hz, ${fmt(body.inclination_deg)}°)` : ''}</th>
       <th class="num">${PAPER.case1.label}</th><th class="num">${PAPER.case2.label}</th></tr>` +
-    row('max error Y', 'max_error_y_um', 'µm') + row('max error Z', 'max_error_z_um', 'µm') +
-    row('RMS error', 'rms_error_um', 'µm') + row('relative error', 'relative_error_pct', '%') +
-    (r && r.error_per_period_um ? `<tr><td>error per period, first → last (µm)</td><td class="num">${fmt(r.error_per_period_um[0])} → ${fmt(r.error_per_period_um[r.error_per_period_um.length - 1])}</td><td></td><td></td></tr>` : '');
+    row('max error Y', 'max_error_y_um', 'nm') + row('max error Z', 'max_error_z_um', 'nm') +
+    row('RMS error', 'rms_error_um', 'nm') + row('relative error', 'relative_error_pct', '%') +
+    (r && r.error_per_period_um ? `<tr><td>error per period, first → last (nm)</td><td class="num">${fmt(r.error_per_period_um[0] * 1e3)} → ${fmt(r.error_per_period_um[r.error_per_period_um.length - 1] * 1e3)}</td><td></td><td></td></tr>` : '');
 }
 
 export function leave() {

@@ -1,0 +1,103 @@
+"""Issue 39 in a real browser: actions respect where data came from, errors are in one unit, and the
+labels (name, tags, notes) are edited on the page. One live service on the default bench with the
+real yan9a-dbo record imported (another lab's stage) and a short sweep recorded here.
+Screenshots: tests/artifacts/web_provenance_*.png. Set-up: tests/support/browser.py."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.support.browser import goto, posted_result, serving, shot
+from tests.support.realdata import MODEL_VI_DO as REAL
+
+pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_provenance")]
+
+MARKUP = '<img src=x onerror="window.__xss=1">'
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """A live default bench with an import (and a static PI on it) and a sweep (and a static PI on it)."""
+    with serving(tmp_path_factory, "default") as s:
+        api = s["api"]
+        with REAL.open("rb") as f:
+            answer = api.post(
+                "/datasets",
+                files={"file": ("Model_Vi_Do.dat", f)},
+                data={"columns": '{"u":0,"x":4}', "sample_rate_hz": "200", "axis": "y", "delimiter": "whitespace"},
+            )
+        assert answer.status_code == 201, answer.text
+        s["imported"] = answer.json()["id"]
+        s["imported_model"] = posted_result(s, "/models", {"axis": "y", "datasets": [s["imported"]]})["model_id"]
+        sweep = {"axes": ["y"], "frequencies_hz": [10, 100], "cycles": 3}
+        s["recorded"] = posted_result(s, "/sweeps", sweep)["dataset_id"]
+        s["recorded_model"] = posted_result(s, "/models", {"axis": "y", "datasets": [s["recorded"]]})["model_id"]
+        yield s
+
+
+def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server):
+    goto(page, server, "datasets")
+    imported = page.locator(f"#dataset-list tr[data-dataset-id='{server['imported']}'] td.origin")
+    assert imported.get_attribute("data-imported") == "1" and "imported from" in imported.inner_text()
+    recorded = page.locator(f"#dataset-list tr[data-dataset-id='{server['recorded']}'] td.origin")
+    assert recorded.get_attribute("data-imported") == "0" and "imported" not in recorded.inner_text()
+    goto(page, server, f"datasets/{server['imported']}")
+    assert "imported from Model_Vi_Do.dat" in page.inner_text("#dataset-origin")
+
+    # a model of imported data: no control that runs an experiment on this bench, and no Table 6
+    goto(page, server, f"models/{server['imported_model']}")
+    page.wait_for_selector("#compare-loop canvas")
+    assert page.locator("#discover-form input[name=allow_experiments]").count() == 0
+    assert "recorded on another stage" in page.inner_text("#experiments-elsewhere-note")
+    assert page.locator("#table6 td.paper").count() == 0 and page.is_visible("#table6-omitted")
+    shot(page, "provenance_imported_model")
+
+    # a model of data recorded here: the experiments may run, and Table 6 stands beside it in nm
+    goto(page, server, f"models/{server['recorded_model']}")
+    page.wait_for_selector("#compare-loop canvas")
+    assert page.locator("#discover-form input[name=allow_experiments]").count() == 1
+    assert page.locator("#table6 td.paper").count() == 6  # two blocks × three models
+    assert "58.6" in page.inner_text("#table6") and "µm" not in page.inner_text("#table6")
+
+
+def test_trajectories_offer_this_benchs_models_first_and_mark_the_imported(page, server):
+    goto(page, server, "trajectories")
+    select = "#traj-form select[name=feedforward_model_y]"
+    page.wait_for_selector(select)
+    marked = page.locator(f"{select} optgroup.imported-models option").evaluate_all("os => os.map(o => o.value)")
+    assert marked == [server["imported_model"]]
+    top = page.locator(f"{select} > option").evaluate_all("os => os.map(o => o.value)")
+    assert server["recorded_model"] in top and server["imported_model"] not in top
+
+
+def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
+    model = server["recorded_model"]
+    goto(page, server, f"models/{model}")
+    page.fill("#labels-form input[name=name]", f"fit {MARKUP}")
+    page.fill("#labels-form input[name=tags]", f"paper, {MARKUP}")
+    page.fill("#labels-form textarea[name=notes]", f"kept {MARKUP}")
+    page.click("#labels-save")
+    page.wait_for_function("document.querySelector('#labels-status').textContent === 'saved'")
+    stored = server["api"].get(f"/models/{model}").json()
+    assert stored["name"] == f"fit {MARKUP}" and stored["tags"] == ["paper", MARKUP]
+    assert stored["notes"] == f"kept {MARKUP}"
+    assert MARKUP in page.inner_text("#model-name")  # shown as text
+    assert MARKUP in page.inner_text(f"#model-list tr[data-model-id='{model}']")
+    assert page.evaluate("window.__xss === undefined")
+
+    dataset = server["recorded"]
+    goto(page, server, f"datasets/{dataset}")
+    page.fill("#labels-form input[name=name]", "span sweep")
+    page.click("#labels-save")
+    page.wait_for_function("document.querySelector('#labels-status').textContent === 'saved'")
+    assert server["api"].get(f"/datasets/{dataset}").json()["name"] == "span sweep"
+    assert page.inner_text("#dataset-name") == "span sweep"
+    shot(page, "provenance_labels")
+
+
+def test_recent_jobs_read_in_words_without_internals(page, server):
+    goto(page, server, "bench")
+    page.wait_for_selector("#jobs tr td.result")
+    text = page.inner_text("#jobs")
+    assert "loop_cpu_s" not in text and "_um" not in text
+    assert "model md_" in text and "held-out RMS" in text and " nm" in text
