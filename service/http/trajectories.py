@@ -10,10 +10,10 @@ from drivers.bench import Bench
 from service.http.deps import get_bench, get_jobs, get_store
 from service.http.schemas.common import JobQueued
 from service.http.schemas.datasets import SweepRequest
-from service.http.schemas.trajectories import TrajectoryRequest
+from service.http.schemas.trajectories import TrackingRecipe, TrajectoryRequest
 from service.runtime.jobs import JobManager
 from service.store import Store
-from service.usecases.track import check_trajectory, run_trajectory, span_sweeps
+from service.usecases.track import check_trajectory, run_trajectory, span_sweeps, tracking_recipe
 
 router = APIRouter(tags=["trajectories"])
 
@@ -48,3 +48,10 @@ def trajectory_span_sweeps(
     feedforward models, ± 5 V within the bench's limits: identify models on them for the run. Nothing
     runs; 422 naming controller.feedforward_model_<axis> when an axis has no model."""
     return span_sweeps(bench, store, body.ellipse(), body.controller.model_dump())
+
+
+@router.get("/trajectories/recipe", response_model=TrackingRecipe)
+def trajectory_recipe() -> dict:
+    """The path the product recommends from a fresh store to a tracked ellipse: the first sweep, the
+    effects of the feedforward models (on it, then on the span sweeps), and the controller."""
+    return tracking_recipe()

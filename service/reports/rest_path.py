@@ -21,18 +21,13 @@ from service.runtime.jobs import JobManager
 from service.runtime.settings import Settings
 from service.science.errors import FieldError
 from service.store import Store
+from service.usecases import track
 from service.usecases.acquire import plan_sweep, run_sweep
 from service.usecases.identify import check_identify_request, identify
 from service.usecases.track import check_trajectory, run_trajectory, span_sweeps
 
-#: the identification sweep a user starts with: the paper's four frequencies, 0–120 V, one axis at a time
-FIRST_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5, "together": False}
-#: the composite model identified per axis: what discovery finds on the default bench (docs/discovery.md:
-#: asymmetry, rate dependence, creep, flexure dynamics, cross-coupling) that a per-axis feedforward can
-#: invert, with the loop's delay. Rate dependence is left out: its segment-switched terms make the
-#: model's output jump, and its inverse is refused (422 naming the model); cross-coupling needs the
-#: other axis's drive.
-EFFECTS = ["hysteresis", "asymmetry", "creep", "delay", "dynamics"]
+#: the recommended path (service.usecases.track): the first sweep and the composite model's effects per axis
+FIRST_SWEEP, EFFECTS = track.FIRST_SWEEP, track.FEEDFORWARD_EFFECTS
 #: the report's rows: controller bodies on top of the feedforward models
 ROWS = {
     "b FF only": {},

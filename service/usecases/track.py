@@ -22,6 +22,31 @@ from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, 
 from service.usecases.identify import load_model, load_records
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
+#: The path the product recommends to a new user (GET /api/trajectories/recipe; the tracking report walks
+#: the same one): the default identification sweep (the paper's four frequencies, 0–120 V, one axis at a
+#: time), a composite model per axis on it, then the span sweeps this ellipse needs
+#: (POST /api/trajectories/span-sweeps) and the same composite models on those, then FF + PID (auto)
+#: + ILC. The effects are what discovery finds on the default bench that a per-axis feedforward can
+#: invert, with the loop's delay: rate dependence is left out (its segment-switched terms make the
+#: model's output jump, and its inverse is refused), cross-coupling needs the other axis's drive.
+FIRST_SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5, "together": False}
+FEEDFORWARD_EFFECTS = ["hysteresis", "asymmetry", "creep", "delay", "dynamics"]
+RECOMMENDED_CONTROLLER = {"pid": "auto", "ilc": True}
+
+
+def tracking_recipe() -> dict:
+    """The recommended path as data, with why, for the dashboard's guided flow and for scripts."""
+    return {
+        "first_sweep": FIRST_SWEEP,
+        "effects": FEEDFORWARD_EFFECTS,
+        "controller": RECOMMENDED_CONTROLLER,
+        "why": (
+            "static PI models leave the flexure's mode, the delay and creep to the PID; composite models with "
+            + ", ".join(FEEDFORWARD_EFFECTS[1:])
+            + " invert them in the feedforward, and models fitted on the span the ellipse drives know its minor loops"
+        ),
+    }
+
 
 def build_controller(
     bench: Bench, store: Store, controller: dict, frequency_hz: float, mode: str = "point_by_point"

@@ -144,15 +144,19 @@ def _static_pi_per_axis(server, **sweep) -> dict:
 
 
 def test_trajectory_page_sweeps_the_span_the_ellipse_needs(page, server):
-    """ "Sweep the span it needs" runs one sweep per axis over the feedforward drive's span ± 5 V."""
+    """ "Prepare the models it needs" runs one sweep per axis over the feedforward drive's span ± 5 V and
+    selects the models identified on them."""
     models = _static_pi_per_axis(server, frequencies_hz=[1], cycles=2)
     goto(page, server, "trajectories")
     page.select_option("#traj-preset", "case2")
     page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
     page.select_option("#traj-form select[name=feedforward_model_z]", models["z"])
     page.click("#traj-span-sweep")
-    page.wait_for_selector("#traj-span div[data-axis=z] .jobline[data-state='succeeded']", timeout=150_000)
-    assert page.locator("#traj-span div[data-axis=y] .jobline[data-state='succeeded']").count() == 1
+    page.wait_for_selector("#traj-prepared", timeout=300_000)
+    for axis in ("y", "z"):  # a span sweep and a model on it per axis, the model selected
+        assert page.locator(f"#traj-span div[data-axis={axis}] .jobline[data-state='succeeded']").count() == 2
+        chosen = page.input_value(f"#traj-form select[name=feedforward_model_{axis}]")
+        assert chosen != models[axis] and server["api"].get(f"/models/{chosen}").json()["axis"] == axis
     assert "span" in page.inner_text("#traj-span") and " V for a 100 Hz ellipse" in page.inner_text("#traj-span")
 
 

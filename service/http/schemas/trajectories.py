@@ -76,3 +76,12 @@ class TrajectoryRequest(BaseModel):
         return Ellipse(
             tuple(map(float, yr)), tuple(map(float, zr)), self.inclination_deg, self.frequency_hz, self.cycles
         )
+
+
+class TrackingRecipe(BaseModel):
+    """The recommended path to a tracked ellipse (GET /api/trajectories/recipe)."""
+
+    first_sweep: dict = Field(description="the POST /api/sweeps body of the first, default sweep")
+    effects: list[str] = Field(description="the effects of the feedforward model identified per axis")
+    controller: dict = Field(description="the controller fields to run with (beside the feedforward models)")
+    why: str

@@ -59,7 +59,7 @@ export async function enter(root) {
         <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
         <label class="check" title="run a range beyond the axis's stroke with the command clamped at the axis's voltage limits"><input type="checkbox" name="allow_saturation">allow saturation</label>
         <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
-        <button type="button" id="traj-span-sweep" title="sweep each axis over the voltages this ellipse needs by its feedforward model (± 5 V), to identify models for the run"${available ? '' : ' disabled'}>Sweep the span it needs</button>
+        <button type="button" id="traj-span-sweep" title="the recommended path: a first sweep and models where an axis has none, then sweeps over the voltages this ellipse needs (± 5 V) and models on them, selected for the run"${available ? '' : ' disabled'}>Prepare the models it needs</button>
       </form>
       <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div><div id="traj-pid-report"></div><div id="traj-span"></div>
     </div>
@@ -78,7 +78,7 @@ export async function enter(root) {
     if (preset) for (const [k, v] of Object.entries(preset.form)) form.elements[k].value = v;
   });
   form.addEventListener('submit', (e) => { e.preventDefault(); run(root); });
-  root.querySelector('#traj-span-sweep').addEventListener('click', () => sweepSpan(root));
+  root.querySelector('#traj-span-sweep').addEventListener('click', () => prepareModels(root));
   renderErrors(root, null);
 }
 
@@ -117,23 +117,63 @@ function formBody(root) {
     inclination_deg: Number(f.get('inclination_deg')), frequency_hz: Number(f.get('frequency_hz')), cycles: Number(f.get('cycles')), controller: ctl };
 }
 
-// Sweeps over the voltages this ellipse needs by its feedforward models (± 5 V, within the bench's
-// limits), one per axis, run one after the other: identify models on their datasets for the run.
-async function sweepSpan(root) {
+// The guided path (GET /api/trajectories/recipe), from a fresh store to a run: an axis with no
+// feedforward model gets the first sweep and a composite model on it; then the sweeps over the span
+// this ellipse drives (± 5 V, within the bench's limits) and composite models on those, selected in
+// the form with the recommended controller. Each step shows its job; a failed step stops the path and
+// says why.
+async function prepareModels(root) {
+  const signal = controller.signal;
   const err = root.querySelector('#traj-error');
   err.textContent = '';
   const out = root.querySelector('#traj-span');
   out.innerHTML = '';
+  const form = root.querySelector('#traj-form');
+  const button = root.querySelector('#traj-span-sweep');
+  button.disabled = true;
+  const step = (text, axis = '') => {
+    const el = h(`<div class="prep-step" data-axis="${esc(axis)}"><p>${esc(text)}</p><div class="span-job"></div></div>`);
+    out.append(el);
+    return el.querySelector('.span-job');
+  };
+  const finished = (job, what) => {
+    if (job.state !== 'succeeded') throw new Error(`${what} ${job.state}: ${job.error || ''}`);
+    return job.result;
+  };
   try {
-    const bodies = await api('/trajectories/span-sweeps', { method: 'POST', body: formBody(root), signal: controller.signal });
-    for (const body of bodies) {
-      const line = h(`<div data-axis="${esc(body.axes[0])}"><p>${esc(body.name)}</p><div class="span-job"></div></div>`);
-      out.append(line);
-      await runJob(line.querySelector('.span-job'), '/sweeps', body, 'sweep', { signal: controller.signal });
+    const recipe = await api('/trajectories/recipe', { signal });
+    const identify = async (axis, datasetId, on) => finished(await runJob(step(`${axis.toUpperCase()}: a model with ${recipe.effects.join(' + ')} on ${on}`, axis),
+      '/models', { axis, datasets: [datasetId], effects: recipe.effects }, 'identify', { signal }), 'the identification').model_id;
+    const missing = ['y', 'z'].filter((axis) => !form.elements[`feedforward_model_${axis}`].value);
+    if (missing.length) {
+      const body = { ...recipe.first_sweep, axes: missing };
+      const first = finished(await runJob(step(`First sweep of ${missing.join(' and ').toUpperCase()}: ${body.frequencies_hz.join(', ')} Hz, the full drive range`),
+        '/sweeps', body, 'sweep', { signal }), 'the first sweep').dataset_id;
+      for (const axis of missing) selectModel(form, axis, await identify(axis, first, 'the first sweep'));
     }
+    const spans = await api('/trajectories/span-sweeps', { method: 'POST', body: formBody(root), signal });
+    for (const body of spans) {
+      const axis = body.axes[0];
+      const dataset = finished(await runJob(step(body.name, axis), '/sweeps', body, 'sweep', { signal }), 'the span sweep').dataset_id;
+      selectModel(form, axis, await identify(axis, dataset, 'the span this ellipse drives'));
+    }
+    form.elements.pid.value = recipe.controller.pid;
+    form.elements.ilc.checked = Boolean(recipe.controller.ilc);
+    root.querySelector('#traj-gains').hidden = true;
+    out.append(h(`<p class="ok" id="traj-prepared">Models ready and selected, with PID ${esc(recipe.controller.pid)}${recipe.controller.ilc ? ' and ILC' : ''}:
+      press Run. <span class="muted">Why these: ${esc(recipe.why)}.</span></p>`));
   } catch (e) {
     showError(err, e);
+  } finally {
+    button.disabled = false;
   }
+}
+
+/** Select model `id` for `axis` in the form (a new option if the list does not have it yet). */
+function selectModel(form, axis, id) {
+  const select = form.elements[`feedforward_model_${axis}`];
+  if (![...select.options].some((o) => o.value === id)) select.append(new Option(`${id} · just identified`, id));
+  select.value = id;
 }
 
 async function run(root) {
