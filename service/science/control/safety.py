@@ -101,6 +101,31 @@ def model_stroke_um(model, sample_rate_hz: float, v_max: float) -> float:
     return float(np.max(model.predict(slow, sample_rate_hz=sample_rate_hz)))
 
 
+def _beyond_text(axis, range_um, frequency_hz, x_ref_um, u, model, sample_rate_hz, steady, v_min, v_max) -> str:
+    """Why the feedforward demand ``u`` (V) leaves [``v_min``, ``v_max``], naming the end of the range
+    (µm) that is beyond it: the top (the stroke at ``v_max``) or the bottom (below ``v_min``)."""
+    lo, hi = range_um
+    parts = []
+    if np.max(u) > v_max + STROKE_TOLERANCE_V:
+        need = float(np.max(model.stack_demand_um(x_ref_um, sample_rate_hz)[steady]))
+        via = (
+            f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)"
+            if model.judges_stroke
+            else " (by a model without flexure dynamics, which overstates the voltage near a resonance)"
+        )
+        parts.append(
+            f"the top end {hi:g} µm needs {np.max(u):.1f} V by the feedforward model{via}, above the axis's "
+            f"{v_max:g} V limit; the axis reaches {model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at "
+            f"{v_max:g} V, so the range is beyond the stroke"
+        )
+    if np.min(u) < v_min - STROKE_TOLERANCE_V:
+        parts.append(
+            f"the bottom end {lo:g} µm needs {np.min(u):.1f} V by the feedforward model, below the axis's "
+            f"{v_min:g} V limit: raise the range's minimum"
+        )
+    return f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz: " + "; ".join(parts)
+
+
 def check_stroke(
     bench: Bench,
     ranges_um: dict,
@@ -127,18 +152,8 @@ def check_stroke(
         v_min, v_max = bench.limits[axis].v_min_v, bench.limits[axis].v_max_v
         if model is None or (np.max(u) <= v_max + STROKE_TOLERANCE_V and np.min(u) >= v_min - STROKE_TOLERANCE_V):
             continue
-        lo, hi = ranges_um[axis]
-        need = float(np.max(model.stack_demand_um(x_ref_um[:, i], sample_rate_hz)[steady]))
-        via = (
-            f" (through the model's flexure dynamics, the stack must deliver {need:.2f} µm)"
-            if model.judges_stroke
-            else " (by a model without flexure dynamics, which overstates the voltage near a resonance)"
-        )
-        text = (
-            f"{axis.upper()} {lo:g}–{hi:g} µm at {frequency_hz:g} Hz needs {hi:g} µm{via}: "
-            f"{np.min(u):.1f}–{np.max(u):.1f} V by the feedforward model; the axis reaches "
-            f"{model_stroke_um(model, sample_rate_hz, v_max):.2f} µm at {v_max:g} V, so the range is beyond "
-            f"the stroke"
+        text = _beyond_text(
+            axis, ranges_um[axis], frequency_hz, x_ref_um[:, i], u, model, sample_rate_hz, steady, v_min, v_max
         )
         if model.judges_stroke:
             refusals[axis] = text

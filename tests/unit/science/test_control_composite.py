@@ -91,7 +91,7 @@ def test_range_beyond_the_stroke_is_refused_with_the_reason(bench):
     ff = {ax: identify_composite(bench, ax, ("delay", "dynamics")) for ax in bench.axes}
     with pytest.raises(
         ControlRefused,
-        match=r"Z 1–14 µm at 100 Hz needs .* V by the feedforward model; the axis "
+        match=r"Z 1–14 µm at 100 Hz: the top end 14 µm needs .* V by the feedforward model.* the axis "
         r"reaches \d+\.\d\d µm at 150 V",
     ) as exc:
         plan(bench, BEYOND, Controller(feedforward=ff), "point_by_point")
@@ -99,12 +99,16 @@ def test_range_beyond_the_stroke_is_refused_with_the_reason(bench):
     reach = float(exc.value.reason.split("reaches ")[1].split(" µm")[0])
     demand = float(exc.value.reason.split("must deliver ")[1].split(" µm")[0])
     assert 11.0 < reach < demand < 14.0  # the flexure's gain at 100 Hz lowers the demand, not enough
+    # a range whose bottom end is below what 0 V reaches names that end, not the stroke
+    with pytest.raises(ControlRefused, match=r"Y 0–5 µm at 100 Hz: the bottom end 0 µm needs -\d+\.\d V") as low:
+        plan(bench, Ellipse((0, 5), (1, 9), 0.0, 100.0, 30), Controller(feedforward=ff), "point_by_point")
+    assert "below the axis's 0 V limit" in low.value.reason and "top end" not in low.value.reason
     for inside in (CASE2, CASE1):  # case 1 needs ≈124 V on Z: inside the 150 V rating (issue 19)
         plan(bench, inside, Controller(feedforward=ff), "point_by_point")
     warnings: list[str] = []
     ref, u_ff = plan(bench, BEYOND, Controller(feedforward=ff, allow_saturation=True), "point_by_point", warnings)
     assert len(warnings) == 1 and warnings[0].startswith("Z 1–14 µm")
-    demand_v = float(warnings[0].split(" V by the feedforward model")[0].rsplit("–", 1)[1])
+    demand_v = float(warnings[0].split(" V by the feedforward model")[0].rsplit("needs ", 1)[1])
     assert demand_v > 150.0 and u_ff.max() <= 150.0  # the demand beyond the limit runs clamped
     # a hysteresis-only model ignores the flexure's gain at 100 Hz: its verdict is a warning, not a refusal
     static = {ax: identify(bench, ax, "static_pi") for ax in bench.axes}
