@@ -73,6 +73,7 @@ def test_trajectories_offer_this_benchs_models_first_and_mark_the_imported(page,
 def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     model = server["recorded_model"]
     goto(page, server, f"models/{model}")
+    page.click("#model-labels-box summary")
     page.fill("#labels-form input[name=name]", f"fit {MARKUP}")
     page.fill("#labels-form input[name=tags]", f"paper, {MARKUP}")
     page.fill("#labels-form textarea[name=notes]", f"kept {MARKUP}")
@@ -93,6 +94,20 @@ def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     assert server["api"].get(f"/datasets/{dataset}").json()["name"] == "span sweep"
     assert page.inner_text("#dataset-name") == "span sweep"
     shot(page, "provenance_labels")
+
+
+def test_the_answer_is_on_the_first_screen_of_a_model(page, server):
+    goto(page, server, f"models/{server['recorded_model']}")
+    page.wait_for_selector("#model-answer-text")
+    answer = page.locator("#model-answer-text")
+    assert answer.bounding_box()["y"] < 800  # within the first 1280×800 screen
+    diagnosis = server["api"].get(f"/models/{server['recorded_model']}/diagnosis").json()
+    ratio = diagnosis["residual_rms_um"] / diagnosis["noise_floor_um"]
+    assert float(answer.get_attribute("data-ratio")) == pytest.approx(ratio, rel=1e-9)
+    leading = next((c for c in diagnosis["candidates"] if c["claimed"]), None)
+    text = answer.inner_text()
+    assert (f"Missing: {leading['effect']}" in text) if leading else ("Missing:" not in text)
+    assert "nm" in text and "µm" not in text
 
 
 def test_recent_jobs_read_in_words_without_internals(page, server):

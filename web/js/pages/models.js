@@ -93,7 +93,10 @@ async function showModel(el, modelId, query) {
       <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label>
         <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
         <span id="report-status" class="muted"></span></div>
-      <div id="model-labels"></div>
+      <div id="model-answer" class="answer"><p class="muted">Diagnosing…</p></div>
+      <p class="muted jump">On this page: <a href="#diagnosis-card" data-jump>diagnosis</a> · <a href="#discover" data-jump>discover</a> ·
+        <a href="#history-chart" data-jump>error history</a> · <a href="#compare-table" data-jump>compare with the measurements</a></p>
+      <details id="model-labels-box"><summary>name, tags, notes</summary><div id="model-labels"></div></details>
     </div>
     <div id="discover"></div>
     <div class="grid-1-2">
@@ -109,6 +112,10 @@ async function showModel(el, modelId, query) {
     `<option value="${esc(d.id)}"${d.id === datasetId ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}${model.datasets.includes(d.id) ? ' (fitted)' : ''}</option>`).join('');
   select.addEventListener('change', () => { location.hash = `#/models/${model.id}?dataset=${select.value}`; });
   el.querySelector('#report-download').addEventListener('click', () => downloadReport(el, model.id));
+  el.querySelectorAll('a[data-jump]').forEach((a) => a.addEventListener('click', (e) => {   // in-page, not a route
+    e.preventDefault();
+    el.querySelector(a.getAttribute('href'))?.scrollIntoView({ behavior: 'smooth', block: 'start' });
+  }));
   renderLabels(el.querySelector('#model-labels'), 'models', model, { signal, onSaved: async (updated) => {
     el.querySelector('#model-name').textContent = updated.name ? `“${updated.name}”` : '';
     const list = document.querySelector('#model-list');
@@ -134,8 +141,23 @@ async function showModel(el, modelId, query) {
   } else {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
   }
+  renderAnswer(el.querySelector('#model-answer'), model, diagnosis);
   await renderHistory(el, model, canHistory);
   if (datasetId) await renderCompare(el, model, datasetId, diagnosis);
+}
+
+/** The page's answer on its first screen: how far the model is from the noise floor, and what is
+ *  missing with the error it should fall to (the diagnosis's claimed leading effect), or why nothing is. */
+function renderAnswer(box, model, d) {
+  if (!d) { box.innerHTML = '<p class="muted">No diagnosis: see the compare table below.</p>'; return; }
+  const ratio = d.noise_floor_um ? d.residual_rms_um / d.noise_floor_um : null;
+  const leading = (d.candidates || []).find((c) => c.claimed && c.testable !== false);
+  const where = `Residual ${fmtErrorNm(d.residual_rms_um, 3)} on the held-out cycles${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 3)})` : ''}.`;
+  const what = leading
+    ? `Missing: <b data-effect="${esc(leading.effect)}">${esc(leading.effect)}</b>. Adding it should bring the error to about ${fmtErrorNm(leading.expected_rms_um, 3)}: use “Add ${esc(leading.effect)}” in the diagnosis, or Discover.`
+    : d.at_noise_floor === false ? 'No effect in the library is missing, yet the model is not at the noise floor: see the diagnosis for where it fails.'
+      : 'Nothing is missing: the model explains the data down to the noise floor.';
+  box.innerHTML = `<p id="model-answer-text" data-ratio="${ratio ?? ''}">${where} ${what}</p>`;
 }
 
 /** Where the diagnosis says the model fails, as plot ranges: time ranges of the failing blocks (for
