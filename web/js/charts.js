@@ -150,6 +150,13 @@ export async function xyChart(el, { title, curves, xLabel, yLabel, height = 300,
   ctx.save();
   ctx.beginPath(); ctx.rect(m.l, m.t, pw, ph); ctx.clip();
   curves.forEach((c, i) => {
+    if (c.dots) {   // a scatter: one dot per point (a residual against a variable)
+      ctx.fillStyle = c.color || COLORS[i % COLORS.length];
+      for (let k = 0; k < c.x.length; k++) {
+        if (c.x[k] !== null && c.y[k] !== null) ctx.fillRect(px(c.x[k]) - 1.5, py(c.y[k]) - 1.5, 3, 3);
+      }
+      return;
+    }
     ctx.strokeStyle = c.color || COLORS[i % COLORS.length]; ctx.lineWidth = c.width || 1.25;
     ctx.beginPath();
     let pen = false;

@@ -154,6 +154,27 @@ class Failure(BaseModel):
     rms_um: float | None = None
 
 
+class RemainderSignature(BaseModel):
+    signature: str = Field(description='e.g. "gain changing with time", "line at 50 Hz", "response per block"')
+    share_of_residual: float = Field(description="the share (0–1) of the unseen rows' residual power it explains")
+    share_of_excess: float = Field(description="the share (0–1) of that power above the gauge noise it explains")
+    t: float = Field(description="its held-out gain against the gauge noise, in standard errors")
+    gain_nm2: float = Field(description="its mean held-out gain in squared error (nm²)")
+    text: str = Field(description="what it means, in a physicist's words, with the fitted figure")
+    figure: dict[str, Any] = Field(description="x (the signature's variable), residual_nm, x_label: the unseen rows")
+
+
+class Remainder(BaseModel):
+    """The residual a model leaves on the rows it never fitted (held-out cycles, rests, holds), read
+    against physical signatures: each fitted on training rows, judged on the unseen rows."""
+
+    unseen_rms_nm: float | None
+    unseen_samples: int
+    threshold_t: float = Field(description="the Bonferroni-corrected threshold a signature's t must pass")
+    tried: list[str]
+    signatures: list[RemainderSignature] = Field(description="the significant ones, largest share first (at most 3)")
+
+
 class Diagnosis(BaseModel):
     """Residual vs noise floor, the verdict, the candidates (claimed physics first, by held-out gain;
     then the unclaimed; capacity last), failures."""
@@ -185,6 +206,10 @@ class Diagnosis(BaseModel):
             "for a paper's model (static/dynamic PI, GRPI): the composite that stands for it in the diagnosis, "
             "and both held-out figures"
         ),
+    )
+    remainder: Remainder | None = Field(
+        default=None,
+        description="when the model is not at the noise floor: what remains, described by physical signatures",
     )
 
 

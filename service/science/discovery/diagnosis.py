@@ -30,6 +30,7 @@ from service.science.discovery.decision import (
 )
 from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
+from service.science.discovery.remainder import describe_remainder, remainder_words
 from service.science.discovery.symmetry import asymmetry_test
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
@@ -436,6 +437,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     held_out_ratio = v0 / noise if noise > 0 else float("inf")
     at_floor = ratio is not None and ratio <= CLEAR_DROP_NOISE and held_out_ratio <= np.hypot(1.0, CLEAR_DROP_NOISE)
     worst = failures(records, res)
+    remainder = None if at_floor else describe_remainder(records, res, preds, noise)
     return {
         "effects": ["hysteresis"] + model.effects,
         "residual_rms_um": v0,
@@ -448,7 +450,9 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
         "verdict": "missing_effect" if missing else "complete",
         "verdict_text": _verdict_text(
             missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio, held_out_ratio
-        ),
+        )
+        + remainder_words(remainder),
+        "remainder": remainder,
         "candidates": candidates + untestable,
         "not_testable": untestable,
         "claim_rule": rule_text(noise),

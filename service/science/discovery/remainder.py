@@ -7,12 +7,11 @@ amplifier that cannot follow), a gain per block (the response against the block'
 not locked to the drive (mains 50/60 Hz and harmonics, and the strongest line in the residual), the
 other axis's drive and motion, and the temperature where it was recorded.
 
-The same held-out discipline as the claims: each signature's coefficients are fitted on the training
-rows of the residual (least squares, with an offset per record), and it is judged only on rows the
-model never fitted — the held-out cycles and everything outside the blocks (rests, holds, steps). Its
-gain there is tested over contiguous chunks (the residual is correlated sample to sample) against a
-one-sided threshold corrected for the number of signatures tried (Bonferroni), so that a signature is
-not read into noise. Units: residuals in µm in, nm in the texts; time in s; drive in V.
+The same held-out discipline as the claims: a signature is judged only on rows the model never
+fitted — the held-out cycles, and outside the blocks the rests and holds — by two-fold
+cross-validation (every stretch cut in halves: fitted on the first halves, scored on the second, and back), against the gauge
+noise with a one-sided threshold corrected for the number of signatures tried (Bonferroni), so that a
+signature is not read into noise. Units: residuals in µm in, nm in the texts; time in s; drive in V.
 """
 
 from __future__ import annotations
@@ -35,10 +34,15 @@ MAINS_LINES_HZ = (50.0, 60.0, 100.0, 120.0, 150.0, 180.0)
 TOP = 3
 #: points of a signature's figure (the unseen rows, decimated evenly)
 FIGURE_POINTS = 400
+#: the rate (Hz) the rows are pooled to (means of consecutive samples) before the signatures are fitted:
+#: enough for the lines and the fifth harmonic of a 100 Hz block, and a tenth of the work at 20 kHz
+POOL_RATE_HZ = 2500.0
+#: a rest or a hold: the drive's rate below this share of its 95th-percentile rate
+STILL_RATE_SHARE = 0.01
 #: harmonics of the block's frequency that "response per block" fits (the error that repeats cycle to cycle)
 HARMONICS = 5
-#: a signature is reported when it explains at least this share of what remains on the unseen rows:
-#: a reporting choice (below it the sentence would describe a sliver), not the significance test
+#: a signature is reported when it explains at least this share of what remains above the gauge noise
+#: on the unseen rows: a reporting choice (below it the sentence would describe a sliver), not the test
 MIN_SHARE = 0.05
 
 
@@ -57,6 +61,9 @@ class Signature:
     #: the last ``nested`` columns are a simpler signature's (drift under a changing gain, the rate under a
     #: rate limit): the signature counts only if its own columns explain significantly more than those
     nested: int = 0
+    #: a shape repeated cycle to cycle: fitted on the training cycles and scored on the unseen rows
+    #: (half a held-out cycle cannot teach the other half a waveform)
+    from_training: bool = False
 
 
 def _time_s(rec) -> np.ndarray:
@@ -175,9 +182,10 @@ def _block_columns(rec, pred, ctx):
         f = axis_frequency_hz(s.block, rec.axis)
         if f in freqs:
             a, b, at = s.train[0], s.held_out[1], 2 * HARMONICS * freqs.index(f)
-            phase = 2 * np.pi * f * np.arange(b - a)[:, None] / rec.sample_rate_hz * k[None, :]
-            cols[a:b, at : at + HARMONICS] = np.sin(phase)
-            cols[a:b, at + HARMONICS : at + 2 * HARMONICS] = np.cos(phase)
+            turn = np.exp(2j * np.pi * f * np.arange(b - a) / rec.sample_rate_hz)
+            harmonic = turn[:, None] ** k[None, :]  # e^{ikφ}: one exponential, then powers
+            cols[a:b, at : at + HARMONICS] = harmonic.imag
+            cols[a:b, at + HARMONICS : at + 2 * HARMONICS] = harmonic.real
     return cols
 
 
@@ -226,7 +234,9 @@ BUILT_IN = (
         "rate × |rate| (of its peak²)",
         nested=1,
     ),
-    Signature("response per block", _block_columns, _block_words, "phase in the block's cycle (sin)"),
+    Signature(
+        "response per block", _block_columns, _block_words, "phase in the block's cycle (sin)", from_training=True
+    ),
     Signature("other axis", _other_columns, _other_axis_words, "the other axis's drive (V)"),
     Signature("temperature", _temperature_columns, _temperature_words, "temperature change (K)"),
 )
@@ -236,14 +246,16 @@ def _strongest_line_hz(records, residuals) -> float | None:
     """The strongest spectral line of the residuals (Hz) away from every block's drive harmonics
     (there a loop-shape error lies) and below 2 Hz (drift), refined between bins; None if none."""
     best, best_power = None, 0.0
-    for rec, res in zip(records, residuals):
+    q = _pool_factor(records)
+    for rec, full in zip(records, residuals):
+        res, rate = _pool(full, q), rec.sample_rate_hz / q
         n = res.size
         if n < 64:
             continue
         spectrum = np.abs(np.fft.rfft((res - res.mean()) * np.hanning(n))) ** 2
-        freqs = np.fft.rfftfreq(n, 1.0 / rec.sample_rate_hz)
-        keep = (freqs > 2.0) & (freqs < rec.sample_rate_hz / 2.5)
-        resolution = rec.sample_rate_hz / n
+        freqs = np.fft.rfftfreq(n, 1.0 / rate)
+        keep = (freqs > 2.0) & (freqs < rate / 2.5)
+        resolution = rate / n
         for s in rec.splits:
             f0 = axis_frequency_hz(s.block, rec.axis)
             if f0:
@@ -254,7 +266,7 @@ def _strongest_line_hz(records, residuals) -> float | None:
         k = int(np.argmax(np.where(keep, spectrum, 0.0)))
         if spectrum[k] > best_power:
             best, best_power = (
-                _refined_line_hz(res, rec.sample_rate_hz, float(freqs[k]), resolution),
+                _refined_line_hz(res, rate, float(freqs[k]), resolution),
                 float(spectrum[k]),
             )
     return best
@@ -300,49 +312,123 @@ def _line_signatures(records, residuals) -> list[Signature]:
 
 
 def _rows(rec) -> tuple[np.ndarray, np.ndarray]:
-    """(training rows, unseen rows): the unseen are the held-out cycles and everything outside the blocks."""
-    train = np.zeros(rec.u_v.size, dtype=bool)
+    """(training rows, unseen rows): the unseen are the held-out cycles and, outside the blocks, the
+    rests and holds (the drive still: under 1 % of its typical rate). The moving stretches outside the
+    blocks — the first cycle out of a rest, a ramp — are left out: their error is the loop's start-up,
+    which the diagnosis's failures report."""
+    train, held = np.zeros(rec.u_v.size, dtype=bool), np.zeros(rec.u_v.size, dtype=bool)
     for s in rec.splits:
         train[s.train[0] : s.train[1]] = True
-    return train, ~train
+        held[s.held_out[0] : s.held_out[1]] = True
+    speed = np.abs(rec.du_v_per_s)
+    still = speed <= STILL_RATE_SHARE * max(float(np.percentile(speed, 95)), 1e-300)
+    return train, held | (still & ~train)
+
+
+def _halves(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(stretch id, fold) for each of ``rows``' samples: every contiguous stretch of ``rows`` is cut in
+    two halves, fold 0 and fold 1, each half a stretch of its own; so both folds hold a part of every
+    held-out run, rest and hold."""
+    index = np.flatnonzero(rows)
+    stretch = np.cumsum(np.diff(index, prepend=-2) != 1) - 1
+    starts = np.flatnonzero(np.diff(stretch, prepend=-1))
+    lengths = np.diff(np.append(starts, index.size))
+    position = np.arange(index.size) - np.repeat(starts, lengths)
+    fold = (position >= np.repeat(lengths // 2, lengths)).astype(int)
+    return 2 * stretch + fold, fold
+
+
+def _centred(values: np.ndarray, stretch: np.ndarray) -> np.ndarray:
+    """``values`` with each stretch (consecutive equal ids in ``stretch``) centred on its own mean: a
+    stretch's level (a rest after a burst, a run of held-out cycles) carries the loop's memory, which no
+    signature draws; what varies within it is what they describe."""
+    starts = np.flatnonzero(np.diff(stretch, prepend=stretch[0] - 1))
+    counts = np.diff(np.append(starts, stretch.size))
+    means = np.add.reduceat(values, starts, axis=0) / (counts[:, None] if values.ndim == 2 else counts)
+    return values - np.repeat(means, counts, axis=0)
+
+
+def _solve(x: np.ndarray, y: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Least squares on columns scaled to unit RMS (``scale``), directions under 1 % of the largest
+    singular value dropped: a column that is nearly still in one fold (the drive at a rest) must not
+    give a wild coefficient that the other fold pays for."""
+    return np.linalg.lstsq(x / scale, y, rcond=1e-2)[0] / scale
+
+
+def _pool(values: np.ndarray, q: int) -> np.ndarray:
+    """Means of ``q`` consecutive rows (the last group may be shorter)."""
+    if q <= 1:
+        return values
+    starts = np.arange(0, values.shape[0], q)
+    counts = np.diff(np.append(starts, values.shape[0]))
+    return np.add.reduceat(values, starts, axis=0) / (counts[:, None] if values.ndim == 2 else counts)
+
+
+def _pool_factor(records) -> int:
+    """Samples pooled into one row (POOL_RATE_HZ at the slowest record's rate)."""
+    return max(1, int(min(r.sample_rate_hz for r in records) // POOL_RATE_HZ))
 
 
 def _judge(sig: Signature, records, residuals, predictions, ctx: dict, noise_um: float | None) -> dict | None:
-    """Fit ``sig`` on the training rows (an offset per record), judge it on the unseen rows."""
-    fit_x, fit_y, test_x, test_y, figure_x = [], [], [], [], []
+    """Judge ``sig`` on the unseen rows by two-fold cross-validation over their stretches (each centred
+    on its own mean): fitted on one fold, scored on the other, and back. The training rows are not used:
+    there the model fitted the noise and bent its own error. Its coefficients, for the words, are
+    fitted on all the unseen rows."""
+    xs, ys, folds, figure_x = [], [], [], []
+    q = _pool_factor(records)
     for rec, res, pred in zip(records, residuals, predictions):
         cols = sig.columns(rec, pred, ctx)
-        if cols is None:
+        train, unseen = ctx["rows"][id(rec)]
+        if cols is None or unseen.sum() <= 2 * q * (cols.shape[1] + 1):
             continue
-        train, unseen = _rows(rec)
-        if train.sum() <= cols.shape[1] + 1 or not unseen.any():
-            continue
-        x_mean, y_mean = cols[train].mean(axis=0), res[train].mean()
-        fit_x.append(cols[train] - x_mean)
-        fit_y.append(res[train] - y_mean)
-        test_x.append(cols[unseen] - x_mean)
-        test_y.append(res[unseen] - y_mean)
-        own = cols[unseen, 0]
+        stretch, fold = (v[::q] for v in _halves(unseen))
+        x_unseen, y_unseen = _pool(cols[unseen], q), _pool(res[unseen], q)
+        if sig.from_training:  # fold −1: the training cycles (fitted, never scored); fold 1: the unseen rows
+            t_stretch = _halves(train)[0][::q]
+            xs.append(_centred(_pool(cols[train], q), t_stretch))
+            ys.append(_centred(_pool(res[train], q), t_stretch))
+            folds.append(np.full(t_stretch.size, -1))
+            fold = np.ones_like(fold)
+        xs.append(_centred(x_unseen, stretch))
+        ys.append(_centred(y_unseen, stretch))
+        folds.append(fold)
+        own = x_unseen[:, 0]
         if sig.name.startswith("line"):
-            own = np.degrees(np.mod(np.arctan2(cols[unseen, 0], cols[unseen, 1]), 2 * np.pi))
+            own = np.degrees(np.mod(np.arctan2(x_unseen[:, 0], x_unseen[:, 1]), 2 * np.pi))
         figure_x.append(own)
-    if not fit_x:
+    if not xs:
         return None
-    x_fit, y_fit, x_test, before = np.vstack(fit_x), np.concatenate(fit_y), np.vstack(test_x), np.concatenate(test_y)
-    coef = np.linalg.lstsq(x_fit, y_fit, rcond=None)[0]
-    after = before - x_test @ coef
-    reference = before  # without the signature: the offset alone, or the nested signature's fit
-    if sig.nested:
-        base = slice(x_fit.shape[1] - sig.nested, None)
-        reference = before - x_test[:, base] @ np.linalg.lstsq(x_fit[:, base], y_fit, rcond=None)[0]
+    x, y, fold = np.vstack(xs), np.concatenate(ys), np.concatenate(folds)
+    scale = np.maximum(np.sqrt(np.mean(x**2, axis=0)), 1e-300)
+    scored = fold >= 0
+    before = y[scored]
+    after, reference = y.copy(), y.copy()  # reference: no signature, or its nested part
+    base = slice(x.shape[1] - sig.nested, None)
+    for k in (0, 1):
+        fit, test = (fold != k) & ((fold == -1) if sig.from_training else True), fold == k
+        if not test.any() or not fit.any():
+            continue
+        after[test] -= x[test] @ _solve(x[fit], y[fit], scale)
+        if sig.nested:
+            reference[test] -= x[test][:, base] @ _solve(x[fit][:, base], y[fit], scale[base])
+    after, reference = after[scored], reference[scored]
     return {
         "sig": sig,
-        "coef": coef,
+        "coef": _solve(x[fold == -1], y[fold == -1], scale) if sig.from_training else _solve(x, y, scale),
         "share": float(1.0 - np.sum(after**2) / max(float(np.sum(before**2)), 1e-300)),
-        "t": _gain_t(reference, after, noise_um),
+        "excess_share": _excess_share(before, after, None if not noise_um else noise_um / np.sqrt(q)),
+        "t": _gain_t(reference, after, None if not noise_um else noise_um / np.sqrt(q)),
         "gain_nm2": float(np.mean(before**2 - after**2) * 1e6),
         "figure": (np.concatenate(figure_x), before),
     }
+
+
+def _excess_share(before: np.ndarray, after: np.ndarray, noise_um: float | None) -> float:
+    """The share of the residual power above the gauge noise (σ = ``noise_um``) that the signature removes
+    (the plain share when there is no noise figure, or no power above it)."""
+    power = float(np.sum(before**2))
+    excess = power - before.size * (noise_um or 0.0) ** 2
+    return float((power - np.sum(after**2)) / (excess if excess > 0.05 * power else power))
 
 
 def _gain_t(reference: np.ndarray, after: np.ndarray, noise_um: float | None) -> float:
@@ -382,13 +468,22 @@ def describe_remainder(records, residuals, predictions, noise_um: float | None =
         "duration_s": max(r.u_v.size / r.sample_rate_hz for r in records),
         "span_um": max(float(np.ptp(p)) for p in predictions),
         "frequencies_hz": sorted({f for r in records for s in r.splits if (f := axis_frequency_hz(s.block, r.axis))}),
+        "rows": {id(r): _rows(r) for r in records},  # (training, unseen) per record
     }
     judged = [j for s in signatures if (j := _judge(s, records, residuals, predictions, ctx, noise_um)) is not None]
     threshold = NormalDist().inv_cdf(1 - FAMILY_ALPHA / max(len(judged), 1))
-    found = sorted((j for j in judged if j["t"] > threshold and j["share"] >= MIN_SHARE), key=lambda j: -j["share"])
-    unseen = np.concatenate([res[_rows(rec)[1]] for rec, res in zip(records, residuals)])
+    found = sorted(
+        (j for j in judged if j["t"] > threshold and j["excess_share"] >= MIN_SHARE), key=lambda j: -j["excess_share"]
+    )
+    q = _pool_factor(records)
+    parts = [
+        (_pool(res[rows], q), _halves(rows)[0][::q])
+        for rec, res in zip(records, residuals)
+        if (rows := ctx["rows"][id(rec)][1]).any()
+    ]
+    unseen = np.concatenate([_centred(values, stretch) for values, stretch in parts]) if parts else np.zeros(0)
     return {
-        "unseen_rms_nm": float(1e3 * np.sqrt(np.mean((unseen - unseen.mean()) ** 2))) if unseen.size else None,
+        "unseen_rms_nm": float(1e3 * np.sqrt(np.mean(unseen**2))) if unseen.size else None,
         "unseen_samples": int(unseen.size),
         "threshold_t": float(threshold),
         "tried": [j["sig"].name for j in judged],
@@ -396,6 +491,7 @@ def describe_remainder(records, residuals, predictions, noise_um: float | None =
             {
                 "signature": j["sig"].name,
                 "share_of_residual": round(j["share"], 4),
+                "share_of_excess": round(j["excess_share"], 4),
                 "t": round(j["t"], 2),
                 "gain_nm2": round(j["gain_nm2"], 4),
                 "text": j["sig"].words(j["coef"], ctx),
@@ -404,3 +500,14 @@ def describe_remainder(records, residuals, predictions, noise_um: float | None =
             for j in found[:TOP]
         ],
     }
+
+
+def remainder_words(remainder: dict | None) -> str:
+    """The description's leading sentence for the verdict (empty when nothing is described)."""
+    if not remainder or not remainder["signatures"]:
+        return ""
+    top = remainder["signatures"][0]
+    return (
+        f"; what remains, described: {top['text']} ({100 * top['share_of_excess']:.0f} % of the unseen residual "
+        "above the noise)"
+    )

@@ -1,5 +1,6 @@
 """Describing what remains (service.science.discovery.remainder): stages written here, without the
-product's code, hide one effect outside the library each; the model given to the describer is the
+product's code, hide one effect outside the library each (a drift is the library's own effect, which
+the diagnosis claims; each stretch is read about its own level, so a slow drift shows only inside one); the model given to the describer is the
 stage's own base, so its residual is the effect plus 2 nm of gauge noise. The leading signature must
 be the hidden effect's, its sentence must carry the right figure, and a clean stage must describe
 nothing (the Bonferroni-corrected held-out test)."""
@@ -75,8 +76,6 @@ def _describe(hidden: str, seed: int) -> dict:
         x = base + 0.008 * np.sin(2 * np.pi * 37.3 * t + 1.3)
     elif hidden == "slew limit":  # the amplifier follows at most 25 V/ms (the 100 Hz block needs 31)
         x = _stage(_slew_limited(u, 25_000.0))
-    elif hidden == "drift":  # 3 nm/s
-        x = base + 0.003 * t
     elif hidden == "temperature":  # the stack warms by 2 K and cools again over the record
         temp = 25.0 + 2.0 * np.sin(np.pi * t / t[-1])
         x = base * (1 + 0.004 * (temp - 25.0))
@@ -92,7 +91,6 @@ EXPECTED = {
     "machine line": ("line at 37.3", "not locked to the drive"),
     # at the step and in the 100 Hz block alike: the rate, or the block where the rate is highest
     "slew limit": (("drive rate", "response per block", "rate limit"), "fastest"),
-    "drift": ("drift with time", "nm/s"),
     "temperature": ("temperature", "%/K"),
 }
 
@@ -108,7 +106,7 @@ def test_the_leading_signature_names_the_hidden_effect(hidden):
         assert leading["signature"].startswith(names), (hidden, [s["signature"] for s in d["signatures"]])
         assert words in leading["text"], leading["text"]
         # the slew-limited step is an impulse no signature draws whole: its share is the smallest
-        assert leading["share_of_residual"] > (0.1 if hidden == "slew limit" else 0.3)
+        assert leading["share_of_excess"] > (0.1 if hidden == "slew limit" else 0.3)
         assert leading["t"] > d["threshold_t"]
         assert len(leading["figure"]["x"]) == len(leading["figure"]["residual_nm"]) > 100
 

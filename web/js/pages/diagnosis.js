@@ -4,6 +4,7 @@
 // sweep, then the diagnosis again with the new dataset added (GET …/diagnosis?extra_datasets=…),
 // shown beside the scores before.
 import { api, esc, fmt, fmtErrorNm } from '../api.js';
+import { xyChart } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
 
 function describe(value) {
@@ -50,6 +51,28 @@ function separationSummary(before, after, experiment, datasetId) {
     <p class="muted">The candidates below are ranked on all the data, the experiment included; "Add" refits with it.</p></div>`;
 }
 
+/** What remains, described (the diagnosis's `remainder`): each signature's sentence, its share of the
+ *  unseen residual, and a figure of the residual against the signature's variable. */
+function remainderHtml(r) {
+  if (!r || !r.signatures || !r.signatures.length) return '';
+  return `<h3>What remains, described <span class="muted">(the residual on rows the model never fitted — held-out
+      cycles, rests, holds — read against physical signatures; each fitted on the training rows)</span></h3>
+    <ol id="remainder">${r.signatures.map((s, i) => `<li data-signature="${esc(s.signature)}" data-share="${s.share_of_excess}">
+      <b>${esc(s.signature)}</b> — ${fmt(100 * s.share_of_excess, 3)} % of the unseen residual above the noise (t = ${fmt(s.t, 3)}):
+      ${esc(s.text)}<div class="remainder-figure" data-i="${i}"></div></li>`).join('')}</ol>
+    <p class="muted">Tried: ${r.tried.map(esc).join(', ')}; a signature is shown when its held-out gain passes t > ${fmt(r.threshold_t, 3)}
+      (1 % over all of them) and it explains at least 5 % of what remains.</p>`;
+}
+
+function drawRemainder(box, r) {
+  if (!r || !r.signatures) return;
+  r.signatures.forEach((s, i) => {
+    const el = box.querySelector(`.remainder-figure[data-i="${i}"]`);
+    if (el && s.figure) xyChart(el, { xLabel: s.figure.x_label, yLabel: 'residual (nm)', height: 200,
+      curves: [{ label: `residual against ${s.signature}`, x: s.figure.x, y: s.figure.residual_nm, dots: true }] });
+  });
+}
+
 /**
  * Render diagnosis `d` of `model` into `box`. `onAdd(effect, extraDatasets)` starts a refine job;
  * the Separate button runs the experiment (its progress in `jobBox`) and re-renders with the new diagnosis. `extra` names the
@@ -79,12 +102,14 @@ export function renderDiagnosis(box, model, d, opts) {
       <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
     </table>
     ${d.claim_rule ? `<p class="muted" id="claim-rule">Claim rule: ${esc(d.claim_rule)}.</p>` : ''}
+    ${remainderHtml(d.remainder)}
     ${untestable.length ? `<h3>Not testable with this data</h3><ul id="not-testable">${untestable.map((u) => `<li data-effect="${esc(u.effect)}">
       <b>${esc(u.effect)}</b>: ${esc(u.reason)}. ${d.experiments_run_here === false ? '<span class="muted">On the stage that recorded the data:</span>'
         : `<button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>`}
       <span class="muted">(${describe(u.experiment)})</span></li>`).join('')}</ul>` : ''}
     ${d.experiments_note ? `<p class="warn" id="experiments-elsewhere">${esc(d.experiments_note)}</p>` : ''}
     <div id="separate"></div>`;
+  drawRemainder(box, d.remainder);
   box.querySelectorAll('.add-effect').forEach((b) => b.addEventListener('click', () => onAdd(b.dataset.effect, extra)));
   box.querySelectorAll('.run-test').forEach((b) => b.addEventListener('click', async () => {
     const u = untestable.find((x) => x.effect === b.dataset.effect);
