@@ -16,7 +16,7 @@ from html import escape
 
 import numpy as np
 
-from service.reports.svg import COLOURS, MAX_CURVE_POINTS, Panel, figure, fmt_length, length_unit
+from service.reports.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, length_unit
 
 CSS = """body{font-family:system-ui,sans-serif;max-width:1120px;margin:24px auto;padding:0 16px;color:#222}
 h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:3px;margin-top:1.6em}
@@ -80,11 +80,11 @@ def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
     loop.line(b.u_v, b.x_um * factor, "measured", COLOURS[0], width=2.6)
     loop.line(b.u_v, b.x_model_um * factor, "model", COLOURS[1], width=1.0)
     residual = b.x_um - b.x_model_um
-    rf, ru = length_unit(float(np.max(np.abs(residual))) if residual.size else 1.0)
+    rf, ru = ERROR_UNIT
     res = Panel(
         520,
         300,
-        f"residual, held-out RMS {fmt_length(b.held_out_rms_um)}",
+        f"residual, held-out RMS {fmt_error_nm(b.held_out_rms_um)}",
         "time in the held-out cycles (ms)",
         f"measured − model ({ru})",
     )
@@ -97,8 +97,7 @@ def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
 def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
     """Held-out RMS per lineage step on a log scale, the noise-floor band and the 2× floor line."""
     rms = [s["validation_rms_um"] for s in steps]
-    known = [v for v in rms if v] + ([noise_floor_um] if noise_floor_um else [])
-    factor, unit = length_unit(max(known) if known else 1.0)
+    factor, unit = ERROR_UNIT
     panel = Panel(
         1040,
         320,
@@ -110,7 +109,7 @@ def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
         legend="bottom-right",
     )
     if noise_floor_um:
-        panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_length(noise_floor_um)}")
+        panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_error_nm(noise_floor_um)}")
         panel.hline(2 * noise_floor_um * factor, "2× noise floor")
     shown = [(i + 1, v * factor, s["change"] or "first fit") for i, (s, v) in enumerate(zip(steps, rms)) if v]
     panel.points([p[0] for p in shown], [p[1] for p in shown], [p[2] for p in shown])
@@ -149,8 +148,8 @@ def _model_section(row: dict, description: dict) -> str:
         ["effects", escape(" + ".join(row["effects"]))],
         ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
         ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
-        ["training RMS", fmt_length(m.get("train_rms_um"), 4)],
-        ["held-out RMS", f'<span id="model-heldout">{fmt_length(m.get("validation_rms_um"), 4)}</span>'],
+        ["training RMS", fmt_error_nm(m.get("train_rms_um"), 4)],
+        ["held-out RMS", f'<span id="model-heldout">{fmt_error_nm(m.get("validation_rms_um"), 4)}</span>'],
         ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
         ["created", escape(row["created_at"])],
         ["software", escape(row["software_version"])],
@@ -212,8 +211,8 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
             f"<code>{escape(s['model_id'])}</code>",
             escape(s["change"] or "first fit"),
             escape(" + ".join(s["effects"])),
-            f'<span class="rms-train">{fmt_length(s["train_rms_um"], 4)}</span>',
-            f'<span class="rms-heldout">{fmt_length(s["validation_rms_um"], 4)}</span>',
+            f'<span class="rms-train">{fmt_error_nm(s["train_rms_um"], 4)}</span>',
+            f'<span class="rms-heldout">{fmt_error_nm(s["validation_rms_um"], 4)}</span>',
             _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–",
         ]
         for i, s in enumerate(steps)
@@ -234,6 +233,13 @@ def _experiment(body: dict) -> str:
     return f"<pre>POST /api/sweeps\n{escape(json.dumps(body))}</pre>"
 
 
+def _tested_words(c: dict) -> str:
+    """A candidate's own test: the held-out RMS of its reference model, then with it (nm)."""
+    if c.get("tested_rms_um") is None:
+        return "–"
+    return f"{fmt_error_nm(c.get('reference_rms_um'), 4)} → {fmt_error_nm(c.get('tested_rms_um'), 4)}"
+
+
 def _diagnosis_section(d: dict) -> str:
     cands = [c for c in d.get("candidates") or [] if c.get("testable", True)]
     rows = [
@@ -242,7 +248,10 @@ def _diagnosis_section(d: dict) -> str:
             escape(c.get("kind") or ""),
             "yes" if c.get("claimed") else "no",
             _num(c.get("score"), 3),
-            fmt_length(c.get("expected_rms_um"), 4),
+            _tested_words(c),
+            fmt_error_nm(c.get("expected_rms_um"), 4)
+            if c.get("expected_rms_um") != d.get("residual_rms_um")
+            else "not fitted",
             escape(c.get("evidence") or ""),
         ]
         for c in cands
@@ -258,14 +267,25 @@ def _diagnosis_section(d: dict) -> str:
         f'<p class="verdict">Verdict: <span id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
         f"{escape(str(d.get('verdict')))}</span></p>"
         f'<p id="verdict-text">{escape(d.get("verdict_text") or "")}</p>'
-        f"<p>Held-out RMS {fmt_length(d.get('residual_rms_um'), 4)} · noise floor "
-        f'<span id="noise-floor">{fmt_length(d.get("noise_floor_um"), 4)}</span>'
+        f"<p>Held-out RMS {fmt_error_nm(d.get('residual_rms_um'), 4)} · noise floor "
+        f'<span id="noise-floor">{fmt_error_nm(d.get("noise_floor_um"), 4)}</span>'
         + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "")
         + "</p>"
         + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
         + "<h3>Candidate effects (best first)</h3>"
         + _table(
-            ["effect", "kind", "claimed", "score", "held-out RMS with it", "evidence"], rows, {3, 4}, ' id="candidates"'
+            [
+                "effect",
+                "kind",
+                "claimed",
+                "score",
+                "its test: held-out RMS, reference → with it",
+                "added to this model",
+                "evidence",
+            ],
+            rows,
+            {3, 4, 5},
+            ' id="candidates"',
         )
         + (f'<h3>Not testable with this data</h3><ul id="not-testable">{untestable}</ul>' if untestable else "")
         + (

@@ -4,7 +4,7 @@ horizontal band, dashed reference lines, labelled points and a legend; every tex
 No dependency beyond numpy, no script: a figure is a string that any browser draws (and prints
 to PDF as vectors). Panels (:class:`Panel`) are laid out side by side in one ``<svg>`` by
 :func:`figure`. Lengths that scale are shown in nm below 1 µm and in µm above
-(:func:`length_unit`, :func:`fmt_length`).
+(:func:`length_unit`, :func:`fmt_error_nm`).
 """
 
 from __future__ import annotations
@@ -27,12 +27,16 @@ def length_unit(max_abs_um: float) -> tuple[float, str]:
     return (1e3, "nm") if abs(max_abs_um) < 1.0 else (1.0, "µm")
 
 
-def fmt_length(value_um: float | None, digits: int = 3) -> str:
-    """A length in µm as text in the unit that suits it (``0.002945`` → ``2.94 nm``)."""
+#: errors and noise are in nm everywhere the user reads them (the API's texts, the dashboard, the report)
+ERROR_UNIT = (1e3, "nm")
+
+
+def fmt_error_nm(value_um: float | None, digits: int = 3) -> str:
+    """An error or noise figure given in µm, as text in nm (``0.002945`` → ``2.94 nm``)."""
     if value_um is None or not math.isfinite(value_um):
         return "–"
-    factor, unit = length_unit(value_um)
-    return f"{value_um * factor:.{digits}g} {unit}"
+    rounded = float(f"{value_um * 1e3:.{digits}g}")  # significant digits, then without an exponent
+    return f"{rounded:g} nm"
 
 
 def decimate(n_samples: int, max_points: int = MAX_CURVE_POINTS) -> slice:

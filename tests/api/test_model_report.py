@@ -20,7 +20,7 @@ from service.frontends.cli_remote import _models
 from service.frontends.client import Client
 from service.reports.model_report import WORST_MARK
 from service.reports.reproduce import dataset_request, refine_body
-from service.reports.svg import MAX_CURVE_POINTS, Panel, figure, fmt_length, nice_ticks
+from service.reports.svg import MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, nice_ticks
 from service.runtime.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, bearer, issue_token, wait_job
@@ -62,8 +62,8 @@ def _printed_um(text: str) -> float:
 
 
 def _as_printed(value_um: float) -> str:
-    """How the report prints a length: 4 significant digits, nm below 1 µm."""
-    return f"{value_um * 1e3:.4g} nm" if abs(value_um) < 1 else f"{value_um:.4g} µm"
+    """How the report prints an error: 4 significant digits in nm, without an exponent."""
+    return f"{float(f'{value_um * 1e3:.4g}'):g} nm"
 
 
 @pytest.mark.slow
@@ -206,8 +206,8 @@ def test_cli_writes_the_report(refined, tmp_path, capsys):
 
 # ------------------------------------------------------------------ units
 def test_lengths_scale_and_text_is_escaped():
-    assert fmt_length(0.002945) == "2.95 nm"
-    assert fmt_length(0.5) == "500 nm" and fmt_length(6.4) == "6.4 µm" and fmt_length(None) == "–"
+    assert fmt_error_nm(0.002945) == "2.95 nm"  # errors in nm, however large
+    assert fmt_error_nm(0.5) == "500 nm" and fmt_error_nm(6.4) == "6400 nm" and fmt_error_nm(None) == "–"
     assert nice_ticks(0.0, 120.0) == [0.0, 20.0, 40.0, 60.0, 80.0, 100.0, 120.0]
     x = np.linspace(0, 1, 20_001)
     panel = Panel(400, 300, "a <b> & 'c'", "t (s)", "x (µm)").line(x, x**2, "y < 1")

@@ -49,7 +49,8 @@ UNSEEN_RATE_TESTED = ("rate_dependence",)
 
 
 def _fmt_nm(v_um) -> str:
-    return f"{v_um * 1e3:.3g} nm"
+    """An error or noise figure (µm) in nm, three significant digits, never with an exponent."""
+    return f"{float(f'{v_um * 1e3:.3g}'):g} nm"
 
 
 def _signature_words(name: str, sig: dict, floor: dict) -> str:
@@ -62,11 +63,11 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
     if name == "delay":
         if sig.get("lag_ms") is None:
             return "no lag can be measured: the model's prediction does not move in any block"
-        per = ", ".join(f"{k} Hz: {v:.3g}" for k, v in sig["lag_ms_by_frequency"].items())
+        per = ", ".join(f"{k} Hz: {1e3 * v:.3g}" for k, v in sig["lag_ms_by_frequency"].items())
         spread = sig.get("lag_ms_spread")
         return (
-            f"the residual lags the drive by {sig['lag_ms']:.3g} ms (slope-weighted mean; per block {per} ms, spread "
-            f"{spread if spread is None else f'{spread:.2g}'} ms): delay"
+            f"the residual lags the drive by {1e3 * sig['lag_ms']:.3g} µs (slope-weighted mean; per block {per} µs, "
+            f"spread {spread if spread is None else f'{1e3 * spread:.2g}'} µs): delay"
         )
     if name == "rate_dependence":
         r = sig.get("rate_r")
@@ -197,7 +198,7 @@ def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig
     test = held_out_improvement(records, res_ref, res_trial)
     against = "the model" if not reference else "the model + " + " + ".join(reference)
     how = (
-        f"against {against} (held-out RMS {v_ref:.4g} µm), adding {name} gives {v_trial:.4g} µm "
+        f"against {against} (held-out RMS {_fmt_nm(v_ref)}), adding {name} gives {_fmt_nm(v_trial)} "
         f"{_test_words(test, noise)}"
     )
     is_claimed = claimed(test, noise)
@@ -276,11 +277,16 @@ def _entry(
     evidence = (
         f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
         + (
-            f". Added to this model: {v0:.4g} → {v:.4g} µm ({100 * removed:.0f} % of the excess above the noise floor)"
+            f". Added to this model: {_fmt_nm(v0)} → {_fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
             if v != v0
             else ". Not claimed, so not fitted into this model"
         )
-        + (f"; fitted {fitted}" if fitted else "")
+        + (
+            f"; the diagnosis's own fit of this model + {name} gives {fitted} (a refine refits it, so the stored "
+            "model's parameters may differ)"
+            if fitted
+            else ""
+        )
         + "."
     )
     return {
@@ -343,8 +349,8 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     else:
         winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
     h2h = (
-        f"head to head on the model, the stack's asymmetry leaves {v_a:.4g} µm held out and the gauge's "
-        f"curvature {v_s:.4g} µm (p = {stack_better['p']:.2g} that the stack fits better, "
+        f"head to head on the model, the stack's asymmetry leaves {_fmt_nm(v_a)} held out and the gauge's "
+        f"curvature {_fmt_nm(v_s)} (p = {stack_better['p']:.2g} that the stack fits better, "
         f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)"
     )
     rows = [
@@ -523,7 +529,7 @@ def _verdict_text(
         return (
             f"missing effect: {top['effect']} (p = {top['p_value']:.2g}; {tested}this model's held-out "
             f"{_fmt_nm(v0)} → {_fmt_nm(top['expected_rms_um'])} with it added{alone}); "
-            f"held-out RMS {v0:.4g} µm against a noise floor of {noise:.3g} µm"
+            f"held-out RMS {_fmt_nm(v0)} against a noise floor of {_fmt_nm(noise)}"
         )
     rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
     if at_floor:
@@ -547,9 +553,9 @@ def _verdict_text(
             else "no block's own noise could be measured: none repeats a cycle, or none shows any noise"
         )
         text = (
-            f"complete as far as the effects library goes, but NOT at the noise floor: {rep} of the "
-            f"remaining {_fmt_nm(v0)} repeats cycle to cycle against {_fmt_nm(noise)} of noise "
-            f"({per_block}). No physical "
+            f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual is "
+            f"{_fmt_nm(v0)}; in the repeated cycles, {rep} repeats cycle to cycle against {_fmt_nm(noise)} of "
+            f"noise ({per_block}). No physical "
             f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
             f"outside the library{where}"
         )

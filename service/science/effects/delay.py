@@ -75,7 +75,7 @@ class Delay(Effect):
         return {"delay_s": float(max(res.x, 0.0))} if res.fun <= cost(theta) else theta
 
     def describe(self, theta, values):
-        return f"delay {theta['delay_s'] * 1e3:.3g} ms"
+        return f"delay {theta['delay_s'] * 1e6:.3g} µs"
 
     def parameters(self, theta, values, scales, sign):
         return {"delay_us": float(theta["delay_s"]) * 1e6}

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -50,7 +51,9 @@ def test_real_data_discovery_reaches_three_noise_floors():
     for s in run:
         for c in s["diagnosis"]["candidates"]:
             if c.get("claimed") and c["kind"] == "physical":
-                assert len(c["evidence"]) > 40 and "µm" in c["evidence"]
+                # errors in nm, the one unit for errors and noise
+                assert len(c["evidence"]) > 40 and re.search(r"\d nm", c["evidence"]), c["evidence"]
+                assert not re.search(r"held-out RMS [0-9.]+ µm", c["evidence"]), c["evidence"]
     first_rms, noise = steps[0][1], steps[-1][2]
     assert 0.3 < first_rms < 0.55  # a 10-operator PI alone: about 0.42 µm held out
     assert 0.03 < noise < 0.15  # the non-repeatable part: about 0.075 µm

@@ -101,7 +101,7 @@ function renderRun(out, r, { signal, imported }) {
       <td><button type="button" data-figures="${esc(s.model_id)}">figures</button></td></tr>`).join('')}
     </table>
     ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${esc(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
-    ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters</th><th>evidence</th></tr>
+    ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters <span class="muted">(the stored model's)</span></th><th>evidence <span class="muted">(from the diagnosis's held-out test, a fit of its own)</span></th></tr>
       ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
         <td>${Object.entries(e.parameters || {}).map(([k, v]) => `<code>${esc(k)}</code> = ${Array.isArray(v) ? v.map((x) => fmt(x)).join(', ') : fmt(v)}`).join('<br>') || '–'}</td>
         <td class="evidence">${esc(e.evidence)}</td></tr>`).join('')}</table>` : ''}
