@@ -253,7 +253,10 @@ def write_report(path: str | Path = "docs/calibration.md", bench_name: str = "de
     fig.tight_layout()
     fig.savefig(img, dpi=110)
     plt.close(fig)
-    path.write_text(_markdown(res, img.relative_to(path.parent)))
+    from service.reports.doc_sections import kept_section  # calibration_measured writes its own section
+
+    kept = kept_section(path, "paper_measured calibration")
+    path.write_text(_markdown(res, img.relative_to(path.parent)) + (f"\n{kept}" if kept else ""))
     return res
 
 
