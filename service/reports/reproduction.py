@@ -1,8 +1,9 @@
 """Reproduce the paper's Table 6 on the emulated bench: static PI, GRPI and dynamic PI RMS errors.
 
 Run ``python -m service.reports.reproduction`` to sweep Y and Z at 1, 10, 50 and 100 Hz (0–120 V biased
-sine, 5 cycles, 20 kHz) on the default bench, identify the three models the way the paper did,
-print the table beside the paper's figures and write docs/reproduction.md.
+sine, 5 cycles, 20 kHz) on the default and paper_measured benches, identify the three models the way the
+paper did, print the tables beside the paper's figures and write docs/reproduction.md (``--bench NAME``:
+one bench, printed; service/reports/reproduction_benches.py).
 
 How each model is identified (paper §2.3):
 - static PI: 10 operators (0, 6, …, 54 V), weights ≥ 0 by least squares on the 1 Hz loop only;
@@ -275,14 +276,10 @@ def _discussion(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    bench_name = argv[0] if argv else "default"
-    result = reproduce(bench_name)
-    text = render_markdown(result, bench_name) + "\n" + render_ablation(ablation(bench_name), bench_name)
-    print(text)
-    if bench_name == "default":
-        (ROOT / "docs" / "reproduction.md").write_text(text)
-    return 0
+    """Both benches (``default``, ``paper_measured``) or those named by ``--bench``: see reproduction_benches."""
+    from service.reports.reproduction_benches import main as run
+
+    return run(sys.argv[1:] if argv is None else argv)
 
 
 if __name__ == "__main__":
