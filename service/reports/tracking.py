@@ -310,7 +310,10 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
             "with the neighbours' load; `closed_loop_cpu_realtime_factor` divides by the process's own CPU "
             "time instead.",
         ]
-    path.write_text("\n".join(lines) + "\n" + NOTES)
+    from service.reports.doc_sections import kept_section  # paper_measured's section, written apart
+
+    kept = kept_section(path, "paper_measured tracking")
+    path.write_text("\n".join(lines) + "\n" + NOTES + (f"\n{kept}" if kept else ""))
 
 
 NOTES = """
