@@ -15,8 +15,10 @@ stroke is the paper's. What differs from ``calibration_fit`` (which fits ``defau
 - every one of the 12 cells counts in full, in units of log 1.25 (a margin inside the ±35 % target),
   with the 1 Hz loop width (10.5–14.5 %) and the static PI's 1 Hz error (within 1.8× of the paper's);
   the dynamic PI's 10 Hz reduction is a gentle pull, not a band;
-- the search fits the static and dynamic PI only; the GRPI (≈ 45 s per fit, 20× the rest) is fitted
-  on the result, by ``python -m service.reports.reproduction --bench paper_measured``.
+- the search fits the static and dynamic PI only; the GRPI (45–120 s per fit, 20× the rest) is fitted
+  on the result, by ``python -m service.reports.reproduction --bench paper_measured``. At 100 Hz it sits
+  just below the static PI (0.96–0.99× on a first fit), so the static PI's 100 Hz error is also held
+  below 1.25× the paper's GRPI cell.
 """
 
 from __future__ import annotations
@@ -138,6 +140,11 @@ def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
         table = dict(zip(("dynamic_joint", "grpi", "static"), PAPER_TABLE6_UM[axis][f]))
         for m in SEARCHED_MODELS:
             parts[f"{m}@{f:g}"] = _band(math.log(rms_um[m][f"{f:g} Hz"] / table[m]) / unit)
+        if f == 100.0:  # the GRPI, not searched, sits just below the static PI here (0.96–0.99× on a first fit)
+            grpi_ceiling = table["grpi"] * (1.0 + BAND)
+            parts["static_as_grpi@100"] = (
+                100.0 * max(0.0, math.log(rms_um["static"]["100 Hz"] / grpi_ceiling) / unit) ** 2
+            )
         d, s = rms_um["dynamic_joint"][f"{f:g} Hz"], rms_um["static"][f"{f:g} Hz"]
         parts[f"order@{f:g}"] = 1e4 * max(0.0, math.log(d / s) + 0.1) ** 2
     pi_1hz = abs(math.log(rms_um["static"]["1 Hz"] / PAPER[axis]["pi_rms_1hz_um"]))
