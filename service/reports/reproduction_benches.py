@@ -167,10 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=COMMAND, description=__doc__.splitlines()[0])
     parser.add_argument("name", nargs="?", help="a bench (as --bench)")
     parser.add_argument("--bench", action="append", help=f"bench(es) to run (default: {', '.join(BENCHES)})")
-    parser.add_argument("--no-pso", action="store_true", help="leave the dynamic PI's PSO fit out")
     args = parser.parse_args(argv)
     benches = (args.bench or []) + ([args.name] if args.name else []) or list(BENCHES)
-    results = {b: reproduce(b, with_pso=not args.no_pso) for b in benches}
+    results = {b: reproduce(b) for b in benches}
     if "default" in results:
         text = render_markdown(results["default"], "default") + "\n" + measured_section(results)
         text += "\n" + render_ablation(ablation("default"), "default")
