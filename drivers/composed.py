@@ -177,16 +177,6 @@ class ComposedDaq:
             self._closers.clear()
 
 
-def open_configured(name_or_path: str = "default", seed: int | None = None, overrides: dict | None = None) -> Bench:
-    """Load a bench configuration and assemble it (``open_from_config``)."""
-    from drivers.emulated.config import load_config
-
-    cfg = load_config(name_or_path, overrides)
-    if seed is None:
-        seed = int(cfg.get("seed", 0))
-    return open_from_config(cfg, seed)
-
-
 def open_from_config(cfg: dict, seed: int = 0) -> Bench:
     """Build each part as ``cfg["transport"]`` says (all emulated in-process when absent)."""
     t = check_transport(cfg.get("transport", {}))

@@ -98,7 +98,7 @@ def sweeps():
     service.science.discovery.records (a standard characterisation of an emulated bench unless
     ``plan`` says otherwise), run once per session for each set of arguments. Every call returns a
     deep copy, so a test that changes its records changes no other test's."""
-    from service.science.discovery.records import sweep_records
+    from service.lab.emulated import sweep_records
 
     done: dict[str, dict] = {}
 

@@ -1,6 +1,6 @@
 """High-fidelity emulated bench: the physics of the two-axis EVC device ("the world").
 
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
     bench = open_bench("default", seed=1)          # fixtures/benches/default.toml
     bench.parts.world.inject_fault("sensor_dropout", "y")          # now
     bench.parts.world.faults.add("loop_stall", after_s=0.4)        # scheduled (faults.py)
@@ -21,7 +21,7 @@ from drivers.emulated.world import FAULT_KINDS, World
 from drivers.interfaces import BenchParts
 
 __all__ = [
-    "open_bench",
+    "emulated_bench",
     "load_config",
     "list_benches",
     "World",
@@ -32,21 +32,9 @@ __all__ = [
 ]
 
 
-def open_bench(name_or_path: str = "default", seed: int | None = None, overrides: dict | None = None) -> Bench:
-    """Build the world and its devices from a bench configuration and return a Bench.
-
-    ``seed`` None takes the file's ``seed`` (0 if absent). Same name, seed and overrides give
-    bit-identical runs."""
-    cfg = load_config(name_or_path, overrides)
-    if seed is None:
-        seed = int(cfg.get("seed", 0))
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
-    cfg["seed"] = seed
-    if "transport" in cfg:  # a per-part transport table: serial / CAN / NI-DAQmx parts (drivers.composed)
-        from drivers.composed import open_from_config
-
-        return open_from_config(cfg, seed)
+def emulated_bench(cfg: dict, seed: int) -> Bench:
+    """The Bench of a loaded configuration ``cfg`` (``load_config``) without a ``[transport]`` table:
+    the world and its devices in process, noise ``seed``."""
     world = World(cfg, seed)
     daq, amps, sensors = build_devices(world)
     parts = BenchParts(

@@ -20,6 +20,9 @@ from drivers.interfaces import AmplifierStatus, DaqCapabilities, DriverError, Li
 class EmulatedDaq:
     """Two AO, four AI, one hardware-timed clock derived from a 100 MHz timebase."""
 
+    #: the files the stepping hook's step compiles from (a cached caller drops its cache when they change)
+    stepping_sources = K.STEP_SOURCES
+
     def __init__(self, world: World):
         self.world = world
         daq = world.config["daq"]

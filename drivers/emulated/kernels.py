@@ -507,6 +507,10 @@ def empty_diag(n: int) -> np.ndarray:
     return np.empty((n, ND))
 
 
+#: the files ``world_sample`` compiles from: a caller that compiles it into a cached kernel of its
+#: own (the control loop's runner) drops that cache when one of them changes (drivers.jit)
+STEP_SOURCES = (__file__, families.__file__)
+
 # numba keys the cache on this file alone: recompile the kernels that compile families' functions in
 # when families.py changes
 drop_stale_caches(globals(), [families.__file__])

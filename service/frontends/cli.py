@@ -7,6 +7,8 @@ import argparse
 import json
 import logging
 import sys
+from collections.abc import Callable
+from importlib.metadata import entry_points
 from pathlib import Path
 
 from service.runtime.settings import Settings
@@ -15,7 +17,7 @@ from service.runtime.settings import Settings
 def _cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from service.runtime.app import create_app
+    from service.http.app import create_app
 
     try:
         settings = _serve_settings(args)
@@ -74,10 +76,17 @@ def _cmd_warm(args: argparse.Namespace) -> int:
     return 0
 
 
+def get_benchmark(name: str) -> Callable[[], dict]:
+    """The benchmark registered as ``name`` (service.perf, pyproject.toml's "evcbench.benchmarks"
+    entry points); KeyError lists the known names."""
+    found = {ep.name: ep for ep in entry_points(group="evcbench.benchmarks")}
+    if name not in found:
+        raise KeyError(f"unknown benchmark {name!r}; known: {', '.join(sorted(found))}")
+    return found[name].load()
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     import inspect
-
-    from service.perf import get_benchmark
 
     try:
         benchmark = get_benchmark(args.name)
@@ -118,7 +127,7 @@ def _cmd_store_check(args: argparse.Namespace) -> int:
 
 def _cmd_store_repair(args: argparse.Namespace) -> int:
     from service.frontends.cli_tokens import open_store
-    from service.store.repair import StoreBusy, format_repair, repair_store
+    from service.runtime.repair import StoreBusy, format_repair, repair_store
 
     data_dir = Path(args.data_dir or Settings().data_dir)
     if not data_dir.is_dir():

@@ -22,10 +22,10 @@ import uuid
 from collections.abc import Callable, Sequence
 
 from service.lab.address import StoreAddress, open_store
+from service.science.data.holdout import split_blocks
 from service.science.discovery.parameters import physical_parameters
+from service.science.discovery.registry import model_for
 from service.science.errors import FieldError
-from service.science.fitting.validation import split_blocks
-from service.science.models.registry import model_for
 from service.store import NotFoundError, Store, clean_json
 from service.usecases.discover import diagnose_model
 from service.usecases.discover_run import discover

@@ -1,14 +1,37 @@
-"""Datasets of emulated benches recorded straight into a store, as a sweep job would record them
-(service.usecases.acquire.run_sweep: the same plan checks, arrays, block table and bench snapshot),
-without a service: the batch benchmark's and the lab tests' data.
+"""Sweeps of emulated benches without a service: as Records (``sweep_records``: the reports', the
+benchmarks' and the tests' data), or recorded straight into a store as a sweep job would record them
+(``record_emulated_sweep``; service.usecases.acquire.run_sweep: the same plan checks, arrays, block
+table and bench snapshot): the batch benchmark's and the lab tests' data.
 """
 
 from __future__ import annotations
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
+from service.science.data.plans import SinePlan, plan_for_bench, plan_from_dict, trim_blocks
+from service.science.data.record import Record
+from service.science.discovery.records import run_records
 from service.store import Store
-from service.usecases.plans import SinePlan, plan_for_bench, trim_blocks
 from service.usecases.recorder import bench_snapshot, record_arrays
+
+
+def sweep_records(
+    bench: str,
+    seed: int = 0,
+    frequencies_hz=(1.0, 10.0, 50.0, 100.0),
+    cycles: int = 5,
+    axes=("y", "z"),
+    together: bool = False,
+    plan: dict | None = None,
+    overrides: dict | None = None,
+) -> dict[str, Record]:
+    """Run a sine characterisation (or ``plan``, a /api/sweeps-style body) on the emulated bench
+    ``bench`` (fixtures/benches/<bench>.toml, noise ``seed``; its configuration changed by
+    ``overrides``, dotted keys) and return ``{axis: Record}`` (service.science.discovery.records)."""
+    if plan is not None:
+        sweep = plan_from_dict({**plan, "axes": tuple(plan.get("axes", axes))})
+    else:
+        sweep = SinePlan(axes=tuple(axes), frequencies_hz=tuple(frequencies_hz), cycles=cycles, together=together)
+    return run_records(open_bench(bench, seed, overrides), sweep, bench + ":")
 
 
 def record_emulated_sweep(

@@ -95,7 +95,7 @@ def controller_cost_us(n: int = 400_000, period: int = 200, harmonics: int = 20)
 def closed_loop(cycles: int = 100, repeats: int = 3) -> dict:
     """The FF + PID + ILC loop on case 2, ``repeats`` runs on one bench; the fastest run's figures
     (the machine is shared: the others measure the neighbours' load as much as the loop)."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
     from service.science.control.feedforward import identify
     from service.science.control.session import ILC_PID, Controller, track
     from service.science.control.trajectory import Ellipse

@@ -15,9 +15,9 @@ import warnings
 
 import numpy as np
 
+from service.lab.emulated import sweep_records
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.diagnosis import diagnose
-from service.science.discovery.records import sweep_records
 from service.science.fitting.lsq import Block, solve_blocks
 
 

@@ -23,9 +23,9 @@ from scipy.signal import lfilter
 
 from service.science.data.record import Record
 from service.science.data.signals import biased_sine
-from service.science.fitting.metrics import rms
-from service.science.fitting.pi_family import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, fit_metrics
+from service.science.fitting.metrics import fit_metrics, rms
 from service.science.models import DynamicPI, StaticPI, equal_thresholds
+from service.science.models.procedures import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage
 
 FREQUENCIES_HZ = (1.0, 10.0, 50.0, 100.0)
 SAMPLE_RATE_HZ = 20_000.0

@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from drivers.bench import RUN_BLOCK_SAMPLES, RunInterrupted
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.science.control.session import SAMPLE_RATE_HZ
 
 FS = SAMPLE_RATE_HZ

@@ -95,7 +95,7 @@ def run_loops(
     """One fresh bench per (frequency, axis), the other axis held at 0 V. Returns
     {axis: {f: (u_cmd, x_um)}}. Each run's seed depends on its frequency and axis only, so one
     axis swept alone (``axes``) gives the same records as both."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
 
     data: dict = {axis: {} for axis in axes}
     for i, f in enumerate(frequencies_hz):
@@ -162,7 +162,7 @@ def sweep_pi_rms(bench_name: str, seed: int = 0) -> dict:
     """Static-PI RMS left on a characterisation sweep: each axis driven alone (other at 0 V) at
     1, 10, 50, 100 Hz, 5 cycles, a fresh bench per record; one PI per axis fitted on all eight
     records of that axis (its undriven records included, where coupling shows)."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
 
     records = []
     for i, f in enumerate(FREQUENCIES_HZ):
@@ -191,7 +191,7 @@ def rating_rows(bench_name: str = "default", seed: int = 0) -> list[str]:
     """Markdown rows of the loop to the stacks' 150 V rating: third cycle of a 1 Hz biased sine to 120
     and to 150 V, both axes driven together; min, max, loop width at mid-voltage (descending −
     ascending) and the top slope (fit over the last 20 ms of the rise)."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
 
     rows = []
     for v_max in (120.0, 150.0):

@@ -8,8 +8,8 @@ from __future__ import annotations
 import argparse
 import warnings
 
+from service.lab.emulated import sweep_records
 from service.science.discovery.loop import discovery_run, history_figure, markdown, stops_at_ambiguity
-from service.science.discovery.records import sweep_records
 
 
 def main(argv=None) -> None:

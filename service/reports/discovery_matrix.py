@@ -25,9 +25,9 @@ import time
 
 from scipy import stats
 
+from service.lab.emulated import sweep_records
 from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
-from service.science.discovery.records import sweep_records
 
 EFFECTS = (
     "rate_dependence",

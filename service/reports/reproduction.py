@@ -27,8 +27,8 @@ from service.science import paper
 from service.science.data.record import Record
 from service.science.data.signals import biased_sine
 from service.science.fitting.metrics import rms
-from service.science.fitting.pi_family import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, identify
 from service.science.models import GRPI, StaticPI
+from service.science.models.procedures import fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, identify
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Table 6 of the paper, RMS error in µm: {axis: {f_hz: (dynamic PI, GRPI, static PI)}}.

@@ -13,10 +13,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from service.http.app import open_configured_bench
 from service.http.schemas.datasets import SweepRequest
 from service.http.schemas.models import ModelRequest
 from service.http.schemas.trajectories import TrajectoryRequest
-from service.runtime.app import open_configured_bench
 from service.runtime.jobs import JobManager
 from service.runtime.settings import Settings
 from service.science.errors import FieldError

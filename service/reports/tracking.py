@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.reports.rest_path import EFFECTS, UseCases, measure
 from service.runtime.settings import Settings
 from service.science import paper

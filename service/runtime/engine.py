@@ -376,7 +376,7 @@ def open_engine(
     bench_id: str | None = None,
 ) -> EngineBench:
     """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
-    ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench.
+    ``drivers.factory.open_bench`` takes them) and wait until it has opened the bench.
     ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there, for the
     bench ``bench_id`` (service.runtime.stop_port)."""
     ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no inherited locks or threads

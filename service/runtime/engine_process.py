@@ -287,7 +287,7 @@ def engine_main(
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _exit_on_signal)
     set_thread_nice(ENGINE_NICE)  # before any thread starts: they inherit it (service.runtime.priority)
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
 
     try:
         bench = open_bench(bench_name, seed=seed, overrides=overrides)

@@ -31,11 +31,11 @@ from pathlib import Path
 
 from service.runtime.heartbeat import is_online
 from service.science.data.datasets import units_for
+from service.science.data.plans import trim_blocks
 from service.store import Store, debris, placement, utc_now
 from service.store.arrays import ArrayStoreUnavailable
 from service.store.chunks import chunk_dir, discard, partial_root, read_chunks, read_meta
 from service.store.lock import StoreLock
-from service.usecases.plans import trim_blocks
 
 INTERRUPTED = "interrupted by restart"
 

@@ -39,15 +39,18 @@ RECORD_LAG_S = 1e-3
 
 def _emulator() -> None:
     """The buffered and idle loops (a sweep) with every hysteresis family's update."""
-    from service.science.discovery.records import sweep_records
+    from drivers.factory import open_bench
+    from service.science.data.plans import SinePlan
+    from service.science.discovery.records import run_records
 
-    sweep_records(WARM_BENCH, 0, frequencies_hz=WARM_FREQUENCIES_HZ, cycles=WARM_CYCLES)
+    sweep = SinePlan(axes=("y", "z"), frequencies_hz=WARM_FREQUENCIES_HZ, cycles=WARM_CYCLES, together=False)
+    run_records(open_bench(WARM_BENCH, 0), sweep, WARM_BENCH + ":")
 
 
 def _loop() -> None:
     """The point-by-point paths: the tracking loop's runner (the bench engine compiles it as it
     starts), its error watch, the learning kernels and the bench's one-sample step."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
     from service.science.control import ilc
     from service.science.control import kernels as control_kernels
     from service.science.control.loop import compile_runner

@@ -18,7 +18,7 @@ Problems reported, each as ``{"kind", "id", "detail"}``:
   ``offline``; recovery marks it failed at the next start).
 
 Start-up recovery (service.runtime.recovery) clears the temporary files, orphan arrays and chunks and the
-unfinished jobs; ``evcbench store repair`` (service.store.repair) clears the rest. A problem of a row in
+unfinished jobs; ``evcbench store repair`` (service.runtime.repair) clears the rest. A problem of a row in
 quarantine (service.store.quarantine: a missing or corrupt array, a dangling reference, set aside by
 repair) is listed under ``quarantined`` and no longer makes the store inconsistent.
 """

@@ -11,8 +11,8 @@ import time
 
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext, JobInterrupted, JobManager
+from service.science.data.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
 from service.store import TERMINAL_STATES, Store
-from service.usecases.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
 from service.usecases.recorder import Recorder, bench_snapshot, record_arrays
 
 

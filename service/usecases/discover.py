@@ -3,11 +3,11 @@ and walk its lineage. Records are loaded and models identified by service.usecas
 
 from __future__ import annotations
 
-from service.science.discovery.composite import fit_composite
+from service.science.data.holdout import BlockSplit, other_axes
+from service.science.discovery.composite import as_composite, fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
-from service.science.fitting.validation import BlockSplit, other_axes
 from service.store import Store
 from service.usecases.identify import load_model, load_records, require_fit_memory
 
@@ -15,7 +15,7 @@ from service.usecases.identify import load_model, load_records, require_fit_memo
 def model_effects(row: dict) -> list[str]:
     """The effects of a stored model beyond hysteresis, as discovery sees it (the composite it
     starts from: a dynamic PI is hysteresis + rate dependence)."""
-    return load_model(row).as_composite().effects
+    return as_composite(load_model(row)).effects
 
 
 def block_title(axis: str, split: BlockSplit, sample_rate_hz: float) -> str:
@@ -65,7 +65,7 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
         require_fit_memory(store, datasets, field="extra_datasets" if extra_datasets else "model_id")
         records = load_records(store, datasets, row["axis"], field="extra_datasets")
     n_ops = int(row["options"].get("n_operators", 10))
-    basis = load_model(row).as_composite()  # a stored composite fit, or the one a paper's model stands for
+    basis = as_composite(load_model(row))  # a stored composite fit, or the one a paper's model stands for
     stands_in = not basis.is_fitted
     if not basis.is_fitted or len(datasets) > len(row["datasets"]):  # (re)fitted, warm at its transforms
         basis = fit_composite(records, basis.effects, n_ops, basis.theta)

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from service.runtime.jobs import JobContext, JobInterrupted
+from service.science.discovery.composite import as_composite
 from service.science.discovery.loop import discovery_step, needed_experiment, next_effect
 from service.science.discovery.parameters import physical_parameters
 from service.science.effects import EFFECTS, ordered
@@ -49,7 +50,7 @@ def discover(
     axis, datasets = row["axis"], list(row["datasets"])
     n_operators = int((row["options"] or {}).get("n_operators", 10))
     records = load_records(store, datasets, axis)
-    start = load_model(row).as_composite()
+    start = as_composite(load_model(row))
     effects, theta = list(start.effects), dict(start.theta)
     model = start if start.is_fitted else None  # a paper's PI stands for the unfitted composite
     run = {"start_model_id": model_id, "axis": axis, "steps": [], "experiments": [], "added": {}, "suggested": []}

@@ -2,7 +2,7 @@
 
 ``load_records`` is the one dataset loader (a FieldError naming the field when a dataset cannot be
 modelled); ``check_identify_request`` refuses a bad request (naming the field) before any job is
-queued; ``identify`` is the job body for every model kind (service.science.models.registry);
+queued; ``identify`` is the job body for every model kind (service.science.discovery.registry);
 ``compare`` predicts a stored dataset with a stored model. No branch on the model kind: the
 models' contract (service.science.models.contract) does the rest.
 """
@@ -14,16 +14,17 @@ import numpy as np
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.datasets import stored_sample_rate_hz
 from service.science.data.export import json_stride
+from service.science.data.holdout import split_blocks
 from service.science.data.record import Record
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
+from service.science.discovery.registry import MODELS, model_for, model_from_dict
 from service.science.effects import EFFECT_NAMES, ordered
 from service.science.errors import FieldError
 from service.science.fitting.memory import memory_shortfall
-from service.science.fitting.validation import evaluate_record, split_blocks, trained_loops_v
+from service.science.fitting.validation import evaluate_record, trained_loops_v
 from service.science.fitting.validation import metrics as sample_metrics
-from service.science.models.registry import MODELS, model_for, model_from_dict
 from service.store import NotFoundError, Store
 
 #: Effect names the identification accepts (the identification's effects, plus the ``operators`` capacity candidate).

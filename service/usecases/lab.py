@@ -8,6 +8,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 
 from service.runtime.heartbeat import OFFLINE_AFTER_HEARTBEATS, age_s, is_online
+from service.science.discovery.composite import as_composite
 from service.science.discovery.parameters import physical_parameters
 from service.store import IntegrityError, NotFoundError, Store, clean_json, json_sha256
 from service.store.benches import dataset_counts, latest_models
@@ -55,7 +56,7 @@ def discovered_parameters(model_row: dict) -> dict[str, dict[str, float]]:
     """The physical parameters of a stored model (a composite's effects; a paper's PI has none)."""
     if json_sha256(model_row["parameters"]) != model_row["parameters_sha256"]:
         raise IntegrityError(f"model {model_row['id']}: parameters do not match their sha256")
-    composite = load_model(model_row).as_composite()
+    composite = as_composite(load_model(model_row))
     return clean_json(physical_parameters(composite)) if composite.is_fitted else {}
 
 

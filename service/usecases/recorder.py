@@ -1,6 +1,6 @@
 """The recorder: how every acquisition becomes one stored dataset (sweeps, trajectories, imports).
 
-Plans only describe what to run (service.usecases.plans, ``track_plan``); the bench runs them
+Plans only describe what to run (service.science.data.plans, ``track_plan``); the bench runs them
 (``Bench.run``, ``Bench.execute``: in this process or in the engine's, service/runtime/engine.py);
 the recorder keeps what they measured:
 

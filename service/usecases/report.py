@@ -1,4 +1,4 @@
-"""The model report (GET /api/models/{id}/report): gathers what service.reports.model_report draws.
+"""The model report (GET /api/models/{id}/report): gathers what service.render.model_report draws.
 
 The model's datasets are read once: the same records feed the diagnosis and the per-block
 figures, and of each record only its blocks' held-out cycles, decimated, are kept for the page.
@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.reports.model_report import BlockCurves, block_figure, history_figure, render_report
-from service.reports.reproduce import commands
-from service.reports.svg import decimate
+from service.render.model_report import BlockCurves, block_figure, history_figure, render_report
+from service.render.reproduce import commands
+from service.render.svg import decimate
 from service.science.data.record import Record
 from service.science.fitting.metrics import rms
 from service.store import Store, utc_now

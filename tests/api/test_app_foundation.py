@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client
 
@@ -55,7 +55,7 @@ def test_the_web_process_starts_without_scipy_signal_or_stats(tmp_path):
     code = (
         "import sys\n"
         "from fastapi.testclient import TestClient\n"
-        "from service.runtime.app import create_app\n"
+        "from service.http.app import create_app\n"
         "from service.runtime.settings import Settings\n"
         f"app = create_app(Settings(data_dir={str(tmp_path)!r}, bench='default', seed=0, auth='off'))\n"
         "with TestClient(app) as client:\n"

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, job_ended, wait_job
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, job_ended, wait_job
 
@@ -144,7 +144,7 @@ def test_auto_gains_meet_their_targets_and_track_better_than_feedforward_alone(h
 def test_tuned_is_what_auto_gives_on_the_default_bench():
     """tuning.TUNED_PID (the "tuned" preset) equals auto on the default bench (seed 0) with the static PIs
     of its 1 Hz 0–120 V loop, to 5 % per gain."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
     from service.science.control.feedforward import identify
     from service.science.control.session import SAMPLE_RATE_HZ
     from service.science.control.tuning import TUNED_PID, bench_plants, tune

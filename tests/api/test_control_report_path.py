@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.http.app import create_app
 from service.reports.rest_path import ROWS, Refused, UseCases, first_models, identify_for, measure
 from service.reports.tracking_error_spectrum import error_harmonics
-from service.runtime.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, job_ended, wait_job
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from service.frontends.client import Client
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ, DataError, parse_table
 from service.science.data.export import JSON_DEFAULT_MAX_POINTS, csv_chunks

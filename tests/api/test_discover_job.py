@@ -14,7 +14,7 @@ import pytest
 
 from service.frontends.cli_remote import discovery_text
 from service.frontends.client import Client
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.jobs import JobContext
 from service.runtime.settings import Settings
 from service.science.discovery.loop import discovery_run, stops_at_ambiguity

@@ -7,7 +7,7 @@ import warnings
 
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, wait_job
 

@@ -9,7 +9,7 @@ import warnings
 
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from service.science.discovery.diagnosis import diagnose
 from service.science.fitting import memory

@@ -10,7 +10,7 @@ import codecs
 import numpy as np
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from service.science.data.datasets import DataError, parse_table
 from tests.support.api_client import authed_client

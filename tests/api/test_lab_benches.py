@@ -12,7 +12,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.heartbeat import (
     OFFLINE_AFTER_HEARTBEATS,
     BenchIdInUse,
@@ -25,6 +25,7 @@ from service.runtime.heartbeat import (
 from service.runtime.jobs import JobManager, OtherBenchJob
 from service.runtime.recovery import INTERRUPTED, recover
 from service.runtime.settings import Settings, bench_id_for
+from service.science.discovery.composite import as_composite
 from service.science.discovery.parameters import physical_parameters
 from service.store import Store
 from service.usecases.identify import load_model
@@ -249,7 +250,7 @@ def test_lab_routes_in_process(tmp_path, monkeypatch):
 
         compared = http.get("/api/lab/compare", params={"axis": "y"}).json()
         row = next(b for b in compared["benches"] if b["id"] == "creep")
-        expected = physical_parameters(load_model(app.state.store.get_model(models[2])).as_composite())
+        expected = physical_parameters(as_composite(load_model(app.state.store.get_model(models[2]))))
         assert row["model"]["parameters"]["creep"] == pytest.approx(expected["creep"], rel=1e-12)
         assert 2.0 < row["model"]["parameters"]["creep"]["creep_pct_per_decade"] < 4.5  # the bench has 3 %/decade
         assert "creep.creep_pct_per_decade" in compared["parameter_names"]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.live import LiveMonitor
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client
 

@@ -18,10 +18,10 @@ from fastapi.testclient import TestClient
 
 from service.frontends.cli_remote import _models
 from service.frontends.client import Client
-from service.reports.model_report import WORST_MARK
-from service.reports.reproduce import dataset_request, refine_body
-from service.reports.svg import MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, nice_ticks
-from service.runtime.app import create_app
+from service.http.app import create_app
+from service.render.model_report import WORST_MARK
+from service.render.reproduce import dataset_request, refine_body
+from service.render.svg import MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, nice_ticks
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, bearer, issue_token, wait_job
 

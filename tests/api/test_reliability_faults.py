@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from drivers.bench import RunInterrupted
-from drivers.emulated import open_bench
-from service.runtime.app import create_app
+from drivers.factory import open_bench
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, wait_job
 

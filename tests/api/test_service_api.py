@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from service.frontends.client import ApiError, Client
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, job_running, wait_job
 from tests.support.realdata import MODEL_VI_DO as REAL

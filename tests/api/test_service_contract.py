@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.emulated import open_bench
-from service.runtime.app import create_app
+from drivers.factory import open_bench
+from service.http.app import create_app
 from service.runtime.jobs import JobInterrupted
 from service.runtime.settings import Settings
 from service.science.control.safety import ControlRefused

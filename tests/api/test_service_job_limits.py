@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.jobs import JobManager, QueueFull
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, Settings
 from tests.support.api_client import authed_client, job_running, wait_job

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, job_ended, wait_job
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from sqlalchemy import Column, MetaData, Table, insert, inspect
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from service.store import Store, tables
 from service.store.check import check_store

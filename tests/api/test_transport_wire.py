@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from drivers.bench import RunInterrupted
-from drivers.composed import check_transport, open_configured
+from drivers.composed import check_transport
 from drivers.emulated import kernels as K
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.frontends.client import Client
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, job_running, wait_job
 
@@ -56,7 +56,7 @@ def test_a_sweep_over_serial_and_can_matches_the_in_process_emulator(tmp_path):
 
 
 def _wire_bench():
-    return open_configured("default_wire", seed=2)
+    return open_bench("default_wire", seed=2)
 
 
 def _run_with_fault(bench, inject):
@@ -140,7 +140,7 @@ def test_transport_table_is_checked():
 
 
 def test_gauges_on_ai_with_can_for_configuration_and_faults():
-    wire = open_configured("default_wire", seed=2, overrides={"transport.sensors.positions": "ai"})
+    wire = open_bench("default_wire", seed=2, overrides={"transport.sensors.positions": "ai"})
     local = open_bench("default", seed=2)
     u = 60.0 * (1 - np.cos(2 * np.pi * 20.0 * np.arange(4 * BLOCK) / FS))
     try:

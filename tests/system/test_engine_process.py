@@ -17,7 +17,7 @@ import httpx
 import numpy as np
 import pytest
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from service.runtime.stop_port import STOP_PATH
 from tests.support.api_client import authed_client, bearer, job_running, wait_job

@@ -199,7 +199,7 @@ def test_chunks_are_a_gapless_prefix_and_recovery_rebuilds_a_trajectory_once(tmp
 
 
 def test_a_finished_sweep_leaves_no_chunks(tmp_path):
-    from service.runtime.app import create_app
+    from service.http.app import create_app
     from service.runtime.settings import Settings
     from tests.support.api_client import authed_client
 

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from drivers.watchdog import SafetyConfig, Watchdog
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from service.science.control.session import SCANNED_PID, Controller, track
 from service.science.control.trajectory import Ellipse

@@ -20,8 +20,8 @@ from sqlalchemy import select
 
 from service.frontends.cli_tokens import serve_refusal
 from service.frontends.client import Client, resolve_token
+from service.http.app import create_app
 from service.http.auth import RedactQueryToken
-from service.runtime.app import create_app
 from service.runtime.settings import Settings
 from service.security import auth
 from service.security.binding import bind_refusal, is_loopback

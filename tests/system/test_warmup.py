@@ -41,10 +41,10 @@ class Listener(event.Listener):
 
 event.register("numba:compile", Listener())
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.science.control.loop import compile_runner
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.records import sweep_records
+from service.lab.emulated import sweep_records
 from service.science.models import PAPER_MODELS
 
 records = sweep_records("bw_creep", 3, frequencies_hz=(5.0, 50.0), cycles=2)

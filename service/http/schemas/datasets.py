@@ -19,7 +19,7 @@ class SweepRequest(BaseModel):
     waveform: Literal["sine", "step", "chirp", "multisine"] = "sine"
     frequencies_hz: list[float] = Field(default=[1.0, 10.0, 50.0, 100.0], min_length=1, max_length=100)
     cycles: int = Field(default=5, ge=1, le=100_000)
-    v_min: float = 0.0  # checked against the bench's limits (service.usecases.plans), naming the field
+    v_min: float = 0.0  # checked against the bench's limits (service.science.data.plans), naming the field
     v_max: float = 120.0
     settle_s: float = Field(default=0.2, ge=0.0, le=600.0)
     sample_rate_hz: float = Field(default=20_000.0, gt=0.0, le=2_000_000.0)

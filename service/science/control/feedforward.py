@@ -10,7 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.bench import Bench
+from service.science.data.plans import SinePlan
 from service.science.data.record import Record
+from service.science.discovery.composite import fit_composite
+from service.science.discovery.records import run_records
 from service.science.fitting.metrics import rms
 from service.science.models import PAPER_MODELS, HysteresisModel
 
@@ -80,24 +83,15 @@ COMPOSITE_EFFECTS = ("delay", "dynamics")
 
 def sweep_record(bench: Bench, axis: str, frequencies_hz=SWEEP_FREQUENCIES_HZ, cycles: int = 5, v_range=(0.0, 120.0)):
     """One axis's sine sweep between ``v_range`` (V) at ``frequencies_hz``, ``cycles`` each, run on
-    ``bench`` as one record (the discovery path: service.usecases.plans plan, discovery records)."""
-    from service.science.discovery.records import _arrays, records_from_arrays
-    from service.usecases.plans import SinePlan, plan_for_bench, trim_blocks
-
-    planned = plan_for_bench(
-        SinePlan(
-            axes=(axis,),
-            frequencies_hz=tuple(frequencies_hz),
-            cycles=cycles,
-            v_min=float(v_range[0]),
-            v_max=float(v_range[1]),
-        ),
-        bench,
+    ``bench`` as one record (the discovery path: service.science.discovery.records.run_records)."""
+    sweep = SinePlan(
+        axes=(axis,),
+        frequencies_hz=tuple(frequencies_hz),
+        cycles=cycles,
+        v_min=float(v_range[0]),
+        v_max=float(v_range[1]),
     )
-    rec = bench.run(planned.u_v, planned.sample_rate_hz)
-    blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
-    (record,) = records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, (axis,), f"{axis}:")
-    return record
+    return run_records(bench, sweep, f"{axis}:")[axis]
 
 
 def identify_composite(
@@ -111,8 +105,6 @@ def identify_composite(
 ):
     """Fit a discovery composite model (hysteresis + ``effects``) on ``sweep_record`` of one axis
     (the paper's 0–120 V by default)."""
-    from service.science.discovery.composite import fit_composite
-
     return fit_composite([sweep_record(bench, axis, frequencies_hz, cycles, v_range)], list(effects), n_operators)
 
 

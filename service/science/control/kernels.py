@@ -15,9 +15,6 @@ import types
 
 import numpy as np
 
-from drivers.emulated import families as emulated_families
-from drivers.emulated import kernels as emulated_kernels
-from drivers.emulated.kernels import world_sample
 from drivers.jit import drop_stale_caches, njit
 
 KP, KI, KD, TF, ON, DB0, DB1, DB2, DA1, DA2, NPID = range(11)
@@ -140,17 +137,20 @@ def _runner(
     return n, OK
 
 
-#: the emulated DAQ's step, the compiled stepping hook the product has: its runner is compiled into
-#: numba's cache once (a runner for any other step is compiled per process: numba caches no closure
-#: and no function-typed argument, numba/numba#2065, #6251)
-STEP = world_sample
+#: the plant step the cached runner compiles in: the first step whose DAQ names the files it compiles
+#: from (``stepping_sources``: the emulated DAQ's, the compiled stepping hook the product has), set
+#: before the runner's first call. Its runner is compiled into numba's cache once (a runner for any
+#: other step is compiled per process: numba caches no closure and no function-typed argument,
+#: numba/numba#2065, #6251). Set here, not imported, so that science loads no emulator.
+STEP = None
 # the GIL is free while a period runs: handlers and the loop do not stall each other
 _CACHED_RUNNER = njit(cache=True, nogil=True)(_runner)
 
 
-def point_by_point_runner(step_fn):
-    """The compiled runner for one plant step function: the cached one for the emulator's step,
-    else one built and compiled once per process and plant.
+def point_by_point_runner(step_fn, cache_sources=None):
+    """The compiled runner for one plant step function: the cached one for the step whose DAQ names
+    ``cache_sources`` (the files the step compiles from: the emulator's), else one built and compiled
+    once per process and plant.
 
     ``runner(wargs, noise, n0, ref_um, uff_v, pid_p, pid_s, u_last, lim, trip, over, um_per_v, y_last,
     dt, x_out, u_out, ai, diag, stop) -> (samples run, status)``: a causal loop over ``ref_um.shape[0]``
@@ -158,6 +158,11 @@ def point_by_point_runner(step_fn):
     trips on divergence. ``u_last``, ``y_last``, ``over``, ``pid_s`` carry state across calls.
     ``stop`` (uint8[1], e.g. ``BenchSession.stop_flag``) is polled every STOP_CHECK_SAMPLES samples:
     non-zero returns STOPPED. The runner releases the GIL, so another thread can raise it mid-period."""
+    global STEP
+    if cache_sources and STEP is None:
+        STEP = step_fn
+        # numba keys the cache on this file alone: recompile the runner when the step's files change
+        drop_stale_caches(globals(), cache_sources)
     if step_fn is STEP:
         return _CACHED_RUNNER
     key = id(step_fn)
@@ -185,7 +190,3 @@ def watch_block(ref_um, x_um, trip, over):
             else:
                 over[a] = 0.0
     return ref_um.shape[0], OK
-
-
-# numba keys the cache on this file alone: recompile the runner when the emulator's kernels change
-drop_stale_caches(globals(), [emulated_kernels.__file__, emulated_families.__file__])

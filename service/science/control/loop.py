@@ -96,7 +96,7 @@ def compile_runner(bench: Bench):
     if hook is None:
         return None
     step_fn, args, take_noise = hook
-    runner = CK.point_by_point_runner(step_fn)
+    runner = CK.point_by_point_runner(step_fn, getattr(bench.parts.daq, "stepping_sources", None))
     noise, n0 = take_noise(0)
     empty = np.zeros((0, 2))
     runner(

@@ -34,6 +34,7 @@ from service.science.control.stability import (
     pid_response,
     plant_response,
 )
+from service.science.discovery.composite import as_composite
 
 #: damping ratio assumed for a flexure mode no model has identified (lighter than typical: a safe guess)
 ASSUMED_DAMPING = 0.02
@@ -91,7 +92,7 @@ def largest_slope_um_per_v(model, sample_rate_hz: float, span_v: float = SLOPE_S
 def identified_mode(model) -> tuple[float, float] | None:
     """(resonance Hz, damping ratio) of the model's identified flexure dynamics, or None."""
     try:
-        theta = model.as_composite().theta
+        theta = as_composite(model).theta
     except (AttributeError, NotImplementedError, ValueError):
         return None
     dyn = theta.get("dynamics") if isinstance(theta, dict) else None

@@ -5,7 +5,7 @@ A :class:`Record` is one axis of one contiguous measurement from a relaxed state
 ``sample_rate_hz``. Optionally it carries the commanded waveform's exact rates, its block table
 (a sweep's, or the one an import would cut: service.science.data.segmentation), the axis, the
 other axis's drive and displacement (cross-coupling), and whether the last cycles of every block
-are held out for validation (service.science.fitting.validation).
+are held out for validation (service.science.data.holdout).
 Pure numpy: no model, no store, no HTTP.
 """
 
@@ -15,9 +15,9 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from service.science.data.holdout import HELD_OUT_FRACTION, BlockSplit, split_blocks, training_mask
 from service.science.data.segmentation import blocks_without_table
 from service.science.data.signals import Waveform, dominant_period_samples, drive_derivatives
-from service.science.fitting.validation import HELD_OUT_FRACTION, BlockSplit, split_blocks, training_mask
 
 #: Fewer samples per dominant cycle than this cannot resolve a hysteresis loop.
 MIN_SAMPLES_PER_CYCLE = 20

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.holdout import other_axes
 from service.science.fitting.metrics import rms
-from service.science.fitting.validation import other_axes
 from service.science.models.kernels import segment_index
 
 SEGMENTS = ("rising, accelerating", "rising, decelerating", "falling, accelerating", "falling, decelerating")

@@ -113,12 +113,13 @@ class CompositeModel:
     @classmethod
     def for_effects(cls, effects: Sequence[str], n_operators: int = 10, parent=None) -> CompositeModel:
         """Hysteresis + ``effects``, warm-started at ``parent``'s transforms when it has any."""
-        warm = parent.as_composite().theta if parent is not None else None
+        warm = as_composite(parent).theta if parent is not None else None
         return cls(effects, n_operators, warm_theta=warm)
 
-    def as_composite(self) -> CompositeModel:
-        """Discovery starts from the model itself."""
-        return self
+    @property
+    def described_effects(self) -> tuple[str, ...]:
+        """The effects the model describes, hysteresis first (the model contract's member)."""
+        return ("hysteresis", *self.effects)
 
     # -- design -------------------------------------------------------------------------
     @property
@@ -572,6 +573,14 @@ class CompositeModel:
         m.train_rms_um = d.get("train_rms_um")
         m.sign = float(d.get("sign", 1.0))
         return m
+
+
+def as_composite(model) -> CompositeModel:
+    """The composite model discovery starts from: ``model`` itself if it is one, else hysteresis +
+    the effects ``model`` describes (``described_effects``: the dynamic PI's rate dependence), unfitted."""
+    if isinstance(model, CompositeModel):
+        return model
+    return CompositeModel(list(model.described_effects[1:]), model.n_operators)
 
 
 def fit_composite(records, effects, n_operators: int = 10, warm_theta: dict | None = None) -> CompositeModel:

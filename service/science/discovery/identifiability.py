@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.science.fitting.validation import axis_frequency_hz
+from service.science.data.holdout import axis_frequency_hz
 
 #: the characterisation that tests every rate effect (the paper's four frequencies)
 RATE_SWEEP = {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0], "cycles": 5}

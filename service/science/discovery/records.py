@@ -1,12 +1,14 @@
 """Discovery's records: one axis of one measured dataset (service.science.data.record.Record,
-held out by whole cycles: service.science.fitting.validation) with the other axis's drive and
-displacement (for coupling), from dataset-style arrays or an emulated sweep.
-Pure numpy: no store, no HTTP."""
+held out by whole cycles: service.science.data.holdout) with the other axis's drive and
+displacement (for coupling), from dataset-style arrays or a sweep run on a bench (an emulated bench
+by name: service.lab.emulated.sweep_records). Pure numpy: no store, no HTTP."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from drivers.bench import Bench
+from service.science.data.plans import plan_for_bench, trim_blocks
 from service.science.data.record import Record
 
 
@@ -36,31 +38,13 @@ def records_from_arrays(arrays: dict, sample_rate_hz: float, blocks: list, axes,
     return [record_for_axis(f"{label}{axis}", arrays, sample_rate_hz, blocks, axis) for axis in axes]
 
 
-def sweep_records(
-    bench: str,
-    seed: int = 0,
-    frequencies_hz=(1.0, 10.0, 50.0, 100.0),
-    cycles: int = 5,
-    axes=("y", "z"),
-    together: bool = False,
-    plan: dict | None = None,
-    overrides: dict | None = None,
-) -> dict[str, Record]:
-    """Run a sine characterisation (or ``plan``, a /api/sweeps-style body) on an emulated bench
-    (its configuration changed by ``overrides``, dotted keys) and return ``{axis: Record}``."""
-    from drivers.emulated import open_bench
-    from service.usecases.plans import SinePlan, plan_for_bench, plan_from_dict, trim_blocks
-
-    b = open_bench(bench, seed, overrides)
-    if plan is not None:
-        axes = tuple(plan.get("axes", axes))
-        sweep = plan_from_dict({**plan, "axes": axes})
-    else:
-        sweep = SinePlan(axes=tuple(axes), frequencies_hz=tuple(frequencies_hz), cycles=cycles, together=together)
-    planned = plan_for_bench(sweep, b)
-    rec = b.run(planned.u_v, planned.sample_rate_hz)
+def run_records(bench: Bench, sweep, label: str = "") -> dict[str, Record]:
+    """Run the sweep plan ``sweep`` (service.science.data.plans: SinePlan, …) on ``bench`` and return
+    ``{axis: Record}`` of its axes, held out by whole cycles and labelled ``<label><axis>``."""
+    planned = plan_for_bench(sweep, bench)
+    rec = bench.run(planned.u_v, planned.sample_rate_hz)
     blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
-    return {r.axis: r for r in records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, axes, bench + ":")}
+    return {r.axis: r for r in records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, sweep.axes, label)}
 
 
 def _arrays(rec) -> dict:

@@ -1,5 +1,6 @@
 """Hysteresis models of the PI family, their kernels and inverses, and the one model contract
-(contract.py) that they and the discovery composite satisfy. Every kind: registry.py."""
+(contract.py) that they and the discovery composite satisfy. Every kind:
+service.science.discovery.registry."""
 
 from service.science.models.base import HysteresisModel, equal_thresholds
 from service.science.models.grpi import GRPI

@@ -86,20 +86,14 @@ class HysteresisModel:
     @classmethod
     def for_effects(cls, effects: Sequence[str], n_operators: int = 10, parent=None):
         """This kind for an identification of ``effects``: the paper's models take only 'hysteresis'
-        (the static PI builds a composite for more; see StaticPI)."""
+        (an identification of the static PI with more fits the composite on it:
+        service.science.discovery.registry.model_for)."""
         if set(effects) - {"hysteresis"}:
             raise ValueError(
                 f"effects beyond 'hysteresis' build a composite model on a static PI; "
                 f"model {cls.name!r} takes effects ['hysteresis'] only"
             )
         return cls(n_operators=n_operators)
-
-    def as_composite(self):
-        """The composite model discovery starts from: hysteresis + the effects this model
-        describes (the dynamic PI's rate dependence), unfitted."""
-        from service.science.discovery.composite import CompositeModel
-
-        return CompositeModel(list(self.described_effects[1:]), self.n_operators)
 
     # -- the design -----------------------------------------------------------------
     def blocks(self, drive: Drive) -> list[Block]:

@@ -25,9 +25,10 @@ is used through these members only; no caller asks which kind it holds.
   held-out check the model offers).
 - ``for_effects(effects, n_operators=…, parent=None)`` (classmethod): the model an
   identification of ``hysteresis + effects`` builds from this kind (ValueError naming
-  ``effects`` if it cannot); ``as_composite()``: the composite model discovery starts from.
+  ``effects`` if it cannot); ``described_effects``: the effects the model describes, hysteresis
+  first (service.science.discovery.composite.as_composite: the composite discovery starts from).
 - ``to_dict()`` → ``{"model": name, "config": {...}, **state}`` (JSON floats round-trip exactly);
-  ``from_dict(d)`` rebuilds it (service.science.models.registry.model_from_dict for any kind).
+  ``from_dict(d)`` rebuilds it (service.science.discovery.registry.model_from_dict for any kind).
 """
 
 from __future__ import annotations
@@ -110,7 +111,8 @@ class Model(Protocol):
 
     def validate(self, records) -> dict: ...
 
-    def as_composite(self): ...
+    @property
+    def described_effects(self) -> tuple[str, ...]: ...
 
     def to_dict(self) -> dict: ...
 

@@ -27,16 +27,6 @@ class StaticPI(HysteresisModel):
         p = play_operators(self.operator_input(drive.u_v), self.thresholds_v)
         return [Block.make("weights_um_per_v", p, lower=0.0)] + self._offset_blocks(p.shape[0])
 
-    @classmethod
-    def for_effects(cls, effects, n_operators: int = 10, parent=None):
-        """A static PI for 'hysteresis' alone; with further effects, the composite model (whose
-        base is this static PI) of ``hysteresis + effects``."""
-        if set(effects) - {"hysteresis"}:
-            from service.science.discovery.composite import CompositeModel
-
-            return CompositeModel.for_effects(effects, n_operators, parent)
-        return cls(n_operators=n_operators)
-
     def inverse(self, x_ref_um, *, sample_rate_hz=None, u_limits_v=None, method: str = "analytic"):
         """Voltage (V) that makes the model output ``x_ref_um`` from relaxed operators.
 
@@ -79,7 +69,7 @@ class DynamicPI(HysteresisModel):
 
     α in µm·s/V² (``alpha_um_per_v2_s``), β in µm·s²/V² (``beta_um_per_v2_s2``), segment s
     from the signs of (u̇, ü) per eq. 3. ``fit`` solves ω ≥ 0, α, β and the offset jointly
-    by exact least squares; the paper's two-stage and PSO procedures are in ``service.science.fitting.pi_family``.
+    by exact least squares; the paper's two-stage and PSO procedures are in ``service.science.models.procedures``.
     """
 
     #: why a feedforward plan refuses this model's inverse when it misses (service.science.control.session)

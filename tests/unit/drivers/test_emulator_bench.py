@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from drivers.bench import Bench, RunInterrupted
-from drivers.emulated import FAULT_KINDS, list_benches, load_config, open_bench
+from drivers.emulated import FAULT_KINDS, list_benches, load_config
+from drivers.factory import open_bench
 from drivers.interfaces import Amplifier, Daq, DisplacementSensor, DriverError, LimitError
 from service.science.data import signals
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from drivers.emulated import kernels as K
-from drivers.emulated import load_config, open_bench
+from drivers.emulated import load_config
+from drivers.factory import open_bench
 from service.reports.calibration import PAPER, biased_sine, last_cycle, loop_width, sweep_pi_rms
 from service.science.data import signals
 

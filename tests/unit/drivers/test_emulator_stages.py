@@ -13,7 +13,8 @@ import pytest
 from scipy import signal
 
 from drivers.emulated import kernels as K
-from drivers.emulated import load_config, open_bench
+from drivers.emulated import load_config
+from drivers.factory import open_bench
 from drivers.interfaces import LimitError
 
 FS = 20000.0

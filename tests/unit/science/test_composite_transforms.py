@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.science.control.feedforward import sweep_record
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.science.control.feedforward import identify, identify_composite, identify_composite_for
 from service.science.control.safety import ControlRefused
 from service.science.control.session import SCANNED_PID, Controller, plan, track

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.science.control import kernels as CK
 from service.science.control.loop import PIDGains
 from service.science.control.safety import ControlRefused, available_modes

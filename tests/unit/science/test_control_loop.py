@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.emulated import open_bench
+from drivers.factory import open_bench
 from service.science.control.feedforward import identify
 from service.science.control.session import ILC_PID, PAPER_PID, SCANNED_PID, Controller, track
 from service.science.control.trajectory import Ellipse

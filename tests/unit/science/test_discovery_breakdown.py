@@ -40,7 +40,7 @@ def test_the_other_axiss_block_is_named_as_the_other_axiss():
 
 def test_a_block_title_names_the_axis_the_block_drove():
     """usecases.discover.block_title: Y's own block is "Y …", Z's block in Y's record is "Z …, Y undriven"."""
-    from service.science.fitting.validation import BlockSplit
+    from service.science.data.holdout import BlockSplit
     from service.usecases.discover import block_title
 
     block = {"index": 1, "start": 0, "stop": 1000, "kind": "sine", "cycles": 5, "frequency_hz": 5.0}

@@ -101,7 +101,7 @@ def test_a_foreign_record_imported_over_rest_names_its_experiments_for_the_stage
     sweeps that would test the rate effects over the record's own range, for the stage that
     recorded it; the bench refuses to run them for this model (allow_experiments, 422), and a
     sweep body over ±150 V is refused naming v_min — measured data is not a command."""
-    from service.runtime.app import create_app
+    from service.http.app import create_app
     from service.runtime.settings import Settings
     from tests.support.api_client import authed_client, wait_job
 

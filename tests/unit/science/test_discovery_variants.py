@@ -79,9 +79,9 @@ def test_nothing_physical_is_left_after_adding_dynamics(axis, sweeps):
 
 @_shared("delay")
 def test_ambiguity_names_a_runnable_experiment(sweeps):
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
     from service.http.sweeps import SweepRequest
-    from service.usecases.plans import plan_for_bench, plan_from_dict
+    from service.science.data.plans import plan_for_bench, plan_from_dict
 
     d = _first_diagnosis(sweeps, "delay", "y")
     assert d["candidates"][0]["effect"] == "delay"
@@ -95,9 +95,9 @@ def test_a_gauge_bow_the_sweep_cannot_separate_from_asymmetry_is_named_with_its_
     """Bouc–Wen stack, gauge bowed 1.2 % of its span, axis Y: the gauge's curvature fits the held-out
     cycles better than the stack's asymmetry, but not significantly (quasi-static data), so it is
     named first and the pair comes back as an ambiguity with a sweep the bench can run."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
     from service.http.sweeps import SweepRequest
-    from service.usecases.plans import plan_for_bench, plan_from_dict
+    from service.science.data.plans import plan_for_bench, plan_from_dict
 
     d = diagnose([sweeps("bw_sensor_nonlinearity", seed=0)["y"]])
     assert d["candidates"][0]["effect"] == "sensor_nonlinearity" and d["candidates"][0]["claimed"]

@@ -8,9 +8,9 @@ import pytest
 from service.perf.identification import lagged_pi_loops
 from service.science.data.record import Record
 from service.science.data.signals import biased_sine, multi_sine
-from service.science.fitting.pi_family import fit_metrics
+from service.science.discovery.registry import MODELS, model_from_dict
+from service.science.fitting.metrics import fit_metrics
 from service.science.models import GRPI, PAPER_MODELS, DynamicPI, StaticPI
-from service.science.models.registry import MODELS, model_from_dict
 from tests.support.pi_truths import FS, WEIGHTS, dynamic_truth, grpi_truth, static_truth
 from tests.support.realdata import MODEL_VI_DO as REAL
 

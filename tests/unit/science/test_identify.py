@@ -7,19 +7,12 @@ from scipy.optimize import lsq_linear
 from service.perf.identification import run_identification_benchmark
 from service.science.data.record import Record
 from service.science.data.signals import biased_sine
-from service.science.fitting.pi_family import (
-    Block,
-    evaluate,
-    fit_dynamic_pi_pso,
-    fit_dynamic_pi_two_stage,
-    fit_metrics,
-    identify,
-    pso_minimize,
-    solve_blocks,
-    stack_blocks,
-)
+from service.science.fitting.lsq import Block, solve_blocks, stack_blocks
+from service.science.fitting.metrics import fit_metrics
+from service.science.fitting.pso import pso_minimize
 from service.science.models import GRPI, DynamicPI, StaticPI, equal_thresholds
 from service.science.models.contract import Drive
+from service.science.models.procedures import evaluate, fit_dynamic_pi_pso, fit_dynamic_pi_two_stage, identify
 from tests.support.pi_truths import FS, WEIGHTS, dynamic_truth
 
 

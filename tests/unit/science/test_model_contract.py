@@ -16,10 +16,10 @@ import pytest
 from scipy.signal import lfilter
 
 from service.science.data.record import Record
-from service.science.discovery.composite import CompositeModel
+from service.science.discovery.composite import CompositeModel, as_composite
+from service.science.discovery.registry import MODELS, model_for, model_from_dict
 from service.science.models import GRPI, DynamicPI, StaticPI
 from service.science.models.contract import Model
-from service.science.models.registry import MODELS, model_from_dict
 from tests.support.pi_truths import static_truth
 
 FS = 5_000.0  # Hz
@@ -178,13 +178,13 @@ def test_bad_input_is_refused_naming_the_field(fitted, records):
 def test_identification_builds_every_kind_through_the_registry():
     """A request's (kind, effects) names the model; the paper's models refuse effects, the static
     PI with effects is the composite on it."""
-    assert isinstance(MODELS["static_pi"].for_effects(["hysteresis", "creep"]), CompositeModel)
+    assert isinstance(model_for("static_pi", ["hysteresis", "creep"]), CompositeModel)
     assert MODELS["composite"].for_effects(["hysteresis"]).effects == []
     for kind in ("dynamic_pi", "grpi"):
         with pytest.raises(ValueError, match="takes effects \\['hysteresis'\\] only"):
             MODELS[kind].for_effects(["hysteresis", "creep"])
-    assert DynamicPI().as_composite().effects == ["rate_dependence"]
-    assert StaticPI().as_composite().effects == []
+    assert as_composite(DynamicPI()).effects == ["rate_dependence"]
+    assert as_composite(StaticPI()).effects == []
 
 
 def test_the_gauge_stage_is_fitted_and_inverted(records):

@@ -5,14 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.science.data.holdout import split_blocks, training_mask
 from service.science.data.record import Record
-from service.science.fitting.validation import (
-    evaluate_record,
-    fit_on_training_rows,
-    metrics,
-    split_blocks,
-    training_mask,
-)
+from service.science.fitting.validation import evaluate_record, fit_on_training_rows, metrics
 from service.science.models import PAPER_MODELS
 
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from service.runtime.repair import repair_store
 from service.store import ArrayStoreUnavailable, IntegrityError, Store, placement
 from service.store.check import check_store
-from service.store.repair import repair_store
 
 ROOT = Path(__file__).resolve().parents[3]
 META = {"source": "import", "axes": ["y"], "sample_rate_hz": 1000.0}
@@ -231,7 +231,7 @@ def _csv(seed: int) -> bytes:
 
 @pytest.mark.slow
 def test_the_store_going_away_gives_503_naming_it_and_loses_nothing(tmp_path, s3, bucket_url):
-    from service.runtime.app import create_app
+    from service.http.app import create_app
     from service.runtime.settings import Settings
     from tests.support.api_client import authed_client
 

@@ -210,7 +210,7 @@ def test_the_service_runs_on_postgresql(postgres_url, tmp_path):
     """The whole service with its metadata in PostgreSQL: a sweep (with its nested bench
     configuration), an identification, and a restart that finds both unchanged."""
     from service.frontends.client import Client
-    from service.runtime.app import create_app
+    from service.http.app import create_app
     from service.runtime.settings import Settings
     from tests.support.api_client import authed_client
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.usecases.plans import (
+from service.science.data.plans import (
     ChirpPlan,
     MultisinePlan,
     PlanError,

@@ -1,14 +1,18 @@
 """Every model kind, by the name it is stored and requested under: the paper's static PI,
 dynamic PI and GRPI, and the discovery composite. Callers rebuild and build models through
-it and never ask which kind they hold (service.science.models.contract)."""
+it and never ask which kind they hold (service.science.models.contract). It lives in discovery,
+above the models, because the composite is one of the kinds."""
 
 from __future__ import annotations
 
 from service.science.discovery.composite import CompositeModel
-from service.science.models import PAPER_MODELS
+from service.science.models import PAPER_MODELS, StaticPI
 
 #: name -> class, every kind a stored model or an identification request may name
 MODELS: dict[str, type] = {**PAPER_MODELS, CompositeModel.name: CompositeModel}
+#: the kind the composite is built on: an identification of it with effects beyond hysteresis
+#: fits the composite of ``hysteresis + effects`` (whose base is this static PI)
+COMPOSITE_BASE = StaticPI
 
 
 def model_from_dict(d: dict):
@@ -24,4 +28,7 @@ def model_for(name: str, effects, n_operators: int = 10, parent=None):
     (``parent``: the stored model it refines). ValueError naming ``model`` or ``effects``."""
     if name not in MODELS:
         raise ValueError(f"model: unknown model {name!r}; use one of {', '.join(MODELS)}")
-    return MODELS[name].for_effects(effects, n_operators, parent)
+    kind = MODELS[name]
+    if kind is COMPOSITE_BASE and set(effects) - {"hysteresis"}:
+        kind = CompositeModel
+    return kind.for_effects(effects, n_operators, parent)

@@ -76,7 +76,7 @@ def open_configured_bench(settings: Settings) -> Bench:
             stop_address=(settings.host, settings.stop_port),
             bench_id=settings.bench_id,
         )
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
 
     return open_bench(settings.bench, seed=settings.seed)
 

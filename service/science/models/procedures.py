@@ -1,4 +1,8 @@
-"""The paper's procedures for the dynamic PI (§2.3): ω from the slowest loop, then α, β.
+"""Identification of the paper's models: ``identify(kind, records)``, and the paper's procedures
+for the dynamic PI (§2.3): ω from the slowest loop, then α, β.
+
+    model = identify("dynamic_pi", [r1, r10, r50, r100])
+    fit_metrics(r100.x_um, model.predict(r100))      # service.science.fitting.metrics
 
 Stage 1 fits a static PI (ω ≥ 0 and the offset) on the 1 Hz loop; stage 2 fits the eight
 rate parameters with ω fixed, either exactly (linear least squares) or by the paper's PSO.
@@ -11,11 +15,15 @@ import numpy as np
 
 from service.science.data.record import Record, as_record_list
 from service.science.fitting.lsq import solve_blocks, stack_blocks
+from service.science.fitting.metrics import fit_metrics
 from service.science.fitting.pso import PSOResult, pso_minimize
+from service.science.models import PAPER_MODELS, HysteresisModel
 from service.science.models.base import equal_thresholds
 from service.science.models.contract import Drive
 from service.science.models.pi import DynamicPI, StaticPI
 
+#: ``identify("dynamic_pi", ..., method=...)``: the joint exact fit or the paper's procedures.
+DYNAMIC_METHODS = ("joint", "two_stage", "pso")
 RATE_BLOCKS = ("alpha_um_per_v2_s", "beta_um_per_v2_s2")
 #: Rows per chunk when scoring all particles (bounds the (rows, particles) temporary).
 PSO_CHUNK_ROWS = 16384
@@ -88,3 +96,29 @@ def fit_dynamic_pi_pso(
     model.beta_um_per_v2_s2 = result.x[4:].copy()
     model.train_rms_um = result.cost  # eq. 12 over all records
     return model, result
+
+
+def identify(model_name: str, data: Record | list[Record], method: str = "joint", **options) -> HysteresisModel:
+    """Fit the registered model ``model_name`` to ``data`` (one Record or several, jointly).
+
+    ``options`` go to the model's constructor (``n_operators``, ``thresholds_v``,
+    ``fit_offset``); for ``dynamic_pi`` with ``method="two_stage"|"pso"`` they go to the
+    procedure (``static_data``, ``n_operators``, ``fit_offset``, PSO settings).
+    """
+    if model_name not in PAPER_MODELS:
+        raise ValueError(f"unknown model {model_name!r}; known: {', '.join(PAPER_MODELS)}")
+    if method != "joint":
+        if model_name != "dynamic_pi" or method not in DYNAMIC_METHODS:
+            raise ValueError(
+                f"method {method!r} is not available for {model_name!r}; "
+                f"dynamic_pi takes one of {', '.join(DYNAMIC_METHODS)}, other models 'joint'"
+            )
+        if method == "two_stage":
+            return fit_dynamic_pi_two_stage(data, **options)
+        return fit_dynamic_pi_pso(data, **options)[0]
+    return PAPER_MODELS[model_name](**options).fit(data)
+
+
+def evaluate(model: HysteresisModel, data: Record | list[Record]) -> list[dict]:
+    """``fit_metrics`` of ``model`` on each record, labelled."""
+    return [{"label": s.label, **fit_metrics(s.require_x(), model.predict(s))} for s in as_record_list(data)]

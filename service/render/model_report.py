@@ -16,7 +16,7 @@ from html import escape
 
 import numpy as np
 
-from service.reports.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, length_unit
+from service.render.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, length_unit
 
 CSS = """body{font-family:system-ui,sans-serif;max-width:1120px;margin:24px auto;padding:0 16px;color:#222}
 h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:3px;margin-top:1.6em}

@@ -30,7 +30,7 @@ def _best(fn, repeats: int) -> float:
 
 def _compiled_modes(bench: str, overrides: dict | None, ref: np.ndarray, ao: np.ndarray, repeats: int):
     """(bench, best closed-loop seconds, best buffered seconds) on a fresh bench."""
-    from drivers.emulated import open_bench
+    from drivers.factory import open_bench
 
     b = open_bench(bench, seed=0, overrides=overrides)
     world, daq = b.parts.world, b.parts.daq
