@@ -83,6 +83,7 @@ test: $(CORE_STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/lint-imports
 
 ## The edit loop: the same, less the tests marked slow, realtime, browser or postgres (pyproject.toml).
 test-fast: $(STAMP)
