@@ -20,8 +20,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from service.science.data.record import Record, as_record_list, finite_array
-from service.science.data.signals import sensitivity_sign
 from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
+from service.science.discovery.composite_fit import FitProblem
 from service.science.discovery.composite_inverse import (
     COMPOSITE_LIMITS_V,
     FIXED_POINT_ITERATIONS,
@@ -29,12 +29,11 @@ from service.science.discovery.composite_inverse import (
     invert_transforms,
 )
 from service.science.effects import EFFECTS, RecordContext, ordered
-from service.science.effects.base import sum_of_taps
 from service.science.effects.dynamics import NO_MODE
 from service.science.effects.harmonics import harmonic_data
 from service.science.effects.operators import OPERATOR_FACTOR
 from service.science.effects.sensor_nonlinearity import OUTPUT_ROUNDS
-from service.science.fitting.lsq import Block, solve_blocks
+from service.science.fitting.lsq import Block
 from service.science.fitting.metrics import rms
 from service.science.fitting.validation import evaluate_records, mean_of
 from service.science.models.base import equal_thresholds
@@ -253,131 +252,107 @@ class CompositeModel:
         """Transforms named in ``fixed_theta`` keep those parameters (only the others are searched)."""
         self._setup(records)
         self._fs = records[0].sample_rate_hz
-        raw = [self.raw_blocks(Drive.of(r)) for r in records]
-        names = [b.name for b in raw[0]]
-        widths = [b.width for b in raw[0]]
-        lower = [b.lower for b in raw[0]]
-        upper = [b.upper for b in raw[0]]
-        rows = [r.fit_rows(exclude_frequency_hz) for r in records]
-        target = np.concatenate([r.require_x()[i] for r, i in zip(records, rows)])
-        self.sign = sensitivity_sign(np.concatenate([r.u_v[i] for r, i in zip(records, rows)]), target)
-        if self.transforms:  # the transforms (filters, delays) need every sample of every column
-            a_raw = [np.hstack([b.columns for b in blocks]) for blocks in raw]
-        else:  # only the training rows are ever read
-            a_raw = [np.hstack([b.columns[i] for b in blocks]) for blocks, i in zip(raw, rows)]
-            rows = [slice(None)] * len(records)
-        target = self.sign * target  # fitted in the actuator's own direction (bounded weights ≥ 0)
-
-        row_local = next((n for n in self.transforms if EFFECTS[n].row_local), None)
-
-        splits = np.cumsum([0] + widths)
-
-        def design(theta, exact: str | None = None) -> np.ndarray:
-            """The training rows' columns for ``theta``. A row-local transform (a delay) is applied
-            at those rows only, after the others (which commute with it); ``exact`` names one being
-            searched, whose input columns are then cached across the search."""
-            parts = []
-            for k, r in enumerate(records):
-                local = exact or (row_local if row_local in theta else None)
-                if local is None:
-                    parts.append(self._transform_rows(a_raw[k], r.sample_rate_hz, theta, rows[k]))
-                    continue
-                if exact is not None:
-                    if k not in cache:
-                        cache[k] = self._transform(a_raw[k], r.sample_rate_hz, theta, skip=exact)
-                    parts.append(EFFECTS[local].apply_rows(cache[k], r.sample_rate_hz, theta[local], rows[k]))
-                    continue
-                # the others' output at the rows the delay reads, then the delay's weighted sum
-                taps = EFFECTS[local].taps(r.sample_rate_hz, theta[local], rows[k], r.n_samples)
-                read = np.unique(np.concatenate([tap_rows for _, tap_rows in taps]))
-                base = self._transform_rows(a_raw[k], r.sample_rate_hz, theta, read, skip=local)
-                parts.append(sum_of_taps([(w, np.searchsorted(read, tap_rows)) for w, tap_rows in taps], base))
-            return np.vstack(parts)
-
-        def solve_design(a: np.ndarray, extra: Block | None = None):
-            blocks = [Block(nm, (a[:, splits[j] : splits[j + 1]],), lower[j], upper[j]) for j, nm in enumerate(names)]
-            return solve_blocks(blocks + ([extra] if extra is not None else []), target)
-
-        def solve(theta, exact: str | None = None):
-            """Weights for ``theta`` (see ``design``)."""
-            return solve_design(design(theta, exact))
-
-        def descend(order: list[str]):
-            """Alternate searches of the free transforms in ``order`` (each with the others held),
-            from every transform at identity; (theta, solution)."""
-            theta = {name: dict(fixed_theta.get(name) or self._identity_theta(name)) for name in self.transforms}
-            sol = solve(theta)
-            for it in range(OUTER_ITERATIONS if order else 0):
-                last = it == OUTER_ITERATIONS - 1
-                for name in order:
-                    if EFFECTS[name].row_local:
-                        cache.clear()
-                        theta[name] = self._grid_refine(
-                            name, lambda th, name=name: solve({**theta, name: th}, exact=name).rms
-                        )
-                    else:  # harmonics with every weight refitted (already fine), else a grid on the
-                        # current prediction refined with the exact cost
-                        best = self._harmonic_search(name, a_raw, records, theta)
-                        exact_cost = lambda th, name=name: solve({**theta, name: th}).rms  # noqa: E731
-                        if best is None:
-                            z = [
-                                self._transform(a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
-                                for k, r in enumerate(records)
-                            ]
-                            best = self._search(name, z, records, rows, target)
-                            best = EFFECTS[name].refine(best, exact_cost) if last else best
-                        elif last:  # the harmonics ignore bounds and transients: a last exact polish
-                            best = EFFECTS[name].refine(best, exact_cost, fine=True)
-                        theta[name] = best
-                sol = solve(theta)
-            return theta, sol
-
-        # A delay and a resonance both lag the output: searched one after the other, the first takes
-        # the whole lag and the search can stay in that basin. Each free transform is searched first
-        # once and the lower training cost kept (the first order on a tie), so the answer does not
-        # hang on which basin a rounding error tips the grid into.
-        cache: dict = {}
+        problem = FitProblem(self, records, exclude_frequency_hz)
+        self.sign = problem.sign
         free = [name for name in self.transforms if name not in fixed_theta]
         local = self._config["local_theta"] or {}
         if free and set(free) <= set(local):  # refined from where another model found them
-            theta = {name: dict(fixed_theta.get(name) or local[name]) for name in self.transforms}
-            for name in free:  # one pass: the exact cost re-solves every weight
-                cache.clear()
-                exact = name if EFFECTS[name].row_local else None
-                theta[name] = self._local_refine(
-                    name, theta[name], lambda th, name=name, exact=exact: solve({**theta, name: th}, exact=exact).rms
-                )
-            sol = solve(theta)
+            start = {name: fixed_theta.get(name) or local[name] for name in self.transforms}
+            theta, sol = self._refine_locally(problem, free, start)
         else:
-            orders = [free[i:] + free[:i] for i in range(len(free))] or [[]]
-            theta, sol = descend(orders[0])
-            for order in orders[1:]:
-                other_theta, other = descend(order)
-                if other.rms < sol.rms:
-                    theta, sol = other_theta, other
-            if len(free) > 1:
-                theta, sol = self._joint_polish(free, theta, sol, solve)
+            theta, sol = self._search_transforms(problem, free, fixed_theta)
         self.theta = theta
-        coef, train_rms = sol.coef, sol.rms
-        gauge = self._output_effect()
-        if gauge is not None:  # the gauge's bow of the output, by alternating least squares
-            a = design(theta)
-            self.scales["x_mid_um"] = float(0.5 * (target.max() + target.min()))
-            self.scales["x_half_um"] = float(0.5 * (target.max() - target.min()))
-            mid, half = self.scales["x_mid_um"], self.scales["x_half_um"]
-            z = a @ sol.coef
-            width = gauge.columns(z[:1], mid, half).shape[1]
-            coef = np.append(sol.coef, np.zeros(width))  # no bow at all, unless a round beats it
-            for _ in range(OUTPUT_ROUNDS):
-                sol = solve_design(a, Block.make(gauge.block_name, gauge.columns(z, mid, half)))
-                z = a @ sol.coef[: splits[-1]]  # the output before the gauge with the new weights,
-                err = rms(target - z - gauge.columns(z, mid, half) @ sol.coef[splits[-1] :])  # read as predict does
-                if err < train_rms:
-                    coef, train_rms = sol.coef, err
-            names = names + [gauge.block_name]
-            splits = np.append(splits, splits[-1] + width)
+        coef, train_rms, names, splits = self._fit_gauge(problem, theta, sol)
         self.coef = {nm: coef[splits[j] : splits[j + 1]].copy() for j, nm in enumerate(names)}
         self.train_rms_um = train_rms
+
+    def _refine_locally(self, problem: FitProblem, free: list[str], start: dict):
+        """Each free transform refined once from ``start`` (parameters another model found: the
+        effect's local search, not its grid), the exact cost re-solving every weight; (theta, solution)."""
+        theta = {name: dict(start[name]) for name in self.transforms}
+        for name in free:
+            problem.cache.clear()
+            exact = name if EFFECTS[name].row_local else None
+            theta[name] = self._local_refine(
+                name,
+                theta[name],
+                lambda th, name=name, exact=exact: problem.solve({**theta, name: th}, exact=exact).rms,
+            )
+        return theta, problem.solve(theta)
+
+    def _search_transforms(self, problem: FitProblem, free: list[str], fixed_theta: dict):
+        """The free transforms searched from identity; (theta, solution).
+
+        A delay and a resonance both lag the output: searched one after the other, the first takes
+        the whole lag and the search can stay in that basin. Each free transform is searched first
+        once and the lower training cost kept (the first order on a tie), so the answer does not
+        hang on which basin a rounding error tips the grid into."""
+        orders = [free[i:] + free[:i] for i in range(len(free))] or [[]]
+        theta, sol = self._descend(problem, orders[0], fixed_theta)
+        for order in orders[1:]:
+            other_theta, other = self._descend(problem, order, fixed_theta)
+            if other.rms < sol.rms:
+                theta, sol = other_theta, other
+        if len(free) > 1:
+            theta, sol = self._joint_polish(free, theta, sol, problem.solve)
+        return theta, sol
+
+    def _descend(self, problem: FitProblem, order: list[str], fixed_theta: dict):
+        """Alternate searches of the free transforms in ``order`` (each with the others held),
+        from every transform at identity; (theta, solution)."""
+        theta = {name: dict(fixed_theta.get(name) or self._identity_theta(name)) for name in self.transforms}
+        sol = problem.solve(theta)
+        for it in range(OUTER_ITERATIONS if order else 0):
+            for name in order:
+                theta[name] = self._search_one(problem, name, theta, sol, last=it == OUTER_ITERATIONS - 1)
+            sol = problem.solve(theta)
+        return theta, sol
+
+    def _search_one(self, problem: FitProblem, name: str, theta: dict, sol, last: bool) -> dict:
+        """The parameters of transform ``name`` with the others held at ``theta``: a row-local one
+        (a delay) on a grid of the exact cost; the harmonics with every weight refitted (already
+        fine); else a grid on the current prediction (``sol``), refined with the exact cost in the
+        ``last`` round."""
+        if EFFECTS[name].row_local:
+            problem.cache.clear()
+            return self._grid_refine(name, lambda th: problem.solve({**theta, name: th}, exact=name).rms)
+
+        def exact_cost(th: dict) -> float:
+            return problem.solve({**theta, name: th}).rms
+
+        best = self._harmonic_search(name, problem.a_raw, problem.records, theta)
+        if best is None:
+            z = [
+                self._transform(problem.a_raw[k] @ sol.coef, r.sample_rate_hz, theta, skip=name)
+                for k, r in enumerate(problem.records)
+            ]
+            best = self._search(name, z, problem.records, problem.rows, problem.target)
+            return EFFECTS[name].refine(best, exact_cost) if last else best
+        if last:  # the harmonics ignore bounds and transients: a last exact polish
+            return EFFECTS[name].refine(best, exact_cost, fine=True)
+        return best
+
+    def _fit_gauge(self, problem: FitProblem, theta: dict, sol):
+        """The weights of ``sol`` and, when the model has an output effect (the gauge's bow), the bow
+        fitted by alternating least squares, kept if a round beats no bow; (coef, train RMS µm, block
+        names, column splits)."""
+        gauge = self._output_effect()
+        if gauge is None:
+            return sol.coef, sol.rms, problem.names, problem.splits
+        a, target, splits = problem.design(theta), problem.target, problem.splits
+        self.scales["x_mid_um"] = float(0.5 * (target.max() + target.min()))
+        self.scales["x_half_um"] = float(0.5 * (target.max() - target.min()))
+        mid, half = self.scales["x_mid_um"], self.scales["x_half_um"]
+        z = a @ sol.coef
+        width = gauge.columns(z[:1], mid, half).shape[1]
+        coef, train_rms = np.append(sol.coef, np.zeros(width)), sol.rms  # no bow at all, unless a round beats it
+        for _ in range(OUTPUT_ROUNDS):
+            sol = problem.solve_design(a, Block.make(gauge.block_name, gauge.columns(z, mid, half)))
+            z = a @ sol.coef[: splits[-1]]  # the output before the gauge with the new weights,
+            err = rms(target - z - gauge.columns(z, mid, half) @ sol.coef[splits[-1] :])  # read as predict does
+            if err < train_rms:
+                coef, train_rms = sol.coef, err
+        return coef, train_rms, problem.names + [gauge.block_name], np.append(splits, splits[-1] + width)
 
     def _output_effect(self):
         """The effect that maps the model's output (the gauge's bow), or None."""
