@@ -46,93 +46,146 @@ def discover(
     goes on). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
     effect of the final model), "steps", "effects_found", "remains", "stopped", "stop_reason",
     "needed_experiment", "experiments"}`` (units in the names)."""
-    row = store.get_model(model_id)
-    axis, datasets = row["axis"], list(row["datasets"])
-    n_operators = int((row["options"] or {}).get("n_operators", 10))
-    records = load_records(store, datasets, axis)
-    start = as_composite(load_model(row))
-    effects, theta = list(start.effects), dict(start.theta)
-    model = start if start.is_fitted else None  # a paper's PI stands for the unfitted composite
-    run = {"start_model_id": model_id, "axis": axis, "steps": [], "experiments": [], "added": {}, "suggested": []}
+    loop = _Loop.start(store, model_id, labels)
     stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} steps", None
-    joined = None  # an experiment's dataset, new in this step's fit
     for index in range(max_steps):
-        if ctx.cancelled:
-            raise JobInterrupted(
-                f"cancelled after step {index - 1}",
-                result=_result(run, None, "cancelled", "cancelled between steps", run.get("final_model")),
-                cancelled=True,
-            )
-        ctx.progress(
-            index / max_steps, f"step {index}: fitting and diagnosing hysteresis + {' + '.join(effects) or 'nothing'}"
-        )
-        model, step = discovery_step(records, effects, n_operators, theta, model=model)
-        theta, d = model.theta, step["diagnosis"]
-        step_id = (
-            model_id
-            if index == 0
-            else store_model(
-                store,
-                model,
-                records,
-                axis,
-                list(datasets),
-                ["hysteresis"] + ordered(effects),
-                n_operators,
-                run["steps"][-1]["model_id"],
-                ctx.job_id,
-                labels,
-            )["id"]
-        )
-        run["steps"].append(_step_summary(index, step_id, step, run, joined))
-        if joined is not None:
-            run["experiments"][-1]["resolved"] = _resolved(run["experiments"][-1]["effects"], d)
-        joined = None
-        run["final_model"] = model
-        ctx.progress(
-            (index + 1) / max_steps, _step_words(run["steps"][-1]), partial=_result(run, None, "running", None, model)
-        )
+        loop.raise_if_cancelled(ctx, index)
+        d = loop.step(ctx, store, index, max_steps)
         add = next_effect(d)
-        need = needed_experiment(d, stopping=add is None, done=[e["experiment"] for e in run["experiments"]])
+        need = needed_experiment(d, stopping=add is None, done=[e["experiment"] for e in loop.run["experiments"]])
         if need is not None:
             busy = bench_jobs() if bench_jobs else []
-            last = index == max_steps - 1  # no step left to use the experiment's data
-            if not allow_experiments or run_experiment is None or busy or last:
-                needed = need
-                why = (
-                    "ask again with allow_experiments to run it"
-                    if not allow_experiments
-                    else f"the bench is busy with {', '.join(busy)}"
-                    if busy
-                    else f"max_steps = {max_steps} leaves no step to use it"
-                )
-                run["suggested"].append({**need, "after_step": index, "not_run_because": why})
-                if add is None:  # done as far as the data goes; the experiment would test more
-                    stopped = _natural_stop(d)
-                    reason = f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
-                    break
-                if not continue_past_ambiguity:  # ``need`` is the ambiguity (stops_at_ambiguity's answer)
-                    stopped = "needs_experiment"
-                    reason = (
-                        f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
-                        f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
-                        f"claim) and go on"
-                    )
-                    break
-                # continue_past_ambiguity: the loop goes on with the leading claimed effect, and the
-                # step and the result name the sweep that would tell the pair apart
-            else:
-                joined = _experiment(ctx, store, run, need, run_experiment)
-                datasets.append(joined)
-                records.append(load_record(store, joined, axis))
-                model = None  # the same effects, refitted on every dataset
+            why = _why_not_run(allow_experiments, run_experiment is not None, busy, index == max_steps - 1, max_steps)
+            if why is None:
+                loop.join(store, _experiment(ctx, store, loop.run, need, run_experiment))
                 continue
+            needed = need
+            loop.run["suggested"].append({**need, "after_step": index, "not_run_because": why})
+            stop = _stop_without_experiment(d, need, add, why, continue_past_ambiguity)
+            if stop is not None:
+                stopped, reason = stop
+                break
         if add is None:
             stopped, reason = _natural_stop(d), d["verdict_text"]
             break
-        run["added"][add] = (index, next(c for c in d["candidates"] if c["effect"] == add))
-        effects, model = effects + [add], None
-    return _result(run, needed, stopped, reason, run.get("final_model"))
+        loop.add(add, index, d)
+    return _result(loop.run, needed, stopped, reason, loop.run.get("final_model"))
+
+
+class _Loop:
+    """The discover job's state between steps: the records (``datasets`` of ``axis``), the effects
+    and transform parameters so far, the last fitted model (None: fit afresh), the dataset an
+    experiment just added (``joined``) and ``run``, what the result reports."""
+
+    def __init__(self, model_id: str, row: dict, records: list, labels: dict | None):
+        self.model_id, self.axis, self.datasets = model_id, row["axis"], list(row["datasets"])
+        self.n_operators = int((row["options"] or {}).get("n_operators", 10))
+        self.records, self.labels, self.joined = records, labels, None
+        start = as_composite(load_model(row))
+        self.effects, self.theta = list(start.effects), dict(start.theta)
+        self.model = start if start.is_fitted else None  # a paper's PI stands for the unfitted composite
+        self.run = {
+            "start_model_id": model_id,
+            "axis": self.axis,
+            "steps": [],
+            "experiments": [],
+            "added": {},
+            "suggested": [],
+        }
+
+    @classmethod
+    def start(cls, store: Store, model_id: str, labels: dict | None) -> _Loop:
+        """The loop from stored model ``model_id``, on the records of its datasets."""
+        row = store.get_model(model_id)
+        return cls(model_id, row, load_records(store, list(row["datasets"]), row["axis"]), labels)
+
+    def raise_if_cancelled(self, ctx: JobContext, index: int) -> None:
+        """JobInterrupted (cancelled, with the result so far) when the job was cancelled before step ``index``."""
+        if ctx.cancelled:
+            raise JobInterrupted(
+                f"cancelled after step {index - 1}",
+                result=_result(self.run, None, "cancelled", "cancelled between steps", self.run.get("final_model")),
+                cancelled=True,
+            )
+
+    def step(self, ctx: JobContext, store: Store, index: int, max_steps: int) -> dict:
+        """Fit and diagnose hysteresis + the effects so far, store the model (step 0: the start
+        model itself), report progress; the diagnosis."""
+        ctx.progress(
+            index / max_steps,
+            f"step {index}: fitting and diagnosing hysteresis + {' + '.join(self.effects) or 'nothing'}",
+        )
+        self.model, step = discovery_step(self.records, self.effects, self.n_operators, self.theta, model=self.model)
+        self.theta, d = self.model.theta, step["diagnosis"]
+        step_id = self.model_id if index == 0 else self._store(store, ctx)
+        self.run["steps"].append(_step_summary(index, step_id, step, self.run, self.joined))
+        if self.joined is not None:
+            self.run["experiments"][-1]["resolved"] = _resolved(self.run["experiments"][-1]["effects"], d)
+        self.joined = None
+        self.run["final_model"] = self.model
+        ctx.progress(
+            (index + 1) / max_steps,
+            _step_words(self.run["steps"][-1]),
+            partial=_result(self.run, None, "running", None, self.model),
+        )
+        return d
+
+    def _store(self, store: Store, ctx: JobContext) -> str:
+        """Store this step's model with the previous step's as its parent; its id."""
+        return store_model(
+            store,
+            self.model,
+            self.records,
+            self.axis,
+            list(self.datasets),
+            ["hysteresis"] + ordered(self.effects),
+            self.n_operators,
+            self.run["steps"][-1]["model_id"],
+            ctx.job_id,
+            self.labels,
+        )["id"]
+
+    def join(self, store: Store, dataset_id: str) -> None:
+        """An experiment's dataset joins the records: the same effects are refitted on every dataset."""
+        self.joined = dataset_id
+        self.datasets.append(dataset_id)
+        self.records.append(load_record(store, dataset_id, self.axis))
+        self.model = None
+
+    def add(self, effect: str, index: int, d: dict) -> None:
+        """Add ``effect`` (claimed by diagnosis ``d`` of step ``index``) for the next step's fit."""
+        self.run["added"][effect] = (index, next(c for c in d["candidates"] if c["effect"] == effect))
+        self.effects, self.model = self.effects + [effect], None
+
+
+def _why_not_run(allowed: bool, can_run: bool, busy: list[str], last: bool, max_steps: int) -> str | None:
+    """Why a needed experiment is not run (not allowed, the bench busy, no step left to use its
+    data), or None when it is run."""
+    if allowed and can_run and not busy and not last:
+        return None
+    if not allowed:
+        return "ask again with allow_experiments to run it"
+    if busy:
+        return f"the bench is busy with {', '.join(busy)}"
+    return f"max_steps = {max_steps} leaves no step to use it"
+
+
+def _stop_without_experiment(
+    d: dict, need: dict, add: str | None, why: str, continue_past_ambiguity: bool
+) -> tuple[str, str] | None:
+    """(stopped, reason) when the loop stops for an experiment it does not run, or None when it goes
+    on (``continue_past_ambiguity``: with the leading claimed effect, the step and the result naming
+    the sweep that would tell the pair apart)."""
+    if add is None:  # done as far as the data goes; the experiment would test more
+        return _natural_stop(d), f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
+    if continue_past_ambiguity:
+        return None
+    # ``need`` is the ambiguity (stops_at_ambiguity's answer)
+    return "needs_experiment", (
+        f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
+        f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
+        f"claim) and go on"
+    )
 
 
 def _experiment(ctx: JobContext, store: Store, run: dict, need: dict, run_experiment: ExperimentRunner) -> str:
