@@ -36,74 +36,21 @@ STATES = ("queued", "running", *TERMINAL_STATES)
 def check_store(store: Store, quick: bool = False, offline: bool = False) -> dict:
     """Check ``store``; returns ``{"ok", "problems", "quarantined", "counts"}``. ``quick`` skips the checksums;
     ``offline`` says no service is running on the store (so no job may be queued or running)."""
-    problems: list[dict] = []
-
-    def problem(kind: str, record_id: str, detail: str) -> None:
-        problems.append({"kind": kind, "id": record_id, "detail": detail})
-
     datasets = store.list_datasets()
     models = store.list_models()
     jobs = {row["id"]: row for row in store.list_jobs(limit=None)}
     dataset_ids = {row["id"] for row in datasets}
     cleanup = debris.find(store.data_dir, datasets)
-    restorable = {a["id"]: a["path"] for a in cleanup if a["action"] == "restore"}
-    unreachable = None
-    for row in datasets:
-        path = store.data_dir / row["file"]
-        if not placement.in_data_dir(row["file"]) or placement.pending(row["file"]):
-            if unreachable is None or placement.pending(row["file"]):
-                try:
-                    found = placement.check_row(store, row, quick)
-                except ArrayStoreUnavailable as exc:
-                    unreachable, found = exc, None
-                    problem("array_store_unavailable", exc.url, f"{exc}: its arrays were not checked")
-                if found is not None:
-                    problem(found[0], row["id"], found[1])
-        elif not path.is_file():
-            copy = restorable.get(row["id"])
-            problem(
-                "missing_array",
-                row["id"],
-                f"array file {row['file']} is missing"
-                + (f" (its copy {copy} matches: start-up recovery or store repair moves it back)" if copy else ""),
-            )
-        elif not quick and file_sha256(path) != row["sha256"]:
-            problem("corrupt_array", row["id"], f"array file {row['file']} does not match its sha256")
-        if row["job_id"] and row["job_id"] not in jobs:
-            problem("dangling_reference", row["id"], f"dataset names job {row['job_id']}, which does not exist")
-    for action in cleanup:
-        name, size = action["path"].rsplit("/", 1)[-1], debris.format_bytes(action["bytes"])
-        if action["kind"] == "temp_file":
-            problem("temp_file", name, f"leftover temporary file {action['path']} ({size})")
-        elif action["kind"] == "orphan_array":
-            problem("orphan_array", name.rsplit(".", 1)[0], f"{action['path']} belongs to no dataset ({size})")
-    if unreachable is None and store.arrays is not None:
-        try:
-            for key, size in placement.orphan_objects(store, datasets):
-                problem(
-                    "orphan_array",
-                    key.rsplit(".", 1)[0],
-                    f"{store.arrays.where(key)} belongs to no dataset ({debris.format_bytes(size)})",
-                )
-        except ArrayStoreUnavailable as exc:
-            problem("array_store_unavailable", exc.url, f"{exc}: its objects were not listed")
-    root = partial_root(store.data_dir)
-    if root.is_dir():
-        for directory in sorted(p for p in root.iterdir() if p.is_dir()):
-            job = jobs.get(directory.name)
-            if job is None or job["state"] in TERMINAL_STATES or offline:
-                state = "no such job" if job is None else f"job is {job['state']}"
-                problem("orphan_chunks", directory.name, f"partial/{directory.name}: {state}")
+    problems, reachable = _dataset_problems(store, datasets, jobs, cleanup, quick)
+    problems += _debris_problems(cleanup)
+    if reachable and store.arrays is not None:
+        problems += _orphan_object_problems(store, datasets)
+    problems += _chunk_problems(store, jobs, offline)
     for job in jobs.values():
-        for kind, detail, _fix in job_problems(job, dataset_ids, offline):
-            problem(kind, job["id"], detail)
-    model_ids = {row["id"] for row in models}
-    for row in models:
-        missing = [d for d in row["datasets"] if d not in dataset_ids]
-        if missing:
-            problem("dangling_reference", row["id"], f"model names missing datasets {', '.join(missing)}")
-        if row["parent_id"] and row["parent_id"] not in model_ids:
-            problem("dangling_reference", row["id"], f"model's parent {row['parent_id']} does not exist")
+        problems += [
+            _problem(kind, job["id"], detail) for kind, detail, _fix in job_problems(job, dataset_ids, offline)
+        ]
+    problems += _model_problems(models, dataset_ids)
     entries, open_problems, answering = quarantine.entries(store), [], set()
     for p in problems:
         entry = quarantine.answered_by(p, entries)
@@ -111,16 +58,6 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
             open_problems.append(p)
         else:
             answering.add((entry["record_id"], entry["kind"]))
-    aside = [p for p in debris.quarantine_dir(store.data_dir).glob("*") if p.is_file()]
-    counts = {
-        "datasets": len(datasets),
-        "models": len(models),
-        "jobs": len(jobs),
-        "partial_datasets": sum(bool(row["partial"]) for row in datasets),
-        "quarantined": len(entries),
-        "quarantine_files": len(aside),
-        "quarantine_bytes": sum(p.stat().st_size for p in aside),
-    }
     quarantined = [
         {
             "kind": e["kind"],
@@ -132,7 +69,121 @@ def check_store(store: Store, quick: bool = False, offline: bool = False) -> dic
         }
         for e in entries
     ]
+    counts = _counts(store, datasets, models, jobs, entries)
     return {"ok": not open_problems, "problems": open_problems, "quarantined": quarantined, "counts": counts}
+
+
+def _problem(kind: str, record_id: str, detail: str) -> dict:
+    return {"kind": kind, "id": record_id, "detail": detail}
+
+
+def _dataset_problems(store: Store, datasets: list, jobs: dict, cleanup: list, quick: bool) -> tuple[list, bool]:
+    """(problems of the datasets' arrays and job references, whether the shared array location answered)."""
+    problems: list[dict] = []
+    restorable = {a["id"]: a["path"] for a in cleanup if a["action"] == "restore"}
+    unreachable = None
+    for row in datasets:
+        path = store.data_dir / row["file"]
+        if not placement.in_data_dir(row["file"]) or placement.pending(row["file"]):
+            if unreachable is None or placement.pending(row["file"]):
+                try:
+                    found = placement.check_row(store, row, quick)
+                except ArrayStoreUnavailable as exc:
+                    unreachable, found = exc, None
+                    problems.append(_problem("array_store_unavailable", exc.url, f"{exc}: its arrays were not checked"))
+                if found is not None:
+                    problems.append(_problem(found[0], row["id"], found[1]))
+        elif not path.is_file():
+            copy = restorable.get(row["id"])
+            problems.append(
+                _problem(
+                    "missing_array",
+                    row["id"],
+                    f"array file {row['file']} is missing"
+                    + (f" (its copy {copy} matches: start-up recovery or store repair moves it back)" if copy else ""),
+                )
+            )
+        elif not quick and file_sha256(path) != row["sha256"]:
+            problems.append(_problem("corrupt_array", row["id"], f"array file {row['file']} does not match its sha256"))
+        if row["job_id"] and row["job_id"] not in jobs:
+            problems.append(
+                _problem("dangling_reference", row["id"], f"dataset names job {row['job_id']}, which does not exist")
+            )
+    return problems, unreachable is None
+
+
+def _debris_problems(cleanup: list) -> list[dict]:
+    """Leftover temporary files and array files no dataset names, in the data dir."""
+    problems = []
+    for action in cleanup:
+        name, size = action["path"].rsplit("/", 1)[-1], debris.format_bytes(action["bytes"])
+        if action["kind"] == "temp_file":
+            problems.append(_problem("temp_file", name, f"leftover temporary file {action['path']} ({size})"))
+        elif action["kind"] == "orphan_array":
+            problems.append(
+                _problem("orphan_array", name.rsplit(".", 1)[0], f"{action['path']} belongs to no dataset ({size})")
+            )
+    return problems
+
+
+def _orphan_object_problems(store: Store, datasets: list) -> list[dict]:
+    """Objects no dataset names in the shared array location (or that it did not answer)."""
+    try:
+        return [
+            _problem(
+                "orphan_array",
+                key.rsplit(".", 1)[0],
+                f"{store.arrays.where(key)} belongs to no dataset ({debris.format_bytes(size)})",
+            )
+            for key, size in placement.orphan_objects(store, datasets)
+        ]
+    except ArrayStoreUnavailable as exc:
+        return [_problem("array_store_unavailable", exc.url, f"{exc}: its objects were not listed")]
+
+
+def _chunk_problems(store: Store, jobs: dict, offline: bool) -> list[dict]:
+    """Chunk directories of jobs that are gone, finished, or (``offline``) cannot be running."""
+    root = partial_root(store.data_dir)
+    if not root.is_dir():
+        return []
+    problems = []
+    for directory in sorted(p for p in root.iterdir() if p.is_dir()):
+        job = jobs.get(directory.name)
+        if job is None or job["state"] in TERMINAL_STATES or offline:
+            state = "no such job" if job is None else f"job is {job['state']}"
+            problems.append(_problem("orphan_chunks", directory.name, f"partial/{directory.name}: {state}"))
+    return problems
+
+
+def _model_problems(models: list, dataset_ids: set[str]) -> list[dict]:
+    """Models that name missing datasets or a missing parent."""
+    problems = []
+    model_ids = {row["id"] for row in models}
+    for row in models:
+        missing = [d for d in row["datasets"] if d not in dataset_ids]
+        if missing:
+            problems.append(
+                _problem("dangling_reference", row["id"], f"model names missing datasets {', '.join(missing)}")
+            )
+        if row["parent_id"] and row["parent_id"] not in model_ids:
+            problems.append(
+                _problem("dangling_reference", row["id"], f"model's parent {row['parent_id']} does not exist")
+            )
+    return problems
+
+
+def _counts(store: Store, datasets: list, models: list, jobs: dict, entries: list) -> dict:
+    """How many rows of each kind, and what quarantine holds (rows, files, bytes)."""
+    aside = [p for p in debris.quarantine_dir(store.data_dir).glob("*") if p.is_file()]
+    return {
+        "datasets": len(datasets),
+        "models": len(models),
+        "jobs": len(jobs),
+        "partial_datasets": sum(bool(row["partial"]) for row in datasets),
+        "quarantined": len(entries),
+        "quarantine_files": len(aside),
+        "quarantine_bytes": sum(p.stat().st_size for p in aside),
+    }
 
 
 def job_problems(job: dict, dataset_ids: set[str], offline: bool) -> list[tuple[str, str, dict | None]]:
