@@ -115,42 +115,56 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
     for row in dataset_rows:
         req, var = dataset_request(row), ds[row["id"]]
         note = f"# {var} = {row['id']} ({row.get('name')}, {req['kind']})"
-        curl.append(note)
-        cli.append(note)
-        py.append(note)
-        body = req["body"]
-        if req["kind"] == "import":
-            form = " ".join(f"-F {shlex.quote(f'{k}={v}')}" for k, v in body.items() if k != "filename")
-            fname = body.get("filename") or "FILE.csv"
-            curl.append(
-                f'{var}=$(curl -sf -X POST "$URL/api/datasets" -H "$AUTH" -F file=@{shlex.quote(fname)} '
-                f"{form} | jq -r .id)   # the original file: {fname}"
+        for out, line in zip((curl, cli, py), _dataset_lines(req, var)):
+            out += [note, line]
+    for out, lines in zip((curl, cli, py), _identify_lines(root, steps[0], ds, md, names)):
+        out += lines
+    for prev, step in zip(steps, steps[1:]):
+        for out, lines in zip((curl, cli, py), _refine_lines(prev, step, md, names)):
+            out += lines
+    last = md[steps[-1]["model_id"]]
+    curl.append(f'curl -sf -H "$AUTH" "$URL/api/models/${last}/report?download=true" -o "${last}-report.html"')
+    cli.append(f"evcbench models ${last} --report ${last}-report.html")
+    py.append(f'open(f"{{{last.lower()}}}-report.html", "w").write(api.model_report({last.lower()}))')
+    cli.insert(1, _SHELL_PRELUDE.split("\n", 1)[1])  # the refine lines use the same two helpers
+    return {"curl": "\n".join(curl), "cli": "\n".join(cli), "python": "\n".join(py)}
+
+
+def _dataset_lines(req: dict, var: str) -> tuple[str, str, str]:
+    """The (curl, cli, python) line that makes dataset ``var`` again from its ``dataset_request``."""
+    body = req["body"]
+    if req["kind"] == "import":
+        form = " ".join(f"-F {shlex.quote(f'{k}={v}')}" for k, v in body.items() if k != "filename")
+        fname = body.get("filename") or "FILE.csv"
+        return (
+            f'{var}=$(curl -sf -X POST "$URL/api/datasets" -H "$AUTH" -F file=@{shlex.quote(fname)} '
+            f"{form} | jq -r .id)   # the original file: {fname}",
+            f"{var}=$(evcbench import {shlex.quote(fname)} --json"
+            + "".join(
+                f" --{k.replace('_', '-')} {shlex.quote(str(v))}" for k, v in body.items() if k not in ("filename",)
             )
-            cli.append(
-                f"{var}=$(evcbench import {shlex.quote(fname)} --json"
-                + "".join(
-                    f" --{k.replace('_', '-')} {shlex.quote(str(v))}" for k, v in body.items() if k not in ("filename",)
-                )
-                + " | jq -r .id)"
-            )
-            py.append(
-                f"{var.lower()} = api.import_dataset({fname!r}, "
-                + ", ".join(f"{k}={v!r}" for k, v in body.items() if k != "filename")
-                + ')["id"]'
-            )
-        elif req["kind"] == "trajectory":
-            curl.append(f"{var}=$(wait_job $(post /trajectories '{_json(body)}') dataset_id)")
-            cli.append(f"# {var}: a trajectory run; no evcbench verb runs one: use the curl or Python lines")
-            py.append(
-                f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_py(body, {})}).json()'
-                f'["job_id"])["result"]["dataset_id"]'
-            )
-        else:
-            curl.append(f"{var}=$(wait_job $(post /sweeps '{_json(body)}') dataset_id)")
-            cli.append(f"{var}=$({_cli_sweep(body)})")
-            py.append(f'{var.lower()} = api.sweep(**{_py(body, {})})["result"]["dataset_id"]')
+            + " | jq -r .id)",
+            f"{var.lower()} = api.import_dataset({fname!r}, "
+            + ", ".join(f"{k}={v!r}" for k, v in body.items() if k != "filename")
+            + ')["id"]',
+        )
+    if req["kind"] == "trajectory":
+        return (
+            f"{var}=$(wait_job $(post /trajectories '{_json(body)}') dataset_id)",
+            f"# {var}: a trajectory run; no evcbench verb runs one: use the curl or Python lines",
+            f'{var.lower()} = api.wait(api.http.post("/api/trajectories", json={_py(body, {})}).json()'
+            f'["job_id"])["result"]["dataset_id"]',
+        )
+    return (
+        f"{var}=$(wait_job $(post /sweeps '{_json(body)}') dataset_id)",
+        f"{var}=$({_cli_sweep(body)})",
+        f'{var.lower()} = api.sweep(**{_py(body, {})})["result"]["dataset_id"]',
+    )
+
+
+def _identify_lines(root: dict, first: dict, ds: dict, md: dict, names: dict) -> tuple[list, list, list]:
+    """The (curl, cli, python) lines that identify the lineage's first model on its datasets."""
     kind, n_ops = root["kind"], int((root.get("options") or {}).get("n_operators", 10))
-    first = steps[0]
     effects = list(root["effects"])  # as requested (a dynamic PI's rate dependence is its kind's, not asked)
     body = {
         "axis": root["axis"],
@@ -160,36 +174,35 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
         "n_operators": n_ops,
     }
     m1 = md[first["model_id"]]
-    for out in (curl, cli, py):
-        out.append(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(effects)}")
-    curl.append(f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names)}') model_id)")
-    cli.append(
-        f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
-        + ",".join(f"${ds[d]}" for d in first["datasets"])
-        + f" --model {kind} --effects "
-        + ",".join(effects)
-        + f" --n-operators {n_ops} --json | jq -r .id)"
+    note = f"# {m1} = {first['model_id']}: {kind}, {' + '.join(effects)}"
+    return (
+        [note, f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names)}') model_id)"],
+        [
+            note,
+            f"{m1}=$(evcbench identify --axis {root['axis']} --datasets "
+            + ",".join(f"${ds[d]}" for d in first["datasets"])
+            + f" --model {kind} --effects "
+            + ",".join(effects)
+            + f" --n-operators {n_ops} --json | jq -r .id)",
+        ],
+        [
+            note,
+            f"{m1.lower()} = api.identify({root['axis']!r}, ["
+            + ", ".join(ds[d].lower() for d in first["datasets"])
+            + f'], model={kind!r}, effects={effects!r}, n_operators={n_ops})["id"]',
+        ],
     )
-    py.append(
-        f"{m1.lower()} = api.identify({root['axis']!r}, ["
-        + ", ".join(ds[d].lower() for d in first["datasets"])
-        + f'], model={kind!r}, effects={effects!r}, n_operators={n_ops})["id"]'
+
+
+def _refine_lines(prev: dict, step: dict, md: dict, names: dict) -> tuple[list, list, list]:
+    """The (curl, cli, python) lines that refine the lineage's model ``prev`` into ``step``."""
+    var, parent = md[step["model_id"]], md[prev["model_id"]]
+    body = refine_body(step, prev)
+    note = f"# {var} = {step['model_id']}: {step['change']}"
+    refine = f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') model_id)"
+    args = ", ".join(f"{k}={_py(v, names)}" for k, v in body.items())
+    return (
+        [note, refine],
+        [note, refine + "   # refine has no evcbench verb: the curl helpers above"],
+        [note, f'{var.lower()} = api.refine({parent.lower()}, {args})["id"]'],
     )
-    for prev, step in zip(steps, steps[1:]):
-        var, parent = md[step["model_id"]], md[prev["model_id"]]
-        body = refine_body(step, prev)
-        for out in (curl, cli, py):
-            out.append(f"# {var} = {step['model_id']}: {step['change']}")
-        curl.append(f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') model_id)")
-        cli.append(
-            f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') "
-            "model_id)   # refine has no evcbench verb: the curl helpers above"
-        )
-        args = ", ".join(f"{k}={_py(v, names)}" for k, v in body.items())
-        py.append(f'{var.lower()} = api.refine({parent.lower()}, {args})["id"]')
-    last = md[steps[-1]["model_id"]]
-    curl.append(f'curl -sf -H "$AUTH" "$URL/api/models/${last}/report?download=true" -o "${last}-report.html"')
-    cli.append(f"evcbench models ${last} --report ${last}-report.html")
-    py.append(f'open(f"{{{last.lower()}}}-report.html", "w").write(api.model_report({last.lower()}))')
-    cli.insert(1, _SHELL_PRELUDE.split("\n", 1)[1])  # the refine lines use the same two helpers
-    return {"curl": "\n".join(curl), "cli": "\n".join(cli), "python": "\n".join(py)}
