@@ -100,8 +100,7 @@ def test_a_dataset_round_trips_through_s3_with_its_checksum(tmp_path, s3, bucket
 
 WRITER = textwrap.dedent("""
     import json, sys
-    sys.path.insert(0, "tests")
-    from test_lab_arrays import _arrays
+    from tests.unit.service.test_lab_arrays import _arrays
     from service.store import Store
     import pathlib, time
     database_url, data_dir, array_url, first, count = sys.argv[1:6]
