@@ -12,7 +12,7 @@ from drivers.bench import Bench
 from service.runtime.jobs import JobContext
 from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, untrained_turning_points
 from service.science.control.ilc_stability import learning_refusal, predict_plan
-from service.science.control.loop import QUEUED_BLOCKS, PIDGains, StopRequested, TrackRecord
+from service.science.control.loop import QUEUED_BLOCKS, StopRequested, TrackRecord
 from service.science.control.session import PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
@@ -96,7 +96,7 @@ def build_controller(
             damped_axes=damped,
         )
         report["warnings"] = warnings
-        pid = {ax: PIDGains(*g) for ax, g in gains.items()}
+        pid = gains
     ilc_report = None
     if controller["ilc"]:
         try:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,10 +38,10 @@ class StopRequested(RuntimeError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
-class PIDGains:
+class PIDGains(NamedTuple):
     """Paper eq. 19 gains: kp V/µm, ki V/(µm·s), kd V·s/µm; derivative filter time constant tf_s;
-    optionally a PPF section that damps the axis's flexure mode (service.science.control.damping)."""
+    optionally a PPF section that damps the axis's flexure mode (service.science.control.damping).
+    A tuple too, (kp, ki, kd, tf_s, damping), as the frequency responses take gains."""
 
     kp: float
     ki: float
