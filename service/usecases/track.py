@@ -11,11 +11,12 @@ from __future__ import annotations
 from drivers.bench import Bench
 from service.runtime.jobs import JobContext
 from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, untrained_turning_points
+from service.science.control.gains import choose_pid
 from service.science.control.ilc_stability import learning_refusal, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, StopRequested, TrackRecord
 from service.science.control.session import PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
-from service.science.control.tuning import TUNED_PID, bench_plants, choose_pid, feedforward_inverts_mode
+from service.science.control.tuning import TUNED_PID, bench_plants, feedforward_inverts_mode
 from service.science.errors import FieldError
 from service.science.fitting.validation import trained_loops_v
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, Store
@@ -52,7 +53,7 @@ def build_controller(
     bench: Bench, store: Store, controller: dict, frequency_hz: float, mode: str = "point_by_point"
 ) -> Controller:
     """The controller a request describes (``ControllerRequest`` fields as a dict): stored models as
-    feedforward per axis, PID gains (chosen and predicted by service.science.control.tuning.choose_pid
+    feedforward per axis, PID gains (chosen and predicted by service.science.control.gains.choose_pid
     on the bench's plant, for a trajectory at ``frequency_hz``), ILC. FieldError names
     ``controller.feedforward_model_<axis>`` when a model is missing or cannot be rebuilt (every model
     inverts itself: service.science.models.contract), ``controller.pid`` when the gains are refused."""

@@ -39,7 +39,7 @@ class Controller:
     ilc: bool = False
     ilc_gain: float = 0.2
     ilc_harmonics: int = 20
-    #: the PID's choice and predicted margins (service.science.control.tuning.choose_pid), for the result
+    #: the PID's choice and predicted margins (service.science.control.gains.choose_pid), for the result
     pid_report: dict | None = None
     #: the ILC's predicted convergence per axis (service.science.control.ilc_stability), for the result
     ilc_report: dict | None = None

@@ -9,10 +9,11 @@ import pytest
 
 from service.science.control import kernels as CK
 from service.science.control.damping import ModeDamping
+from service.science.control.gains import choose_pid
 from service.science.control.ilc_stability import predict_plan
 from service.science.control.loop import PIDGains
 from service.science.control.stability import AxisPlant, controller_response, plant_response
-from service.science.control.tuning import GAIN_BAND, Targets, choose_pid, design_harmonics, expected_error, tune
+from service.science.control.tuning import GAIN_BAND, Targets, design_harmonics, expected_error, tune
 
 FS_HZ = 20_000.0
 #: the default bench's axes as "auto" sees them (largest slope µm/V, first mode Hz, assumed ζ, loop delay s)
