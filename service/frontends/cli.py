@@ -154,9 +154,23 @@ ARRAY_URL_HELP = (
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``evcbench`` command line: serve, bench, warm and store here; the REST verbs, tokens and the
+    lab from cli_remote, cli_tokens and cli_lab."""
     parser = argparse.ArgumentParser(prog="evcbench", description="EVC Bench: piezo bench service and tools.")
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_serve(sub)
+    _add_tools(sub)
+    _add_store(sub)
+    from service.frontends import cli_lab, cli_remote, cli_tokens
 
+    cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
+    cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
+    cli_lab.add_commands(sub)  # lab batch (on the store, in process or on Dask)
+    return parser
+
+
+def _add_serve(sub) -> None:
+    """``evcbench serve``: its options, each over the environment's EVCBENCH_* setting."""
     serve = sub.add_parser("serve", help="start the REST service")
     serve.add_argument(
         "--host",
@@ -191,6 +205,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     serve.set_defaults(func=_cmd_serve)
 
+
+def _add_tools(sub) -> None:
+    """``evcbench bench`` (a benchmark) and ``evcbench warm`` (numba's cache)."""
     bench = sub.add_parser("bench", help="run a benchmark and print its figures")
     bench.add_argument("name", help="emulator | identification | …")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
@@ -206,6 +223,9 @@ def build_parser() -> argparse.ArgumentParser:
     warm.add_argument("--json", action="store_true", help="print one JSON object: seconds per part")
     warm.set_defaults(func=_cmd_warm)
 
+
+def _add_store(sub) -> None:
+    """``evcbench store check | repair``."""
     store = sub.add_parser("store", help="maintain the store (check, repair)")
     store_sub = store.add_subparsers(dest="store_command", required=True)
 
@@ -232,13 +252,6 @@ def build_parser() -> argparse.ArgumentParser:
         _cmd_store_repair,
     )
     repair.add_argument("--dry-run", action="store_true", help="change nothing; say what would be done")
-
-    from service.frontends import cli_lab, cli_remote, cli_tokens
-
-    cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
-    cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
-    cli_lab.add_commands(sub)  # lab batch (on the store, in process or on Dask)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

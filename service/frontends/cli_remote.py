@@ -15,24 +15,32 @@ from service.frontends.client import DEFAULT_URL, ApiError, Client
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register the remote verbs on the ``evcbench`` sub-parser."""
+    _add_acquisition(sub)
+    _add_modelling(sub)
+    _add_records(sub)
 
-    def remote(name: str, help_text: str, func) -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help_text)
-        p.add_argument(
-            "--url",
-            default=os.environ.get("EVCBENCH_URL", DEFAULT_URL),
-            help=f"service address (default {DEFAULT_URL}, env EVCBENCH_URL)",
-        )
-        p.add_argument(
-            "--token",
-            help="API token (default: env EVCBENCH_TOKEN, or for a local service "
-            "<data dir>/admin.token, the data dir from EVCBENCH_DATA_DIR or ./var)",
-        )
-        p.add_argument("--json", action="store_true", help="print the raw JSON answer")
-        p.set_defaults(func=lambda args: _guarded(func, args))
-        return p
 
-    p = remote("sweep", "run a characterisation sweep on the bench", _sweep)
+def _remote(sub: argparse._SubParsersAction, name: str, help_text: str, func) -> argparse.ArgumentParser:
+    """A remote verb's parser with the options every one takes: --url, --token, --json."""
+    p = sub.add_parser(name, help=help_text)
+    p.add_argument(
+        "--url",
+        default=os.environ.get("EVCBENCH_URL", DEFAULT_URL),
+        help=f"service address (default {DEFAULT_URL}, env EVCBENCH_URL)",
+    )
+    p.add_argument(
+        "--token",
+        help="API token (default: env EVCBENCH_TOKEN, or for a local service "
+        "<data dir>/admin.token, the data dir from EVCBENCH_DATA_DIR or ./var)",
+    )
+    p.add_argument("--json", action="store_true", help="print the raw JSON answer")
+    p.set_defaults(func=lambda args: _guarded(func, args))
+    return p
+
+
+def _add_acquisition(sub: argparse._SubParsersAction) -> None:
+    """``sweep`` and ``import``: the verbs that make a dataset."""
+    p = _remote(sub, "sweep", "run a characterisation sweep on the bench", _sweep)
     p.add_argument("--axes", default="y", help="comma-separated axes: y, z or y,z (default y)")
     p.add_argument("--waveform", default="sine", help="sine | step | chirp | multisine (default sine)")
     p.add_argument("--frequencies", default="1,10,50,100", help="comma-separated hertz (sine, multisine)")
@@ -50,7 +58,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--name", help="dataset name")
     p.add_argument("--wait", action="store_true", help="follow the job to its end with a progress bar")
 
-    p = remote("import", "import a CSV or table file as a dataset", _import)
+    p = _remote(sub, "import", "import a CSV or table file as a dataset", _import)
     p.add_argument(
         "file",
         help="CSV with header t,u_y,x_y,u_z,x_z (s, V at the actuator, µm; units written in the names are converted: 'Time [ms]', x_y_nm) or a headerless table with --columns",
@@ -61,7 +69,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--delimiter", help="comma | tab | semicolon | whitespace (default: guess)")
     p.add_argument("--name", help="dataset name (default: the file name)")
 
-    p = remote("identify", "identify a hysteresis model from datasets", _identify)
+
+def _add_modelling(sub: argparse._SubParsersAction) -> None:
+    """``identify``, ``compare`` and ``discover``: the verbs that fit and judge models."""
+    p = _remote(sub, "identify", "identify a hysteresis model from datasets", _identify)
     p.add_argument("--axis", default="y", help="y or z (default y)")
     p.add_argument("--datasets", required=True, help="comma-separated dataset ids")
     p.add_argument("--model", default="static_pi", help="static_pi | dynamic_pi | grpi (default static_pi)")
@@ -69,11 +80,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--n-operators", type=int, default=10, help="play operators (default 10)")
     p.add_argument("--no-wait", action="store_true", help="print the job id and return")
 
-    p = remote("compare", "compare a model with a dataset: RMS, max and fit %%, per block", _compare)
+    p = _remote(sub, "compare", "compare a model with a dataset: RMS, max and fit %%, per block", _compare)
     p.add_argument("model_id")
     p.add_argument("--dataset", required=True, help="dataset id")
 
-    p = remote(
+    p = _remote(
+        sub,
         "discover",
         "run the discovery loop from a model: diagnose, add the missing effect, refit, "
         "repeat; then capacity down to the noise floor",
@@ -95,19 +107,22 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--max-steps", type=int, default=8, help="steps at most, the model's own diagnosis the first (1–12, default 8)"
     )
 
-    p = remote("jobs", "list jobs, show one, follow it, or cancel it", _jobs)
+
+def _add_records(sub: argparse._SubParsersAction) -> None:
+    """``jobs``, ``stop``, ``reset``, ``datasets`` and ``models``."""
+    p = _remote(sub, "jobs", "list jobs, show one, follow it, or cancel it", _jobs)
     p.add_argument("job_id", nargs="?")
     p.add_argument("--cancel", action="store_true", help="cancel the job (a sweep keeps its partial data)")
     p.add_argument("--watch", action="store_true", help="follow the job with a progress bar")
 
-    remote("stop", "emergency stop: every output to 0 V, the bench job and its queue cancelled", _stop)
-    remote("reset", "clear latched amplifier faults and the watchdog's trip (bench idle, outputs at 0 V)", _reset)
+    _remote(sub, "stop", "emergency stop: every output to 0 V, the bench job and its queue cancelled", _stop)
+    _remote(sub, "reset", "clear latched amplifier faults and the watchdog's trip (bench idle, outputs at 0 V)", _reset)
 
-    p = remote("datasets", "list datasets, show one, or rename, tag, annotate or delete it", _datasets)
+    p = _remote(sub, "datasets", "list datasets, show one, or rename, tag, annotate or delete it", _datasets)
     p.add_argument("dataset_id", nargs="?")
     _tidy_options(p, "the models fitted on it")
 
-    p = remote("models", "list models, show one, or rename, tag, annotate or delete it", _models)
+    p = _remote(sub, "models", "list models, show one, or rename, tag, annotate or delete it", _models)
     p.add_argument("model_id", nargs="?")
     p.add_argument("--report", metavar="FILE", help="write the model's HTML report to FILE (print it for a PDF)")
     _tidy_options(p, "every model refined from it")
