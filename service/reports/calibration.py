@@ -261,6 +261,20 @@ def write_report(path: str | Path = "docs/calibration.md", bench_name: str = "de
 
 
 def _markdown(res: dict, img: Path) -> str:
+    """docs/calibration.md from the calibration's results ``res`` and its figure ``img``."""
+    lines = _summary_lines(res) + _per_frequency_lines(res)
+    lines += ["", f"![hysteresis loops at 1, 10, 50 and 100 Hz]({img.as_posix()})", "", NOTES]
+    if "fit_markdown" in res:
+        lines += ["", res["fit_markdown"]]
+    if "rating_rows" in res:
+        lines += _rating_lines(res)
+    if "variants" in res:
+        lines += _variant_lines(res)
+    return "\n".join(lines) + "\n"
+
+
+def _summary_lines(res: dict) -> list[str]:
+    """The drive, the method and the table of stroke, loop width and static-PI figures against the paper."""
     lines = [
         "# Calibration of the emulated bench against the paper",
         "",
@@ -297,7 +311,12 @@ def _markdown(res: dict, img: Path) -> str:
             else ("10–15 (target)" if "width" in label else f"{paper_sum['z']:.4f}")
         )
         lines.append(f"| {label} | {fmt.format(y[key])} | {py} | {fmt.format(z[key])} | {pz} |")
-    lines += [
+    return lines
+
+
+def _per_frequency_lines(res: dict) -> list[str]:
+    """Stroke, loop width and static-PI RMS per axis and frequency."""
+    lines = [
         "",
         "Per frequency:",
         "",
@@ -310,41 +329,48 @@ def _markdown(res: dict, img: Path) -> str:
                 f"| {axis.upper()} | {f:g} | {v['stroke_um']:.3f} | {v['loop_width_pct']:.1f} | "
                 f"{v['pi_1hz_rms_um']:.4f} | {v['pi_refit_rms_um']:.4f} |"
             )
-    lines += ["", f"![hysteresis loops at 1, 10, 50 and 100 Hz]({img.as_posix()})", "", NOTES]
-    if "fit_markdown" in res:
-        lines += ["", res["fit_markdown"]]
-    if "rating_rows" in res:
-        lines += [
-            "",
-            RATING,
-            "",
-            "| drive | axis | min (µm) | max (µm) | loop width at mid-voltage (µm) | top slope (µm/V) |",
-            "|---|---|---|---|---|---|",
-            *res["rating_rows"],
-            "",
-            RATING_TEST,
-        ]
-    if "variants" in res:
-        base = res["variants"]["base"]["both"]
-        lines += [
-            "",
-            "## Hidden-effect variants",
-            "",
-            "Static-PI RMS left on a characterisation sweep (`sweep_pi_rms`: each axis driven alone at "
-            "1, 10, 50, 100 Hz, 5 cycles; one 10-operator PI per axis over all its records). Each variant is "
-            "`base` plus one effect; the test suite requires ≥ 2× base.",
-            "",
-            "| bench | Y RMS (µm) | Z RMS (µm) | both (µm) | × base |",
-            "|---|---|---|---|---|",
-        ]
-        for name, v in res["variants"].items():
-            lines.append(f"| {name} | {v['y']:.4f} | {v['z']:.4f} | {v['both']:.4f} | {v['both'] / base:.1f} |")
-        lines += [
-            "",
-            "On `base` the gauge noise is 3 nm rms; the rest of its residual is the mismatch between a "
-            "continuous, bias-dependent Preisach density and 10 discrete PI thresholds.",
-        ]
-    return "\n".join(lines) + "\n"
+    return lines
+
+
+def _rating_lines(res: dict) -> list[str]:
+    """The stack's rating: the loops at its full drive."""
+    lines = []
+    lines += [
+        "",
+        RATING,
+        "",
+        "| drive | axis | min (µm) | max (µm) | loop width at mid-voltage (µm) | top slope (µm/V) |",
+        "|---|---|---|---|---|---|",
+        *res["rating_rows"],
+        "",
+        RATING_TEST,
+    ]
+    return lines
+
+
+def _variant_lines(res: dict) -> list[str]:
+    """The hidden-effect variants' static-PI RMS against base."""
+    lines = []
+    base = res["variants"]["base"]["both"]
+    lines += [
+        "",
+        "## Hidden-effect variants",
+        "",
+        "Static-PI RMS left on a characterisation sweep (`sweep_pi_rms`: each axis driven alone at "
+        "1, 10, 50, 100 Hz, 5 cycles; one 10-operator PI per axis over all its records). Each variant is "
+        "`base` plus one effect; the test suite requires ≥ 2× base.",
+        "",
+        "| bench | Y RMS (µm) | Z RMS (µm) | both (µm) | × base |",
+        "|---|---|---|---|---|",
+    ]
+    for name, v in res["variants"].items():
+        lines.append(f"| {name} | {v['y']:.4f} | {v['z']:.4f} | {v['both']:.4f} | {v['both'] / base:.1f} |")
+    lines += [
+        "",
+        "On `base` the gauge noise is 3 nm rms; the rest of its residual is the mismatch between a "
+        "continuous, bias-dependent Preisach density and 10 discrete PI thresholds.",
+    ]
+    return lines
 
 
 NOTES = """## Reading the numbers

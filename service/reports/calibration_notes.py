@@ -120,7 +120,18 @@ def fit_markdown(rms_by_axis: dict, z_stroke_100hz_um: float, bench: str = "defa
     of Table 6 met or not on ``rms_by_axis`` ({axis: identify_axis(...)["rms_um"]}), and why the
     unmet ones stay unmet (the flexure's and the latency's floors computed from the config).
     ``z_stroke_100hz_um``: the emulated Z stroke at 100 Hz, 0–120 V (last cycle)."""
-    lines = [
+    lines = _method_lines(bench)
+    for axis in ("y", "z"):
+        for name, met, figures in target_checks(axis, rms_by_axis[axis]):
+            lines.append(f"| {name} | {figures} | {'✓' if met else '✗'} |")
+    lines += _y_fit_lines(bench)
+    lines += _disagreement_lines(z_stroke_100hz_um, bench)
+    return "\n".join(lines) + "\n"
+
+
+def _method_lines(bench: str) -> list[str]:
+    """How the fit works, its parameters, and the head of the Table 6 targets' table."""
+    return [
         "## Fitted parameters",
         "",
         "Fitted by `python -m service.reports.calibration --fit` (module `service/reports/calibration_fit.py`): "
@@ -145,10 +156,11 @@ def fit_markdown(rms_by_axis: dict, z_stroke_100hz_um: float, bench: str = "defa
         "| target | figures | met |",
         "|---|---|---|",
     ]
-    for axis in ("y", "z"):
-        for name, met, figures in target_checks(axis, rms_by_axis[axis]):
-            lines.append(f"| {name} | {figures} | {'✓' if met else '✗'} |")
-    lines += [
+
+
+def _y_fit_lines(bench: str) -> list[str]:
+    """The Y set the fit found, and why it is not the default."""
+    return [
         "",
         "## The Y set the fit found, and why it is not the default",
         "",
@@ -164,13 +176,17 @@ def fit_markdown(rms_by_axis: dict, z_stroke_100hz_um: float, bench: str = "defa
         *y_fit_rows(bench),
         "",
     ]
+
+
+def _disagreement_lines(z_stroke_100hz_um: float, bench: str) -> list[str]:
+    """The residual disagreements with Table 6 and the floors (flexure, latency) behind them."""
     floors = {axis: flexure_floor_um(axis, bench) for axis in ("y", "z")}
     ceiling = {axis: PAPER_TABLE6_UM[axis][100.0][2] * (1 + CELL_TOLERANCE) for axis in ("y", "z")}
     fy, fz = floors["y"], floors["z"]
     z_pp_um, z_stroke = 11.0 - 1.0, PAPER["z"]["stroke_um"]
     #: the fundamental's relative gain excess the Z ceiling leaves room for, over the paper's 1 Hz floor
     allowed = math.sqrt(max(ceiling["z"] ** 2 - PAPER["z"]["pi_rms_1hz_um"] ** 2, 0.0)) * math.sqrt(2) / (z_stroke / 2)
-    lines += [
+    return [
         "",
         "## Residual disagreements, and why",
         "",
@@ -208,7 +224,6 @@ def fit_markdown(rms_by_axis: dict, z_stroke_100hz_um: float, bench: str = "defa
         "its phase peak at 1/(2πτ) is what lets the dynamic PI, whose weights move with u̇ and ü, beat the "
         "static PI at 10 Hz.",
     ]
-    return "\n".join(lines) + "\n"
 
 
 def _r2_for_excess(excess: float) -> float:

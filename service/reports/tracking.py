@@ -228,8 +228,19 @@ def moved(run: dict) -> list[str]:
 
 
 def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None) -> None:
-    first = args.seeds[0]
-    run = seeds[first]
+    """docs/tracking.md from the runs of every seed (``seeds``: seed -> run), the command line's
+    ``args`` and the control benchmark's figures ``bench_json`` (None: not run)."""
+    run = seeds[args.seeds[0]]
+    lines = _intro_lines(run, args) + done_when(seeds) + _row_lines(run, args.seeds[0]) + moved(run)
+    lines += _ilc_lines(seeds) + _delay_margin_lines() + _figure_lines(path, bench_json)
+    from service.reports.doc_sections import kept_section  # paper_measured's section, written apart
+
+    kept = kept_section(path, "paper_measured tracking")
+    path.write_text("\n".join(lines) + "\n" + NOTES + (f"\n{kept}" if kept else ""))
+
+
+def _intro_lines(run: dict, args) -> list[str]:
+    """How the figures are made, and the gauge noise at rest."""
     lines = [
         "# Trajectory tracking at 100 Hz (paper §4, Fig. 14–15) on the emulated default bench, over the REST path",
         "",
@@ -249,13 +260,17 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
         f"{args.cycles}. Relative error = max over axes of max|error| / reference peak-to-peak (paper: "
         "0.308/5 µm = 6.2 %).",
         "",
-        f"Gauge noise at rest (seed {first}): {run['noise_rms_um'] * 1e3:.2f} nm RMS.",
+        f"Gauge noise at rest (seed {args.seeds[0]}): {run['noise_rms_um'] * 1e3:.2f} nm RMS.",
         "",
         "## Done when (issue 19): FF + PID (auto), FF + PID (auto) + ILC, three seeds",
         "",
     ]
-    lines += done_when(seeds)
-    lines += ["", f"## Every row (seed {first})", ""]
+    return lines
+
+
+def _row_lines(run: dict, first: int) -> list[str]:
+    """Every case's rows of seed ``first`` against the paper's."""
+    lines = ["", f"## Every row (seed {first})", ""]
     for case, c in run["cases"].items():
         lines += [
             "| case | controller | max error Y (µm) | max error Z (µm) | RMS (nm) | relative error (%) | note |",
@@ -268,15 +283,24 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
                 f"{_fmt(r, 'rms_error_um', 1e3, 1)} | {_fmt(r, 'relative_error_pct', 1, 2)} | {_note(r)} |"
             )
         lines.append("")
-    lines += moved(run)
-    lines += ["## Error per period while ILC learns (nm RMS, every 5th period)", ""]
+    return lines
+
+
+def _ilc_lines(seeds: dict) -> list[str]:
+    """The error per period while ILC learns (nm RMS, every 5th period)."""
+    lines = ["## Error per period while ILC learns (nm RMS, every 5th period)", ""]
     for seed, s in seeds.items():
         for case, c in s["cases"].items():
             for name, r in c["rows"].items():
                 if "ILC" in name and r.get("error_per_period_um"):
                     e = np.asarray(r["error_per_period_um"]) * 1e3
                     lines.append(f"- seed {seed}, {case}, {name}: " + ", ".join(f"{v:.1f}" for v in e[::5]))
-    lines += [
+    return lines
+
+
+def _delay_margin_lines() -> list[str]:
+    """Why the paper's gains trip: their delay margins on the paper's plant."""
+    lines = [
         "",
         "## Why the paper's gains trip: delay margins (`service/science/control/stability.py`)",
         "",
@@ -294,7 +318,12 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
                 f"| {label} | {axis.upper()} | {m.crossover_hz:.0f} | {m.phase_margin_deg:.1f} | "
                 f"{m.delay_margin_s * 1e6:.0f} |"
             )
-    lines += ["", "## Figures (last two steady periods: reference vs actual, and the error)", ""]
+    return lines
+
+
+def _figure_lines(path: Path, bench_json: dict | None) -> list[str]:
+    """The figures beside ``path`` and the control benchmark's figures."""
+    lines = ["", "## Figures (last two steady periods: reference vs actual, and the error)", ""]
     for p in sorted((path.parent / "img").glob("tracking_*.png")):
         lines.append(f"![{p.stem}](img/{p.name})")
     if bench_json is not None:
@@ -310,10 +339,7 @@ def write_markdown(path: Path, seeds: dict, args, bench_json: dict | None = None
             "with the neighbours' load; `closed_loop_cpu_realtime_factor` divides by the process's own CPU "
             "time instead.",
         ]
-    from service.reports.doc_sections import kept_section  # paper_measured's section, written apart
-
-    kept = kept_section(path, "paper_measured tracking")
-    path.write_text("\n".join(lines) + "\n" + NOTES + (f"\n{kept}" if kept else ""))
+    return lines
 
 
 NOTES = """
