@@ -2,12 +2,11 @@
 GET /api/paper) all read them from here, so that a figure is typed once.
 
 Units: µm for displacements and errors, V for voltages, Hz for frequencies, degrees for angles,
-µm/V for the static PI's weight sums, PID gains as PIDGains (kp V/µm, ki V/(µm·s), kd V·s/µm).
+µm/V for the static PI's weight sums, PID gains kp V/µm, ki V/(µm·s), kd V·s/µm (as numbers: the control
+builds its PIDGains from them, service.science.control.session.PAPER_PID).
 """
 
 from __future__ import annotations
-
-from service.science.control.loop import PIDGains
 
 #: Table 6 columns, in the paper's order.
 TABLE6_MODELS = ("dynamic_pi", "grpi", "static_pi")
@@ -25,7 +24,7 @@ STROKE_AT_120V_UM = {"y": 6.4, "z": 9.3}
 #: The FEM's first mode (Hz) per axis: the device as designed.
 FEM_FIRST_MODE_HZ = {"y": 482.6, "z": 290.7}
 #: The compound controller's PID gains (§3).
-PID_GAINS = {"y": PIDGains(kp=50.0, ki=300.0, kd=0.06), "z": PIDGains(kp=70.0, ki=450.0, kd=0.08)}
+PID_GAINS = {"y": {"kp": 50.0, "ki": 300.0, "kd": 0.06}, "z": {"kp": 70.0, "ki": 450.0, "kd": 0.08}}
 #: The tracking experiments (Fig. 14–15): each as a POST /api/trajectories body (its cycles set by the
 #: run), with the measured maximum errors (µm) and the relative error bound (%).
 TRACKING_CASES = {
@@ -68,6 +67,6 @@ def as_dict() -> dict:
         "static_pi_weight_sum_um_per_v": STATIC_PI_WEIGHT_SUM_UM_PER_V,
         "stroke_at_120v_um": STROKE_AT_120V_UM,
         "fem_first_mode_hz": FEM_FIRST_MODE_HZ,
-        "pid_gains": {axis: {"kp": g.kp, "ki": g.ki, "kd": g.kd} for axis, g in PID_GAINS.items()},
+        "pid_gains": {axis: dict(g) for axis, g in PID_GAINS.items()},
         "tracking_cases": TRACKING_CASES,
     }

@@ -20,7 +20,7 @@ from service.science.control.trajectory import Ellipse, Reference, reference
 from service.science.fitting.metrics import rms
 
 SAMPLE_RATE_HZ = 20_000.0
-PAPER_PID = paper.PID_GAINS
+PAPER_PID = {axis: PIDGains(**gains) for axis, gains in paper.PID_GAINS.items()}
 #: Gains chosen on the emulated default bench by a tracking scan (issue 6; kd damps the 291 Hz Z mode;
 #: the paper's loop gain of ~4 V/µm × 0.09 µm/V makes that mode unstable here, and the divergence
 #: watch trips it). The report's rows use them; a request's "tuned" preset is service.science.control.tuning's.
