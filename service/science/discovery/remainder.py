@@ -22,7 +22,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from service.science.fitting.validation import axis_frequency_hz
+from service.science.data.holdout import axis_frequency_hz
 
 #: family-wise false-description rate over the signatures tried on one residual
 FAMILY_ALPHA = 0.01
