@@ -38,8 +38,8 @@ from service.reports.calibration_fit import PARAMETERS, PI_1HZ_MARGIN, STRAIN_KE
 from service.reports.reproduction import PAPER_TABLE6_UM, sweep_series
 from service.science import paper
 from service.science.fitting.metrics import rms
-from service.science.fitting.pi_family import identify
 from service.science.models import StaticPI
+from service.science.models.procedures import identify
 
 BENCH = "paper_measured"
 #: the search's band per cell: log ratio in units of log(1 + BAND) (the target is ±35 %)

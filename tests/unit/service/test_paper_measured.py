@@ -8,7 +8,8 @@ import math
 
 import pytest
 
-from drivers.emulated import load_config, open_bench
+from drivers.emulated import load_config
+from drivers.factory import open_bench
 from service.reports.calibration import PAPER
 from service.reports.calibration_notes import flexure_floor_um
 from service.reports.doc_sections import kept_section, with_section, wrap, write_section
