@@ -159,6 +159,20 @@ class ComposedDaq:
     def write_idle(self) -> None:
         self.inner.write_idle()
 
+    def arm_watchdog(self, timeout_s: float) -> dict | None:
+        """The inner DAQ's hardware watchdog (NI AO watchdog, emulated output stage), if it has one."""
+        arm = getattr(self.inner, "arm_watchdog", None)
+        return None if arm is None else arm(timeout_s)
+
+    def pet_watchdog(self) -> str | None:
+        pet = getattr(self.inner, "pet_watchdog", None)
+        return None if pet is None else pet()
+
+    def clear_watchdog(self) -> None:
+        clear = getattr(self.inner, "clear_watchdog", None)
+        if clear is not None:
+            clear()
+
     def begin_session(self) -> None:
         """Optional DAQ hook (the emulator's fault clock); real DAQs need none."""
         begin = getattr(self.inner, "begin_session", None)

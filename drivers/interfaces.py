@@ -22,6 +22,11 @@ class DriverError(RuntimeError):
     """A device failed or refused an operation; the message says which and why."""
 
 
+class BenchLost(DriverError):
+    """The process that owns the hardware (the bench engine) is gone, hung or restarting: nothing
+    it was doing can be finished (service.runtime.engine.EngineUnavailable)."""
+
+
 class NotSupportedError(DriverError):
     """The backend cannot do what was asked (for example point-by-point on a USB DAQ)."""
 

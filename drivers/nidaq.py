@@ -50,6 +50,34 @@ def explain_error(code: int | None, message: str = "") -> str:
     return f"{head} ({first})" if first else head
 
 
+def physical_channels(spec: str) -> list[str]:
+    """``"Dev1/ao0:1"`` → ``["Dev1/ao0", "Dev1/ao1"]`` (a comma list of such ranges too)."""
+    out = []
+    for part in spec.split(","):
+        head, _, last = part.strip().rpartition(":")
+        if not head:
+            out.append(part.strip())
+            continue
+        stem = head.rstrip("0123456789")
+        first = int(head[len(stem) :])
+        out.extend(f"{stem}{k}" for k in range(first, int(last) + 1))
+    return out
+
+
+def zero_ao(device: str = "Dev1", ao_channels: str = "ao0:1", range_v: float = 10.0, **_other) -> str:
+    """0 V on ``device``'s AO channels from any process (an on-demand task, closed at once): what the
+    supervisor writes after the engine died (a dead process's tasks are released). Returns them."""
+    nidaqmx = _nidaqmx()[0]
+    phys = f"{device}/{ao_channels}"
+    try:
+        with nidaqmx.Task() as task:
+            task.ao_channels.add_ao_voltage_chan(phys, min_val=-float(range_v), max_val=float(range_v))
+            task.write([0.0] * len(physical_channels(phys)), auto_start=True)
+    except Exception as exc:  # noqa: BLE001
+        raise NidaqDaq._driver_error(exc, "driving the output to 0 V") from exc
+    return phys
+
+
 def _nidaqmx():
     try:
         import nidaqmx
@@ -94,6 +122,7 @@ class NidaqDaq:
         )
         self._rate = 0.0
         self._ao = self._ai = None
+        self._watchdog = None  # nidaqmx.system.WatchdogTask once armed
         self._pending_discard = 0
         self._closed = False
         self.configure(sample_rate_hz)
@@ -191,11 +220,68 @@ class NidaqDaq:
         except Exception as exc:  # noqa: BLE001
             raise self._driver_error(exc, "driving the output to 0 V") from exc
 
+    # ------------------------------------------------------------------ the AO watchdog timer
+    def arm_watchdog(self, timeout_s: float) -> dict:
+        """Arm the device's watchdog timer: if ``pet_watchdog`` is not called within ``timeout_s``
+        (s), the device itself sets both AO channels to their expiration state, 0 V
+        (DAQmxCfgWatchdogAOExpirStates; X Series). Returns what was armed."""
+        from nidaqmx.constants import WatchdogAOExpirState
+        from nidaqmx.system.watchdog import AOExpirationState, WatchdogTask
+
+        self._close_watchdog()
+        channels = physical_channels(self._ao_phys)
+        try:
+            task = WatchdogTask(self.device, timeout=float(timeout_s))
+            task.cfg_watchdog_ao_expir_states(
+                [
+                    AOExpirationState(
+                        physical_channel=ch, expiration_state=0.0, output_type=WatchdogAOExpirState.VOLTAGE
+                    )
+                    for ch in channels
+                ]
+            )
+            task.start()
+        except Exception as exc:  # noqa: BLE001
+            raise self._driver_error(exc, "arming the AO watchdog") from exc
+        self._watchdog = task
+        return {"device": f"NI-DAQmx {self.device}", "timeout_s": float(timeout_s), "channels": channels}
+
+    def pet_watchdog(self) -> str | None:
+        """Reset the watchdog timer; its expiry in words if it had expired (outputs held at 0 V)."""
+        task = self._watchdog
+        if task is None:
+            return None
+        try:
+            if task.expired:
+                return f"NI-DAQmx {self.device}: AO watchdog expired; the device set the outputs to 0 V"
+            task.reset_timer()
+        except Exception as exc:  # noqa: BLE001
+            raise self._driver_error(exc, "petting the AO watchdog") from exc
+        return None
+
+    def clear_watchdog(self) -> None:
+        """After an expiry: the AO channels follow writes again (the timer keeps running)."""
+        if self._watchdog is not None:
+            try:
+                self._watchdog.clear_expiration()
+            except Exception as exc:  # noqa: BLE001
+                raise self._driver_error(exc, "clearing the AO watchdog") from exc
+
+    def _close_watchdog(self) -> None:
+        task, self._watchdog = self._watchdog, None
+        if task is not None:
+            try:
+                task.stop()
+                task.close()
+            except Exception:  # noqa: BLE001 - a removed device cannot be stopped
+                pass
+
     def close(self) -> None:
         if not self._closed:
             try:
                 self.write_idle()
             finally:
+                self._close_watchdog()
                 self._closed = True
 
     def _stop_tasks(self) -> None:

@@ -14,6 +14,7 @@ Drivers know no service: this module knows only the ``Daq`` protocol. Configurat
     watchdog_poll_s = 0.005     # how often the thread looks, seconds
     stop_wait_s = 0.5           # emergency stop: how long to wait for the loop to reach 0 V itself
     unread_limit_s = 10.0       # a run whose measured samples nobody has taken for this long stops at 0 V
+    hardware_watchdog_s = 1.0   # the DAQ's own watchdog timer (NI AO watchdog, emulated output stage); 0 = off
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ _LIMITS = {
     "watchdog_poll_s": (0.0005, 1.0),
     "stop_wait_s": (0.0, 60.0),
     "unread_limit_s": (0.1, 3600.0),
+    "hardware_watchdog_s": (0.0, 60.0),
 }
 
 
@@ -43,6 +45,9 @@ class SafetyConfig:
     #: the host that records a run (the service, in the bench engine's case) took none of its samples
     #: for this long (s): the run stops at 0 V rather than measure what nobody keeps
     unread_limit_s: float = 10.0
+    #: the DAQ's own watchdog timer (s; 0: not armed), where the driver has one: if the bench engine
+    #: stops petting it for this long (killed, stopped), the hardware drives its outputs to 0 V itself
+    hardware_watchdog_s: float = 1.0
 
     @classmethod
     def from_config(cls, section: dict | None) -> SafetyConfig:

@@ -118,9 +118,32 @@ class EmulatedDaq:
     def begin_session(self) -> None:
         """A bench session starts: scheduled faults count their ``after_s`` from now; a past abort is over."""
         self._aborted.clear()
+        if self.world.output_log.stage is not None:
+            self.clear_watchdog()  # an expiry ended the last run (and was reported); this one may drive
         if self.world.pacer is not None:
             self.world.pacer.resume()
         self.world.faults.begin_session()
+
+    # ------------------------------------------------------------------ the hardware watchdog
+    def arm_watchdog(self, timeout_s: float) -> dict | None:
+        """Arm the output stage's watchdog (0 V expiration states) with ``timeout_s`` (s); None
+        without an output stage (``[emulator] output_stage``): the in-process world's outputs end
+        with the engine, so no watchdog is modelled. Raises OSError/TimeoutError if it does not answer."""
+        stage = self.world.output_log.stage
+        if stage is None:
+            return None
+        armed = stage.call("arm", timeout_s=float(timeout_s))["armed_s"]
+        return None if armed is None else {"device": "emulated output stage", "timeout_s": armed, "expiration_v": 0.0}
+
+    def pet_watchdog(self) -> str | None:
+        """Pet the output stage's watchdog; its expiry in words, or None (none, or not expired)."""
+        stage = self.world.output_log.stage
+        return None if stage is None else stage.call("pet")["expired"]
+
+    def clear_watchdog(self) -> None:
+        """Clear an expired watchdog: the outputs follow what is written again."""
+        if self.world.output_log.stage is not None:
+            self.world.output_log.stage.call("clear")
 
     def abort(self) -> None:
         """Stop the buffered output now, from any thread (a DAQmx task stop on hardware): a write

@@ -11,6 +11,9 @@ separate ``evcbench serve`` process applied, e.g. after SIGTERM::
     [emulator]
     output_log = "/tmp/evc/output.jsonl"   # optional file; "" = memory only
     output_log_keep = 1000                 # entries kept in memory
+    output_stage = "127.0.0.1:40123"       # optional: also send each entry's levels to the emulated
+                                           # output stage, a process of its own that holds them
+                                           # (drivers/emulated/output_stage.py); "" = none
 """
 
 from __future__ import annotations
@@ -20,14 +23,18 @@ import threading
 from collections import deque
 
 from drivers.emulated.config import AXES
+from drivers.emulated.output_stage import OutputStageLink, parse_address
 
 
 def check_config(section) -> dict:
     """Validate the ``[emulator]`` table; returns it with defaults filled in."""
     section = dict(section or {})
     for key in section:
-        if key not in ("output_log", "output_log_keep"):
-            raise ValueError(f"emulator.{key}: unknown key (known: output_log, output_log_keep)")
+        if key not in ("output_log", "output_log_keep", "output_stage"):
+            raise ValueError(f"emulator.{key}: unknown key (known: output_log, output_log_keep, output_stage)")
+    stage = section.setdefault("output_stage", "")
+    if stage:
+        parse_address(stage)
     path = section.setdefault("output_log", "")
     keep = section.setdefault("output_log_keep", 1000)
     if not isinstance(path, str):
@@ -47,11 +54,15 @@ class OutputLog:
         self._entries: deque[tuple] = deque(maxlen=cfg["output_log_keep"])
         self._lock = threading.Lock()
         self._file = open(self.path, "a", buffering=1) if self.path else None
+        #: the emulated output stage's link (another process holds the levels), or None
+        self.stage = OutputStageLink(cfg["output_stage"]) if cfg["output_stage"] else None
 
     def record(self, event: str, **extra) -> None:
         """Append the world's present amplifier inputs and outputs as one entry (plus ``extra``).
         Cheap (called once per block or period): a tuple now, the dict only when read."""
         raw = (self.world.time_s, event, self.world.applied_ao_v(), self.world.amplifier_output_v(), extra)
+        if self.stage is not None:
+            self.stage.send_levels(raw[2], raw[3])
         with self._lock:
             self._entries.append(raw)
             if self._file is not None:

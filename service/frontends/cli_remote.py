@@ -334,6 +334,7 @@ def _jobs(api: Client, args) -> int:
 def _stop(api: Client, args) -> int:
     out = api.stop_bench()
     volts = ", ".join(f"{axis} {0.0 if abs(v) < 0.005 else v:.2f} V" for axis, v in out["output_v"].items())
+    volts = volts or "not read (no bench engine)"
     zero = out.get("zero_after_request_ms")
     queued, running = out["cancelled_queued_job_ids"], out["cancelled_job_id"]
     by_engine = queued is None  # the stop port: the service cancels the jobs after it
@@ -349,6 +350,8 @@ def _stop(api: Client, args) -> int:
         f"running job: {running_text}",
         f"queued bench jobs: {queued_text}",
     ]
+    if out.get("engine_note"):
+        lines.append(f"engine: {out['engine_note']}")
     if out.get("stop_port_refusal"):
         lines.append(f"(the stop port was not used: {out['stop_port_refusal']})")
     return _emit(args, out, "\n".join(lines))

@@ -36,6 +36,7 @@ from service.runtime.jobs import JobManager
 from service.runtime.recovery import recover
 from service.runtime.settings import Settings
 from service.runtime.stop_port_link import StopPortLink
+from service.runtime.supervisor import supervise
 from service.security.auth import ensure_bootstrap_token
 from service.security.binding import auth_refusal
 from service.store import Store
@@ -68,14 +69,20 @@ def open_configured_bench(settings: Settings) -> Bench:
     """Open the bench the settings name (the emulated backend unless a config says otherwise): in
     the bench engine's own process (``engine = process``, the default) or in this one (``inline``)."""
     if settings.engine == "process":
-        from service.runtime.engine import open_engine
+        from service.runtime.engine import EngineBench, start_engine
 
-        return open_engine(
-            settings.bench,
-            seed=settings.seed,
-            stop_address=(settings.host, settings.stop_port),
-            bench_id=settings.bench_id,
-        )
+        def start(restart: bool = False):
+            return start_engine(
+                settings.bench,
+                seed=settings.seed,
+                stop_address=(settings.host, settings.stop_port),
+                bench_id=settings.bench_id,
+                restart=restart,
+            )
+
+        bench = EngineBench(start())
+        bench.start_again = start  # the supervisor's fresh engine (service.runtime.supervisor)
+        return bench
     from drivers.factory import open_bench
 
     return open_bench(settings.bench, seed=settings.seed)
@@ -106,7 +113,11 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                 ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
             app.state.bench = factory(settings)
             try:
-                app.state.jobs = JobManager(store, on_cancel_bench=app.state.bench.cancel_plan)
+                app.state.jobs = JobManager(
+                    store,
+                    on_cancel_bench=app.state.bench.cancel_plan,
+                    bench_gate=getattr(app.state.bench, "admit_job", None),
+                )
                 # the engine's stop port (an engine in its own process has one): its tokens, its jobs
                 app.state.stop_port_link = link = (
                     None
@@ -127,10 +138,13 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                     settings.heartbeat_s,
                     lambda: running_state(app.state.jobs),
                 ).start()
+                app.state.supervisor = supervisor = supervise(app.state.bench, app.state.jobs)
                 freeze_heap()  # what start-up loaded is never scanned again by the collector
                 try:
                     yield
                 finally:
+                    if supervisor is not None:
+                        supervisor.close()  # before the engine is closed: that exit is no death
                     if link is not None:
                         link.close()
                     app.state.jobs.shutdown()

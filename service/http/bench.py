@@ -54,7 +54,8 @@ async def emergency_stop(request: Request, credentials: HTTPAuthorizationCredent
     loop writes 0 V within one control period, or 0 V is written from the engine's stop thread),
     then cancel the job that owns the bench with the reason "emergency stop" (its samples so far are
     kept as a partial dataset) and the bench jobs queued behind it, so the bench stays still. Jobs
-    submitted afterwards run normally. ``zero_after_request_ms`` is the engine's measured time from
+    submitted afterwards run normally. With no bench engine (dead, hung or restarting) it still
+    answers 200: the jobs are cancelled and ``engine_note`` says what was done about the outputs. ``zero_after_request_ms`` is the engine's measured time from
     receiving the stop to the 0 V write. Needs an ``operate`` token, checked on the stop's own thread."""
     out = await asyncio.get_running_loop().run_in_executor(_STOP_EXECUTOR, _authorized_stop, request, credentials)
     return {
@@ -71,6 +72,7 @@ async def emergency_stop(request: Request, credentials: HTTPAuthorizationCredent
             )
         },
         "zero_monotonic_s": out["stop"]["zero_monotonic_s"],
+        "engine_note": out.get("engine_note"),
     }
 
 

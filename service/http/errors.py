@@ -6,6 +6,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from service.runtime.engine import BenchLatched, EngineUnavailable
 from service.runtime.jobs import OtherBenchJob, QueueFull
 from service.science.errors import FieldError
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError
@@ -13,6 +14,23 @@ from service.store.tidy import InUseError
 
 #: the Retry-After (s) of a 503 for an unreachable shared array location
 ARRAY_STORE_RETRY_AFTER_S = 30
+#: the Retry-After (s) of a 503 while the bench engine is absent or restarting
+ENGINE_RETRY_AFTER_S = 5
+
+
+def engine_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """503 naming the bench engine: its state (absent | restarting), the reason, what to do."""
+    bench = getattr(request.app.state, "bench", None)
+    return JSONResponse(
+        status_code=503,
+        headers={"Retry-After": str(ENGINE_RETRY_AFTER_S)},
+        content={
+            "detail": f"{exc}; the supervisor starts a fresh engine (GET /api/health says when it is back)",
+            "field": None,
+            "engine": getattr(bench, "engine_state", "absent"),
+            "reason": getattr(bench, "absent_reason", None) or str(exc),
+        },
+    )
 
 
 def _field_of(loc: tuple | list) -> str:
@@ -64,6 +82,14 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(IntegrityError)
     async def _integrity(_request: Request, exc: IntegrityError) -> JSONResponse:
         return JSONResponse(status_code=500, content={"detail": str(exc)})
+
+    @app.exception_handler(EngineUnavailable)
+    async def _engine(request: Request, exc: EngineUnavailable) -> JSONResponse:
+        return engine_unavailable(request, exc)
+
+    @app.exception_handler(BenchLatched)
+    async def _latched(_request: Request, exc: BenchLatched) -> JSONResponse:
+        return JSONResponse(status_code=409, content={"detail": str(exc), "field": "bench"})
 
     @app.exception_handler(ArrayStoreUnavailable)
     async def _array_store(_request: Request, exc: ArrayStoreUnavailable) -> JSONResponse:

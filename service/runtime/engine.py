@@ -7,6 +7,11 @@ same surface the service uses of ``drivers.bench.Bench`` (axes, limits and their
 engine, which owns it. Why a process (docs/architecture.md, "The safety path"): the bench loop, its
 watchdog and the stop then share neither the interpreter lock nor the event loop with downloads,
 imports and fits, so a busy request cannot delay a sample or a stop.
+
+The ``EngineBench`` outlives its engine: the supervisor (service.runtime.supervisor) ``detach``es a
+dead or hung engine and ``attach``es a fresh one. While none is attached every call raises
+``EngineUnavailable`` with the reason (the routes answer 503 naming the engine), and after a
+restart the fault stays latched (``latched``) until the operator's reset.
 """
 
 from __future__ import annotations
@@ -16,15 +21,18 @@ import multiprocessing
 import threading
 import time
 from collections.abc import Callable, Mapping
-from types import SimpleNamespace
+from dataclasses import dataclass
 
 import numpy as np
 
 from drivers.bench import RUN_BLOCK_SAMPLES, STOPPED_ON_REQUEST, BenchRecord, RunInterrupted
-from drivers.interfaces import DriverError
+from drivers.interfaces import BenchLost, DriverError
 from drivers.limits import LimitsMixin
 from service.runtime.engine_process import engine_main
+from service.runtime.engine_remote import Assembled, RemoteLive, parts_of, run_buffered
 from service.runtime.priority import SAFETY_NICE, set_thread_nice
+
+__all__ = ["BenchLatched", "EngineBench", "EngineUnavailable", "open_engine", "start_engine", "run_buffered"]
 
 log = logging.getLogger("evcbench.engine")
 
@@ -32,10 +40,17 @@ log = logging.getLogger("evcbench.engine")
 SHOULD_STOP_POLL_S = 0.05
 #: how long the engine may take to open the bench and say it is ready (s): numba kernels may compile
 START_TIMEOUT_S = 300.0
+#: how long a call that found the engine gone waits for the supervisor's reason (s)
+REASON_WAIT_S = 1.0
 
 
-class EngineUnavailable(DriverError):
-    """The engine process is gone or did not answer; the message says which."""
+class EngineUnavailable(BenchLost):
+    """The bench engine process is gone, hung or restarting; the message says which and why. Every
+    route answers it with 503 naming the engine (service/http/errors.py)."""
+
+
+class BenchLatched(DriverError):
+    """A restart's fault is latched: no bench job is taken until POST /api/bench/reset (409)."""
 
 
 class _Channel:
@@ -56,146 +71,119 @@ class _Channel:
         return value
 
 
-class _FaultView:
-    """A fault the engine scheduled, as its ``Fault.as_dict()`` described it."""
+@dataclass
+class EngineLink:
+    """One engine process: its pipes, its facts and the heartbeat double its pulse writes."""
 
-    def __init__(self, described: dict):
-        self._described = described
+    process: multiprocessing.Process
+    stop: _Channel
+    command: _Channel
+    plan: _Channel
+    notice: object
+    facts: dict
+    heartbeat: object = None
 
-    def as_dict(self) -> dict:
-        return dict(self._described)
-
-
-class _RemoteFaults:
-    """Fault injection in the engine's emulator, as ``drivers.emulated.faults.FaultInjector`` offers it."""
-
-    def __init__(self, command: _Channel):
-        self._command = command
-
-    def add(self, kind: str, axis: str | None = None, after_s: float = 0.0) -> _FaultView:
-        return _FaultView(self._command.call("faults_add", kind, axis, after_s))
-
-    def list(self) -> list[dict]:
-        return self._command.call("faults_list")["faults"]
-
-    @property
-    def transports(self) -> list[str]:
-        return self._command.call("faults_list")["transports"]
-
-    def clear(self) -> list[str]:
-        return self._command.call("faults_clear")["notes"]
+    def heartbeat_age_s(self) -> float:
+        """Seconds since the engine's pulse last beat (``time.monotonic()``, one clock per machine)."""
+        return time.monotonic() - self.heartbeat.value if self.heartbeat is not None else 0.0
 
 
-class _RemoteLive:
-    def __init__(self, command: _Channel):
-        self._command = command
+class _CurrentCommand:
+    """The command pipe of whichever engine is attached now."""
 
-    def since(self, cursor: int | None = None, max_points: int = 2000) -> dict:
-        return self._command.call("live_since", cursor, max_points)
+    def __init__(self, bench: EngineBench):
+        self._bench = bench
 
-
-def _parts(facts: dict, command: _Channel) -> SimpleNamespace:
-    """The static figures of the engine's parts, shaped as ``drivers.interfaces.BenchParts``."""
-    axes = facts["axes"]
-    return SimpleNamespace(
-        backend=facts["backend"],
-        config=facts["config"],
-        resonance_hz=facts["resonance_hz"],
-        ao_channel=facts["ao_channel"],
-        ai_channel=facts["ai_channel"],
-        amplifiers={
-            a: SimpleNamespace(gain_v_per_v=facts["gain_v_per_v"][a], load_capacitance_f=facts["load_capacitance_f"][a])
-            for a in axes
-        },
-        sensors={
-            a: SimpleNamespace(scale_um_per_v=facts["scale_um_per_v"][a], range_um=facts["range_um"][a]) for a in axes
-        },
-        daq=SimpleNamespace(capabilities=facts["capabilities"], sample_rate_hz=facts["sample_rate_hz"]),
-        world=SimpleNamespace(faults=_RemoteFaults(command)) if facts["emulated"] else None,
-    )
-
-
-#: the arrays of a BenchRecord that hold one value per sample, by field name
-_ROW_FIELDS = ("u_cmd_v", "x_um", "extra")
-
-
-def _rows_from(record: BenchRecord, start: int) -> dict[tuple[str, str], np.ndarray]:
-    """The record's rows ``start:`` as ``{(field, name): values}``: views, and the pipe pickles
-    only the rows a view shows."""
-    return {(field, name): values[start:] for field in _ROW_FIELDS for name, values in getattr(record, field).items()}
-
-
-def run_buffered(bench, emit, u_v: Mapping[str, np.ndarray], sample_rate_hz: float, block_samples: int):
-    """The plan behind ``EngineBench.run`` (runs in the engine): ``Bench.run``, sending each block's
-    new rows as the event ``("block", start, rows, fraction)``. Returns what no event carried:
-    ``(start, rows, sample_rate_hz, ending)``, ``ending`` None or ``(reason, stopped)`` of a
-    RunInterrupted. Every row crosses the pipe once."""
-    sent = 0
-
-    def on_block(record: BenchRecord, fraction: float) -> None:
-        nonlocal sent
-        emit("block", sent, _rows_from(record, sent), fraction)
-        sent = record.samples
-
-    try:
-        record, ending = bench.run(u_v, sample_rate_hz, block_samples=block_samples, on_block=on_block), None
-    except RunInterrupted as exc:
-        record, ending = exc.record, (exc.reason, exc.stopped)
-    return sent, _rows_from(record, sent), record.sample_rate_hz, ending
-
-
-class _Assembled:
-    """A run's record put together in the web process from the rows the engine sends, in
-    preallocated arrays (``n`` samples each), so each block costs O(block), never O(run)."""
-
-    def __init__(self, n: int):
-        self.n, self.done = n, 0
-        self.arrays: dict[tuple[str, str], np.ndarray] = {}
-
-    def add(self, start: int, rows: dict[tuple[str, str], np.ndarray]) -> None:
-        for key, values in rows.items():
-            if key not in self.arrays:
-                self.arrays[key] = np.full(self.n, np.nan)
-            self.arrays[key][start : start + len(values)] = values
-            self.done = start + len(values)
-
-    def record(self, sample_rate_hz: float, reason: str | None = None) -> BenchRecord:
-        """The record so far (views); ``reason`` marks it partial."""
-        fields = {field: {} for field in _ROW_FIELDS}
-        for (field, name), values in self.arrays.items():
-            fields[field][name] = values[: self.done]
-        return BenchRecord(sample_rate_hz, partial=reason is not None, reason=reason, **fields)
+    def call(self, *message):
+        return self._bench._link_or_raise().command.call(*message)
 
 
 class EngineBench(LimitsMixin):
     """The bench as the web process sees it when the engine runs in its own process."""
 
-    def __init__(self, process, stop_conn, command_conn, plan_conn, facts: dict, notice_conn=None):
-        self._process = process
-        self._stop = _Channel(stop_conn, "stop")
-        self._command = _Channel(command_conn, "command")
-        self._plan = _Channel(plan_conn, "plan")
+    def __init__(self, link: EngineLink):
+        self._link: EngineLink | None = None
         self._running = threading.Event()
-        self.facts = facts
-        self.axes: tuple[str, ...] = tuple(facts["axes"])
-        self.limits = facts["limits"]
-        self.safety = facts["safety"]
-        self.parts = _parts(facts, self._command)
-        self.live = _RemoteLive(self._command)
+        self._plan_lock = threading.Lock()
+        self.absent_reason: str | None = None  # why no engine is attached (None: one is)
+        self.restarting = False
+        #: the latched restart fault ("engine restarted: …"), cleared by ``clear_faults`` (the reset)
+        self.latched: str | None = None
+        #: what was last done about the outputs without an engine (the supervisor's 0 V), in words
+        self.zero_note: str | None = None
         self.last_stop: dict | None = None
         #: the job that owns the bench now (the app sets it: the stop port's answer names the job)
         self.run_owner: Callable[[], str | None] = lambda: None
         #: called with the reason after the stop port stopped the bench (the app cancels the jobs)
         self.on_port_stop: Callable[[str], None] | None = None
-        if notice_conn is not None:
-            threading.Thread(
-                target=self._hear_notices, args=(notice_conn,), name="evc-engine-notice", daemon=True
-            ).start()
+        #: called with the new stop port after an engine was attached (the app announces it)
+        self.on_attach: Callable[[], None] | None = None
+        self._command = _CurrentCommand(self)
+        self.live = RemoteLive(self._command)
+        self.attach(link)
+
+    # ------------------------------------------------------------------ the engine's life
+    def attach(self, link: EngineLink, latched: str | None = None) -> None:
+        """Serve through ``link`` from now on; ``latched`` (a restart's fault) stays until the reset."""
+        facts = link.facts
+        self.facts = facts
+        self.axes: tuple[str, ...] = tuple(facts["axes"])
+        self.limits = facts["limits"]
+        self.safety = facts["safety"]
+        self.parts = parts_of(facts, self._command)
+        if latched is not None:
+            self.latched = latched
+        self._link, self.absent_reason, self.restarting = link, None, False
+        if link.notice is not None:
+            threading.Thread(target=self._hear_notices, args=(link,), name="evc-engine-notice", daemon=True).start()
+        if self.on_attach is not None:
+            self.on_attach()
+
+    def detach(self, reason: str) -> EngineLink | None:
+        """No engine from now on (``reason`` in words); returns the link that was attached."""
+        link, self._link = self._link, None
+        self.absent_reason, self.restarting, self.zero_note = reason, True, None
+        return link
+
+    @property
+    def link(self) -> EngineLink | None:
+        return self._link
+
+    @property
+    def engine_state(self) -> str:
+        """ "running" (an engine is attached), "restarting" or "absent" (none is)."""
+        if self._link is not None:
+            return "running"
+        return "restarting" if self.restarting else "absent"
+
+    def _link_or_raise(self) -> EngineLink:
+        link = self._link
+        if link is None:
+            raise EngineUnavailable(f"the bench engine is {self.engine_state}: {self.absent_reason}")
+        return link
+
+    def admit_job(self) -> None:
+        """A bench job's admission: EngineUnavailable without an engine, BenchLatched while a
+        restart's fault awaits the reset."""
+        self._link_or_raise()
+        if self.latched is not None:
+            raise BenchLatched(f"{self.latched}; POST /api/bench/reset before the bench runs again")
+
+    def _gone(self, link: EngineLink, what: str) -> EngineUnavailable:
+        """The error of a call that found ``link``'s engine gone, with the supervisor's reason when it
+        gives one within ``REASON_WAIT_S``."""
+        deadline = time.monotonic() + REASON_WAIT_S
+        while self._link is link and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if self._link is not link and self.absent_reason:
+            return EngineUnavailable(f"{what} ({self.absent_reason})")
+        return EngineUnavailable(f"{what}: the bench engine process is gone (exit code {link.process.exitcode})")
 
     # ------------------------------------------------------------------ facts
     @property
-    def engine_pid(self) -> int:
-        return self._process.pid
+    def engine_pid(self) -> int | None:
+        link = self._link
+        return None if link is None else link.process.pid
 
     @property
     def sample_rate_hz(self) -> float:
@@ -221,11 +209,11 @@ class EngineBench(LimitsMixin):
     def stop(self, reason: str = "emergency stop", wait_s: float | None = None) -> bool:
         """Emergency stop in the engine (``Bench.stop``): True if a running loop answered.
         ``last_stop`` has the figures, ``time.monotonic()`` seconds comparable across processes."""
-        self.last_stop = self._stop.call("stop", reason, wait_s)
+        self.last_stop = self._link_or_raise().stop.call("stop", reason, wait_s)
         return bool(self.last_stop["loop_answered"])
 
     def request_stop(self, reason: str = STOPPED_ON_REQUEST) -> None:
-        self._stop.call("request_stop", reason)
+        self._link_or_raise().stop.call("request_stop", reason)
 
     def cancel_plan(self, owner: str | None = None) -> None:
         """Stop the plan of job ``owner`` (sent with it): now if it runs, or as it begins if the engine
@@ -236,7 +224,7 @@ class EngineBench(LimitsMixin):
             if owner is None:
                 self.request_stop()
             else:
-                self._stop.call("cancel_plan", owner, STOPPED_ON_REQUEST)
+                self._link_or_raise().stop.call("cancel_plan", owner, STOPPED_ON_REQUEST)
         except EngineUnavailable:
             log.info("cancel of %s: the bench engine is gone, it runs no plan", owner or "the running plan")
 
@@ -249,13 +237,13 @@ class EngineBench(LimitsMixin):
         """Tell the stop port which tokens are valid: SHA-256 hex digest → (id, name, scope)."""
         return self._command.call("stop_tokens", by_digest, auth_off)
 
-    def _hear_notices(self, conn) -> None:
+    def _hear_notices(self, link: EngineLink) -> None:
         """The stop port's presses: the app's ``on_port_stop`` cancels the bench's jobs, then the
         engine may run plans again. Runs at the safety priority; ends with the engine."""
         set_thread_nice(SAFETY_NICE)
         while True:
             try:
-                kind, seq, reason = conn.recv()
+                kind, seq, reason = link.notice.recv()
             except (EOFError, OSError):
                 return
             try:
@@ -265,28 +253,46 @@ class EngineBench(LimitsMixin):
                 log.exception("cancelling the bench's jobs after a stop-port press failed")
             finally:
                 try:
-                    self._command.call("release_hold", seq)
+                    link.command.call("release_hold", seq)
                 except EngineUnavailable:
                     return
 
     # ------------------------------------------------------------------ queries
     def describe(self) -> dict:
+        link = self._link_or_raise()
         return {
-            **self._command.call("describe"),
-            "engine": {"process": "separate", "pid": self.engine_pid, "stop_port": self.stop_port},
+            **link.command.call("describe"),
+            "engine": self.engine_facts(),
+        }
+
+    def engine_facts(self) -> dict:
+        """The engine process as GET /api/bench shows it: state, pid, stop port, the restart fault."""
+        return {
+            "process": "separate",
+            "state": self.engine_state,
+            "pid": self.engine_pid,
+            "stop_port": self.stop_port if self._link is not None else None,
+            "reason": self.absent_reason,
+            "latched_fault": self.latched,
+            "safe_start": self.facts.get("safe_start"),
         }
 
     def output_v(self) -> dict[str, float]:
         return self._command.call("output_v")
 
     def fault_reason(self) -> str | None:
-        return self._command.call("fault_reason")
+        return self.latched or self._command.call("fault_reason")
 
     def interrupt_reason(self) -> str | None:
         return self._command.call("state")["interrupt_reason"]
 
     def clear_faults(self) -> dict:
-        return self._command.call("clear_faults")
+        """The operator's reset (POST /api/bench/reset): the engine's faults and the restart latch."""
+        out = self._command.call("clear_faults")
+        if self.latched is not None:
+            out = {**out, "cleared": [self.latched, *out["cleared"]]}
+            self.latched = None
+        return out
 
     # ------------------------------------------------------------------ plans
     def execute(
@@ -294,16 +300,21 @@ class EngineBench(LimitsMixin):
     ):
         """Run ``plan(bench, emit, *args)`` in the engine (``plan`` and ``args`` must pickle: a
         module-level function and plain data); ``on_event(*payload)`` gets each event here. A
-        true ``should_stop()`` (looked at on every event and every 50 ms) asks the engine to stop."""
-        with self._plan.lock:
+        true ``should_stop()`` (looked at on every event and every 50 ms) asks the engine to stop.
+        Refused while a restart's fault is latched (``latched``)."""
+        with self._plan_lock:
+            link = self._link_or_raise()
+            if self.latched is not None:
+                raise BenchLatched(f"{self.latched}; POST /api/bench/reset before the bench runs again")
             self._running.set()
             try:
-                return self._execute_locked(plan, args, on_event, should_stop)
+                with link.plan.lock:
+                    return self._execute_locked(link, plan, args, on_event, should_stop)
             finally:
                 self._running.clear()
 
-    def _execute_locked(self, plan, args, on_event, should_stop):
-        conn, asked, owner = self._plan.conn, False, self.run_owner()
+    def _execute_locked(self, link: EngineLink, plan, args, on_event, should_stop):
+        conn, asked, owner = link.plan.conn, False, self.run_owner()
         try:
             conn.send(("execute", plan, args, owner))
             while True:
@@ -311,8 +322,8 @@ class EngineBench(LimitsMixin):
                     self.cancel_plan(owner)
                     asked = True
                 if not conn.poll(SHOULD_STOP_POLL_S):
-                    if not self._process.is_alive():
-                        raise EngineUnavailable("the bench engine process died during the run")
+                    if not link.process.is_alive() or self._link is not link:
+                        raise self._gone(link, "the bench engine was lost during the run")
                     continue
                 kind, value = conn.recv()
                 if kind == "event":
@@ -322,8 +333,8 @@ class EngineBench(LimitsMixin):
                 if kind == "error":
                     raise value
                 return value
-        except (EOFError, OSError, BrokenPipeError) as exc:
-            raise EngineUnavailable(f"the bench engine process is gone (plan: {exc})") from None
+        except (EOFError, OSError, BrokenPipeError):
+            raise self._gone(link, "the bench engine was lost during the run") from None
 
     def run(
         self,
@@ -334,9 +345,10 @@ class EngineBench(LimitsMixin):
         on_block: Callable[[BenchRecord, float], None] | None = None,
         should_stop: Callable[[], bool] | None = None,
     ) -> BenchRecord:
-        """``Bench.run`` in the engine: ``on_block`` sees the record so far here, as it would there."""
+        """``Bench.run`` in the engine: ``on_block`` sees the record so far here, as it would there.
+        An engine that dies during the run ends it as RunInterrupted with the record so far."""
         self.check_waveform(u_v, sample_rate_hz)
-        assembled = _Assembled(len(np.asarray(next(iter(u_v.values())))))
+        assembled = Assembled(len(np.asarray(next(iter(u_v.values())))))
 
         def on_event(kind, start, rows, fraction) -> None:
             assembled.add(start, rows)
@@ -344,9 +356,19 @@ class EngineBench(LimitsMixin):
                 on_block(assembled.record(sample_rate_hz), fraction)
 
         u_plain = {a: np.asarray(v, dtype=float) for a, v in u_v.items()}
-        start, rows, actual_hz, ending = self.execute(
-            run_buffered, u_plain, float(sample_rate_hz), int(block_samples), on_event=on_event, should_stop=should_stop
-        )
+        try:
+            start, rows, actual_hz, ending = self.execute(
+                run_buffered,
+                u_plain,
+                float(sample_rate_hz),
+                int(block_samples),
+                on_event=on_event,
+                should_stop=should_stop,
+            )
+        except EngineUnavailable as exc:
+            if not assembled.done:
+                raise
+            raise RunInterrupted(str(exc), assembled.record(sample_rate_hz, str(exc))) from None
         assembled.add(start, rows)
         if ending is None:
             return assembled.record(actual_hz)
@@ -356,35 +378,42 @@ class EngineBench(LimitsMixin):
     # ------------------------------------------------------------------ life
     def close(self, timeout_s: float = 10.0) -> None:
         """Ask the engine to close the bench at 0 V and exit; kill it if it does not."""
-        try:
-            with self._plan.lock:
-                self._plan.conn.send(("close",))
-        except (OSError, BrokenPipeError):
-            pass
-        self._process.join(timeout_s)
-        if self._process.is_alive():
-            self._process.kill()
-            self._process.join(1.0)
+        link = self._link
+        if link is not None:
+            close_link(link, timeout_s)
 
 
-def open_engine(
+def close_link(link: EngineLink, timeout_s: float = 10.0) -> None:
+    """Ask ``link``'s engine to close the bench at 0 V and exit; kill it if it does not."""
+    try:
+        with link.plan.lock:
+            link.plan.conn.send(("close",))
+    except (OSError, BrokenPipeError):
+        pass
+    link.process.join(timeout_s)
+    if link.process.is_alive():
+        link.process.kill()
+        link.process.join(1.0)
+
+
+def start_engine(
     bench_name: str,
     seed: int | None = None,
     overrides: dict | None = None,
     timeout_s: float = START_TIMEOUT_S,
     stop_address: tuple[str, int] | None = None,
     bench_id: str | None = None,
-) -> EngineBench:
-    """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
-    ``drivers.factory.open_bench`` takes them) and wait until it has opened the bench.
-    ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there, for the
-    bench ``bench_id`` (service.runtime.stop_port)."""
+    restart: bool = False,
+) -> EngineLink:
+    """Start one bench engine process and wait until it has opened the bench at 0 V (``restart``:
+    the supervisor's fresh engine, its amplifiers disabled until the reset)."""
     ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no inherited locks or threads
     pipes = [ctx.Pipe() for _ in range(3)] + [ctx.Pipe(duplex=False)]  # the last: notices, engine → here
+    heartbeat = ctx.RawValue("d", time.monotonic())
     process = ctx.Process(
         target=engine_main,
         name="evc-bench-engine",
-        args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address, bench_id),
+        args=(bench_name, seed, overrides, *(child for _, child in pipes), stop_address, bench_id, heartbeat, restart),
         daemon=True,
     )
     process.start()
@@ -406,4 +435,27 @@ def open_engine(
     if status == "error":
         process.join(5.0)
         raise value
-    return EngineBench(process, stop_conn, command_conn, plan_conn, value, notice_conn)
+    return EngineLink(
+        process,
+        _Channel(stop_conn, "stop"),
+        _Channel(command_conn, "command"),
+        _Channel(plan_conn, "plan"),
+        notice_conn,
+        value,
+        heartbeat,
+    )
+
+
+def open_engine(
+    bench_name: str,
+    seed: int | None = None,
+    overrides: dict | None = None,
+    timeout_s: float = START_TIMEOUT_S,
+    stop_address: tuple[str, int] | None = None,
+    bench_id: str | None = None,
+) -> EngineBench:
+    """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
+    ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench.
+    ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there, for the
+    bench ``bench_id`` (service.runtime.stop_port)."""
+    return EngineBench(start_engine(bench_name, seed, overrides, timeout_s, stop_address, bench_id))

@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import logging
 import os
-import pickle
-import queue
 import signal
 import threading
 import time
@@ -36,6 +34,8 @@ from multiprocessing.connection import Connection
 
 from drivers.bench import Bench
 from drivers.interfaces import DriverError
+from service.runtime.engine_pipes import Outbox, picklable, serve_pipe
+from service.runtime.engine_pulse import Pulse
 from service.runtime.heap import freeze_heap
 from service.runtime.priority import ENGINE_NICE, set_thread_nice
 from service.runtime.stop_port import EMERGENCY_STOP, STOP_PATH, StopPort, StopTokens, zero_after_request_ms
@@ -173,81 +173,6 @@ COMMANDS = {
 }
 
 
-def _picklable(exc: BaseException) -> BaseException:
-    """The exception itself if it survives a pickle round trip, else a DriverError saying what it was."""
-    try:
-        pickle.loads(pickle.dumps(exc))
-        return exc
-    except Exception:  # noqa: BLE001 - any exception may fail to rebuild on the other side
-        return DriverError(f"{type(exc).__name__}: {exc}")
-
-
-def _serve(conn: Connection, handle, lock: threading.Lock | None, on_eof) -> None:
-    """Answer each message on ``conn`` with ``("ok", value)`` or ``("error", exception)``."""
-    while True:
-        try:
-            message = conn.recv()
-        except (EOFError, OSError):
-            on_eof()
-            return
-        try:
-            reply = ("ok", handle(message))
-        except Exception as exc:  # noqa: BLE001 - the caller gets it; the engine lives on
-            reply = ("error", _picklable(exc))
-        try:
-            if lock is None:
-                conn.send(reply)
-            else:
-                with lock:
-                    conn.send(reply)
-        except (EOFError, OSError):
-            on_eof()
-            return
-
-
-class _Outbox:
-    """The plan pipe's sending side, on a thread of its own: a plan's ``emit`` never blocks its
-    loop when the web process is slow to read (its socket buffer full while it collects garbage,
-    say); events and the answer leave in the order they were put."""
-
-    def __init__(self, conn: Connection, on_eof):
-        self._conn, self._on_eof = conn, on_eof
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._count_lock = threading.Lock()
-        self._unsent, self._waiting_since = 0, 0.0
-        self._thread = threading.Thread(target=self._send_all, name="evc-engine-outbox", daemon=True)
-        self._thread.start()
-
-    def put(self, message: tuple) -> None:
-        with self._count_lock:
-            if self._unsent == 0:
-                self._waiting_since = time.monotonic()  # the clock starts with the first unsent message
-            self._unsent += 1
-        self._queue.put(message)
-
-    def unsent_for_s(self) -> float:
-        """While messages wait: how long since the reader last took one (or since the first of them
-        was put, if later), in s; 0 when none waits. A reader that takes nothing makes it grow."""
-        with self._count_lock:
-            return time.monotonic() - self._waiting_since if self._unsent else 0.0
-
-    def close(self, timeout_s: float = 5.0) -> None:
-        """Send what is queued, then stop."""
-        self._queue.put(None)
-        self._thread.join(timeout_s)
-
-    def _send_all(self) -> None:
-        while (message := self._queue.get()) is not None:
-            try:
-                self._conn.send(message)
-            except (EOFError, OSError):
-                self._on_eof()
-                return
-            with self._count_lock:
-                self._unsent -= 1
-                self._waiting_since = time.monotonic()  # the reader took one just now
-
-
 def _exit_on_signal(sig: int, _frame) -> None:
     raise SystemExit(128 + sig)
 
@@ -267,6 +192,192 @@ def _port_answer(figures: dict, owner: str | None) -> dict:
     }
 
 
+def _safe_start(bench: Bench) -> dict:
+    """A fresh engine's first act, before anything else: 0 V on every output and every amplifier
+    disabled (where the driver can: the MDT693B's DC set-points are zeroed). Returns what was done,
+    with the 0 V write's ``time.monotonic()`` (s)."""
+    done: dict = {"notes": []}
+    bench.parts.daq.write_idle()
+    done["zero_monotonic_s"] = bench.last_zero_monotonic_s = time.monotonic()
+    for axis, amp in bench.parts.amplifiers.items():
+        try:
+            amp.disable()
+        except Exception as exc:  # noqa: BLE001 - the DAQ's 0 V holds; the note says what failed
+            done["notes"].append(f"amplifier {axis}: not disabled ({exc})")
+    return done
+
+
+def _arm_hardware_watchdog(bench: Bench, safe: dict) -> None:
+    """Arm the DAQ's own watchdog (``[safety] hardware_watchdog_s``; 0: off) where the driver has
+    one, after the compile (which holds the GIL for seconds: no pet could come). Noted in ``safe``."""
+    arm = getattr(bench.parts.daq, "arm_watchdog", None)
+    if arm is None or bench.safety.hardware_watchdog_s <= 0:
+        safe["hardware_watchdog"] = None
+        return
+    try:
+        safe["hardware_watchdog"] = arm(bench.safety.hardware_watchdog_s)
+    except Exception as exc:  # noqa: BLE001 - the supervisor still guards; the note says so
+        safe["hardware_watchdog"] = None
+        safe["notes"].append(f"hardware watchdog not armed: {exc}")
+
+
+def _open_at_zero(bench_name: str, seed: int | None, overrides: dict | None, plan_conn: Connection, restart: bool):
+    """Open the bench and put it in its safe state (``_safe_start``); on failure tell the web
+    process on ``plan_conn`` and return (None, None). The amplifiers stay disabled after a
+    ``restart`` (until the operator's reset), and are enabled again at the 0 V otherwise."""
+    from drivers.factory import open_bench
+
+    try:
+        bench = open_bench(bench_name, seed=seed, overrides=overrides)
+    except Exception as exc:  # noqa: BLE001 - the web process reports it and does not start
+        plan_conn.send(("error", picklable(exc)))
+        return None, None
+    try:
+        safe = _safe_start(bench)
+        if not restart:
+            for amp in bench.parts.amplifiers.values():
+                amp.enable()
+        safe["amplifiers_disabled"] = restart
+        return bench, safe
+    except Exception as exc:  # noqa: BLE001 - an engine that cannot write 0 V must not serve
+        bench.close()
+        plan_conn.send(("error", picklable(DriverError(f"writing 0 V at start-up failed: {exc}"))))
+        return None, None
+
+
+class _Engine:
+    """One engine's parts once the bench is open: the stopper, the stop port's hold and tokens,
+    and what the web process is told."""
+
+    def __init__(self, bench: Bench, notice_conn: Connection | None):
+        self.bench, self.notice_conn = bench, notice_conn
+        self.closing, self.hold, self.stopper, self.tokens = (
+            threading.Event(),
+            StopHold(),
+            _Stopper(bench),
+            StopTokens(),
+        )
+        self.notice_lock = threading.Lock()
+        self.port: StopPort | None = None
+
+    def press_from_port(self) -> dict:
+        """A press of the stop port: 0 V first, then the hold, then the web process is told."""
+        running = self.stopper.owner  # read first: the plan ends, and forgets it, as the loop stops
+        figures = self.stopper.stop(EMERGENCY_STOP, None)
+        seq = self.hold.press()
+        try:
+            with self.notice_lock:
+                self.notice_conn.send(("emergency_stop", seq, EMERGENCY_STOP))
+        except (OSError, AttributeError):
+            pass  # no web process to tell: the hold stays, nothing runs
+        log.warning("emergency stop on the stop port: outputs at 0 V, job %s stopped", running)
+        return _port_answer(figures, running)
+
+    def open_stop_port(self, stop_address: tuple[str, int] | None, bench_id: str | None) -> None:
+        """Listen on ``stop_address`` (None: no port). Raises DriverError naming the address."""
+        if stop_address is None:
+            return
+        try:
+            self.port = StopPort(*stop_address, press=self.press_from_port, tokens=self.tokens, bench_id=bench_id)
+            self.port.start()
+        except OSError as exc:
+            raise DriverError(f"the stop port could not listen on {stop_address[0]}:{stop_address[1]}: {exc}") from None
+        log.info("emergency stop port: POST http://%s:%d%s", self.port.host, self.port.port, STOP_PATH)
+
+    def shut_down(self) -> None:
+        if not self.closing.is_set():
+            self.closing.set()
+            self.bench.request_stop("the web process went away")
+
+    def clear_faults(self) -> dict:
+        """The operator's reset: a stale hold ends and amplifiers disabled at start-up are enabled
+        again, all with the outputs at 0 V."""
+        self.hold.release()
+        out = self.bench.clear_faults()
+        for amp in self.bench.parts.amplifiers.values():
+            amp.enable()
+        clear = getattr(self.bench.parts.daq, "clear_watchdog", None)
+        if clear is not None:
+            clear()
+        return out
+
+    def serve_pipes(self, stop_conn: Connection, command_conn: Connection) -> None:
+        """The stop and command pipes, each on a thread of its own."""
+        commands = {
+            **COMMANDS,
+            "clear_faults": lambda _bench: self.clear_faults(),
+            "release_hold": lambda _bench, seq: self.hold.release(seq),
+            "stop_tokens": lambda _bench, by_digest, auth_off: self.tokens.replace(by_digest, auth_off),
+        }
+        for name, conn, handle in (
+            ("evc-engine-stop", stop_conn, self.stopper.command),
+            ("evc-engine-command", command_conn, lambda m: commands[m[0]](self.bench, *m[1:])),
+        ):
+            threading.Thread(
+                target=serve_pipe, args=(conn, handle, None, self.shut_down), name=name, daemon=True
+            ).start()
+
+    def serve_plans(self, plan_conn: Connection) -> None:
+        """Run the plans the web process sends, one at a time, until it closes the pipe."""
+        outbox = Outbox(plan_conn, self.shut_down)  # from here on the only sender on the plan pipe
+        emit = self._emitter(outbox)
+        try:
+            while not self.closing.is_set():
+                try:
+                    message = plan_conn.recv()
+                except (EOFError, OSError):
+                    break
+                if message[0] == "close":
+                    break
+                _, plan, args, job_id = message
+                outbox.put(self._run_plan(plan, args, job_id, emit))  # after the plan's events, in order
+        finally:
+            outbox.close()
+
+    def _emitter(self, outbox: Outbox):
+        bench = self.bench
+
+        def emit(*payload) -> None:
+            outbox.put(("event", payload))
+            unread_s = outbox.unsent_for_s()
+            if unread_s > bench.safety.unread_limit_s and bench.interrupt_reason() is None:
+                bench.request_stop(
+                    f"the service took none of the run's samples for {unread_s:.1f} s (limit "
+                    f"{bench.safety.unread_limit_s:g} s, [safety] unread_limit_s): stopped at 0 V"
+                )
+
+        return emit
+
+    def _run_plan(self, plan, args, job_id: str | None, emit) -> tuple:
+        freeze_heap()  # no full collection of the engine's heap stalls the run
+        try:
+            with self.bench.plan_scope():  # a stop from here on holds for the whole plan
+                self.stopper.begin(job_id)  # ... and one for this job that came before it
+                if self.hold.active:
+                    raise DriverError(
+                        f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
+                        "service has cancelled the bench's jobs"
+                    )
+                return ("done", plan(self.bench, emit, *args))
+        except Exception as exc:  # noqa: BLE001 - the job that sent the plan reports it
+            return ("error", picklable(exc))
+        finally:
+            self.stopper.end()
+
+    def close(self) -> None:
+        if self.port is not None:
+            self.port.close()
+        self.bench.close()
+        log.info("bench closed at 0 V")
+
+
+def _quiet_signals() -> None:
+    """The web process handles SIGINT/SIGTERM (safe_shutdown: stop, then close us). A SIGTERM sent
+    to this process alone still leaves through ``finally``: the outputs at 0 V."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_on_signal)
+
+
 def engine_main(
     bench_name: str,
     seed: int | None,
@@ -277,112 +388,38 @@ def engine_main(
     notice_conn: Connection | None = None,
     stop_address: tuple[str, int] | None = None,
     bench_id: str | None = None,
+    heartbeat=None,
+    restart: bool = False,
 ) -> None:
-    """The process's entry point: open the bench (and the stop port on ``stop_address``, if given),
-    say what it is, serve the pipes until the web process closes them (or dies), then leave the
-    outputs at 0 V."""
+    """The process's entry point: open the bench at 0 V (``_safe_start``, its first act), start the
+    pulse (``heartbeat``: the shared double the supervisor reads), open the stop port on
+    ``stop_address`` (if given), say what it is, serve the pipes until the web process closes them
+    (or dies), then leave the outputs at 0 V. ``restart``: the supervisor's fresh engine, whose
+    amplifiers stay disabled until the reset."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s:     [bench engine] %(message)s")
-    # The web process handles SIGINT/SIGTERM (safe_shutdown: stop, then close us). A SIGTERM sent to
-    # this process alone still leaves through ``finally``: the outputs at 0 V.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _exit_on_signal)
+    _quiet_signals()
     set_thread_nice(ENGINE_NICE)  # before any thread starts: they inherit it (service.runtime.priority)
-    from drivers.factory import open_bench
-
-    try:
-        bench = open_bench(bench_name, seed=seed, overrides=overrides)
-    except Exception as exc:  # noqa: BLE001 - the web process reports it and does not start
-        plan_conn.send(("error", _picklable(exc)))
+    bench, safe = _open_at_zero(bench_name, seed, overrides, plan_conn, restart)
+    if bench is None:
         return
+    pulse = Pulse(bench, heartbeat).start()  # beats (and pets the hardware) from here on
     from service.science.control.loop import compile_runner
 
     compile_runner(bench)  # now, not in a run: compiling holds the GIL for seconds
-    closing, hold, stopper, tokens = threading.Event(), StopHold(), _Stopper(bench), StopTokens()
-    notice_lock = threading.Lock()
-
-    def press_from_port() -> dict:
-        running = stopper.owner  # read first: the plan ends, and forgets it, as the loop stops
-        figures = stopper.stop(EMERGENCY_STOP, None)  # 0 V first, then everything else
-        seq = hold.press()
-        try:
-            with notice_lock:
-                notice_conn.send(("emergency_stop", seq, EMERGENCY_STOP))
-        except (OSError, AttributeError):
-            pass  # no web process to tell: the hold stays, nothing runs
-        log.warning("emergency stop on the stop port: outputs at 0 V, job %s stopped", running)
-        return _port_answer(figures, running)
-
-    port = None
-    if stop_address is not None:
-        try:
-            port = StopPort(*stop_address, press=press_from_port, tokens=tokens, bench_id=bench_id).start()
-            log.info("emergency stop port: POST http://%s:%d%s", port.host, port.port, STOP_PATH)
-        except OSError as exc:
-            bench.close()
-            plan_conn.send(
-                ("error", DriverError(f"the stop port could not listen on {stop_address[0]}:{stop_address[1]}: {exc}"))
-            )
-            return
-
-    def shut_down() -> None:
-        if not closing.is_set():
-            closing.set()
-            bench.request_stop("the web process went away")
-
-    def clear_faults() -> dict:
-        hold.release()  # a reset with the outputs at 0 V also ends a stale hold
-        return bench.clear_faults()
-
-    commands = {
-        **COMMANDS,
-        "clear_faults": lambda _bench: clear_faults(),
-        "release_hold": lambda _bench, seq: hold.release(seq),
-        "stop_tokens": lambda _bench, by_digest, auth_off: tokens.replace(by_digest, auth_off),
-    }
-    for name, conn, handle in (
-        ("evc-engine-stop", stop_conn, stopper.command),
-        ("evc-engine-command", command_conn, lambda m: commands[m[0]](bench, *m[1:])),
-    ):
-        threading.Thread(target=_serve, args=(conn, handle, None, shut_down), name=name, daemon=True).start()
-    plan_conn.send(("ready", {**bench_facts(bench), "stop_port": None if port is None else port.port}))
-    outbox = _Outbox(plan_conn, shut_down)  # from here on the only sender on the plan pipe
-
-    def emit(*payload) -> None:
-        outbox.put(("event", payload))
-        unread_s = outbox.unsent_for_s()
-        if unread_s > bench.safety.unread_limit_s and bench.interrupt_reason() is None:
-            bench.request_stop(
-                f"the service took none of the run's samples for {unread_s:.1f} s (limit "
-                f"{bench.safety.unread_limit_s:g} s, [safety] unread_limit_s): stopped at 0 V"
-            )
-
+    _arm_hardware_watchdog(bench, safe)
+    engine = _Engine(bench, notice_conn)
     try:
-        while not closing.is_set():
-            try:
-                message = plan_conn.recv()
-            except (EOFError, OSError):
-                break
-            if message[0] == "close":
-                break
-            _, plan, args, job_id = message
-            freeze_heap()  # no full collection of the engine's heap stalls the run
-            try:
-                with bench.plan_scope():  # a stop from here on holds for the whole plan
-                    stopper.begin(job_id)  # ... and one for this job that came before it
-                    if hold.active:
-                        raise DriverError(
-                            f"{EMERGENCY_STOP} pressed on the stop port: no run starts until the "
-                            "service has cancelled the bench's jobs"
-                        )
-                    reply = ("done", plan(bench, emit, *args))
-            except Exception as exc:  # noqa: BLE001 - the job that sent the plan reports it
-                reply = ("error", _picklable(exc))
-            finally:
-                stopper.end()
-            outbox.put(reply)  # after the plan's events, in order
-    finally:
-        outbox.close()
-        if port is not None:
-            port.close()
+        engine.open_stop_port(stop_address, bench_id)
+    except DriverError as exc:
+        pulse.close()
         bench.close()
-        log.info("bench closed at 0 V")
+        plan_conn.send(("error", exc))
+        return
+    engine.serve_pipes(stop_conn, command_conn)
+    stop_port = None if engine.port is None else engine.port.port
+    plan_conn.send(("ready", {**bench_facts(bench), "stop_port": stop_port, "safe_start": safe}))
+    try:
+        engine.serve_plans(plan_conn)
+    finally:
+        pulse.close()
+        engine.close()

@@ -107,7 +107,7 @@ class JobContext:
 
 class JobManager:
     """Runs, tracks and cancels jobs. ``on_cancel_bench(job_id)`` is called to stop a running bench
-    job's plan (``Bench.cancel_plan``).
+    job's plan (``Bench.cancel_plan``); ``bench_gate()`` raises to refuse a bench job (no engine).
     At most ``max_queued_bench_jobs`` bench jobs and ``max_queued_compute_jobs`` other jobs wait
     (running ones are not counted)."""
 
@@ -118,8 +118,10 @@ class JobManager:
         workers: int = 2,
         max_queued_bench_jobs: int = MAX_QUEUED_BENCH_JOBS,
         max_queued_compute_jobs: int = MAX_QUEUED_COMPUTE_JOBS,
+        bench_gate: Callable[[], None] | None = None,
     ):
         self.store = store
+        self._bench_gate = bench_gate
         self._on_cancel_bench = on_cancel_bench
         self._live: dict[str, _Live] = {}
         self._lock = threading.Lock()
@@ -141,6 +143,8 @@ class JobManager:
         QueueFull (nothing stored) if its queue already holds its limit of queued jobs."""
         if self._closed:
             raise RuntimeError("the service is shutting down; no new jobs")
+        if needs_bench and self._bench_gate is not None:
+            self._bench_gate()  # no engine: refused (EngineUnavailable, 503), nothing stored
         with self._lock:
             queued = self._reserved[needs_bench] + sum(
                 1 for live in self._live.values() if live.needs_bench == needs_bench and live.state == "queued"

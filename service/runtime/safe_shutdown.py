@@ -40,7 +40,10 @@ def safe_state(app: Any, reason: str) -> dict:
     out: dict = {"reason": reason, "cancelled_job_id": None, "cancelled_queued_job_ids": []}
     if bench is not None:
         running = jobs.running_bench_job if jobs is not None else None
-        out["loop_answered"] = bench.stop(reason)
+        try:
+            out["loop_answered"] = bench.stop(reason)
+        except EngineUnavailable as exc:
+            return _engine_gone(out, bench, jobs, running, exc)
         out["stop"] = stop = dict(bench.last_stop)
         if jobs is not None:
             out["cancelled_job_id"], out["cancelled_queued_job_ids"] = cancel_bench_jobs(jobs, reason, running)
@@ -51,6 +54,24 @@ def safe_state(app: Any, reason: str) -> dict:
         reason,
         f"running job {out['cancelled_job_id']} cancelled" if out["cancelled_job_id"] else "no job was running",
     )
+    return out
+
+
+def _engine_gone(out: dict, bench: Any, jobs: Any, running: str | None, exc: EngineUnavailable) -> dict:
+    """``safe_state`` without an engine: what could be done, in ``engine_note``. The supervisor
+    drives the outputs to 0 V where the hardware lets it and starts a fresh engine, whose first act
+    is 0 V; the bench jobs are cancelled here all the same."""
+    if jobs is not None:
+        out["cancelled_job_id"], out["cancelled_queued_job_ids"] = cancel_bench_jobs(jobs, out["reason"], running)
+    done = getattr(bench, "zero_note", None) or "a fresh engine writes 0 V as its first act"
+    out.update(
+        loop_answered=None,
+        output_v={},
+        zero_after_request_ms=None,
+        stop={"zero_monotonic_s": None},
+        engine_note=f"{exc}; {done}",
+    )
+    log.warning("%s without a bench engine: %s", out["reason"], out["engine_note"])
     return out
 
 
@@ -66,6 +87,9 @@ def install(server: Any, app: Any) -> None:
     original = server.handle_exit
 
     def handle_exit(sig: int, frame) -> None:
+        supervisor = getattr(getattr(app, "state", None), "supervisor", None)
+        if supervisor is not None:
+            supervisor.stand_down()  # an engine leaving on this signal is no death to restart from
         try:
             safe_state(app, reason_for(sig))
         except EngineUnavailable as exc:  # a signal to the process group reached the engine first

@@ -16,6 +16,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from service.runtime.engine import EngineUnavailable
 from service.runtime.safe_shutdown import cancel_bench_jobs
 from service.runtime.stop_port import STOP_PORT_FILE
 from service.store.files import write_bytes_atomic
@@ -51,9 +52,15 @@ class StopPortLink:
         """Send the tokens now (before the service answers anyone), then keep them current."""
         self.bench.run_owner = lambda: self.jobs.running_bench_job
         self.bench.on_port_stop = self._cancel_jobs
+        self.bench.on_attach = self.reattach
         self.refresh()
         self._thread = threading.Thread(target=self._keep_current, name="evc-stop-tokens", daemon=True)
         self._thread.start()
+        self._announce()
+        return self
+
+    def _announce(self) -> None:
+        """Write ``STOP_PORT_FILE`` (the engine's stop port, for a local ``evcbench stop``)."""
         if self.announce is not None:
             data_dir, service_port, bench_id = self.announce
             write_bytes_atomic(
@@ -62,7 +69,17 @@ class StopPortLink:
                     {"service_port": service_port, "stop_port": self.bench.stop_port, "bench_id": bench_id}
                 ).encode(),
             )
-        return self
+
+    def reattach(self) -> None:
+        """A fresh engine was attached (service.runtime.supervisor): its stop port learns the
+        tokens, and the file names its port."""
+        with self._lock:
+            self._sent = None
+        try:
+            self.refresh()
+        except EngineUnavailable as exc:
+            log.warning("the fresh engine's stop port has no tokens yet: %s", exc)
+        self._announce()
 
     def close(self) -> None:
         self._closing.set()
@@ -83,6 +100,8 @@ class StopPortLink:
         while not self._closing.wait(self.refresh_s):
             try:
                 self.refresh()
+            except EngineUnavailable:
+                pass  # no engine now: the fresh one gets the list as it is attached (reattach)
             except Exception:  # noqa: BLE001 - a store hiccup: the port keeps the last list; try again
                 log.exception("could not send the stop port its tokens")
 
@@ -95,4 +114,7 @@ def refresh_stop_tokens(app: Any) -> None:
     """After this process created or revoked a token: the stop port learns it at once."""
     link = getattr(app.state, "stop_port_link", None)
     if link is not None:
-        link.refresh()
+        try:
+            link.refresh()
+        except EngineUnavailable:
+            pass  # no engine now: the fresh one gets the list as it is attached

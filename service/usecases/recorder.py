@@ -26,7 +26,7 @@ from drivers.bench import Bench, BenchRecord, RunInterrupted
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.datasets import units_for
 from service.store import DatasetRow, Store, placement, utc_now
-from service.store.chunks import ChunkWriter
+from service.store.chunks import ChunkWriter, read_chunks
 
 
 @dataclass(frozen=True)
@@ -150,6 +150,15 @@ class Recorder:
                 f"{self.store.array_url}, which did not answer; they are uploaded when it does"
             )
         return row
+
+    def keep_written(self, stop: Stop) -> DatasetRow | None:
+        """The rows appended so far (the run ended without its record: the bench engine was lost)
+        stored as a partial dataset with ``stop.reason``; None if none was appended."""
+        if self._chunks is None or not self._chunks.rows_seen:
+            return None
+        self._chunks.flush()
+        arrays, _problems = read_chunks(self._chunks.directory)
+        return self.keep(arrays, stop) if arrays else None
 
     def end(self, row: DatasetRow, result: dict, stop: Stop | None) -> dict:
         """The job's result, with any warning about the chunks; on a ``stop``, JobInterrupted

@@ -9,6 +9,7 @@ or a stop ends the run early.
 from __future__ import annotations
 
 from drivers.bench import Bench
+from drivers.interfaces import BenchLost
 from service.runtime.jobs import JobContext
 from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, untrained_turning_points
 from service.science.control.gains import choose_pid
@@ -244,6 +245,12 @@ def run_trajectory(
             raise recorder.nothing_kept(
                 f"{exc.reason} while measuring the response for the ILC; nothing stored", cancelled=True
             ) from None
+        except BenchLost as exc:  # the engine died or hung: the periods received are kept
+            stop = Stop(str(exc))
+            row = recorder.keep_written(stop)
+            if row is None:
+                raise recorder.nothing_kept(f"{exc}; nothing measured", cancelled=False) from None
+            return recorder.end(row, {"dataset_id": row["id"], "samples": row["samples"], "partial": True}, stop)
         stop = tracking_stop(result, rec)
         row = recorder.keep(trace_arrays(rec, SAMPLE_RATE_HZ, bench.axes, 0, rec.samples), stop)
     result["dataset_id"] = row["id"]

@@ -241,7 +241,7 @@ def test_a_run_whose_samples_nobody_takes_stops_at_0v():
     try:
         fs = bench.sample_rate_hz
         u = np.minimum(np.arange(int(20 * fs)) / fs * 120.0, 60.0)  # up to 60 V in 0.5 s, then held
-        conn = bench._plan.conn  # the plan pipe, read by no one for a while
+        conn = bench.link.plan.conn  # the plan pipe, read by no one for a while
         conn.send(("execute", run_buffered, ({"y": u, "z": u}, fs, 2000), None))
         time.sleep(3.0)
         assert all(abs(v) < 0.05 for v in bench.output_v().values())  # stopped long before its 20 s

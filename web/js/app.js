@@ -60,7 +60,34 @@ async function emergencyStop() {
   }
 }
 
+/** The bench engine's state from GET /api/health (no token needed): a red strip while it is absent
+ *  or restarting (503 "degraded", with the reason), an amber one while a restart's fault is latched
+ *  (until Reset latched faults on the Bench page), none otherwise. */
+async function refreshEngineState() {
+  const strip = document.getElementById('engine-state');
+  let health = null;
+  try {
+    const response = await fetch('/api/health');
+    health = await response.json();
+  } catch (err) {
+    health = { status: 'degraded', engine: 'unreachable', reason: `cannot reach the service (${err.message})` };
+  }
+  if (health.status === 'degraded') {
+    strip.dataset.state = 'degraded';
+    strip.textContent = `Bench engine ${health.engine}: ${health.reason}. Outputs are driven to 0 V; bench jobs are refused until a fresh engine is up.`;
+    strip.hidden = false;
+  } else if (health.latched_fault) {
+    strip.dataset.state = 'latched';
+    strip.textContent = `Latched fault: ${health.latched_fault}. Reset latched faults (Bench page) before the bench runs again.`;
+    strip.hidden = false;
+  } else {
+    strip.dataset.state = '';
+    strip.hidden = true;
+  }
+}
+
 async function refreshPill() {
+  refreshEngineState();
   const pill = document.getElementById('bench-pill');
   try {
     const bench = await api('/bench');

@@ -70,6 +70,15 @@ class WireDaq:
     def write_idle(self) -> None:
         self.inner.write_idle()
 
+    def arm_watchdog(self, timeout_s: float) -> dict | None:
+        return self.inner.arm_watchdog(timeout_s)
+
+    def pet_watchdog(self) -> str | None:
+        return self.inner.pet_watchdog()
+
+    def clear_watchdog(self) -> None:
+        self.inner.clear_watchdog()
+
     def begin_session(self) -> None:
         self.inner.begin_session()
 

@@ -12,7 +12,12 @@ from service.http.schemas.common import OPEN
 class Health(BaseModel):
     """Liveness: the software version, the bench backend and the store's database."""
 
-    status: str = Field(description='"ok"')
+    status: str = Field(description='"ok", or "degraded" (503) while the bench engine is absent or restarting')
+    engine: str = Field(default="running", description="the bench engine: running | restarting | absent")
+    reason: str | None = Field(default=None, description="why the engine is absent or restarting")
+    latched_fault: str | None = Field(
+        default=None, description='"engine restarted: …" until POST /api/bench/reset clears it'
+    )
     version: str
     backend: str
     store: str = Field(description="sqlite | postgresql")
@@ -132,6 +137,10 @@ class EmergencyStop(BaseModel):
     output_v: dict[str, float]
     zero_after_request_ms: float | None = Field(description="the engine's time from the stop to the 0 V write")
     zero_monotonic_s: float | None
+    engine_note: str | None = Field(
+        default=None,
+        description="set when there was no bench engine to stop: what was done about the outputs instead",
+    )
 
 
 class FaultsReset(BaseModel):
