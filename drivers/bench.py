@@ -389,6 +389,14 @@ class Bench(LimitsMixin):
         }
         return running and answered
 
+    def trip(self, reason: str) -> None:
+        """A fault seen outside the loop (the DAQ's own watchdog expired): the running loop stops as
+        on a watchdog trip, a failure with ``reason``, not a stop on request."""
+        self._on_watchdog_trip(reason)
+        abort = getattr(self.parts.daq, "abort", None)
+        if callable(abort) and self.running:
+            abort()
+
     def _on_watchdog_trip(self, reason: str) -> None:
         self.tripped = reason
         self._stop_flag[0] = 1

@@ -56,7 +56,7 @@ class Pulse:
             self.expired = expired
             log.error("%s", expired)
             if self.bench.running:
-                self.bench.request_stop(expired)
+                self.bench.trip(expired)
         elif not expired:
             self.expired = None
 
