@@ -164,11 +164,14 @@ def watchdog_latency() -> list[dict]:
 
 
 def run_safety_benchmark() -> dict:
-    """Stop, fault and watchdog latencies side by side (see the module docstring), then the stop and
-    a sweep with the service under load (service.perf.safety_load)."""
+    """Stop, fault and watchdog latencies side by side (see the module docstring), a dead or hung
+    bench engine (service.perf.engine_death), then the stop and a sweep with the service under load
+    (service.perf.safety_load)."""
+    from service.perf.engine_death import run_engine_death_benchmark
     from service.perf.safety_load import run_safety_under_load
 
     return {
+        "engine_death": run_engine_death_benchmark(),
         "stop": stop_latency(),
         "faults": fault_latency(),
         "watchdog": watchdog_latency(),
