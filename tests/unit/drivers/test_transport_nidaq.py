@@ -204,3 +204,86 @@ def test_hardware_streams_blocks_and_returns_to_zero(device):
         daq.write_idle()
     finally:
         daq.close()
+
+
+# ---------------------------------------------------------------------- the AO watchdog timer
+@pytest.fixture
+def fake_watchdog(fake, monkeypatch):
+    """The stand-in plus nidaqmx.system.watchdog: a WatchdogTask that records its calls."""
+
+    def install(**kw):
+        log = fake(**kw)
+        constants = sys.modules["nidaqmx.constants"]
+        monkeypatch.setattr(
+            constants,
+            "WatchdogAOExpirState",
+            types.SimpleNamespace(VOLTAGE="VOLTAGE", CURRENT="CURRENT"),
+            raising=False,
+        )
+
+        class AOExpirationState:
+            def __init__(self, physical_channel, expiration_state, output_type):
+                self.args = (physical_channel, expiration_state, output_type)
+
+        class WatchdogTask:
+            expired = False
+
+            def __init__(self, device_name, task_name="", timeout=10):
+                log.append(("watchdog", "create", device_name, timeout))
+
+            def cfg_watchdog_ao_expir_states(self, states):
+                log.append(("watchdog", "ao_expir_states", [s.args for s in states]))
+
+            def start(self):
+                log.append(("watchdog", "start"))
+
+            def reset_timer(self):
+                log.append(("watchdog", "reset_timer"))
+
+            def clear_expiration(self):
+                log.append(("watchdog", "clear_expiration"))
+
+            def stop(self):
+                log.append(("watchdog", "stop"))
+
+            def close(self):
+                log.append(("watchdog", "close"))
+
+        watchdog = types.SimpleNamespace(AOExpirationState=AOExpirationState, WatchdogTask=WatchdogTask)
+        monkeypatch.setitem(sys.modules, "nidaqmx.system", types.SimpleNamespace(watchdog=watchdog))
+        monkeypatch.setitem(sys.modules, "nidaqmx.system.watchdog", watchdog)
+        return log, WatchdogTask
+
+    return install
+
+
+def test_the_ao_watchdog_is_armed_with_0v_expiration_states_and_petted(fake_watchdog):
+    log, task_class = fake_watchdog()
+    daq = nidaq.NidaqDaq("Dev3", ao_channels="ao0:1", sample_rate_hz=20_000.0)
+    armed = daq.arm_watchdog(0.25)
+    assert armed == {"device": "NI-DAQmx Dev3", "timeout_s": 0.25, "channels": ["Dev3/ao0", "Dev3/ao1"]}
+    wd = [e for e in log if e[0] == "watchdog"]
+    assert wd == [
+        ("watchdog", "create", "Dev3", 0.25),
+        ("watchdog", "ao_expir_states", [("Dev3/ao0", 0.0, "VOLTAGE"), ("Dev3/ao1", 0.0, "VOLTAGE")]),
+        ("watchdog", "start"),
+    ]
+    assert daq.pet_watchdog() is None and log[-1] == ("watchdog", "reset_timer")
+    task_class.expired = True  # the engine stopped petting: the device set its outputs to 0 V
+    before = len(log)
+    reason = daq.pet_watchdog()
+    assert "Dev3" in reason and "expired" in reason and "0 V" in reason
+    assert ("watchdog", "reset_timer") not in log[before:]  # an expired timer is reported, not petted
+    daq.clear_watchdog()
+    assert log[-1] == ("watchdog", "clear_expiration")
+    daq.close()
+    assert log[-2:] == [("watchdog", "stop"), ("watchdog", "close")]
+
+
+def test_zero_ao_writes_0v_to_every_channel_from_any_process(fake):
+    log = fake()
+    assert nidaq.physical_channels("Dev1/ao0:1") == ["Dev1/ao0", "Dev1/ao1"]
+    assert nidaq.physical_channels("Dev1/ao0, Dev2/ao2:3") == ["Dev1/ao0", "Dev2/ao2", "Dev2/ao3"]
+    assert nidaq.zero_ao(device="Dev5", ao_channels="ao0:1", range_v=10.0) == "Dev5/ao0:1"
+    name = log[0][0]
+    assert log == [(name, "ao", "Dev5/ao0:1"), (name, "write", [0.0, 0.0], True), (name, "close")]
