@@ -133,7 +133,7 @@ class EmulatedDaq:
         if stage is None:
             return None
         armed = stage.call("arm", timeout_s=float(timeout_s))["armed_s"]
-        return None if armed is None else {"device": "emulated output stage", "timeout_s": armed, "expiration_v": 0.0}
+        return {"device": "emulated output stage", "timeout_s": armed, "expiration_v": 0.0}
 
     def pet_watchdog(self) -> str | None:
         """Pet the output stage's watchdog; its expiry in words, or None (none, or not expired)."""

@@ -23,7 +23,6 @@ import threading
 from collections import deque
 
 from drivers.emulated.config import AXES
-from drivers.emulated.output_stage import OutputStageLink, parse_address
 
 
 def check_config(section) -> dict:
@@ -34,6 +33,8 @@ def check_config(section) -> dict:
             raise ValueError(f"emulator.{key}: unknown key (known: output_log, output_log_keep, output_stage)")
     stage = section.setdefault("output_stage", "")
     if stage:
+        from drivers.emulated.output_stage import parse_address  # here: `python -m` runs that module
+
         parse_address(stage)
     path = section.setdefault("output_log", "")
     keep = section.setdefault("output_log_keep", 1000)
@@ -55,7 +56,11 @@ class OutputLog:
         self._lock = threading.Lock()
         self._file = open(self.path, "a", buffering=1) if self.path else None
         #: the emulated output stage's link (another process holds the levels), or None
-        self.stage = OutputStageLink(cfg["output_stage"]) if cfg["output_stage"] else None
+        self.stage = None
+        if cfg["output_stage"]:
+            from drivers.emulated.output_stage import OutputStageLink
+
+            self.stage = OutputStageLink(cfg["output_stage"])
 
     def record(self, event: str, **extra) -> None:
         """Append the world's present amplifier inputs and outputs as one entry (plus ``extra``).

@@ -16,12 +16,12 @@ Run it with ``python -m drivers.emulated.output_stage [--port N] [--no-watchdog]
 address on the first line of stdout. One UDP datagram of JSON per message, ``op`` naming it:
 
     set    {"ao": [y, z], "amp": [y, z]}   DAQ volts and amplifier volts; no answer
-    arm    {"timeout_s": t}               → {"armed_s": t} (null when the stage honours no watchdog)
+    arm    {"timeout_s": t}               → {"armed_s": t}
     pet                                   → {"expired": reason | null}
     clear                                 → {"cleared": was_expired}
     zero   {"by": who}                    → {"zero_monotonic_s": t}: another process writes 0 V
     state                                 → levels, watchdog and ``zero_since_monotonic_s``
-    honour {"on": bool}                   → the stage has (or lacks) a watchdog from now on
+    honour {"on": bool}                   → its expiry acts (or not: a DAQ without a watchdog) from now on
 
 Times are ``time.monotonic()`` seconds: CLOCK_MONOTONIC, one clock for every process of the machine.
 """
@@ -80,9 +80,7 @@ class StageState:
         if self.expired is None:  # an expired watchdog holds the expiration states
             self._levels(now, ao, amp, "written")
 
-    def arm(self, now: float, timeout_s: float) -> float | None:
-        if not self.honour:
-            return None
+    def arm(self, now: float, timeout_s: float) -> float:
         self.timeout_s, self.last_pet_s, self.expired, self.expired_at_s = float(timeout_s), now, None, None
         self.events.append((now, f"watchdog armed ({timeout_s:g} s)"))
         return self.timeout_s
@@ -142,7 +140,7 @@ def _answer(state: StageState, message: dict, now: float) -> dict | None:
     if op == "zero":
         return {"zero_monotonic_s": state.zero(now, str(message.get("by", "?")))}
     if op == "honour":
-        state.honour = bool(message["on"])
+        state.honour, state.last_pet_s = bool(message["on"]), now
         return {"honoured": state.honour}
     return {**state.as_dict(), "now_monotonic_s": now}
 

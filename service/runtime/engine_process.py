@@ -407,6 +407,8 @@ def engine_main(
 
     compile_runner(bench)  # now, not in a run: compiling holds the GIL for seconds
     _arm_hardware_watchdog(bench, safe)
+    if safe["hardware_watchdog"] is not None:
+        pulse.pet_from_now()
     engine = _Engine(bench, notice_conn)
     try:
         engine.open_stop_port(stop_address, bench_id)

@@ -31,10 +31,15 @@ class Pulse:
 
     def __init__(self, bench, heartbeat=None, interval_s: float = PULSE_S):
         self.bench, self.heartbeat, self.interval_s = bench, heartbeat, float(interval_s)
-        self._pet = getattr(bench.parts.daq, "pet_watchdog", None)
+        self._pet = None  # set by ``pet_from_now`` once the hardware watchdog is armed
         self._closing = threading.Event()
         self._thread = threading.Thread(target=self._run, name="evc-engine-pulse", daemon=True)
         self.expired: str | None = None  # the hardware watchdog's last expiry, in words
+
+    def pet_from_now(self) -> None:
+        """The DAQ's watchdog is armed: pet it at every beat (before, an expiry a dead engine left
+        would read as this engine's)."""
+        self._pet = getattr(self.bench.parts.daq, "pet_watchdog", None)
 
     def start(self) -> Pulse:
         self.beat()
