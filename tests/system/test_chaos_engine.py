@@ -25,6 +25,7 @@ from tests.support.chaos import (
     Stage,
     chaos_bench,
     engine_pid,
+    evcbench,
     health,
     log_problems,
     serve,
@@ -123,6 +124,8 @@ def test_sigkill_while_idle(chaos):
     assert "SIGKILL" in _degraded(http)["reason"]
     stop = http.post("/api/bench/stop")  # the emergency stop without an engine: what it could do
     assert stop.status_code == 200 and (stop.json()["engine_note"] or stop.json()["output_v"]), stop.text
+    cli = evcbench(server, "stop")  # its stop port refuses (the engine is gone): the service's route
+    assert cli.returncode == 0 and "stopped on the " in cli.stdout, cli.stdout + cli.stderr
     assert stage.held_v() < 0.01
     _after_restart(chaos, pid, "SIGKILL")
 
