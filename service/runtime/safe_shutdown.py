@@ -63,7 +63,7 @@ def _engine_gone(out: dict, bench: Any, jobs: Any, running: str | None, exc: Eng
     is 0 V; the bench jobs are cancelled here all the same."""
     if jobs is not None:
         out["cancelled_job_id"], out["cancelled_queued_job_ids"] = cancel_bench_jobs(jobs, out["reason"], running)
-    done = getattr(bench, "zero_note", None) or "a fresh engine writes 0 V as its first act"
+    done = getattr(bench, "zero_note", None) or "a fresh engine, if the service goes on, writes 0 V as its first act"
     out.update(
         loop_answered=None,
         output_v={},

@@ -381,6 +381,6 @@ def test_a_signal_that_reached_the_engine_first_is_logged_without_a_traceback(ca
     (record,) = caplog.records
     assert record.levelno == logging.WARNING and record.exc_info is None
     assert (
-        "stopped by SIGTERM: the bench engine had already gone (the bench engine process has exited"
+        "stopped by SIGTERM without a bench engine: the bench engine process has exited (code 143)"
         in record.getMessage()
     )
