@@ -307,7 +307,7 @@ def engine_main(
     bench, safe = _open_at_zero(bench_name, seed, overrides, plan_conn, restart)
     if bench is None:
         return
-    pulse = Pulse(bench, heartbeat).start()  # beats (and pets the hardware) from here on
+    pulse = Pulse(bench, heartbeat).start()  # beats from here on (the supervisor reads them once ready)
     from service.science.control.loop import compile_runner
 
     compile_runner(bench)  # now, not in a run: compiling holds the GIL for seconds
@@ -324,6 +324,7 @@ def engine_main(
         return
     engine.serve_pipes(stop_conn, command_conn)
     stop_port = None if engine.port is None else engine.port.port
+    pulse.beat()  # fresh as the supervisor starts reading it (the compile may have starved the thread)
     plan_conn.send(("ready", {**bench_facts(bench), "stop_port": stop_port, "safe_start": safe}))
     try:
         engine.serve_plans(plan_conn)
