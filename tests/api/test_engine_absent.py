@@ -5,7 +5,7 @@ detached and attached again as the supervisor does (service/runtime/supervisor.p
 
 from __future__ import annotations
 
-from service.runtime.app import create_app
+from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client
 
