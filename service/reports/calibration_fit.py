@@ -250,6 +250,22 @@ def objective(axis: str, measured: dict) -> tuple[float, dict[str, float]]:
     return float(sum(parts.values())), parts
 
 
+def search_unit_box(evaluate, x0: np.ndarray, evaluations: int, step: float) -> None:
+    """Bounded Nelder–Mead over parameters scaled to [0, 1], from ``x0`` with a first simplex of
+    ``step`` along each axis (inward at a bound); ``evaluate`` keeps the best it sees."""
+    simplex = [x0] + [
+        np.clip(x0 + np.where(np.arange(len(x0)) == i, step if x0[i] < 1 - step else -step, 0.0), 0, 1)
+        for i in range(len(x0))
+    ]
+    minimize(
+        evaluate,
+        x0,
+        method="Nelder-Mead",
+        bounds=[(0.0, 1.0)] * len(x0),
+        options={"maxfev": evaluations, "initial_simplex": np.array(simplex), "xatol": 5e-3, "fatol": 1e-3},
+    )
+
+
 def fit_axis(
     axis: str,
     evaluations: int = 150,
@@ -298,17 +314,7 @@ def fit_axis(
             )
         return value
 
-    simplex = [x0] + [
-        np.clip(x0 + np.where(np.arange(len(x0)) == i, step if x0[i] < 1 - step else -step, 0.0), 0, 1)
-        for i in range(len(x0))
-    ]
-    minimize(
-        evaluate,
-        x0,
-        method="Nelder-Mead",
-        bounds=[(0.0, 1.0)] * len(x0),
-        options={"maxfev": evaluations, "initial_simplex": np.array(simplex), "xatol": 5e-3, "fatol": 1e-3},
-    )
+    search_unit_box(evaluate, x0, evaluations, step)
     best["evaluations"] = len(cache)
     return best
 

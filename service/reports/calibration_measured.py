@@ -30,11 +30,18 @@ import math
 import time
 
 import numpy as np
-from scipy.optimize import minimize
 
 from drivers.emulated.config import load_config
 from service.reports.calibration import PAPER, last_cycle, loop_width, run_loops
-from service.reports.calibration_fit import PARAMETERS, PI_1HZ_MARGIN, STRAIN_KEYS, Parameter, _band, overrides_for
+from service.reports.calibration_fit import (
+    PARAMETERS,
+    PI_1HZ_MARGIN,
+    STRAIN_KEYS,
+    Parameter,
+    _band,
+    overrides_for,
+    search_unit_box,
+)
 from service.reports.reproduction import PAPER_TABLE6_UM, sweep_series
 from service.science import paper
 from service.science.fitting.metrics import rms
@@ -185,17 +192,7 @@ def fit_axis(axis: str, evaluations: int = 150, bench: str = BENCH, seed: int = 
                 print(f"[{axis} #{len(cache)} {line['s']:.0f} s] {value:.3f} " + _cells_text(measured), flush=True)
         return cache[key]
 
-    simplex = [x0] + [
-        np.clip(x0 + np.where(np.arange(len(x0)) == i, step if x0[i] < 1 - step else -step, 0.0), 0, 1)
-        for i in range(len(x0))
-    ]
-    minimize(
-        evaluate,
-        x0,
-        method="Nelder-Mead",
-        bounds=[(0.0, 1.0)] * len(x0),
-        options={"maxfev": evaluations, "initial_simplex": np.array(simplex), "xatol": 5e-3, "fatol": 1e-3},
-    )
+    search_unit_box(evaluate, x0, evaluations, step)
     return best
 
 

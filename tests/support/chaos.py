@@ -132,21 +132,6 @@ def wait_restarted(http: httpx.Client, old_pid: int, timeout_s: float = 120.0) -
     return wait_until(back, timeout_s, "a fresh engine with the fault latched")
 
 
-def evcbench(server: Server, *args: str) -> subprocess.CompletedProcess:
-    """``evcbench <args> --url <service>`` as a lab user runs it beside the service (its admin token)."""
-    import os
-
-    env = {**{k: v for k, v in os.environ.items() if k != "EVCBENCH_TOKEN"}, "EVCBENCH_DATA_DIR": str(server.data_dir)}
-    return subprocess.run(
-        [sys.executable, "-m", "service.frontends.cli", *args, "--url", server.url],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-
-
 def store_check(data_dir: Path) -> tuple[int, dict]:
     """``evcbench store check --json`` on a store whose service runs."""
     proc = subprocess.run(

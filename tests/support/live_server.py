@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 from pathlib import Path
 
 import httpx
@@ -75,3 +76,17 @@ class Server:
             and text.rstrip().endswith(f"Finished server process [{self.proc.pid}]")
             and "Application shutdown complete." in text
         )
+
+
+def evcbench(server: Server, *args: str, timeout_s: float = 120) -> subprocess.CompletedProcess:
+    """``evcbench <args> --url <service>`` as a lab user runs it beside the service: the token comes
+    from <data dir>/admin.token (EVCBENCH_TOKEN is not passed on)."""
+    env = {**{k: v for k, v in os.environ.items() if k != "EVCBENCH_TOKEN"}, "EVCBENCH_DATA_DIR": str(server.data_dir)}
+    return subprocess.run(
+        [sys.executable, "-m", "service.frontends.cli", *args, "--url", server.url],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )

@@ -25,7 +25,6 @@ from tests.support.chaos import (
     Stage,
     chaos_bench,
     engine_pid,
-    evcbench,
     health,
     log_problems,
     serve,
@@ -34,6 +33,7 @@ from tests.support.chaos import (
     wait_restarted,
     wait_until,
 )
+from tests.support.live_server import evcbench
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow, pytest.mark.xdist_group("chaos")]
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +14,7 @@ import pytest
 
 from service.frontends.client import Client
 from tests.support.api_client import job_running, wait_job
-from tests.support.live_server import Server
+from tests.support.live_server import Server, evcbench
 from tests.support.realdata import MODEL_VI_DO as REAL
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,15 +24,7 @@ pytestmark = pytest.mark.realtime  # a live `evcbench serve`
 
 def _cli(server: Server, *args: str) -> subprocess.CompletedProcess:
     """``evcbench`` as a lab user runs it next to the service: the token comes from <data dir>/admin.token."""
-    env = {**{k: v for k, v in os.environ.items() if k != "EVCBENCH_TOKEN"}, "EVCBENCH_DATA_DIR": str(server.data_dir)}
-    result = subprocess.run(
-        [sys.executable, "-m", "service.frontends.cli", *args, "--url", server.url],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    result = evcbench(server, *args, timeout_s=300)
     assert result.returncode == 0, f"evcbench {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
     return result
 
