@@ -7,7 +7,8 @@ Admin endpoints (``/api/admin/*``: fault injection and the like) are left out, s
 disturb the service. A job a generated request starts (a sweep, a trajectory, an identification)
 is cancelled at once, so generated work does not pile up on the bench.
 
-Bounded: the whole file runs in about 25 s on a 2-core machine (README, "Fuzz and load"): some 2800 requests.
+Bounded: the whole file runs in about 25 s on a 2-core machine: some 2800 requests
+(docs/explanation/architecture.md, "What keeps the real-time loop on time under load").
 The requests are the same every run; ``EVCBENCH_FUZZ_RANDOM=1`` draws new ones to hunt for more.
 """
 

@@ -7,7 +7,7 @@ REQUESTS requests round-robin to the status and data endpoints. Asserted: behavi
 dataset listed, the service healthy), the load overlapped the running job, and the job succeeds
 untripped with a steady tracking error and every period recorded. Not asserted: latencies and late
 blocks (overruns), which on a shared host are timing: ``evcbench bench service --json`` reports
-them (README, "Fuzz and load").
+them (docs/explanation/architecture.md, "What keeps the real-time loop on time under load").
 """
 
 from __future__ import annotations
