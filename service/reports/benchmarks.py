@@ -35,11 +35,12 @@ WHAT: dict[str, str] = {
     "service": "request latency and the real-time job's overruns under 50 requests/s (`--duration`, default 60 s)",
     "auth": "p50 of a status read with the token check against without it",
     "safety": "stop → 0 V idle and under load (a sweep, 4 downloads, a 50 MB import); faults; the watchdog",
+    "engine_death": "a killed and a hung bench engine: death → 0 V and the restart, with and without the output stage's watchdog",
     "batch": "batch diagnosis of 64 datasets on Dask, 1 against 2 workers (docs/lab-batch.md)",
 }
 #: The order of the page, and of a full run: the cheap ones first; a benchmark `evcbench bench` knows
 #: beyond these comes after them (this page runs the CLI as a user would and imports no benchmark).
-ORDER = ("emulator", "auth", "control", "identification", "discovery", "service", "safety", "batch")
+ORDER = ("emulator", "auth", "control", "identification", "discovery", "service", "safety", "engine_death", "batch")
 #: A list longer than this is shown as its length and ends, not in full.
 LIST_SHOWN = 8
 
