@@ -170,5 +170,5 @@ def untrained_turning_points(loops_v, axis: str, needed_v: tuple[float, float]) 
         f"loops whose turning points are {min(distance):.0f} V or more away from those (closest "
         f"{a:.0f}–{b:.0f} V). A piezo's minor loops depend on their turning points, so this one is "
         f"extrapolated: identify on the sweeps POST /api/trajectories/span-sweeps offers (the Trajectories "
-        f'page\'s "Sweep the span it needs")'
+        f'page\'s "Prepare the models it needs")'
     )
