@@ -88,6 +88,20 @@ def open_configured_bench(settings: Settings) -> Bench:
     return open_bench(settings.bench, seed=settings.seed)
 
 
+def _stop_port_link(app: FastAPI, store: Store, settings: Settings) -> StopPortLink | None:
+    """The engine's stop port (an engine in its own process has one), told the service's tokens and
+    jobs; None for a bench in this process."""
+    if getattr(app.state.bench, "stop_port", None) is None:
+        return None
+    return StopPortLink(
+        app.state.bench,
+        store,
+        app.state.jobs,
+        settings.auth == "off",
+        announce=(settings.data_dir, settings.port, settings.bench_id),
+    ).start()
+
+
 def create_app(settings: Settings | None = None, bench_factory: Callable[[Settings], Bench] | None = None) -> FastAPI:
     """Build the app. The bench is opened on start-up and left at 0 V and closed on shut-down.
     With auth on, start-up also writes the bootstrap admin token to <data_dir>/admin.token."""
@@ -118,18 +132,7 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
                     on_cancel_bench=app.state.bench.cancel_plan,
                     bench_gate=getattr(app.state.bench, "admit_job", None),
                 )
-                # the engine's stop port (an engine in its own process has one): its tokens, its jobs
-                app.state.stop_port_link = link = (
-                    None
-                    if getattr(app.state.bench, "stop_port", None) is None
-                    else StopPortLink(
-                        app.state.bench,
-                        store,
-                        app.state.jobs,
-                        settings.auth == "off",
-                        announce=(settings.data_dir, settings.port, settings.bench_id),
-                    ).start()
-                )
+                app.state.stop_port_link = link = _stop_port_link(app, store, settings)
                 register(store.benches, settings, instance, "idle", bench_snapshot(app.state.bench))
                 heartbeat = Heartbeat(
                     settings.resolved_database_url,
