@@ -1,0 +1,88 @@
+"""Issue 37's matrix on the stages of tests/support/hysteresis_worlds.py: what discovery's loop ends
+with, against the noise floor, on held-out cycles.
+
+    .venv/bin/python -m tests.support.world_matrix [--worlds bw_n2 preisach_gauss] [--forms blocks long]
+        [--noise-nm 2] [--bipolar] [--json out.json]
+
+Per stage: the held-out RMS of the first step (hysteresis alone) and of the model the loop ends
+with (``service.science.discovery.loop.discovery_run``, as the discover job decides), the noise floor
+the diagnosis measures, the effects the loop added and the time it took.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+
+from tests.support.hysteresis_worlds import WORLDS, records
+
+
+def run_stage(world: str, form: str, noise_nm: float = 2.0, seed: int = 0, bipolar: bool = False) -> dict:
+    """One stage through the discovery loop: figures in nm, effects added, seconds."""
+    from service.science.discovery.loop import discovery_run
+
+    recs = records(world, form, noise_nm * 1e-3, seed, bipolar=bipolar)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        steps = discovery_run(recs)
+    first, last = steps[0]["diagnosis"], steps[-1]["diagnosis"]
+    floor = last["noise_floor_um"] * 1e3
+    return {
+        "world": world,
+        "form": form,
+        "bipolar": bipolar,
+        "noise_nm": noise_nm,
+        "first_nm": first["residual_rms_um"] * 1e3,
+        "end_nm": last["residual_rms_um"] * 1e3,
+        "floor_nm": floor,
+        "first_ratio": first["residual_rms_um"] * 1e3 / floor,
+        "end_ratio": last["residual_rms_um"] * 1e3 / floor,
+        "effects": steps[-1]["effects"],
+        "claimed_first": [c["effect"] for c in first["candidates"] if c["kind"] == "physical" and c["claimed"]],
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def markdown(rows: list[dict]) -> str:
+    out = [
+        "| stage | record | drive | first step (nm) | loop's end (nm) | noise floor (nm) | end × floor | effects |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        out.append(
+            f"| {r['world']} | {r['form']} | {'±' if r['bipolar'] else '0…'}120 V | {r['first_nm']:.1f} | "
+            f"{r['end_nm']:.2f} | {r['floor_nm']:.2f} | {r['end_ratio']:.2f} | {', '.join(r['effects'])} |"
+        )
+    return "\n".join(out)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--worlds", nargs="*", default=list(WORLDS))
+    ap.add_argument("--forms", nargs="*", default=["blocks", "long"])
+    ap.add_argument("--noise-nm", type=float, default=2.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--bipolar", action="store_true")
+    ap.add_argument("--json")
+    args = ap.parse_args(argv)
+    rows = []
+    for world in args.worlds:
+        for form in args.forms:
+            rows.append(run_stage(world, form, args.noise_nm, args.seed, args.bipolar))
+            r = rows[-1]
+            print(
+                f"{world:18s} {form:6s} first {r['first_nm']:7.2f} end {r['end_nm']:7.2f} floor {r['floor_nm']:5.2f} "
+                f"({r['end_ratio']:.2f}x) {r['effects']} claimed@0 {r['claimed_first']} {r['seconds']:.1f}s",
+                flush=True,
+            )
+    print(markdown(rows))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
