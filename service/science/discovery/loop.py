@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 
+from service.science.discovery.base_capacity import capacity_before_physics
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel, fit_composite
 from service.science.discovery.diagnosis import diagnose, helpful_capacity
@@ -46,6 +47,9 @@ def next_effect(d: dict) -> str | None:
     """The effect the loop adds after diagnosis ``d``: the top claimed physical candidate while the
     verdict is missing_effect; then capacity while it is validated and the model is not at the noise
     floor; None when the loop stops."""
+    first = capacity_before_physics(d)  # the base cannot draw the loop: it grows first (issue 37)
+    if first is not None:
+        return first["effect"]
     if d["verdict"] == "missing_effect":
         return next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])
     # complete as far as physics goes: more capacity if the model is not at the noise floor yet
@@ -63,6 +67,8 @@ def needed_experiment(d: dict, stopping: bool, done=()) -> dict | None:
     ``done`` (bodies already run) are never asked for again."""
     ran = {json.dumps(body, sort_keys=True) for body in done}
     amb = d.get("ambiguity")
+    if capacity_before_physics(d) is not None:  # the base grows first; the next step diagnoses again
+        return None
     if amb and json.dumps(amb["experiment"], sort_keys=True) not in ran:
         return {"effects": list(amb["effects"]), "reason": amb["text"], "experiment": amb["experiment"]}
     if not stopping or d["at_noise_floor"]:

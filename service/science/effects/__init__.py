@@ -10,6 +10,7 @@ from service.science.effects.cross_coupling import CrossCoupling
 from service.science.effects.delay import Delay
 from service.science.effects.drift import Drift
 from service.science.effects.dynamics import Dynamics
+from service.science.effects.hysterons import Hysterons
 from service.science.effects.operators import Operators
 from service.science.effects.rate_dependence import RateDependence
 from service.science.effects.sensor_nonlinearity import SensorNonlinearity
@@ -29,6 +30,7 @@ EFFECTS: dict[str, Effect] = {
         Dynamics(),
         SensorNonlinearity(),
         Operators(),
+        Hysterons(),
     )
 }
 

@@ -1,0 +1,41 @@
+"""When discovery's base grows before the physics: the capacity step that comes first (issue 37).
+
+The loop adds physics first and capacity once physics is complete, so that a physical effect is
+never hidden by a freer loop shape. But when the base cannot draw the stage's loop at all (a PI on
+a Bouc–Wen or Preisach stack: Masing's rule), its misfit is 10–20× the noise and the diagnosis
+reads it as a loop-shape effect (an asymmetric loop, a gauge's bow) that is then claimed, or as an
+ambiguity between the two that stops the loop. A rate-independent capacity candidate that the claim
+rule passes against the model itself and that leaves less than 1/SEPARATED_EXCESS_RATIO of the
+best physical claim's excess over the noise floor (held-out RMS² − σ²) says the residual is the base's
+loop shape: the base grows first, reported as capacity, never as physics, and the physical
+candidates are judged again on it at the next step.
+"""
+
+from __future__ import annotations
+
+from service.science.discovery.diagnosis import SEPARATED_EXCESS_RATIO, remaining_excess
+
+
+def capacity_before_physics(d: dict) -> dict | None:
+    """The capacity candidate of diagnosis ``d`` the loop adds before its top claimed physical one
+    (see the module docstring), or None."""
+    if d["verdict"] != "missing_effect":
+        return None
+    noise = d["noise_floor_um"] or 0.0
+    top = next(c for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])
+    capacity = [c for c in d["candidates"] if c["kind"] == "capacity" and c.get("claimed")]
+    if not capacity:
+        return None
+    best = min(capacity, key=lambda c: c["expected_rms_um"])
+    if remaining_excess(top, noise) >= SEPARATED_EXCESS_RATIO * remaining_excess(best, noise):
+        return best
+    return None
+
+
+def capacity_words(candidate: dict, top: dict) -> str:
+    """Why the base grows before the leading physical claim, in words (nm)."""
+    return (
+        f"the base grows first: {candidate['effect']} (capacity, not physics) leaves "
+        f"{candidate['expected_rms_um'] * 1e3:.3g} nm held out, {top['effect']} {top['expected_rms_um'] * 1e3:.3g} nm; "
+        "the loop shape is the base's, and the physical candidates are judged again on the wider base"
+    )

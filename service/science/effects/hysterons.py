@@ -1,0 +1,115 @@
+"""Model capacity, not a physical effect: a rate-independent base of a wider family than play operators.
+
+A sum of play operators (the PI) obeys Masing's rule: every reversal curve is the initial loading
+curve scaled by two, so its rising and falling branches are one curve turned over. A Bouc–Wen stack
+with β ≠ γ, a Preisach material with a general density and real stacks do not obey it, and more play
+operators cannot draw what the family cannot (issue 37). Two families of hysterons widen the base,
+both rate-independent and linear in their weights (free sign: corrections to the main family, fitted
+exactly with it):
+
+- **A Preisach plane of general density.** A play operator of half width r is the Preisach plane's
+  relays on the line α − β = 2r with a uniform density along their centre c = (α + β)/2; its output
+  y is the centre up to which those relays are switched up. A function g(y) of it is the same line
+  with the density g′(c) along the centre, so Σ_j g_j(y_j) over the model's play operators is a
+  Preisach plane discrete in width and smooth along the centre (a generalised PI whose output
+  envelope is fitted per operator): Chebyshev T_2…T_DEGREE of each play output over the drive's span.
+  Its branches need not be one curve turned over; loops may saturate and lean, minor loops stay
+  congruent (wiping-out memory holds).
+- **Bouc–Wen hysterons** z_k: dz = du − (β|du|z + γ du|z|)/c, β + γ = 1, for β/(β + γ) in
+  ``BW_SHARES`` and c in ``BW_SCALES`` (shares of the drive's span), solved exactly along each sample
+  (exponential approach, split where z crosses 0). They draw the smooth, non-Masing reversal curves
+  of a Duhem-type stack, with no wiping-out memory (a Preisach plane cannot; the ``operators``
+  capacity's Duhem operators are the share-1 column alone).
+
+A loop shape wrong at every frequency alike is this base's, never physics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.jit import njit
+from service.science.effects.base import Effect, RecordContext
+from service.science.fitting.lsq import Block
+
+#: highest Chebyshev order of each play operator's output map (orders 2…DEGREE are this block's)
+DEGREE = 4
+#: Bouc–Wen hysterons: β/(β + γ) shares, and voltage scales as shares of the drive's span (V/V)
+BW_SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)
+BW_SCALES = (0.03, 0.08, 0.2)
+
+
+def envelope_columns(p: np.ndarray, span_v: float, degree: int = DEGREE) -> np.ndarray:
+    """(n, n_ops·(degree − 1)) columns T_k(2y/span − 1), k = 2…degree, of play outputs ``p`` (V),
+    normalised by the drive's ``span_v`` (V); dimensionless (their weights are µm)."""
+    t = 2.0 * np.asarray(p, dtype=float) / span_v - 1.0
+    cols, prev, cur = [], np.ones_like(t), t
+    for _ in range(2, degree + 1):
+        prev, cur = cur, 2.0 * t * cur - prev
+        cols.append(cur)
+    return np.concatenate(cols, axis=1)
+
+
+@njit(cache=True, inline="always")
+def _approach(q: float, a: float, k: float) -> float:
+    """q after travel a (V) of dq/da = 1 − k·q (exact)."""
+    if abs(k * a) < 1e-12:
+        return q + a
+    return 1.0 / k + (q - 1.0 / k) * np.exp(-k * a)
+
+
+@njit(cache=True, inline="always")
+def bw_step(z: float, du: float, c: float, share: float) -> float:
+    """One Bouc–Wen hysteron (scale ``c`` V, β/(β + γ) = ``share``) moved by ``du`` (V), exactly: in
+    the direction of motion q = sign(du)·z obeys dq/da = 1 − (β q + γ|q|)/c over the travel a = |du|,
+    k = (β + γ)/c = 1/c while q ≥ 0 and k = (β − γ)/c while q < 0."""
+    if du == 0.0:
+        return z
+    s = 1.0 if du > 0.0 else -1.0
+    q, left = s * z, abs(du)
+    if q < 0.0:  # moving back towards 0: reach it, or stop short
+        k = (2.0 * share - 1.0) / c
+        need = -q if abs(k * q) < 1e-12 else np.log(1.0 - k * q) / k
+        if need >= left:
+            return s * min(_approach(q, left, k), 0.0)
+        q, left = 0.0, left - need
+    return s * _approach(q, left, 1.0 / c)
+
+
+@njit(cache=True, nogil=True)
+def bouc_wen_hysterons(u_v: np.ndarray, scales_v: np.ndarray, shares: np.ndarray) -> np.ndarray:
+    """(n, scales × shares) Bouc–Wen hysteron outputs z (V), scale-major, from z = 0 (``bw_step``)."""
+    n, m = u_v.size, scales_v.size * shares.size
+    out = np.zeros((n, m))
+    z = np.zeros(m)
+    for i in range(1, n):
+        du = u_v[i] - u_v[i - 1]
+        if du != 0.0:
+            for a_i in range(scales_v.size):
+                for b_i in range(shares.size):
+                    j = a_i * shares.size + b_i
+                    z[j] = bw_step(z[j], du, scales_v[a_i], shares[b_i])
+        out[i, :] = z
+    return out
+
+
+class Hysterons(Effect):
+    point_symmetric = False
+    name = "hysterons"
+    kind = "capacity"
+    stage = "capacity"
+    signature = (
+        "the loop's rising and falling branches differ in shape, not only in position (no Masing rule: a "
+        "Bouc–Wen, Preisach or real stack), at all frequencies alike: a Preisach plane of general density and "
+        "Bouc–Wen hysterons as the base; a model-capacity change, not physics"
+    )
+
+    def blocks(self, ctx: RecordContext) -> list[Block]:
+        """Each play operator's output through Chebyshev polynomials of orders 2…DEGREE (µm weights),
+        and the Bouc–Wen hysterons of the drive (µm/V weights); free sign."""
+        scales = np.asarray(BW_SCALES) * ctx.u_scale_v
+        u = np.ascontiguousarray(ctx.u_v, dtype=float)
+        return [
+            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v)),
+            Block.make("bouc_wen_weights_um_per_v", bouc_wen_hysterons(u, scales, np.asarray(BW_SHARES, dtype=float))),
+        ]
