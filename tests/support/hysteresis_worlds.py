@@ -43,11 +43,13 @@ def step_hold_v(u_max_v: float = 120.0, bipolar: bool = False, hold_s: float = 0
     return np.concatenate([np.full(int(hold_s * fs), v) for v in levels])
 
 
-def blocks_v(u_max_v: float = 120.0, bipolar: bool = False, frequencies_hz=FREQUENCIES_HZ, cycles: int = 5):
+def blocks_v(
+    u_max_v: float = 120.0, bipolar: bool = False, frequencies_hz=FREQUENCIES_HZ, cycles: int = 5, fs=SAMPLE_RATE_HZ
+):
     """Each block's drive (V), each from rest at 0 V and ending at rest: the sines, then a step-hold."""
-    rest = np.zeros(int(REST_S * SAMPLE_RATE_HZ))
-    out = [np.concatenate([rest, sine_block_v(f, cycles, u_max_v, bipolar), rest]) for f in frequencies_hz]
-    return out + [np.concatenate([rest, step_hold_v(u_max_v, bipolar), rest])]
+    rest = np.zeros(int(REST_S * fs))
+    out = [np.concatenate([rest, sine_block_v(f, cycles, u_max_v, bipolar, fs), rest]) for f in frequencies_hz]
+    return out + [np.concatenate([rest, step_hold_v(u_max_v, bipolar, fs=fs), rest])]
 
 
 # -- materials ------------------------------------------------------------------------------------
@@ -198,28 +200,49 @@ WORLDS = {
 
 
 # -- recording ------------------------------------------------------------------------------------
-def record_blocks(world: str, noise_um: float = 0.002, seed: int = 0, u_max_v=120.0, bipolar=False):
+def hidden_um(effect: str | None, u_v: np.ndarray, x_um: np.ndarray, fs: float) -> np.ndarray:
+    """The stage's output with one physical effect behind (or beside) the material: "creep" (the drive
+    through first-order lags of 0.3 and 3 s, 0.003 µm/V each), "delay" (0.3 ms, linear interpolation)."""
+    if effect is None:
+        return x_um
+    if effect == "creep":
+        from scipy import signal
+
+        for tau_s in (0.3, 3.0):
+            pole = np.exp(-1.0 / (fs * tau_s))
+            x_um = x_um + 0.003 * signal.lfilter([1 - pole], [1, -pole], u_v)
+        return x_um
+    if effect == "delay":
+        t = np.arange(x_um.size) / fs
+        return np.interp(t - 3e-4, t, x_um)
+    raise ValueError(effect)
+
+
+def record_blocks(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
     """[(u_v, x_um)] one per block, each from rest (the "one CSV per block" form)."""
     rng = np.random.default_rng(seed)
     material = WORLDS[world]
     out = []
-    for u in blocks_v(u_max_v, bipolar):
-        out.append((u, material(u, bipolar) + rng.normal(0.0, noise_um, u.size)))
+    for u in blocks_v(u_max_v, bipolar, fs=fs):
+        out.append((u, hidden_um(hidden, u, material(u, bipolar), fs) + rng.normal(0.0, noise_um, u.size)))
     return out
 
 
-def record_long(world: str, noise_um: float = 0.002, seed: int = 0, u_max_v=120.0, bipolar=False):
+def record_long(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
     """(u_v, x_um) of every block one after the other, with their rests, in one record."""
-    u = np.concatenate(blocks_v(u_max_v, bipolar))
-    return u, WORLDS[world](u, bipolar) + np.random.default_rng(seed).normal(0.0, noise_um, u.size)
+    u = np.concatenate(blocks_v(u_max_v, bipolar, fs=fs))
+    x = hidden_um(hidden, u, WORLDS[world](u, bipolar), fs)
+    return u, x + np.random.default_rng(seed).normal(0.0, noise_um, u.size)
 
 
 def records(world: str, form: str = "blocks", noise_um: float = 0.002, seed: int = 0, **drive):
     """Held-out product Records of the world, imported as a lab's CSVs would be (blocks cut by the
-    importer): ``form`` "blocks" (one record per block) or "long" (one record)."""
+    importer): ``form`` "blocks" (one record per block) or "long" (one record); ``drive``: u_max_v,
+    bipolar, fs (Hz) and hidden (an effect of ``hidden_um``)."""
     from service.science.data.segmentation import blocks_without_table
     from service.science.discovery.records import records_from_arrays
 
+    fs = drive.get("fs", SAMPLE_RATE_HZ)
     pairs = (
         record_blocks(world, noise_um, seed, **drive)
         if form == "blocks"
@@ -227,6 +250,6 @@ def records(world: str, form: str = "blocks", noise_um: float = 0.002, seed: int
     )
     out = []
     for k, (u, x) in enumerate(pairs):
-        table = blocks_without_table({"y": u}, SAMPLE_RATE_HZ)
-        out += records_from_arrays({"u_y_v": u, "x_y_um": x}, SAMPLE_RATE_HZ, table, ("y",), f"{world}:{form}{k}:")
+        table = blocks_without_table({"y": u}, fs)
+        out += records_from_arrays({"u_y_v": u, "x_y_um": x}, fs, table, ("y",), f"{world}:{form}{k}:")
     return out

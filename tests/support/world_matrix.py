@@ -19,11 +19,13 @@ import warnings
 from tests.support.hysteresis_worlds import WORLDS, records
 
 
-def run_stage(world: str, form: str, noise_nm: float = 2.0, seed: int = 0, bipolar: bool = False) -> dict:
+def run_stage(
+    world: str, form: str, noise_nm: float = 2.0, seed: int = 0, bipolar: bool = False, hidden: str | None = None
+) -> dict:
     """One stage through the discovery loop: figures in nm, effects added, seconds."""
     from service.science.discovery.loop import discovery_run
 
-    recs = records(world, form, noise_nm * 1e-3, seed, bipolar=bipolar)
+    recs = records(world, form, noise_nm * 1e-3, seed, bipolar=bipolar, hidden=hidden)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -34,6 +36,7 @@ def run_stage(world: str, form: str, noise_nm: float = 2.0, seed: int = 0, bipol
         "world": world,
         "form": form,
         "bipolar": bipolar,
+        "hidden": hidden,
         "noise_nm": noise_nm,
         "first_nm": first["residual_rms_um"] * 1e3,
         "end_nm": last["residual_rms_um"] * 1e3,
@@ -42,19 +45,21 @@ def run_stage(world: str, form: str, noise_nm: float = 2.0, seed: int = 0, bipol
         "end_ratio": last["residual_rms_um"] * 1e3 / floor,
         "effects": steps[-1]["effects"],
         "claimed_first": [c["effect"] for c in first["candidates"] if c["kind"] == "physical" and c["claimed"]],
+        "named_first": next((c["effect"] for c in first["candidates"] if c["kind"] == "physical"), None),
         "seconds": time.perf_counter() - t0,
     }
 
 
 def markdown(rows: list[dict]) -> str:
     out = [
-        "| stage | record | drive | first step (nm) | loop's end (nm) | noise floor (nm) | end × floor | effects |",
-        "|---|---|---|---|---|---|---|---|",
+        "| stage | hidden | record | drive | first step (nm) | loop's end (nm) | noise floor (nm) | end × floor "
+        "| effects the loop added |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         out.append(
-            f"| {r['world']} | {r['form']} | {'±' if r['bipolar'] else '0…'}120 V | {r['first_nm']:.1f} | "
-            f"{r['end_nm']:.2f} | {r['floor_nm']:.2f} | {r['end_ratio']:.2f} | {', '.join(r['effects'])} |"
+            f"| {r['world']} | {r['hidden'] or 'none'} | {r['form']} | {'±' if r['bipolar'] else '0…'}120 V | {r['first_nm']:.1f} | "
+            f"{r['end_nm']:.2f} | {r['floor_nm']:.2f} | {r['end_ratio']:.2f} | {', '.join(r['effects'][1:]) or 'none'} |"
         )
     return "\n".join(out)
 
@@ -66,12 +71,13 @@ def main(argv=None) -> None:
     ap.add_argument("--noise-nm", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bipolar", action="store_true")
+    ap.add_argument("--hidden", choices=["creep", "delay"], help="one physical effect behind the material")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     rows = []
     for world in args.worlds:
         for form in args.forms:
-            rows.append(run_stage(world, form, args.noise_nm, args.seed, args.bipolar))
+            rows.append(run_stage(world, form, args.noise_nm, args.seed, args.bipolar, args.hidden))
             r = rows[-1]
             print(
                 f"{world:18s} {form:6s} first {r['first_nm']:7.2f} end {r['end_nm']:7.2f} floor {r['floor_nm']:5.2f} "
