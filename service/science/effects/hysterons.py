@@ -40,14 +40,23 @@ BW_SCALES = (0.03, 0.08, 0.2)
 
 
 def envelope_columns(p: np.ndarray, span_v: float, degree: int = DEGREE) -> np.ndarray:
-    """(n, n_ops·(degree − 1)) columns T_k(2y/span − 1), k = 2…degree, of play outputs ``p`` (V),
-    normalised by the drive's ``span_v`` (V); dimensionless (their weights are µm)."""
-    t = 2.0 * np.asarray(p, dtype=float) / span_v - 1.0
-    cols, prev, cur = [], np.ones_like(t), t
-    for _ in range(2, degree + 1):
-        prev, cur = cur, 2.0 * t * cur - prev
-        cols.append(cur)
-    return np.concatenate(cols, axis=1)
+    """(n, n_ops·(degree − 1)) columns T_k(2y/span − 1), k = 2…degree (order-major), of play outputs
+    ``p`` (V), normalised by the drive's ``span_v`` (V); dimensionless (their weights are µm)."""
+    return _envelope(np.ascontiguousarray(p, dtype=float), float(span_v), int(degree))
+
+
+@njit(cache=True, nogil=True)
+def _envelope(p, span_v, degree):
+    n, m = p.shape
+    out = np.empty((n, m * (degree - 1)))
+    for i in range(n):
+        for j in range(m):
+            t = 2.0 * p[i, j] / span_v - 1.0
+            prev, cur = 1.0, t
+            for k in range(degree - 1):
+                prev, cur = cur, 2.0 * t * cur - prev
+                out[i, k * m + j] = cur
+    return out
 
 
 @njit(cache=True, inline="always")
@@ -78,17 +87,24 @@ def bw_step(z: float, du: float, c: float, share: float) -> float:
 
 @njit(cache=True, nogil=True)
 def bouc_wen_hysterons(u_v: np.ndarray, scales_v: np.ndarray, shares: np.ndarray) -> np.ndarray:
-    """(n, scales × shares) Bouc–Wen hysteron outputs z (V), scale-major, from z = 0 (``bw_step``)."""
+    """(n, scales × shares) Bouc–Wen hysteron outputs z (V), scale-major, from z = 0 (``bw_step``;
+    the approach away from 0, the same for every share of a scale, takes one exponential per scale)."""
     n, m = u_v.size, scales_v.size * shares.size
     out = np.zeros((n, m))
     z = np.zeros(m)
     for i in range(1, n):
         du = u_v[i] - u_v[i - 1]
         if du != 0.0:
+            s = 1.0 if du > 0.0 else -1.0
             for a_i in range(scales_v.size):
+                c = scales_v[a_i]
+                decay = np.exp(-abs(du) / c)
                 for b_i in range(shares.size):
                     j = a_i * shares.size + b_i
-                    z[j] = bw_step(z[j], du, scales_v[a_i], shares[b_i])
+                    if s * z[j] >= 0.0:
+                        z[j] = s * (c + (s * z[j] - c) * decay)
+                    else:
+                        z[j] = bw_step(z[j], du, c, shares[b_i])
         out[i, :] = z
     return out
 
@@ -110,6 +126,6 @@ class Hysterons(Effect):
         scales = np.asarray(BW_SCALES) * ctx.u_scale_v
         u = np.ascontiguousarray(ctx.u_v, dtype=float)
         return [
-            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v)),
+            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, DEGREE)),
             Block.make("bouc_wen_weights_um_per_v", bouc_wen_hysterons(u, scales, np.asarray(BW_SHARES, dtype=float))),
         ]
