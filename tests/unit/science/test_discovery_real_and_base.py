@@ -12,6 +12,7 @@ import pytest
 from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.loop import discovery_run, stops_at_ambiguity
 from service.science.discovery.records import Record
+from service.science.effects import EFFECTS
 from tests.support.realdata import MODEL_VI_DO as REAL
 
 pytestmark = pytest.mark.slow  # a diagnosis takes seconds
@@ -61,6 +62,6 @@ def test_real_data_discovery_reaches_three_noise_floors():
     # the names, defensible in words: the loop is not point-symmetric (a saturating stack), and the
     # drive's mean stepped from rest (x starts at the 0 V level) to 1.8 V at t = 0, after which the
     # per-cycle mean keeps rising with log(t): creep. One drive rate, so no rate effect is named.
-    physics = [e for e in run[-1]["effects"] if e not in ("hysteresis", "operators")]
+    physics = [e for e in run[-1]["effects"] if e != "hysteresis" and EFFECTS[e].kind != "capacity"]
     assert physics == ["asymmetry", "creep"], run[-1]["effects"]
     assert steps[-1][1] < 0.75 * 0.2256  # 0.2256 µm without creep (asymmetry + operators), 0.105 µm with it

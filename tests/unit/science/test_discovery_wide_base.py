@@ -75,3 +75,43 @@ def test_the_loop_widens_the_base_first_and_says_it_is_capacity():
     assert next(c for c in first["candidates"] if c["effect"] == "hysterons")["kind"] == "capacity"
     assert last["residual_rms_um"] <= 1.5 * last["noise_floor_um"], last["verdict_text"]
     assert first["residual_rms_um"] >= FALL_FACTOR * last["residual_rms_um"]
+
+
+def test_the_bouc_wen_hysterons_are_exact_for_every_share():
+    """The base's hysteron, solved exactly per sample, against the stage's own RK4 Bouc–Wen (written
+    without the product's code) over a loading curve, a reversal, a minor loop and a negative swing."""
+    from service.science.effects.hysterons import bouc_wen_hysterons
+    from tests.support.hysteresis_worlds import bouc_wen_um
+
+    u = np.concatenate([np.linspace(0, 120, 3000), np.linspace(120, 20, 2000), np.linspace(20, 90, 2000)])
+    u = np.concatenate([u, np.linspace(90, -30, 500)])
+    for share in (0.0, 0.25, 0.5, 0.75, 1.0):
+        z = bouc_wen_hysterons(u, np.array([25.0]), np.array([share]))[:, 0] / 25.0
+        world = -bouc_wen_um(u, beta=share, gamma=1 - share, scale_v=25.0, d_um_per_v=0.0, h_um=1.0)
+        assert np.max(np.abs(z - world)) < 1e-6, share
+
+
+def _diagnosis(top_rms_nm: float, capacity_rms_nm: float, capacity_claimed: bool = True) -> dict:
+    physical = {"effect": "asymmetry", "kind": "physical", "claimed": True, "expected_rms_um": top_rms_nm * 1e-3}
+    capacity = {
+        "effect": "hysterons",
+        "kind": "capacity",
+        "claimed": capacity_claimed,
+        "expected_rms_um": capacity_rms_nm * 1e-3,
+    }
+    return {"verdict": "missing_effect", "noise_floor_um": 0.002, "candidates": [physical, capacity]}
+
+
+def test_the_base_grows_first_only_when_it_leaves_less_than_half_the_physics_excess():
+    from service.science.discovery.base_capacity import capacity_before_physics
+    from service.science.discovery.loop import needed_experiment, next_effect
+
+    # a Bouc–Wen stage's step 0: the loop-shape claim leaves 30 nm, the wider base 2.8 nm (2 nm noise)
+    d = _diagnosis(30.0, 2.8)
+    assert capacity_before_physics(d)["effect"] == "hysterons" and next_effect(d) == "hysterons"
+    assert needed_experiment({**d, "ambiguity": {"effects": ["asymmetry", "x"]}}, stopping=False) is None
+    # the default bench's step 0: asymmetry 64 nm, a base that draws the same loop shape about as well
+    d = _diagnosis(64.0, 60.0)
+    assert capacity_before_physics(d) is None and next_effect(d) == "asymmetry"
+    # capacity the claim rule does not pass never comes first
+    assert capacity_before_physics(_diagnosis(30.0, 2.8, capacity_claimed=False)) is None
