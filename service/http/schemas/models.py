@@ -19,7 +19,7 @@ class ModelRequest(BaseModel):
     effects: list[str] = Field(default=["hysteresis"])
     model: str = Field(
         default="static_pi",
-        description="static_pi | dynamic_pi | grpi | composite "
+        description="static_pi | dynamic_pi | grpi | composite | hysterons (the composite on a wider rate-independent base) "
         "(static PI + effects; implied by any effect beyond hysteresis)",
     )
     n_operators: int = Field(default=10, ge=1, le=100)
@@ -74,7 +74,7 @@ class Model(BaseModel):
     model_config = ConfigDict(protected_namespaces=())
     id: str
     axis: str
-    kind: str = Field(description="static_pi | dynamic_pi | grpi | composite")
+    kind: str = Field(description="static_pi | dynamic_pi | grpi | composite | hysterons")
     effects: list[str]
     parent_id: str | None
     datasets: list[str]

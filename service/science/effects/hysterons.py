@@ -35,7 +35,7 @@ from service.science.fitting.lsq import Block
 #: highest Chebyshev order of each play operator's output map (orders 2…DEGREE are this block's)
 DEGREE = 4
 #: Bouc–Wen hysterons: β/(β + γ) shares, and voltage scales as shares of the drive's span (V/V)
-BW_SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)
+BW_SHARES = (0.2, 0.4, 0.6, 0.8, 1.0)
 BW_SCALES = (0.03, 0.08, 0.2)
 
 
