@@ -30,12 +30,3 @@ def capacity_before_physics(d: dict) -> dict | None:
     if remaining_excess(top, noise) >= SEPARATED_EXCESS_RATIO * remaining_excess(best, noise):
         return best
     return None
-
-
-def capacity_words(candidate: dict, top: dict) -> str:
-    """Why the base grows before the leading physical claim, in words (nm)."""
-    return (
-        f"the base grows first: {candidate['effect']} (capacity, not physics) leaves "
-        f"{candidate['expected_rms_um'] * 1e3:.3g} nm held out, {top['effect']} {top['expected_rms_um'] * 1e3:.3g} nm; "
-        "the loop shape is the base's, and the physical candidates are judged again on the wider base"
-    )
