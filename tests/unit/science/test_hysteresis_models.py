@@ -30,7 +30,7 @@ def record(truth, drives):
 
 def test_registry_names():
     assert PAPER_MODELS == {"static_pi": StaticPI, "dynamic_pi": DynamicPI, "grpi": GRPI}
-    assert set(MODELS) == set(PAPER_MODELS) | {"composite"}
+    assert set(MODELS) == set(PAPER_MODELS) | {"composite", "hysterons"}
 
 
 def test_static_pi_recovers_weights_and_offset():
