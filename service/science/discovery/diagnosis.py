@@ -323,7 +323,10 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     neither does, the better one is claimed and the pair is returned as an ambiguity."""
     # the model's residual where the model draws a point-symmetric loop itself (then its even part is
     # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
-    symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
+    # (or a base that draws any loop shape, issue 37: an asymmetric loop it draws is the base's, not physics)
+    symmetric = all(
+        EFFECTS[e].point_symmetric or getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects
+    )
     test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise)
     even2 = (test["even_rms_um"] or 0.0) ** 2
     shape = (
