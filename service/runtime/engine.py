@@ -26,7 +26,6 @@ import numpy as np
 from drivers.bench import RUN_BLOCK_SAMPLES, STOPPED_ON_REQUEST, BenchRecord, RunInterrupted
 from drivers.limits import LimitsMixin
 from service.runtime.engine_link import (
-    START_TIMEOUT_S,
     BenchLatched,
     EngineLink,
     EngineUnavailable,
@@ -349,16 +348,9 @@ class EngineBench(LimitsMixin):
             close_link(link, timeout_s)
 
 
-def open_engine(
-    bench_name: str,
-    seed: int | None = None,
-    overrides: dict | None = None,
-    timeout_s: float = START_TIMEOUT_S,
-    stop_address: tuple[str, int] | None = None,
-    bench_id: str | None = None,
-) -> EngineBench:
-    """Start the bench engine process on ``bench_name`` (with configuration ``overrides``, as
-    ``drivers.emulated.open_bench`` takes them) and wait until it has opened the bench.
-    ``stop_address`` (host, port; port 0: any free one) opens the engine's stop port there, for the
-    bench ``bench_id`` (service.runtime.stop_port)."""
-    return EngineBench(start_engine(bench_name, seed, overrides, timeout_s, stop_address, bench_id))
+def open_engine(bench_name: str, **options) -> EngineBench:
+    """Start the bench engine process on ``bench_name`` and wait until it has opened the bench: the
+    options are ``start_engine``'s (seed, configuration ``overrides`` as ``drivers.factory.open_bench``
+    takes them, ``timeout_s``, ``stop_address`` (host, port; port 0: any free one) for the engine's
+    stop port, and ``bench_id``)."""
+    return EngineBench(start_engine(bench_name, **options))

@@ -25,33 +25,30 @@ STROKE_AT_120V_UM = {"y": 6.4, "z": 9.3}
 FEM_FIRST_MODE_HZ = {"y": 482.6, "z": 290.7}
 #: The compound controller's PID gains (§3).
 PID_GAINS = {"y": {"kp": 50.0, "ki": 300.0, "kd": 0.06}, "z": {"kp": 70.0, "ki": 450.0, "kd": 0.08}}
+
+
+def _case(name: str, inclination_deg: float, y_range_um: list, z_range_um: list, max_error_um: dict) -> dict:
+    """One tracking experiment at 100 Hz: its label, its POST /api/trajectories body, its maximum errors (µm)."""
+    (y0, y1), (z0, z1) = y_range_um, z_range_um
+    return {
+        "label": f"{name} ({inclination_deg:g}°, Y {y0}–{y1} µm, Z {z0}–{z1} µm)",
+        "body": {
+            "shape": "ellipse",
+            "y_range_um": y_range_um,
+            "z_range_um": z_range_um,
+            "inclination_deg": inclination_deg,
+            "frequency_hz": 100,
+        },
+        "max_error_um": max_error_um,
+        "relative_error_below_pct": 6.2,
+    }
+
+
 #: The tracking experiments (Fig. 14–15): each as a POST /api/trajectories body (its cycles set by the
 #: run), with the measured maximum errors (µm) and the relative error bound (%).
 TRACKING_CASES = {
-    "case1": {
-        "label": "paper case 1 (0°, Y 1–6 µm, Z 1–11 µm)",
-        "body": {
-            "shape": "ellipse",
-            "y_range_um": [1, 6],
-            "z_range_um": [1, 11],
-            "inclination_deg": 0,
-            "frequency_hz": 100,
-        },
-        "max_error_um": {"y": 0.308, "z": 0.369},
-        "relative_error_below_pct": 6.2,
-    },
-    "case2": {
-        "label": "paper case 2 (20°, Y 1–5 µm, Z 1–9 µm)",
-        "body": {
-            "shape": "ellipse",
-            "y_range_um": [1, 5],
-            "z_range_um": [1, 9],
-            "inclination_deg": 20,
-            "frequency_hz": 100,
-        },
-        "max_error_um": {"y": 0.154, "z": 0.252},
-        "relative_error_below_pct": 6.2,
-    },
+    "case1": _case("paper case 1", 0, [1, 6], [1, 11], {"y": 0.308, "z": 0.369}),
+    "case2": _case("paper case 2", 20, [1, 5], [1, 9], {"y": 0.154, "z": 0.252}),
 }
 
 

@@ -25,9 +25,11 @@ FIRST_STEP_V = 0.05
 
 
 @njit(cache=True, inline="always")
-def _output(
-    u, prev_u, plays, zs, thresholds, weights, env, degree, span, bw, scales, shares, offset, new_plays, new_zs
-):
+def _output(u, prev_u, plays, zs, model, new_plays, new_zs):
+    """The model's output (µm) at drive ``u`` (V) from the state ``plays``/``zs`` reached at ``prev_u``;
+    the new state into ``new_plays``/``new_zs``. ``model``: (thresholds, weights, env, degree, span, bw,
+    scales, shares, offset)."""
+    thresholds, weights, env, degree, span, bw, scales, shares, offset = model
     x = offset
     for j in range(thresholds.size):
         y = max(u - thresholds[j], min(u + thresholds[j], plays[j]))
@@ -54,41 +56,18 @@ def _invert(target, thresholds, weights, env, degree, span, bw, scales, shares, 
     plays = np.zeros(thresholds.size)
     zs = np.zeros(scales.size * shares.size)
     new_plays, new_zs = plays.copy(), zs.copy()
+    model = (thresholds, weights, env, degree, span, bw, scales, shares, offset)
     u = 0.0
     for i in range(n):
         pu = np.nan if i == 0 else u  # predict's hysterons start relaxed at the first sample's drive
-        f0 = (
-            _output(
-                u, pu, plays, zs, thresholds, weights, env, degree, span, bw, scales, shares, offset, new_plays, new_zs
-            )
-            - target[i]
-        )
+        f0 = _output(u, pu, plays, zs, model, new_plays, new_zs) - target[i]
         a, fa, b = u, f0, u
         found = f0 == 0.0
         step = 0.05
         while not found:  # widen a bracket on both sides of the previous drive
             for cand in (u + step, u - step):
                 c = min(max(cand, lo), hi)
-                fc = (
-                    _output(
-                        c,
-                        pu,
-                        plays,
-                        zs,
-                        thresholds,
-                        weights,
-                        env,
-                        degree,
-                        span,
-                        bw,
-                        scales,
-                        shares,
-                        offset,
-                        new_plays,
-                        new_zs,
-                    )
-                    - target[i]
-                )
+                fc = _output(c, pu, plays, zs, model, new_plays, new_zs) - target[i]
                 if fc == 0.0 or (fc > 0.0) != (f0 > 0.0):
                     b, found = c, True
                     break
@@ -96,77 +75,20 @@ def _invert(target, thresholds, weights, env, degree, span, bw, scales, shares, 
                 break
             step *= 2.0
         if not found:  # out of reach: the limit whose output is nearer
-            f_lo = abs(
-                _output(
-                    lo,
-                    pu,
-                    plays,
-                    zs,
-                    thresholds,
-                    weights,
-                    env,
-                    degree,
-                    span,
-                    bw,
-                    scales,
-                    shares,
-                    offset,
-                    new_plays,
-                    new_zs,
-                )
-                - target[i]
-            )
-            f_hi = abs(
-                _output(
-                    hi,
-                    pu,
-                    plays,
-                    zs,
-                    thresholds,
-                    weights,
-                    env,
-                    degree,
-                    span,
-                    bw,
-                    scales,
-                    shares,
-                    offset,
-                    new_plays,
-                    new_zs,
-                )
-                - target[i]
-            )
+            f_lo = abs(_output(lo, pu, plays, zs, model, new_plays, new_zs) - target[i])
+            f_hi = abs(_output(hi, pu, plays, zs, model, new_plays, new_zs) - target[i])
             b = lo if f_lo < f_hi else hi
         else:
             while abs(b - a) > 1e-9:
                 m = 0.5 * (a + b)
-                fm = (
-                    _output(
-                        m,
-                        pu,
-                        plays,
-                        zs,
-                        thresholds,
-                        weights,
-                        env,
-                        degree,
-                        span,
-                        bw,
-                        scales,
-                        shares,
-                        offset,
-                        new_plays,
-                        new_zs,
-                    )
-                    - target[i]
-                )
+                fm = _output(m, pu, plays, zs, model, new_plays, new_zs) - target[i]
                 if fm == 0.0:
                     a = b = m
                 elif (fm > 0.0) == (fa > 0.0):
                     a, fa = m, fm
                 else:
                     b = m
-        _output(b, pu, plays, zs, thresholds, weights, env, degree, span, bw, scales, shares, offset, new_plays, new_zs)
+        _output(b, pu, plays, zs, model, new_plays, new_zs)
         plays[:] = new_plays
         zs[:] = new_zs
         u = b
