@@ -31,6 +31,8 @@ from service.science.discovery.signature_dictionary import (
 FAMILY_ALPHA = 0.01
 #: contiguous chunks the unseen rows are cut into for the gain's t-test without a noise figure
 CHUNKS = 40
+#: pooled rows a signature's columns are built for at a time (bounds their memory)
+POOL_CHUNK_ROWS = 4096
 #: signatures reported, best first
 TOP = 3
 #: points of a signature's figure (the unseen rows, decimated evenly)
@@ -86,6 +88,19 @@ def _solve(x: np.ndarray, y: np.ndarray, scale: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(x / scale, y, rcond=1e-2)[0] / scale
 
 
+def _pooled_columns(sig: Signature, rec, pred, ctx: dict, rows: np.ndarray, q: int) -> np.ndarray | None:
+    """``sig``'s columns on ``rows``, pooled by ``q``, built a chunk of rows at a time (a multiple of
+    ``q``, so the pools are the same): the per-block columns over every row would take 0.1 GB a sweep."""
+    chunk = q * POOL_CHUNK_ROWS
+    pooled = []
+    for at in range(0, rows.size, chunk):
+        part = sig.columns(rec, pred, ctx, rows[at : at + chunk])
+        if part is None:
+            return None
+        pooled.append(pool(part, q))
+    return np.vstack(pooled) if pooled else None
+
+
 def _judge(sig: Signature, records, residuals, predictions, ctx: dict, noise_um: float | None) -> dict | None:
     """Judge ``sig`` on the unseen rows by two-fold cross-validation over their stretches (each centred
     on its own mean): fitted on one fold, scored on the other, and back. The training rows are not used:
@@ -94,15 +109,15 @@ def _judge(sig: Signature, records, residuals, predictions, ctx: dict, noise_um:
     xs, ys, folds, figure_x = [], [], [], []
     q = pool_factor(records)
     for rec, res, pred in zip(records, residuals, predictions):
-        cols = sig.columns(rec, pred, ctx)
         train, unseen = ctx["rows"][id(rec)]
-        if cols is None or unseen.sum() <= 2 * q * (cols.shape[1] + 1):
+        x_unseen = _pooled_columns(sig, rec, pred, ctx, np.flatnonzero(unseen), q)
+        if x_unseen is None or x_unseen.shape[0] <= 2 * (x_unseen.shape[1] + 1):
             continue
         stretch, fold = (v[::q] for v in _halves(unseen))
-        x_unseen, y_unseen = pool(cols[unseen], q), pool(res[unseen], q)
+        y_unseen = pool(res[unseen], q)
         if sig.from_training:  # fold −1: the training cycles (fitted, never scored); fold 1: the unseen rows
             t_stretch = _halves(train)[0][::q]
-            xs.append(_centred(pool(cols[train], q), t_stretch))
+            xs.append(_centred(_pooled_columns(sig, rec, pred, ctx, np.flatnonzero(train), q), t_stretch))
             ys.append(_centred(pool(res[train], q), t_stretch))
             folds.append(np.full(t_stretch.size, -1))
             fold = np.ones_like(fold)

@@ -41,13 +41,14 @@ def pool_factor(records) -> int:
 
 @dataclass(frozen=True)
 class Signature:
-    """A physical signature: ``columns(rec, pred, ctx)`` → (n, k) regressors over the record (None when
-    the record cannot show it; k the same for every record of one diagnosis); ``words(coef, ctx)`` →
+    """A physical signature: ``columns(rec, pred, ctx, rows)`` → (len(rows), k) regressors at the record's
+    sample indices ``rows`` (None when the record cannot show it; k the same for every record of one
+    diagnosis), built on those rows only; ``words(coef, ctx)`` →
     the sentence for fitted coefficients ``coef`` (µm per unit of each column). ``ctx``: duration_s,
     span_um and frequencies_hz (the distinct block frequencies of all the records)."""
 
     name: str
-    columns: Callable[[object, np.ndarray, dict], np.ndarray | None]
+    columns: Callable[[object, np.ndarray, dict, np.ndarray], np.ndarray | None]
     words: Callable[[np.ndarray, dict], str]
     #: what the figure's x axis shows (the signature's own variable: the first column)
     x_label: str
@@ -59,14 +60,15 @@ class Signature:
     from_training: bool = False
 
 
-def _time_s(rec) -> np.ndarray:
-    return np.arange(rec.u_v.size) / rec.sample_rate_hz
+def _time_s(rec, rows: np.ndarray) -> np.ndarray:
+    """The time (s) of the samples ``rows``."""
+    return rows / rec.sample_rate_hz
 
 
-def _drive_unit(rec) -> np.ndarray:
-    """The drive scaled to −1…1 over its span."""
+def _drive_unit(rec, rows: np.ndarray) -> np.ndarray:
+    """The drive at ``rows``, scaled to −1…1 over the record's span."""
     lo, hi = float(rec.u_v.min()), float(rec.u_v.max())
-    return (rec.u_v - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1e-12)
+    return (rec.u_v[rows] - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1e-12)
 
 
 def _gain_words(coef, ctx) -> str:
@@ -156,73 +158,92 @@ def _line_words(f_hz: float) -> Callable[[np.ndarray, dict], str]:
 
 
 def _line_columns(f_hz: float):
-    def columns(rec, pred, ctx):
-        phase = 2 * np.pi * f_hz * _time_s(rec)
+    def columns(rec, pred, ctx, rows):
+        phase = 2 * np.pi * f_hz * _time_s(rec, rows)
         return np.column_stack([np.sin(phase), np.cos(phase)])
 
     return columns
 
 
-def _block_columns(rec, pred, ctx):
-    """2·HARMONICS columns per distinct block frequency of the diagnosis, non-zero within its blocks:
-    sines and cosines of the block's phase (the error that repeats cycle to cycle there)."""
+def _block_columns(rec, pred, ctx, rows):
+    """2·HARMONICS columns per distinct block frequency of the diagnosis, non-zero on the ``rows`` within
+    its blocks: sines and cosines of the block's phase (the error that repeats cycle to cycle there)."""
     freqs = ctx["frequencies_hz"]
     if len(freqs) < 2:
         return None
-    cols = np.zeros((rec.u_v.size, 2 * HARMONICS * len(freqs)))
+    cols = np.zeros((rows.size, 2 * HARMONICS * len(freqs)))
     k = np.arange(1, HARMONICS + 1)
     for s in rec.splits:
         f = axis_frequency_hz(s.block, rec.axis)
         if f in freqs:
             a, b, at = s.train[0], s.held_out[1], 2 * HARMONICS * freqs.index(f)
-            turn = np.exp(2j * np.pi * f * np.arange(b - a) / rec.sample_rate_hz)
+            lo, hi = np.searchsorted(rows, (a, b))
+            turn = np.exp(2j * np.pi * f * (rows[lo:hi] - a) / rec.sample_rate_hz)
             harmonic = turn[:, None] ** k[None, :]  # e^{ikφ}: one exponential, then powers
-            cols[a:b, at : at + HARMONICS] = harmonic.imag
-            cols[a:b, at + HARMONICS : at + 2 * HARMONICS] = harmonic.real
+            cols[lo:hi, at : at + HARMONICS] = harmonic.imag
+            cols[lo:hi, at + HARMONICS : at + 2 * HARMONICS] = harmonic.real
     return cols
 
 
-def _other_columns(rec, pred, ctx):
+def _other_columns(rec, pred, ctx, rows):
     if rec.u_other_v is None or np.ptp(rec.u_other_v) == 0:
         return None
-    cols = [rec.u_other_v]
+    cols = [rec.u_other_v[rows]]
     if rec.x_other_um is not None and np.ptp(rec.x_other_um) > 0:
-        cols.append(rec.x_other_um)
+        cols.append(rec.x_other_um[rows])
     return np.column_stack(cols)
 
 
-def _temperature_columns(rec, pred, ctx):
+def _temperature_columns(rec, pred, ctx, rows):
     if rec.temp_c is None or np.ptp(rec.temp_c) == 0:
         return None
-    dt = rec.temp_c - rec.temp_c[0]
-    return np.column_stack([dt, dt * (pred - np.mean(pred))])
+    dt = rec.temp_c[rows] - rec.temp_c[0]
+    return np.column_stack([dt, dt * (pred[rows] - np.mean(pred))])
 
 
-def _rate_unit(rec) -> np.ndarray:
+def _rate_unit(rec, rows: np.ndarray) -> np.ndarray:
+    """The drive's rate at ``rows``, over the record's peak rate."""
     rate = rec.du_v_per_s
-    return rate / max(float(np.max(np.abs(rate))), 1e-12)
+    return rate[rows] / max(float(np.max(np.abs(rate))), 1e-12)
+
+
+def _gain_columns(rec, pred, ctx, rows):
+    t = _time_s(rec, rows)
+    return np.column_stack([t * (pred[rows] - np.mean(pred)), t])
+
+
+def _square_columns(rec, pred, ctx, rows):
+    level = _drive_unit(rec, rows)
+    return np.column_stack([level**2, level])
+
+
+def _rate_limit_columns(rec, pred, ctx, rows):
+    rate = _rate_unit(rec, rows)
+    return np.column_stack([rate * np.abs(rate), rate])
 
 
 BUILT_IN = (
     Signature(
         "gain changing with time",
-        lambda r, p, c: np.column_stack([_time_s(r) * (p - np.mean(p)), _time_s(r)]),
+        _gain_columns,
         _gain_words,
         "time × displacement (s·µm)",
         nested=1,
     ),
-    Signature("drift with time", lambda r, p, c: _time_s(r)[:, None], _drift_words, "time (s)"),
+    Signature("drift with time", lambda r, p, c, rows: _time_s(r, rows)[:, None], _drift_words, "time (s)"),
     Signature(
         "drive level squared",
-        lambda r, p, c: np.column_stack([_drive_unit(r) ** 2, _drive_unit(r)]),
+        _square_columns,
         _square_words,
         "drive level (−1…1 of its span)",
         nested=1,
     ),
-    Signature("drive rate", lambda r, p, c: _rate_unit(r)[:, None], _rate_words, "drive rate (of its peak)"),
+    Signature(
+        "drive rate", lambda r, p, c, rows: _rate_unit(r, rows)[:, None], _rate_words, "drive rate (of its peak)"
+    ),
     Signature(
         "rate limit",
-        lambda r, p, c: np.column_stack([_rate_unit(r) * np.abs(_rate_unit(r)), _rate_unit(r)]),
+        _rate_limit_columns,
         _slew_words,
         "rate × |rate| (of its peak²)",
         nested=1,
