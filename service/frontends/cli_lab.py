@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from service.runtime.settings import Settings
+from service.science.data.units import fmt_nm
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -122,7 +123,8 @@ def table(result: dict) -> str:
 
 
 def _nm(value_um) -> str:
-    return "-" if value_um is None else f"{value_um * 1e3:.3g}"
+    """An error (µm) for the table's nm columns: the number alone."""
+    return "-" if value_um is None else fmt_nm(value_um).removesuffix(" nm")
 
 
 def _list(text: str) -> list[str]:

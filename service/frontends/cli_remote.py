@@ -11,6 +11,7 @@ import sys
 import httpx
 
 from service.frontends.client import DEFAULT_URL, ApiError, Client
+from service.science.data.units import fmt_nm
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -200,7 +201,7 @@ def _identify(api: Client, args) -> int:
         args,
         model,
         f"model {model['id']} ({model['kind']}, axis {model['axis']}): train RMS "
-        f"{_um(m['train_rms_um'])}, held-out RMS {_um(m['validation_rms_um'])}",
+        f"{_nm(m['train_rms_um'])}, held-out RMS {_nm(m['validation_rms_um'])}",
     )
 
 
@@ -226,8 +227,8 @@ def _compare(api: Client, args) -> int:
         )
     o = m["overall"]
     print(
-        f"overall: RMS {_um(o['rms_um'])}, max {_um(o['max_abs_um'])}, fit {_num(o['fit_pct'], '.2f')} %; "
-        f"mean held-out RMS {_um(m['validation_rms_um'])}"
+        f"overall: RMS {_nm(o['rms_um'])}, max {_nm(o['max_abs_um'])}, fit {_num(o['fit_pct'], '.2f')} %; "
+        f"mean held-out RMS {_nm(m['validation_rms_um'])}"
     )
     return 0
 
@@ -427,7 +428,7 @@ def _models(api: Client, args) -> int:
         args,
         rows,
         "\n".join(
-            f"{r['id']}  {r['kind']:<10} axis {r['axis']}  held-out RMS {_um(r['metrics']['validation_rms_um'])}  "
+            f"{r['id']}  {r['kind']:<10} axis {r['axis']}  held-out RMS {_nm(r['metrics']['validation_rms_um'])}  "
             f"datasets {','.join(r['datasets'])}"
             for r in rows
         ),
@@ -509,9 +510,6 @@ def _num(value, fmt: str = ".4f") -> str:
     return "-" if value is None else format(value, fmt)
 
 
-def _um(value) -> str:
-    return "-" if value is None else f"{value:.4f} µm"
-
-
 def _nm(value_um) -> str:
-    return "-" if value_um is None else f"{value_um * 1e3:.3g} nm"
+    """An error or noise figure (µm) as the CLI prints it: nm, like every page and text."""
+    return "-" if value_um is None else fmt_nm(value_um, 4)

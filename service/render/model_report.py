@@ -16,7 +16,8 @@ from html import escape
 
 import numpy as np
 
-from service.render.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, length_unit
+from service.render.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, length_unit
+from service.science.data.units import fmt_nm
 
 CSS = """body{font-family:system-ui,sans-serif;max-width:1120px;margin:24px auto;padding:0 16px;color:#222}
 h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:3px;margin-top:1.6em}
@@ -84,7 +85,7 @@ def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
     res = Panel(
         520,
         300,
-        f"residual, held-out RMS {fmt_error_nm(b.held_out_rms_um)}",
+        f"residual, held-out RMS {fmt_nm(b.held_out_rms_um)}",
         "time in the held-out cycles (ms)",
         f"measured − model ({ru})",
     )
@@ -109,7 +110,7 @@ def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
         legend="bottom-right",
     )
     if noise_floor_um:
-        panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_error_nm(noise_floor_um)}")
+        panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_nm(noise_floor_um)}")
         panel.hline(2 * noise_floor_um * factor, "2× noise floor")
     shown = [(i + 1, v * factor, s["change"] or "first fit") for i, (s, v) in enumerate(zip(steps, rms)) if v]
     panel.points([p[0] for p in shown], [p[1] for p in shown], [p[2] for p in shown])
@@ -148,8 +149,8 @@ def _model_section(row: dict, description: dict) -> str:
         ["effects", escape(" + ".join(row["effects"]))],
         ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
         ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
-        ["training RMS", fmt_error_nm(m.get("train_rms_um"), 4)],
-        ["held-out RMS", f'<span id="model-heldout">{fmt_error_nm(m.get("validation_rms_um"), 4)}</span>'],
+        ["training RMS", fmt_nm(m.get("train_rms_um"), 4)],
+        ["held-out RMS", f'<span id="model-heldout">{fmt_nm(m.get("validation_rms_um"), 4)}</span>'],
         ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
         ["created", escape(row["created_at"])],
         ["software", escape(row["software_version"])],
@@ -211,8 +212,8 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
             f"<code>{escape(s['model_id'])}</code>",
             escape(s["change"] or "first fit"),
             escape(" + ".join(s["effects"])),
-            f'<span class="rms-train">{fmt_error_nm(s["train_rms_um"], 4)}</span>',
-            f'<span class="rms-heldout">{fmt_error_nm(s["validation_rms_um"], 4)}</span>',
+            f'<span class="rms-train">{fmt_nm(s["train_rms_um"], 4)}</span>',
+            f'<span class="rms-heldout">{fmt_nm(s["validation_rms_um"], 4)}</span>',
             _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–",
         ]
         for i, s in enumerate(steps)
@@ -237,7 +238,7 @@ def _tested_words(c: dict) -> str:
     """A candidate's own test: the held-out RMS of its reference model, then with it (nm)."""
     if c.get("tested_rms_um") is None:
         return "–"
-    return f"{fmt_error_nm(c.get('reference_rms_um'), 4)} → {fmt_error_nm(c.get('tested_rms_um'), 4)}"
+    return f"{fmt_nm(c.get('reference_rms_um'), 4)} → {fmt_nm(c.get('tested_rms_um'), 4)}"
 
 
 def _diagnosis_section(d: dict) -> str:
@@ -249,7 +250,7 @@ def _diagnosis_section(d: dict) -> str:
             "yes" if c.get("claimed") else "no",
             _num(c.get("score"), 3),
             _tested_words(c),
-            fmt_error_nm(c.get("expected_rms_um"), 4)
+            fmt_nm(c.get("expected_rms_um"), 4)
             if c.get("expected_rms_um") != d.get("residual_rms_um")
             else "not fitted",
             escape(c.get("evidence") or ""),
@@ -267,8 +268,8 @@ def _diagnosis_section(d: dict) -> str:
         f'<p class="verdict">Verdict: <span id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
         f"{escape(str(d.get('verdict')))}</span></p>"
         f'<p id="verdict-text">{escape(d.get("verdict_text") or "")}</p>'
-        f"<p>Held-out RMS {fmt_error_nm(d.get('residual_rms_um'), 4)} · noise floor "
-        f'<span id="noise-floor">{fmt_error_nm(d.get("noise_floor_um"), 4)}</span>'
+        f"<p>Held-out RMS {fmt_nm(d.get('residual_rms_um'), 4)} · noise floor "
+        f'<span id="noise-floor">{fmt_nm(d.get("noise_floor_um"), 4)}</span>'
         + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "")
         + "</p>"
         + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")

@@ -4,7 +4,7 @@ horizontal band, dashed reference lines, labelled points and a legend; every tex
 No dependency beyond numpy, no script: a figure is a string that any browser draws (and prints
 to PDF as vectors). Panels (:class:`Panel`) are laid out side by side in one ``<svg>`` by
 :func:`figure`. Lengths that scale are shown in nm below 1 µm and in µm above
-(:func:`length_unit`, :func:`fmt_error_nm`).
+(:func:`length_unit`; errors and noise: service.science.data.units.fmt_nm).
 """
 
 from __future__ import annotations
@@ -29,14 +29,6 @@ def length_unit(max_abs_um: float) -> tuple[float, str]:
 
 #: errors and noise are in nm everywhere the user reads them (the API's texts, the dashboard, the report)
 ERROR_UNIT = (1e3, "nm")
-
-
-def fmt_error_nm(value_um: float | None, digits: int = 3) -> str:
-    """An error or noise figure given in µm, as text in nm (``0.002945`` → ``2.94 nm``)."""
-    if value_um is None or not math.isfinite(value_um):
-        return "–"
-    rounded = float(f"{value_um * 1e3:.{digits}g}")  # significant digits, then without an exponent
-    return f"{rounded:g} nm"
 
 
 def decimate(n_samples: int, max_points: int = MAX_CURVE_POINTS) -> slice:

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from service.runtime.jobs import JobContext, JobInterrupted
+from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
 from service.science.discovery.loop import discovery_step, needed_experiment, next_effect
 from service.science.discovery.parameters import physical_parameters
@@ -258,7 +259,7 @@ def _step_words(step: dict) -> str:
     change = f"+{step['added']}" if step["added"] else ("refit with the experiment" if step["step"] else "start")
     return (
         f"step {step['step']} ({change}): model {step['model_id']}, held-out RMS "
-        f"{step['validation_rms_um'] * 1e3:.3g} nm, noise floor {step['noise_floor_um'] * 1e3:.3g} nm"
+        f"{fmt_nm(step['validation_rms_um'])}, noise floor {fmt_nm(step['noise_floor_um'])}"
     )
 
 

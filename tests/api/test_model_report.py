@@ -21,8 +21,9 @@ from service.frontends.client import Client
 from service.http.app import create_app
 from service.render.model_report import WORST_MARK
 from service.render.reproduce import dataset_request, refine_body
-from service.render.svg import MAX_CURVE_POINTS, Panel, figure, fmt_error_nm, nice_ticks
+from service.render.svg import MAX_CURVE_POINTS, Panel, figure, nice_ticks
 from service.runtime.settings import Settings
+from service.science.data.units import fmt_nm
 from tests.support.api_client import authed_client, bearer, issue_token, wait_job
 
 SWEEP = {"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 5, "together": False}
@@ -206,8 +207,8 @@ def test_cli_writes_the_report(refined, tmp_path, capsys):
 
 # ------------------------------------------------------------------ units
 def test_lengths_scale_and_text_is_escaped():
-    assert fmt_error_nm(0.002945) == "2.95 nm"  # errors in nm, however large
-    assert fmt_error_nm(0.5) == "500 nm" and fmt_error_nm(6.4) == "6400 nm" and fmt_error_nm(None) == "–"
+    assert fmt_nm(0.002945) == "2.95 nm"  # errors in nm, however large
+    assert fmt_nm(0.5) == "500 nm" and fmt_nm(6.4) == "6400 nm" and fmt_nm(None) == "–"
     assert nice_ticks(0.0, 120.0) == [0.0, 20.0, 40.0, 60.0, 80.0, 100.0, 120.0]
     x = np.linspace(0, 1, 20_001)
     panel = Panel(400, 300, "a <b> & 'c'", "t (s)", "x (µm)").line(x, x**2, "y < 1")

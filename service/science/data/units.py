@@ -10,6 +10,7 @@ column's quantity is an error, never a guess.
 
 from __future__ import annotations
 
+import math
 import re
 
 #: quantity → unit (lower case) → (scale, offset): value in the service's unit = value·scale + offset
@@ -81,3 +82,12 @@ def quantity_of_unit(unit: str) -> str | None:
 def known_units(quantity: str) -> str:
     """The units of ``quantity`` a message can offer, e.g. ``s, ms, us, ns``."""
     return ", ".join(u for u in UNITS_OF[quantity] if u.isascii() and u not in ("sec", "microns", "microm", "deg c"))
+
+
+def fmt_nm(value_um: float | None, digits: int = 3) -> str:
+    """An error or noise figure given in µm, as text in nm: the one unit for errors and noise wherever
+    the user reads them (the API's texts, the CLI, the report); ``digits`` significant digits, never an
+    exponent (0.002945 → "2.94 nm", 6.4 → "6400 nm"); "–" for no value."""
+    if value_um is None or not math.isfinite(value_um):
+        return "–"
+    return f"{float(f'{value_um * 1e3:.{digits}g}'):g} nm"

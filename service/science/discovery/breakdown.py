@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.data.holdout import other_axes
+from service.science.data.units import fmt_nm
 from service.science.fitting.metrics import rms
 from service.science.models.kernels import segment_index
 
@@ -53,7 +54,7 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             places.append((f"{rec.label} {name} ({bound})", rms(res[held & m]), "amplitude", {}))
     places.sort(key=lambda p: -p[1])
     return [
-        {"where": w, "rms_um": round(v, 6), "by": by, **block, "text": f"{w}: held-out residual RMS {v * 1e3:.3g} nm"}
+        {"where": w, "rms_um": round(v, 6), "by": by, **block, "text": f"{w}: held-out residual RMS {fmt_nm(v)}"}
         for w, v, by, block in places[:top]
     ]
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.units import fmt_nm
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
@@ -48,11 +49,6 @@ FLEXIBLE_BASE = ("operators", "asymmetry")
 UNSEEN_RATE_TESTED = ("rate_dependence",)
 
 
-def _fmt_nm(v_um) -> str:
-    """An error or noise figure (µm) in nm, three significant digits, never with an exponent."""
-    return f"{float(f'{v_um * 1e3:.3g}'):g} nm"
-
-
 def _signature_words(name: str, sig: dict, floor: dict) -> str:
     g = sig.get("rms_growth_exponent")
     growth = (
@@ -81,7 +77,7 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
         v = sig.get("cycle_mean_um_per_decade")
         return (
             "the per-cycle mean residual moves "
-            + (_fmt_nm(v) if v is not None else "?")
+            + (fmt_nm(v) if v is not None else "?")
             + " per decade of time within each block, logarithmic in time: creep"
         )
     if name == "drift":
@@ -116,7 +112,7 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
     if name == "operators":
         rep, nf = floor.get("repeatable_rms_um"), floor.get("noise_floor_um")
         return (
-            f"the residual repeats cycle to cycle ({_fmt_nm(rep or 0)} repeatable vs {_fmt_nm(nf or 0)} noise): "
+            f"the residual repeats cycle to cycle ({fmt_nm(rep or 0)} repeatable vs {fmt_nm(nf or 0)} noise): "
             "the loop shape needs more hysteresis capacity (finer play operators) — not a physical effect"
         )
     return ""
@@ -198,7 +194,7 @@ def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig
     test = held_out_improvement(records, res_ref, res_trial)
     against = "the model" if not reference else "the model + " + " + ".join(reference)
     how = (
-        f"against {against} (held-out RMS {_fmt_nm(v_ref)}), adding {name} gives {_fmt_nm(v_trial)} "
+        f"against {against} (held-out RMS {fmt_nm(v_ref)}), adding {name} gives {fmt_nm(v_trial)} "
         f"{_test_words(test, noise)}"
     )
     is_claimed = claimed(test, noise)
@@ -277,7 +273,7 @@ def _entry(
     evidence = (
         f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
         + (
-            f". Added to this model: {_fmt_nm(v0)} → {_fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
+            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
             if v != v0
             else ". Not claimed, so not fitted into this model"
         )
@@ -331,8 +327,8 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     even2 = (test["even_rms_um"] or 0.0) ** 2
     shape = (
         f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
-        f"{_fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
-        f"noise σ = {_fmt_nm(noise)})"
+        f"{fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
+        f"noise σ = {fmt_nm(noise)})"
     )
     if not test["claimed"]:
         gauge = (
@@ -352,8 +348,8 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     else:
         winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
     h2h = (
-        f"head to head on the model, the stack's asymmetry leaves {_fmt_nm(v_a)} held out and the gauge's "
-        f"curvature {_fmt_nm(v_s)} (p = {stack_better['p']:.2g} that the stack fits better, "
+        f"head to head on the model, the stack's asymmetry leaves {fmt_nm(v_a)} held out and the gauge's "
+        f"curvature {fmt_nm(v_s)} (p = {stack_better['p']:.2g} that the stack fits better, "
         f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)"
     )
     rows = [
@@ -384,7 +380,7 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
         "excess_ratio": None,
         "text": (
             f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
-            f"(held-out {_fmt_nm(min(v_a, v_s))} and {_fmt_nm(max(v_a, v_s))}); {why}"
+            f"(held-out {fmt_nm(min(v_a, v_s))} and {fmt_nm(max(v_a, v_s))}); {why}"
         ),
         "experiment": experiment_body(records, axes, **body),
     }
@@ -518,8 +514,8 @@ def _verdict_text(
         tested = ""
         if top.get("tested_rms_um") is not None and top["reference"]:
             tested = (
-                f"the model + {' + '.join(top['reference'])} {_fmt_nm(top['reference_rms_um'])} → "
-                f"{_fmt_nm(top['tested_rms_um'])} with it; "
+                f"the model + {' + '.join(top['reference'])} {fmt_nm(top['reference_rms_um'])} → "
+                f"{fmt_nm(top['tested_rms_um'])} with it; "
             )
         alone = ""
         if top["expected_rms_um"] >= v0 - (v0 - noise) * ALONE_GAIN_SHARE:  # its own gain hides in loop shape
@@ -531,20 +527,20 @@ def _verdict_text(
             )
         return (
             f"missing effect: {top['effect']} (p = {top['p_value']:.2g}; {tested}this model's held-out "
-            f"{_fmt_nm(v0)} → {_fmt_nm(top['expected_rms_um'])} with it added{alone}); "
-            f"held-out RMS {_fmt_nm(v0)} against a noise floor of {_fmt_nm(noise)}"
+            f"{fmt_nm(v0)} → {fmt_nm(top['expected_rms_um'])} with it added{alone}); "
+            f"held-out RMS {fmt_nm(v0)} against a noise floor of {fmt_nm(noise)}"
         )
-    rep = "unknown" if repeatable is None else _fmt_nm(repeatable)
+    rep = "unknown" if repeatable is None else fmt_nm(repeatable)
     if at_floor:
         text = (
-            f"complete: the remaining {_fmt_nm(v0)} is at the noise floor in every block (repeatable part "
-            f"{rep} against {_fmt_nm(noise)} of noise; at most {ratio:.1f}× a block's own noise)"
+            f"complete: the remaining {fmt_nm(v0)} is at the noise floor in every block (repeatable part "
+            f"{rep} against {fmt_nm(noise)} of noise; at most {ratio:.1f}× a block's own noise)"
         )
     elif ratio is not None and ratio <= CLEAR_DROP_NOISE:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
         text = (
             f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual "
-            f"{_fmt_nm(v0)} is {held_out_ratio:.1f}× the {_fmt_nm(noise)} of noise, although the repeated "
+            f"{fmt_nm(v0)} is {held_out_ratio:.1f}× the {fmt_nm(noise)} of noise, although the repeated "
             f"cycles are within {ratio:.1f}× their own noise — the error is where the drive does not "
             f"repeat (amplitude changes, holds). No physical effect in the library removes it{where}"
         )
@@ -557,7 +553,7 @@ def _verdict_text(
         )
         text = (
             f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual is "
-            f"{_fmt_nm(v0)}; in the repeated cycles, {rep} repeats cycle to cycle against {_fmt_nm(noise)} of "
+            f"{fmt_nm(v0)}; in the repeated cycles, {rep} repeats cycle to cycle against {fmt_nm(noise)} of "
             f"noise ({per_block}). No physical "
             f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
             f"outside the library{where}"
@@ -566,7 +562,7 @@ def _verdict_text(
     if cap:
         text += (
             f"; more hysteresis capacity ({cap[0]['effect']}) would remove {100 * cap[0]['excess_removed']:.0f} % "
-            f"of the excess (held-out {_fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics"
+            f"of the excess (held-out {fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics"
         )
     return text
 
@@ -632,7 +628,7 @@ def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
         "effects": [a["effect"], b["effect"]],
         "excess_ratio": ratio,
         "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-        f"(held-out {_fmt_nm(a['expected_rms_um'])} and "
-        f"{_fmt_nm(b['expected_rms_um'])}); {why}",
+        f"(held-out {fmt_nm(a['expected_rms_um'])} and "
+        f"{fmt_nm(b['expected_rms_um'])}); {why}",
         "experiment": experiment_body(records, axes, **body),
     }

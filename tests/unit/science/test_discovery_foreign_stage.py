@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from service.science.data.segmentation import blocks_without_table
+from service.science.data.units import fmt_nm
 from service.science.discovery.composite import fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.records import records_from_arrays
@@ -50,7 +51,7 @@ def test_the_hidden_effect_is_named_fixed_and_then_nothing_else(hidden, effect):
     assert top["effect"] == effect and top["claimed"], _claims(first)
     # the verdict quotes the test the claim passed: the flexible base, with and without the effect
     assert top["tested_rms_um"] < top["reference_rms_um"]
-    assert f"{_nm(top['reference_rms_um'])} → {_nm(top['tested_rms_um'])}" in first["verdict_text"]
+    assert f"{fmt_nm(top['reference_rms_um'])} → {fmt_nm(top['tested_rms_um'])}" in first["verdict_text"]
     refined = fit_composite([record], [effect])
     second = diagnose([record], model=refined)
     assert second["residual_rms_um"] <= 0.5 * first["residual_rms_um"], (
@@ -67,11 +68,6 @@ def test_the_resonance_is_named_first_and_its_refine_cuts_the_error_by_98_percen
     after = fit_composite([record], ["dynamics"])
     assert after.evaluate([record])["validation_rms_um"] <= 0.02 * first["residual_rms_um"]  # 963 → 14.6 nm
     assert abs(after.theta["dynamics"]["fn_hz"] / 296.5 - 1) < 0.01  # 300 Hz through the bilinear map: 296.5 Hz
-
-
-def _nm(value_um: float) -> str:
-    """An error as the texts print it: nm, three significant digits, never an exponent."""
-    return f"{float(f'{value_um * 1e3:.3g}'):g} nm"
 
 
 def _no_part_above_its_whole(text: str) -> None:
