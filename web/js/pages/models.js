@@ -152,9 +152,9 @@ function renderAnswer(box, model, d) {
   if (!d) { box.innerHTML = '<p class="muted">No diagnosis: see the compare table below.</p>'; return; }
   const ratio = d.noise_floor_um ? d.residual_rms_um / d.noise_floor_um : null;
   const leading = (d.candidates || []).find((c) => c.claimed && c.testable !== false);
-  const where = `Residual ${fmtErrorNm(d.residual_rms_um, 3)} on the held-out cycles${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 3)})` : ''}.`;
+  const where = `Residual ${fmtErrorNm(d.residual_rms_um, 4)} on the held-out cycles${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 4)})` : ''}.`;
   const what = leading
-    ? `Missing: <b data-effect="${esc(leading.effect)}">${esc(leading.effect)}</b>. Adding it should bring the error to about ${fmtErrorNm(leading.expected_rms_um, 3)}: use “Add ${esc(leading.effect)}” in the diagnosis, or Discover.`
+    ? `Missing: <b data-effect="${esc(leading.effect)}">${esc(leading.effect)}</b>. Adding it should bring the error to about ${fmtErrorNm(leading.expected_rms_um, 4)}: use “Add ${esc(leading.effect)}” in the diagnosis, or Discover.`
     : d.at_noise_floor === false ? 'No effect in the library is missing, yet the model is not at the noise floor: see the diagnosis for where it fails.'
       : 'Nothing is missing: the model explains the data down to the noise floor.';
   box.innerHTML = `<p id="model-answer-text" data-ratio="${ratio ?? ''}">${where} ${what}</p>`;
