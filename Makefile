@@ -57,7 +57,7 @@ PORT ?= 8000
 run: $(STAMP) $(WEB_STAMP)
 	$(VENV)/bin/evcbench serve --host 127.0.0.1 --port $(PORT) --data-dir var --bench "$${EVCBENCH_BENCH:-default_realtime}"
 
-## Run every test. The store tests also run on PostgreSQL: this installs Debian's server if it is
+## Run every test (the 20 slowest are listed at the end, to keep the suite short). The store tests also run on PostgreSQL: this installs Debian's server if it is
 ## missing (EVCBENCH_SKIP_POSTGRES=1 skips that and those tests); the tests start their own cluster.
 ## While the test tooling, the dashboard's packages, PostgreSQL and the browser install, two
 ## processes compile the kernels into numba's cache (`evcbench warm`; logs in tests/artifacts/): on
@@ -76,7 +76,7 @@ test: $(CORE_STAMP)
 	[ $$setup -eq 0 ] || exit $$setup; \
 	[ $$failed -eq 0 ] || { echo "evcbench warm failed (above)" >&2; exit 1; }
 	$(MAKE) --no-print-directory lint
-	$(PY) -m pytest -q $(PYTEST_XDIST)
+	$(PY) -m pytest -q $(PYTEST_XDIST) --durations=20
 
 ## The lint gate (part of `make test`): ruff's lint and format check, and the import-linter contracts
 ## that hold the layers (pyproject.toml, [tool.importlinter]).

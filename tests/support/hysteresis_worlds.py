@@ -7,7 +7,8 @@ Materials (every one rate-independent, in µm for a drive in V):
 - ``preisach_um``: a Preisach plane with a correlated bivariate Gaussian density in (centre, half
   width) of the relays, evaluated exactly through its Everett function and the wiping-out memory of
   alternating extrema (congruency holds, Masing does not);
-- ``maxwell_slip_um``: elasto-slip elements (a sum of stop operators: a family a PI can draw).
+- ``maxwell_slip_um``: elasto-slip elements (a sum of stop operators: a family a PI can draw);
+- Jiles–Atherton, Coleman–Hodgdon and Krasnosel'skii–Pokrovskii materials (tests.support.hysteresis_families).
 
 Recording: 20 kHz, gauge noise (default 2 nm); either one record per block ("one CSV per block",
 each from rest at 0 V) or one long record with rests between the blocks. Blocks: 1/10/50/100 Hz
@@ -20,6 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from tests.support.hysteresis_families import (
+    coleman_hodgdon_um,
+    jiles_atherton_um,
+    krasnoselskii_pokrovskii_um,
+)
 
 SAMPLE_RATE_HZ = 20000.0
 FREQUENCIES_HZ = (1.0, 10.0, 50.0, 100.0)
@@ -196,6 +203,9 @@ WORLDS = {
     "bw_n2": lambda u, bp: bouc_wen_um(u, beta=0.6, gamma=0.4, n=2.0, scale_v=50.0 if bp else 25.0),
     "preisach_gauss": lambda u, bp: preisach_um(u, lo_v=-130.0 if bp else -10.0),
     "maxwell_slip": lambda u, bp: maxwell_slip_um(u, widths_v=tuple(w * (2 if bp else 1) for w in (3, 9, 17, 28, 44))),
+    "jiles_atherton": lambda u, bp: jiles_atherton_um(u, scale_v=80.0 if bp else 40.0),
+    "coleman_hodgdon": lambda u, bp: coleman_hodgdon_um(u),
+    "krasnoselskii_pokrovskii": lambda u, bp: krasnoselskii_pokrovskii_um(u, lo_v=-140.0 if bp else -20.0),
 }
 
 
