@@ -261,12 +261,15 @@ def _entry(
     v_ref: float,
     how: str,
     v_trial: float | None = None,
+    kind: str | None = None,
 ) -> dict:
     """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
-    (``v_trial``: the held-out RMS of its reference with it, where it was tested against one)."""
+    (``v_trial``: the held-out RMS of its reference with it, where it was tested against one;
+    ``kind``: "capacity" where this model makes a physical effect's columns capacity)."""
     eff = EFFECTS[name]
+    kind = kind or eff.kind
     v, added, fitted = v0, 0, ""
-    if is_claimed or eff.kind == "capacity":
+    if is_claimed or kind == "capacity":
         own, _, v = fits.get((name,))  # what the user gets by adding it to this model
         added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
     removed = (v0**2 - v**2) / max(v0**2 - noise**2, 1e-30)
@@ -287,7 +290,7 @@ def _entry(
     )
     return {
         "effect": name,
-        "kind": eff.kind,
+        "kind": kind,
         "testable": True,
         "claimed": bool(is_claimed),
         "high": bool(is_claimed),
@@ -310,6 +313,41 @@ def _entry(
 LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
 
+def _loop_shape_as_capacity(fits: _Fits, records, noise, v0, k0, sig, floor) -> list[dict]:
+    """The loop-shape pair on a base that draws any rate-independent loop shape (issue 37's wider
+    base): what either still explains is that base's shape, so each is offered as capacity (validated
+    against the model itself, never claimed as physics). The stack's asymmetry and the gauge's bow
+    are named as physics only while the base is point-symmetric, where they can be told apart."""
+    _, res0, _ = fits.get(())
+    rows = []
+    for name in LOOP_SHAPE:
+        _, res, _ = fits.get((name,))
+        test = held_out_improvement(records, res0, res)
+        how = (
+            f"the base draws any rate-independent loop shape, so what {name}'s columns add is that base's "
+            f"shape, offered as capacity and not as physics (p = {test['p']:.2g} against the model itself)"
+        )
+        rows.append(
+            _entry(
+                name,
+                fits,
+                noise,
+                v0,
+                k0,
+                sig,
+                floor,
+                claimed(test, 0.0),
+                test["p"],
+                test["gain_mse_um2"],
+                (),
+                v0,
+                how,
+                kind="capacity",
+            )
+        )
+    return rows
+
+
 def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[list[dict], dict | None]:
     """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
     point-symmetric is tested without a model (a point-symmetric stack of any family has no even
@@ -320,9 +358,9 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     # the model's residual where the model draws a point-symmetric loop itself (then its even part is
     # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
     # (or a base that draws any loop shape, issue 37: an asymmetric loop it draws is the base's, not physics)
-    symmetric = all(
-        EFFECTS[e].point_symmetric or getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects
-    )
+    if any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects):
+        return _loop_shape_as_capacity(fits, records, noise, v0, k0, sig, floor), None
+    symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
     test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise)
     even2 = (test["even_rms_um"] or 0.0) ** 2
     shape = (
