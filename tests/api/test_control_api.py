@@ -168,9 +168,12 @@ def test_composite_model_ids_as_feedforward_and_stroke_refusal(http):
 
 
 @pytest.mark.slow
-def test_a_feedforward_model_whose_inverse_diverges_is_refused_before_the_bench_moves(http):
-    """The paper's dynamic PI, fitted on 1/10/50/100 Hz, has an inverse that does not converge at
-    100 Hz; a static PI from the same sweep is accepted. The refusal names the field and the miss."""
+def test_the_paper_dynamic_pi_feedforward_runs_solved_period_by_period(http):
+    """The paper's dynamic PI, fitted on 1/10/50/100 Hz, has a per-sample inverse that misses the
+    100 Hz ellipse (1.5 and 2.2 µm RMS on Y and Z); its drive is solved period by period instead
+    (0.11 and 0.33 µm) and the run goes ahead. Measured (FF alone, 5 periods): 15.6 % against the
+    static PI's 9.0 %: the dynamic PI's rate terms, fitted on sines, extrapolate to the ellipse less
+    well on this bench, whose 290.7 Hz mode neither model draws."""
     r = http.post(
         "/api/sweeps", json={"axes": ["y", "z"], "frequencies_hz": [1, 10, 50, 100], "cycles": 3, "together": False}
     )
@@ -180,31 +183,21 @@ def test_a_feedforward_model_whose_inverse_diverges_is_refused_before_the_bench_
         for axis in ("y", "z"):
             r = http.post("/api/models", json={"axis": axis, "datasets": [dataset_id], "model": kind})
             ids[kind, axis] = _wait(http, r.json()["job_id"])[0]["result"]["model_id"]
-    jobs_before = len(http.get("/api/jobs").json())
-    r = http.post(
-        "/api/trajectories",
-        json={
-            **BASE,
-            "controller": {
-                "feedforward_model_y": ids["dynamic_pi", "y"],
-                "feedforward_model_z": ids["dynamic_pi", "z"],
+    errors = {}
+    for kind in ("dynamic_pi", "static_pi"):
+        r = http.post(
+            "/api/trajectories",
+            json={
+                **BASE,
+                "cycles": 5,
+                "controller": {"feedforward_model_y": ids[kind, "y"], "feedforward_model_z": ids[kind, "z"]},
             },
-        },
-    )
-    assert r.status_code == 422 and r.json()["field"].startswith("controller.feedforward_model_")
-    assert "inverse does not converge at 100 Hz" in r.json()["detail"] and "µm RMS" in r.json()["detail"]
-    assert "dynamic PI inverse diverges" in r.json()["detail"]  # the model's own advice reaches the user
-    assert len(http.get("/api/jobs").json()) == jobs_before  # nothing was queued
-    r = http.post(
-        "/api/trajectories",
-        json={
-            **BASE,
-            "cycles": 5,
-            "controller": {"feedforward_model_y": ids["static_pi", "y"], "feedforward_model_z": ids["static_pi", "z"]},
-        },
-    )
-    assert r.status_code == 202, r.text
-    assert _wait(http, r.json()["job_id"])[0]["state"] == "succeeded"
+        )
+        assert r.status_code == 202, r.text
+        job = _wait(http, r.json()["job_id"])[0]
+        assert job["state"] == "succeeded" and job["result"]["tripped"] is None, job
+        errors[kind] = job["result"]["relative_error_pct"]
+    assert errors["dynamic_pi"] < 2 * errors["static_pi"], errors
     # the other axis's model is refused naming the field and the axis it belongs to (a new user
     # swapped them: accepted silently, 71 % error)
     r = http.post(

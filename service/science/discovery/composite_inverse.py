@@ -17,7 +17,7 @@ flexure dynamics). Its inverse for a planned reference x_ref (µm):
    model residual ‖T(A(u)c) − x_ref‖ falls, and grows back after a success; the iteration stops when
    the residual is below ``CONVERGED_SHARE`` of the reference's range or α gets too small; a step is
    only taken when it lowers the residual, so the last iterate is the best. What still misses is refused by the caller with its figure
-   (service.science.control.session.check_inverse): a model whose output is not monotone in the
+   (service.science.control.session.converged_drive): a model whose output is not monotone in the
    drive has no inverse to find.
 3. **Gauss–Newton on the reference's harmonics, where step 2 stalls.** Rate dependence's operator-rate
    terms (c_i·dP_i/dt, leads and lags of several ms at 100 Hz) give the stack a time-varying phase that

@@ -74,7 +74,8 @@ class DynamicPI(HysteresisModel):
 
     #: why a feedforward plan refuses this model's inverse when it misses (service.science.control.session)
     inverse_advice = (
-        "The paper's dynamic PI inverse diverges at 50–100 Hz (segment-switched weights); use a "
+        "The paper's dynamic PI inverse diverges sample by sample at 50–100 Hz (segment-switched "
+        "weights), and solving its drive period by period did not reach the reference either; use a "
         "static_pi or composite model"
     )
 
