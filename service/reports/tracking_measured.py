@@ -8,8 +8,9 @@ As a REST user would (service/reports/rest_path.py, answered in process by the r
 
 - the paper's controller structure: ``POST /api/models`` with ``"model": "dynamic_pi"`` (the paper's
   dynamic PI, identified on that sweep as the paper did), its inverse as feedforward and the PID the
-  service tunes (``"pid": "auto"``); the service refuses that inverse at 100 Hz (422), so the same
-  structure runs with the static PI and with the composite feedforward too;
+  service tunes (``"pid": "auto"``); its per-sample inverse misses at 100 Hz, so the service solves
+  its drive period by period (service.science.control.periodic_inverse); the same structure runs
+  with the static PI and with the composite feedforward too;
 - the product's best controller: the composite feedforward of docs/tracking.md (hysteresis with
   ``rest_path.EFFECTS``, refitted on the span sweeps the API offers per case), PID (auto) and ILC.
 
@@ -30,9 +31,9 @@ from service.science import paper
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = "paper_measured"
 CASES = {case: spec["body"] for case, spec in paper.TRACKING_CASES.items()}
-#: the report's rows: (feedforward, controller body). "dynamic_pi" is the paper's model (its inverse is
-#: refused at 100 Hz: a 422 row), "static_pi" the paper's structure with the PI the service inverts at
-#: 100 Hz, "composite" the product's feedforward (docs/tracking.md)
+#: the report's rows: (feedforward, controller body). "dynamic_pi" is the paper's model (its drive solved
+#: period by period; a 422 row if even that missed), "static_pi" the paper's structure with the static
+#: PI, "composite" the product's feedforward (docs/tracking.md)
 ROWS = {
     "paper's structure: dynamic PI⁻¹ FF + PID (auto)": ("dynamic_pi", {"pid": "auto"}),
     "paper's structure with the static PI: static PI⁻¹ FF + PID (auto)": ("static_pi", {"pid": "auto"}),
@@ -98,8 +99,10 @@ def section(results: dict, seed: int, cycles: int) -> str:
         "its first modes where the measured 100 Hz cells put them (docs/calibration.md, docs/reproduction.md). "
         "Over the REST path as above: the identification sweep, then per axis the paper's controller "
         '(`POST /api/models` with `"model": "dynamic_pi"`, its inverse as feedforward, `"pid": "auto"`). The '
-        "service refuses the dynamic PI's inverse at 100 Hz (the row's 422 says why), so the same structure "
-        'runs with the static PI (`"model": "static_pi"`) and with the composite feedforward of the rows above; '
+        "dynamic PI's per-sample inverse misses the 100 Hz ellipse (its rate weights switch with the signs of "
+        "u̇ and ü), so the service solves its drive period by period on the model's own prediction "
+        "(service/science/control/periodic_inverse.py). The same structure also runs with the static PI "
+        '(`"model": "static_pi"`) and with the composite feedforward of the rows above; '
         'the product\'s best adds ILC (`"pid": "auto"`, `"ilc": true`). '
         f"Seed {seed}, {cycles} periods at 100 Hz; maximum errors over the last 5 steady periods.",
         "",
