@@ -191,8 +191,11 @@ class ComposedDaq:
             self._closers.clear()
 
 
-def open_from_config(cfg: dict, seed: int = 0) -> Bench:
-    """Build each part as ``cfg["transport"]`` says (all emulated in-process when absent)."""
+def open_from_config(cfg: dict, seed: int = 0, safe_open=None) -> Bench:
+    """Build each part as ``cfg["transport"]`` says (all emulated in-process when absent), output
+    first: the DAQ, the amplifiers, then the sensors. ``safe_open`` (drivers.safe_state.SafeOpen)
+    puts the DAQ's outputs at 0 V as it opens and disables the amplifiers as they open, before any
+    sensor is opened."""
     t = check_transport(cfg.get("transport", {}))
     closers: list = []
     emulators: dict = {}
@@ -211,12 +214,18 @@ def open_from_config(cfg: dict, seed: int = 0) -> Bench:
             except TypeError as exc:
                 raise ValueError(f"transport.nidaq: {exc}") from None
         closers.append(daq.close)
+        if safe_open is not None:
+            safe_open.daq_opened(daq)
         if t["amplifier"]["kind"] == "serial":
             amps = _serial_amplifiers(cfg, t["amplifier"], world, emulators, closers)
+        if safe_open is not None:
+            safe_open.amplifiers_opened(amps)
         if t["sensors"]["kind"] == "can":
             can_bus, sensors = _can_sensors(t["sensors"], world, emulators, closers)
         else:
             can_bus = None
+        if safe_open is not None:
+            safe_open.sensors_opened()
         if world is not None:
             world.faults.transports.update(emulators)  # serial / CAN faults act on the wire
         if world is not None and emulators:

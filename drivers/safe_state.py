@@ -11,11 +11,60 @@ process's tasks), so another process may drive them. Per device, from the bench 
 - the in-process emulator: nothing to do, its outputs ended with the engine.
 
 ``zero_outputs`` never raises: each device's line says what was done or why it was not.
+
+``SafeOpen`` is the other half: the order a (fresh) bench engine opens its devices in, so that its
+first act is 0 V. The output devices come first, each put in its safe state the moment it is open
+(the DAQ's analog outputs at 0 V, then the amplifiers disabled); only then are the sensors opened.
 """
 
 from __future__ import annotations
 
+import time
+
 from drivers.interfaces import DriverError
+
+
+class SafeOpen:
+    """Opens a bench output-first: the factory calls ``daq_opened`` as soon as the DAQ is open (0 V
+    on its AO at once), ``amplifiers_opened`` as soon as the amplifiers are (each disabled, where
+    the driver can), and ``sensors_opened`` last. ``order`` lists each step as (what,
+    ``time.monotonic()`` s); ``zero_monotonic_s`` is the DAQ's 0 V write; ``notes`` say what failed."""
+
+    def __init__(self):
+        self.order: list[tuple[str, float]] = []
+        self.notes: list[str] = []
+        self.zero_monotonic_s: float | None = None
+
+    def _note(self, what: str) -> float:
+        at = time.monotonic()
+        self.order.append((what, at))
+        return at
+
+    def daq_opened(self, daq) -> None:
+        """The DAQ is open: its analog outputs to 0 V before anything else opens (a failure raises)."""
+        self._note("DAQ opened")
+        daq.write_idle()
+        self.zero_monotonic_s = self._note("DAQ outputs at 0 V")
+
+    def amplifiers_opened(self, amplifiers: dict) -> None:
+        """The amplifiers are open: each disabled (an MDT693B's DC set-point to 0 V)."""
+        self._note("amplifiers opened")
+        for axis, amp in amplifiers.items():
+            try:
+                amp.disable()
+            except Exception as exc:  # noqa: BLE001 - the DAQ's 0 V holds; the note says what failed
+                self.notes.append(f"amplifier {axis}: not disabled ({exc})")
+        self._note("amplifiers disabled")
+
+    def sensors_opened(self) -> None:
+        self._note("sensors opened")
+
+    def as_dict(self) -> dict:
+        return {
+            "zero_monotonic_s": self.zero_monotonic_s,
+            "order": [[what, at] for what, at in self.order],
+            "notes": list(self.notes),
+        }
 
 
 def _stage(address: str) -> str:

@@ -32,11 +32,16 @@ __all__ = [
 ]
 
 
-def emulated_bench(cfg: dict, seed: int) -> Bench:
+def emulated_bench(cfg: dict, seed: int, safe_open=None) -> Bench:
     """The Bench of a loaded configuration ``cfg`` (``load_config``) without a ``[transport]`` table:
-    the world and its devices in process, noise ``seed``."""
+    the world and its devices in process, noise ``seed``; ``safe_open`` (drivers.safe_state.SafeOpen):
+    0 V and the amplifiers disabled as they open, before the sensors."""
     world = World(cfg, seed)
     daq, amps, sensors = build_devices(world)
+    if safe_open is not None:
+        safe_open.daq_opened(daq)
+        safe_open.amplifiers_opened(amps)
+        safe_open.sensors_opened()
     parts = BenchParts(
         daq=daq,
         amplifiers=amps,

@@ -29,7 +29,6 @@ import logging
 import os
 import signal
 import threading
-import time
 from multiprocessing.connection import Connection
 
 from drivers.bench import Bench
@@ -97,21 +96,6 @@ def _exit_on_signal(sig: int, _frame) -> None:
     raise SystemExit(128 + sig)
 
 
-def _safe_start(bench: Bench) -> dict:
-    """A fresh engine's first act, before anything else: 0 V on every output and every amplifier
-    disabled (where the driver can: the MDT693B's DC set-points are zeroed). Returns what was done,
-    with the 0 V write's ``time.monotonic()`` (s)."""
-    done: dict = {"notes": []}
-    bench.parts.daq.write_idle()
-    done["zero_monotonic_s"] = bench.last_zero_monotonic_s = time.monotonic()
-    for axis, amp in bench.parts.amplifiers.items():
-        try:
-            amp.disable()
-        except Exception as exc:  # noqa: BLE001 - the DAQ's 0 V holds; the note says what failed
-            done["notes"].append(f"amplifier {axis}: not disabled ({exc})")
-    return done
-
-
 def _arm_hardware_watchdog(bench: Bench, safe: dict) -> None:
     """Arm the DAQ's own watchdog (``[safety] hardware_watchdog_s``; 0: off) where the driver has
     one, after the compile (which holds the GIL for seconds: no pet could come). Noted in ``safe``."""
@@ -127,27 +111,29 @@ def _arm_hardware_watchdog(bench: Bench, safe: dict) -> None:
 
 
 def _open_at_zero(bench_name: str, seed: int | None, overrides: dict | None, plan_conn: Connection, restart: bool):
-    """Open the bench and put it in its safe state (``_safe_start``); on failure tell the web
-    process on ``plan_conn`` and return (None, None). The amplifiers stay disabled after a
-    ``restart`` (until the operator's reset), and are enabled again at the 0 V otherwise."""
+    """Open the bench output-first, its first act 0 V on every output with the amplifiers disabled,
+    before any sensor opens (drivers.safe_state.SafeOpen); on failure tell the web process on
+    ``plan_conn`` and return (None, None). Returns the bench and what was done (``zero_monotonic_s``:
+    the 0 V write, ``order``: each step's ``time.monotonic()``, s). The amplifiers stay disabled
+    after a ``restart`` (until the operator's reset), and are enabled again at the 0 V otherwise."""
     from drivers.factory import open_bench
+    from drivers.safe_state import SafeOpen
 
+    safe_open = SafeOpen()
     try:
-        bench = open_bench(bench_name, seed=seed, overrides=overrides)
+        bench = open_bench(bench_name, seed=seed, overrides=overrides, safe_open=safe_open)
     except Exception as exc:  # noqa: BLE001 - the web process reports it and does not start
+        if safe_open.order and safe_open.zero_monotonic_s is None:
+            exc = DriverError(f"writing 0 V at start-up failed: {exc}")  # an engine without 0 V never serves
         plan_conn.send(("error", picklable(exc)))
         return None, None
-    try:
-        safe = _safe_start(bench)
-        if not restart:
-            for amp in bench.parts.amplifiers.values():
-                amp.enable()
-        safe["amplifiers_disabled"] = restart
-        return bench, safe
-    except Exception as exc:  # noqa: BLE001 - an engine that cannot write 0 V must not serve
-        bench.close()
-        plan_conn.send(("error", picklable(DriverError(f"writing 0 V at start-up failed: {exc}"))))
-        return None, None
+    bench.last_zero_monotonic_s = safe_open.zero_monotonic_s
+    safe = safe_open.as_dict()
+    if not restart:
+        for amp in bench.parts.amplifiers.values():
+            amp.enable()
+    safe["amplifiers_disabled"] = restart
+    return bench, safe
 
 
 class _Engine:
@@ -296,7 +282,7 @@ def engine_main(
     heartbeat=None,
     restart: bool = False,
 ) -> None:
-    """The process's entry point: open the bench at 0 V (``_safe_start``, its first act), start the
+    """The process's entry point: open the bench at 0 V (``_open_at_zero``, its first act), start the
     pulse (``heartbeat``: the shared double the supervisor reads), open the stop port on
     ``stop_address`` (if given), say what it is, serve the pipes until the web process closes them
     (or dies), then leave the outputs at 0 V. ``restart``: the supervisor's fresh engine, whose

@@ -12,7 +12,8 @@ engine and the reason; /api/health says ``degraded``); the outputs are driven to
 where the hardware lets another process do it (``zero``: drivers.safe_state.zero_outputs); the
 bench jobs queued are cancelled with the reason, while the running one fails on its own call with
 the same reason (a sweep keeps its samples as a partial dataset); a fresh engine is started, whose
-first act is 0 V on every output with the amplifiers disabled (engine_process._safe_start); and it
+first act is 0 V on every output with the amplifiers disabled, before any sensor opens
+(engine_process._open_at_zero, drivers.safe_state.SafeOpen); and it
 is attached with the fault latched: "engine restarted: <reason>, outputs set to 0 V at <time>",
 which refuses every run until POST /api/bench/reset.
 
