@@ -81,7 +81,12 @@ class Watchdog:
     - ``zero_v_s``: from that moment until ``write_idle`` returned (seconds), ``zero_v_at_monotonic_s``;
     - ``fed_during_zero_v``: samples the loop still fed while 0 V was being written (normally 0).
 
-    A loop that feeds again while ``write_idle`` runs does not shrink the reported gap."""
+    A loop that feeds again while ``write_idle`` runs does not shrink the reported gap.
+
+    The watchdog judges only time it watched: if its own thread could not look for more than half
+    the timeout (the whole process was stopped, SIGSTOP, or starved of every core), the loop was
+    paused with it, not stalled by itself, and its count starts again from that look (``pauses``
+    counts them). Without that, a loop resuming with its process met a trip writing 0 V at once."""
 
     def __init__(self, daq, config: SafetyConfig | None = None, on_trip: Callable[[str], None] | None = None):
         self.daq = daq
@@ -91,6 +96,7 @@ class Watchdog:
         self.period_s = 0.0
         self.name = ""
         self.last_trip: dict | None = None
+        self.pauses = 0
         self._armed = False
         self._last_feed = time.monotonic()
         self._fed = 0
@@ -128,10 +134,12 @@ class Watchdog:
             self._thread.join(timeout=1.0)
 
     def _watch(self) -> None:
+        looked_s = time.monotonic()
         while not self._closed:
             if not self._armed:  # parked (no polling) until arm() or close() wakes it
                 self._wake.wait()
                 self._wake.clear()
+                looked_s = time.monotonic()
                 continue
             self._wake.wait(self.config.watchdog_poll_s)
             self._wake.clear()
@@ -139,15 +147,25 @@ class Watchdog:
                 if not self._armed:
                     continue
                 decided_s, last_feed_s, fed = time.monotonic(), self._last_feed, self._fed
+                paused = decided_s - looked_s > self.timeout_s / 2
+                looked_s = decided_s
+                if paused:  # this thread was not running either: the gap is not the loop's
+                    self.pauses += 1
+                    self._last_feed = max(self._last_feed, decided_s)
+                    continue
                 if decided_s - last_feed_s < self.timeout_s:
                     continue
                 self._armed = False
             self._trip(decided_s, decided_s - last_feed_s, fed)
 
     def _trip(self, decided_s: float, stalled_s: float, fed: int) -> None:
-        """Write 0 V and report. ``stalled_s`` is the gap seen when the trip was decided (at the
-        monotonic time ``decided_s``, seconds), ``fed`` the samples fed until then."""
+        """Abort the DAQ's output (where it can: a write waiting for its slot ends at once, later
+        ones are refused), write 0 V and report. ``stalled_s`` is the gap seen when the trip was
+        decided (at the monotonic time ``decided_s``, seconds), ``fed`` the samples fed until then."""
         try:
+            abort = getattr(self.daq, "abort", None)
+            if callable(abort):
+                abort()
             self.daq.write_idle()
             zero = "output set to 0 V"
         except Exception as exc:  # noqa: BLE001 - report it; the trip itself must not die

@@ -40,6 +40,9 @@ class EmulatedDaq:
             latency_samples=world.latency,
         )
         self._closed = False
+        #: one thread drives the world at a time: the loop, or a watchdog's or a stop's 0 V (the
+        #: kernels release the GIL, so two writers would step the same state at once)
+        self.drive_lock = threading.RLock()
         #: set by ``abort`` (a stop): buffered writes are refused until the next session begins
         self._aborted = threading.Event()
         self._thermometer = bool(world.config["ambient"].get("thermometer", False))
@@ -97,7 +100,8 @@ class EmulatedDaq:
         faults, parts, temps = self.world.faults, [], []
 
         def run_part(block: np.ndarray) -> None:
-            parts.append(self.world.run(block))
+            with self.drive_lock:
+                parts.append(self.world.run(block))
             if self._thermometer:
                 temps.append(self.world.last_diag[:, K.D_TEMP_C])
 
@@ -164,12 +168,14 @@ class EmulatedDaq:
             raise LimitError(
                 f"AO sample ({a0}, {a1}) V is outside ±{self.world.range_v:g} V or not finite; nothing was written"
             )
-        return self.world.step(a0, a1)
+        with self.drive_lock:
+            return self.world.step(a0, a1)
 
     def stepping_hook(self):
         """Optional compiled point-by-point hook: ``(step_fn, args, take_noise)``. A compiled caller
         steps the world with ``step_fn(*args, ao0, ao1, noise, kn, out, ko, diag)`` using rows of
-        ``take_noise(n) -> (noise, first_row)``; the same kernel as ``step``. None when closed."""
+        ``take_noise(n) -> (noise, first_row)``, holding ``drive_lock`` while it steps; the same
+        kernel as ``step``. None when closed."""
         if self._closed or not self.capabilities.point_by_point:
             return None
         step_fn, args = self.world.kernel_state()
@@ -198,14 +204,16 @@ class EmulatedDaq:
         """AO to 0 V, then let the world run idle until the amplifier outputs are below 10 mV."""
         if self._closed:
             return
-        t0 = self.world.time_s
-        self.world.idle()
+        with self.drive_lock:
+            t0 = self.world.time_s
+            self.world.idle()
         self.world.faults.idle_written()
         self.world.output_log.record("idle", zero_from_t_s=round(t0, 6))
 
     def close(self) -> None:
         if not self._closed:
-            self.world.idle()
+            with self.drive_lock:
+                self.world.idle()
             self.world.faults.idle_written()
             self.world.output_log.record("close")
             self.world.output_log.close()

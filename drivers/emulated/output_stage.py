@@ -12,8 +12,17 @@ armed with a timeout (s), a pet must come within it, or the stage drives every o
 expiration state, 0 V, by itself, and stays there (ignoring new levels) until cleared. No host
 process writes that 0 V.
 
+The timer is the device's, not this process's: every host message carries the moment it was sent
+(``at``, ``time.monotonic()``), as a write reaches a DAQ within microseconds, and the stage takes
+the messages in order on that clock. The watchdog expires at its deadline (the last pet sent +
+the timeout), exactly, whenever this process gets the core to notice (it wakes at the deadline,
+and at least every tenth of the timeout): the outputs read 0 V from the deadline on, and a pet
+queued while the stage was starved still counts when it was sent, so the stage's own lateness
+under load neither delays an expiry nor makes a false one. ``acted_late_s`` says how late the
+stage noticed its last expiry (the emulation's lateness, not the device's).
+
 Run it with ``python -m drivers.emulated.output_stage [--port N] [--no-watchdog]``: it prints its
-address on the first line of stdout. One UDP datagram of JSON per message, ``op`` naming it:
+address on the first line of stdout. One UDP datagram of JSON per message, ``op`` naming it, and ``at``, the sender's clock:
 
     set    {"ao": [y, z], "amp": [y, z]}   DAQ volts and amplifier volts; no answer
     arm    {"timeout_s": t}               → {"armed_s": t}
@@ -39,8 +48,10 @@ from collections import deque
 
 #: below this (V, every output) the stage counts as at 0 V
 ZERO_V = 0.010
-#: how often the stage looks at its watchdog (s)
-POLL_S = 0.002
+#: the stage looks at its armed watchdog at least this often, as a fraction of its timeout
+POLL_FRACTION = 0.1
+#: how long the stage waits for a message while no watchdog is armed (s)
+IDLE_WAIT_S = 0.1
 #: how long a client waits for an answer (s)
 ANSWER_TIMEOUT_S = 0.5
 
@@ -63,6 +74,7 @@ class StageState:
         self.last_pet_s = 0.0
         self.expired: str | None = None
         self.expired_at_s: float | None = None
+        self.acted_late_s: float | None = None
         self.zero_since_s: float | None = time.monotonic()
         self.events: deque = deque(maxlen=64)
 
@@ -86,7 +98,7 @@ class StageState:
         return self.timeout_s
 
     def pet(self, now: float) -> str | None:
-        self.last_pet_s = now
+        self.last_pet_s = max(self.last_pet_s, now)
         return self.expired
 
     def clear(self, now: float) -> bool:
@@ -97,18 +109,31 @@ class StageState:
         self._levels(now, [0.0, 0.0], [0.0, 0.0], f"written by {by}")
         return now
 
-    def tick(self, now: float) -> None:
-        """Expire the watchdog if its pet is overdue: every output to 0 V, by the stage itself."""
+    def deadline_s(self) -> float | None:
+        """When the armed watchdog expires without another pet (monotonic s), or None."""
         if self.timeout_s is None or not self.honour or self.expired is not None:
+            return None
+        return self.last_pet_s + self.timeout_s
+
+    def wait_s(self, now: float) -> float:
+        """How long the stage may wait for a message at ``now`` before it must look at the watchdog."""
+        deadline = self.deadline_s()
+        if deadline is None:
+            return IDLE_WAIT_S
+        return min(max(0.0, deadline - now), POLL_FRACTION * self.timeout_s)
+
+    def tick(self, now: float) -> None:
+        """Expire the watchdog if its deadline passed by ``now``: every output to 0 V, by the stage
+        itself, from the deadline on (the device's timer, however late this process noticed)."""
+        deadline = self.deadline_s()
+        if deadline is None or now < deadline:
             return
-        late_s = now - self.last_pet_s
-        if late_s > self.timeout_s:
-            self.expired_at_s = now
-            self.expired = (
-                f"DAQ watchdog expired: no pet for {late_s:.3f} s (timeout {self.timeout_s:g} s); "
-                "the DAQ drove its outputs to 0 V by itself"
-            )
-            self._levels(now, [0.0, 0.0], [0.0, 0.0], "watchdog expired")
+        self.expired_at_s, self.acted_late_s = deadline, now - deadline
+        self.expired = (
+            f"DAQ watchdog expired: no pet within {self.timeout_s:g} s (the last at "
+            f"{self.last_pet_s:.3f} s monotonic); the DAQ drove its outputs to 0 V by itself"
+        )
+        self._levels(deadline, [0.0, 0.0], [0.0, 0.0], "watchdog expired")
 
     def as_dict(self) -> dict:
         return {
@@ -121,6 +146,7 @@ class StageState:
                 "last_pet_monotonic_s": self.last_pet_s,
                 "expired": self.expired,
                 "expired_at_monotonic_s": self.expired_at_s,
+                "acted_late_s": self.acted_late_s,
             },
             "events": [list(e) for e in self.events],
         }
@@ -145,21 +171,33 @@ def _answer(state: StageState, message: dict, now: float) -> dict | None:
     return {**state.as_dict(), "now_monotonic_s": now}
 
 
-def serve(sock: socket.socket, state: StageState, stop: threading.Event | None = None) -> None:
-    """Answer datagrams on ``sock`` and keep the watchdog, until ``stop`` is set."""
-    while stop is None or not stop.is_set():
-        ready, _, _ = select.select([sock], [], [], POLL_S)
-        now = time.monotonic()
-        state.tick(now)
-        if not ready:
-            continue
-        data, peer = sock.recvfrom(65536)
+def _take(sock: socket.socket, state: StageState) -> None:
+    """Every message waiting on ``sock``, in order, each at the moment it was sent: the watchdog is
+    looked at on that clock before the message acts (a pet sent after the deadline does not save it)."""
+    while True:
         try:
-            reply = _answer(state, json.loads(data), time.monotonic())
+            data, peer = sock.recvfrom(65536)
+        except BlockingIOError:
+            return
+        now = time.monotonic()
+        try:
+            message = json.loads(data)
+            at = min(float(message.get("at", now)), now)
+            state.tick(at)
+            reply = _answer(state, message, at)
         except (ValueError, KeyError, TypeError) as exc:
             reply = {"error": f"{type(exc).__name__}: {exc}"}
         if reply is not None:
             sock.sendto(json.dumps(reply).encode(), peer)
+
+
+def serve(sock: socket.socket, state: StageState, stop: threading.Event | None = None) -> None:
+    """Answer datagrams on ``sock`` and keep the watchdog, until ``stop`` is set."""
+    sock.setblocking(False)
+    while stop is None or not stop.is_set():
+        select.select([sock], [], [], state.wait_s(time.monotonic()))
+        _take(sock, state)
+        state.tick(time.monotonic())
 
 
 class OutputStageLink:
@@ -174,6 +212,7 @@ class OutputStageLink:
 
     def send_levels(self, ao_v, amp_v) -> None:
         message = {"op": "set", "ao": [float(v) for v in ao_v], "amp": [float(v) for v in amp_v]}
+        message["at"] = time.monotonic()
         try:
             self._sock.sendto(json.dumps(message).encode(), self.address)
         except OSError:
@@ -187,7 +226,8 @@ class OutputStageLink:
                     self._sock.recv(65536)
                 except BlockingIOError:
                     break
-            self._sock.sendto(json.dumps({"op": op, **fields}).encode(), self.address)
+            message = json.dumps({"op": op, **fields, "at": time.monotonic()}).encode()
+            self._sock.sendto(message, self.address)
             if not select.select([self._sock], [], [], ANSWER_TIMEOUT_S)[0]:
                 raise TimeoutError(f"the emulated output stage at {self.address[0]}:{self.address[1]} did not answer")
             return json.loads(self._sock.recv(65536))

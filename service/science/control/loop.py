@@ -11,6 +11,7 @@ compiled runner (every ≤ 50 samples) and between blocks, and every trip, stop 
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -263,6 +264,8 @@ class Tracker:
 
     def _run_pbp(self, compiled, rec, on_period, should_stop, session) -> None:
         runner, args, take_noise = compiled
+        # the world the hook steps is driven by one thread at a time (a watchdog's 0 V waits a period)
+        driving = getattr(self.bench.parts.daq, "drive_lock", None) or nullcontext()
         pid_s = np.zeros((2, CK.NPS))
         u_last, y_last, over = np.zeros(2), np.zeros(2), np.zeros(2)
         ai, diag = np.zeros((1, 4)), np.zeros((1, 10))
@@ -271,27 +274,28 @@ class Tracker:
             s = slice(p * N, (p + 1) * N)
             noise, n0 = take_noise(N)
             x, u = np.zeros((N, 2)), np.zeros((N, 2))
-            done, status = runner(
-                args,
-                noise,
-                n0,
-                self.ref.x_um[s],
-                self._command(p),
-                self.pid_p,
-                pid_s,
-                u_last,
-                self.lim,
-                self.trip,
-                over,
-                self.um_per_v,
-                y_last,
-                1.0 / self.fs,
-                x,
-                u,
-                ai,
-                diag,
-                session.stop_flag,
-            )
+            with driving:
+                done, status = runner(
+                    args,
+                    noise,
+                    n0,
+                    self.ref.x_um[s],
+                    self._command(p),
+                    self.pid_p,
+                    pid_s,
+                    u_last,
+                    self.lim,
+                    self.trip,
+                    over,
+                    self.um_per_v,
+                    y_last,
+                    1.0 / self.fs,
+                    x,
+                    u,
+                    ai,
+                    diag,
+                    session.stop_flag,
+                )
             rec.x_um[s][:done], rec.u_v[s][:done] = x[:done], u[:done]
             rec.samples = p * N + done
             if status == CK.STOPPED:
