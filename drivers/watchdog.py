@@ -24,6 +24,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 
+#: the watchdog's own thread not looking for longer than this (s; or half the timeout) is a pause of
+#: its process, not a stall of its loop: above the worst thread delay measured under load, 0.34 s
+#: (docs/architecture.md, "Supervision"), for a short timeout as well
+PAUSE_S = 0.4
+
 _LIMITS = {
     "watchdog_periods": (1.0, 1000.0),
     "watchdog_min_s": (0.001, 3600.0),
@@ -83,8 +88,8 @@ class Watchdog:
 
     A loop that feeds again while ``write_idle`` runs does not shrink the reported gap.
 
-    The watchdog judges only time it watched: if its own thread could not look for more than half
-    the timeout (the whole process was stopped, SIGSTOP, or starved of every core), the loop was
+    The watchdog judges only time it watched: if its own thread could not look for longer than
+    ``PAUSE_S`` or half the timeout (the whole process was stopped, SIGSTOP, or starved), the loop was
     paused with it, not stalled by itself, and its count starts again from that look (``pauses``
     counts them). Without that, a loop resuming with its process met a trip writing 0 V at once."""
 
@@ -147,7 +152,7 @@ class Watchdog:
                 if not self._armed:
                     continue
                 decided_s, last_feed_s, fed = time.monotonic(), self._last_feed, self._fed
-                paused = decided_s - looked_s > self.timeout_s / 2
+                paused = decided_s - looked_s > max(self.timeout_s / 2, PAUSE_S)
                 looked_s = decided_s
                 if paused:  # this thread was not running either: the gap is not the loop's
                     self.pauses += 1

@@ -4,8 +4,9 @@ held. Each case shows the outputs at 0 V, the job ended with its reason and its 
 store consistent, and the bench serving again after a reset; no log line shows a 500 or a traceback.
 
 Deadlines: the supervisor alone (the stage's watchdog off) must have 0 V within ``SUPERVISOR_ZERO_S``
-of a kill; the stage's watchdog within its timeout plus ``WATCHDOG_SLACK_S`` (its own 2 ms poll and
-the 50 ms pet interval). The figures themselves come from ``evcbench bench safety``."""
+of a kill; the stage's watchdog within its timeout (it expires at its deadline, the last pet sent +
+the timeout) plus ``WATCHDOG_SLACK_S``, for a pet the engine may stamp between the test's clock
+reading and the signal. The figures themselves come from ``evcbench bench safety``."""
 
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ pytestmark = [pytest.mark.realtime, pytest.mark.slow, pytest.mark.xdist_group("c
 #: 0 V after an engine's death, by the supervisor alone (s): the issue asks 0.5 s; twice that on a
 #: loaded 2-core machine
 SUPERVISOR_ZERO_S = 1.0
-WATCHDOG_SLACK_S = 0.25
+WATCHDOG_SLACK_S = 0.02
 
 
 @pytest.fixture(scope="module")
@@ -177,7 +178,7 @@ def test_sigstop_1s_the_hardware_watchdog_zeroes_and_the_engine_lives_on(chaos):
         time.sleep(max(0.0, 1.0 - (time.monotonic() - stopped_at)))
     finally:
         os.kill(pid, signal.SIGCONT)
-    _ended_with(http, job_id, "watchdog")
+    _ended_with(http, job_id, "DAQ watchdog expired")  # the device's expiry: the loop's own did not trip
     assert engine_pid(http) == pid and health(http).status_code == 200  # 1 s is below the hang limit
     serves_again(http)
     _clean(chaos)
