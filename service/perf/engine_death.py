@@ -12,7 +12,9 @@ alone). Per case and ``kills`` times:
 * ``engine_death_to_zero_ms``: the kill (or stop) → every output below 10 mV at the stage, read on
   the stage's clock (``time.monotonic()``: CLOCK_MONOTONIC, shared by the processes);
 * ``engine_restart_s``: the kill → a fresh engine attached (its fault latched);
-* ``zeroed_by``: what drove the outputs to 0 V (the stage's watchdog or the supervisor).
+* ``zeroed_by``: what drove the outputs to 0 V (the stage's watchdog or the supervisor);
+* ``stage_noticed_late_ms_max``: how late the stage's process noticed its watchdog's deadline at
+  worst (its outputs read 0 V from the deadline on; drivers/emulated/output_stage.py).
 
 ``pulse_gap_ms``: the engine's heartbeat age seen every 5 ms by the web process while sweeps run
 (the figure the hang limit is chosen against).
@@ -72,7 +74,7 @@ class _Rig:
         self.stage = OutputStageLink(address)
         overrides = {
             "emulator": {"output_stage": address},
-            "safety": {"hardware_watchdog_s": WATCHDOG_S, "watchdog_min_s": 3.0},
+            "safety": {"hardware_watchdog_s": WATCHDOG_S},
         }
 
         def start(restart: bool = False):
@@ -115,12 +117,13 @@ class _Rig:
         worker.join(30)
         figures = self.supervisor.restarts[-1]
         expired = zero["watchdog"]["expired_at_monotonic_s"]
+        by_watchdog = expired is not None and expired <= zero["zero_since_monotonic_s"]
         return {
             "engine_death_to_zero_ms": (zero["zero_since_monotonic_s"] - killed_s) * 1e3,
             "engine_restart_s": figures["ready_monotonic_s"] - killed_s,
-            "zeroed_by": "watchdog"
-            if expired is not None and expired <= zero["zero_since_monotonic_s"]
-            else "supervisor",
+            "zeroed_by": "watchdog" if by_watchdog else "supervisor",
+            # how late the stage's process noticed its expiry (the emulation's, not the device's)
+            "stage_noticed_late_ms": zero["watchdog"]["acted_late_s"] * 1e3 if by_watchdog else None,
         }
 
     def close(self) -> None:
@@ -134,11 +137,13 @@ class _Rig:
 def _summary(rows: list[dict]) -> dict:
     z = np.array([r["engine_death_to_zero_ms"] for r in rows])
     r = np.array([r["engine_restart_s"] for r in rows])
+    late = [row["stage_noticed_late_ms"] for row in rows if row["stage_noticed_late_ms"] is not None]
     return {
         "kills": len(rows),
         "engine_death_to_zero_ms": {"median": float(np.median(z)), "max": float(z.max()), "min": float(z.min())},
         "engine_restart_s": {"median": float(np.median(r)), "max": float(r.max()), "min": float(r.min())},
         "zeroed_by": sorted({row["zeroed_by"] for row in rows}),
+        "stage_noticed_late_ms_max": max(late, default=None),
     }
 
 
