@@ -84,10 +84,41 @@ def known_units(quantity: str) -> str:
     return ", ".join(u for u in UNITS_OF[quantity] if u.isascii() and u not in ("sec", "microns", "microm", "deg c"))
 
 
+#: below this magnitude a figure is printed as 0 (a fit's rounding: 1e-300 would be 300 digits)
+PLAIN_ZERO = 1e-12
+
+
+def plain(value: float, digits: int = 3) -> str:
+    """``value`` to ``digits`` significant digits in positional notation, never an exponent
+    (4.11e-05 → "0.0000411", 5150.4 → "5150", 6.4e6 → "6400000"); "–" for no value."""
+    if value is None or not math.isfinite(value):
+        return "–"
+    rounded = float(f"{float(value):.{digits}g}")
+    if abs(rounded) < PLAIN_ZERO:
+        return "0"
+    text = f"{rounded:.{max(digits - 1 - math.floor(math.log10(abs(rounded))), 0)}f}" if rounded else "0"
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
 def fmt_nm(value_um: float | None, digits: int = 3) -> str:
     """An error or noise figure given in µm, as text in nm: the one unit for errors and noise wherever
     the user reads them (the API's texts, the CLI, the report); ``digits`` significant digits, never an
     exponent (0.002945 → "2.94 nm", 6.4 → "6400 nm"); "–" for no value."""
-    if value_um is None or not math.isfinite(value_um):
+    return "–" if value_um is None or not math.isfinite(value_um) else f"{plain(value_um * 1e3, digits)} nm"
+
+
+#: a mean square below this (nm²) is printed as 0: a fit's rounding, not a figure (−1.1e-11 nm²)
+NM2_RESOLUTION = 1e-3
+
+
+def fmt_nm2(value_um2: float | None, digits: int = 3) -> str:
+    """A mean square of errors given in µm², as text in nm² (5.15e-3 → "5150 nm²"), never an exponent."""
+    if value_um2 is None or not math.isfinite(value_um2):
         return "–"
-    return f"{float(f'{value_um * 1e3:.{digits}g}'):g} nm"
+    nm2 = value_um2 * 1e6
+    return f"{plain(nm2 if abs(nm2) >= NM2_RESOLUTION else 0.0, digits)} nm²"
+
+
+def fmt_us(value_s: float | None, digits: int = 3) -> str:
+    """A delay or lag given in s, as text in µs, the one unit for delays (2.41e-5 → "24.1 µs")."""
+    return "–" if value_s is None or not math.isfinite(value_s) else f"{plain(value_s * 1e6, digits)} µs"

@@ -36,6 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.units import fmt_nm2
+
 #: one-sided significance level of the held-out improvement (per candidate)
 ALPHA = 1e-3
 #: the improvement must be at least this many noise variances of held-out mean square
@@ -143,6 +145,6 @@ def rule_text(noise_um: float) -> str:
     return (
         f"claimed when the held-out improvement over the reference is significant (one-sided signed-rank test over "
         f"held-out segments, p < {ALPHA:g}) and at least {NOISE_MULTIPLE:g}σ² = "
-        f"{NOISE_MULTIPLE * noise_um**2 * 1e6:.3g} nm² of mean square, with each block's level anchored at its "
+        f"{fmt_nm2(NOISE_MULTIPLE * noise_um**2)} of mean square, with each block's level anchored at its "
         f"last training cycle or at its training mean (the larger)"
     )

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from service.science.data.units import fmt_us
 from service.science.effects.base import Effect, sum_of_taps
 
 
@@ -75,7 +76,7 @@ class Delay(Effect):
         return {"delay_s": float(max(res.x, 0.0))} if res.fun <= cost(theta) else theta
 
     def describe(self, theta, values):
-        return f"delay {theta['delay_s'] * 1e6:.3g} µs"
+        return f"delay {fmt_us(theta['delay_s'])}"
 
     def parameters(self, theta, values, scales, sign):
         return {"delay_us": float(theta["delay_s"]) * 1e6}

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.jit import njit
+from service.science.data.units import plain
 from service.science.effects.base import Effect
 from service.science.effects.harmonics import projected_costs
 from service.science.fitting.lsq import SMALLEST_NORMAL
@@ -186,7 +187,7 @@ class Dynamics(Effect):
         return best
 
     def describe(self, theta, values):
-        return f"resonance {theta['fn_hz']:.4g} Hz, damping ratio {theta['zeta']:.3g}"
+        return f"resonance {plain(theta['fn_hz'], 4)} Hz, damping ratio {plain(theta['zeta'])}"
 
     def parameters(self, theta, values, scales, sign):
         return {"resonance_hz": float(theta["fn_hz"]), "damping_ratio": float(theta["zeta"])}

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.units import plain
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
 from service.science.models.pi import segment_columns
@@ -31,4 +32,4 @@ class RateDependence(Effect):
 
     def describe(self, theta, values):
         lag = values.get("rate_operator_lag_um_s_per_v")
-        return "" if lag is None else f"operator-rate weights sum {float(np.sum(lag)) * 1e3:.3g} µm·ms/V"
+        return "" if lag is None else f"operator-rate weights sum {plain(float(np.sum(lag)) * 1e3)} nm·s/V"

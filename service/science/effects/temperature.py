@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.units import plain
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
 
@@ -25,4 +26,4 @@ class Temperature(Effect):
 
     def describe(self, theta, values):
         w = values.get("temperature_um_per_k")
-        return "" if w is None else f"gain change {float(np.sum(w)) * 1e3:.3g} nm/K at full drive"
+        return "" if w is None else f"gain change {plain(float(np.sum(w)) * 1e3)} nm/K at full drive"
