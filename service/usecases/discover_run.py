@@ -85,6 +85,12 @@ class _Loop:
         start = as_composite(load_model(row))
         self.effects, self.theta = list(start.effects), dict(start.theta)
         self.model = start if start.is_fitted else None  # a paper's PI stands for the unfitted composite
+        #: step 0's figure is the stand-in composite's, not the stored model's own: both are labelled
+        self.stands_in = (
+            None
+            if start.is_fitted
+            else {"kind": row["kind"], "validation_rms_um": (row.get("metrics") or {}).get("validation_rms_um")}
+        )
         self.run = {
             "start_model_id": model_id,
             "axis": self.axis,
@@ -120,6 +126,7 @@ class _Loop:
         self.theta, d = self.model.theta, step["diagnosis"]
         step_id = self.model_id if index == 0 else self._store(store, ctx)
         self.run["steps"].append(_step_summary(index, step_id, step, self.run, self.joined))
+        self.run["steps"][-1]["fit"] = _fit_label(index, self.stands_in, step["effects"])
         if self.joined is not None:
             self.run["experiments"][-1]["resolved"] = _resolved(self.run["experiments"][-1]["effects"], d)
         self.joined = None
@@ -253,6 +260,18 @@ def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str 
             {"effect": c["effect"], "reason": c["reason"], "experiment": c["experiment"]} for c in d["not_testable"]
         ],
     }
+
+
+def _fit_label(index: int, stands_in: dict | None, effects: list[str]) -> str:
+    """Which fit a step's figures are of. Step 0 of a paper's model (static/dynamic PI, GRPI) is the
+    composite fitted on the same data standing for it, whose held-out RMS differs from the one the
+    model's own page shows (the stored model's): both are named."""
+    if index == 0 and stands_in is not None:
+        return (
+            f"the composite {' + '.join(effects)} fitted on the same data, standing for this {stands_in['kind']} "
+            f"(the {stands_in['kind']}'s own held-out RMS, on its page: {fmt_nm(stands_in['validation_rms_um'], 4)})"
+        )
+    return "the start model as stored" if index == 0 else "this step's stored model"
 
 
 def _step_words(step: dict) -> str:

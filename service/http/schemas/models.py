@@ -136,9 +136,10 @@ class Candidate(BaseModel):
     score: float | None = Field(
         default=None,
         description=(
-            "0..1: the share of the reference's held-out mean square above the noise floor that adding the "
-            "effect removes (the reference: the model for capacity, the model + the flexible base for physics); "
-            "the claim is decided by the held-out test, not by the score"
+            "0..1: the held-out mean square its own test removes (against its reference: the model for "
+            "capacity, the model + the flexible base for physics), as a share of this model's held-out mean "
+            "square above the noise floor (one denominator, so scores rank as gains do; the candidates: claimed "
+            "physics, the other physics, capacity, each in score order); the claim is decided by the held-out test, not by the score"
         ),
     )
     expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
@@ -175,9 +176,21 @@ class Remainder(BaseModel):
     signatures: list[RemainderSignature] = Field(description="the significant ones, largest share first (at most 3)")
 
 
+class Answer(BaseModel):
+    """The diagnosis's answer, one stored value that the verdict, the Models page's first screen and the
+    remainder's section all read."""
+
+    missing: str | None = Field(description="the effect the verdict names (physics), or the capacity to add, or None")
+    kind: str | None = Field(description="physical | capacity | None")
+    expected_rms_um: float | None = Field(description="the held-out RMS with it added")
+    remains: str | None = Field(description="the remainder's leading signature (its name), or None")
+    remains_share: float | None = Field(description="that signature's share (0–1) of the unseen excess")
+    text: str = Field(description="the answer in words, errors in nm")
+
+
 class Diagnosis(BaseModel):
-    """Residual vs noise floor, the verdict, the candidates (claimed physics first, by held-out gain;
-    then the unclaimed; capacity last), failures."""
+    """Residual vs noise floor, the verdict, the candidates (claimed physics, the other physics,
+    capacity; each in score order), failures, and the answer the pages show first."""
 
     model_config = OPEN
     model_id: str | None = None
@@ -210,6 +223,12 @@ class Diagnosis(BaseModel):
     remainder: Remainder | None = Field(
         default=None,
         description="when the model is not at the noise floor: what remains, described by physical signatures",
+    )
+    answer: Answer | None = Field(default=None, description="what is missing and what remains, in one value")
+    repeated_cycles_rms_um: float | None = Field(
+        default=None,
+        description="the residual's RMS over the repeated cycles (training and held-out): the whole that "
+        "repeatable_rms_um is a part of (never below it)",
     )
 
 

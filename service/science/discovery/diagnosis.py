@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.science.data.units import fmt_nm
+from service.science.data.units import fmt_nm, fmt_nm2, fmt_us, plain
+from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
@@ -59,11 +60,11 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
     if name == "delay":
         if sig.get("lag_ms") is None:
             return "no lag can be measured: the model's prediction does not move in any block"
-        per = ", ".join(f"{k} Hz: {1e3 * v:.3g}" for k, v in sig["lag_ms_by_frequency"].items())
+        per = ", ".join(f"{k} Hz: {fmt_us(1e-3 * v)}" for k, v in sig["lag_ms_by_frequency"].items())
         spread = sig.get("lag_ms_spread")
         return (
-            f"the residual lags the drive by {1e3 * sig['lag_ms']:.3g} µs (slope-weighted mean; per block {per} µs, "
-            f"spread {spread if spread is None else f'{1e3 * spread:.2g}'} µs): delay"
+            f"the residual lags the drive by {fmt_us(1e-3 * sig['lag_ms'])} (slope-weighted mean; per block {per}, "
+            f"spread {'unknown' if spread is None else fmt_us(1e-3 * spread, 2)}): delay"
         )
     if name == "rate_dependence":
         r = sig.get("rate_r")
@@ -84,7 +85,7 @@ def _signature_words(name: str, sig: dict, floor: dict) -> str:
         v = sig.get("cycle_mean_trend_um_per_s")
         return (
             "the per-cycle mean residual keeps moving at "
-            + (f"{v * 1e3:.3g} nm/s" if v is not None else "?")
+            + (f"{plain(v * 1e3)} nm/s" if v is not None else "?")
             + " over the run: drift"
         )
     if name == "asymmetry":
@@ -202,15 +203,15 @@ def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig
     if unseen is not None:
         rates = ", ".join(f"{f:g} Hz" for f in unseen["frequencies_hz"])
         kept = unseen["gain_mse_um2"] >= NOISE_MULTIPLE * noise**2
-        drop = unseen["gain_mse_um2"] * 1e6
+        drop = unseen["gain_mse_um2"]
         how += (
             f"; fitted, with its reference, without the {rates} blocks, it "
             + (
-                f"lowers their mean square by {drop:.3g} nm²"
+                f"lowers their mean square by {fmt_nm2(drop)}"
                 if drop >= 0
-                else f"raises their mean square by {-drop:.3g} nm²"
+                else f"raises their mean square by {fmt_nm2(-drop)}"
             )
-            + f" (a claim needs a drop of at least σ² = {noise**2 * 1e6:.3g} nm²): "
+            + f" (a claim needs a drop of at least σ² = {fmt_nm2(noise**2)}): "
             + (
                 "it predicts rates it was not fitted on"
                 if kept
@@ -240,9 +241,9 @@ def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig
 def _test_words(test: dict, noise: float) -> str:
     """A held-out test's figures in words (both anchorings of the blocks' levels)."""
     return (
-        f"(p = {test['p']:.2g} over {test['segments']} held-out segments; {test['gain_mse_um2'] * 1e6:.3g} nm² "
+        f"(p = {test['p']:.2g} over {test['segments']} held-out segments; {fmt_nm2(test['gain_mse_um2'])} "
         f"of mean square with each block's level anchored at its last training cycle, "
-        f"{test['gain_trend_mse_um2'] * 1e6:.3g} nm² at its training mean; against σ² = {noise**2 * 1e6:.3g} nm²)"
+        f"{fmt_nm2(test['gain_trend_mse_um2'])} at its training mean; against σ² = {fmt_nm2(noise**2)})"
     )
 
 
@@ -272,7 +273,7 @@ def _entry(
     if is_claimed or kind == "capacity":
         own, _, v = fits.get((name,))  # what the user gets by adding it to this model
         added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
-    removed = (v0**2 - v**2) / max(v0**2 - noise**2, 1e-30)
+    removed = min((v0**2 - v**2) / max(v0**2 - noise**2, 1e-30), 1.0)  # below the floor: all of the excess
     evidence = (
         f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
         + (
@@ -295,7 +296,8 @@ def _entry(
         "claimed": bool(is_claimed),
         "high": bool(is_claimed),
         "significant": bool(is_claimed),
-        "score": round(float(np.clip(gain / max(v_ref**2 - noise**2, 1e-30), 0, 1)), 4),
+        # one denominator for every candidate (this model's excess), so that scores rank as gains do
+        "score": round(float(np.clip(gain / max(v0**2 - noise**2, 1e-30), 0, 1)), 4),
         "p_value": p_value,
         "gain_mse_um2": gain,
         "reference": list(reference),
@@ -468,8 +470,9 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                 candidates += pair
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor))
-    # claimed physics first (largest held-out gain first), then the rest by gain; capacity last
-    candidates.sort(key=lambda c: (c["kind"] == "capacity", not c["claimed"], -c["gain_mse_um2"]))
+    # claimed physics first, then the other physical candidates, capacity last; each in score order (one
+    # denominator for every score, so the order is the held-out gain's)
+    candidates.sort(key=lambda c: (c["kind"] == "capacity", not c["claimed"], -c["score"], -c["gain_mse_um2"]))
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and physical[0]["claimed"]
     repeatable = floor["repeatable_rms_um"]
@@ -481,21 +484,26 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     at_floor = ratio is not None and ratio <= CLEAR_DROP_NOISE and held_out_ratio <= np.hypot(1.0, CLEAR_DROP_NOISE)
     worst = failures(records, res)
     remainder = None if at_floor else describe_remainder(records, res, preds, noise)
+    answer = diagnosis_answer(
+        [c for c in physical if c["claimed"]], helpful_capacity(candidates), v0, noise, bool(at_floor), remainder
+    )
     return {
         "effects": ["hysteresis"] + model.effects,
         "residual_rms_um": v0,
         "train_rms_um": ev["train_rms_um"],
         "noise_floor_um": noise,
         "repeatable_rms_um": repeatable,
+        "repeated_cycles_rms_um": floor.get("repeated_cycles_rms_um"),
         "repeatable_to_noise": ratio,
         "held_out_to_noise": held_out_ratio,
         "at_noise_floor": bool(at_floor),
         "verdict": "missing_effect" if missing else "complete",
         "verdict_text": _verdict_text(
-            missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio, held_out_ratio
+            missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio
         )
         + remainder_words(remainder),
         "remainder": remainder,
+        "answer": answer,
         "candidates": candidates + untestable,
         "not_testable": untestable,
         "claim_rule": rule_text(noise),
@@ -542,8 +550,21 @@ def helpful_capacity(candidates, residual_rms_um: float | None = None) -> list[d
 ALONE_GAIN_SHARE = 0.1
 
 
+def _repeated_words(floor: dict, noise: float) -> str:
+    """The repeated cycles' figures as a part of their own whole (the residual's RMS over the same
+    cycles, training ones included), never of the held-out figure beside it: "12 nm of their 13 nm
+    repeats cycle to cycle, against 3 nm of noise"."""
+    rep, whole = floor.get("repeatable_rms_um"), floor.get("repeated_cycles_rms_um")
+    if rep is None or whole is None:
+        return f"no cycle repeats, so no repeatable part is measured ({fmt_nm(noise)} of noise)"
+    return (
+        f"in the repeated cycles (training and held-out), {fmt_nm(rep)} of their {fmt_nm(whole)} RMS repeats "
+        f"cycle to cycle, against {fmt_nm(noise)} of noise"
+    )
+
+
 def _verdict_text(
-    missing, physical, candidates, v0, noise, repeatable, at_floor, worst, ratio=None, held_out_ratio=None
+    missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio=None, held_out_ratio=None
 ) -> str:
     """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
     whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
@@ -568,11 +589,10 @@ def _verdict_text(
             f"{fmt_nm(v0)} → {fmt_nm(top['expected_rms_um'])} with it added{alone}); "
             f"held-out RMS {fmt_nm(v0)} against a noise floor of {fmt_nm(noise)}"
         )
-    rep = "unknown" if repeatable is None else fmt_nm(repeatable)
     if at_floor:
         text = (
-            f"complete: the remaining {fmt_nm(v0)} is at the noise floor in every block (repeatable part "
-            f"{rep} against {fmt_nm(noise)} of noise; at most {ratio:.1f}× a block's own noise)"
+            f"complete: the held-out residual {fmt_nm(v0)} is at the noise floor in every block ("
+            f"{_repeated_words(floor, noise)}; at most {ratio:.1f}× a block's own noise)"
         )
     elif ratio is not None and ratio <= CLEAR_DROP_NOISE:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
@@ -591,8 +611,7 @@ def _verdict_text(
         )
         text = (
             f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual is "
-            f"{fmt_nm(v0)}; in the repeated cycles, {rep} repeats cycle to cycle against {fmt_nm(noise)} of "
-            f"noise ({per_block}). No physical "
+            f"{fmt_nm(v0)}; {_repeated_words(floor, noise)} ({per_block}). No physical "
             f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
             f"outside the library{where}"
         )

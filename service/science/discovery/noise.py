@@ -7,7 +7,7 @@ differently, which the symmetry test read as an asymmetric loop); the first cycl
 transient) is dropped when three or more remain. ``noise_um`` comes from the differences of successive cycles, each with
 its own mean and slope removed (slow drift/creep is reported as ``slow_rms_um``, not as noise),
 as the median over cycle pairs; ``repeatable_um`` = RMS of the mean cycle with the noise's share
-(σ²/N) removed. Only pairs whose drive repeated count (drive difference ≤ 1 % of its swing): in an
+(σ²/N) removed, a part of ``cycles_rms_um`` (the residual's RMS over the same cycles). Only pairs whose drive repeated count (drive difference ≤ 1 % of its swing): in an
 amplitude ramp or across a hold, the residual changes because the drive did, which is not noise.
 With no such pair the noise comes from second differences of the residual.
 """
@@ -88,6 +88,7 @@ def repeatability(r: np.ndarray, period_samples: float, drive: np.ndarray | None
         return {
             "noise_um": sigma,
             "repeatable_um": None,
+            "cycles_rms_um": None,
             "slow_rms_um": None,
             "cycles": 0,
             "method": f"second differences ({why})",
@@ -104,6 +105,7 @@ def repeatability(r: np.ndarray, period_samples: float, drive: np.ndarray | None
     return {
         "noise_um": float(np.sqrt(var)),
         "repeatable_um": float(np.sqrt(max(rep2, 0.0))),
+        "cycles_rms_um": float(np.sqrt(np.mean(mat**2))),  # the whole the repeatable part is of (≥ it)
         "slow_rms_um": float(np.sqrt(np.mean(slow**2))),
         "cycles": int(n),
         "method": "cycle-to-cycle repeatability",
@@ -190,8 +192,12 @@ def noise_floor(records, residuals) -> dict:
             )
     noise = [b["noise_um"] for b in per_block if np.isfinite(b["noise_um"])]
     rep = [b["repeatable_um"] for b in per_block if b["repeatable_um"] is not None]
+    whole = [b["cycles_rms_um"] for b in per_block if b["repeatable_um"] is not None]
     return {
         "noise_floor_um": float(np.median(noise)) if noise else None,
         "repeatable_rms_um": float(np.mean(rep)) if rep else None,
+        # the residual's RMS over the same cycles (quadratic mean over the same blocks): never below the
+        # repeatable part (mean ≤ quadratic mean, and each block's repeatable part ≤ its cycles' RMS)
+        "repeated_cycles_rms_um": float(np.sqrt(np.mean(np.square(whole)))) if whole else None,
         "per_block": per_block,
     }

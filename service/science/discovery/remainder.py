@@ -223,7 +223,7 @@ def describe_remainder(records, residuals, predictions, noise_um: float | None =
             {
                 "signature": j["sig"].name,
                 "share_of_residual": round(j["share"], 4),
-                "share_of_excess": round(j["excess_share"], 4),
+                "share_of_excess": round(min(j["excess_share"], 1.0), 4),  # more than all: noise fitted too
                 "t": round(j["t"], 2),
                 "gain_nm2": round(j["gain_nm2"], 4),
                 "text": j["sig"].words(j["coef"], ctx),

@@ -1,0 +1,60 @@
+"""The diagnosis's answer in one stored value: what is missing (or why nothing is), the error it
+should fall to, and what remains described — the Models page's first screen, the verdict and the
+remainder's section all read it, so they cannot tell two stories (a "Missing: asymmetry" beside a
+description of a line disturbance, each built on its own). Errors in µm in the fields, nm in the text.
+"""
+
+from __future__ import annotations
+
+from service.science.data.units import fmt_nm
+
+
+def diagnosis_answer(
+    claimed_physical: list[dict],
+    capacity: list[dict],
+    residual_um: float,
+    noise_um: float,
+    at_floor: bool,
+    remainder: dict | None,
+) -> dict:
+    """``{"missing", "kind", "expected_rms_um", "remains", "remains_share", "text"}``: ``missing`` the
+    effect the verdict names (the best claimed physical one), else the capacity that lowers the held-out
+    error when physics is complete and the model is not at the floor, else None; ``remains`` the
+    remainder's leading signature (None when nothing is described), read from ``remainder`` itself."""
+    top = (remainder or {}).get("signatures") or []
+    remains = top[0] if top else None
+    if claimed_physical:
+        lead, kind = claimed_physical[0], "physical"
+        head = (
+            f"Missing: {lead['effect']}. Adding it should bring the held-out error from {fmt_nm(residual_um, 4)} "
+            f"to about {fmt_nm(lead['expected_rms_um'], 4)}."
+        )
+    elif capacity and not at_floor:
+        lead, kind = capacity[0], "capacity"
+        head = (
+            f"No physical effect in the library is missing. More hysteresis capacity ({lead['effect']}) should "
+            f"bring the held-out error from {fmt_nm(residual_um, 4)} to about {fmt_nm(lead['expected_rms_um'], 4)}: "
+            "a model-capacity change, not physics."
+        )
+    else:
+        lead, kind = None, None
+        head = (
+            "Nothing is missing: the model explains the data down to the noise floor."
+            if at_floor
+            else "No effect in the library is missing, yet the model is not at the noise floor."
+        )
+    tail = ""
+    if remains is not None:
+        before = f" (before adding {lead['effect']})" if lead is not None else ""
+        tail = (
+            f" What remains in this model{before}, described: {remains['text']} "
+            f"({100 * remains['share_of_excess']:.0f} % of the unseen residual above the {fmt_nm(noise_um, 4)} noise)."
+        )
+    return {
+        "missing": None if lead is None else lead["effect"],
+        "kind": kind,
+        "expected_rms_um": None if lead is None else lead["expected_rms_um"],
+        "remains": None if remains is None else remains["signature"],
+        "remains_share": None if remains is None else remains["share_of_excess"],
+        "text": head + tail,
+    }

@@ -1,0 +1,104 @@
+"""What the user reads, scanned (issue 39): one unit per quantity, and no part larger than its whole.
+
+The unit table: errors and noise in nm (their mean squares in nm²), delays and lags in µs,
+frequencies in Hz, no figure with a unit in exponent notation (4.11e-05 ms). Lengths in µm are
+positions and spans (a gauge range, a drive's stroke), never an error: the texts scanned here (the
+diagnosis, discover, the report's diagnosis and lineage) hold only errors and noise, so any µm there
+is an error in the wrong unit. A p-value may keep its exponent: it has no unit.
+"""
+
+from __future__ import annotations
+
+import re
+
+NUMBER = r"[-−]?\d+(?:[.,]\d+)*(?:[eE][+-]?\d+)?"
+#: a figure and the unit written after it
+QUANTITY = re.compile(
+    rf"(?P<value>{NUMBER})\s*(?P<unit>nm²|nm|µm|μm|um|mm|ms|µs|μs|us|ns|kHz|mHz|Hz)\b(?P<rest>[·/]\S*)?"
+)
+#: units that must not appear in these texts for their quantity (errors → nm, delays → µs)
+WRONG_UNITS = {
+    "µm": "an error in µm",
+    "μm": "an error in µm",
+    "um": "an error in um",
+    "mm": "an error in mm",
+    "ms": "a delay in ms",
+    "ns": "a delay in ns",
+    "kHz": "a frequency in kHz",
+    "mHz": "a frequency in mHz",
+}
+#: a compound unit with one of the wrong units in it (µm·ms/V)
+WRONG_COMPOUND = re.compile(r"(?:µm|μm|\bms\b)[·/]|[·/](?:µm|μm|ms)\b")
+#: "A nm of (their|the remaining|…) B nm": a part stated of a whole
+PART_OF = re.compile(
+    rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) of (?:the |their |its |this model's )?(?:remaining |held-out |unseen )?"
+    rf"(?P<whole>{NUMBER}) (?P<u2>nm²|nm)"
+)
+#: "N % of …": a share
+PERCENT_OF = re.compile(rf"(?P<pct>{NUMBER}) ?% of the")
+
+
+def _number(text: str) -> float:
+    return float(text.replace("−", "-").replace(",", ""))
+
+
+def unit_problems(text: str) -> list[str]:
+    """Each figure in ``text`` whose unit breaks the table, with its context."""
+    out = []
+    for m in QUANTITY.finditer(text):
+        context = text[max(0, m.start() - 60) : m.end() + 20]
+        if "e" in m["value"].lower():
+            out.append(f"exponent notation {m.group(0)!r}: …{context}…")
+        if m["unit"] in WRONG_UNITS:
+            out.append(f"{WRONG_UNITS[m['unit']]} {m.group(0)!r}: …{context}…")
+    for m in WRONG_COMPOUND.finditer(text):
+        out.append(f"compound unit {m.group(0)!r}: …{text[max(0, m.start() - 60) : m.end() + 20]}…")
+    return out
+
+
+def part_whole_problems(text: str) -> list[str]:
+    """Each "A nm of B nm" with A > B (at the printed digits) and each share above 100 %."""
+    out = []
+    for m in PART_OF.finditer(text):
+        if m["u1"] == m["u2"] and _number(m["part"]) > _number(m["whole"]):
+            out.append(f"part > whole: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
+    for m in PERCENT_OF.finditer(text):
+        if _number(m["pct"]) > 100.0:
+            out.append(f"share above 100 %: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
+    return out
+
+
+def texts_of(value, path: str = "") -> list[tuple[str, str]]:
+    """(path, text) of every string in a JSON value, except ids, figures' arrays and experiment bodies
+    (ready-to-POST JSON, not words)."""
+    if isinstance(value, dict):
+        return [
+            pair
+            for k, v in value.items()
+            if k not in ("figure", "experiment", "id", "parameters_sha256")
+            for pair in texts_of(v, f"{path}.{k}")
+        ]
+    if isinstance(value, list):
+        return [pair for i, v in enumerate(value) for pair in texts_of(v, f"{path}[{i}]")]
+    return [(path, value)] if isinstance(value, str) else []
+
+
+def scan(value, check) -> list[str]:
+    """``check`` (unit_problems or part_whole_problems) over every text of a JSON value, with its path."""
+    return [f"{path}: {problem}" for path, text in texts_of(value) for problem in check(text)]
+
+
+def repeated_part_within_whole(d: dict) -> list[str]:
+    """A diagnosis's stored figures: the repeatable part within the repeated cycles' RMS, the shares
+    within 0–1."""
+    out = []
+    rep, whole = d.get("repeatable_rms_um"), d.get("repeated_cycles_rms_um")
+    if rep is not None and (whole is None or rep > whole):
+        out.append(f"repeatable {rep} µm of a whole {whole} µm")
+    for c in d.get("candidates") or []:
+        if not 0.0 <= c.get("score", 0.0) <= 1.0 or c.get("excess_removed", 0.0) > 1.0:
+            out.append(f"{c['effect']}: score {c.get('score')}, excess removed {c.get('excess_removed')}")
+    for s in (d.get("remainder") or {}).get("signatures") or []:
+        if not 0.0 <= s["share_of_excess"] <= 1.0:
+            out.append(f"remainder {s['signature']}: share {s['share_of_excess']}")
+    return out
