@@ -17,7 +17,7 @@ from html import escape
 import numpy as np
 
 from service.render.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, length_unit
-from service.science.data.units import fmt_nm
+from service.science.data.units import fmt_nm, plain
 
 CSS = """body{font-family:system-ui,sans-serif;max-width:1120px;margin:24px auto;padding:0 16px;color:#222}
 h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:3px;margin-top:1.6em}
@@ -53,7 +53,7 @@ class BlockCurves:
 
 
 def _num(value, digits: int = 4) -> str:
-    return "–" if value is None else f"{value:.{digits}g}"
+    return "–" if value is None else plain(value, digits)
 
 
 def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
@@ -130,7 +130,7 @@ def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]
         except (TypeError, ValueError):
             rows.append((name, 1, str(value)))
             continue
-        rows.append((name, numbers.size, ", ".join(f"{v:.6g}" for v in numbers)))
+        rows.append((name, numbers.size, ", ".join(plain(v, 6) for v in numbers)))
     return rows
 
 
@@ -268,12 +268,17 @@ def _diagnosis_section(d: dict) -> str:
         f'<p class="verdict">Verdict: <span id="verdict" data-verdict="{escape(str(d.get("verdict")))}">'
         f"{escape(str(d.get('verdict')))}</span></p>"
         f'<p id="verdict-text">{escape(d.get("verdict_text") or "")}</p>'
-        f"<p>Held-out RMS {fmt_nm(d.get('residual_rms_um'), 4)} · noise floor "
+        + (f'<p id="answer">{escape(d["answer"]["text"])}</p>' if d.get("answer") else "")
+        + f"<p>Held-out RMS {fmt_nm(d.get('residual_rms_um'), 4)} · noise floor "
         f'<span id="noise-floor">{fmt_nm(d.get("noise_floor_um"), 4)}</span>'
         + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "")
         + "</p>"
         + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
-        + "<h3>Candidate effects (best first)</h3>"
+        + "<h3>Candidate effects (claimed physical effects, then the others, then model capacity; each in "
+        "score order)</h3>"
+        + "<p class='muted'>The score: the held-out mean square the effect's own test removes, as a share of this "
+        "model's held-out mean square above the noise floor. Its test is a fit of its own (against its reference); "
+        "'added to this model' is this model refitted with it, and only for a claimed effect or capacity.</p>"
         + _table(
             [
                 "effect",

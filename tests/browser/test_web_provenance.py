@@ -104,9 +104,9 @@ def test_the_answer_is_on_the_first_screen_of_a_model(page, server):
     diagnosis = server["api"].get(f"/models/{server['recorded_model']}/diagnosis").json()
     ratio = diagnosis["residual_rms_um"] / diagnosis["noise_floor_um"]
     assert float(answer.get_attribute("data-ratio")) == pytest.approx(ratio, rel=1e-9)
-    leading = next((c for c in diagnosis["candidates"] if c["claimed"]), None)
+    leading = next((c for c in diagnosis["candidates"] if c["claimed"] and c["kind"] == "physical"), None)
     text = answer.inner_text()
-    assert (f"Missing: {leading['effect']}" in text) if leading else ("Missing:" not in text)
+    assert (f"Missing: {leading['effect']}." in text) if leading else ("Missing:" not in text)
     assert "nm" in text and "µm" not in text
 
 

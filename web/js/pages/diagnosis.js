@@ -53,11 +53,11 @@ function separationSummary(before, after, experiment, datasetId) {
 
 /** What remains, described (the diagnosis's `remainder`): each signature's sentence, its share of the
  *  unseen residual, and a figure of the residual against the signature's variable. */
-function remainderHtml(r) {
+function remainderHtml(r, answer) {
   if (!r || !r.signatures || !r.signatures.length) return '';
   return `<h3>What remains, described <span class="muted">(the residual on rows the model never fitted — held-out
       cycles, rests, holds — read against physical signatures; each fitted on the training rows)</span></h3>
-    <ol id="remainder">${r.signatures.map((s, i) => `<li data-signature="${esc(s.signature)}" data-share="${s.share_of_excess}">
+    <ol id="remainder">${r.signatures.map((s, i) => `<li data-signature="${esc(s.signature)}" data-share="${s.share_of_excess}"${answer && answer.remains === s.signature ? ' class="in-answer" title="the description the answer above names"' : ''}>
       <b>${esc(s.signature)}</b> — ${fmt(100 * s.share_of_excess, 3)} % of the unseen residual above the noise (t = ${fmt(s.t, 3)}):
       ${esc(s.text)}<div class="remainder-figure" data-i="${i}"></div></li>`).join('')}</ol>
     <p class="muted">Tried: ${r.tried.map(esc).join(', ')}; a signature is shown when its held-out gain passes t > ${fmt(r.threshold_t, 3)}
@@ -73,6 +73,13 @@ function drawRemainder(box, r) {
   });
 }
 
+/** The group a candidate row opens (claimed physics, the other physics, capacity), or ''. */
+function groupRow(candidates, i) {
+  const group = (c) => (c.kind === 'capacity' ? 'model capacity (not physics)' : c.claimed ? 'claimed' : 'not claimed');
+  const g = group(candidates[i]);
+  return i && group(candidates[i - 1]) === g ? '' : `<tr class="group" data-group="${esc(g)}"><td colspan="7" class="muted">${esc(g)}</td></tr>`;
+}
+
 /**
  * Render diagnosis `d` of `model` into `box`. `onAdd(effect, extraDatasets)` starts a refine job;
  * the Separate button runs the experiment (its progress in `jobBox`) and re-renders with the new diagnosis. `extra` names the
@@ -82,7 +89,8 @@ export function renderDiagnosis(box, model, d, opts) {
   const { canRefine, onAdd, jobBox, extra = [], before = null, experiment = null, datasetId = null } = opts;
   const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
   const candidates = (d.candidates || []).filter((c) => c.testable !== false);
-  const leading = candidates.find((c) => c.claimed);      // what the verdict names: claimed, never an unclaimed row
+  const named = d.answer ? d.answer.missing : null;       // what the verdict names: the answer's one stored value
+  const leading = candidates.find((c) => c.effect === named);
   const untestable = d.not_testable || [];
   box.innerHTML = `${before ? separationSummary(before, d, experiment, datasetId) : ''}
     <p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" data-extra-datasets="${esc(extra.join(','))}" class="${verdictClass}">
@@ -94,16 +102,16 @@ export function renderDiagnosis(box, model, d, opts) {
     ${d.diagnosed_as ? `<p class="muted" id="diagnosed-as">Diagnosed as ${esc(d.diagnosed_as)}.</p>` : ''}
     ${(d.failures || []).length ? `<h3>Where it fails <span class="muted">(worst first; shaded on the plots below)</span></h3><ul id="failures">${d.failures.map((f) => `<li data-rms="${f.rms_um ?? ''}"${f.block ? ` data-block="${esc(f.block)}"` : ''}>${f.block
       ? `${esc(f.block)}: held-out residual RMS ${fmtErrorNm(f.rms_um)} <span class="muted">(${esc(f.record)})</span>` : (esc(f.text || '') || describe(f))}</li>`).join('')}</ul>` : ''}
-    <h3>Candidate effects <span class="muted">(claimed physics first, largest held-out gain first; then the others; model capacity last)</span></h3>
-    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num" title="the share of the reference's held-out error above the noise floor that the effect removes (0–1); whether it is claimed is the held-out test's answer, in the evidence">score</th><th class="num" title="the held-out RMS of the model the effect was tested against, then with it">its test: reference → with it</th><th class="num" title="the held-out RMS of this model with the effect added (fitted only when it is claimed)">added to this model</th><th>evidence</th><th></th></tr>
-    ${candidates.map((c, i) => `<tr data-effect="${esc(c.effect)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${c === leading ? ' class="best"' : ''}>
+    <h3>Candidate effects <span class="muted">(claimed physical effects, then the others, then model capacity; each in score order)</span></h3>
+    <table id="candidates"><tr><th>#</th><th>effect</th><th class="num" title="the held-out mean square its own test removes, as a share (0–1) of this model's held-out mean square above the noise floor: one scale for every candidate; whether it is claimed is the held-out test's answer, in the evidence">score</th><th class="num" title="the held-out RMS of the model the effect was tested against, then with it">its test: reference → with it</th><th class="num" title="the held-out RMS of this model with the effect added (fitted only when it is claimed)">added to this model</th><th>evidence <span class="muted">(its own test, a fit of its own: the stored model's parameters may differ)</span></th><th></th></tr>
+    ${candidates.map((c, i) => `${groupRow(candidates, i)}<tr data-effect="${esc(c.effect)}" data-kind="${esc(c.kind)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${c === leading ? ' class="best"' : ''}>
       <td>${i + 1}</td><td>${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}</td><td class="num">${fmt(c.score, 3)}</td><td class="num tested">${c.tested_rms_um === null || c.tested_rms_um === undefined ? '–' : `${fmtErrorNm(c.reference_rms_um, 4)} → ${fmtErrorNm(c.tested_rms_um, 4)}`}</td>
       <td class="num expected">${c.expected_rms_um !== d.residual_rms_um ? fmtErrorNm(c.expected_rms_um, 4) : '<span class="muted">not fitted</span>'}</td>
       <td class="evidence">${describe(c.evidence)}</td>
       <td>${canRefine && !model.effects.includes(c.effect) ? `<button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td></tr>`).join('')}
     </table>
     ${d.claim_rule ? `<p class="muted" id="claim-rule">Claim rule: ${esc(d.claim_rule)}.</p>` : ''}
-    ${remainderHtml(d.remainder)}
+    ${remainderHtml(d.remainder, d.answer)}
     ${untestable.length ? `<h3>Not testable with this data</h3><ul id="not-testable">${untestable.map((u) => `<li data-effect="${esc(u.effect)}">
       <b>${esc(u.effect)}</b>: ${esc(u.reason)}. ${d.experiments_run_here === false ? '<span class="muted">On the stage that recorded the data:</span>'
         : `<button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>`}

@@ -94,7 +94,7 @@ function renderRun(out, r, { signal, imported }) {
     <table id="discover-steps"><tr><th>step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
-      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(RMS over more data)</span>` : (s.step ? 'refit' : 'start'))}</td>
+      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(RMS over more data)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
       <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
       <td class="num">${fmtErrorNm(s.validation_rms_um)}</td><td class="num">${fmtErrorNm(s.noise_floor_um)}</td>
       <td class="num">${ratio(s.ratio_to_noise_floor)}</td><td>${esc(s.verdict)}${s.ambiguous ? ` <span class="warn">(${s.ambiguous.map(esc).join(' or ')}?)</span>` : ''}</td>

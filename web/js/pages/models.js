@@ -146,18 +146,17 @@ async function showModel(el, modelId, query) {
   if (datasetId) await renderCompare(el, model, datasetId, diagnosis);
 }
 
-/** The page's answer on its first screen: how far the model is from the noise floor, and what is
- *  missing with the error it should fall to (the diagnosis's claimed leading effect), or why nothing is. */
+/** The page's answer on its first screen: how far the model is from the noise floor, then the
+ *  diagnosis's answer (one stored value: what is missing and the error it should fall to, and what
+ *  remains described), the same value the verdict and the remainder's section read. */
 function renderAnswer(box, model, d) {
-  if (!d) { box.innerHTML = '<p class="muted">No diagnosis: see the compare table below.</p>'; return; }
+  if (!d || !d.answer) { box.innerHTML = '<p class="muted">No diagnosis: see the compare table below.</p>'; return; }
   const ratio = d.noise_floor_um ? d.residual_rms_um / d.noise_floor_um : null;
-  const leading = (d.candidates || []).find((c) => c.claimed && c.testable !== false);
+  const a = d.answer;
   const where = `Residual ${fmtErrorNm(d.residual_rms_um, 4)} on the held-out cycles${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 4)})` : ''}.`;
-  const what = leading
-    ? `Missing: <b data-effect="${esc(leading.effect)}">${esc(leading.effect)}</b>. Adding it should bring the error to about ${fmtErrorNm(leading.expected_rms_um, 4)}: use “Add ${esc(leading.effect)}” in the diagnosis, or Discover.`
-    : d.at_noise_floor === false ? 'No effect in the library is missing, yet the model is not at the noise floor: see the diagnosis for where it fails.'
-      : 'Nothing is missing: the model explains the data down to the noise floor.';
-  box.innerHTML = `<p id="model-answer-text" data-ratio="${ratio ?? ''}">${where} ${what}</p>`;
+  const how = a.missing ? ` Use “Add ${esc(a.missing)}” in the diagnosis, or Discover.` : '';
+  box.innerHTML = `<p id="model-answer-text" data-ratio="${ratio ?? ''}" data-effect="${esc(a.missing || '')}"
+    data-remains="${esc(a.remains || '')}">${where} ${esc(a.text)}${how}</p>`;
 }
 
 /** Where the diagnosis says the model fails, as plot ranges: time ranges of the failing blocks (for
