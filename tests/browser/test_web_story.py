@@ -139,6 +139,7 @@ def _check_discover_table(page, api, model) -> int:
     page.click("#discover-start")
     page.wait_for_selector("#discover-job .jobline[data-state='succeeded']", timeout=300_000)
     page.wait_for_selector("#discover-stopped")
+    page.wait_for_selector("#figures-history svg", timeout=120_000)  # the run's last step drawn: the page is done
     job = api.get(f"/jobs/{page.get_attribute('#discover-job .jobline', 'data-job-id')}").json()["result"]
     checked = 0
     for s in job["steps"]:
@@ -163,6 +164,8 @@ def _check_discover_table(page, api, model) -> int:
             assert _close(printed, job["final_parameters"][e["effect"]][name], 4)
             checked += 1
     assert "the stored model's" in page.inner_text("#discover-found tr:first-child")
+    text = page.inner_text("#discover-run")
+    assert unit_problems(text) == [] and part_whole_problems(text) == []
     return checked
 
 

@@ -275,7 +275,8 @@ def _entry(
         added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
     removed = min((v0**2 - v**2) / max(v0**2 - noise**2, 1e-30), 1.0)  # below the floor: all of the excess
     evidence = (
-        f"{_signature_words(name, sig, floor)}. {how[0].upper() + how[1:]}"
+        f"In this model's residual, before any fit: {_signature_words(name, sig, floor)}. Its test, a fit of its "
+        f"own: {how}"
         + (
             f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
             if v != v0
