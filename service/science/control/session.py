@@ -18,6 +18,7 @@ from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, Trac
 from service.science.control.periodic_inverse import periodic_drive_v
 from service.science.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
 from service.science.control.trajectory import Ellipse, Reference, reference
+from service.science.data.units import fmt_nm
 from service.science.fitting.metrics import rms
 
 SAMPLE_RATE_HZ = 20_000.0
@@ -143,8 +144,8 @@ def converged_drive(model, axis: str, column: int, u_v: np.ndarray, ref: Referen
         f"controller.feedforward_model_{axis}",
         (
             f"the {name} model's inverse does not converge at {frequency_hz:g} Hz: its own prediction of the "
-            f"feedforward drive misses the {axis.upper()} reference by {miss:.3g} µm RMS, and by "
-            f"{periodic_miss:.3g} µm RMS with the drive solved period by period "
+            f"feedforward drive misses the {axis.upper()} reference by {fmt_nm(miss)} RMS, and by "
+            f"{fmt_nm(periodic_miss)} RMS with the drive solved period by period "
             f"({100 * periodic_miss / span:.0f} % of its {span:.3g} µm range). "
             + getattr(model, "inverse_advice", INVERSE_ADVICE)
         ),

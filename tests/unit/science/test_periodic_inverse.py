@@ -50,4 +50,4 @@ def test_a_reference_no_drive_reaches_is_refused_naming_the_model(case1_referenc
     with pytest.raises(ControlRefused) as refused:
         converged_drive(SaturatingStage(), "y", 0, x_ref / 0.05, ref, 100.0)
     assert refused.value.field == "controller.feedforward_model_y"
-    assert "solved period by period" in refused.value.reason and "µm RMS" in refused.value.reason
+    assert "solved period by period" in refused.value.reason and " nm RMS" in refused.value.reason
