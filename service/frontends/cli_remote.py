@@ -10,7 +10,7 @@ import sys
 
 import httpx
 
-from service.frontends.client import DEFAULT_URL, ApiError, Client
+from service.frontends.client import DEFAULT_URL, ApiError, Client, StopNotDelivered
 from service.science.data.units import fmt_nm
 
 
@@ -482,6 +482,9 @@ def _guarded(func, args) -> int:
         return 2
     except httpx.TransportError as exc:
         print(f"error: cannot reach the service at {args.url}: {exc}", file=sys.stderr)
+        return 3
+    except StopNotDelivered as exc:  # no door answered: no HTTP status to show
+        print(f"error: emergency stop not delivered: {exc.detail}", file=sys.stderr)
         return 3
 
 

@@ -44,6 +44,25 @@ class ApiError(RuntimeError):
         self.status_code, self.detail, self.field = status_code, detail, field
 
 
+class StopNotDelivered(RuntimeError):
+    """An emergency stop no door took: neither the stop port nor the service's own route answered
+    (no HTTP status was received). ``detail`` says what happened at each door, in words."""
+
+    def __init__(self, detail: str):
+        super().__init__(detail)
+        self.detail = detail
+
+
+def _transport_words(exc: httpx.TransportError, timeout_s: float) -> str:
+    """What a failed connection was, in words: refused, no answer within ``timeout_s`` (s), or its kind."""
+    if isinstance(exc, httpx.ConnectError):
+        reason = str(exc).split("] ", 1)[-1].lower() or "no connection"  # "[Errno 111] Connection refused"
+        return f"could not connect ({reason})"
+    if isinstance(exc, httpx.TimeoutException):
+        return f"no answer within {timeout_s:g} s"
+    return f"the connection failed ({type(exc).__name__}: {exc})"
+
+
 def resolve_token(base_url: str, token: str | None = None, data_dir: str | Path | None = None) -> str | None:
     """The token to send: ``token``, $EVCBENCH_TOKEN, or <data_dir>/admin.token for a loopback URL."""
     token = token or os.environ.get("EVCBENCH_TOKEN")
@@ -101,8 +120,8 @@ class Client:
         port cannot be reached or does not stop this bench (any answer but 200: unreachable, a token
         it has not learnt yet, another bench's port), on ``POST /api/bench/stop`` of the service
         itself, waiting at most ``STOP_ROUTE_TIMEOUT_S``. The answer then says why the port was not
-        used (``stop_port_refusal``); a service that does not answer either raises ApiError (503)
-        naming both."""
+        used (``stop_port_refusal``); a service that does not answer either raises StopNotDelivered
+        saying what happened at both (the service's own refusal, an HTTP answer, is ApiError)."""
         url, refusal = self.prepare_stop(), None
         if url is not None:
             try:
@@ -113,14 +132,14 @@ class Client:
                     return response.json()
                 refusal = f"{response.status_code}: {_detail(response)}"
             except httpx.TransportError as exc:  # unreachable from here (a firewall): the service's own route
-                refusal = f"unreachable ({type(exc).__name__})"
+                refusal = f"{url} unreachable: {_transport_words(exc, STOP_PORT_TIMEOUT.read)}"
         try:
             answer = self._request("POST", "/api/bench/stop", timeout=STOP_ROUTE_TIMEOUT_S)
         except httpx.TransportError as exc:
-            raise ApiError(
-                503,
-                f"the service did not take the emergency stop within {STOP_ROUTE_TIMEOUT_S:g} s "
-                f"({type(exc).__name__})" + (f"; its stop port: {refusal}" if refusal else "; it names no stop port"),
+            raise StopNotDelivered(
+                f"could not reach the service at {str(self.http.base_url).rstrip('/')}: {_transport_words(exc, STOP_ROUTE_TIMEOUT_S)}; "
+                + (f"its stop port: {refusal}" if refusal else "no stop port known")
+                + ": the outputs were NOT commanded to 0 V by this call"
             ) from None
         return answer if refusal is None else {**answer, "stop_port_refusal": refusal}
 

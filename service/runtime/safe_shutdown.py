@@ -50,11 +50,16 @@ def safe_state(app: Any, reason: str) -> dict:
         out["output_v"] = stop["output_v"]
         out["zero_after_request_ms"] = zero_after_request_ms(stop)
     log.warning(
-        "%s: outputs at 0 V, %s",
-        reason,
-        f"running job {out['cancelled_job_id']} cancelled" if out["cancelled_job_id"] else "no job was running",
+        "%s: outputs at 0 V, %s", reason, cancelled_words(out["cancelled_job_id"], out["cancelled_queued_job_ids"])
     )
     return out
+
+
+def cancelled_words(running: str | None, queued: list[str]) -> str:
+    """The bench jobs a stop cancelled, in words: "running job J cancelled, queued K, L cancelled",
+    "no job was running, none queued"."""
+    ran = f"running job {running} cancelled" if running else "no job was running"
+    return f"{ran}, " + (f"queued {', '.join(queued)} cancelled" if queued else "none queued")
 
 
 def _engine_gone(out: dict, bench: Any, jobs: Any, running: str | None, exc: EngineUnavailable) -> dict:

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from service.runtime.engine import EngineUnavailable
-from service.runtime.safe_shutdown import cancel_bench_jobs
+from service.runtime.safe_shutdown import cancel_bench_jobs, cancelled_words
 from service.runtime.stop_port import STOP_PORT_FILE
 from service.store.files import write_bytes_atomic
 
@@ -107,7 +107,7 @@ class StopPortLink:
 
     def _cancel_jobs(self, reason: str) -> None:
         running, queued = cancel_bench_jobs(self.jobs, reason)
-        log.warning("%s (stop port): outputs at 0 V, running job %s and queued %s cancelled", reason, running, queued)
+        log.warning("%s (stop port): outputs at 0 V, %s", reason, cancelled_words(running, queued))
 
 
 def refresh_stop_tokens(app: Any) -> None:

@@ -281,7 +281,7 @@ def test_serve_refuses_a_stop_port_it_cannot_have_in_one_line(tmp_path, monkeypa
 def test_a_stop_neither_door_takes_is_an_error_naming_both():
     """The port does not know the token yet (401) and the service does not answer (hung): the client
     says so within its timeouts instead of waiting for the service's minute."""
-    from service.frontends.client import ApiError, Client
+    from service.frontends.client import Client, StopNotDelivered
 
     served = StopPort("127.0.0.1", 0, press=_Presses(), tokens=StopTokens(), bench_id="bench-a").start()
     served.tokens.replace({}, auth_off=False)
@@ -294,10 +294,54 @@ def test_a_stop_neither_door_takes_is_an_error_naming_both():
     try:
         http = httpx.Client(base_url="http://127.0.0.1:1", transport=httpx.MockTransport(hung_service))
         with Client(http=http, token=OPERATE) as client:
-            with pytest.raises(ApiError) as refused:
+            with pytest.raises(StopNotDelivered) as refused:
                 client.stop_bench()
-        assert refused.value.status_code == 503
-        assert "did not take the emergency stop" in refused.value.detail
-        assert "stop port: 401: unknown or revoked API token" in refused.value.detail
+        detail = refused.value.detail
+        assert detail.startswith("could not reach the service at http://127.0.0.1:1: no answer within 10 s; ")
+        assert "stop port: 401: unknown or revoked API token" in detail
+        assert detail.endswith("the outputs were NOT commanded to 0 V by this call") and "503" not in detail
     finally:
         served.close()
+
+
+def test_stop_without_a_service_says_it_reached_nothing_and_fails(tmp_path, monkeypatch, capsys):
+    """``evcbench stop`` with nothing listening: connection refused, no stop port known, no HTTP status
+    invented; exit code 3, within the connect attempt (no 10 s wait)."""
+    from service.frontends import cli
+
+    with socket.create_server(("127.0.0.1", 0)) as gone:
+        port = gone.getsockname()[1]  # closed on leaving: nothing listens there
+    monkeypatch.setenv("EVCBENCH_DATA_DIR", str(tmp_path))  # no stop_port.json there
+    assert cli.main(["stop", "--url", f"http://127.0.0.1:{port}", "--token", OPERATE]) == 3
+    err = capsys.readouterr().err
+    assert err.strip() == (
+        f"error: emergency stop not delivered: could not reach the service at http://127.0.0.1:{port}: "
+        "could not connect (connection refused); no stop port known: "
+        "the outputs were NOT commanded to 0 V by this call"
+    ), err
+
+
+def test_a_port_stop_logs_the_jobs_it_cancelled_in_words(store, caplog):
+    """The web process's log line after a stop-port press names the jobs, never Python values."""
+    from service.runtime.jobs import JobManager
+    from service.runtime.stop_port_link import StopPortLink
+    from tests.support.api_client import job_running, wait_job
+
+    manager, gate = JobManager(store, workers=1), threading.Event()
+    link = StopPortLink(bench=None, store=store, jobs=manager, auth_off=True)
+    try:
+        with caplog.at_level("WARNING", logger="evcbench.safety"):
+            link._cancel_jobs("emergency stop")
+            holder = manager.submit("sweep", None, lambda ctx: {"held": gate.wait(10)}, needs_bench=True)
+            wait_job(manager.get, holder["id"], until=job_running())
+            queued = [manager.submit("sweep", None, lambda ctx: {}, needs_bench=True)["id"] for _ in range(2)]
+            link._cancel_jobs("emergency stop")
+        idle, busy = [r.getMessage() for r in caplog.records if r.name == "evcbench.safety"]
+        assert idle == "emergency stop (stop port): outputs at 0 V, no job was running, none queued"
+        assert busy == (
+            f"emergency stop (stop port): outputs at 0 V, running job {holder['id']} cancelled, "
+            f"queued {queued[0]}, {queued[1]} cancelled"
+        )
+    finally:
+        gate.set()
+        manager.shutdown()
