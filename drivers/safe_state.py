@@ -59,6 +59,12 @@ class SafeOpen:
     def sensors_opened(self) -> None:
         self._note("sensors opened")
 
+    def amplifiers_enabled(self, amplifiers: dict) -> None:
+        """After the safe open, on a first start only (the outputs still at 0 V): each amplifier enabled."""
+        for amp in amplifiers.values():
+            amp.enable()
+        self._note("amplifiers enabled at 0 V")
+
     def as_dict(self) -> dict:
         return {
             "zero_monotonic_s": self.zero_monotonic_s,

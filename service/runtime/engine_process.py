@@ -115,7 +115,8 @@ def _open_at_zero(bench_name: str, seed: int | None, overrides: dict | None, pla
     before any sensor opens (drivers.safe_state.SafeOpen); on failure tell the web process on
     ``plan_conn`` and return (None, None). Returns the bench and what was done (``zero_monotonic_s``:
     the 0 V write, ``order``: each step's ``time.monotonic()``, s). The amplifiers stay disabled
-    after a ``restart`` (until the operator's reset), and are enabled again at the 0 V otherwise."""
+    after a ``restart`` (until the operator's reset), and are enabled again at the 0 V otherwise
+    (the last step of ``order``); ``amplifiers_disabled`` says which, ``amplifiers_note`` why."""
     from drivers.factory import open_bench
     from drivers.safe_state import SafeOpen
 
@@ -128,11 +129,15 @@ def _open_at_zero(bench_name: str, seed: int | None, overrides: dict | None, pla
         plan_conn.send(("error", picklable(exc)))
         return None, None
     bench.last_zero_monotonic_s = safe_open.zero_monotonic_s
-    safe = safe_open.as_dict()
     if not restart:
-        for amp in bench.parts.amplifiers.values():
-            amp.enable()
+        safe_open.amplifiers_enabled(bench.parts.amplifiers)
+    safe = safe_open.as_dict()
     safe["amplifiers_disabled"] = restart
+    safe["amplifiers_note"] = (
+        "disabled until the operator's reset (POST /api/bench/reset): this engine replaced one that was lost"
+        if restart
+        else "enabled again at 0 V once every device was open: a first start has no fault to hold them for"
+    )
     return bench, safe
 
 

@@ -44,7 +44,8 @@ def test_the_bench_lives_in_another_process(http):
     assert http.get("/api/health").json()["backend"] == "emulated:default_realtime"
     safe = bench["engine"]["safe_start"]  # its first act: 0 V, the amplifiers disabled, then the sensors
     assert [what for what, _ in safe["order"]][:2] == ["DAQ opened", "DAQ outputs at 0 V"]
-    assert safe["order"][-1][0] == "sensors opened" and safe["order"][-1][1] >= safe["zero_monotonic_s"]
+    assert [what for what, _ in safe["order"]][-2:] == ["sensors opened", "amplifiers enabled at 0 V"]
+    assert safe["order"][-1][1] >= safe["zero_monotonic_s"] and safe["amplifiers_disabled"] is False  # a first start
 
 
 def test_sweep_through_the_engine_stores_every_sample(http):
