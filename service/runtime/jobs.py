@@ -344,8 +344,8 @@ class JobManager:
         if result is not None:
             fields["result"] = clean_json(result)
         if progress is not None:
-            fields["progress"] = progress
             live.progress = progress
+        fields["progress"] = live.progress  # the last reported, not the last persisted (every PERSIST_EVERY_S)
         self.store.update_job(job_id, **fields)
         live.state, live.message = state, fields["message"]
         live.version += 1

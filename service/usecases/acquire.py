@@ -81,7 +81,8 @@ def run_sweep(
         record, stop = recorder.run(bench, planned.u_v, planned.sample_rate_hz, progress)
         if record.samples == 0:
             raise recorder.nothing_kept(f"{stop.reason}; no samples were taken", stop.cancelled)
-        ctx.progress(0.99, "storing")
+        # a stopped sweep's progress is the share it recorded, as its partial dataset holds it
+        ctx.progress(0.99 if stop is None else record.samples / planned.samples, "storing")
         row = recorder.keep(
             record_arrays(record),
             stop,

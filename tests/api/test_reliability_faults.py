@@ -88,6 +88,7 @@ def test_each_fault_fails_the_job_keeps_partial_data_and_leaves_zero_volts(
     assert job["state"] == "failed" and words in job["error"], job
     assert f"kept as partial dataset {ds['id']}" in job["error"]
     _assert_partial(ds, data, words, min_s, max_s)
+    assert job["progress"] == pytest.approx(ds["samples"] / PLANNED_SAMPLES)  # 0.25 or 0.2: the share it kept
     _assert_zero_volts(app)
     if fault == "loop_stall":  # the watchdog tripped after its 1 s floor (4 × 0.1 s blocks < 1 s)
         trip = app.state.bench.watchdog.last_trip

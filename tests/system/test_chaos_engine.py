@@ -99,6 +99,7 @@ def _ended_with(http: httpx.Client, job_id: str, words: str) -> dict:
     assert job["state"] == "failed" and words in job["error"], job
     dataset = http.get(f"/api/datasets/{job['result']['dataset_id']}").json()
     assert dataset["partial"] is True and words in dataset["partial_reason"] and dataset["samples"] > 20_000
+    assert job["progress"] == pytest.approx(dataset["samples"] / job["params"]["samples"])  # the share it kept
     return job
 
 
@@ -147,6 +148,8 @@ def test_sigkill_mid_run_zeroes_by_the_supervisor(chaos, kind):
     assert job["state"] == "failed" and "SIGKILL" in job["error"], job
     dataset = http.get(f"/api/datasets/{job['result']['dataset_id']}").json()
     assert dataset["partial"] is True and "SIGKILL" in dataset["partial_reason"]
+    planned = job["params"].get("samples")  # a sweep's plan; a trajectory's progress counts periods
+    assert kind == "trajectory" or job["progress"] == pytest.approx(dataset["samples"] / planned), job
     _after_restart(chaos, pid, "SIGKILL")
 
 
