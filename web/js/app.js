@@ -62,7 +62,8 @@ async function emergencyStop() {
 
 /** The bench engine's state from GET /api/health (no token needed): a red strip while it is absent
  *  or restarting (503 "degraded", with the reason), an amber one while a restart's fault is latched
- *  (until Reset latched faults on the Bench page), none otherwise. */
+ *  (until Reset latched faults on the Bench page), none otherwise; the health goes out as the window
+ *  event 'evc:engine'. */
 async function refreshEngineState() {
   const strip = document.getElementById('engine-state');
   let health = null;
@@ -84,6 +85,7 @@ async function refreshEngineState() {
     strip.dataset.state = '';
     strip.hidden = true;
   }
+  window.dispatchEvent(new CustomEvent('evc:engine', { detail: health }));  // the Bench page marks its state stale
 }
 
 async function refreshPill() {

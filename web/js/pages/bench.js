@@ -9,6 +9,8 @@ let timer = null;
 let controller = null;
 let following = null;
 let live = null;
+let onEngine = null;
+let stateReadAt = new Date();
 const charts = [];
 
 export async function enter(root) {
@@ -18,7 +20,7 @@ export async function enter(root) {
   root.append(h(`<div>
     <h1>Bench <span class="muted">${esc(bench.backend)}</span></h1>
     <div class="grid">
-      <div class="card"><h2>State</h2><table id="state"></table>
+      <div class="card"><h2>State</h2><p id="state-stale" class="bad" hidden></p><table id="state"></table>
         <div id="fault-actions" hidden><button id="reset-faults" title="POST /api/bench/reset">Reset latched faults</button>
           <span class="muted">outputs stay at 0 V; find the cause first</span></div>
         <div id="reset-result" class="muted"></div></div>
@@ -31,6 +33,8 @@ export async function enter(root) {
     <div class="card"><h2>Recent jobs</h2><table id="jobs"></table></div>
   </div>`));
   renderState(root, bench);
+  onEngine = (event) => { if (event.detail.status === 'degraded') markStale(root, event.detail.reason); };
+  window.addEventListener('evc:engine', onEngine);
   root.querySelector('#reset-faults').addEventListener('click', async () => {
     const out = root.querySelector('#reset-result');
     try {
@@ -53,7 +57,7 @@ export async function enter(root) {
       const b = await api('/bench');
       renderState(root, b);
       if (b.running_job_id && b.running_job_id !== following) follow(root, b.running_job_id);
-    } catch (_) { /* the pill shows connection errors */ }
+    } catch (err) { if (err.status === 503) markStale(root, err.message); /* the pill shows the others */ }
   };
   timer = setInterval(poll, 1000);
   const jobs = await refreshJobs(root);
@@ -90,9 +94,25 @@ async function showRecording(root, datasetId) {
              ...axes.map((a) => ({ label: `x_${a} (µm)`, values: data[`x_${a}_um`], scale: 'y2' }))] }));
 }
 
+/** No engine (health 503 degraded, or GET /api/bench 503): the State table keeps the last values
+ *  read, marked stale with their time, and the reset (refused with 503 then) is disabled. */
+function markStale(root, reason) {
+  const el = root.querySelector('#state');
+  if (!el) return;
+  el.dataset.stale = '1';
+  const note = root.querySelector('#state-stale');
+  note.textContent = `Engine absent: last values read at ${stateReadAt.toISOString().slice(11, 19)} UTC, not current (${reason || 'no bench engine'}).`;
+  note.hidden = false;
+  root.querySelector('#reset-faults').disabled = true;
+}
+
 function renderState(root, b) {
   const el = root.querySelector('#state');
   if (!el) return;
+  stateReadAt = new Date();
+  delete el.dataset.stale;
+  root.querySelector('#state-stale').hidden = true;
+  root.querySelector('#reset-faults').disabled = false;
   el.innerHTML = `<tr><th>axis</th><th class="num">output (V)</th><th class="num">current (mA)</th><th>amplifier</th><th>sensor</th><th class="num">range (µm)</th></tr>` +
     b.axes.map((a) => { const amp = b.amplifiers[a]; const s = b.sensors[a]; return `<tr data-axis="${a}">
       <td>${a}</td><td class="num" data-output-v="${amp.output_v}">${(Math.abs(amp.output_v) < 0.005 ? 0 : Number(amp.output_v)).toFixed(2)}</td>
@@ -138,6 +158,7 @@ function summary(result) {
 
 export function leave() {
   clearInterval(timer);
+  if (onEngine) window.removeEventListener('evc:engine', onEngine);
   if (live) live.stop();
   if (controller) controller.abort();
   destroyAll(charts);
