@@ -8,16 +8,18 @@ or a stop ends the run early.
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 from drivers.bench import Bench
 from drivers.interfaces import BenchLost
 from service.runtime.jobs import JobContext
 from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span_v, untrained_turning_points
 from service.science.control.gains import choose_pid
-from service.science.control.ilc_stability import learning_refusal, predict_plan
+from service.science.control.ilc_stability import learning_refusal, mode_spread, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, StopRequested, TrackRecord
 from service.science.control.session import PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
-from service.science.control.tuning import TUNED_PID, bench_plants, feedforward_inverts_mode
+from service.science.control.tuning import TUNED_PID, bench_plants, feedforward_inverts_mode, identified_mode
 from service.science.errors import FieldError
 from service.science.fitting.validation import trained_loops_v
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, Store
@@ -80,15 +82,15 @@ def build_controller(
             raise FieldError(field, f"model {model_id} cannot be used: {exc}") from None
     pid, report, gains = None, None, None
     spec = controller.get("pid")
-    plants = bench_plants(bench, models, SAMPLE_RATE_HZ) if spec is not None else dict.fromkeys(bench.axes)
+    plants = bench_plants(bench, models, SAMPLE_RATE_HZ)
+    damped = frozenset(
+        ax
+        for ax, model in models.items()
+        if plants.get(ax) is not None and feedforward_inverts_mode(model, plants[ax].resonance_hz)
+    )
     if spec is not None:
         if isinstance(spec, dict):
             spec = {ax: (spec[f"kp_{ax}"], spec[f"ki_{ax}"], spec[f"kd_{ax}"], spec["tf_s"]) for ax in ("y", "z")}
-        damped = frozenset(
-            ax
-            for ax, model in models.items()
-            if plants.get(ax) is not None and feedforward_inverts_mode(model, plants[ax].resonance_hz)
-        )
         gains, report, warnings = choose_pid(
             spec,
             plants,
@@ -99,30 +101,54 @@ def build_controller(
         )
         report["warnings"] = warnings
         pid = gains
-    ilc_report = None
+    modes = {ax: identified_mode(model) for ax, model in models.items()}
+    ilc_report, harmonics, axis_harmonics = None, controller["ilc_harmonics"], None
     if controller["ilc"]:
+        spreads = {ax: plant_spread(plants[ax], modes.get(ax)) for ax in damped}
         try:
             predicted = predict_plan(
                 plants,
                 gains,
                 controller["ilc_gain"],
                 frequency_hz,
-                controller["ilc_harmonics"],
+                harmonics,
                 latency_periods=0 if mode == "point_by_point" else QUEUED_BLOCKS - 1,
+                spreads=spreads,
             )
         except ValueError as exc:
             raise FieldError("controller.ilc", str(exc)) from None
-        ilc_report = {"axes": {p.axis: p.as_dict() for p in predicted}, "refusal": learning_refusal(predicted)}
+        axis_harmonics = {p.axis: p.harmonics for p in predicted if p.harmonics >= 0}
+        if len(axis_harmonics) == len(predicted):
+            harmonics = max(axis_harmonics.values())
+        ilc_report = {
+            "axes": {p.axis: p.as_dict() for p in predicted},
+            "spread": {ax: None if sp is None else asdict(sp) for ax, sp in spreads.items()},
+            "harmonics": axis_harmonics,
+            "refusal": learning_refusal(predicted),
+        }
     return Controller(
         feedforward=models,
         pid=pid,
         ilc=controller["ilc"],
         ilc_gain=controller["ilc_gain"],
-        ilc_harmonics=controller["ilc_harmonics"],
+        ilc_harmonics=harmonics,
+        ilc_axis_harmonics=axis_harmonics,
         allow_saturation=controller["allow_saturation"],
         pid_report=report,
         ilc_report=ilc_report,
+        modes=modes,
+        mode_axes=damped,
     )
+
+
+def plant_spread(plant, identified: tuple[float, float] | None):
+    """The uncertainty (``ModeSpread``) of an axis's mode: the bench's declared mode and the plant's
+    damping (``plant``) beside the feedforward model's identified mode (Hz, ζ)."""
+    fns, zetas = [plant.resonance_hz], [plant.damping_ratio]
+    if identified is not None:
+        fns.append(identified[0])
+        zetas.append(identified[1])
+    return mode_spread(fns, zetas)
 
 
 def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: dict, mode: str) -> Controller:
@@ -193,7 +219,9 @@ def span_sweeps(bench: Bench, store: Store, ellipse: Ellipse, controller: dict) 
                 "the span is read from the axis's feedforward model: identify one on a default (0–120 V) sweep first",
             )
         lim = bench.limits[axis]
-        v_min, v_max = drive_span_v(model, ref.x_um[ref.steady, i], SAMPLE_RATE_HZ, (lim.v_min_v, lim.v_max_v))
+        v_min, v_max = drive_span_v(
+            model, ref.x_um[:, i], SAMPLE_RATE_HZ, (lim.v_min_v, lim.v_max_v), steady=ref.steady
+        )
         bodies.append(
             {
                 "axes": [axis],

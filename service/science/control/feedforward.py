@@ -113,12 +113,21 @@ SPAN_MARGIN_V = 5.0
 
 
 def drive_span_v(
-    model, x_ref_um: np.ndarray, sample_rate_hz: float, limits_v: tuple[float, float], margin_v: float = SPAN_MARGIN_V
+    model,
+    x_ref_um: np.ndarray,
+    sample_rate_hz: float,
+    limits_v: tuple[float, float],
+    margin_v: float = SPAN_MARGIN_V,
+    steady: slice = slice(None),
 ) -> tuple[float, float]:
-    """(min, max) V of the model's feedforward drive for ``x_ref_um`` (the reference's steady part),
-    widened by ``margin_v`` on each side and kept within ``limits_v`` (the axis's hard limits): the
-    span to sweep so that a model fitted on it knows the minor loops the trajectory runs."""
+    """(min, max) V of the model's feedforward drive for the planned reference ``x_ref_um`` (from rest
+    to rest, as the run drives it) over its ``steady`` samples, widened by ``margin_v`` on each side
+    and kept within ``limits_v`` (the axis's hard limits): the span to sweep so that a model fitted on
+    it knows the minor loops the trajectory runs. The inverse is taken over the whole planned
+    reference: its steady part alone starts mid-stroke, which the inverse's spectral division of the
+    mode and its hysteresis state from rest read as a jump (at 200 Hz on Z: 5–136 V for a 26–90 V drive)."""
     u = np.asarray(model.inverse(np.asarray(x_ref_um, dtype=float), sample_rate_hz=sample_rate_hz), dtype=float)
+    u = u[steady]
     return max(limits_v[0], float(np.min(u)) - margin_v), min(limits_v[1], float(np.max(u)) + margin_v)
 
 
@@ -138,7 +147,7 @@ def identify_composite_for(
     for i, axis in enumerate(bench.axes):
         full = identify_composite(bench, axis, effects)
         lim = bench.limits[axis]
-        span = drive_span_v(full, ref.x_um[steady, i], sample_rate_hz, (lim.v_min_v, lim.v_max_v), margin_v)
+        span = drive_span_v(full, ref.x_um[:, i], sample_rate_hz, (lim.v_min_v, lim.v_max_v), margin_v, steady)
         out[axis] = identify_composite(bench, axis, effects, v_range=span)
         out[axis].fit_range_v = span
     return out

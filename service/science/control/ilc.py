@@ -62,7 +62,8 @@ def frf_from_periods(u_v: np.ndarray, x_um: np.ndarray, period: int, harmonics: 
 
 class HarmonicILC:
     """Per-axis harmonic ILC on one period. ``g`` (2, K+1) measured responses G₀ (µm/V);
-    ``noise_var_um2`` (2,) σ² per axis (see the module doc; None: no SNR gating)."""
+    ``noise_var_um2`` (2,) σ² per axis (see the module doc; None: no SNR gating); ``learned_harmonics``
+    (2,) the highest harmonic each axis learns (the robustness filter; None: all K)."""
 
     def __init__(
         self,
@@ -73,6 +74,7 @@ class HarmonicILC:
         min_improvement: float = 0.01,
         noise_var_um2=None,
         adapt: bool = True,
+        learned_harmonics=None,
     ):
         self.g0 = np.asarray(g, dtype=complex)
         self.g = self.g0.copy()
@@ -87,6 +89,9 @@ class HarmonicILC:
             else np.broadcast_to(np.asarray(noise_var_um2, float), (2,)).copy()
         )
         self.adapt = adapt
+        # the robustness filter per axis: harmonics above an axis's ``learned_harmonics`` do not learn
+        tops = np.broadcast_to(self.harmonics if learned_harmonics is None else learned_harmonics, (2,))
+        self.q = (np.arange(self.harmonics + 1)[None, :] <= np.asarray(tops)[:, None]).astype(float)
         self.u_v = np.zeros((period, 2))
         self.best_u_v = self.u_v.copy()
         self.best_learnable_um = np.inf
@@ -182,6 +187,8 @@ class HarmonicILC:
             base_v, limits_v = self._zeros, (np.full(2, -np.inf), np.full(2, np.inf))
         coef_re, coef_im = np.empty((2, self.harmonics + 1)), np.empty((2, self.harmonics + 1))
         learning_coefficients(E, self.g, self.gain, SNR_GATE * self.noise_var, NOISE_GAIN_FACTOR, coef_re, coef_im)
+        coef_re *= self.q
+        coef_im *= self.q
         learn_step(
             E,
             coef_re,

@@ -29,17 +29,59 @@ BAND_POINTS = 9
 
 
 @dataclass(frozen=True)
+class ModeSpread:
+    """The identified mode's uncertainty: the range of its frequency (Hz) and damping ratio over the
+    identifications at hand (the feedforward model's, the bench's declared mode, the plant's assumed
+    damping), widened to at least ±FN_SPREAD_FLOOR and ×/÷ ZETA_SPREAD_FLOOR."""
+
+    fn_hz: tuple[float, float]
+    zeta: tuple[float, float]
+
+    def plants(self, plant: AxisPlant) -> list[AxisPlant]:
+        """``plant`` with its mode at each corner and the centre of the spread."""
+        fns = (self.fn_hz[0], float(np.sqrt(self.fn_hz[0] * self.fn_hz[1])), self.fn_hz[1])
+        zetas = (self.zeta[0], float(np.sqrt(self.zeta[0] * self.zeta[1])), self.zeta[1])
+        return [AxisPlant(plant.gain_um_per_v, fn, z, plant.delay_s) for fn in fns for z in zetas]
+
+
+#: the least uncertainty granted an identified mode: ±3 % in frequency, ×/÷ 1.5 in damping (sweeps up
+#: to 100 Hz see a 290–480 Hz mode only through its gain's rise, tuning.plant_from_model)
+FN_SPREAD_FLOOR = 0.03
+ZETA_SPREAD_FLOOR = 1.5
+
+
+def mode_spread(fns_hz, zetas) -> ModeSpread | None:
+    """``ModeSpread`` of the finite identified frequencies ``fns_hz`` (Hz) and damping ratios ``zetas``
+    (None without a finite frequency)."""
+    fns = [float(f) for f in fns_hz if f is not None and np.isfinite(f)]
+    zs = [float(z) for z in zetas if z is not None and np.isfinite(z) and z > 0]
+    if not fns or not zs:
+        return None
+    lo, hi = min(fns), max(fns)
+    centre = np.sqrt(lo * hi)
+    lo, hi = min(lo, centre * (1 - FN_SPREAD_FLOOR)), max(hi, centre * (1 + FN_SPREAD_FLOOR))
+    zc = np.sqrt(min(zs) * max(zs))
+    return ModeSpread((lo, hi), (min(min(zs), zc / ZETA_SPREAD_FLOOR), max(max(zs), zc * ZETA_SPREAD_FLOOR)))
+
+
+@dataclass(frozen=True)
 class LearningPrediction:
     """Predicted per-period convergence factor of the ILC on one axis (< 1: the learnable error falls
-    by at least this factor per period at every harmonic, for any gain in the band), the harmonic
-    (0..K) where it is worst, and the largest learning gain γ that keeps it below ``LIMIT`` (0 when
-    no γ converges: the ratio's phase passes 90° somewhere)."""
+    by at least this factor per period at every learned harmonic, for any gain in the band and any
+    mode in the spread), the harmonic (0..K) where it is worst, the largest learning gain γ that keeps
+    it below ``LIMIT`` (0 when no γ converges: the ratio's phase passes 90° somewhere); ``expected``:
+    the median factor at the fundamental over the band and spread (what a run's error decay per period
+    should show, ``measured_factor``); ``harmonics``: the harmonics 0..K the robustness filter lets
+    learn (those whose worst factor is below ``ROBUST_LIMIT``), ``cut_hz`` the first one it cuts."""
 
     axis: str
     factor: float
     worst_harmonic: int
     gain: float
     max_gain: float
+    expected: float = float("nan")
+    harmonics: int = -1
+    cut_hz: float | None = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -61,20 +103,29 @@ def closed_loop_um_per_v(plant: AxisPlant, pid: tuple | None, f_hz: np.ndarray) 
 
 
 def gain_ratios(
-    plant: AxisPlant, pid: tuple | None, frequency_hz: float, harmonics: int, share: float = MINOR_LOOP_SHARE
+    plant: AxisPlant,
+    pid: tuple | None,
+    frequency_hz: float,
+    harmonics: int,
+    share: float = MINOR_LOOP_SHARE,
+    spread: ModeSpread | None = None,
 ) -> np.ndarray:
-    """G/Ĝ (harmonics+1, BAND_POINTS²): the closed loop at each plant gain of the band over the one
-    at each other, per harmonic 0..K of ``frequency_hz``."""
+    """G/Ĝ (harmonics+1, BAND_POINTS² × modes): the closed loop at each plant gain of the band over
+    the one at each other, per harmonic 0..K of ``frequency_hz``, on ``plant``'s mode or on each mode
+    of ``spread`` (Ĝ is measured on the same stage as G: one mode per ratio, wherever it is)."""
     f = frequency_hz * np.arange(harmonics + 1)
     gains = plant.gain_um_per_v * np.linspace(share, 1.0, BAND_POINTS)
-    t = np.stack(
-        [
-            closed_loop_um_per_v(AxisPlant(g, plant.resonance_hz, plant.damping_ratio, plant.delay_s), pid, f)
-            for g in gains
-        ],
-        axis=1,
-    )  # (K+1, band)
-    return (t[:, :, None] / t[:, None, :]).reshape(len(f), -1)
+    out = []
+    for mode in [plant] if spread is None else spread.plants(plant):
+        t = np.stack(
+            [
+                closed_loop_um_per_v(AxisPlant(g, mode.resonance_hz, mode.damping_ratio, mode.delay_s), pid, f)
+                for g in gains
+            ],
+            axis=1,
+        )  # (K+1, band)
+        out.append((t[:, :, None] / t[:, None, :]).reshape(len(f), -1))
+    return np.concatenate(out, axis=1)
 
 
 def factors(gain: float, ratios: np.ndarray, latency_periods: int = 0) -> np.ndarray:
@@ -90,6 +141,23 @@ def factors(gain: float, ratios: np.ndarray, latency_periods: int = 0) -> np.nda
     return np.maximum(np.abs(0.5 * (1 + root)), np.abs(0.5 * (1 - root)))
 
 
+#: the robustness filter's corner over the top of the mode's spread: above it the identification (sweeps up
+#: to 100 Hz, the harmonics of their loops) holds no evidence of the plant, the learning filter's inverse
+#: gain grows as f², and learning there made the 200 Hz ellipse diverge on the default bench (K = 20:
+#: 0.85–33 % relative error from run to run; K = 5: 0.27 %, the error at the gauge noise)
+Q_OVER_MODE = 2.0
+
+
+def evidence_harmonics(spread: ModeSpread, frequency_hz: float) -> int:
+    """The harmonics of ``frequency_hz`` up to Q_OVER_MODE × the top of the mode's ``spread`` (at least 1)."""
+    return max(1, int(np.floor(Q_OVER_MODE * spread.fn_hz[1] / frequency_hz)))
+
+
+#: the robustness filter lets a harmonic learn only while its worst factor over the band and the
+#: mode's spread stays below this (a margin from LIMIT, where the learning would stop converging)
+ROBUST_LIMIT = 0.98
+
+
 def predict_learning(
     axis: str,
     plant: AxisPlant | None,
@@ -99,19 +167,36 @@ def predict_learning(
     harmonics: int,
     latency_periods: int = 0,
     share: float = MINOR_LOOP_SHARE,
+    spread: ModeSpread | None = None,
 ) -> LearningPrediction:
     """``LearningPrediction`` of learning gain ``gain`` on harmonics 0..``harmonics`` of ``frequency_hz``
-    around ``plant`` under ``pid`` (see the module doc), corrections applied ``latency_periods`` late.
+    around ``plant`` under ``pid`` (see the module doc), corrections applied ``latency_periods`` late,
+    over the mode's ``spread`` when given (then the robustness filter cuts the harmonics from the first
+    whose worst factor reaches ROBUST_LIMIT; the fundamental is never cut, its factor is judged).
     Without a PID the plant may be None (the band's ratios are then share..1/share at every harmonic)."""
     if pid is None:
         r = np.array([share, 1.0 / share])[None, :].repeat(harmonics + 1, axis=0).astype(complex)
     elif plant is None:
         raise ValueError("a PID's closed loop needs the axis's plant")
     else:
-        r = gain_ratios(plant, pid, frequency_hz, harmonics, share)
-    per_k = np.max(factors(gain, r, latency_periods), axis=1)
-    k = int(np.argmax(per_k))
-    return LearningPrediction(axis, float(per_k[k]), k, float(gain), max_learning_gain(r, latency_periods))
+        r = gain_ratios(plant, pid, frequency_hz, harmonics, share, spread)
+    all_f = factors(gain, r, latency_periods)
+    per_k = np.max(all_f, axis=1)
+    kept = harmonics
+    if spread is not None:
+        over = np.flatnonzero(per_k[2:] >= ROBUST_LIMIT)
+        kept = min(harmonics if over.size == 0 else int(over[0]) + 1, evidence_harmonics(spread, frequency_hz))
+    k = int(np.argmax(per_k[: kept + 1]))
+    return LearningPrediction(
+        axis,
+        float(per_k[k]),
+        k,
+        float(gain),
+        max_learning_gain(r[: kept + 1], latency_periods),
+        expected=float(np.median(all_f[min(1, harmonics)])),
+        harmonics=kept,
+        cut_hz=None if kept == harmonics else float(frequency_hz * (kept + 1)),
+    )
 
 
 #: learning gains scanned for the largest one that converges
@@ -156,10 +241,17 @@ def learning_refusal(predictions: list[LearningPrediction]) -> tuple[str, str] |
 
 
 def predict_plan(
-    plants: dict, gains: dict | None, gain: float, frequency_hz: float, harmonics: int, latency_periods: int = 0
+    plants: dict,
+    gains: dict | None,
+    gain: float,
+    frequency_hz: float,
+    harmonics: int,
+    latency_periods: int = 0,
+    spreads: dict | None = None,
 ) -> list[LearningPrediction]:
     """One ``LearningPrediction`` per axis of ``plants`` (axis → AxisPlant or None) under ``gains``
-    (axis → (kp, ki, kd, tf_s), or None without PID). ValueError when a PID axis has no plant."""
+    (axis → (kp, ki, kd, tf_s), or None without PID), over each axis's mode spread of ``spreads``
+    (axis → ModeSpread or None). ValueError when a PID axis has no plant."""
     out = []
     for axis, plant in plants.items():
         pid = None if gains is None else gains.get(axis)
@@ -168,8 +260,30 @@ def predict_plan(
                 f"the {axis.upper()} learning cannot be predicted under a PID without the axis's plant "
                 f"(give controller.feedforward_model_{axis})"
             )
-        out.append(predict_learning(axis, plant, pid, gain, frequency_hz, harmonics, latency_periods))
+        spread = (spreads or {}).get(axis)
+        out.append(predict_learning(axis, plant, pid, gain, frequency_hz, harmonics, latency_periods, spread=spread))
     return out
+
+
+#: a run's error decay is read while the error per period is above this multiple of its floor (the
+#: median of its last FLOOR_PERIODS periods): below it the noise and unlearnable harmonics dominate
+DECAY_ABOVE_FLOOR = 3.0
+FLOOR_PERIODS = 10
+
+
+def measured_factor(error_per_period_um) -> float | None:
+    """The convergence factor a run showed: the geometric mean per-period ratio of its error (RMS per
+    period, from the first learning period) while it stays above DECAY_ABOVE_FLOOR × its floor; None
+    when fewer than two periods are above it (nothing to learn, or too short a run)."""
+    e = np.asarray(error_per_period_um, dtype=float)
+    if e.size < FLOOR_PERIODS + 2:
+        return None
+    floor = float(np.median(e[-FLOOR_PERIODS:]))
+    below = np.flatnonzero(e <= DECAY_ABOVE_FLOOR * floor)
+    last = int(below[0]) - 1 if below.size else e.size - 1
+    if last < 1:
+        return None
+    return float((e[last] / e[0]) ** (1.0 / last))
 
 
 def learning_diagnosis(ilc, report: dict | None) -> str:

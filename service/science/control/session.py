@@ -11,9 +11,10 @@ import numpy as np
 
 from drivers.bench import Bench
 from service.science import paper
+from service.science.control.demand import VOLTAGE_TOLERANCE_V, demand_refusal, predict_demand
 from service.science.control.feedforward import INVERSE_TOLERANCE_SHARE, feedforward_v, inverse_miss_um
 from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
-from service.science.control.ilc_stability import learning_diagnosis
+from service.science.control.ilc_stability import learning_diagnosis, measured_factor
 from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, Tracker, TrackRecord
 from service.science.control.periodic_inverse import periodic_drive_v
 from service.science.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
@@ -41,12 +42,21 @@ class Controller:
     ilc: bool = False
     ilc_gain: float = 0.2
     ilc_harmonics: int = 20
+    #: axis → the highest harmonic that axis learns (the robustness filter, ilc_stability.predict_learning); None: all
+    ilc_axis_harmonics: dict | None = None
     #: the PID's choice and predicted margins (service.science.control.gains.choose_pid), for the result
     pid_report: dict | None = None
     #: the ILC's predicted convergence per axis (service.science.control.ilc_stability), for the result
     ilc_report: dict | None = None
     #: run a range beyond the stroke anyway (commands clamped at the axis's limits; the reason becomes a warning)
     allow_saturation: bool = False
+    #: axis → the feedforward model's identified flexure mode (Hz, damping ratio) or None
+    modes: dict = field(default_factory=dict)
+    #: the axes whose feedforward inverts the identified mode (service.science.control.tuning.feedforward_inverts_mode):
+    #: their drive's demand is predicted (service.science.control.demand) instead of the 0.5 × f_r rule
+    mode_axes: frozenset = frozenset()
+    #: per axis, the predicted demand of the planned drive (``AxisDemand.as_dict``), for the result
+    demand: dict | None = None
     #: (reference, feedforward V, warnings) as ``plan`` made them where the request was checked, so that
     #: the bench's process does not compute the drive again (seconds for a long run, the stop port waiting)
     planned: tuple[Reference, np.ndarray | None, list[str]] | None = None
@@ -152,6 +162,30 @@ def converged_drive(model, axis: str, column: int, u_v: np.ndarray, ref: Referen
     )
 
 
+def check_demand(bench: Bench, ref: Reference, u_ff: np.ndarray, frequency_hz: float, controller: Controller) -> None:
+    """Predict the demand (service.science.control.demand) of the mode-inverting drive on each axis of
+    ``controller.mode_axes`` into ``controller.demand``; refuse (``frequency_hz``) one beyond the
+    amplifier's current or slew limits, or the voltage limits (unless ``allow_saturation``)."""
+    demands = [
+        predict_demand(
+            axis,
+            bench.limits[axis],
+            ref.x_um[ref.steady, i],
+            u_ff[ref.steady, i],
+            controller.modes.get(axis),
+            frequency_hz,
+            ref.period,
+            SAMPLE_RATE_HZ,
+        )
+        for i, axis in enumerate(bench.axes)
+        if axis in controller.mode_axes
+    ]
+    controller.demand = {d.axis: d.as_dict() for d in demands}
+    why = demand_refusal(demands, frequency_hz, np.inf if controller.allow_saturation else VOLTAGE_TOLERANCE_V)
+    if why:
+        raise ControlRefused("frequency_hz", why)
+
+
 def plan(
     bench: Bench, ellipse: Ellipse, controller: Controller, mode: str, warnings: list[str] | None = None
 ) -> tuple[Reference, np.ndarray | None]:
@@ -170,7 +204,8 @@ def plan(
             if model is not None:
                 u = feedforward_v(model, ref.x_um[:, i], SAMPLE_RATE_HZ, v_limits=(-np.inf, np.inf))
                 u_ff[:, i] = converged_drive(model, axis, i, u, ref, ellipse.frequency_hz)
-        check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady)
+        check_trajectory(bench, ref.x_um, u_ff, ellipse.frequency_hz, steady=steady, mode_axes=controller.mode_axes)
+        check_demand(bench, ref, u_ff, ellipse.frequency_hz, controller)
         reasons, soft = check_stroke(
             bench,
             {"y": ellipse.y_range_um, "z": ellipse.z_range_um},
@@ -225,7 +260,14 @@ def track(
             controller.pid,
             amplitude_v=10.0 if controller.pid is None else 4.0,
         )
-        ilc = HarmonicILC(g, ref.period, gain=controller.ilc_gain, noise_var_um2=noise_var)
+        tops = controller.ilc_axis_harmonics or {}
+        ilc = HarmonicILC(
+            g,
+            ref.period,
+            gain=controller.ilc_gain,
+            noise_var_um2=noise_var,
+            learned_harmonics=[tops.get(axis, controller.ilc_harmonics) for axis in bench.axes],
+        )
     t0, c0 = time.perf_counter(), time.process_time()
     rec = Tracker(bench, ref, u_ff, mode=mode, pid=controller.pid, ilc=ilc).run(on_period, should_stop)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -244,7 +286,10 @@ def track(
         "warnings": warnings,
         "pid": controller.pid_report,
         "ilc": controller.ilc_report,
+        "demand": controller.demand,
     }
+    if ilc is not None and controller.ilc_report is not None:
+        result["ilc"] = {**controller.ilc_report, "measured_factor": measured_factor(rec.error_per_period_um)}
     if rec.tripped and ilc is not None:
         result["tripped"] = f"{rec.tripped}; {learning_diagnosis(ilc, controller.ilc_report)}"
     if rec.tripped is None and not rec.stopped:

@@ -1,0 +1,74 @@
+"""The demand a tracking run puts on the hardware, predicted before it runs (issue 41,
+service.science.control.demand), and the learning's robustness filter over the identified mode's
+spread (service.science.control.ilc_stability)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.interfaces import AxisLimits
+from service.science.control.demand import demand_refusal, predict_demand
+from service.science.control.ilc_stability import (
+    ROBUST_LIMIT,
+    measured_factor,
+    mode_spread,
+    predict_learning,
+)
+from service.science.control.stability import AxisPlant
+
+FS = 20_000.0
+#: the default bench's Z channel: 0–150 V stack, 200 kV/s, 0.2 A into 1.8 µF, mode 290.7 Hz
+Z_LIMITS = AxisLimits(0.0, 150.0, 2.0e5, 0.2, 1.8e-6, 290.7)
+Z_MODE = (290.7, 0.1)
+
+
+def _periods(frequency_hz: float, amplitude_v: float, periods: int = 4):
+    period = int(round(FS / frequency_hz))
+    t = np.arange(periods * period) / FS
+    return period, 60.0 + amplitude_v * np.sin(2 * np.pi * frequency_hz * t)
+
+
+def test_the_current_is_c_du_dt_of_the_drive_and_each_harmonic_to_the_mode_is_listed():
+    period, u = _periods(200.0, 30.0)
+    x = 5.0 + 4.0 * np.sin(2 * np.pi * 200.0 * np.arange(u.size) / FS)
+    d = predict_demand("z", Z_LIMITS, x, u, Z_MODE, 200.0, period, FS)
+    assert d.peak_current_a == pytest.approx(1.8e-6 * 2 * np.pi * 200.0 * 30.0, rel=0.01)  # 68 mA
+    assert [h["k"] for h in d.harmonics] == [1, 2]  # 2 × 200 Hz ≥ 1.25 × 290.7 Hz
+    r = 200.0 / 290.7
+    assert d.harmonics[0]["mode_gain"] == pytest.approx(1 / abs(1 - r * r + 0.2j * r), rel=1e-9)
+    assert d.harmonics[0]["drive_v"] == pytest.approx(30.0, rel=1e-6)
+    assert d.harmonics[0]["reference_um"] == pytest.approx(4.0, rel=1e-6)
+    assert d.exceeded() == [] and demand_refusal([d], 200.0) is None
+
+
+def test_a_drive_beyond_the_current_or_voltage_limit_is_refused_with_the_figure_and_by_how_much():
+    period, u = _periods(400.0, 45.0)  # 2π·400·45·1.8 µF = 204 mA > 0.9 × 200 mA
+    d = predict_demand("z", Z_LIMITS, u / 10, u, Z_MODE, 400.0, period, FS)
+    why = demand_refusal([d], 400.0)
+    assert "axis z: peak current 203 mA" in why and "(180 mA) by 13 %" in why
+    period, u = _periods(50.0, 95.0)  # -35…155 V
+    why = demand_refusal([predict_demand("z", Z_LIMITS, u / 10, u, Z_MODE, 50.0, period, FS)], 50.0)
+    assert "drive -35.0–155.0 V leaves the axis's 0–150 V limits by 35.0 V" in why
+    assert demand_refusal([predict_demand("z", Z_LIMITS, u / 10, u, Z_MODE, 50.0, period, FS)], 50.0, np.inf) is None
+
+
+def test_the_mode_spread_widens_the_prediction_and_the_filter_cuts_harmonics_that_would_not_converge():
+    spread = mode_spread([290.7, 297.3], [0.02, 0.113])
+    assert spread.fn_hz[0] < 290.7 and spread.fn_hz[1] > 297.3 and spread.zeta == (0.02, 0.113)
+    plant = AxisPlant(0.0872, 290.7, 0.02, 125e-6)
+    pid = (0.4189, 121.5, 3.627e-4, 2e-4)
+    nominal = predict_learning("z", plant, pid, 0.2, 200.0, 20)
+    robust = predict_learning("z", plant, pid, 0.2, 200.0, 20, spread=spread)
+    assert robust.factor >= nominal.factor - 1e-12 and robust.factor < ROBUST_LIMIT
+    assert robust.expected == pytest.approx(0.8, abs=0.05)  # the median at the fundamental: 1 − γ
+    # a learning gain that harmonic 2 (400 Hz, past the mode) would not converge at over the spread:
+    # the filter learns the fundamental only (measured: 1.00 at 400 Hz, 0.76 at 200 Hz)
+    fast = predict_learning("z", plant, pid, 0.65, 200.0, 20, spread=spread)
+    assert fast.harmonics == 1 and fast.cut_hz == pytest.approx(400.0) and fast.factor < 0.8
+
+
+def test_the_measured_factor_is_the_decay_of_the_error_above_its_floor():
+    e = list(100.0 * 0.75 ** np.arange(12)) + [3.0] * 12
+    assert measured_factor(e) == pytest.approx(0.75, abs=1e-9)
+    assert measured_factor([3.0] * 30) is None
