@@ -138,10 +138,12 @@ def predict_demand(
 
 
 def demand_refusal(
-    demands: list[AxisDemand], frequency_hz: float, voltage_tolerance_v: float = VOLTAGE_TOLERANCE_V
+    demands: list[AxisDemand], frequency_hz: float, voltage_tolerance_v=VOLTAGE_TOLERANCE_V
 ) -> str | None:
-    """Why the hardware cannot run this trajectory (the axes, figures, limits and by how much), or None."""
-    said = {d.axis: d.exceeded(voltage_tolerance_v) for d in demands}
+    """Why the hardware cannot run this trajectory (the axes, figures, limits and by how much), or None.
+    ``voltage_tolerance_v``: V, or axis → V (inf: that axis's voltage is not judged here)."""
+    tol = voltage_tolerance_v if isinstance(voltage_tolerance_v, dict) else {}
+    said = {d.axis: d.exceeded(tol.get(d.axis, voltage_tolerance_v) if tol else voltage_tolerance_v) for d in demands}
     parts = [f"axis {axis}: " + "; ".join(why) for axis, why in said.items() if why]
     if not parts:
         return None

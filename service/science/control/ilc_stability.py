@@ -273,17 +273,19 @@ FLOOR_PERIODS = 10
 
 def measured_factor(error_per_period_um) -> float | None:
     """The convergence factor a run showed: the geometric mean per-period ratio of its error (RMS per
-    period, from the first learning period) while it stays above DECAY_ABOVE_FLOOR × its floor; None
-    when fewer than two periods are above it (nothing to learn, or too short a run)."""
+    period) from its second learning period while it stays above DECAY_ABOVE_FLOOR × its floor; None
+    when fewer than two periods are above it (nothing to learn, or too short a run). The first step is
+    left out: it learns through G₀, measured with a 4 V multisine whose minor loops have a smaller gain
+    than the trajectory's; from the second on, Ĝ is refined from the run itself (service.science.control.ilc)."""
     e = np.asarray(error_per_period_um, dtype=float)
-    if e.size < FLOOR_PERIODS + 2:
+    if e.size < FLOOR_PERIODS + 3:
         return None
     floor = float(np.median(e[-FLOOR_PERIODS:]))
     below = np.flatnonzero(e <= DECAY_ABOVE_FLOOR * floor)
     last = int(below[0]) - 1 if below.size else e.size - 1
-    if last < 1:
+    if last < 2:
         return None
-    return float((e[last] / e[0]) ** (1.0 / last))
+    return float((e[last] / e[1]) ** (1.0 / (last - 1)))
 
 
 def learning_diagnosis(ilc, report: dict | None) -> str:

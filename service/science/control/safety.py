@@ -69,8 +69,9 @@ def check_trajectory(
     current, slew or frequency the amplifier and flexure cannot take (Bench.check_sine, at the
     feedforward's Vpp or, without one, the full range). Voltages are checked over ``steady`` samples
     (the start ramp may ask for less than 0 V near 0 µm; the clamp holds it at 0 V). The axes of
-    ``mode_axes`` have a feedforward that inverts their identified mode: their current and slew are
-    judged on the drive itself (service.science.control.demand), not by the sine rule of thumb."""
+    ``mode_axes`` have a feedforward that inverts their identified mode: their voltage, current and
+    slew are judged on the drive itself (service.science.control.demand, then ``check_stroke``), not by
+    the sine rule of thumb."""
     for i, axis in enumerate(bench.axes):
         field = f"{axis}_range_um"
         lo, hi = bench.parts.sensors[axis].range_um
@@ -79,6 +80,8 @@ def check_trajectory(
             raise ControlRefused(field, f"{axis} reference reaches {top:.2f} µm; the gauge reads {lo:g}–{hi:g} µm")
         v_min, v_max = bench.limits[axis].v_min_v, bench.limits[axis].v_max_v
         vpp = v_max - v_min
+        if axis in mode_axes and u_ff_v is not None:
+            continue
         if u_ff_v is not None:
             u = u_ff_v[steady, i]
             slack = vpp * (VOLTAGE_MARGIN - 1)
@@ -89,8 +92,6 @@ def check_trajectory(
                     f"feedforward model; the actuator limit is {v_min:g}–{v_max:g} V",
                 )
             vpp = max(float(np.ptp(u)), 1.0)
-        if axis in mode_axes and u_ff_v is not None:
-            continue
         try:
             bench.check_sine(axis, vpp, frequency_hz)
         except LimitError as exc:

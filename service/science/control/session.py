@@ -17,7 +17,13 @@ from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
 from service.science.control.ilc_stability import learning_diagnosis, measured_factor
 from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, Tracker, TrackRecord
 from service.science.control.periodic_inverse import periodic_drive_v
-from service.science.control.safety import ControlRefused, check_mode, check_stroke, check_trajectory
+from service.science.control.safety import (
+    ControlRefused,
+    check_mode,
+    check_stroke,
+    check_trajectory,
+    model_stroke_um,
+)
 from service.science.control.trajectory import Ellipse, Reference, reference
 from service.science.data.units import fmt_nm
 from service.science.fitting.metrics import rms
@@ -162,6 +168,18 @@ def converged_drive(model, axis: str, column: int, u_v: np.ndarray, ref: Referen
     )
 
 
+def voltage_tolerance_v(bench: Bench, ref: Reference, controller: Controller, axis: str) -> float:
+    """How far (V) the drive may leave ``axis``'s voltage limits before the demand check refuses it on
+    ``frequency_hz``: VOLTAGE_TOLERANCE_V when the range fits the axis's quasi-static stroke (so it is the
+    frequency that needs the voltage), inf when it does not (``check_stroke`` refuses the range) or when
+    ``allow_saturation`` clamps it."""
+    if controller.allow_saturation:
+        return np.inf
+    model = controller.feedforward[axis]
+    top = float(np.max(ref.x_um[ref.steady, bench.axes.index(axis)]))
+    return VOLTAGE_TOLERANCE_V if model_stroke_um(model, SAMPLE_RATE_HZ, bench.limits[axis].v_max_v) >= top else np.inf
+
+
 def check_demand(bench: Bench, ref: Reference, u_ff: np.ndarray, frequency_hz: float, controller: Controller) -> None:
     """Predict the demand (service.science.control.demand) of the mode-inverting drive on each axis of
     ``controller.mode_axes`` into ``controller.demand``; refuse (``frequency_hz``) one beyond the
@@ -181,7 +199,8 @@ def check_demand(bench: Bench, ref: Reference, u_ff: np.ndarray, frequency_hz: f
         if axis in controller.mode_axes
     ]
     controller.demand = {d.axis: d.as_dict() for d in demands}
-    why = demand_refusal(demands, frequency_hz, np.inf if controller.allow_saturation else VOLTAGE_TOLERANCE_V)
+    tolerance = {d.axis: voltage_tolerance_v(bench, ref, controller, d.axis) for d in demands}
+    why = demand_refusal(demands, frequency_hz, tolerance)
     if why:
         raise ControlRefused("frequency_hz", why)
 

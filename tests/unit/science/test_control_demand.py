@@ -72,3 +72,24 @@ def test_the_measured_factor_is_the_decay_of_the_error_above_its_floor():
     e = list(100.0 * 0.75 ** np.arange(12)) + [3.0] * 12
     assert measured_factor(e) == pytest.approx(0.75, abs=1e-9)
     assert measured_factor([3.0] * 30) is None
+
+
+@pytest.mark.parametrize("share", [0.9, 1.1])
+def test_the_predicted_current_is_the_emulators_own_and_the_amplifier_trips_beyond_it(share):
+    """The emulated amplifier (Z, 0.2 A into 1.8 µF) latches an over-current fault when its drive needs
+    more current than its limit for 5 ms, and not below it: as the demand predicts."""
+    from drivers.factory import open_bench
+
+    bench = open_bench("default", seed=3)
+    try:
+        amp, lim = bench.parts.amplifiers["z"], bench.limits["z"]
+        f = share * lim.current_limit_a / (lim.capacitance_f * 2 * np.pi * 40.0)  # 40 V amplitude
+        t = np.arange(int(0.05 * FS)) / FS
+        u = 40.0 - 40.0 * np.cos(2 * np.pi * f * t)  # from rest, 0–80 V
+        period = int(round(FS / f))
+        d = predict_demand("z", lim, u / 10, u, Z_MODE, f, period, FS)
+        assert d.peak_current_a == pytest.approx(share * lim.current_limit_a, rel=0.01)
+        bench.parts.daq.write_read(np.column_stack([np.zeros_like(u), u / amp.gain_v_per_v]))
+        assert amp.status().fault == (d.peak_current_a > lim.current_limit_a)
+    finally:
+        bench.close()
