@@ -17,7 +17,15 @@ from service.science.control.feedforward import SWEEP_FREQUENCIES_HZ, drive_span
 from service.science.control.gains import choose_pid
 from service.science.control.ilc_stability import learning_refusal, mode_spread, predict_plan
 from service.science.control.loop import QUEUED_BLOCKS, StopRequested, TrackRecord
-from service.science.control.session import PAPER_PID, SAMPLE_RATE_HZ, Controller, plan, trace_arrays, track_plan
+from service.science.control.session import (
+    PAPER_PID,
+    SAMPLE_RATE_HZ,
+    Controller,
+    plan,
+    trace_arrays,
+    track_plan,
+    trajectory_gains,
+)
 from service.science.control.trajectory import RAMP_PERIODS, Ellipse, reference
 from service.science.control.tuning import TUNED_PID, bench_plants, feedforward_inverts_mode, identified_mode
 from service.science.errors import FieldError
@@ -105,27 +113,9 @@ def build_controller(
     ilc_report, harmonics, axis_harmonics = None, controller["ilc_harmonics"], None
     if controller["ilc"]:
         spreads = {ax: plant_spread(plants[ax], modes.get(ax)) for ax in damped}
-        try:
-            predicted = predict_plan(
-                plants,
-                gains,
-                controller["ilc_gain"],
-                frequency_hz,
-                harmonics,
-                latency_periods=0 if mode == "point_by_point" else QUEUED_BLOCKS - 1,
-                spreads=spreads,
-            )
-        except ValueError as exc:
-            raise FieldError("controller.ilc", str(exc)) from None
-        axis_harmonics = {p.axis: p.harmonics for p in predicted if p.harmonics >= 0}
-        if len(axis_harmonics) == len(predicted):
+        ilc_report, axis_harmonics = predict_learning_report(plants, gains, controller, frequency_hz, mode, spreads)
+        if len(axis_harmonics) == len(plants):
             harmonics = max(axis_harmonics.values())
-        ilc_report = {
-            "axes": {p.axis: p.as_dict() for p in predicted},
-            "spread": {ax: None if sp is None else asdict(sp) for ax, sp in spreads.items()},
-            "harmonics": axis_harmonics,
-            "refusal": learning_refusal(predicted),
-        }
     return Controller(
         feedforward=models,
         pid=pid,
@@ -139,6 +129,34 @@ def build_controller(
         modes=modes,
         mode_axes=damped,
     )
+
+
+def predict_learning_report(
+    plants: dict, gains: dict | None, controller: dict, frequency_hz: float, mode: str, spreads: dict
+) -> tuple[dict, dict]:
+    """(the learning's report, axis → the highest harmonic it learns) for the request's ``controller``:
+    the convergence predicted over each axis's mode ``spreads`` (ilc_stability.predict_plan).
+    FieldError on ``controller.ilc`` when it cannot be predicted."""
+    try:
+        predicted = predict_plan(
+            plants,
+            gains,
+            controller["ilc_gain"],
+            frequency_hz,
+            controller["ilc_harmonics"],
+            latency_periods=0 if mode == "point_by_point" else QUEUED_BLOCKS - 1,
+            spreads=spreads,
+        )
+    except ValueError as exc:
+        raise FieldError("controller.ilc", str(exc)) from None
+    axis_harmonics = {p.axis: p.harmonics for p in predicted if p.harmonics >= 0}
+    report = {
+        "axes": {p.axis: p.as_dict() for p in predicted},
+        "spread": {ax: None if sp is None else asdict(sp) for ax, sp in spreads.items()},
+        "harmonics": axis_harmonics,
+        "refusal": learning_refusal(predicted),
+    }
+    return report, axis_harmonics
 
 
 def plant_spread(plant, identified: tuple[float, float] | None):
@@ -171,6 +189,8 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
         raise FieldError("body", str(exc)) from None
     if u_ff is not None:
         warnings.extend(extrapolated_loops(store, bench, controller, u_ff[ref.steady]))
+        if built.ilc:
+            built.trajectory_gain = trajectory_gains(bench, ref, u_ff, built)
     built.planned = (ref, u_ff, warnings)  # the run uses this drive: the engine computes nothing
     return built
 

@@ -72,7 +72,7 @@ class LearningPrediction:
     it below ``LIMIT`` (0 when no γ converges: the ratio's phase passes 90° somewhere); ``expected``:
     the median factor at the fundamental over the band and spread (what a run's error decay per period
     should show, ``measured_factor``); ``harmonics``: the harmonics 0..K the robustness filter lets
-    learn (those whose worst factor is below ``ROBUST_LIMIT``), ``cut_hz`` the first one it cuts."""
+    learn (up to ``evidence_harmonics``), ``cut_hz`` the first one it cuts."""
 
     axis: str
     factor: float
@@ -153,11 +153,6 @@ def evidence_harmonics(spread: ModeSpread, frequency_hz: float) -> int:
     return max(1, int(np.floor(Q_OVER_MODE * spread.fn_hz[1] / frequency_hz)))
 
 
-#: the robustness filter lets a harmonic learn only while its worst factor over the band and the
-#: mode's spread stays below this (a margin from LIMIT, where the learning would stop converging)
-ROBUST_LIMIT = 0.98
-
-
 def predict_learning(
     axis: str,
     plant: AxisPlant | None,
@@ -171,8 +166,8 @@ def predict_learning(
 ) -> LearningPrediction:
     """``LearningPrediction`` of learning gain ``gain`` on harmonics 0..``harmonics`` of ``frequency_hz``
     around ``plant`` under ``pid`` (see the module doc), corrections applied ``latency_periods`` late,
-    over the mode's ``spread`` when given (then the robustness filter cuts the harmonics from the first
-    whose worst factor reaches ROBUST_LIMIT; the fundamental is never cut, its factor is judged).
+    over the mode's ``spread`` when given (then the robustness filter keeps the harmonics up to
+    ``evidence_harmonics``; the factor is judged over those).
     Without a PID the plant may be None (the band's ratios are then share..1/share at every harmonic)."""
     if pid is None:
         r = np.array([share, 1.0 / share])[None, :].repeat(harmonics + 1, axis=0).astype(complex)
@@ -182,10 +177,7 @@ def predict_learning(
         r = gain_ratios(plant, pid, frequency_hz, harmonics, share, spread)
     all_f = factors(gain, r, latency_periods)
     per_k = np.max(all_f, axis=1)
-    kept = harmonics
-    if spread is not None:
-        over = np.flatnonzero(per_k[2:] >= ROBUST_LIMIT)
-        kept = min(harmonics if over.size == 0 else int(over[0]) + 1, evidence_harmonics(spread, frequency_hz))
+    kept = harmonics if spread is None else min(harmonics, evidence_harmonics(spread, frequency_hz))
     k = int(np.argmax(per_k[: kept + 1]))
     return LearningPrediction(
         axis,
@@ -263,6 +255,49 @@ def predict_plan(
         spread = (spreads or {}).get(axis)
         out.append(predict_learning(axis, plant, pid, gain, frequency_hz, harmonics, latency_periods, spread=spread))
     return out
+
+
+def trajectory_gain_um_per_v(model, u_drive_v: np.ndarray, steady: slice, fs: float) -> float:
+    """The identified ``model``'s gain (µm/V) along the planned drive ``u_drive_v`` over its ``steady``
+    samples: the slope of its stack (before the mode and the delay) against the drive, least squares."""
+    u = np.asarray(u_drive_v, dtype=float)
+    stack = np.asarray(model.stack_demand_um(model.predict(u, sample_rate_hz=fs), fs), dtype=float)[steady]
+    e = u[steady] - np.mean(u[steady])
+    return float(np.dot(e, stack - stack.mean()) / max(float(np.dot(e, e)), 1e-30))
+
+
+def prior_scale(
+    g0: np.ndarray, frequency_hz: float, pid: tuple | None, trajectory_gain: float, mode: tuple | None
+) -> float:
+    """κ: the stack's gain along the trajectory (``trajectory_gain`` µm/V, ``trajectory_gain_um_per_v``)
+    over its gain under the response measurement's small probe, read off the measured G₀ (K+1,) at the
+    fundamental of ``frequency_hz``: the plant P = T/(1 − C·T) under ``pid``, less the identified
+    ``mode``'s (Hz, ζ) gain. The probe's small minor loops see a third to a half of the trajectory's
+    gain (MINOR_LOOP_SHARE; measured on the default bench at 100 Hz: G₀ 0.031 µm/V on Y, the run's
+    refined Ĝ 0.065): the learning's prior is scaled by κ (``scaled_response``). Within
+    [1, 1/MINOR_LOOP_SHARE]: a probe never sees more gain than the trajectory."""
+    f = np.array([float(frequency_hz)])
+    t = complex(g0[1])
+    p = t if pid is None else t / (1.0 - complex(controller_response(tuple(pid), f)[0]) * t)
+    m = 1.0 if mode is None else float(np.abs(plant_response(AxisPlant(1.0, mode[0], mode[1], 0.0), f))[0])
+    small = abs(p) / m
+    if not (small > 0 and trajectory_gain > 0):
+        return 1.0
+    return float(np.clip(trajectory_gain / small, 1.0, 1.0 / MINOR_LOOP_SHARE))
+
+
+def scaled_response(g: np.ndarray, frequency_hz: float, pid: tuple | None, kappa: float) -> np.ndarray:
+    """G₀ (K+1,) µm/V, the closed loop from the feedforward input to the gauge measured at harmonics
+    0..K of ``frequency_hz``, with the plant inside it scaled by ``kappa``: P = T/(1 − C·T),
+    T_κ = κP/(1 + κC·P) under ``pid`` (T_κ = κT without one); G(0) as |G(1)| (ilc.frf_from_periods)."""
+    t = np.asarray(g[1:], dtype=complex)
+    if pid is None:
+        out = kappa * t
+    else:
+        c = controller_response(tuple(pid), frequency_hz * np.arange(1, g.size))
+        p = t / (1.0 - c * t)
+        out = kappa * p / (1.0 + kappa * c * p)
+    return np.concatenate([[abs(out[0])], out]).astype(complex)
 
 
 #: a run's error decay is read while the error per period is above this multiple of its floor (the

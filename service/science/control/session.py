@@ -14,7 +14,13 @@ from service.science import paper
 from service.science.control.demand import VOLTAGE_TOLERANCE_V, demand_refusal, predict_demand
 from service.science.control.feedforward import INVERSE_TOLERANCE_SHARE, feedforward_v, inverse_miss_um
 from service.science.control.ilc import HarmonicILC, frf_from_periods, multisine
-from service.science.control.ilc_stability import learning_diagnosis, measured_factor
+from service.science.control.ilc_stability import (
+    learning_diagnosis,
+    measured_factor,
+    prior_scale,
+    scaled_response,
+    trajectory_gain_um_per_v,
+)
 from service.science.control.loop import SETTLE_S, PIDGains, StopRequested, Tracker, TrackRecord
 from service.science.control.periodic_inverse import periodic_drive_v
 from service.science.control.safety import (
@@ -63,6 +69,10 @@ class Controller:
     mode_axes: frozenset = frozenset()
     #: per axis, the predicted demand of the planned drive (``AxisDemand.as_dict``), for the result
     demand: dict | None = None
+    #: axis → the identified model's gain (µm/V) along the planned drive: the learning's prior, measured
+    #: with a small probe, is scaled to it (ilc_stability.prior_scale); the κ applied, for the result
+    trajectory_gain: dict | None = None
+    ilc_gain_scale: dict | None = None
     #: (reference, feedforward V, warnings) as ``plan`` made them where the request was checked, so that
     #: the bench's process does not compute the drive again (seconds for a long run, the stop port waiting)
     planned: tuple[Reference, np.ndarray | None, list[str]] | None = None
@@ -107,6 +117,20 @@ def measure_response(
     s = (ramp + 4) * period
     fits = [frf_from_periods(inj[s:, i], rec.x_um[s:n, i], period, harmonics) for i in range(2)]
     return np.stack([g for g, _ in fits]), np.array([var for _, var in fits])
+
+
+def probe_amplitude_v(controller: Controller) -> float:
+    """The peak (V) of the multisine that measures the learning's response: smaller under a PID."""
+    return 10.0 if controller.pid is None else 4.0
+
+
+def trajectory_gains(bench: Bench, ref: Reference, u_ff: np.ndarray, controller: Controller) -> dict:
+    """axis → the identified model's gain (µm/V) along the planned drive (ilc_stability.trajectory_gain_um_per_v)."""
+    return {
+        axis: trajectory_gain_um_per_v(controller.feedforward[axis], u_ff[:, i], ref.steady, SAMPLE_RATE_HZ)
+        for i, axis in enumerate(bench.axes)
+        if controller.feedforward.get(axis) is not None
+    }
 
 
 def metrics(rec: TrackRecord, ref: Reference, v_limits: np.ndarray, eval_periods: int = 5) -> dict:
@@ -277,8 +301,16 @@ def track(
             steady.mean(axis=0),
             mode,
             controller.pid,
-            amplitude_v=10.0 if controller.pid is None else 4.0,
+            amplitude_v=probe_amplitude_v(controller),
         )
+        controller.ilc_gain_scale = {}
+        for i, axis in enumerate(bench.axes):
+            gain = (controller.trajectory_gain or {}).get(axis)
+            if gain is not None:
+                pid = None if controller.pid is None else controller.pid[axis]
+                kappa = prior_scale(g[i], ellipse.frequency_hz, pid, gain, controller.modes.get(axis))
+                g[i] = scaled_response(g[i], ellipse.frequency_hz, pid, kappa)
+                controller.ilc_gain_scale[axis] = kappa
         tops = controller.ilc_axis_harmonics or {}
         ilc = HarmonicILC(
             g,
@@ -308,7 +340,11 @@ def track(
         "demand": controller.demand,
     }
     if ilc is not None and controller.ilc_report is not None:
-        result["ilc"] = {**controller.ilc_report, "measured_factor": measured_factor(rec.error_per_period_um)}
+        result["ilc"] = {
+            **controller.ilc_report,
+            "prior_scale": controller.ilc_gain_scale,
+            "measured_factor": measured_factor(rec.error_per_period_um),
+        }
     if rec.tripped and ilc is not None:
         result["tripped"] = f"{rec.tripped}; {learning_diagnosis(ilc, controller.ilc_report)}"
     if rec.tripped is None and not rec.stopped:

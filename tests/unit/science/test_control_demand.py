@@ -10,10 +10,12 @@ import pytest
 from drivers.interfaces import AxisLimits
 from service.science.control.demand import demand_refusal, predict_demand
 from service.science.control.ilc_stability import (
-    ROBUST_LIMIT,
+    closed_loop_um_per_v,
     measured_factor,
     mode_spread,
     predict_learning,
+    prior_scale,
+    scaled_response,
 )
 from service.science.control.stability import AxisPlant
 
@@ -60,12 +62,16 @@ def test_the_mode_spread_widens_the_prediction_and_the_filter_cuts_harmonics_tha
     pid = (0.4189, 121.5, 3.627e-4, 2e-4)
     nominal = predict_learning("z", plant, pid, 0.2, 200.0, 20)
     robust = predict_learning("z", plant, pid, 0.2, 200.0, 20, spread=spread)
-    assert robust.factor >= nominal.factor - 1e-12 and robust.factor < ROBUST_LIMIT
+    assert nominal.harmonics == 20 and nominal.cut_hz is None  # no spread: every harmonic asked for
+    # the robustness filter: harmonics up to 2 × the top of the spread (2 × 303 Hz: 3 × 200 Hz)
+    assert robust.harmonics == 3 and robust.cut_hz == pytest.approx(800.0)
+    assert robust.factor >= np.max(predict_learning("z", plant, pid, 0.2, 200.0, 3).factor) - 1e-12
+    assert robust.factor < 0.98
     assert robust.expected == pytest.approx(0.8, abs=0.05)  # the median at the fundamental: 1 − γ
     # a learning gain that harmonic 2 (400 Hz, past the mode) would not converge at over the spread:
-    # the filter learns the fundamental only (measured: 1.00 at 400 Hz, 0.76 at 200 Hz)
+    # the prediction says so (measured: 1.00 at 400 Hz), and the request is refused (learning_refusal)
     fast = predict_learning("z", plant, pid, 0.65, 200.0, 20, spread=spread)
-    assert fast.harmonics == 1 and fast.cut_hz == pytest.approx(400.0) and fast.factor < 0.8
+    assert fast.worst_harmonic == 2 and fast.factor >= 1.0
 
 
 def test_the_measured_factor_is_the_decay_of_the_error_above_its_floor():
@@ -93,3 +99,17 @@ def test_the_predicted_current_is_the_emulators_own_and_the_amplifier_trips_beyo
         assert amp.status().fault == (d.peak_current_a > lim.current_limit_a)
     finally:
         bench.close()
+
+
+def test_the_learning_prior_is_scaled_to_the_trajectorys_gain_through_the_closed_loop():
+    """G₀ measured with a small probe sees the stack's small-signal gain; the prior becomes the closed
+    loop around the trajectory's gain (κ = 2 here): exactly T at twice the plant's gain."""
+    pid = (0.4189, 121.5, 3.627e-4, 2e-4)
+    small, mode = AxisPlant(0.04, 290.7, 0.1, 125e-6), (290.7, 0.1)
+    f = 150.0 * np.arange(6)
+    g0 = closed_loop_um_per_v(small, pid, f)
+    kappa = prior_scale(g0, 150.0, pid, 0.08, mode)
+    assert kappa == pytest.approx(2.0, rel=0.01)  # |e^(−sτ)| = 1: only the mode's gain is taken out
+    large = closed_loop_um_per_v(AxisPlant(0.08, 290.7, 0.1, 125e-6), pid, f)
+    assert np.allclose(scaled_response(g0, 150.0, pid, kappa)[1:], large[1:], rtol=0.01)
+    assert prior_scale(g0, 150.0, pid, 0.01, mode) == 1.0  # never below the probe's
