@@ -173,13 +173,14 @@ def test_a_report_row_through_the_api_has_the_report_figures(tmp_path):
 
 
 def test_a_forced_diverging_plan_trips_to_0v_and_says_why(case2):
-    """``force`` runs the refused plan: issue 6's gains + ILC trip (measured: 132.1 ms, sensor range,
-    the error 43 → 587 nm RMS per period over 10 periods after one revert), and the job's error names
-    the learning's course and its predicted factor (Y 7.08)."""
+    """``force`` runs the refused plan: issue 6's gains + ILC trip to 0 V, and the job's error names the
+    learning's course and its predicted factor. Learning gain 1.0: the learning's prior is scaled to the
+    trajectory's gain (about 2× the probe's, ilc_stability.prior_scale) and built on that closed loop,
+    so at 0.2 and 0.4 this plan no longer trips within 30 periods (measured); at 1.0 it does."""
     post, ff = case2
     job = post(
         "/api/trajectories",
-        {**CASE2, "cycles": 30, "controller": {**_ff(ff), "pid": SCANNED, "ilc": True, "force": True}},
+        {**CASE2, "cycles": 30, "controller": {**_ff(ff), "pid": SCANNED, "ilc": True, "ilc_gain": 1.0, "force": True}},
     )
     assert job["state"] == "failed", job
     assert "output set to 0 V" in job["error"] and "the ILC had learned for" in job["error"]
