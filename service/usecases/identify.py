@@ -20,15 +20,12 @@ from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.discovery.registry import MODELS, model_for, model_from_dict
-from service.science.effects import EFFECT_NAMES, ordered
+from service.science.effects import effect_names, ordered
 from service.science.errors import FieldError
 from service.science.fitting.memory import memory_shortfall
 from service.science.fitting.validation import evaluate_record, trained_loops_v
 from service.science.fitting.validation import metrics as sample_metrics
 from service.store import NotFoundError, Store
-
-#: Effect names the identification accepts (the identification's effects, plus the ``operators`` capacity candidate).
-EFFECTS_AVAILABLE = EFFECT_NAMES
 
 
 def load_record(store: Store, dataset_id: str, axis: str, field: str = "datasets", row: dict | None = None) -> Record:
@@ -129,12 +126,13 @@ def check_identify_request(store: Store, axis: str, datasets: list[str], effects
     """Raise FieldError naming the field at fault, or return if the identification can run."""
     if model not in MODELS:
         raise FieldError("model", f"unknown model {model!r}; use one of {', '.join(MODELS)}")
-    unknown = [e for e in effects if e not in EFFECTS_AVAILABLE]
+    available = effect_names()  # the built-ins and the loaded plug-ins
+    unknown = [e for e in effects if e not in available]
     if unknown or "hysteresis" not in effects:
         raise FieldError(
             "effects",
             f"{', '.join(map(repr, unknown)) or 'an empty list'} is not available: "
-            f"use {', '.join(map(repr, EFFECTS_AVAILABLE))}, and 'hysteresis' is required",
+            f"use {', '.join(map(repr, available))}, and 'hysteresis' is required",
         )
     try:
         model_for(model, effects)

@@ -29,7 +29,6 @@ from service.science.discovery.composite_inverse import (
     invert_transforms,
 )
 from service.science.effects import EFFECTS, RecordContext, ordered
-from service.science.effects.operators import OPERATOR_FACTOR
 from service.science.effects.sensor_nonlinearity import OUTPUT_ROUNDS
 from service.science.fitting.lsq import Block
 from service.science.fitting.metrics import rms
@@ -208,7 +207,7 @@ class CompositeModel(TransformSearch):
     def _setup(self, records: Sequence[Record]) -> None:
         origin = min(0.0, min(float(np.min(r.u_v)) for r in records))
         u_max = max(float(np.max(r.u_v)) for r in records) - origin
-        n = self.n_operators * (OPERATOR_FACTOR if "operators" in self.effects else 1)
+        n = self.n_operators * max([EFFECTS[e].operator_factor for e in self.effects], default=1)
         self.thresholds_v = equal_thresholds(u_max, n)
         self.scales = {
             "u_origin_v": origin,

@@ -17,7 +17,6 @@ from service.science.data.record import Record
 from service.science.data.signals import sensitivity_sign
 from service.science.effects import EFFECTS
 from service.science.effects.base import sum_of_taps
-from service.science.effects.dynamics import NO_MODE
 from service.science.effects.harmonics import harmonic_data
 from service.science.fitting.lsq import Block, solve_blocks
 from service.science.models.contract import Drive
@@ -163,7 +162,7 @@ class TransformSearch:
         return best
 
     def _identity_theta(self, name: str) -> dict:
-        return {"delay_s": 0.0} if name == "delay" else dict(NO_MODE)
+        return dict(EFFECTS[name].identity)
 
     def _harmonic_search(self, name, a_raw, records, theta) -> dict | None:
         """A transform's parameters from the periodic blocks' harmonics (None if it has no such

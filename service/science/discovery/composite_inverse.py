@@ -35,7 +35,6 @@ import numpy as np
 
 from service.science.data.signals import drive_derivatives
 from service.science.effects import EFFECTS
-from service.science.effects.dynamics import digital_response, shows_mode
 from service.science.fitting.metrics import rms
 from service.science.models.inverse import numerical_inverse
 
@@ -58,13 +57,12 @@ COMPOSITE_LIMITS_V = (-60.0, 180.0)
 
 
 def transform_response(model, frequency_hz: np.ndarray, sample_rate_hz: float) -> np.ndarray:
-    """The model's linear transforms (delay × dynamics) at ``frequency_hz`` (complex, unitless)."""
+    """The model's linear transforms (each one's ``response``: delay × dynamics) at ``frequency_hz``
+    (complex, unitless); a transform without an inverse (``inverse = "none"``) is left out."""
     h = np.ones(np.shape(frequency_hz), dtype=complex)
-    theta = model.theta
-    if "delay" in theta:
-        h = h * np.exp(-2j * np.pi * frequency_hz * theta["delay"]["delay_s"])
-    if "dynamics" in theta and shows_mode(theta["dynamics"]["fn_hz"], sample_rate_hz):
-        h = h * digital_response(frequency_hz, sample_rate_hz, theta["dynamics"]["fn_hz"], theta["dynamics"]["zeta"])
+    for name in model.transforms:
+        if name in model.theta and EFFECTS[name].inverse == "response":
+            h = h * EFFECTS[name].response(frequency_hz, sample_rate_hz, model.theta[name])
     return h
 
 
@@ -88,6 +86,8 @@ def _stack_um(model, u_v: np.ndarray, sample_rate_hz: float) -> tuple[np.ndarray
     ctx = model.context(u_v, sample_rate_hz, du, ddu)
     additive = np.zeros(u_v.size)
     for name in model.effects:
+        if EFFECTS[name].inverse == "none":  # a feedforward leaves it out (its ``no_inverse`` says why)
+            continue
         for b in EFFECTS[name].blocks(ctx):
             additive += b.columns @ model.coef[b.name]
     return ctx.p @ model.coef["weights_um_per_v"] + model.coef["offset_um"][0], additive

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.science.data.units import fmt_nm, fmt_nm2, fmt_us, plain
+from service.science.data.units import fmt_nm, fmt_nm2
 from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.column_memo import shared_effect_columns
@@ -41,82 +41,13 @@ from service.science.fitting.validation import evaluate_records
 CLEAR_DROP_NOISE = 2.0
 #: the flexible rate-independent base that physical candidates must beat
 FLEXIBLE_BASE = ("operators", "asymmetry")
-#: candidates whose claim must also hold at the drive rates between the others, fitted without them:
-#: rate dependence's per-segment rate terms give a loop branch-dependent shape freedom the base
-#: lacks, so after a mode (or on a loop the base cannot draw) they lowered the held-out error at
-#: frequencies they were fitted on, and made the blocks they had not seen worse (a user's foreign
-#: stages: 12 of 14 with a mode claimed it after dynamics); a rate effect predicts the frequencies
-#: between the ones it was fitted on (the emulated rate-dependent benches: +6000 nm² of mean square)
-UNSEEN_RATE_TESTED = ("rate_dependence",)
-
-
-def _signature_words(name: str, sig: dict, floor: dict) -> str:
-    g = sig.get("rms_growth_exponent")
-    growth = (
-        "frequency growth unknown"
-        if g is None
-        else f"the residual {'grows' if g >= 0 else 'falls'} with frequency as f^{g:.2f}"
-    )
-    if name == "delay":
-        if sig.get("lag_ms") is None:
-            return "no lag can be measured: the model's prediction does not move in any block"
-        per = ", ".join(f"{k} Hz: {fmt_us(1e-3 * v)}" for k, v in sig["lag_ms_by_frequency"].items())
-        spread = sig.get("lag_ms_spread")
-        return (
-            f"the residual lags the drive by {fmt_us(1e-3 * sig['lag_ms'])} (slope-weighted mean; per block {per}, "
-            f"spread {'unknown' if spread is None else fmt_us(1e-3 * spread, 2)}): delay"
-        )
-    if name == "rate_dependence":
-        r = sig.get("rate_r")
-        return f"{growth}, and follows u̇·u (|r| = {r:.2f}): rate dependence" if r is not None else growth
-    if name == "dynamics":
-        return (
-            f"{growth}; a resonance above the drive band adds a part that grows as f² (the output's "
-            "acceleration), which the held-out test weighs: dynamics"
-        )
-    if name == "creep":
-        v = sig.get("cycle_mean_um_per_decade")
-        return (
-            "the per-cycle mean residual moves "
-            + (fmt_nm(v) if v is not None else "?")
-            + " per decade of time within each block, logarithmic in time: creep"
-        )
-    if name == "drift":
-        v = sig.get("cycle_mean_trend_um_per_s")
-        return (
-            "the per-cycle mean residual keeps moving at "
-            + (f"{plain(v * 1e3)} nm/s" if v is not None else "?")
-            + " over the run: drift"
-        )
-    if name == "asymmetry":
-        v = sig.get("even_fraction")
-        shape = f"a parabola in the drive carries {100 * v:.0f} % of the loop residual: " if v is not None else ""
-        return (
-            shape + "the loop is not point-symmetric about its centre even with finer operators, which draw any "
-            "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
-            "not of time or rate (a gauge's own curvature would bend the output as a function of x instead): "
-            "asymmetry"
-        )
-    if name == "sensor_nonlinearity":
-        return (
-            "the loop's bow follows the measured position x rather than the drive: the gauge's own curvature "
-            "(an unlinearised capacitance probe, a tilted target) — a property of the measurement, not of the "
-            "stack: sensor_nonlinearity"
-        )
-    if name == "cross_coupling":
-        r = sig.get("coupling_r")
-        return (
-            f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling"
-            if r is not None
-            else "no block drives the other axis alone, so coupling cannot be seen directly"
-        )
-    if name == "operators":
-        rep, nf = floor.get("repeatable_rms_um"), floor.get("noise_floor_um")
-        return (
-            f"the residual repeats cycle to cycle ({fmt_nm(rep or 0)} repeatable vs {fmt_nm(nf or 0)} noise): "
-            "the loop shape needs more hysteresis capacity (finer play operators) — not a physical effect"
-        )
-    return ""
+# Candidates with ``unseen_rate_test`` (rate dependence) must also hold their claim at the drive rates
+# between the others, fitted without them: rate dependence's per-segment rate terms give a loop
+# branch-dependent shape freedom the base lacks, so after a mode (or on a loop the base cannot draw)
+# they lowered the held-out error at frequencies they were fitted on, and made the blocks they had
+# not seen worse (a user's foreign stages: 12 of 14 with a mode claimed it after dynamics); a rate
+# effect predicts the frequencies between the ones it was fitted on (the emulated rate-dependent
+# benches: +6000 nm² of mean square)
 
 
 def _reference_for(name: str) -> tuple[str, ...]:
@@ -199,7 +130,7 @@ def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig
         f"{_test_words(test, noise)}"
     )
     is_claimed = claimed(test, noise)
-    unseen = _unseen_rates(name, fits, records, reference) if is_claimed and name in UNSEEN_RATE_TESTED else None
+    unseen = _unseen_rates(name, fits, records, reference) if is_claimed and eff.unseen_rate_test else None
     if unseen is not None:
         rates = ", ".join(f"{f:g} Hz" for f in unseen["frequencies_hz"])
         kept = unseen["gain_mse_um2"] >= NOISE_MULTIPLE * noise**2
@@ -275,7 +206,7 @@ def _entry(
         added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
     removed = min((v0**2 - v**2) / max(v0**2 - noise**2, 1e-30), 1.0)  # below the floor: all of the excess
     evidence = (
-        f"In this model's residual, before any fit: {_signature_words(name, sig, floor)}. Its test, a fit of its "
+        f"In this model's residual, before any fit: {eff.evidence(sig, floor)}. Its test, a fit of its "
         f"own: {how}"
         + (
             f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
@@ -414,7 +345,7 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     if separated:
         return rows, None
     other = next(n for n in LOOP_SHAPE if n != winner)
-    why, body = SEPARATING[frozenset(LOOP_SHAPE)]
+    why, body = separating()[frozenset(LOOP_SHAPE)]
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
     return rows, {
         "effects": [winner, other],
@@ -625,36 +556,12 @@ def _verdict_text(
     return text
 
 
-#: pairs of effects that look alike on a sine sweep, and the experiment that separates them
-SEPARATING = {
-    frozenset(LOOP_SHAPE): (
-        "on a quasi-static loop x is itself a function of the drive and the loop's state, so "
-        "a gauge's bow and a stack's asymmetry bend it alike; they part where x at one drive "
-        "differs (the branches' width, higher rates), so more cycles at more rates give the "
-        "head-to-head its power. An independent measurement of x (a second gauge, an "
-        "interferometer) settles it",
-        {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0, 200.0], "cycles": 10},
-    ),
-    frozenset(("creep", "drift")): (
-        "a step-hold sweep up and down: creep relaxes logarithmically after each "
-        "step and reverses when the drive steps down; drift keeps its direction "
-        "and pace regardless of the steps",
-        {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0},
-    ),
-    frozenset(("delay", "rate_dependence")): (
-        "a higher-frequency sine sweep: a delay is the same time at every "
-        "frequency; rate dependence changes the loop shape with rate",
-        {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
-    ),
-    frozenset(("delay", "dynamics")): (
-        "a higher-frequency sine sweep: a resonance amplifies towards f_n, a delay only shifts the phase",
-        {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
-    ),
-    frozenset(("rate_dependence", "dynamics")): (
-        "a higher-frequency sine sweep: a resonance's gain rises as f², rate dependence widens the loop",
-        {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
-    ),
-}
+def separating() -> dict[frozenset, tuple[str, dict]]:
+    """Pairs of effects that look alike on a sine sweep -> (how to tell them apart in words, the
+    /api/sweeps body that does), from every registered effect's ``separated_from``."""
+    return {
+        frozenset((name, other)): told for name, eff in EFFECTS.items() for other, told in eff.separated_from.items()
+    }
 
 
 #: two leading candidates are told apart when the runner-up leaves at least this many times the
@@ -668,7 +575,7 @@ def remaining_excess(candidate: dict, noise: float) -> float:
 
 
 def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
-    """Two leading claimed candidates that are look-alikes (a pair of SEPARATING: their residual
+    """Two leading claimed candidates that are look-alikes (a pair of ``separating()``: their residual
     signatures coincide on the data at hand) and explain the residual about equally well (the
     runner-up leaving less than twice the leader's unexplained excess), with the experiment that
     separates them. Two claimed effects that do not look alike are both present, not alternatives:
@@ -678,9 +585,10 @@ def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
     a, b = physical[0], physical[1]
     pair = frozenset((a["effect"], b["effect"]))
     ratio = remaining_excess(b, noise) / remaining_excess(a, noise)
-    if pair not in SEPARATING or ratio >= SEPARATED_EXCESS_RATIO:
+    pairs = separating()
+    if pair not in pairs or ratio >= SEPARATED_EXCESS_RATIO:
         return None
-    why, body = SEPARATING[pair]
+    why, body = pairs[pair]
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
     return {
         "effects": [a["effect"], b["effect"]],

@@ -1,5 +1,6 @@
-"""The effects library: one module per physical effect plus the ``operators`` capacity
-candidate, registered here in the order a composite model applies them."""
+"""The effects library: one module per physical effect plus the capacity candidates, registered here
+in the order a composite model applies them; plug-ins join through ``REGISTRY.load_plugins``
+(service.science.effects.registry) and appear in ``EFFECTS`` like the built-ins."""
 
 from __future__ import annotations
 
@@ -13,29 +14,37 @@ from service.science.effects.dynamics import Dynamics
 from service.science.effects.hysterons import Hysterons
 from service.science.effects.operators import Operators
 from service.science.effects.rate_dependence import RateDependence
+from service.science.effects.registry import BUILTIN, Registry
 from service.science.effects.sensor_nonlinearity import SensorNonlinearity
 from service.science.effects.temperature import Temperature
 
-#: name -> effect, in application order (additive regressors, then transforms, then the gauge)
-EFFECTS: dict[str, Effect] = {
-    e.name: e
-    for e in (
-        RateDependence(),
-        Creep(),
-        Asymmetry(),
-        CrossCoupling(),
-        Drift(),
-        Temperature(),
-        Delay(),
-        Dynamics(),
-        SensorNonlinearity(),
-        Operators(),
-        Hysterons(),
-    )
-}
+#: the built-ins in application order (additive regressors, then transforms, then the gauge, capacity)
+BUILTINS = (
+    RateDependence,
+    Creep,
+    Asymmetry,
+    CrossCoupling,
+    Drift,
+    Temperature,
+    Delay,
+    Dynamics,
+    SensorNonlinearity,
+    Operators,
+    Hysterons,
+)
 
-#: every name a model may list (``hysteresis`` is the base and always first)
-EFFECT_NAMES = ("hysteresis",) + tuple(EFFECTS)
+#: the process's registry: the built-ins, and the plug-ins once the service loads them
+REGISTRY = Registry()
+for _cls in BUILTINS:
+    REGISTRY.register(_cls(), BUILTIN)
+
+#: name -> effect, in application order (the registry's own dict: plug-ins appear in it once loaded)
+EFFECTS: dict[str, Effect] = REGISTRY.effects
+
+
+def effect_names() -> tuple[str, ...]:
+    """Every name a model may list (``hysteresis`` is the base and always first), plug-ins included."""
+    return ("hysteresis",) + tuple(EFFECTS)
 
 
 def ordered(effects) -> list[str]:
@@ -44,4 +53,4 @@ def ordered(effects) -> list[str]:
     return [name for name in EFFECTS if name in wanted]
 
 
-__all__ = ["EFFECTS", "EFFECT_NAMES", "Effect", "RecordContext", "ordered"]
+__all__ = ["EFFECTS", "REGISTRY", "Effect", "RecordContext", "effect_names", "ordered"]

@@ -24,3 +24,27 @@ class Asymmetry(Effect):
         u = ctx.u_v / ctx.u_scale_v
         s = ctx.p[:, 1:].sum(axis=1) / ctx.u_scale_v if ctx.p.shape[1] > 1 else u
         return [Block.make("asymmetry_um", np.column_stack([u**2, u**3, s**2, u * s]))]
+
+    units = {"asymmetry_um": "µm"}
+    rule = "a drive that spans a range (any loop)"
+    emulator_bench = "asymmetry"
+    separated_from = {
+        "sensor_nonlinearity": (
+            "on a quasi-static loop x is itself a function of the drive and the loop's state, so "
+            "a gauge's bow and a stack's asymmetry bend it alike; they part where x at one drive "
+            "differs (the branches' width, higher rates), so more cycles at more rates give the "
+            "head-to-head its power. An independent measurement of x (a second gauge, an "
+            "interferometer) settles it",
+            {"waveform": "sine", "frequencies_hz": [1.0, 10.0, 50.0, 100.0, 200.0], "cycles": 10},
+        )
+    }
+
+    def evidence(self, sig, floor):
+        v = sig.get("even_fraction")
+        shape = f"a parabola in the drive carries {100 * v:.0f} % of the loop residual: " if v is not None else ""
+        return (
+            shape + "the loop is not point-symmetric about its centre even with finer operators, which draw any "
+            "point-symmetric loop: an electrostrictive (∝ u²) or saturating stack — a property of the loop, "
+            "not of time or rate (a gauge's own curvature would bend the output as a function of x instead): "
+            "asymmetry"
+        )

@@ -1,4 +1,14 @@
-"""The effect contract: what every physical effect (and the capacity candidate) provides.
+"""The effect contract: what every physical effect (and the capacity candidate) provides, built-in
+or a plug-in (service.science.effects.registry loads both; docs/how-to/add-your-own-effect.md).
+
+Everything about an effect lives on its class, so that no module outside the effect's own names it:
+- its design: ``blocks`` (additive columns) or a transform (``grid``/``apply``), and ``units``, the
+  unit of every weight block, transform parameter and reported parameter it names;
+- its identifiability rule: ``rule`` in words, ``untestable(records)`` (the reason the data cannot
+  test it, or None) and ``sweep``, the /api/sweeps body that would;
+- its evidence in words: ``signature`` and ``evidence(sig, floor)``;
+- its feedforward inverse: ``inverse`` ("iterate", "response", "invert" or "none" with ``no_inverse``);
+- its emulator variant, as data: ``emulator_bench``, a bench config in fixtures/benches/.
 
 An effect acts on the composite model's design in one of four places (``stage``):
 - ``additive``: extra regressor columns (weights by least squares);
@@ -15,7 +25,16 @@ from typing import ClassVar
 
 import numpy as np
 
+from service.science.effects.rules import RATE_SWEEP
 from service.science.fitting.lsq import Block
+
+#: how a feedforward inverse (service.science.discovery.composite_inverse) undoes an effect
+INVERSE_KINDS = {
+    "iterate": "its columns are functions of the planned drive: the inverse's iteration compensates them",
+    "response": "a linear transform: divided out per harmonic by its frequency response (``response``)",
+    "invert": "a static map of the output: undone by ``invert``",
+    "none": "no inverse: a feedforward leaves it out (``no_inverse`` says why)",
+}
 
 
 @dataclass
@@ -78,6 +97,43 @@ class Effect:
     #: PI does (x(t + T/2) = 2x_c − x(t)): linear lags, modes, delays, creep; not a warped operator
     #: family, a parabola in the drive or segment-switched rate terms (service.science.discovery.symmetry)
     point_symmetric: ClassVar[bool] = True
+    #: the unit of every weight block (``blocks``' names), transform parameter (``grid``'s keys) and
+    #: reported parameter (``parameters``' keys) the effect names, e.g. {"drift_legendre_um": "µm"}
+    units: ClassVar[dict[str, str]] = {}
+    #: the identifiability rule in words: what the data must contain to test the effect
+    rule: ClassVar[str] = "any record: every record can test it"
+    #: the /api/sweeps body (without ``axes``) whose data would test the effect
+    sweep: ClassVar[dict] = RATE_SWEEP
+    #: the sweep drives both axes, one at a time (an effect of the other axis)
+    sweep_both_axes: ClassVar[bool] = False
+    #: how a feedforward inverse undoes it: one of INVERSE_KINDS
+    inverse: ClassVar[str] = "iterate"
+    #: why there is no inverse (``inverse = "none"``)
+    no_inverse: ClassVar[str] = ""
+    #: the emulator's bench config (fixtures/benches/<name>.toml) that shows the effect, if there is one
+    emulator_bench: ClassVar[str | None] = None
+    #: a claim must also hold at the drive rates between the others, fitted without them
+    #: (service.science.discovery.diagnosis: per-segment rate terms give loop-shape freedom)
+    unseen_rate_test: ClassVar[bool] = False
+    #: capacity: the base's play operators are multiplied by this when the effect is in the model
+    operator_factor: ClassVar[int] = 1
+    #: transforms: the parameters for which the transform is the identity (where a search starts)
+    identity: ClassVar[dict] = {}
+    #: look-alikes: other effect -> (how to tell them apart in words, the /api/sweeps body that does)
+    separated_from: ClassVar[dict[str, tuple[str, dict]]] = {}
+
+    def untestable(self, records) -> str | None:
+        """Why ``records`` cannot test this effect (in words), or None when they can."""
+        return None
+
+    def evidence(self, sig: dict, floor: dict) -> str:
+        """What the residual shows that points at this effect, in words (``sig``: the diagnosis's
+        signatures, service.science.discovery.breakdown; ``floor``: its noise floor, µm)."""
+        return self.signature
+
+    def response(self, frequency_hz: np.ndarray, fs_hz: float, theta: dict) -> np.ndarray:
+        """Transforms with ``inverse = "response"``: the complex frequency response at ``frequency_hz``."""
+        raise NotImplementedError(f"{self.name} has no frequency response")
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         """Additive regressor blocks (stage ``additive``)."""

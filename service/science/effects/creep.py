@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.units import fmt_nm
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
 
@@ -59,3 +60,23 @@ class Creep(Effect):
         if scales.get("stroke_um"):
             out["creep_pct_per_decade"] = 100.0 * per_decade_um / scales["stroke_um"]
         return out
+
+    units = {"creep_weights_um": "µm", "creep_nm_per_decade": "nm", "creep_step_v": "V", "creep_pct_per_decade": "%"}
+    rule = "any record long enough to see a slow change; telling it from drift needs a hold after a step"
+    emulator_bench = "creep"
+    separated_from = {
+        "drift": (
+            "a step-hold sweep up and down: creep relaxes logarithmically after each "
+            "step and reverses when the drive steps down; drift keeps its direction "
+            "and pace regardless of the steps",
+            {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0},
+        )
+    }
+
+    def evidence(self, sig, floor):
+        v = sig.get("cycle_mean_um_per_decade")
+        return (
+            "the per-cycle mean residual moves "
+            + (fmt_nm(v) if v is not None else "?")
+            + " per decade of time within each block, logarithmic in time: creep"
+        )

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.effects.base import Effect, RecordContext
+from service.science.effects.rules import RATE_SWEEP, independent_other_axis
 from service.science.fitting.lsq import Block
 
 #: the other axis counts as driven where its drive is away from its level at the record's start (rest)
@@ -58,3 +59,29 @@ class CrossCoupling(Effect):
         if drive is not None:
             out["coupling_drive_um_per_v"], out["coupling_hysteretic_um_per_v"] = (sign * float(w) for w in drive)
         return out
+
+    units = {
+        "coupling_um_per_v": "µm/V",
+        "coupling_um_per_um": "µm/µm",
+        "coupling_ratio": "µm/µm",
+        "coupling_drive_um_per_v": "µm/V",
+        "coupling_hysteretic_um_per_v": "µm/V",
+    }
+    rule = (
+        "the other axis driven independently of this one: with collinear drives coupling is "
+        "indistinguishable from more hysteresis"
+    )
+    sweep = {**RATE_SWEEP, "together": False}
+    sweep_both_axes = True
+    emulator_bench = "cross_coupling"
+
+    def untestable(self, records):
+        return independent_other_axis(records)
+
+    def evidence(self, sig, floor):
+        r = sig.get("coupling_r")
+        return (
+            f"this axis's residual follows the other axis's drive, r = {r:.2f}: cross-coupling"
+            if r is not None
+            else "no block drives the other axis alone, so coupling cannot be seen directly"
+        )

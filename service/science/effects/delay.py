@@ -9,6 +9,10 @@ from scipy.optimize import minimize_scalar
 
 from service.science.data.units import fmt_us
 from service.science.effects.base import Effect, sum_of_taps
+from service.science.effects.rules import two_rates
+
+#: the sweep that separates a delay from the other rate effects (above the paper's band)
+HIGHER_SWEEP = {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10}
 
 
 def shift_columns(columns: np.ndarray, delay_samples: float) -> np.ndarray:
@@ -80,3 +84,37 @@ class Delay(Effect):
 
     def parameters(self, theta, values, scales, sign):
         return {"delay_us": float(theta["delay_s"]) * 1e6}
+
+    units = {"delay_s": "s", "delay_us": "µs"}
+    rule = "at least two drive rates a factor 2 apart: at one rate a delay is one fixed loop shape"
+    inverse = "response"
+    identity = {"delay_s": 0.0}
+    emulator_bench = "delay"
+    separated_from = {
+        "rate_dependence": (
+            "a higher-frequency sine sweep: a delay is the same time at every "
+            "frequency; rate dependence changes the loop shape with rate",
+            HIGHER_SWEEP,
+        ),
+        "dynamics": (
+            "a higher-frequency sine sweep: a resonance amplifies towards f_n, a delay only shifts the phase",
+            HIGHER_SWEEP,
+        ),
+    }
+
+    def untestable(self, records):
+        return two_rates(self.name, records)
+
+    def response(self, frequency_hz, fs_hz, theta):
+        """e^(−2πjfτ): the delay's frequency response."""
+        return np.exp(-2j * np.pi * np.asarray(frequency_hz) * theta["delay_s"])
+
+    def evidence(self, sig, floor):
+        if sig.get("lag_ms") is None:
+            return "no lag can be measured: the model's prediction does not move in any block"
+        per = ", ".join(f"{k} Hz: {fmt_us(1e-3 * v)}" for k, v in sig["lag_ms_by_frequency"].items())
+        spread = sig.get("lag_ms_spread")
+        return (
+            f"the residual lags the drive by {fmt_us(1e-3 * sig['lag_ms'])} (slope-weighted mean; per block {per}, "
+            f"spread {'unknown' if spread is None else fmt_us(1e-3 * spread, 2)}): delay"
+        )

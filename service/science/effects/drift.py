@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import legendre
 
+from service.science.data.units import plain
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
 
@@ -34,3 +35,15 @@ class Drift(Effect):
             return {}
         change_um = sum(float(ck) * (1.0 - (-1.0) ** k) for k, ck in enumerate(c, start=1))
         return {"drift_nm_per_s": sign * change_um / scales["time_scale_s"] * 1e3}
+
+    units = {"drift_legendre_um": "µm", "drift_nm_per_s": "nm/s"}
+    rule = "any record long enough to see a slow change; telling it from creep needs a hold after a step"
+    emulator_bench = "drift"
+
+    def evidence(self, sig, floor):
+        v = sig.get("cycle_mean_trend_um_per_s")
+        return (
+            "the per-cycle mean residual keeps moving at "
+            + (f"{plain(v * 1e3)} nm/s" if v is not None else "?")
+            + " over the run: drift"
+        )

@@ -10,6 +10,7 @@ from drivers.jit import njit
 from service.science.data.units import plain
 from service.science.effects.base import Effect
 from service.science.effects.harmonics import projected_costs
+from service.science.effects.rules import growth_words, two_rates
 from service.science.fitting.lsq import SMALLEST_NORMAL
 
 #: flexure resonances are lightly damped; a heavily damped 2nd-order lag would only mimic a delay
@@ -191,3 +192,31 @@ class Dynamics(Effect):
 
     def parameters(self, theta, values, scales, sign):
         return {"resonance_hz": float(theta["fn_hz"]), "damping_ratio": float(theta["zeta"])}
+
+    units = {"fn_hz": "Hz", "zeta": "1", "resonance_hz": "Hz", "damping_ratio": "1"}
+    rule = "at least two drive rates a factor 2 apart: at one rate a resonance is one fixed loop shape"
+    inverse = "response"
+    emulator_bench = "dynamics"
+    separated_from = {
+        "rate_dependence": (
+            "a higher-frequency sine sweep: a resonance's gain rises as f², rate dependence widens the loop",
+            {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
+        )
+    }
+
+    identity = NO_MODE
+
+    def untestable(self, records):
+        return two_rates(self.name, records)
+
+    def response(self, frequency_hz, fs_hz, theta):
+        """The mode's digital response (1 where it does not act on samples at ``fs_hz``)."""
+        if not shows_mode(theta["fn_hz"], fs_hz):
+            return np.ones(np.shape(frequency_hz), dtype=complex)
+        return digital_response(np.asarray(frequency_hz), fs_hz, theta["fn_hz"], theta["zeta"])
+
+    def evidence(self, sig, floor):
+        return (
+            f"{growth_words(sig)}; a resonance above the drive band adds a part that grows as f² (the output's "
+            "acceleration), which the held-out test weighs: dynamics"
+        )

@@ -133,3 +133,8 @@ class Hysterons(Effect):
             Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, DEGREE)),
             Block.make("bouc_wen_weights_um_per_v", bouc_wen_hysterons(u, scales, np.asarray(BW_SHARES, dtype=float))),
         ]
+
+    units = {"preisach_envelope_um": "µm", "bouc_wen_weights_um_per_v": "µm/V"}
+
+    def evidence(self, sig, floor):
+        return ""

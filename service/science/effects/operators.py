@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.jit import njit
+from service.science.data.units import fmt_nm
 from service.science.effects.base import Effect, RecordContext
 from service.science.fitting.lsq import Block
 from service.science.models.base import equal_thresholds
@@ -66,3 +67,13 @@ class Operators(Effect):
             Block.make("warped_weights_um_per_v", play_operators(warped_v, thresholds)),
             Block.make("duhem_weights_um_per_v", duhem_operators(np.ascontiguousarray(ctx.u_v, dtype=float), scales)),
         ]
+
+    units = {"warped_weights_um_per_v": "µm/V", "duhem_weights_um_per_v": "µm/V"}
+    operator_factor = OPERATOR_FACTOR
+
+    def evidence(self, sig, floor):
+        rep, nf = floor.get("repeatable_rms_um"), floor.get("noise_floor_um")
+        return (
+            f"the residual repeats cycle to cycle ({fmt_nm(rep or 0)} repeatable vs {fmt_nm(nf or 0)} noise): "
+            "the loop shape needs more hysteresis capacity (finer play operators) — not a physical effect"
+        )

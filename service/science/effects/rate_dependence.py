@@ -9,6 +9,7 @@ import numpy as np
 
 from service.science.data.units import plain
 from service.science.effects.base import Effect, RecordContext
+from service.science.effects.rules import growth_words, two_rates
 from service.science.fitting.lsq import Block
 from service.science.models.pi import segment_columns
 
@@ -33,3 +34,20 @@ class RateDependence(Effect):
     def describe(self, theta, values):
         lag = values.get("rate_operator_lag_um_s_per_v")
         return "" if lag is None else f"operator-rate weights sum {plain(float(np.sum(lag)) * 1e3)} nm·s/V"
+
+    units = {
+        "rate_alpha_um_per_v2_s": "µm·s/V²",
+        "rate_beta_um_per_v2_s2": "µm·s²/V²",
+        "rate_operator_lag_um_s_per_v": "µm·s/V",
+    }
+    rule = "at least two drive rates a factor 2 apart: at one rate a rate-dependent loop is one fixed shape"
+    emulator_bench = "rate_dependence"
+    unseen_rate_test = True
+
+    def untestable(self, records):
+        return two_rates(self.name, records)
+
+    def evidence(self, sig, floor):
+        r = sig.get("rate_r")
+        growth = growth_words(sig)
+        return f"{growth}, and follows u̇·u (|r| = {r:.2f}): rate dependence" if r is not None else growth

@@ -67,3 +67,15 @@ class SensorNonlinearity(Effect):
                 "the half span at the ends of the range"
             )
         )
+
+    units = {"gauge_bow_um": "µm"}
+    rule = "a drive that spans a range (any loop); told from asymmetry where x at one drive differs"
+    inverse = "invert"
+    emulator_bench = "sensor_nonlinearity"
+
+    def evidence(self, sig, floor):
+        return (
+            "the loop's bow follows the measured position x rather than the drive: the gauge's own curvature "
+            "(an unlinearised capacitance probe, a tilted target) — a property of the measurement, not of the "
+            "stack: sensor_nonlinearity"
+        )

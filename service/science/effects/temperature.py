@@ -10,6 +10,7 @@ import numpy as np
 
 from service.science.data.units import plain
 from service.science.effects.base import Effect, RecordContext
+from service.science.effects.rules import temperature_span
 from service.science.fitting.lsq import Block
 
 
@@ -27,3 +28,11 @@ class Temperature(Effect):
     def describe(self, theta, values):
         w = values.get("temperature_um_per_k")
         return "" if w is None else f"gain change {plain(float(np.sum(w)) * 1e3)} nm/K at full drive"
+
+    units = {"temperature_um_per_k": "µm/K"}
+    rule = "a temp_c column that varies by at least 0.5 K"
+    sweep = {"waveform": "sine", "frequencies_hz": [1.0], "cycles": 60}
+    emulator_bench = "temperature"
+
+    def untestable(self, records):
+        return temperature_span(records)

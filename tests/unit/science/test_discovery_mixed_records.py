@@ -8,9 +8,9 @@ import warnings
 
 import pytest
 
-from service.science.discovery.diagnosis import SEPARATING, diagnose
+from service.science.discovery.diagnosis import diagnose, separating
 
-STEP_HOLD = {"axes": ["y"], **SEPARATING[frozenset(("creep", "drift"))][1]}
+STEP_HOLD = {"axes": ["y"], **separating()[frozenset(("creep", "drift"))][1]}
 
 pytestmark = pytest.mark.slow  # diagnoses of two records each
 
