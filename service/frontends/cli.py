@@ -54,6 +54,7 @@ def _serve_settings(args: argparse.Namespace) -> Settings:
         database_url=args.database_url or defaults.database_url,
         auth=args.auth or defaults.auth,
         array_url=args.array_url or defaults.array_url,
+        effects_dir=str(args.effects_dir) if args.effects_dir else defaults.effects_dir,
         # a lab: unless given, the id derives from the bench and the URL from host and port (Settings)
         **({"bench_id": args.bench_id} if args.bench_id else {}),
         **({"public_url": args.public_url} if args.public_url else {}),
@@ -161,11 +162,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_serve(sub)
     _add_tools(sub)
     _add_store(sub)
-    from service.frontends import cli_lab, cli_remote, cli_tokens
+    from service.frontends import cli_effects, cli_lab, cli_remote, cli_tokens
 
     cli_remote.add_commands(sub)  # sweep, import, identify, compare, jobs, datasets, models (over REST)
     cli_tokens.add_commands(sub)  # token create | list | revoke (on the store)
     cli_lab.add_commands(sub)  # lab batch (on the store, in process or on Dask)
+    cli_effects.add_commands(sub)  # effects check | list (plug-in effects)
     return parser
 
 
@@ -195,6 +197,12 @@ def _add_serve(sub) -> None:
         "--auth", choices=("tokens", "off"), help="tokens (default; env EVCBENCH_AUTH) or off (loopback only)"
     )
     serve.add_argument("--array-url", help=ARRAY_URL_HELP)
+    serve.add_argument(
+        "--effects-dir",
+        type=Path,
+        help="a directory of plug-in effects (*.py; docs/how-to/add-your-own-effect.md); "
+        "default: $EVCBENCH_EFFECTS_DIR",
+    )
     serve.add_argument(
         "--bench-id",
         help="this bench's id in a lab of services on one database (default: from "

@@ -5,6 +5,8 @@ its partial data), closes the bench at 0 V and marks the bench stopped."""
 
 from __future__ import annotations
 
+import logging
+import os
 import time
 from collections.abc import Callable
 from contextlib import asynccontextmanager
@@ -19,6 +21,7 @@ from service.http import auth as auth_api
 from service.http import bench as bench_api
 from service.http import datasets as datasets_api
 from service.http import discovery as discovery_api
+from service.http import effects as effects_api
 from service.http import errors as errors_api
 from service.http import health as health_api
 from service.http import jobs as jobs_api
@@ -37,6 +40,7 @@ from service.runtime.recovery import recover
 from service.runtime.settings import Settings
 from service.runtime.stop_port_link import StopPortLink
 from service.runtime.supervisor import supervise
+from service.science.effects import REGISTRY as EFFECTS_REGISTRY
 from service.security.auth import ensure_bootstrap_token
 from service.security.binding import auth_refusal
 from service.store import Store
@@ -53,6 +57,7 @@ ROUTERS = (
     datasets_api.router,
     models_api.router,
     discovery_api.router,
+    effects_api.router,
     reports_api.router,
     trajectories_api.router,
     lab_api.router,
@@ -102,6 +107,22 @@ def _stop_port_link(app: FastAPI, store: Store, settings: Settings) -> StopPortL
     ).start()
 
 
+def _load_effect_plugins(settings: Settings) -> None:
+    """The plug-in effects (entry points, then the settings' directories); a refused one is logged by
+    name with its error and listed by GET /api/effects, and the service starts without it."""
+    dirs = [d for d in (settings.effects_dir or "").split(os.pathsep) if d]
+    EFFECTS_REGISTRY.load_entry_points()
+    for d in dirs:
+        EFFECTS_REGISTRY.load_directory(d)
+    for failure in EFFECTS_REGISTRY.failed:
+        logging.getLogger("evcbench.effects").warning(
+            "effect plug-in %s refused (%s): %s", failure["name"], failure["origin"], failure["error"]
+        )
+    loaded = [n for n, o in EFFECTS_REGISTRY.origins.items() if o != "builtin"]
+    if loaded:
+        logging.getLogger("evcbench.effects").info("effect plug-ins loaded: %s", ", ".join(loaded))
+
+
 def create_app(settings: Settings | None = None, bench_factory: Callable[[Settings], Bench] | None = None) -> FastAPI:
     """Build the app. The bench is opened on start-up and left at 0 V and closed on shut-down.
     With auth on, start-up also writes the bootstrap admin token to <data_dir>/admin.token."""
@@ -125,6 +146,7 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
             app.state.recovery = recover(store)
             if settings.auth == "tokens":
                 ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
+            _load_effect_plugins(settings)
             app.state.bench = factory(settings)
             try:
                 app.state.jobs = JobManager(

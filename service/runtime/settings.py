@@ -53,6 +53,8 @@ class Settings:
     #: the lab's shared array location (service.store.arrays): a path or file:// URL (an NFS mount),
     #: or s3://bucket/prefix (endpoint EVCBENCH_S3_ENDPOINT_URL, AWS_* credentials); empty: <data_dir>/arrays
     array_url: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_ARRAY_URL") or None)
+    #: plug-in effects' directory (--effects-dir; EVCBENCH_EFFECTS_DIR, several joined by the path separator)
+    effects_dir: str | None = field(default_factory=lambda: os.environ.get("EVCBENCH_EFFECTS_DIR") or None)
     bench_id: str = field(default_factory=lambda: os.environ.get("EVCBENCH_BENCH_ID", ""))
     public_url: str = field(default_factory=lambda: os.environ.get("EVCBENCH_PUBLIC_URL", ""))
     heartbeat_s: float = field(

@@ -109,6 +109,9 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     )
     assert "nm" in page.inner_text("#compare-table") and "58.6" in page.inner_text("#table6")  # paper column, in nm
     assert "µm" not in page.inner_text("#table6")  # one unit for errors
+    library = server["api"].get("/effects").json()
+    assert page.locator("#effects-library tr[data-effect]").count() == len(library["effects"]) > 10
+    assert "µm/V" in page.text_content("#effects-library tr[data-effect=cross_coupling]")
     shot(page, "models")
 
     goto(page, server, "trajectories")

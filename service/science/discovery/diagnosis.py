@@ -39,8 +39,16 @@ from service.science.fitting.validation import evaluate_records
 
 #: with the flexible base, a held-out drop smaller than this many noise floors is "at the noise floor"
 CLEAR_DROP_NOISE = 2.0
-#: the flexible rate-independent base that physical candidates must beat
-FLEXIBLE_BASE = ("operators", "asymmetry")
+
+
+def flexible_base() -> tuple[str, ...]:
+    """The flexible rate-independent base that physical candidates must beat: the effects marked
+    ``in_flexible_base`` (finer operators, then a non-symmetric loop shape), capacity first."""
+    return tuple(
+        sorted((n for n, e in EFFECTS.items() if e.in_flexible_base), key=lambda n: EFFECTS[n].kind != "capacity")
+    )
+
+
 # Candidates with ``unseen_rate_test`` (rate dependence) must also hold their claim at the drive rates
 # between the others, fitted without them: rate dependence's per-segment rate terms give a loop
 # branch-dependent shape freedom the base lacks, so after a mode (or on a loop the base cannot draw)
@@ -52,7 +60,7 @@ FLEXIBLE_BASE = ("operators", "asymmetry")
 
 def _reference_for(name: str) -> tuple[str, ...]:
     """What a candidate must beat: capacity the model itself; physics the flexible base."""
-    return () if EFFECTS[name].kind == "capacity" else tuple(e for e in FLEXIBLE_BASE if e != name)
+    return () if EFFECTS[name].kind == "capacity" else tuple(e for e in flexible_base() if e != name)
 
 
 class _Fits:

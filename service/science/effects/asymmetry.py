@@ -28,6 +28,7 @@ class Asymmetry(Effect):
     units = {"asymmetry_um": "µm"}
     rule = "a drive that spans a range (any loop)"
     emulator_bench = "asymmetry"
+    in_flexible_base = True
     separated_from = {
         "sensor_nonlinearity": (
             "on a quasi-static loop x is itself a function of the drive and the loop's state, so "

@@ -119,6 +119,8 @@ class Effect:
     operator_factor: ClassVar[int] = 1
     #: transforms: the parameters for which the transform is the identity (where a search starts)
     identity: ClassVar[dict] = {}
+    #: part of the flexible rate-independent base every physical candidate must beat (diagnosis)
+    in_flexible_base: ClassVar[bool] = False
     #: look-alikes: other effect -> (how to tell them apart in words, the /api/sweeps body that does)
     separated_from: ClassVar[dict[str, tuple[str, dict]]] = {}
 

@@ -70,6 +70,7 @@ class Operators(Effect):
 
     units = {"warped_weights_um_per_v": "µm/V", "duhem_weights_um_per_v": "µm/V"}
     operator_factor = OPERATOR_FACTOR
+    in_flexible_base = True
 
     def evidence(self, sig, floor):
         rep, nf = floor.get("repeatable_rms_um"), floor.get("noise_floor_um")

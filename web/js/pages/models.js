@@ -7,6 +7,7 @@ import { api, download, esc, fmt, fmtErrorNm, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { h, runJob, showError } from '../ui.js';
 import { renderLabels } from '../labels.js';
+import { renderEffects } from '../effects.js';
 import { paperFigures, table6 } from '../paper.js';
 import { importedIds, isImported, onImportedData } from '../provenance.js';
 import { renderDiagnosis } from './diagnosis.js';
@@ -19,7 +20,8 @@ let controller = null;
 export async function enter(root, [modelId], query = {}) {
   controller = new AbortController();
   const signal = controller.signal;
-  const [models, datasets] = await Promise.all([api('/models', { signal }), api('/datasets', { signal })]);
+  const [models, datasets, effects] = await Promise.all(
+    [api('/models', { signal }), api('/datasets', { signal }), api('/effects', { signal })]);
   root.append(h(`<div>
     <h1>Models</h1>
     <div class="grid">
@@ -37,9 +39,11 @@ export async function enter(root, [modelId], query = {}) {
       </div>
       <div class="card"><h2>Stored models</h2><div class="scroll-list"><table id="model-list"></table></div></div>
     </div>
+    <div id="effects"></div>
     <div id="model-detail"></div>
   </div>`));
   renderModelList(root.querySelector('#model-list'), models, modelId);
+  renderEffects(root.querySelector('#effects'), effects);
   root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
   if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
 }
