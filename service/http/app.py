@@ -6,7 +6,6 @@ its partial data), closes the bench at 0 V and marks the bench stopped."""
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable
 from contextlib import asynccontextmanager
@@ -110,10 +109,7 @@ def _stop_port_link(app: FastAPI, store: Store, settings: Settings) -> StopPortL
 def _load_effect_plugins(settings: Settings) -> None:
     """The plug-in effects (entry points, then the settings' directories); a refused one is logged by
     name with its error and listed by GET /api/effects, and the service starts without it."""
-    dirs = [d for d in (settings.effects_dir or "").split(os.pathsep) if d]
-    EFFECTS_REGISTRY.load_entry_points()
-    for d in dirs:
-        EFFECTS_REGISTRY.load_directory(d)
+    EFFECTS_REGISTRY.load_plugins(settings.effects_dir)
     for failure in EFFECTS_REGISTRY.failed:
         logging.getLogger("evcbench.effects").warning(
             "effect plug-in %s refused (%s): %s", failure["name"], failure["origin"], failure["error"]

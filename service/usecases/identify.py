@@ -65,7 +65,17 @@ def require_fit_memory(store: Store, dataset_ids: list[str], field: str = "datas
 
 
 def load_model(row: dict):
-    """The model object stored in a model record."""
+    """The model object stored in a model record; FieldError naming ``model`` (422) when it uses an
+    effect this service has not loaded (a plug-in it was fitted with, started without): the stored
+    model is kept, and serves again once the plug-in is loaded."""
+    missing = [e for e in row.get("effects") or () if e not in effect_names()]
+    if missing:
+        raise FieldError(
+            "model",
+            f"model {row.get('id', '')} uses effects this service has not loaded: {', '.join(missing)} "
+            "(plug-ins: start the service with their --effects-dir or entry point; GET /api/effects lists "
+            "what is loaded)",
+        )
     return model_from_dict(row["parameters"])
 
 

@@ -115,7 +115,8 @@ def test_the_docs_example_is_found_first_and_discover_reaches_the_floor(service,
     job = api.discover(base["id"], continue_past_ambiguity=True)
     assert job["state"] == "succeeded", job
     result = job["result"]
-    assert result["effects_found"][0] == "gain_fade", result["effects_found"]
+    found = result["effects_found"][0]
+    assert found["effect"] == "gain_fade" and -0.12 < found["parameters"]["gain_change_pct_per_s"] < -0.08, found
     final = api.http.get(f"/api/models/{result['final_model_id']}/diagnosis", timeout=600).json()
     assert final["residual_rms_um"] <= 2.0 * final["noise_floor_um"], (
         final["residual_rms_um"],

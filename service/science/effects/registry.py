@@ -122,11 +122,13 @@ class Registry:
             self._try(file.stem, str(file), lambda file=file: effects_of(load_file(file)))
 
     def load_plugins(self, effects_dir: str | Path | None = None) -> Registry:
-        """Entry points, then ``effects_dir`` (else EVCBENCH_EFFECTS_DIR's directories); returns self."""
+        """Entry points, then the directories ``effects_dir`` names (several joined by the path
+        separator; None: EVCBENCH_EFFECTS_DIR's); returns self."""
         self.load_entry_points()
-        dirs = [effects_dir] if effects_dir else [d for d in os.environ.get(ENV_DIR, "").split(os.pathsep) if d]
-        for d in dirs:
-            self.load_directory(d)
+        dirs = str(effects_dir) if effects_dir else os.environ.get(ENV_DIR, "")
+        for d in dirs.split(os.pathsep):
+            if d:
+                self.load_directory(d)
         return self
 
 

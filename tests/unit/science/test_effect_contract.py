@@ -130,3 +130,13 @@ def test_effects_check_names_every_failure_and_exits_1(tmp_path, capsys):
     (tmp_path / "oops.py").write_text("raise ValueError('not today')\n")
     assert main(["effects", "check", str(tmp_path / "oops.py")]) == 1
     assert "FAIL oops: import: ValueError: not today" in capsys.readouterr().out
+
+
+def test_a_stored_model_with_an_effect_not_loaded_is_refused_naming_the_model_not_a_500():
+    from service.science.errors import FieldError
+    from service.usecases.identify import load_model
+
+    row = {"id": "md_fade", "effects": ["hysteresis", "gain_fade"], "parameters": {"model": "composite"}}
+    with pytest.raises(FieldError) as refused:
+        load_model(row)
+    assert refused.value.field == "model" and "has not loaded: gain_fade" in refused.value.message
