@@ -110,7 +110,10 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     assert "nm" in page.inner_text("#compare-table") and "58.6" in page.inner_text("#table6")  # paper column, in nm
     assert "µm" not in page.inner_text("#table6")  # one unit for errors
     library = server["api"].get("/effects").json()
-    assert page.locator("#effects-library tr[data-effect]").count() == len(library["effects"]) > 10
+    assert len(library["effects"]) > 10
+    page.wait_for_function(  # the card fills when GET /api/effects answers, after the page's first paint
+        "n => document.querySelectorAll('#effects-library tr[data-effect]').length === n", arg=len(library["effects"])
+    )
     assert "µm/V" in page.text_content("#effects-library tr[data-effect=cross_coupling]")
     shot(page, "models")
 
