@@ -141,6 +141,7 @@ class Record:
             u_other_v=self.u_other_v,
             x_other_um=self.x_other_um,
             hold_out=self.hold_out,
+            temp_c=self.temp_c,
         )
 
     # -- shape and time ---------------------------------------------------------------

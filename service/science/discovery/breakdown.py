@@ -8,6 +8,7 @@ import numpy as np
 
 from service.science.data.holdout import other_axes
 from service.science.data.units import fmt_nm
+from service.science.discovery.rests import at_rest_level, still_mask
 from service.science.fitting.metrics import rms
 from service.science.models.kernels import segment_index
 
@@ -21,6 +22,24 @@ def _held_rows(rec) -> np.ndarray:
     return mask
 
 
+#: a block is a step-hold when its drive is still over at least this share of its samples
+HOLD_SHARE = 0.5
+
+
+def _held_share(rec, a: int, b: int) -> float:
+    """The share of samples a..b where the drive is still (held at a level or at rest)."""
+    return float(np.mean(still_mask(rec)[a:b])) if b > a else 0.0
+
+
+def _holds_outside_blocks(rec) -> np.ndarray:
+    """Rows outside every block where the drive is held still away from its rest at 0 V (the model runs
+    through them, never fitted there)."""
+    outside = np.ones(rec.n_samples, dtype=bool)
+    for s in rec.splits:
+        outside[s.train[0] : s.held_out[1]] = False
+    return outside & still_mask(rec) & ~at_rest_level(rec)
+
+
 def failures(records, residuals, top: int = 6) -> list[dict]:
     """The worst places of the held-out residual, worst first, each in words and numbers; a block's
     place also names it (``record``: the record's label, ``block_index``, ``frequency_hz``)."""
@@ -32,6 +51,12 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             rows = slice(*s.held_out)
             f = s.block.get("frequency_hz")
             where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
+            if _held_share(rec, s.train[0], s.held_out[1]) >= HOLD_SHARE:
+                where = (
+                    f"step-hold block {s.block.get('index')} (levels held, read as {f:g} Hz)"
+                    if f
+                    else "step-hold block"
+                )
             if others := other_axes(s.block, rec.axis):  # the other axis's block: cross-coupling's place
                 where += f" that drives {'/'.join(a.upper() for a in others)} ({rec.axis.upper()} undriven)"
             places.append(
@@ -40,6 +65,16 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
                     rms(res[rows]),
                     "frequency",
                     {"record": rec.label, "block_index": s.block.get("index"), "frequency_hz": f},
+                )
+            )
+        outside = _holds_outside_blocks(rec)
+        if outside.any():  # never fitted: held out as a whole
+            places.append(
+                (
+                    f"{rec.label} holds outside the blocks ({outside.sum() / rec.sample_rate_hz:.3g} s)",
+                    rms(res[outside]),
+                    "holds",
+                    {"record": rec.label},
                 )
             )
         for k, name in enumerate(SEGMENTS):

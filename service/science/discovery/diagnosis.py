@@ -25,14 +25,17 @@ from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.decision import (
     NOISE_MULTIPLE,
+    candidate_alpha,
     claimed,
     held_out_improvement,
+    less_gain_change,
     rule_text,
     unseen_block_improvement,
 )
 from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.remainder import describe_remainder, remainder_words
+from service.science.discovery.rests import disturbance, read_rests, remove_lines
 from service.science.discovery.symmetry import asymmetry_test
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
@@ -122,7 +125,9 @@ def _unseen_rates(name: str, fits: _Fits, records, reference: tuple) -> dict | N
     return {"gain_mse_um2": float(np.mean(gains)), "frequencies_hz": freqs[1:-1]} if gains else None
 
 
-def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig: dict, floor: dict) -> dict:
+def _candidate(
+    name, fits: _Fits, records, noise: float, v0: float, k0: int, sig: dict, floor: dict, alpha: float
+) -> dict:
     """One testable candidate: its test against its reference, the claim, and what adding it to
     the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
     eff = EFFECTS[name]
@@ -131,13 +136,15 @@ def _candidate(name, fits: _Fits, records, noise: float, v0: float, k0: int, sig
     # a transform's parameters are searched once, on the model with it alone, then kept
     theta = fits.get((name,))[0].theta if eff.stage == "transform" else None
     _, res_trial, v_trial = fits.get(reference + (name,), theta)
+    if eff.gain_change_test:
+        res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
     test = held_out_improvement(records, res_ref, res_trial)
     against = "the model" if not reference else "the model + " + " + ".join(reference)
     how = (
         f"against {against} (held-out RMS {fmt_nm(v_ref)}), adding {name} gives {fmt_nm(v_trial)} "
         f"{_test_words(test, noise)}"
     )
-    is_claimed = claimed(test, noise)
+    is_claimed = claimed(test, noise, alpha)
     unseen = _unseen_rates(name, fits, records, reference) if is_claimed and eff.unseen_rate_test else None
     if unseen is not None:
         rates = ", ".join(f"{f:g} Hz" for f in unseen["frequencies_hz"])
@@ -290,7 +297,7 @@ def _loop_shape_as_capacity(fits: _Fits, records, noise, v0, k0, sig, floor) -> 
     return rows
 
 
-def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[list[dict], dict | None]:
+def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor, alpha) -> tuple[list[dict], dict | None]:
     """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
     point-symmetric is tested without a model (a point-symmetric stack of any family has no even
     part; symmetry.py); if it is not, the stack's asymmetry (a function of the drive and the loop's
@@ -303,7 +310,7 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     if any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects):
         return _loop_shape_as_capacity(fits, records, noise, v0, k0, sig, floor), None
     symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
-    test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise)
+    test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise, alpha)
     even2 = (test["even_rms_um"] or 0.0) ** 2
     shape = (
         f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
@@ -323,8 +330,8 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
     _, res_s, v_s = fits.get(("sensor_nonlinearity",))
     gauge_better = held_out_improvement(records, res_a, res_s)
     stack_better = held_out_improvement(records, res_s, res_a)
-    if claimed(gauge_better, 0.0) or claimed(stack_better, 0.0):
-        winner, separated = ("sensor_nonlinearity" if claimed(gauge_better, 0.0) else "asymmetry"), True
+    if claimed(gauge_better, 0.0, alpha) or claimed(stack_better, 0.0, alpha):
+        winner, separated = ("sensor_nonlinearity" if claimed(gauge_better, 0.0, alpha) else "asymmetry"), True
     else:
         winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
     h2h = (
@@ -370,20 +377,26 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor) -> tuple[l
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
     """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
     records = list(records)
+    rests = read_rests(records)
+    if rests and rests["lines"]:  # a disturbance, not the model: out of the record before the model is judged
+        records = remove_lines(records, rests)
+        if model is not None:
+            model = CompositeModel(model.effects, model.n_operators, fixed_theta=model.theta).fit(records)
     model = model or CompositeModel(effects, n_operators).fit(records)
     fits = _Fits(records, model)
     _, res, v0 = fits.get(())
     preds = [r.x_um - e for r, e in zip(records, res)]
     ev = evaluate_records(records, preds)
-    floor = noise_floor(records, res)
+    floor = noise_floor(records, res, rests)
     noise = floor["noise_floor_um"] or 0.0
     sig = signatures(records, res, preds)
     k0 = model.n_parameters()
     candidates, untestable, shape_ambiguity = [], [], None
-    for name, eff in EFFECTS.items():
-        if name in model.effects:
-            continue
-        why_not = not_testable(name, records)
+    why_not_of = {name: not_testable(name, records) for name in EFFECTS if name not in model.effects}
+    tested = sum(why is None for why in why_not_of.values())
+    alpha = candidate_alpha(tested)  # more candidates, the same family-wise false-claim rate
+    for name, why_not in why_not_of.items():
+        eff = EFFECTS[name]
         if why_not is not None:
             untestable.append(
                 {
@@ -406,10 +419,10 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             continue
         if name in LOOP_SHAPE and not set(LOOP_SHAPE) & set(model.effects):
             if name == LOOP_SHAPE[0]:  # the pair is weighed together, once
-                pair, shape_ambiguity = _loop_shape_pair(fits, records, noise, v0, k0, sig, floor)
+                pair, shape_ambiguity = _loop_shape_pair(fits, records, noise, v0, k0, sig, floor, alpha)
                 candidates += pair
             continue
-        candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor))
+        candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor, alpha))
     # claimed physics first, then the other physical candidates, capacity last; each in score order (one
     # denominator for every score, so the order is the held-out gain's)
     candidates.sort(key=lambda c: (c["kind"] == "capacity", not c["claimed"], -c["score"], -c["gain_mse_um2"]))
@@ -427,6 +440,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     answer = diagnosis_answer(
         [c for c in physical if c["claimed"]], helpful_capacity(candidates), v0, noise, bool(at_floor), remainder
     )
+    disturbed = disturbance(rests)
     return {
         "effects": ["hysteresis"] + model.effects,
         "residual_rms_um": v0,
@@ -438,15 +452,17 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
         "held_out_to_noise": held_out_ratio,
         "at_noise_floor": bool(at_floor),
         "verdict": "missing_effect" if missing else "complete",
-        "verdict_text": _verdict_text(
-            missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio
-        )
+        "verdict_text": (f"{disturbed['text']}. " if disturbed else "")
+        + _verdict_text(missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio)
         + remainder_words(remainder),
+        "disturbance": disturbed,
         "remainder": remainder,
         "answer": answer,
         "candidates": candidates + untestable,
         "not_testable": untestable,
-        "claim_rule": rule_text(noise),
+        "claim_rule": rule_text(noise, tested),
+        "candidates_tested": tested,
+        "candidate_alpha": alpha,
         "failures": worst,
         "signature": sig,
         "ambiguity": ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical),

@@ -174,9 +174,12 @@ def _successive_cycle_variance(mat: np.ndarray, s: np.ndarray, gain: np.ndarray 
     return float(np.median(per_pair))
 
 
-def noise_floor(records, residuals) -> dict:
+def noise_floor(records, residuals, rests: dict | None = None) -> dict:
     """Per block figures; the floor is the median over blocks (robust to one block whose
-    non-repeatable part is inflated, e.g. ringing near a resonance), the repeatable part their mean."""
+    non-repeatable part is inflated, e.g. ringing near a resonance), the repeatable part their mean.
+    With ``rests`` (service.science.discovery.rests.read_rests: the record's rests) the floor is what
+    the gauge shows at rest less the disturbance's lines (removed from the records before the model
+    is judged), and the blocks' median is kept as ``cycles_noise_um``."""
     per_block = []
     for rec, res in zip(records, residuals):
         for s in rec.splits:
@@ -193,8 +196,12 @@ def noise_floor(records, residuals) -> dict:
     noise = [b["noise_um"] for b in per_block if np.isfinite(b["noise_um"])]
     rep = [b["repeatable_um"] for b in per_block if b["repeatable_um"] is not None]
     whole = [b["cycles_rms_um"] for b in per_block if b["repeatable_um"] is not None]
+    cycles = float(np.median(noise)) if noise else None
     return {
-        "noise_floor_um": float(np.median(noise)) if noise else None,
+        "noise_floor_um": rests["noise_um"] if rests else cycles,
+        "source": "rests" if rests else "cycles",
+        "cycles_noise_um": cycles,
+        "rest_seconds": rests["seconds"] if rests else None,
         "repeatable_rms_um": float(np.mean(rep)) if rep else None,
         # the residual's RMS over the same cycles (quadratic mean over the same blocks): never below the
         # repeatable part (mean ≤ quadratic mean, and each block's repeatable part ≤ its cycles' RMS)

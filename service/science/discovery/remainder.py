@@ -19,6 +19,7 @@ from statistics import NormalDist
 import numpy as np
 
 from service.science.data.holdout import axis_frequency_hz
+from service.science.discovery.rests import still_mask
 from service.science.discovery.signature_dictionary import (
     BUILT_IN,
     Signature,
@@ -37,8 +38,6 @@ POOL_CHUNK_ROWS = 4096
 TOP = 3
 #: points of a signature's figure (the unseen rows, decimated evenly)
 FIGURE_POINTS = 400
-#: a rest or a hold: the drive's rate below this share of its 95th-percentile rate
-STILL_RATE_SHARE = 0.01
 #: a signature is reported when it explains at least this share of what remains above the gauge noise
 #: on the unseen rows: a reporting choice (below it the sentence would describe a sliver), not the test
 MIN_SHARE = 0.05
@@ -53,9 +52,7 @@ def _rows(rec) -> tuple[np.ndarray, np.ndarray]:
     for s in rec.splits:
         train[s.train[0] : s.train[1]] = True
         held[s.held_out[0] : s.held_out[1]] = True
-    speed = np.abs(rec.du_v_per_s)
-    still = speed <= STILL_RATE_SHARE * max(float(np.percentile(speed, 95)), 1e-300)
-    return train, held | (still & ~train)
+    return train, held | (still_mask(rec) & ~train)
 
 
 def _halves(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,7 @@ terms in the model) it is made on the measurement, whose own even part no model 
 the test cannot mistake a loop shape that the fitted family cannot draw for asymmetry.
 
 Claim rule (as service/science/discovery/decision.py): the even part is significant against the
-noise of the mean cycle (χ² test, p < ALPHA) and its RMS is at least NOISE_MULTIPLE·σ.
+noise of the mean cycle (χ² test, p < the diagnosis's per-candidate level) and its RMS is at least NOISE_MULTIPLE·σ.
 """
 
 from __future__ import annotations
@@ -32,6 +32,22 @@ MIN_CYCLES = 2
 POINTS_PER_CYCLE = 400
 
 
+#: a block's drive is point-symmetric (u(t + T/2) = 2c − u(t)) when its mean cycle's even part is at most
+#: this share of its swing: the test's premise; a step-hold's alternating levels (0.8, 0.2, 1.0, 0.4, 0.7,
+#: 0 of the range, read as a 1 Hz block) are not, and a point-symmetric stack answers them with an even part
+DRIVE_EVEN_SHARE = 0.01
+
+
+def _drive_point_symmetric(u: np.ndarray, period: float) -> bool:
+    mat = cycles_matrix(np.asarray(u, dtype=float), period, even=True)
+    if mat is None:
+        return False
+    mean = mat.mean(axis=0)
+    half = mean.size // 2
+    even = 0.5 * (mean[:half] + mean[half:]) - 0.5 * (mean.max() + mean.min())
+    return float(np.sqrt(np.mean(even**2))) <= DRIVE_EVEN_SHARE * max(float(np.ptp(mean)), 1e-12)
+
+
 def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
     """The even part (µm) of one periodic block's mean cycle of ``series`` (the record's residual)
     and the number of cycles averaged."""
@@ -40,7 +56,7 @@ def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
     if not period or period < 8:
         return None
     mat = cycles_matrix(series[a:b], period, even=True)  # a half cycle: exactly M/2 points
-    if mat is None or mat.shape[0] < MIN_CYCLES:
+    if mat is None or mat.shape[0] < MIN_CYCLES or not _drive_point_symmetric(rec.u_v[a:b], period):
         return None
     # a slow trend over the block (creep, drift) is not a loop shape: x(t) + x(t + T/2) grows with it,
     # so the cycle means' linear trend is taken out, sample by sample, before the mean cycle
@@ -59,7 +75,7 @@ def even_part(rec, split, series: np.ndarray) -> tuple[np.ndarray, int] | None:
     return even[::step], int(mat.shape[0])
 
 
-def asymmetry_test(records, residuals, noise_um: float) -> dict:
+def asymmetry_test(records, residuals, noise_um: float, alpha: float = ALPHA) -> dict:
     """``even_rms_um`` (RMS over blocks of the even part of ``residuals``, µm, one per record: the
     model's residuals or the measurements),
     ``p`` of the χ² test against the mean cycle's noise, ``blocks`` used, and ``claimed`` by the rule
@@ -84,4 +100,4 @@ def asymmetry_test(records, residuals, noise_um: float) -> dict:
 
     rms = float(np.sqrt(sq / count))
     p = float(stats.chi2.sf(chi2, max(dof, 1)))
-    return {"even_rms_um": rms, "p": p, "blocks": used, "claimed": bool(p < ALPHA and rms >= NOISE_MULTIPLE * noise_um)}
+    return {"even_rms_um": rms, "p": p, "blocks": used, "claimed": bool(p < alpha and rms >= NOISE_MULTIPLE * noise_um)}

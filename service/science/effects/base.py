@@ -115,6 +115,9 @@ class Effect:
     #: a claim must also hold at the drive rates between the others, fitted without them
     #: (service.science.discovery.diagnosis: per-segment rate terms give loop-shape freedom)
     unseen_rate_test: ClassVar[bool] = False
+    #: a time effect: its claim must hold beyond a gain that changes linearly with time
+    #: (service.science.discovery.decision.less_gain_change: creep's slow lags drew a fading gain)
+    gain_change_test: ClassVar[bool] = False
     #: capacity: the base's play operators are multiplied by this when the effect is in the model
     operator_factor: ClassVar[int] = 1
     #: transforms: the parameters for which the transform is the identity (where a search starts)

@@ -32,6 +32,7 @@ def first_order_lowpass(x: np.ndarray, tau_s: float, fs_hz: float) -> np.ndarray
 
 class Creep(Effect):
     name = "creep"
+    gain_change_test = True
     signature = (
         "the residual keeps moving after each change of the drive level, roughly linearly "
         "in log(time); per-cycle mean residual rises with log(t) within each block"

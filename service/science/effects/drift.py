@@ -17,6 +17,7 @@ DEGREE = 3
 
 class Drift(Effect):
     name = "drift"
+    gain_change_test = True
     signature = (
         "the per-cycle mean residual moves steadily with time over the whole record, "
         "independent of the drive level and of when the drive changed"
