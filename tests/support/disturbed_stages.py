@@ -57,3 +57,29 @@ def records(world: str, kind: str, form: str = "blocks", noise_um: float = 0.002
         table = blocks_without_table({"y": u}, fs)
         out += records_from_arrays({"u_y_v": u, "x_y_um": x}, fs, table, ("y",), f"{world}:{kind}:{form}{k}:")
     return out
+
+
+def foreign_records(kind: str, form: str = "long", noise_um: float = 0.002, seed: int = 7):
+    """The issue's stages on tests/support/foreign_stage.py's Bouc–Wen (5 kHz, ±150 V bursts at
+    1/10/50/100 Hz from a 3 s rest with 0.5 s gaps): "long" one record, "blocks" one per burst, each
+    from its own 0.5 s rest; ``kind`` as ``disturbed_um``."""
+    from service.science.data.segmentation import blocks_without_table
+    from service.science.discovery.records import records_from_arrays
+    from tests.support import foreign_stage
+
+    fs = foreign_stage.SAMPLE_RATE_HZ
+    rng = np.random.default_rng(seed)
+    if form == "long":
+        drives = [foreign_stage.drive_v()]
+    else:
+        drives = [
+            foreign_stage.drive_v(frequencies_hz=(f,), cycles=(c,), rest_s=0.5, gap_s=0.5)
+            for f, c in zip((1, 10, 50, 100), (5, 10, 20, 30))
+        ]
+    out = []
+    for k, u in enumerate(drives):
+        x = disturbed_um(kind, foreign_stage.bouc_wen_um(u), fs) + rng.normal(0.0, noise_um, u.size)
+        out += records_from_arrays(
+            {"u_y_v": u, "x_y_um": x}, fs, blocks_without_table({"y": u}, fs), ("y",), f"foreign:{kind}:{form}{k}:"
+        )
+    return out

@@ -26,9 +26,11 @@ def _held_rows(rec) -> np.ndarray:
 HOLD_SHARE = 0.5
 
 
-def _held_share(rec, a: int, b: int) -> float:
-    """The share of samples a..b where the drive is still (held at a level or at rest)."""
-    return float(np.mean(still_mask(rec)[a:b])) if b > a else 0.0
+def _is_step_hold(rec, a: int, b: int) -> bool:
+    """Samples a..b are a step-hold: the drive steps (moves over more than a rest's level) and is held
+    still over at least HOLD_SHARE of them."""
+    moves = b > a and not at_rest_level(rec)[a:b].all()
+    return bool(moves and float(np.mean(still_mask(rec)[a:b])) >= HOLD_SHARE)
 
 
 def _holds_outside_blocks(rec) -> np.ndarray:
@@ -51,7 +53,7 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
             rows = slice(*s.held_out)
             f = s.block.get("frequency_hz")
             where = f"{f:g} Hz block" if f else f"block {s.block.get('index')}"
-            if _held_share(rec, s.train[0], s.held_out[1]) >= HOLD_SHARE:
+            if _is_step_hold(rec, s.train[0], s.held_out[1]):
                 where = (
                     f"step-hold block {s.block.get('index')} (levels held, read as {f:g} Hz)"
                     if f
