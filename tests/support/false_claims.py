@@ -52,7 +52,10 @@ def run_case(world: str, kind: str, form: str, noise_nm: float, seed: int, fs: f
         "false": wrong,
         "floor_nm": d["noise_floor_um"] * 1e3,
         "held_out_nm": d["residual_rms_um"] * 1e3,
-        "disturbance": [(round(li["frequency_hz"], 2), round(li["amplitude_um"] * 1e3, 2)) for li in (d["disturbance"] or {}).get("lines", [])],
+        "disturbance": [
+            (round(li["frequency_hz"], 2), round(li["amplitude_um"] * 1e3, 2))
+            for li in (d.get("disturbance") or {}).get("lines", [])
+        ],
         "leading_signature": top.get("signature"),
         "leading_text": top.get("text"),
         "seconds": time.perf_counter() - t0,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.discovery.decision import ALPHA, NOISE_MULTIPLE
-from service.science.discovery.noise import cycles_matrix
+from service.science.discovery.noise import cycles_matrix, repeated_cycles
 
 #: cycles a block needs (after the first, a start-up transient) for its mean cycle
 MIN_CYCLES = 2
@@ -34,13 +34,15 @@ POINTS_PER_CYCLE = 400
 
 #: a block's drive is point-symmetric (u(t + T/2) = 2c − u(t)) when its mean cycle's even part is at most
 #: this share of its swing: the test's premise; a step-hold's alternating levels (0.8, 0.2, 1.0, 0.4, 0.7,
-#: 0 of the range, read as a 1 Hz block) are not, and a point-symmetric stack answers them with an even part
+#: 0 of the range, read as a 1 Hz block) do not repeat cycle to cycle (their mean cycle, a square wave, is
+#: point-symmetric), and a point-symmetric stack answers them with an even part
 DRIVE_EVEN_SHARE = 0.01
 
 
 def _drive_point_symmetric(u: np.ndarray, period: float) -> bool:
+    """The drive repeats cycle to cycle (noise.repeated_cycles) and its mean cycle is point-symmetric."""
     mat = cycles_matrix(np.asarray(u, dtype=float), period, even=True)
-    if mat is None:
+    if mat is None or not repeated_cycles(mat).all():
         return False
     mean = mat.mean(axis=0)
     half = mean.size // 2
