@@ -188,6 +188,28 @@ class Answer(BaseModel):
     text: str = Field(description="the answer in words, errors in nm")
 
 
+class DisturbanceLine(BaseModel):
+    model_config = OPEN
+    frequency_hz: float = Field(description="the line's frequency, refined on its phase across the rests (Hz)")
+    amplitude_um: float = Field(description="its amplitude at rest (µm)")
+    mains: bool = Field(description="a mains line (50/60 Hz or a harmonic) or another")
+    z: float = Field(description="its held-out gain at rest against white noise, in standard errors")
+    text: str
+
+
+class Disturbance(BaseModel):
+    """Lines the gauge shows at rest: a disturbance, not the model, taken out of the record before the
+    model was judged."""
+
+    model_config = OPEN
+    lines: list[DisturbanceLine]
+    rest_seconds: float = Field(description="the rests read (s)")
+    rest_rms_um: float = Field(description="the RMS at rest with the lines (µm)")
+    rest_noise_um: float = Field(description="the RMS at rest without them: the noise floor (µm)")
+    removed: bool
+    text: str
+
+
 class Diagnosis(BaseModel):
     """Residual vs noise floor, the verdict, the candidates (claimed physics, the other physics,
     capacity; each in score order), failures, and the answer the pages show first."""
@@ -229,6 +251,9 @@ class Diagnosis(BaseModel):
         default=None,
         description="the residual's RMS over the repeated cycles (training and held-out): the whole that "
         "repeatable_rms_um is a part of (never below it)",
+    )
+    disturbance: Disturbance | None = Field(
+        default=None, description="lines on the gauge at rest (mains pickup or another line): not the model"
     )
 
 

@@ -10,6 +10,10 @@ Three kinds of candidate, three references:
 - ``asymmetry`` (a loop that is not point-symmetric: electrostrictive or saturating) is compared
   with the model plus finer operators, which draw any point-symmetric loop;
 - ``operators`` (capacity) is compared with the model itself, and is never physics.
+The record's rests come first (service/science/discovery/rests.py): they give the noise floor, and a
+line seen at rest (mains pickup) is reported as a disturbance and taken out of the record before the
+model is judged, so that no loop shape is claimed for it. Each candidate must pass the family-wise
+level split over the candidates tested (decision.candidate_alpha).
 The claim rule and its false-claim basis: service/science/discovery/decision.py. Effects the data
 cannot test (service/science/discovery/identifiability.py) are listed apart, never claimed.
 """

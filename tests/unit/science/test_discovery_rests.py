@@ -18,7 +18,7 @@ from tests.support.disturbed_stages import HUM_LINES, foreign_records, records
 from tests.support.hysteresis_worlds import sine_block_v, step_hold_v
 
 FS = 5000.0
-LOOP_SHAPE_OR_RATE = {"asymmetry", "sensor_nonlinearity", "rate_dependence", "delay", "dynamics", "operators"}
+LOOP_SHAPE_OR_RATE = {"asymmetry", "sensor_nonlinearity", "rate_dependence", "delay", "dynamics"}
 
 
 def _diagnose(recs) -> dict:
