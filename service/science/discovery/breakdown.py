@@ -34,7 +34,7 @@ def _is_step_hold(rec, a: int, b: int) -> bool:
 
 
 def _holds_outside_blocks(rec) -> np.ndarray:
-    """Rows outside every block where the drive is held still away from its rest at 0 V (the model runs
+    """Rows outside every block where the drive is held still away from its rest level (the model runs
     through them, never fitted there)."""
     outside = np.ones(rec.n_samples, dtype=bool)
     for s in rec.splits:

@@ -1,4 +1,5 @@
-"""The record's rests (the drive still at 0 V): the gauge's own noise and any disturbance.
+"""The record's rests (the drive still at the level it starts from, 0 V as a sweep is recorded): the
+gauge's own noise and any disturbance.
 
 At rest the stage does nothing the model must draw, so what the gauge shows there is the floor any
 model is judged against: its own non-repeatable noise plus whatever reaches it from outside. Each
@@ -26,7 +27,7 @@ import numpy as np
 from service.science.data.units import fmt_nm
 from service.science.discovery.signature_dictionary import MAINS_LINES_HZ, pool, pool_factor
 
-#: a rest: the drive within this share of its span of 0 V, and still
+#: a rest: the drive within this share of its span of the level it starts from, and still
 REST_LEVEL_SHARE = 0.01
 #: still (a rest or a hold; the description of what remains and the failures read holds alike): the drive
 #: within this share of its span over a window of this many seconds centred on the sample (a 1 Hz sine's
@@ -66,12 +67,14 @@ def still_mask(rec) -> np.ndarray:
 
 
 def at_rest_level(rec) -> np.ndarray:
-    """Rows where ``rec``'s drive is within REST_LEVEL_SHARE of its span of 0 V."""
-    return np.abs(rec.u_v) <= REST_LEVEL_SHARE * max(float(np.ptp(rec.u_v)), 1e-12)
+    """Rows where ``rec``'s drive is within REST_LEVEL_SHARE of its span of the level it starts from (a
+    record starts from a relaxed state: 0 V as a sweep is recorded, or wherever another lab's amplifier
+    input or units put it, so that the diagnosis does not depend on the drive's origin or units)."""
+    return np.abs(rec.u_v - rec.u_v[0]) <= REST_LEVEL_SHARE * max(float(np.ptp(rec.u_v)), 1e-12)
 
 
 def rest_stretches(rec) -> list[tuple[int, int]]:
-    """(start, stop) sample ranges where ``rec``'s drive rests at 0 V, settled, each ≥ MIN_STRETCH_S."""
+    """(start, stop) sample ranges where ``rec``'s drive rests (at the level it starts from), settled, each ≥ MIN_STRETCH_S."""
     rest = still_mask(rec) & at_rest_level(rec)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     settle, shortest = int(SETTLE_S * rec.sample_rate_hz), int(MIN_STRETCH_S * rec.sample_rate_hz)
