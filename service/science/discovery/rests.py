@@ -59,11 +59,15 @@ def still_mask(rec) -> np.ndarray:
     """Rows where ``rec``'s drive is held still: within HOLD_SPAN_SHARE of its span over the HOLD_WINDOW_S
     centred on the row. (A rate under 1 % of the record's 95th-percentile rate took the whole 1 Hz burst
     of a 1…100 Hz sweep for a hold: 2π·1 Hz is under 1 % of 2π·100 Hz.)"""
+    return _held(rec.u_v, rec.sample_rate_hz)
+
+
+def _held(u: np.ndarray, sample_rate_hz: float) -> np.ndarray:
     from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
-    size = max(3, int(HOLD_WINDOW_S * rec.sample_rate_hz) | 1)
-    spread = maximum_filter1d(rec.u_v, size, mode="nearest") - minimum_filter1d(rec.u_v, size, mode="nearest")
-    return spread <= HOLD_SPAN_SHARE * max(float(np.ptp(rec.u_v)), 1e-12)
+    size = max(3, int(HOLD_WINDOW_S * sample_rate_hz) | 1)
+    spread = maximum_filter1d(u, size, mode="nearest") - minimum_filter1d(u, size, mode="nearest")
+    return spread <= HOLD_SPAN_SHARE * max(float(np.ptp(u)), 1e-12)
 
 
 def at_rest_level(rec) -> np.ndarray:
@@ -76,6 +80,10 @@ def at_rest_level(rec) -> np.ndarray:
 def rest_stretches(rec) -> list[tuple[int, int]]:
     """(start, stop) sample ranges where ``rec``'s drive rests (at the level it starts from), settled, each ≥ MIN_STRETCH_S."""
     rest = still_mask(rec) & at_rest_level(rec)
+    if rec.u_other_v is not None:  # the whole stage at rest: the other axis's motion couples into this gauge
+        u = rec.u_other_v
+        rest &= np.abs(u - u[0]) <= REST_LEVEL_SHARE * max(float(np.ptp(u)), 1e-12)
+        rest &= _held(u, rec.sample_rate_hz)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     settle, shortest = int(SETTLE_S * rec.sample_rate_hz), int(MIN_STRETCH_S * rec.sample_rate_hz)
     out = []

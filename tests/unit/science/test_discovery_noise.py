@@ -61,7 +61,10 @@ def test_real_bursts_with_a_hold_get_the_same_noise_floor_as_the_steady_file():
         warnings.simplefilter("ignore")
         d = diagnose([record])
     assert 0.03 < d["noise_floor_um"] < 0.12  # Model_Vi_Do.dat: about 0.066 µm
-    assert d["verdict"] == "missing_effect" and not d["at_noise_floor"]
+    assert d["noise"]["source"] == "rests"  # its 10 s of rests: 0.063 µm
+    # no verdict on the loop's symmetry: neither block's drive is a point-symmetric repeated cycle (the
+    # symmetry test's premise), so sensor_nonlinearity is no longer claimed from its 224 nm even part
+    assert not d["at_noise_floor"]
     assert d["held_out_to_noise"] > 3
 
 
