@@ -12,9 +12,10 @@ from service.runtime.jobs import JobManager
 from service.science.errors import FieldError
 from service.store import Store
 from service.usecases.acquire import sweep_and_wait
-from service.usecases.discover import diagnose_model, history, imported_datasets, refine_params
+from service.usecases.discover import diagnose_model, history, refine_params
 from service.usecases.discover_run import discover
 from service.usecases.identify import identify, require_fit_memory
+from service.usecases.provenance import imported_datasets
 
 router = APIRouter(prefix="/models", tags=["discovery"])
 

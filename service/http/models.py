@@ -14,12 +14,14 @@ from service.runtime.jobs import JobManager
 from service.science.data.export import JSON_DEFAULT_MAX_POINTS
 from service.store import ModelRow, Store
 from service.usecases.identify import check_identify_request, compare, identify
+from service.usecases.provenance import model_origin
 
 router = APIRouter(prefix="/models", tags=["models"])
 
 
-def model_view(row: ModelRow) -> dict:
-    """A model record as the API shows it (units in the field names of parameters and metrics)."""
+def model_view(row: ModelRow, store: Store) -> dict:
+    """A model record as the API shows it (units in the field names of parameters and metrics), with
+    the ``origin`` of its data (service.usecases.provenance.model_origin)."""
     return {
         "id": row["id"],
         "axis": row["axis"],
@@ -38,6 +40,7 @@ def model_view(row: ModelRow) -> dict:
         "tags": row["tags"],
         "notes": row["notes"],
         "bench_id": row.get("bench_id"),
+        "origin": model_origin(store, row["datasets"]),
     }
 
 
@@ -54,19 +57,19 @@ def create_model(body: ModelRequest, store: Store = Depends(get_store), jobs: Jo
 @router.get("", response_model=list[Model], response_model_exclude_unset=True)
 def list_models(bench_id: str | None = BENCH_FILTER, store: Store = Depends(get_store)) -> list[dict]:
     """Every model of every bench of the lab (``bench_id``: that bench's), oldest first."""
-    return [model_view(row) for row in store.list_models(bench_id)]
+    return [model_view(row, store) for row in store.list_models(bench_id)]
 
 
 @router.get("/{model_id}", response_model=Model, response_model_exclude_unset=True)
 def get_model(model_id: str, store: Store = Depends(get_store)) -> dict:
     """A model: kind, effects, parameters (``model.to_dict()``) and train/held-out metrics."""
-    return model_view(store.get_model(model_id))
+    return model_view(store.get_model(model_id), store)
 
 
 @router.patch("/{model_id}", response_model=Model, response_model_exclude_unset=True)
 def label_model(model_id: str, body: LabelsUpdate, store: Store = Depends(get_store)) -> dict:
     """Rename, tag or annotate a model (the fields given; its parameters never change)."""
-    return model_view(store.label_model(model_id, **body.model_dump(exclude_unset=True)))
+    return model_view(store.label_model(model_id, **body.model_dump(exclude_unset=True)), store)
 
 
 @router.delete("/{model_id}", response_model=Deleted)

@@ -10,6 +10,7 @@ from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
 from service.store import Store
 from service.usecases.identify import load_model, load_records, require_fit_memory
+from service.usecases.provenance import imported_datasets
 
 
 def model_effects(row: dict) -> list[str]:
@@ -101,11 +102,6 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
         )
     out.pop("metrics", None)
     return out
-
-
-def imported_datasets(store: Store, dataset_ids) -> list[str]:
-    """The ids among ``dataset_ids`` that were imported (recorded elsewhere, not by this bench)."""
-    return [d for d in dataset_ids if store.get_dataset(d).get("source") == "import"]
 
 
 def refined_effects(row: dict, add: str | None, remove: str | None, effects: list[str] | None) -> list[str]:

@@ -32,6 +32,7 @@ from service.science.errors import FieldError
 from service.science.fitting.validation import trained_loops_v
 from service.store import ArrayStoreUnavailable, IntegrityError, NotFoundError, Store
 from service.usecases.identify import load_model, load_records
+from service.usecases.provenance import foreign_model_warning, model_origin
 from service.usecases.recorder import Recorder, Stop, bench_snapshot
 
 #: The path the product recommends to a new user (GET /api/trajectories/recipe; the tracking report walks
@@ -187,12 +188,24 @@ def check_trajectory(bench: Bench, store: Store, ellipse: Ellipse, controller: d
         raise
     except ValueError as exc:
         raise FieldError("body", str(exc)) from None
+    warnings.extend(foreign_models(store, bench, controller))
     if u_ff is not None:
         warnings.extend(extrapolated_loops(store, bench, controller, u_ff[ref.steady]))
         if built.ilc:
             built.trajectory_gain = trajectory_gains(bench, ref, u_ff, built)
     built.planned = (ref, u_ff, warnings)  # the run uses this drive: the engine computes nothing
     return built
+
+
+def foreign_models(store: Store, bench: Bench, controller: dict) -> list[str]:
+    """Warnings for the axes whose feedforward model was fitted on imported data (another stage's)."""
+    out = []
+    for axis in bench.axes:
+        model_id = controller.get(f"feedforward_model_{axis}")
+        if model_id is not None:
+            why = foreign_model_warning(axis, model_id, model_origin(store, store.get_model(model_id)["datasets"]))
+            out += [why] if why else []
+    return out
 
 
 def extrapolated_loops(store: Store, bench: Bench, controller: dict, u_steady_v) -> list[str]:

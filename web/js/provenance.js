@@ -9,8 +9,18 @@ export const isImported = (d) => d.source === 'import';
 /** The ids of the imported datasets among `datasets` (a Set). */
 export const importedIds = (datasets) => new Set(datasets.filter(isImported).map((d) => d.id));
 
-/** True when `model` was fitted on at least one imported dataset. */
-export const onImportedData = (model, imported) => model.datasets.some((id) => imported.has(id));
+/** True when `model` was fitted on at least one imported dataset (the service's `origin`, else the
+ * ids of `imported`). */
+export const onImportedData = (model, imported) => (model.origin
+  ? model.origin.fitted_on !== 'this_bench' : model.datasets.some((id) => imported?.has(id)));
+
+/** What a model describes (HTML-escaped): this bench's data, or the files another stage recorded. */
+export function modelOriginHtml(model) {
+  const o = model.origin;
+  if (!o || o.fitted_on === 'this_bench') return 'this bench’s data';
+  const files = o.imported.map((i) => `<code>${esc(i.filename || i.name || i.dataset_id)}</code>`).join(', ');
+  return `${o.fitted_on === 'mixed' ? 'partly ' : ''}imported data (${files}): another stage`;
+}
 
 /** A dataset's origin (HTML-escaped): the bench that recorded it, or the file it was imported from (the
  * list's rows carry no plan: there the dataset's name stands for the file). */

@@ -68,6 +68,17 @@ class ModelMetrics(BaseModel):
     )
 
 
+class ModelOrigin(BaseModel):
+    """Where the model's data came from: ``bench_id`` is the bench that stored it, this is the stage
+    it describes."""
+
+    fitted_on: Literal["this_bench", "imported", "mixed"] = Field(
+        description="this_bench: every dataset recorded by a bench of this service; imported: every one "
+        "imported from another stage's file (the model describes that stage); mixed: some of each"
+    )
+    imported: list[dict[str, Any]] = Field(description="the imported datasets: dataset_id, name, filename")
+
+
 class Model(BaseModel):
     """An identified model: ``parameters`` is ``model.to_dict()``, checked by ``parameters_sha256``."""
 
@@ -89,6 +100,7 @@ class Model(BaseModel):
     tags: list[str] = []
     notes: str | None = None
     bench_id: str | None = BENCH_ID_FIELD
+    origin: ModelOrigin | None = None
 
 
 class FitFigures(BaseModel):
@@ -141,6 +153,11 @@ class Candidate(BaseModel):
             "square above the noise floor (one denominator, so scores rank as gains do; the candidates: claimed "
             "physics, the other physics, capacity, each in score order); the claim is decided by the held-out test, not by the score"
         ),
+    )
+    score_of: str | None = Field(
+        default=None,
+        description="the figures the score is the ratio of (nm²): its test's held-out mean-square drop, "
+        "levels anchored, over this model's excess above the noise floor; not the RMS figures of its test",
     )
     expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
     evidence: str | None = None
