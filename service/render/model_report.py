@@ -248,7 +248,7 @@ def _diagnosis_section(d: dict) -> str:
             escape(c["effect"]),
             escape(c.get("kind") or ""),
             "yes" if c.get("claimed") else "no",
-            _num(c.get("score"), 3),
+            _num(c.get("score"), 3) + (f"<br><small>{escape(c['score_of'])}</small>" if c.get("score_of") else ""),
             _tested_words(c),
             fmt_nm(c.get("expected_rms_um"), 4)
             if c.get("expected_rms_um") != d.get("residual_rms_um")

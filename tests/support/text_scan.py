@@ -68,6 +68,15 @@ def part_whole_problems(text: str) -> list[str]:
     return out
 
 
+#: a clause whose content is missing: a colon, dash or "of" followed by nothing before the stop
+EMPTY_CLAUSE = re.compile(r"(?::|—|\bof)\s*[.;,)]|\(\s*\)|\s\.\s|^\s*[.;,]")
+
+
+def empty_clauses(text: str) -> list[str]:
+    """Clauses with nothing in them ("before any fit: ." was one), each with its surroundings."""
+    return [f"empty clause in {text[max(m.start() - 40, 0) : m.end() + 10]!r}" for m in EMPTY_CLAUSE.finditer(text)]
+
+
 def texts_of(value, path: str = "") -> list[tuple[str, str]]:
     """(path, text) of every string in a JSON value, except ids, figures' arrays and experiment bodies
     (ready-to-POST JSON, not words)."""

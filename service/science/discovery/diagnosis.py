@@ -206,6 +206,17 @@ def _test_words(test: dict, noise: float) -> str:
     )
 
 
+def score_words(gain_um2: float, excess_um2: float) -> str:
+    """What a candidate's score is of (one denominator for every row): its test's held-out mean-square
+    drop (µm²: the mean over held-out stretches, every block alike, levels anchored at the last training
+    cycle) over this model's held-out mean square above the noise floor (µm²). Not the ratio of the RMS
+    figures printed beside it, which are means of per-block RMS without the anchoring."""
+    return (
+        f"{fmt_nm2(gain_um2)} of held-out mean square removed by its test (mean over held-out stretches, "
+        f"each block's level anchored at its last training cycle) / {fmt_nm2(excess_um2)} above the noise floor"
+    )
+
+
 def _entry(
     name,
     fits: _Fits,
@@ -232,10 +243,16 @@ def _entry(
     if is_claimed or kind == "capacity":
         own, _, v = fits.get((name,))  # what the user gets by adding it to this model
         added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
-    removed = min((v0**2 - v**2) / max(v0**2 - noise**2, 1e-30), 1.0)  # below the floor: all of the excess
+    excess = max(v0**2 - noise**2, 1e-30)  # this model's held-out mean square above the floor (µm²)
+    removed = min((v0**2 - v**2) / excess, 1.0)  # below the floor: all of the excess
+    words = eff.evidence(sig, floor)
     evidence = (
-        f"In this model's residual, before any fit: {eff.evidence(sig, floor)}. Its test, a fit of its "
-        f"own: {how}"
+        (
+            f"In this model's residual, before any fit: {words}. "
+            if words
+            else "No measure of its signature is taken before a fit. "
+        )
+        + f"Its test, a fit of its own: {how}"
         + (
             f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
             if v != v0
@@ -257,7 +274,8 @@ def _entry(
         "high": bool(is_claimed),
         "significant": bool(is_claimed),
         # one denominator for every candidate (this model's excess), so that scores rank as gains do
-        "score": round(float(np.clip(gain / max(v0**2 - noise**2, 1e-30), 0, 1)), 4),
+        "score": round(float(np.clip(gain / excess, 0, 1)), 4),
+        "score_of": score_words(gain, excess),
         "p_value": p_value,
         "gain_mse_um2": gain,
         "reference": list(reference),
