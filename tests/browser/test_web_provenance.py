@@ -44,9 +44,18 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     goto(page, server, f"datasets/{server['imported']}")
     assert "imported from Model_Vi_Do.dat" in page.inner_text("#dataset-origin")
 
+    # a model of imported data says so in the list and on its page, beside the bench that stored it
+    goto(page, server, "models")
+    row = f"#model-list tr[data-model-id='{server['imported_model']}'] td.origin"
+    assert page.get_attribute(row, "data-fitted-on") == "imported" and "Model_Vi_Do.dat" in page.inner_text(row)
+    row = f"#model-list tr[data-model-id='{server['recorded_model']}'] td.origin"
+    assert page.get_attribute(row, "data-fitted-on") == "this_bench" and "imported" not in page.inner_text(row)
+
     # a model of imported data: no control that runs an experiment on this bench, and no Table 6
     goto(page, server, f"models/{server['imported_model']}")
     page.wait_for_selector("#compare-loop canvas")
+    assert page.get_attribute("#model-origin", "data-fitted-on") == "imported"
+    assert "Model_Vi_Do.dat" in page.inner_text("#model-origin") and "another stage" in page.inner_text("#model-origin")
     assert page.locator("#discover-form input[name=allow_experiments]").count() == 0
     assert "recorded on another stage" in page.inner_text("#experiments-elsewhere-note")
     assert page.locator("#table6 td.paper").count() == 0 and page.is_visible("#table6-omitted")
@@ -68,6 +77,12 @@ def test_trajectories_offer_this_benchs_models_first_and_mark_the_imported(page,
     assert marked == [server["imported_model"]]
     top = page.locator(f"{select} > option").evaluate_all("os => os.map(o => o.value)")
     assert server["recorded_model"] in top and server["imported_model"] not in top
+    # offered only when asked: hidden and not selectable until the toggle is ticked
+    group = page.locator(f"{select} optgroup.imported-models")
+    assert group.evaluate("g => g.hidden && g.disabled")
+    page.check("#traj-show-imported")
+    assert group.evaluate("g => !g.hidden && !g.disabled")
+    page.select_option(select, server["imported_model"])
 
 
 def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
@@ -104,6 +119,14 @@ def test_the_answer_is_on_the_first_screen_of_a_model(page, server):
     diagnosis = server["api"].get(f"/models/{server['recorded_model']}/diagnosis").json()
     ratio = diagnosis["residual_rms_um"] / diagnosis["noise_floor_um"]
     assert float(answer.get_attribute("data-ratio")) == pytest.approx(ratio, rel=1e-9)
+    # each held-out figure says what it is, and the ratio is of the figure printed beside it
+    text = answer.inner_text()
+    assert diagnosis["residual_of"].startswith("the mean of per-block held-out RMS over ")
+    assert f"Held-out RMS {diagnosis['residual_rms_um'] * 1e3:.4g} nm ({diagnosis['residual_of']}), " in text
+    assert f"{ratio:.3g}× the noise floor" in text
+    assert "Mean of per-block held-out RMS" in page.inner_text("#model-detail .card")
+    model = server["api"].get(f"/models/{server['recorded_model']}").json()
+    assert page.get_attribute("#model-validation-rms", "data-value") == str(model["metrics"]["validation_rms_um"])
     leading = next((c for c in diagnosis["candidates"] if c["claimed"] and c["kind"] == "physical"), None)
     text = answer.inner_text()
     assert (f"Missing: {leading['effect']}." in text) if leading else ("Missing:" not in text)

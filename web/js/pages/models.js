@@ -9,7 +9,7 @@ import { h, runJob, showError } from '../ui.js';
 import { renderLabels } from '../labels.js';
 import { renderEffects } from '../effects.js';
 import { paperFigures, table6 } from '../paper.js';
-import { importedIds, isImported, onImportedData } from '../provenance.js';
+import { importedIds, isImported, modelOriginHtml, onImportedData } from '../provenance.js';
 import { renderDiagnosis } from './diagnosis.js';
 import { renderDiscover } from './discover.js';
 
@@ -50,11 +50,11 @@ export async function enter(root, [modelId], query = {}) {
 
 function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
-    <th class="num">train RMS</th><th class="num">held-out RMS</th><th title="the bench its datasets came from">bench</th></tr>` + models.slice().reverse().map((m) => `
+    <th class="num">train RMS</th><th class="num" title="the mean of per-block held-out RMS">held-out RMS</th><th title="the bench that stored it">bench</th><th title="the stage its data were recorded on">fitted on</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a>${m.name ? ` <span class="model-name">“${esc(m.name)}”</span>` : ''}${(m.tags || []).map((t) => ` <span class="tag">${esc(t)}</span>`).join('')}</td><td>${m.axis}</td><td>${esc(m.kind)}</td>
       <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
       <td class="num">${fmtErrorNm(m.metrics.train_rms_um, 4)}</td><td class="num">${fmtErrorNm(m.metrics.validation_rms_um, 4)}</td>
-      <td class="bench">${esc(m.bench_id || '—')}</td></tr>`).join('');
+      <td class="bench">${esc(m.bench_id || '—')}</td><td class="origin" data-fitted-on="${esc(m.origin?.fitted_on || '')}">${modelOriginHtml(m)}</td></tr>`).join('');
 }
 
 async function identify(root) {
@@ -92,7 +92,8 @@ async function showModel(el, modelId, query) {
   el.append(h(`<div>
     <div class="card"><h2>Model <span id="model-id">${esc(model.id)}</span> <span id="model-name">${model.name ? `“${esc(model.name)}”` : ''}</span> <span class="muted">axis ${model.axis} · ${esc(model.kind)} ·
       ${model.effects.map(esc).join(' + ')}${model.parent_id ? ` · refined from <a href="#/models/${esc(model.parent_id)}">${esc(model.parent_id)}</a>` : ''}</span></h2>
-      <p>Held-out RMS <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmtErrorNm(model.metrics.validation_rms_um, 4)}</b>
+      <p id="model-origin" data-fitted-on="${esc(model.origin?.fitted_on || '')}">Fitted on ${modelOriginHtml(model)}${onImportedData(model) ? ' — it may not describe this bench' : ''}.</p>
+      <p><span title="the mean over the model's blocks of each block's held-out RMS, every block counting equally">Mean of per-block held-out RMS</span>${blockCount(model) ? ` <span class="muted" id="model-validation-blocks">(the stored model's, over the ${blockCount(model)} blocks it was evaluated on)</span>` : ''} <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmtErrorNm(model.metrics.validation_rms_um, 4)}</b>
         · training RMS ${fmtErrorNm(model.metrics.train_rms_um, 4)} · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
       <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label>
         <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
@@ -150,6 +151,9 @@ async function showModel(el, modelId, query) {
   if (datasetId) await renderCompare(el, model, datasetId, diagnosis);
 }
 
+/** How many blocks the stored held-out mean covers (its datasets' blocks it was evaluated on), or 0. */
+const blockCount = (model) => (model.metrics.per_dataset || []).reduce((n, d) => n + (d.blocks || []).length, 0);
+
 /** The page's answer on its first screen: how far the model is from the noise floor, then the
  *  diagnosis's answer (one stored value: what is missing and the error it should fall to, and what
  *  remains described), the same value the verdict and the remainder's section read. */
@@ -157,7 +161,7 @@ function renderAnswer(box, model, d) {
   if (!d || !d.answer) { box.innerHTML = '<p class="muted">No diagnosis: see the compare table below.</p>'; return; }
   const ratio = d.noise_floor_um ? d.residual_rms_um / d.noise_floor_um : null;
   const a = d.answer;
-  const where = `Residual ${fmtErrorNm(d.residual_rms_um, 4)} on the held-out cycles${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 4)})` : ''}.`;
+  const where = `Held-out RMS ${fmtErrorNm(d.residual_rms_um, 4)}${d.residual_of ? ` <span class="muted" id="model-answer-of">(${esc(d.residual_of)})</span>` : ''}${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 4)})` : ''}.`;
   const how = a.missing ? ` Use “Add ${esc(a.missing)}” in the diagnosis, or Discover.` : '';
   box.innerHTML = `<p id="model-answer-text" data-ratio="${ratio ?? ''}" data-effect="${esc(a.missing || '')}"
     data-remains="${esc(a.remains || '')}">${where} ${esc(a.text)}${how}</p>`;

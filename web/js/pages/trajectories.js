@@ -3,7 +3,7 @@
 import { api, esc, fmt, fmtErrorNm, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { paperFigures, trackingCases } from '../paper.js';
-import { importedIds, onImportedData } from '../provenance.js';
+import { onImportedData } from '../provenance.js';
 import { h, runJob, showError } from '../ui.js';
 
 const charts = [];
@@ -20,19 +20,18 @@ const GAINS = ['kp_y', 'ki_y', 'kd_y', 'kp_z', 'ki_z', 'kd_z'];
 export async function enter(root) {
   controller = new AbortController();
   const signal = controller.signal;
-  const [available, models, paper, datasets] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal }),
-    paperFigures(signal), api('/datasets', { signal })]);
+  const [available, models, paper] = await Promise.all([has('POST /api/trajectories'), api('/models', { signal }),
+    paperFigures(signal)]);
   PAPER = trackingCases(paper);
-  const imported = importedIds(datasets);
   const option = (m) => `<option value="${esc(m.id)}">${esc(m.id)}${m.name ? ` “${esc(m.name)}”` : ''} · ${esc(m.kind)} · ${m.effects.map(esc).join('+')} · ${fmtErrorNm(m.metrics.validation_rms_um)}</option>`;
   // Models of this bench first; those fitted on another stage's imported data are marked apart: their
   // low held-out RMS describes that stage, not this one.
   const options = (axis) => {
     const mine = models.filter((m) => m.axis === axis).reverse();
-    const here = mine.filter((m) => !onImportedData(m, imported));
-    const elsewhere = mine.filter((m) => onImportedData(m, imported));
+    const here = mine.filter((m) => !onImportedData(m));
+    const elsewhere = mine.filter((m) => onImportedData(m));
     return `<option value="">none</option>` + here.map(option).join('') +
-      (elsewhere.length ? `<optgroup label="fitted on imported data (another stage)" class="imported-models">${elsewhere.map(option).join('')}</optgroup>` : '');
+      (elsewhere.length ? `<optgroup label="fitted on imported data (another stage)" class="imported-models" hidden disabled>${elsewhere.map(option).join('')}</optgroup>` : '');
   };
   root.append(h(`<div>
     <h1>Trajectories</h1>
@@ -49,6 +48,7 @@ export async function enter(root) {
         <label>periods <input name="cycles" type="number" step="1" min="1" value="50"></label>
         <label>feedforward model Y <select name="feedforward_model_y">${options('y')}</select></label>
         <label>feedforward model Z <select name="feedforward_model_z">${options('z')}</select></label>
+        <label class="check" title="models fitted on data recorded on another stage (imported): they describe that stage, not this bench"><input type="checkbox" id="traj-show-imported">show models fitted on other stages' data</label>
         <label>PID <select name="pid" id="traj-pid"><option value="">none</option>
           <option value="auto">auto (tuned on this bench's identified plant)</option>
           <option value="tuned">tuned (auto on the default bench)</option>
@@ -70,6 +70,9 @@ export async function enter(root) {
     <div class="card"><h2>Errors beside the paper's</h2><table id="traj-errors"></table></div>
   </div>`));
   const form = root.querySelector('#traj-form');
+  root.querySelector('#traj-show-imported').addEventListener('change', (e) => {
+    root.querySelectorAll('#traj-form optgroup.imported-models').forEach((g) => { g.hidden = !e.target.checked; g.disabled = !e.target.checked; });
+  });
   root.querySelector('#traj-pid').addEventListener('change', (e) => {
     root.querySelector('#traj-gains').hidden = e.target.value !== 'custom';
   });
