@@ -68,13 +68,13 @@ def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = fr
     return "".join(out) + "</table>"
 
 
-#: the title's mark on the block the diagnosis names worst
+#: the title's mark on the block with the largest held-out RMS of those the report prints
 WORST_MARK = "▲ worst block: "
 
 
 def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
     """The loop (x against u; measured and model) and the residual over time, side by side; the
-    block the diagnosis names worst (``worst``) has WORST_MARK before its title and a red frame."""
+    block with the largest held-out RMS (``worst``) has WORST_MARK before its title and a red frame."""
     factor, unit = length_unit(float(np.max(np.abs(b.x_um))) if b.x_um.size else 1.0)
     mark = WORST_MARK if worst else ""
     loop = Panel(520, 300, f"{mark}{b.title}: loop", f"u_{axis} (V)", f"x_{axis} ({unit})")
@@ -221,7 +221,15 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
     return (
         "<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model.</p>"
         + _table(
-            ["step", "model", "change", "effects", "training RMS", "held-out RMS", "× noise floor"],
+            [
+                "step",
+                "model",
+                "change",
+                "effects",
+                "training RMS (mean of per-block)",
+                "held-out RMS (the step's stored figure: mean of per-block held-out RMS)",
+                "that held-out RMS / noise floor",
+            ],
             rows,
             {0, 4, 5, 6},
             ' id="lineage"',
@@ -269,9 +277,15 @@ def _diagnosis_section(d: dict) -> str:
         f"{escape(str(d.get('verdict')))}</span></p>"
         f'<p id="verdict-text">{escape(d.get("verdict_text") or "")}</p>'
         + (f'<p id="answer">{escape(d["answer"]["text"])}</p>' if d.get("answer") else "")
-        + f"<p>Held-out RMS {fmt_nm(d.get('residual_rms_um'), 4)} · noise floor "
+        + f"<p>Held-out RMS {fmt_nm(d.get('residual_rms_um'), 4)}"
+        + (f" ({escape(d['residual_of'])})" if d.get("residual_of") else "")
+        + " · noise floor "
         f'<span id="noise-floor">{fmt_nm(d.get("noise_floor_um"), 4)}</span>'
-        + (f" · ratio {d['held_out_to_noise']:.2f}" if d.get("held_out_to_noise") else "")
+        + (
+            f" · ratio {d['residual_rms_um'] / d['noise_floor_um']:.3g}"
+            if d.get("residual_rms_um") and d.get("noise_floor_um")
+            else ""
+        )
         + "</p>"
         + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
         + "<h3>Candidate effects (claimed physical effects, then the others, then model capacity; each in "
@@ -311,7 +325,7 @@ def _blocks_section(blocks: list[BlockCurves], axis: str, worst: int | None) -> 
     return (
         "<h2>6. Measured against model, block by block</h2><p>Each block's held-out cycles (never fitted): "
         f"the loop, measured and predicted, and the residual; at most {MAX_CURVE_POINTS} points per curve. "
-        "The block the diagnosis names worst is framed in red.</p>" + figs
+        "The block with the largest held-out RMS (printed in its title) is framed in red.</p>" + figs
     )
 
 
@@ -336,8 +350,8 @@ def render_report(
     generated_at: str,
     worst: int | None = None,
 ) -> str:
-    """The whole report as HTML text; ``worst``: the index in ``blocks`` of the block the diagnosis
-    names worst (marked)."""
+    """The whole report as HTML text; ``worst``: the index in ``blocks`` of the block with the largest
+    held-out RMS (marked)."""
     title = f"Model {model_row['id']}: {model_row['kind']}, axis {model_row['axis'].upper()}"
     return (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'

@@ -86,14 +86,9 @@ def _gather(store: Store, model_id: str) -> dict:
     }
 
 
-def worst_block(diagnosis: dict, blocks: list[BlockCurves]) -> int | None:
-    """The index in ``blocks`` of the block the diagnosis names first among its failures (worst
-    first); when no block is among them, the block with the largest held-out RMS."""
-    for f in diagnosis.get("failures") or []:
-        if f.get("by") == "frequency":
-            for i, b in enumerate(blocks):
-                if (b.dataset_id, b.block_index) == (f.get("record"), f.get("block_index")):
-                    return i
+def worst_block(blocks: list[BlockCurves]) -> int | None:
+    """The index in ``blocks`` of the block with the largest held-out RMS, the figure each block's title
+    prints (the stored model's; the diagnosis's failures are of its own fit and places, issue 39)."""
     rms_of = [b.held_out_rms_um if b.held_out_rms_um is not None else -1.0 for b in blocks]
     return int(np.argmax(rms_of)) if blocks else None
 
@@ -113,16 +108,16 @@ def model_report(store: Store, model_id: str) -> str:
         g["blocks"],
         commands(dataset_rows, steps, root),
         utc_now(),
-        worst_block(g["diagnosis"], g["blocks"]),
+        worst_block(g["blocks"]),
     )
 
 
 def model_figures(store: Store, model_id: str) -> dict:
     """The report's figures alone, for a page to inline: the error history and, per block, its name,
-    held-out and training RMS (µm), whether the diagnosis names it worst, and its SVG."""
+    held-out and training RMS (µm), whether its held-out RMS is the largest (worst), and its SVG."""
     g = _gather(store, model_id)
     d, blocks = g["diagnosis"], g["blocks"]
-    worst = worst_block(d, blocks)
+    worst = worst_block(blocks)
     return {
         "model_id": model_id,
         "axis": g["row"]["axis"],

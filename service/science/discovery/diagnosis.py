@@ -475,6 +475,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     return {
         "effects": ["hysteresis"] + model.effects,
         "residual_rms_um": v0,
+        "residual_of": residual_words(records),
         "train_rms_um": ev["train_rms_um"],
         "noise_floor_um": noise,
         "repeatable_rms_um": repeatable,
@@ -508,6 +509,16 @@ def _leading(pair_ambiguity: dict | None, physical: list[dict]) -> dict | None:
     if pair_ambiguity is None or not physical or physical[0]["effect"] != pair_ambiguity["effects"][0]:
         return None
     return pair_ambiguity
+
+
+def residual_words(records) -> str:
+    """What ``residual_rms_um`` is: the mean of per-block held-out RMS over every block of the records
+    (the blocks that leave the axis undriven too), of the diagnosis's fit; the stored model's own
+    figure (``metrics.validation_rms_um``) is over the blocks that drive its axis."""
+    n_all = sum(len(r.splits) for r in records)
+    n_own = sum(len(r.splits_of(own_axis_only=True)) for r in records)
+    undriven = f" ({n_own} that drive the axis, {n_all - n_own} that leave it undriven)" if n_all != n_own else ""
+    return f"the mean of per-block held-out RMS over {n_all} blocks{undriven}, of the diagnosis's fit"
 
 
 def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
