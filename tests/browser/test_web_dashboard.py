@@ -178,6 +178,9 @@ def test_import_headerless_file_with_column_mapping(page, server):
         float(first[0]),
         float(first[4]),
     ]
+    # numbered from 1 as the record's README numbers them: its "col 1" drive and "col 5" sensor
+    labels = page.locator("#preview-table .col-number").all_inner_texts()
+    assert labels == [f"col {i}" for i in range(1, 8)], labels
     page.select_option("#import-delimiter", "whitespace")
     page.wait_for_selector("#preview-delimiter:has-text('whitespace')")
     page.select_option(".col-role[data-col='0']", "u")

@@ -1,7 +1,7 @@
 """Issue 20 §2 in a real browser: the Models page's Discover button runs the discovery job and shows
 it building up step by step (the steps, the effects found, what remains); the report's own figures
-are inlined (the error history, the per-block loop and residual, the block the diagnosis names
-worst marked); and two models of the lineage are compared block by block. On the creep bench with
+are inlined (the error history, the per-block loop and residual, the block with the largest
+held-out RMS marked); and two models of the lineage are compared block by block. On the creep bench with
 a short sweep (10 and 100 Hz, 5 cycles, as tests/api/test_discover_job.py), so each fit takes seconds.
 Screenshots: tests/artifacts/web_discover_run.png, web_discover_blocks.png, web_discover_compare.png.
 Set-up: tests/support/browser.py."""
@@ -77,6 +77,24 @@ def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
         remains["ratio_to_noise_floor"], rel=1e-9
     )
     assert page.get_attribute("#discover-stopped", "data-stopped") == job["result"]["stopped"]
+    # the page names its checkboxes by their labels, the API parameter kept in brackets (issue 39)
+    labels = {
+        "allow_experiments": "run the experiments it needs on the bench",
+        "continue_past_ambiguity": "at an ambiguity, add the leading effect and go on",
+    }
+    for name, label in labels.items():
+        assert page.locator(f"#discover-form label:has(input[name={name}])").inner_text().strip() == label
+        text = page.inner_text("#discover-card")
+        assert text.count(name) == text.count(f"“{label}” ticked ({name})"), text
+    said = page.evaluate(
+        "async () => (await import('./js/pages/discover.js')).pageWords("
+        "'stops here: ask again with allow_experiments to run it, or with continue_past_ambiguity to add creep')"
+    )
+    assert said == (
+        "stops here: ask again with “run the experiments it needs on the bench” ticked "
+        '<span class="muted">(allow_experiments)</span> to run it, or with “at an ambiguity, add the leading '
+        'effect and go on” ticked <span class="muted">(continue_past_ambiguity)</span> to add creep'
+    )
     _card_shot(page, "#discover-card", "discover_run")
 
     # 2. The report's figures of the final model: the history labelled per step, a figure per block

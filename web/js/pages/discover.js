@@ -1,24 +1,35 @@
 // Models page, the discovery story in one place (issue 20 §2): the Discover job (POST
 // /api/models/{id}/discover) followed step by step over its event stream; the report's own figures
 // (GET /api/models/{id}/report/figures: the error history and the per-block loop and residual,
-// the block the diagnosis names worst marked) inlined; and two models of the lineage compared block
+// the block with the largest held-out RMS marked) inlined; and two models of the lineage compared block
 // by block (GET /api/models/{id}/compare?arrays=false on each dataset).
 import { api, esc, fmt, fmtErrorNm } from '../api.js';
 import { h, runJob, showError } from '../ui.js';
+
+// The form's checkboxes by the API parameter each sets: the job's texts name the parameters, the page
+// shows the labels a user ticks (the parameter kept in brackets).
+const CHECKBOXES = {
+  allow_experiments: 'run the experiments it needs on the bench',
+  continue_past_ambiguity: 'at an ambiguity, add the leading effect and go on',
+};
+
+/** `text` (HTML-escaped) with each API parameter a checkbox sets shown as “its label” ticked. */
+export const pageWords = (text) => esc(text).replace(/\b(allow_experiments|continue_past_ambiguity)\b/g,
+  (name) => `“${CHECKBOXES[name]}” ticked <span class="muted">(${name})</span>`);
 
 /** The Discover, Figures and Compare cards for `model`, appended to `el`. */
 export function renderDiscover(el, model, { signal, imported = false, onModels = () => {} }) {
   // A model of imported data describes another stage: its experiments run there, never on this bench.
   const experiments = imported
     ? '<span class="muted" id="experiments-elsewhere-note">the data was recorded on another stage: the experiments it needs are shown to run there</span>'
-    : '<label class="check"><input type="checkbox" name="allow_experiments"> run the experiments it needs on the bench</label>';
+    : `<label class="check"><input type="checkbox" name="allow_experiments"> ${CHECKBOXES.allow_experiments}</label>`;
   const box = h(`<div>
     <div class="card" id="discover-card"><h2>Discover <span class="muted">(diagnose, add the top claimed effect, refit; until the
       verdict is complete, then more capacity while it validates and the model is not at the noise floor)</span></h2>
       <form id="discover-form" class="inline">
         <label>max steps <input name="max_steps" type="number" min="1" max="12" step="1" value="8"></label>
         ${experiments}
-        <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> at an ambiguity, add the leading effect and go on</label>
+        <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> ${CHECKBOXES.continue_past_ambiguity}</label>
         <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
       </form>
       <div id="discover-job"></div>
@@ -100,7 +111,7 @@ function renderRun(out, r, { signal, imported }) {
       <td class="num">${ratio(s.ratio_to_noise_floor)}</td><td>${esc(s.verdict)}${s.ambiguous ? ` <span class="warn">(${s.ambiguous.map(esc).join(' or ')}?)</span>` : ''}</td>
       <td><button type="button" data-figures="${esc(s.model_id)}">figures</button></td></tr>`).join('')}
     </table>
-    ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${esc(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
+    ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${pageWords(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
     ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters <span class="muted">(the stored model's)</span></th><th>evidence <span class="muted">(from the diagnosis's held-out test, a fit of its own)</span></th></tr>
       ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
         <td>${Object.entries(e.parameters || {}).map(([k, v]) => `<code>${esc(k)}</code> = ${Array.isArray(v) ? v.map((x) => fmt(x)).join(', ') : fmt(v)}`).join('<br>') || '–'}</td>
@@ -109,9 +120,9 @@ function renderRun(out, r, { signal, imported }) {
       against a noise floor of ${fmtErrorNm(rem.noise_floor_um)}: ${ratio(rem.ratio_to_noise_floor)}${rem.at_noise_floor ? ', at the noise floor' : ''}.
       <span class="muted">${esc(rem.verdict_text || '')}</span></p>` : ''}
     ${suggested.length ? `<h3>${r.needed_experiment ? 'The experiment it needs' : 'Experiments it suggested'}</h3><ul id="discover-experiments">
-      ${suggested.map((x, i) => `<li data-effects="${esc(x.effects.join(','))}">after step ${x.after_step}: ${esc(x.reason || '')}
+      ${suggested.map((x, i) => `<li data-effects="${esc(x.effects.join(','))}">after step ${x.after_step}: ${pageWords(x.reason || '')}
         ${imported ? `<span class="muted">Run this sweep on the stage that recorded the data, then import the record and refine with it:</span>`
-          : `<span class="muted">(not run: ${esc(x.not_run_because || '')})</span>`}
+          : `<span class="muted">(not run: ${pageWords(x.not_run_because || '')})</span>`}
         <pre>POST /api/sweeps ${esc(JSON.stringify(x.experiment))}</pre>
         ${imported ? '' : `<button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
         <div class="experiment-job"></div>`}</li>`).join('')}</ul>` : ''}`;
@@ -159,7 +170,7 @@ async function showFigures(box, modelId, state, signal) {
     history.dataset.modelId = modelId;
     box.querySelector('#figures-blocks').replaceChildren(...f.blocks.map((b) => {
       const cell = h(`<div class="block-figure${b.worst ? ' worst' : ''}" data-dataset-id="${esc(b.dataset_id)}" data-block-index="${b.block_index ?? ''}"
-        data-rms="${b.held_out_rms_um ?? ''}"><h3>${b.worst ? '<span class="bad">▲ worst block (the diagnosis names it)</span> · ' : ''}${esc(b.title)}
+        data-rms="${b.held_out_rms_um ?? ''}"><h3>${b.worst ? '<span class="bad">▲ worst block (largest held-out RMS)</span> · ' : ''}${esc(b.title)}
         <span class="muted">· held-out RMS ${fmtErrorNm(b.held_out_rms_um)} · ${esc(b.dataset_id)}</span></h3></div>`);
       cell.append(safeSvg(b.svg));
       return cell;
