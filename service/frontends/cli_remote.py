@@ -271,20 +271,33 @@ def discovery_text(result: dict) -> str:
             if step.get("experiment_dataset_id")
             else ""
         )
+        same = step.get("like_for_like_rms_um")
         lines.append(
             f"  step {step['step']} {change:<18} {step['model_id']}  "
             f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}"
             + (
-                "  (over the experiment's data too: not comparable with the step before)"
-                if step.get("experiment_dataset_id")
+                f"  like for like {_nm(same)} (original data {_nm(step.get('original_data_rms_um'))})"
+                if same is not None and result.get("experiments")
                 else ""
             )
+        )
+        lines += [f"    tried next: {r['text']} (model {r['model_id']})" for r in step.get("not_kept", [])]
+    if result.get("experiments"):
+        lines.append(
+            "  like for like: every step refitted and scored on all of "
+            + ", ".join(result.get("like_for_like_datasets") or [])
+            + "; original data: on "
+            + ", ".join(result.get("original_datasets") or [])
         )
     for ran in result["experiments"]:
         lines.append(
             f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
-            f"{ran['sweep_job_id']}), " + ("resolved" if ran.get("resolved") else "not resolved by it")
+            f"{ran['sweep_job_id']}), "
+            + ("resolved" if ran.get("resolved") else "not resolved by it")
+            + (f"; cut to the bench's limits: {'; '.join(ran['cut_to_bench'])}" if ran.get("cut_to_bench") else "")
         )
+    for skipped in [x for x in result.get("suggested_experiments", []) if x.get("skipped")]:
+        lines.append(f"experiment for {' / '.join(skipped['effects'])} skipped: {skipped['not_run_because']}")
     for found in result["effects_found"]:
         figures = ", ".join(f"{k} {v:.4g}" for k, v in found["parameters"].items())
         lines.append(

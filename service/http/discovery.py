@@ -11,8 +11,9 @@ from service.http.schemas.models import Diagnosis, DiscoverRequest, History, Ref
 from service.runtime.jobs import JobManager
 from service.science.errors import FieldError
 from service.store import Store
-from service.usecases.acquire import sweep_and_wait
+from service.usecases.acquire import runnable_sweep, sweep_and_wait
 from service.usecases.discover import diagnose_model, history, refine_params
+from service.usecases.discover_experiments import ExperimentPolicy
 from service.usecases.discover_run import discover
 from service.usecases.identify import identify, require_fit_memory
 from service.usecases.provenance import imported_datasets
@@ -51,7 +52,9 @@ def start_discovery(
     are the job's ``result`` while it runs). The result: ``steps`` (model_id, effects, added,
     validation_rms_um, noise_floor_um, …), ``final_model_id``, ``effects_found`` (fitted physical
     parameters, units in the names, and the evidence), ``remains`` (held-out RMS against the noise
-    floor, per block), ``stopped`` and ``needed_experiment`` (a /api/sweeps body) when it stopped for one.
+    floor, per block), ``stopped`` and ``needed_experiment`` (a /api/sweeps body) when it stopped for one;
+    each step's ``like_for_like_rms_um`` (on every dataset the run ended with) beside
+    ``original_data_rms_um`` and ``not_kept`` (effects tried that raised the held-out RMS).
     In a lab, ``allow_experiments`` is refused (422) for a model of another bench: its experiments
     would run on this service's hardware."""
     row = store.get_model(model_id)  # 404 before anything is queued
@@ -78,12 +81,10 @@ def start_discovery(
     def run_experiment(ctx, sweep_body: dict) -> dict:
         return sweep_and_wait(ctx, jobs, bench, store, sweep_body, name=f"experiment of discovery from {model_id}")
 
-    job = jobs.submit(
-        "discover",
-        params,
-        lambda ctx: discover(ctx, store, run_experiment=run_experiment, bench_jobs=jobs.bench_jobs, **params),
-        needs_bench=False,
+    policy = ExperimentPolicy(
+        run=run_experiment, busy=jobs.bench_jobs, fit=lambda sweep_body: runnable_sweep(bench, sweep_body)
     )
+    job = jobs.submit("discover", params, lambda ctx: discover(ctx, store, bench=policy, **params), needs_bench=False)
     return {"job_id": job["id"], "state": job["state"]}
 
 

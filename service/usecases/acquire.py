@@ -7,11 +7,14 @@ most the last second of them, and the bench leaves its output at 0 V either way.
 
 from __future__ import annotations
 
+import math
 import time
 
 from drivers.bench import Bench
+from drivers.limits import RESONANCE_FRACTION
 from service.runtime.jobs import JobContext, JobInterrupted, JobManager
 from service.science.data.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
+from service.science.errors import FieldError
 from service.store import TERMINAL_STATES, Store
 from service.usecases.recorder import Recorder, bench_snapshot, record_arrays
 
@@ -23,6 +26,52 @@ def plan_sweep(bench: Bench, values: dict) -> tuple[PlannedSweep, dict]:
     plan = plan_from_dict(values)
     planned = plan_for_bench(plan, bench)
     return planned, {**plan.to_dict(), "samples": planned.samples, "duration_s": planned.duration_s}
+
+
+def runnable_sweep(bench: Bench, values: dict) -> tuple[dict, list[str]]:
+    """``values`` (a /api/sweeps body) as the bench can run it, and the cuts made, in words: as given
+    when ``plan_sweep`` accepts it; else its voltages clipped to each axis's range and every sine
+    frequency above what the bench allows at that amplitude (current, slew, RESONANCE_FRACTION × the
+    first resonance) brought down to the largest whole hertz it allows. FieldError naming the field
+    if even that is refused. Never touches the hardware."""
+    try:
+        plan_sweep(bench, values)
+        return values, []
+    except FieldError:
+        pass
+    out, cuts = dict(values), []
+    axes = list(values.get("axes") or ["y"])
+    limits = [bench.limits[a] for a in axes if a in bench.limits]
+    if limits:
+        lo, hi = max(lim.v_min_v for lim in limits), min(lim.v_max_v for lim in limits)
+        for key in ("v_min", "v_max"):
+            if key in out and not lo <= out[key] <= hi:
+                out[key] = min(max(out[key], lo), hi)
+                cuts.append(f"{key} {values[key]:g} → {out[key]:g} V (the actuator's {lo:g}–{hi:g} V)")
+        if out.get("levels_v"):
+            plan = plan_from_dict(out)  # its voltage range, the defaults filled in
+            out["levels_v"] = [min(max(v, plan.v_min), plan.v_max) for v in out["levels_v"]]
+            if out["levels_v"] != list(values["levels_v"]):
+                cuts.append(f"levels_v → {', '.join(f'{v:g}' for v in out['levels_v'])} V")
+    if out.get("frequencies_hz") and limits:
+        vpp = float(out.get("v_max", 120.0)) - float(out.get("v_min", 0.0))
+        cap = min(_highest_sine_hz(lim, vpp) for lim in limits)
+        kept = sorted({f if f <= cap else float(math.floor(cap)) for f in out["frequencies_hz"]})
+        if kept != sorted(out["frequencies_hz"]):
+            cuts.append(
+                f"frequencies_hz {', '.join(f'{f:g}' for f in out['frequencies_hz'])} → "
+                f"{', '.join(f'{f:g}' for f in kept)} Hz (the bench allows at most {cap:.1f} Hz at {vpp:g} Vpp)"
+            )
+            out["frequencies_hz"] = kept
+    plan_sweep(bench, out)  # FieldError naming the field if it is refused even so
+    return out, cuts
+
+
+def _highest_sine_hz(lim, vpp_v: float) -> float:
+    """The largest sine frequency (Hz) an axis with limits ``lim`` allows at ``vpp_v``."""
+    resonance = lim.first_resonance_hz
+    cap = RESONANCE_FRACTION * resonance if math.isfinite(resonance) else math.inf
+    return min(lim.max_frequency_hz(vpp_v), cap)
 
 
 def queue_sweep(

@@ -1,31 +1,35 @@
 """The discover job: the automatic discovery loop run from a stored model, every step a stored model.
 
 The decisions are the science loop's (service.science.discovery.loop: ``discovery_step``,
-``next_effect``, ``needed_experiment``), so the job reaches what ``python -m
+``try_step``, ``next_effect``, ``needed_experiment``), so the job reaches what ``python -m
 service.reports.discovery`` reaches on the same records. Here only what the report cannot do: each
 fitted step is validated and stored with ``parent_id`` = the previous step; progress (with the
 steps so far) is reported after each; a cancel is honoured between steps; and when the loop needs an
-experiment it is run on the bench (``run_experiment``, when allowed and the bench is free) and its
-dataset joins the fit, or the job stops and names it (``stopped`` = "needs_experiment"; at an
-ambiguity ``continue_past_ambiguity`` adds the leading claimed effect instead and goes on).
+experiment it is run on the bench (service.usecases.discover_experiments: when allowed, the bench
+free, within ``max_experiments``, cut to the bench's limits) and its dataset joins the fit, or the
+job stops and names it (``stopped`` = "needs_experiment"; at an ambiguity ``continue_past_ambiguity``
+adds the leading claimed effect instead and goes on; an experiment the bench cannot run is skipped
+with its reason and the loop goes on).
+
+Only model steps count against ``max_steps`` (the start and each effect tried, kept or not); the
+refit on an experiment's data does not. An added effect that raises the held-out RMS on the same data
+is not kept (``not_kept``): the loop stays on the step before and tries the next candidate. When an
+experiment adds data, every step is scored again on the enlarged data (``like_for_like_rms_um``,
+service.science.discovery.like_for_like), beside its figure on the data the run started from.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
-from service.science.discovery.loop import discovery_step, needed_experiment, next_effect
+from service.science.discovery.like_for_like import effects_key, like_for_like
+from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, try_step
 from service.science.discovery.parameters import physical_parameters
 from service.science.effects import EFFECTS, ordered
 from service.store import Store
+from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy
 from service.usecases.identify import load_model, load_record, load_records, store_model
-
-#: ``run_experiment(ctx, sweep_body) -> the sweep's finished job``; ``bench_jobs() -> [job ids]`` that
-#: hold or wait for the bench (service.usecases.acquire.sweep_and_wait, JobManager.bench_jobs)
-ExperimentRunner = Callable[[JobContext, dict], dict]
 
 
 def discover(
@@ -34,54 +38,63 @@ def discover(
     model_id: str,
     max_steps: int = 8,
     allow_experiments: bool = False,
-    run_experiment: ExperimentRunner | None = None,
-    bench_jobs: Callable[[], list[str]] | None = None,
     labels: dict | None = None,
     continue_past_ambiguity: bool = False,
+    max_experiments: int = MAX_EXPERIMENTS,
+    bench: ExperimentPolicy | None = None,
 ) -> dict:
-    """Job body: the loop from stored model ``model_id`` for at most ``max_steps`` steps (the start
-    model's diagnosis is step 0); each step's model is stored with ``labels`` (more fields of its
-    row: bench, tags). Where a diagnosis names an experiment that is not run (not allowed, the bench
-    busy, no step left), the job stops there (``stopped`` = "needs_experiment") and names it, unless
-    ``continue_past_ambiguity`` (then it adds the leading claimed effect, as an ambiguity allows, and
-    goes on). Returns ``{"start_model_id", "final_model_id", "final_parameters" (every
-    effect of the final model), "steps", "effects_found", "remains", "stopped", "stop_reason",
-    "needed_experiment", "experiments"}`` (units in the names)."""
+    """Job body: the loop from stored model ``model_id`` for at most ``max_steps`` model steps (the
+    start model's diagnosis is step 0) and ``max_experiments`` experiments, run through ``bench``
+    (its runner, busy list and limits check; None: no bench); each step's model is stored with
+    ``labels`` (more fields of its row: bench, tags). Where a diagnosis names an experiment that is
+    not run (not allowed, the bench busy, none left), the job stops there (``stopped`` =
+    "needs_experiment") and names it, unless ``continue_past_ambiguity`` (then it adds the leading
+    claimed effect, as an ambiguity allows, and goes on); one the bench cannot run is skipped and
+    the loop goes on. Returns ``{"start_model_id", "final_model_id", "final_parameters", "steps",
+    "effects_found", "not_kept", "remains", "stopped", "stop_reason", "needed_experiment",
+    "experiments", "suggested_experiments", "original_datasets", "like_for_like_datasets"}`` (units
+    in the names)."""
+    policy = bench or ExperimentPolicy()
+    policy.allowed, policy.max_experiments = allow_experiments, max_experiments
     loop = _Loop.start(store, model_id, labels)
-    stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} steps", None
-    for index in range(max_steps):
-        loop.raise_if_cancelled(ctx, index)
-        d = loop.step(ctx, store, index, max_steps)
-        add = next_effect(d)
-        need = needed_experiment(d, stopping=add is None, done=[e["experiment"] for e in loop.run["experiments"]])
+    stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} model steps", None
+    d, fresh = loop.step(ctx, store, max_steps), True
+    while True:
+        add = next_effect(d, loop.excluded)
+        need = needed_experiment(d, stopping=add is None, done=loop.asked) if fresh else None
         if need is not None:
-            busy = bench_jobs() if bench_jobs else []
-            why = _why_not_run(allow_experiments, run_experiment is not None, busy, index == max_steps - 1, max_steps)
+            why, skipped = _experiment(ctx, store, loop, need, policy, max_steps)
             if why is None:
-                loop.join(store, _experiment(ctx, store, loop.run, need, run_experiment))
+                d = loop.step(ctx, store, max_steps)
                 continue
-            needed = need
-            loop.run["suggested"].append({**need, "after_step": index, "not_run_because": why})
-            stop = _stop_without_experiment(d, need, add, why, continue_past_ambiguity)
+            needed = needed if skipped else need
+            stop = _stop_without_experiment(d, need, add, why, continue_past_ambiguity or skipped)
             if stop is not None:
                 stopped, reason = stop
                 break
         if add is None:
-            stopped, reason = _natural_stop(d), d["verdict_text"]
+            stopped, reason = _natural_stop(d), d["verdict_text"] + loop.not_kept_words()
             break
-        loop.add(add, index, d)
+        if loop.model_steps >= max_steps:
+            break
+        tried = loop.try_add(ctx, store, add, d, max_steps)
+        d, fresh = (tried, True) if tried is not None else (d, False)
     return _result(loop.run, needed, stopped, reason, loop.run.get("final_model"))
 
 
 class _Loop:
-    """The discover job's state between steps: the records (``datasets`` of ``axis``), the effects
-    and transform parameters so far, the last fitted model (None: fit afresh), the dataset an
-    experiment just added (``joined``) and ``run``, what the result reports."""
+    """The discover job's state between steps: the records (``datasets`` of ``axis``, the first
+    ``n_original`` the start model's), the effects and transform parameters so far, the last fitted
+    model (None: fit afresh), the dataset an experiment just added (``joined``), the effects tried on
+    this step and not kept (``excluded``), the experiment bodies asked for and run or skipped
+    (``asked``), the model steps fitted, each step's ``(effects, theta)`` and its like-for-like
+    figures on the records as they are (``scores``), and ``run``, what the result reports."""
 
     def __init__(self, model_id: str, row: dict, records: list, labels: dict | None):
         self.model_id, self.axis, self.datasets = model_id, row["axis"], list(row["datasets"])
         self.n_operators = int((row["options"] or {}).get("n_operators", 10))
         self.records, self.labels, self.joined = records, labels, None
+        self.n_original = len(records)
         start = as_composite(load_model(row))
         self.effects, self.theta = list(start.effects), dict(start.theta)
         self.model = start if start.is_fitted else None  # a paper's PI stands for the unfitted composite
@@ -91,6 +104,8 @@ class _Loop:
             if start.is_fitted
             else {"kind": row["kind"], "validation_rms_um": (row.get("metrics") or {}).get("validation_rms_um")}
         )
+        self.excluded, self.asked, self.model_steps = [], [], 0
+        self.history, self.fitted, self.scores = [], {}, {}
         self.run = {
             "start_model_id": model_id,
             "axis": self.axis,
@@ -98,6 +113,8 @@ class _Loop:
             "experiments": [],
             "added": {},
             "suggested": [],
+            "not_kept": [],
+            "original_datasets": list(self.datasets),
         }
 
     @classmethod
@@ -106,47 +123,96 @@ class _Loop:
         row = store.get_model(model_id)
         return cls(model_id, row, load_records(store, list(row["datasets"]), row["axis"]), labels)
 
-    def raise_if_cancelled(self, ctx: JobContext, index: int) -> None:
-        """JobInterrupted (cancelled, with the result so far) when the job was cancelled before step ``index``."""
+    def raise_if_cancelled(self, ctx: JobContext) -> None:
+        """JobInterrupted (cancelled, with the result so far) when the job was cancelled."""
         if ctx.cancelled:
             raise JobInterrupted(
-                f"cancelled after step {index - 1}",
+                f"cancelled after step {len(self.run['steps']) - 1}",
                 result=_result(self.run, None, "cancelled", "cancelled between steps", self.run.get("final_model")),
                 cancelled=True,
             )
 
-    def step(self, ctx: JobContext, store: Store, index: int, max_steps: int) -> dict:
-        """Fit and diagnose hysteresis + the effects so far, store the model (step 0: the start
-        model itself), report progress; the diagnosis."""
-        ctx.progress(
-            index / max_steps,
-            f"step {index}: fitting and diagnosing hysteresis + {' + '.join(self.effects) or 'nothing'}",
-        )
+    def _progress(self, ctx: JobContext, max_steps: int, message: str, partial: bool = False) -> None:
+        fraction = min(0.99, self.model_steps / max_steps)
+        result = _result(self.run, None, "running", None, self.model) if partial else None
+        ctx.progress(fraction, message, partial=result)
+
+    def step(self, ctx: JobContext, store: Store, max_steps: int) -> dict:
+        """Fit (unless fitted) and diagnose hysteresis + the effects so far, store the model (step 0:
+        the start model itself), score it like for like, report progress; the diagnosis. Step 0
+        counts as a model step; the refit on an experiment's data does not."""
+        self.raise_if_cancelled(ctx)
+        index = len(self.run["steps"])
+        self.model_steps += 0 if self.joined else 1
+        what = "refitting with the experiment's data" if self.joined else "fitting and diagnosing"
+        self._progress(ctx, max_steps, f"step {index}: {what} hysteresis + {' + '.join(self.effects) or 'nothing'}")
         self.model, step = discovery_step(self.records, self.effects, self.n_operators, self.theta, model=self.model)
+        return self._keep(ctx, store, step, max_steps)
+
+    def try_add(self, ctx: JobContext, store: Store, effect: str, d: dict, max_steps: int) -> dict | None:
+        """Fit the model + ``effect`` (claimed by diagnosis ``d``, the last step's): kept, it is the
+        next step (its diagnosis returned); if it raised the held-out RMS, it is stored, reported
+        in ``not_kept`` and the loop stays on the last step (None). A model step either way."""
+        self.raise_if_cancelled(ctx)
+        self.model_steps += 1
+        index = len(self.run["steps"])
+        self._progress(ctx, max_steps, f"step {index}: fitting hysteresis + {' + '.join(self.effects + [effect])}")
+        effects = self.effects + [effect]
+        model, step, rejected = try_step(
+            self.records, effects, effect, self.n_operators, self.theta, d["residual_rms_um"]
+        )
+        if rejected is not None:
+            model_id = self._store(store, ctx, model, effects)
+            self.excluded.append(effect)
+            entry = {**rejected, "model_id": model_id, "after_step": index - 1}
+            self.run["not_kept"].append(entry)
+            self.run["steps"][-1]["not_kept"].append(entry)
+            self._progress(ctx, max_steps, f"step {index}: {rejected['text']} (model {model_id})", partial=True)
+            return None
+        candidate = next(c for c in d["candidates"] if c["effect"] == effect)
+        self.run["added"][effect] = (index, candidate)
+        self.effects, self.model, self.excluded = effects, model, []
+        return self._keep(ctx, store, step, max_steps)
+
+    def _keep(self, ctx: JobContext, store: Store, step: dict, max_steps: int) -> dict:
+        """The step just diagnosed joins the run: stored, scored like for like, reported."""
         self.theta, d = self.model.theta, step["diagnosis"]
-        step_id = self.model_id if index == 0 else self._store(store, ctx)
+        index = len(self.run["steps"])
+        step_id = self.model_id if index == 0 else self._store(store, ctx, self.model, self.effects)
         self.run["steps"].append(_step_summary(index, step_id, step, self.run, self.joined))
         self.run["steps"][-1]["fit"] = _fit_label(index, self.stands_in, step["effects"])
         if self.joined is not None:
             self.run["experiments"][-1]["resolved"] = _resolved(self.run["experiments"][-1]["effects"], d)
+            self.fitted, self.scores = {}, {}  # the records grew: every step is scored again on them
+            self.excluded = []  # and an effect not kept on less data may be tried again
         self.joined = None
+        self.history.append((list(self.effects), dict(self.theta)))
+        self.fitted[effects_key(self.effects)] = self.model
+        self._score()
         self.run["final_model"] = self.model
-        ctx.progress(
-            (index + 1) / max_steps,
-            _step_words(self.run["steps"][-1]),
-            partial=_result(self.run, None, "running", None, self.model),
-        )
+        self._progress(ctx, max_steps, _step_words(self.run["steps"][-1]), partial=True)
         return d
 
-    def _store(self, store: Store, ctx: JobContext) -> str:
-        """Store this step's model with the previous step's as its parent; its id."""
+    def _score(self) -> None:
+        """Each step's held-out RMS on the records as they are now and on the original ones."""
+        todo = [(e, t) for e, t in self.history if effects_key(e) not in self.scores]
+        for (effects, _), figures in zip(
+            todo, like_for_like(self.records, self.n_original, todo, self.n_operators, self.fitted)
+        ):
+            self.scores[effects_key(effects)] = figures
+        for summary, (effects, _) in zip(self.run["steps"], self.history):
+            summary.update(self.scores[effects_key(effects)])
+        self.run["like_for_like_datasets"] = list(self.datasets)
+
+    def _store(self, store: Store, ctx: JobContext, model, effects: list[str]) -> str:
+        """Store a model of this run with the last step's as its parent; its id."""
         return store_model(
             store,
-            self.model,
+            model,
             self.records,
             self.axis,
             list(self.datasets),
-            ["hysteresis"] + ordered(self.effects),
+            ["hysteresis"] + ordered(effects),
             self.n_operators,
             self.run["steps"][-1]["model_id"],
             ctx.job_id,
@@ -160,33 +226,57 @@ class _Loop:
         self.records.append(load_record(store, dataset_id, self.axis))
         self.model = None
 
-    def add(self, effect: str, index: int, d: dict) -> None:
-        """Add ``effect`` (claimed by diagnosis ``d`` of step ``index``) for the next step's fit."""
-        self.run["added"][effect] = (index, next(c for c in d["candidates"] if c["effect"] == effect))
-        self.effects, self.model = self.effects + [effect], None
+    def not_kept_words(self) -> str:
+        """The effects tried on the last step and not kept, in words ("" if none)."""
+        return "".join(f"; {r['text']}" for r in self.run["steps"][-1]["not_kept"])
 
 
-def _why_not_run(allowed: bool, can_run: bool, busy: list[str], last: bool, max_steps: int) -> str | None:
-    """Why a needed experiment is not run (not allowed, the bench busy, no step left to use its
-    data), or None when it is run."""
-    if allowed and can_run and not busy and not last:
-        return None
-    if not allowed:
-        return "ask again with allow_experiments to run it"
-    if busy:
-        return f"the bench is busy with {', '.join(busy)}"
-    return f"max_steps = {max_steps} leaves no step to use it"
+def _experiment(
+    ctx: JobContext, store: Store, loop: _Loop, need: dict, policy: ExperimentPolicy, max_steps: int
+) -> tuple[str | None, bool]:
+    """Run the experiment ``need`` names, cut to the bench's limits; its dataset joins the loop:
+    ``(None, False)``. Else ``(why not, skipped)``: ``skipped`` when the bench cannot run it (refused,
+    no longer separating once cut, the sweep failed) — the loop goes on without it, and never asks
+    for it again — rather than not allowed or not now."""
+    after = len(loop.run["steps"]) - 1
+    why = policy.why_not(len(loop.run["experiments"]))
+    skipped = False
+    if why is None:
+        body, cuts, why = policy.runnable(need, loop.records)
+        if body is not None:
+            ctx.progress(
+                min(0.99, loop.model_steps / max_steps),
+                f"running the experiment for {', '.join(need['effects'])}: {body}",
+            )
+            dataset_id, sweep_id, why = policy.sweep(ctx, body)
+            if why is None:
+                loop.asked.append(need["experiment"])
+                loop.run["experiments"].append(
+                    {
+                        **need,
+                        "experiment": body,
+                        "asked": need["experiment"],
+                        "cut_to_bench": cuts,
+                        "sweep_job_id": sweep_id,
+                        "dataset_id": dataset_id,
+                        "after_step": after,
+                    }
+                )
+                loop.join(store, dataset_id)
+                return None, False
+        skipped = True
+        loop.asked.append(need["experiment"])
+    loop.run["suggested"].append({**need, "after_step": after, "not_run_because": why, "skipped": skipped})
+    return why, skipped
 
 
-def _stop_without_experiment(
-    d: dict, need: dict, add: str | None, why: str, continue_past_ambiguity: bool
-) -> tuple[str, str] | None:
+def _stop_without_experiment(d: dict, need: dict, add: str | None, why: str, go_on: bool) -> tuple[str, str] | None:
     """(stopped, reason) when the loop stops for an experiment it does not run, or None when it goes
-    on (``continue_past_ambiguity``: with the leading claimed effect, the step and the result naming
-    the sweep that would tell the pair apart)."""
+    on (``go_on``: continue_past_ambiguity, or the bench cannot run it — with the leading claimed
+    effect, the step and the result naming the sweep that would tell the pair apart)."""
     if add is None:  # done as far as the data goes; the experiment would test more
         return _natural_stop(d), f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
-    if continue_past_ambiguity:
+    if go_on:
         return None
     # ``need`` is the ambiguity (stops_at_ambiguity's answer)
     return "needs_experiment", (
@@ -194,24 +284,6 @@ def _stop_without_experiment(
         f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
         f"claim) and go on"
     )
-
-
-def _experiment(ctx: JobContext, store: Store, run: dict, need: dict, run_experiment: ExperimentRunner) -> str:
-    """Run the experiment the loop needs; its dataset id (JobInterrupted if the sweep did not succeed)."""
-    ctx.progress(
-        _experiment_fraction(run), f"running the experiment for {', '.join(need['effects'])}: {need['experiment']}"
-    )
-    sweep = run_experiment(ctx, need["experiment"])
-    dataset_id = (sweep.get("result") or {}).get("dataset_id")
-    if sweep["state"] != "succeeded" or not dataset_id:
-        raise JobInterrupted(
-            f"the experiment's sweep {sweep['id']} ended {sweep['state']}: {sweep.get('error')}",
-            result=_result(run, need, "experiment_failed", sweep.get("error"), run.get("final_model")),
-        )
-    run["experiments"].append(
-        {**need, "sweep_job_id": sweep["id"], "dataset_id": dataset_id, "after_step": len(run["steps"]) - 1}
-    )
-    return dataset_id
 
 
 def _natural_stop(d: dict) -> str:
@@ -227,11 +299,6 @@ def _resolved(effects: list[str], d: dict) -> bool:
     return not set(effects) <= still
 
 
-def _experiment_fraction(run: dict) -> float:
-    """Progress while an experiment runs: more the more steps are done, never the end (0..0.95)."""
-    return min(0.95, len(run["steps"]) / (len(run["steps"]) + 2))
-
-
 def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str | None) -> dict:
     """One step as the result shows it (µm); ``joined``: the experiment's dataset new in its fit."""
     d = step["diagnosis"]
@@ -244,6 +311,7 @@ def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str 
         "effects": step["effects"],
         "added": added[0] if added else None,
         "experiment_dataset_id": joined,
+        "not_kept": [],
         "validation_rms_um": d["residual_rms_um"],
         "train_rms_um": d["train_rms_um"],
         "noise_floor_um": d["noise_floor_um"],
@@ -260,18 +328,6 @@ def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str 
             {"effect": c["effect"], "reason": c["reason"], "experiment": c["experiment"]} for c in d["not_testable"]
         ],
     }
-
-
-def _fit_label(index: int, stands_in: dict | None, effects: list[str]) -> str:
-    """Which fit a step's figures are of. Step 0 of a paper's model (static/dynamic PI, GRPI) is the
-    composite fitted on the same data standing for it, whose held-out RMS differs from the one the
-    model's own page shows (the stored model's): both are named."""
-    if index == 0 and stands_in is not None:
-        return (
-            f"the composite {' + '.join(effects)} fitted on the same data, standing for this {stands_in['kind']} "
-            f"(the {stands_in['kind']}'s own held-out RMS, on its page: {fmt_nm(stands_in['validation_rms_um'], 4)})"
-        )
-    return "the start model as stored" if index == 0 else "this step's stored model"
 
 
 def _step_words(step: dict) -> str:
@@ -295,7 +351,7 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
         {
             "effect": name,
             "kind": EFFECTS[name].kind,
-            "added_at_step": index + 1,
+            "added_at_step": index,
             "parameters": parameters.get(name, {}),
             "evidence": c["evidence"],
             "p_value": c["p_value"],
@@ -303,7 +359,7 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
             "expected_rms_um": c["expected_rms_um"],
         }
         for name, (index, c) in run["added"].items()
-        if index + 1 < len(steps)
+        if index < len(steps)
     ]
     remains = (
         None
@@ -336,4 +392,19 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
         "needed_experiment": needed,
         "experiments": list(run["experiments"]),
         "suggested_experiments": list(run["suggested"]),
+        "not_kept": list(run["not_kept"]),
+        "original_datasets": list(run["original_datasets"]),
+        "like_for_like_datasets": list(run.get("like_for_like_datasets") or run["original_datasets"]),
     }
+
+
+def _fit_label(index: int, stands_in: dict | None, effects: list[str]) -> str:
+    """Which fit a step's figures are of. Step 0 of a paper's model (static/dynamic PI, GRPI) is the
+    composite fitted on the same data standing for it, whose held-out RMS differs from the one the
+    model's own page shows (the stored model's): both are named."""
+    if index == 0 and stands_in is not None:
+        return (
+            f"the composite {' + '.join(effects)} fitted on the same data, standing for this {stands_in['kind']} "
+            f"(the {stands_in['kind']}'s own held-out RMS, on its page: {fmt_nm(stands_in['validation_rms_um'], 4)})"
+        )
+    return "the start model as stored" if index == 0 else "this step's stored model"

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.http.schemas.common import BENCH_ID_FIELD, OPEN
+from service.usecases.discover_experiments import MAX_EXPERIMENTS
 
 
 class ModelRequest(BaseModel):
@@ -38,16 +39,19 @@ class RefineRequest(BaseModel):
 
 
 class DiscoverRequest(BaseModel):
-    """Run the discovery loop from a model: at most ``max_steps`` steps (the model's own diagnosis is
-    the first); ``allow_experiments``: run on the bench, when it is free, the sweep the loop needs
-    (an ambiguity's separating experiment, or one that makes an effect testable); without it the loop
-    stops at an ambiguity and names the sweep, unless ``continue_past_ambiguity``: then it adds the
-    leading claimed effect and goes on (the ambiguity is still named)."""
+    """Run the discovery loop from a model: at most ``max_steps`` model steps (the model's own
+    diagnosis is the first; each effect tried counts, kept or not; a refit on an experiment's data
+    does not); ``allow_experiments``: run on the bench, when it is free, the sweep the loop needs (an
+    ambiguity's separating experiment, or one that makes an effect testable), at most
+    ``max_experiments`` of them, each cut to the bench's limits or skipped if it cannot be; without
+    it the loop stops at an ambiguity and names the sweep, unless ``continue_past_ambiguity``: then
+    it adds the leading claimed effect and goes on (the ambiguity is still named)."""
 
     model_config = ConfigDict(extra="forbid")
 
     max_steps: int = Field(default=8, ge=1, le=12)
     allow_experiments: bool = False
+    max_experiments: int = Field(default=MAX_EXPERIMENTS, ge=0, le=10)
     continue_past_ambiguity: bool = False
 
 

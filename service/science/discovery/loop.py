@@ -2,19 +2,24 @@
 until the verdict is complete, then more hysteresis capacity while the model is not at the noise
 floor and a capacity candidate removes a significant share of the excess; the error history as a figure (matplotlib Agg).
 
-The decisions are ``discovery_step`` (fit and diagnose one step), ``next_effect`` (what the loop adds
-next, or None when it stops), ``needed_experiment`` (the sweep it needs before going on) and
-``stops_at_ambiguity`` (whether it stops there rather than guess between look-alikes): the
-report (``discovery_run``) and the discover job (service.usecases.discover_run) both call them."""
+The decisions are ``discovery_step`` (fit and diagnose one step), ``try_step`` (fit an added
+effect, and keep it only if the held-out RMS on the same data does not rise: ``not_kept``),
+``next_effect`` (what the loop adds next, or None when it stops), ``needed_experiment`` (the sweep
+it needs before going on), ``stops_at_ambiguity`` (whether it stops there rather than guess between
+look-alikes) and ``still_separates`` (whether an experiment cut to the bench's limits still does what
+it was asked for): the report (``discovery_run``) and the discover job
+(service.usecases.discover_run) both call them."""
 
 from __future__ import annotations
 
 import json
 
+from service.science.data.units import fmt_nm
 from service.science.discovery.base_capacity import capacity_before_physics
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel, fit_composite
 from service.science.discovery.diagnosis import diagnose, helpful_capacity
+from service.science.fitting.validation import evaluate_records
 
 MAX_STEPS = 8
 
@@ -43,17 +48,58 @@ def discovery_step(
     return model, {"effects": ["hysteresis"] + list(effects), "diagnosis": d, "per_block": per_block}
 
 
-def next_effect(d: dict) -> str | None:
+def held_out_rms_um(records, model: CompositeModel) -> float:
+    """The fitted ``model``'s held-out RMS on ``records`` (µm, mean over blocks): the figure its
+    diagnosis calls ``residual_rms_um``."""
+    return evaluate_records(records, [model.predict(r) for r in records])["validation_rms_um"]
+
+
+def not_kept(effect: str, before_um: float, after_um: float) -> dict | None:
+    """None when adding ``effect`` left the held-out RMS on the same data at most ``before_um``;
+    else why it is not kept: ``{"effect", "before_rms_um", "held_out_rms_um", "text"}`` (µm)."""
+    if after_um <= before_um:
+        return None
+    return {
+        "effect": effect,
+        "before_rms_um": before_um,
+        "held_out_rms_um": after_um,
+        "text": f"adding {effect} raised the held-out RMS from {fmt_nm(before_um)} to {fmt_nm(after_um)}: not kept",
+    }
+
+
+@shared_effect_columns()
+def try_step(
+    records, effects, added: str, n_operators: int, theta: dict, before_um: float
+) -> tuple[CompositeModel, dict | None, dict | None]:
+    """Fit ``hysteresis + effects`` (``added`` the effect new in them, warm at ``theta``) on the
+    records the step before was diagnosed on (held-out RMS ``before_um``): ``(model, step, None)``
+    with the step diagnosed as ``discovery_step`` does, or ``(model, None, not_kept(...))`` when
+    the added effect raised the held-out RMS — then nothing is diagnosed and the loop goes back to
+    the step before."""
+    model = fit_composite(records, effects, n_operators, theta)
+    rejected = not_kept(added, before_um, held_out_rms_um(records, model))
+    if rejected is not None:
+        return model, None, rejected
+    model, step = discovery_step(records, effects, n_operators, model=model)
+    return model, step, None
+
+
+def next_effect(d: dict, exclude=()) -> str | None:
     """The effect the loop adds after diagnosis ``d``: the top claimed physical candidate while the
     verdict is missing_effect; then capacity while it is validated and the model is not at the noise
-    floor; None when the loop stops."""
+    floor; None when the loop stops. Effects in ``exclude`` (tried on this model and not kept) are
+    passed over for the next candidate."""
     first = capacity_before_physics(d)  # the base cannot draw the loop: it grows first (issue 37)
-    if first is not None:
+    if first is not None and first["effect"] not in exclude:
         return first["effect"]
     if d["verdict"] == "missing_effect":
-        return next(c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"])
+        claimed = [c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"]]
+        claimed = [e for e in claimed if e not in exclude]
+        if claimed:
+            return claimed[0]
     # complete as far as physics goes: more capacity if the model is not at the noise floor yet
     capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])  # only effects not in the model
+    capacity = [c for c in capacity if c["effect"] not in exclude]
     if d["at_noise_floor"] or not capacity:
         return None
     return capacity[0]["effect"]
@@ -89,22 +135,71 @@ def stops_at_ambiguity(d: dict, continue_past_ambiguity: bool, done=()) -> dict 
     return needed_experiment(d, stopping=False, done=done)
 
 
+#: an experiment asked for rates above the data's is cut to the bench's limits; it still separates
+#: when its fastest rate is at least this many times the data's fastest (a resonance's f² gain then
+#: differs by ≥ 19 % between the two, a delay's phase by as much)
+SEPARATING_RATE_RATIO = 1.1
+
+
+def still_separates(asked: dict, runnable: dict, records) -> str | None:
+    """None when ``runnable`` (the /api/sweeps body ``asked`` cut to the bench's limits) still does
+    what ``asked`` was for; else why not. A sweep that asked for rates above the data's fastest own
+    drive rate must keep one at least SEPARATING_RATE_RATIO × above it; a step sweep must keep two
+    different levels; any other keeps its frequencies."""
+    if asked.get("waveform") == "step":
+        levels = set(runnable.get("levels_v") or [])
+        return None if len(levels) >= 2 else "cut to the bench's voltage range, its steps would not change the drive"
+    data_fastest = max(
+        (
+            s.block["frequency_hz"]
+            for r in records
+            for s in r.splits_of(own_axis_only=True)
+            if s.block.get("frequency_hz")
+        ),
+        default=0.0,
+    )
+    asked_fastest = max(asked.get("frequencies_hz") or [0.0])
+    kept_fastest = max(runnable.get("frequencies_hz") or [0.0])
+    if asked_fastest > data_fastest and kept_fastest < SEPARATING_RATE_RATIO * data_fastest:
+        return (
+            f"it needs rates above the data's {data_fastest:g} Hz, and the bench allows at most "
+            f"{kept_fastest:g} Hz (less than {SEPARATING_RATE_RATIO:g} × {data_fastest:g} Hz)"
+        )
+    return None if kept_fastest > 0 or asked.get("waveform") != "sine" else "no frequency is left"
+
+
 def discovery_run(
     records, n_operators: int = 10, max_steps: int = MAX_STEPS, continue_past_ambiguity: bool = False
 ) -> list[dict]:
-    """Steps of an automatic discovery: each with effects, diagnosis and per-block validation RMS. It
-    stops at an ambiguity (the last step's diagnosis names the separating sweep) unless
+    """Steps of an automatic discovery: each with effects, diagnosis, per-block validation RMS and
+    ``not_kept`` (effects tried on it that raised the held-out RMS: the loop went back to it and took
+    the next candidate). At most ``max_steps`` fits, the ones not kept included. It stops at an
+    ambiguity (the last step's diagnosis names the separating sweep) unless
     ``continue_past_ambiguity``, as the discover job does without experiments."""
-    effects, steps, theta = [], [], {}
-    for _ in range(max_steps):
-        model, step = discovery_step(records, effects, n_operators, theta)
-        theta = model.theta
-        steps.append(step)
-        added = next_effect(step["diagnosis"])
-        if added is None or stops_at_ambiguity(step["diagnosis"], continue_past_ambiguity):
+    model, step = discovery_step(records, [], n_operators, {})
+    steps, theta, excluded = [{**step, "not_kept": []}], model.theta, []
+    added = _next_or_stop(step["diagnosis"], excluded, continue_past_ambiguity)
+    for _ in range(max_steps - 1):
+        if added is None:
             break
-        effects = effects + [added]
+        effects = steps[-1]["effects"][1:] + [added]
+        before = steps[-1]["diagnosis"]["residual_rms_um"]
+        model, step, rejected = try_step(records, effects, added, n_operators, theta, before)
+        if rejected is not None:
+            steps[-1]["not_kept"].append(rejected)
+            excluded.append(added)
+            added = next_effect(steps[-1]["diagnosis"], excluded)
+            continue
+        steps.append({**step, "not_kept": []})
+        theta, excluded = model.theta, []
+        added = _next_or_stop(step["diagnosis"], excluded, continue_past_ambiguity)
     return steps
+
+
+def _next_or_stop(d: dict, excluded, continue_past_ambiguity: bool) -> str | None:
+    """The effect the report's loop adds after diagnosis ``d``, None where it stops (an ambiguity)."""
+    added = next_effect(d, excluded)
+    return None if added is None or stops_at_ambiguity(d, continue_past_ambiguity) else added
 
 
 def history_figure(steps: list[dict], path: str, title: str = "") -> None:
@@ -155,5 +250,7 @@ def markdown(steps: list[dict]) -> str:
             )
         if d.get("ambiguity"):
             out.append(f"- ambiguity: {d['ambiguity']['text']}; experiment: `{d['ambiguity']['experiment']}`")
+        for rejected in s.get("not_kept", []):
+            out.append(f"- tried next: {rejected['text']}")
         out.append("")
     return "\n".join(out)

@@ -103,14 +103,22 @@ function renderRun(out, r, { signal, imported }) {
   const done = r.stopped && r.stopped !== 'running';
   out.innerHTML = `<h3>Steps</h3>
     <table id="discover-steps"><tr><th>step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
+      <th class="num" title="this step's effects refitted on every dataset the run has now (the experiments' too), scored on the same held-out cycles as every other step">like for like</th>
+      <th class="num" title="the same model scored on the held-out cycles of the data the run started from">on the original data</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
-      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(RMS over more data)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
+      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(held-out RMS over more data; like for like beside it)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
       <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
-      <td class="num">${fmtErrorNm(s.validation_rms_um)}</td><td class="num">${fmtErrorNm(s.noise_floor_um)}</td>
+      <td class="num">${fmtErrorNm(s.validation_rms_um)}</td>
+      <td class="num like-for-like" data-rms="${s.like_for_like_rms_um ?? ''}">${fmtErrorNm(s.like_for_like_rms_um)}</td>
+      <td class="num">${fmtErrorNm(s.original_data_rms_um)}</td><td class="num">${fmtErrorNm(s.noise_floor_um)}</td>
       <td class="num">${ratio(s.ratio_to_noise_floor)}</td><td>${esc(s.verdict)}${s.ambiguous ? ` <span class="warn">(${s.ambiguous.map(esc).join(' or ')}?)</span>` : ''}</td>
-      <td><button type="button" data-figures="${esc(s.model_id)}">figures</button></td></tr>`).join('')}
+      <td><button type="button" data-figures="${esc(s.model_id)}">figures</button></td></tr>
+      ${(s.not_kept || []).map((x) => `<tr class="not-kept" data-effect="${esc(x.effect)}"><td></td><td colspan="10" class="warn">tried next:
+        ${esc(x.text)} (model <a href="#/models/${esc(x.model_id)}">${esc(x.model_id)}</a>)</td></tr>`).join('')}`).join('')}
     </table>
+    ${(r.experiments || []).length ? `<p class="muted">Like for like: every step refitted and scored on ${esc((r.like_for_like_datasets || []).join(', '))};
+      on the original data: ${esc((r.original_datasets || []).join(', '))}.</p>` : ''}
     ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${pageWords(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
     ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters <span class="muted">(the stored model's)</span></th><th>evidence <span class="muted">(from the diagnosis's held-out test, a fit of its own)</span></th></tr>
       ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
@@ -124,7 +132,7 @@ function renderRun(out, r, { signal, imported }) {
         ${imported ? `<span class="muted">Run this sweep on the stage that recorded the data, then import the record and refine with it:</span>`
           : `<span class="muted">(not run: ${pageWords(x.not_run_because || '')})</span>`}
         <pre>POST /api/sweeps ${esc(JSON.stringify(x.experiment))}</pre>
-        ${imported ? '' : `<button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
+        ${imported || x.skipped ? '' : `<button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
         <div class="experiment-job"></div>`}</li>`).join('')}</ul>` : ''}`;
   out.querySelectorAll('.run-experiment').forEach((b) => b.addEventListener('click', async () => {
     const x = suggested[Number(b.dataset.i)];
