@@ -105,7 +105,17 @@ def _add_modelling(sub: argparse._SubParsersAction) -> None:
         "there and names the sweep that would tell the two apart)",
     )
     p.add_argument(
-        "--max-steps", type=int, default=8, help="steps at most, the model's own diagnosis the first (1–12, default 8)"
+        "--max-steps",
+        type=int,
+        default=8,
+        help="model steps at most, the model's own diagnosis the first; a refit on an experiment's data "
+        "does not count (1–12, default 8)",
+    )
+    p.add_argument(
+        "--max-experiments",
+        type=int,
+        default=None,
+        help="experiments run at most with --allow-experiments (0–10, default 3)",
     )
 
 
@@ -254,6 +264,7 @@ def _discover(api: Client, args) -> int:
         args.max_steps,
         on_progress=progress,
         continue_past_ambiguity=args.continue_past_ambiguity,
+        max_experiments=args.max_experiments,
     )
     return _finish(args, job, discovery_text(job["result"]) if job.get("result") else "")
 

@@ -410,20 +410,21 @@ class Client:
         wait: bool = True,
         on_progress: ProgressCallback | None = None,
         continue_past_ambiguity: bool = False,
+        max_experiments: int | None = None,
     ) -> dict:
         """Run the discovery loop from a model (POST /api/models/{id}/discover). With ``wait`` the
         finished job (its ``result``: steps, final_model_id, effects_found, remains, needed_experiment),
         ``on_progress`` called with the job at each step; else the queued job. It stops at an
-        ambiguity it may not test (``stopped`` "needs_experiment") unless ``continue_past_ambiguity``."""
-        started = self._request(
-            "POST",
-            f"/api/models/{model_id}/discover",
-            json={
-                "allow_experiments": allow_experiments,
-                "max_steps": max_steps,
-                "continue_past_ambiguity": continue_past_ambiguity,
-            },
-        )
+        ambiguity it may not test (``stopped`` "needs_experiment") unless ``continue_past_ambiguity``;
+        ``max_experiments``: experiments it may run (the service's default, 3, when None)."""
+        body = {
+            "allow_experiments": allow_experiments,
+            "max_steps": max_steps,
+            "continue_past_ambiguity": continue_past_ambiguity,
+        }
+        if max_experiments is not None:
+            body["max_experiments"] = max_experiments
+        started = self._request("POST", f"/api/models/{model_id}/discover", json=body)
         return self.wait(started["job_id"], on_progress) if wait else self.job(started["job_id"])
 
     def compare(self, model_id: str, dataset_id: str, max_points: int | None = None, arrays: bool = True) -> dict:

@@ -96,13 +96,14 @@ def block_figure(b: BlockCurves, axis: str, worst: bool = False) -> str:
 
 
 def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
-    """Held-out RMS per lineage step on a log scale, the noise-floor band and the 2× floor line."""
-    rms = [s["validation_rms_um"] for s in steps]
+    """Held-out RMS per lineage step on a log scale, like for like (every step on the last model's
+    data, where the lineage has it), the noise-floor band and the 2× floor line."""
+    rms = [s.get("like_for_like_rms_um") or s["validation_rms_um"] for s in steps]
     factor, unit = ERROR_UNIT
     panel = Panel(
         1040,
         320,
-        "Error history: held-out RMS per step",
+        "Error history: held-out RMS per step, every step on the same data",
         "lineage step",
         f"held-out RMS ({unit}, log scale)",
         log_y=True,
@@ -214,12 +215,15 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
             escape(" + ".join(s["effects"])),
             f'<span class="rms-train">{fmt_nm(s["train_rms_um"], 4)}</span>',
             f'<span class="rms-heldout">{fmt_nm(s["validation_rms_um"], 4)}</span>',
+            f'<span class="rms-like-for-like">{fmt_nm(s.get("like_for_like_rms_um"), 4)}</span>',
             _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–",
         ]
         for i, s in enumerate(steps)
     ]
     return (
-        "<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model.</p>"
+        "<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model. Held-out RMS: on the "
+        "data the step was fitted on; like for like: its effects on this model's datasets (refitted there where "
+        "the step had fewer), so that every step is scored on the same held-out cycles.</p>"
         + _table(
             [
                 "step",
@@ -228,10 +232,11 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
                 "effects",
                 "training RMS (mean of per-block)",
                 "held-out RMS (the step's stored figure: mean of per-block held-out RMS)",
+                "like for like (same held-out cycles)",
                 "that held-out RMS / noise floor",
             ],
             rows,
-            {0, 4, 5, 6},
+            {0, 4, 5, 6, 7},
             ' id="lineage"',
         )
         + history_figure(steps, noise_floor_um)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from service.science.data.holdout import BlockSplit, other_axes
 from service.science.discovery.composite import as_composite, fit_composite
 from service.science.discovery.diagnosis import diagnose
+from service.science.discovery.like_for_like import effects_key, like_for_like
 from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
 from service.store import Store
@@ -129,7 +130,7 @@ def refined_effects(row: dict, add: str | None, remove: str | None, effects: lis
 def history(store: Store, model_id: str) -> list[dict]:
     """The lineage root → ``model_id`` with train and validation RMS and the change at each step:
     effects added (+e) or removed (−e), datasets added (+data ds_…: its RMS is over other data, not
-    comparable with the step before), else "refit"."""
+    comparable with the step before), else "refit"; and each step like for like (``like_for_like``)."""
     chain, seen = [], set()
     row = store.get_model(model_id)
     while row is not None and row["id"] not in seen:
@@ -162,7 +163,39 @@ def history(store: Store, model_id: str) -> list[dict]:
             }
         )
         prev, prev_data = effects, list(r["datasets"])
+    like_for_like_history(store, chain, out)
     return out
+
+
+def like_for_like_history(store: Store, chain: list[dict], steps: list[dict]) -> None:
+    """Each of ``steps`` (the lineage ``chain``'s) gains ``like_for_like_rms_um``, its effects scored
+    on the last model's datasets (refitted there, transforms kept, where it was fitted on fewer), and
+    ``original_data_rms_um``, on the first model's. A lineage on one set of data needs no fit: both
+    are its held-out RMS."""
+    final, first = list(chain[-1]["datasets"]), list(chain[0]["datasets"])
+    if all(list(r["datasets"]) == final for r in chain):
+        for step in steps:
+            step["like_for_like_rms_um"] = step["original_data_rms_um"] = step["validation_rms_um"]
+        return
+    ordered_ids = [d for d in first if d in final] + [d for d in final if d not in first]
+    require_fit_memory(store, ordered_ids, field="model_id")
+    records = load_records(store, ordered_ids, chain[-1]["axis"])
+    models = [as_composite(load_model(r)) for r in chain]
+    fitted = {
+        effects_key(m.effects): m
+        for r, m in zip(chain, models)
+        if m.is_fitted and sorted(r["datasets"]) == sorted(final)
+    }
+    n_first = len([d for d in first if d in final]) if set(first) <= set(final) else 0
+    figures = like_for_like(
+        records,
+        n_first,
+        [(m.effects, m.theta) for m in models],
+        int(chain[-1]["options"].get("n_operators", 10)),
+        fitted,
+    )
+    for step, f in zip(steps, figures):
+        step.update(f if n_first else {**f, "original_data_rms_um": None})
 
 
 def refine_params(

@@ -20,6 +20,8 @@ service.science.discovery.like_for_like), beside its figure on the data the run 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
@@ -54,18 +56,18 @@ def discover(
     "effects_found", "not_kept", "remains", "stopped", "stop_reason", "needed_experiment",
     "experiments", "suggested_experiments", "original_datasets", "like_for_like_datasets"}`` (units
     in the names)."""
-    policy = bench or ExperimentPolicy()
-    policy.allowed, policy.max_experiments = allow_experiments, max_experiments
+    policy = replace(bench or ExperimentPolicy(), allowed=allow_experiments, max_experiments=max_experiments)
     loop = _Loop.start(store, model_id, labels)
     stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} model steps", None
     d, fresh = loop.step(ctx, store, max_steps), True
     while True:
         add = next_effect(d, loop.excluded)
-        need = needed_experiment(d, stopping=add is None, done=loop.asked) if fresh else None
+        # asked again after an effect not kept only when the loop would stop (then it may need a sweep)
+        need = needed_experiment(d, stopping=add is None, done=loop.asked) if fresh or add is None else None
         if need is not None:
             why, skipped = _experiment(ctx, store, loop, need, policy, max_steps)
             if why is None:
-                d = loop.step(ctx, store, max_steps)
+                d, fresh = loop.step(ctx, store, max_steps), True
                 continue
             needed = needed if skipped else need
             stop = _stop_without_experiment(d, need, add, why, continue_past_ambiguity or skipped)

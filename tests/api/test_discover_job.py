@@ -69,6 +69,8 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
         ({"max_steps": 13}, "max_steps"),
         ({"colour": "red"}, "colour"),
         ({"allow_experiments": "perhaps"}, "allow_experiments"),
+        ({"max_experiments": -1}, "max_experiments"),
+        ({"max_experiments": 11}, "max_experiments"),
     ):
         r = http.post(f"/api/models/{base_id}/discover", json=body)
         assert r.status_code == 422 and r.json()["field"] == field, (body, r.text)
@@ -233,10 +235,34 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     assert went_on["final_model_id"] != base_id and went_on["needed_experiment"] is not None
     assert "POST /api/sweeps" in discovery_text(went_on)
     need = first
+    # with no experiment left to run it stops as without allow_experiments, and says why
+    none_left = api.discover(base_id, allow_experiments=True, max_experiments=0)["result"]
+    assert none_left["stopped"] == "needs_experiment" and len(none_left["steps"]) == 1
+    assert none_left["suggested_experiments"][0]["not_run_because"] == "max_experiments = 0 have run"
 
     job = api.discover(base_id, allow_experiments=True, max_steps=4)
     assert job["state"] == "succeeded", job
     ran = job["result"]
+    # the experiments' refits do not use up max_steps: 4 model steps (the start and each effect
+    # tried, kept or not) beside them, at most max_experiments = 3 experiments
+    model_steps = [s for s in ran["steps"] if not s["experiment_dataset_id"]]
+    assert 1 <= len(ran["experiments"]) <= 3 and len(ran["steps"]) == len(model_steps) + len(ran["experiments"])
+    assert len(model_steps) + len(ran["not_kept"]) <= 4
+    assert len(model_steps) + len(ran["not_kept"]) == 4 or ran["stopped"] != "max_steps"
+    # like for like: every step on the run's final datasets, so the history only falls
+    same = [s["like_for_like_rms_um"] for s in ran["steps"]]
+    assert all(b <= a for a, b in zip(same, same[1:])), same
+    assert ran["like_for_like_datasets"] == [dataset_id] + [e["dataset_id"] for e in ran["experiments"]]
+    assert ran["original_datasets"] == [dataset_id]
+    assert same[-1] == pytest.approx(ran["steps"][-1]["validation_rms_um"], rel=1e-9)
+    assert ran["steps"][0]["original_data_rms_um"] != pytest.approx(ran["steps"][0]["validation_rms_um"], rel=1e-3)
+    # the lineage (the Models page's chart, the report) says the same, from the stored models
+    lineage = http.get(f"/api/models/{ran['final_model_id']}/history").json()["steps"]
+    assert [s["model_id"] for s in lineage] == [s["model_id"] for s in ran["steps"]]
+    assert [s["like_for_like_rms_um"] for s in lineage] == pytest.approx(same, rel=1e-6)
+    assert [s["original_data_rms_um"] for s in lineage] == pytest.approx(
+        [s["original_data_rms_um"] for s in ran["steps"]], rel=1e-6
+    )
     experiment = ran["experiments"][0]  # the one the first diagnosis named
     assert experiment["experiment"] == need["experiment"] and experiment["after_step"] == 0
     assert experiment["resolved"]  # delay and rate dependence are told apart now

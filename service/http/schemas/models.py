@@ -287,6 +287,14 @@ class HistoryStep(BaseModel):
     datasets: list[str]
     train_rms_um: float | None
     validation_rms_um: float | None
+    like_for_like_rms_um: float | None = Field(
+        default=None,
+        description="held-out RMS (µm) of this step's effects on the last model's datasets (refitted there where "
+        "this step was fitted on fewer): every step on the same data",
+    )
+    original_data_rms_um: float | None = Field(
+        default=None, description="the same model's held-out RMS (µm) on the first model's datasets"
+    )
     created_at: str
 
 

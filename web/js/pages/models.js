@@ -239,8 +239,9 @@ async function lineage(model, canHistory) {
     const r = await api(`/models/${encodeURIComponent(model.id)}/history`, { signal: controller.signal });
     const steps = Array.isArray(r) ? r : (r.history || r.lineage || r.steps || r.models || []);
     // the API names each step's change, a refit on more data too (its held-out RMS is over other cycles)
+    // like for like: every step scored on the last model's data (refitted there after a step added data)
     return steps.map((s) => ({ id: s.model_id || s.id, effects: s.effects || [],
-      rms: s.validation_rms_um ?? s.metrics?.validation_rms_um, change: s.change || null }));
+      rms: s.validation_rms_um ?? s.metrics?.validation_rms_um, same: s.like_for_like_rms_um ?? null, change: s.change || null }));
   }
   // Without the endpoint: walk parent_id.
   const steps = [];
@@ -257,16 +258,20 @@ async function renderHistory(el, model, canHistory) {
   try { steps = await lineage(model, canHistory); } catch (e) { showError(el.querySelector('#history-table'), e); return; }
   const chartEl = el.querySelector('#history-chart');
   chartEl.dataset.values = JSON.stringify(steps.map((s) => s.rms));
+  chartEl.dataset.likeForLike = JSON.stringify(steps.map((s) => s.same));
   chartEl.dataset.models = JSON.stringify(steps.map((s) => s.id));
   chartEl.dataset.points = String(steps.length);
   const old = charts.find((c) => c.root && chartEl.contains(c.root));
   if (old) { old.destroy(); charts.splice(charts.indexOf(old), 1); }
   charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
-    yLabel: 'held-out RMS (nm)', series: [{ label: 'held-out RMS (nm)', values: steps.map((s) => s.rms * 1e3), points: true, width: 2 }],
+    yLabel: 'held-out RMS (nm)', series: [
+      { label: 'like for like: every step on the same data (nm)', values: steps.map((s) => (s.same ?? s.rms) * 1e3), points: true, width: 2 },
+      ...(steps.some((s) => s.same !== null && s.same !== s.rms)
+        ? [{ label: 'as fitted, on the data of its step (nm)', values: steps.map((s) => s.rms * 1e3), points: true, width: 1 }] : [])],
     height: 220, points: true, integerX: true }));
-  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th></tr>
-    ${steps.map((s, i) => `<tr data-rms="${s.rms}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
-      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtErrorNm(s.rms, 4)}</td></tr>`).join('')}</table>`;
+  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>
+    ${steps.map((s, i) => `<tr data-rms="${s.rms}" data-like-for-like="${s.same ?? ''}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
+      <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtErrorNm(s.rms, 4)}</td><td class="num">${fmtErrorNm(s.same, 4)}</td></tr>`).join('')}</table>`;
 }
 
 async function renderCompare(el, model, datasetId, diagnosis) {
