@@ -171,6 +171,7 @@ async function showFigures(box, modelId, state, signal) {
   status.textContent = `drawing the figures of ${modelId} (it runs a diagnosis)…`;
   try {
     const f = await api(`/models/${encodeURIComponent(modelId)}/report/figures`, { signal });
+    if (!box.isConnected) return;  // the user left the page while the figures were drawn
     state.figures = f;
     box.querySelector('#figures-of').textContent = `of ${modelId} · noise floor ${fmtErrorNm(f.noise_floor_um)} · verdict ${f.verdict}`;
     const history = box.querySelector('#figures-history');

@@ -257,6 +257,7 @@ async function renderHistory(el, model, canHistory) {
   let steps;
   try { steps = await lineage(model, canHistory); } catch (e) { showError(el.querySelector('#history-table'), e); return; }
   const chartEl = el.querySelector('#history-chart');
+  if (!chartEl || !chartEl.isConnected) return;  // the user left the page while the lineage was computed
   chartEl.dataset.values = JSON.stringify(steps.map((s) => s.rms));
   chartEl.dataset.likeForLike = JSON.stringify(steps.map((s) => s.same));
   chartEl.dataset.models = JSON.stringify(steps.map((s) => s.id));
@@ -269,7 +270,9 @@ async function renderHistory(el, model, canHistory) {
       ...(steps.some((s) => s.same !== null && s.same !== s.rms)
         ? [{ label: 'as fitted, on the data of its step (nm)', values: steps.map((s) => s.rms * 1e3), points: true, width: 1 }] : [])],
     height: 220, points: true, integerX: true }));
-  el.querySelector('#history-table').innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>
+  const table = el.querySelector('#history-table');
+  if (!table) return;
+  table.innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>
     ${steps.map((s, i) => `<tr data-rms="${s.rms}" data-like-for-like="${s.same ?? ''}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
       <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtErrorNm(s.rms, 4)}</td><td class="num">${fmtErrorNm(s.same, 4)}</td></tr>`).join('')}</table>`;
 }
