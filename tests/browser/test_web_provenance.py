@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from tests.support.browser import goto, posted_result, serving, shot
-from tests.support.realdata import MODEL_VI_DO as REAL
+from tests.support.realdata import import_model_vi_do
 
 pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_provenance")]
 
@@ -20,14 +20,7 @@ def server(tmp_path_factory):
     """A live default bench with an import (and a static PI on it) and a sweep (and a static PI on it)."""
     with serving(tmp_path_factory, "default") as s:
         api = s["api"]
-        with REAL.open("rb") as f:
-            answer = api.post(
-                "/datasets",
-                files={"file": ("Model_Vi_Do.dat", f)},
-                data={"columns": '{"u":0,"x":4}', "sample_rate_hz": "200", "axis": "y", "delimiter": "whitespace"},
-            )
-        assert answer.status_code == 201, answer.text
-        s["imported"] = answer.json()["id"]
+        s["imported"] = import_model_vi_do(api)
         s["imported_model"] = posted_result(s, "/models", {"axis": "y", "datasets": [s["imported"]]})["model_id"]
         sweep = {"axes": ["y"], "frequencies_hz": [10, 100], "cycles": 3}
         s["recorded"] = posted_result(s, "/sweeps", sweep)["dataset_id"]

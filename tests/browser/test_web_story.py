@@ -14,7 +14,7 @@ import re
 import pytest
 
 from tests.support.browser import goto, posted_result, serving
-from tests.support.realdata import MODEL_VI_DO as REAL
+from tests.support.realdata import import_model_vi_do
 from tests.support.text_scan import part_whole_problems, scan, unit_problems
 
 pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_story")]
@@ -31,14 +31,7 @@ def server(tmp_path_factory):
     diagnosis of each as the API answers it."""
     with serving(tmp_path_factory, "default") as s:
         api = s["api"]
-        with REAL.open("rb") as f:
-            answer = api.post(
-                "/datasets",
-                files={"file": ("Model_Vi_Do.dat", f)},
-                data={"columns": '{"u":0,"x":4}', "sample_rate_hz": "200", "axis": "y", "delimiter": "whitespace"},
-            )
-        assert answer.status_code == 201, answer.text
-        imported = answer.json()["id"]
+        imported = import_model_vi_do(api)
         s["models"] = {"imported": posted_result(s, "/models", {"axis": "y", "datasets": [imported]})["model_id"]}
         recorded = posted_result(s, "/sweeps", {"axes": ["y"], "frequencies_hz": [10, 100], "cycles": 3})
         s["models"]["recorded"] = posted_result(s, "/models", {"axis": "y", "datasets": [recorded["dataset_id"]]})[
