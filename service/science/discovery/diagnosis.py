@@ -289,6 +289,17 @@ def _entry(
     }
 
 
+def rank_key(c: dict) -> tuple:
+    """Claimed physics first, then the other physical candidates, capacity last. The claimed rank by
+    what adding each to this model gives (the share of the excess it removes on held-out data, the
+    figure printed beside it): their tests may differ in reference (a time effect is tested beyond a
+    gain change), so their scores do not compare. The others rank by score (one denominator for every
+    score, so the order is the held-out gain's)."""
+    claimed_physics = c["claimed"] and c["kind"] != "capacity"
+    first = -c["excess_removed"] if claimed_physics else -c["score"]
+    return (c["kind"] == "capacity", not c["claimed"], first, -c["score"], -c["gain_mse_um2"])
+
+
 #: the loop-shape pair: a stack that is not point-symmetric, and a gauge that bows what it reads
 LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
@@ -454,9 +465,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                 candidates += pair
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor, alpha))
-    # claimed physics first, then the other physical candidates, capacity last; each in score order (one
-    # denominator for every score, so the order is the held-out gain's)
-    candidates.sort(key=lambda c: (c["kind"] == "capacity", not c["claimed"], -c["score"], -c["gain_mse_um2"]))
+    candidates.sort(key=rank_key)
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and physical[0]["claimed"]
     repeatable = floor["repeatable_rms_um"]

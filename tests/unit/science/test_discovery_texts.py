@@ -107,14 +107,16 @@ def test_the_scanner_finds_what_it_is_for():
 
 
 @pytest.mark.parametrize("source", ["default", "foreign", "clean"])
-def test_candidates_in_score_order_and_the_answer_is_the_verdicts(diagnoses, source):
+def test_candidates_in_rank_order_and_the_answer_is_the_verdicts(diagnoses, source):
     for d in diagnoses[source]:
         testable = [c for c in d["candidates"] if c.get("testable", True)]
         groups = [(c["kind"] == "capacity", c["kind"] == "physical" and not c["claimed"]) for c in testable]
         assert groups == sorted(groups)  # claimed physics, the other physics, capacity
         for group in set(groups):
-            scores = [c["score"] for c, g in zip(testable, groups) if g == group]
-            assert scores == sorted(scores, reverse=True), (group, scores)
+            # the claimed physics by the share of the excess adding each removes, the others by score
+            key = "excess_removed" if group == (False, False) else "score"
+            figures = [c[key] for c, g in zip(testable, groups) if g == group]
+            assert figures == sorted(figures, reverse=True), (group, key, figures)
         a = d["answer"]
         claimed = [c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"]]
         if d["verdict"] == "missing_effect":

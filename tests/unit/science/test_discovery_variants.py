@@ -119,11 +119,6 @@ def test_creep_and_drift_are_not_confused_on_a_sine_sweep(sweeps):
     assert d["candidates"][0]["effect"] == "drift" and scores["creep"] <= 0.25 * scores["drift"], scores
 
 
-@pytest.mark.xfail(
-    reason="regressed by the rests/claims change (49347f9…fe6f265, issue 38): drift (score 0.77) now ranks above "
-    "temperature (0.37) on the temperature benches; measured at fcac358, not yet fixed",
-    strict=False,
-)
 @pytest.mark.parametrize(
     "bench, axis, most", [("temperature", "y", 0.75), ("bw_temperature", "z", 0.5), ("ms_temperature", "y", 0.75)]
 )
