@@ -58,8 +58,8 @@ def start_discovery(
     In a lab, ``allow_experiments`` is refused (422) for a model of another bench: its experiments
     would run on this service's hardware."""
     row = store.get_model(model_id)  # 404 before anything is queued
-    imported = imported_datasets(store, row["datasets"]) if body.allow_experiments else []
-    if imported:
+    imported = imported_datasets(store, row["datasets"])
+    if imported and body.allow_experiments:
         raise FieldError(
             "allow_experiments",
             f"model {model_id} was fitted on imported data ({', '.join(imported)}), "
@@ -81,8 +81,17 @@ def start_discovery(
     def run_experiment(ctx, sweep_body: dict) -> dict:
         return sweep_and_wait(ctx, jobs, bench, store, sweep_body, name=f"experiment of discovery from {model_id}")
 
+    elsewhere = (
+        f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: run it on the stage that "
+        "recorded the data and import the record"
+        if imported
+        else None
+    )
     policy = ExperimentPolicy(
-        run=run_experiment, busy=jobs.bench_jobs, fit=lambda sweep_body: runnable_sweep(bench, sweep_body)
+        run=run_experiment,
+        busy=jobs.bench_jobs,
+        fit=lambda sweep_body: runnable_sweep(bench, sweep_body),
+        elsewhere=elsewhere,
     )
     job = jobs.submit("discover", params, lambda ctx: discover(ctx, store, bench=policy, **params), needs_bench=False)
     return {"job_id": job["id"], "state": job["state"]}

@@ -243,8 +243,12 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
     )
 
 
-def _experiment(body: dict) -> str:
-    return f"<pre>POST /api/sweeps\n{escape(json.dumps(body))}</pre>"
+def _experiment(body: dict, here: bool = True) -> str:
+    """A sweep body: as the request to this service when this bench recorded the data, else as the plan
+    to record on the stage that did (this bench cannot run another stage's experiments)."""
+    if here:
+        return f"<pre>POST /api/sweeps\n{escape(json.dumps(body))}</pre>"
+    return f"<p class='muted'>To record on the stage that recorded the data, then import:</p><pre>{escape(json.dumps(body))}</pre>"
 
 
 def _tested_words(c: dict) -> str:
@@ -256,6 +260,7 @@ def _tested_words(c: dict) -> str:
 
 def _diagnosis_section(d: dict) -> str:
     cands = [c for c in d.get("candidates") or [] if c.get("testable", True)]
+    here = d.get("experiments_run_here") is not False
     rows = [
         [
             escape(c["effect"]),
@@ -272,7 +277,7 @@ def _diagnosis_section(d: dict) -> str:
     ]
     untestable = "".join(
         f"<li><b>{escape(c['effect'])}</b>: {escape(c.get('reason') or '')}"
-        f"{_experiment(c['experiment']) if c.get('experiment') else ''}</li>"
+        f"{_experiment(c['experiment'], here) if c.get('experiment') else ''}</li>"
         for c in d.get("not_testable") or []
     )
     amb = d.get("ambiguity")
@@ -315,7 +320,7 @@ def _diagnosis_section(d: dict) -> str:
         + (f'<h3>Not testable with this data</h3><ul id="not-testable">{untestable}</ul>' if untestable else "")
         + (
             f'<h3>Ambiguity</h3><p id="ambiguity">{escape(amb.get("text") or "")}</p>'
-            + (_experiment(amb["experiment"]) if amb.get("experiment") else "")
+            + (_experiment(amb["experiment"], here) if amb.get("experiment") else "")
             if amb
             else ""
         )

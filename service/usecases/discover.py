@@ -100,6 +100,9 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
         out["ambiguity"]["then"] = (
             f"POST /api/sweeps with the experiment body, then GET /api/models/{model_id}"
             "/diagnosis?extra_datasets=<dataset_id> or refine with added datasets"
+            if not imported
+            else "record the experiment on the stage that recorded the data, import it (POST /api/datasets), then "
+            f"GET /api/models/{model_id}/diagnosis?extra_datasets=<dataset_id> or refine with added datasets"
         )
     out.pop("metrics", None)
     return out

@@ -32,16 +32,20 @@ MAX_EXPERIMENTS = 3
 class ExperimentPolicy:
     """What the job may do about an experiment: ``allowed`` (allow_experiments), ``run`` (the
     runner; None: no bench), ``busy`` (the bench's jobs now), ``max_experiments``, ``fit`` (the
-    bench's check and cut; None: run as named)."""
+    bench's check and cut; None: run as named), ``elsewhere`` (why the data's experiments belong to
+    another stage, for a model of imported data; None: this bench's)."""
 
     allowed: bool = False
     run: ExperimentRunner | None = None
     busy: Callable[[], list[str]] | None = None
     max_experiments: int = MAX_EXPERIMENTS
     fit: BenchFit | None = None
+    elsewhere: str | None = None
 
     def why_not(self, ran: int) -> str | None:
         """Why an experiment is not asked of the bench (``ran``: experiments run so far), or None."""
+        if self.elsewhere:
+            return self.elsewhere
         if not self.allowed:
             return "ask again with allow_experiments to run it"
         if self.run is None:
