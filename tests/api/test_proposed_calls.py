@@ -63,7 +63,7 @@ def _what_the_user_reads(http, model_id: str, dataset_id: str) -> dict:
     report = http.get(f"/api/models/{model_id}/report")
     assert report.status_code == 200, report.text
     out["report"] = report.text
-    queued = http.post(f"/api/models/{model_id}/discover", json={"max_steps": 2})
+    queued = http.post(f"/api/models/{model_id}/discover", json={"max_steps": 1})
     assert queued.status_code == 202, queued.text
     job = wait_job(http, queued.json()["job_id"], timeout_s=600)
     assert job["state"] == "succeeded", job
