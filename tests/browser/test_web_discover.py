@@ -143,3 +143,15 @@ def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
     effects_b = page.locator(f"#compare-effects tr[data-model-id='{steps[1]['model_id']}']").inner_text()
     assert "creep" in effects_b
     _card_shot(page, "#lineage-compare", "discover_compare")
+
+    # 4. The run outlives the page: back on the starting model after a reload, and on its final model,
+    # the last run is shown again with every step as the job has it
+    for model_id in (base, job["result"]["final_model_id"]):
+        goto(page, server, f"models/{model_id}")
+        page.wait_for_selector("#discover-restored", timeout=60_000)
+        assert page.get_attribute("#discover-restored", "data-job-id") == job["id"]
+        again = page.locator("#discover-steps tr[data-step]")
+        assert again.count() == len(steps)
+        assert [again.nth(i).get_attribute("data-model-id") for i in range(again.count())] == [
+            s["model_id"] for s in steps
+        ]

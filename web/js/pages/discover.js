@@ -60,6 +60,21 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
     if (b) figures(b.dataset.figures);
   });
   fillLineage(box, model.id, state, signal).catch((e) => showError(box.querySelector('#compare-models'), e));
+  restoreLastRun(box, model, { signal, imported }).catch((e) => showError(box.querySelector('#discover-run'), e));
+}
+
+/** The last discover run that started from `model` or ended at it (GET /api/jobs), shown again after a
+ * reload or a visit to another page: a run's answer outlives the page that started it. */
+async function restoreLastRun(box, model, { signal, imported }) {
+  const jobs = await api('/jobs?limit=200', { signal });
+  const job = jobs.find((j) => j.kind === 'discover' && j.result?.steps
+    && (j.params?.model_id === model.id || j.result.final_model_id === model.id));
+  const out = box.querySelector('#discover-run');
+  if (!job || signal?.aborted || out.childElementCount) return;   // none, or a run started here meanwhile
+  renderRun(out, job.result, { signal, imported });
+  const when = job.finished_at || job.started_at || job.created_at;
+  out.prepend(h(`<p class="muted" id="discover-restored" data-job-id="${esc(job.id)}">The last discover run from
+    ${esc(job.params?.model_id || '')} (job ${esc(job.id)}, ${esc(job.state)}${when ? `, ${esc(when)}` : ''}).</p>`));
 }
 
 async function discover(box, model, state, { signal, imported, onModels, figures }) {
