@@ -3,6 +3,8 @@ with, against the noise floor, on held-out cycles.
 
     .venv/bin/python -m tests.support.world_matrix [--worlds bw_n2 preisach_gauss] [--forms blocks long]
         [--noise-nm 2] [--bipolar] [--json out.json]
+    .venv/bin/python -m tests.support.world_matrix --base-only [--n-operators 5] [--fs 5000] ...
+
 
 Per stage: the held-out RMS of the first step (hysteresis alone) and of the model the loop ends
 with (``service.science.discovery.loop.discovery_run``, as the discover job decides), the noise floor
@@ -50,6 +52,21 @@ def run_stage(
     }
 
 
+def base_stage(world: str, form: str, noise_nm: float, n_operators: int, fs: float, bipolar: bool = False) -> dict:
+    """The ``hysterons`` base alone (``n_operators`` × its factor of play widths) fitted to the stage,
+    no loop: held-out RMS and the noise floor it leaves (nm)."""
+    from service.science.discovery.hysteron_model import HysteronModel
+    from service.science.discovery.noise import noise_floor
+
+    recs = records(world, form, noise_nm * 1e-3, fs=fs, bipolar=bipolar)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = HysteronModel(n_operators=n_operators).fit(recs)
+        held = model.evaluate(recs)["validation_rms_um"] * 1e3
+        floor = noise_floor(recs, [r.x_um - model.predict(r) for r in recs])["noise_floor_um"] * 1e3
+    return {"world": world, "form": form, "widths": len(model.thresholds_v), "held_out_nm": held, "floor_nm": floor}
+
+
 def markdown(rows: list[dict]) -> str:
     out = [
         "| stage | hidden | record | drive | first step (nm) | loop's end (nm) | noise floor (nm) | end × floor "
@@ -73,7 +90,20 @@ def main(argv=None) -> None:
     ap.add_argument("--bipolar", action="store_true")
     ap.add_argument("--hidden", choices=["creep", "delay"], help="one physical effect behind the material")
     ap.add_argument("--json")
+    ap.add_argument("--base-only", action="store_true", help="fit the hysterons base alone, no loop")
+    ap.add_argument("--n-operators", type=int, default=10, help="with --base-only: the PI's play operators")
+    ap.add_argument("--fs", type=float, default=20000.0, help="with --base-only: sample rate (Hz)")
     args = ap.parse_args(argv)
+    if args.base_only:
+        for world in args.worlds:
+            for form in args.forms:
+                r = base_stage(world, form, args.noise_nm, args.n_operators, args.fs, args.bipolar)
+                print(
+                    f"{world:26s} {form:6s} {r['widths']} widths: held out {r['held_out_nm']:.2f} nm, "
+                    f"floor {r['floor_nm']:.2f} nm ({r['held_out_nm'] / r['floor_nm']:.2f}x)",
+                    flush=True,
+                )
+        return
     rows = []
     for world in args.worlds:
         for form in args.forms:
