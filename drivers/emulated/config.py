@@ -27,11 +27,13 @@ EFFECTS = (
     "axes.*.piezo.creep",
     "axes.*.piezo.asymmetry",
     "axes.*.piezo.temperature",
+    "axes.*.piezo.depolarisation",
     "axes.*.flexure.dynamics",
     "axes.*.gauge.bandwidth",
     "axes.*.gauge.noise",
     "axes.*.gauge.nonlinearity",
     "axes.*.gauge.drift",
+    "axes.*.gauge.pickup",
 )
 
 # leaf path -> ("num" | "int", min, max) | ("bool",) | ("str", allowed values or None)
@@ -60,6 +62,7 @@ RULES: dict[str, tuple] = {
     "axes.*.amplifier.slew_limit_v_per_s": ("num", 1.0, 1e9),
     "axes.*.amplifier.current_limit_a": ("num", 1e-6, 100.0),
     "axes.*.amplifier.load_capacitance_f": ("num", 1e-12, 1.0),
+    "axes.*.amplifier.large_signal_capacitance_factor": ("num", 1.0, 5.0),
     "axes.*.amplifier.overcurrent_fault_s": ("num", 1e-5, 10.0),
     "axes.*.amplifier.overcurrent_reset_s": ("num", 1e-5, 10.0),
     "axes.*.amplifier.bandwidth.bandwidth_hz": ("num", 1.0, 1e8),
@@ -95,6 +98,8 @@ RULES: dict[str, tuple] = {
     "axes.*.piezo.asymmetry.saturation_um": ("num", 0.01, 1e4),
     "axes.*.piezo.temperature.gain_per_c": ("num", -0.1, 0.1),
     "axes.*.piezo.temperature.reference_c": ("num", -40.0, 100.0),
+    "axes.*.piezo.depolarisation.loss_fraction": ("num", 0.0, 0.9),
+    "axes.*.piezo.depolarisation.time_constant_s": ("num", 1.0, 1e9),
     "axes.*.flexure.resonance_hz": ("num", 1.0, 1e6),
     "axes.*.flexure.dynamics.damping_ratio": ("num", 1e-3, 5.0),
     "axes.*.gauge.scale_um_per_v": ("num", 1e-3, 1e3),
@@ -103,6 +108,9 @@ RULES: dict[str, tuple] = {
     "axes.*.gauge.noise.rms_nm": ("num", 0.0, 1e4),
     "axes.*.gauge.nonlinearity.fraction_of_range": ("num", 0.0, 0.1),
     "axes.*.gauge.drift.offset_rate_nm_per_s": ("num", -1e5, 1e5),
+    "axes.*.gauge.pickup.frequency_hz": ("num", 1.0, 1e5),
+    "axes.*.gauge.pickup.amplitude_nm": ("num", 0.0, 1e5),
+    "axes.*.gauge.pickup.third_harmonic_nm": ("num", 0.0, 1e5),
 }
 for _effect in EFFECTS:
     RULES[_effect + ".enabled"] = ("bool",)
@@ -117,6 +125,7 @@ OPTIONAL = {
     "ambient.thermometer",
     FAMILY_KEY,
     "axes.*.piezo.rate_dependence.relaxing_fraction",
+    "axes.*.amplifier.large_signal_capacitance_factor",
     *(k for k in RULES if any(k.startswith(prefix) for prefix in FAMILY_TABLES.values())),
 }
 CHECKED_ELSEWHERE = ("transport", "safety", "faults", "emulator")

@@ -94,8 +94,13 @@ SG_T_S, SG_RING, SG_TEMP_C, NSG = range(4)
     P_MS_N,
     P_MS_ELASTIC,
     P_RELAX_FRAC,
+    P_DEPOL_LOSS,
+    P_DEPOL_RATE,
+    S_PICK_OMEGA,
+    S_PICK_UM,
+    S_PICK3_UM,
     NPA,
-) = range(48)
+) = range(53)
 # ---- per-axis state sa[axis, ...]
 (
     S_VOUT,
@@ -334,9 +339,10 @@ def _amplifier(pg, pa, sa, a, vin, nz):
 
 
 @njit(cache=True, inline="always")
-def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
+def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c, t_s):
     """Stack strain (µm): reversible + switched part (the axis's family; a fraction of it relaxes) + electrostriction,
-    temperature-scaled, plus creep (first-order modes with log-spaced time constants)."""
+    temperature-scaled and depolarising (the gain falls by P_DEPOL_LOSS·(1 − e^(−t/τ)) over the ``t_s``
+    seconds since power-up), plus creep (first-order modes with log-spaced time constants)."""
     if pa[a, P_HYST_ON] > 0.5:
         # Bouc–Wen and Maxwell-slip switch on the amplifier's noise-free output: a Duhem-type law
         # takes every mV reversal of the output noise as a new branch and drifts at rest (2 mV rms
@@ -355,6 +361,8 @@ def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
     xfast = (pa[a, P_DI_UM_PER_V] * u + xsw + pa[a, P_Q_UM_PER_V2] * u * u) * (
         1.0 + pa[a, P_TC_PER_C] * (temp_c - pa[a, P_TREF_C])
     )
+    if pa[a, P_DEPOL_LOSS] > 0.0:
+        xfast *= 1.0 + pa[a, P_DEPOL_LOSS] * math.expm1(-t_s * pa[a, P_DEPOL_RATE])
     sa[a, S_XFAST] = xfast
     xc = 0.0
     for m in range(int(pa[a, P_NCREEP])):
@@ -367,13 +375,17 @@ def _piezo(pa, sa, tp, ps, ev, ca, cw, cs, a, u, temp_c):
 
 
 @njit(cache=True, inline="always")
-def _gauge(pg, pa, sa, a, x_um, nz):
-    """Capacitance gauge: bandwidth, nonlinearity, offset drift, noise, ±10 V output."""
+def _gauge(pg, pa, sa, a, x_um, nz, t_s):
+    """Capacitance gauge: bandwidth, nonlinearity, offset drift, mains pickup (a line and its third
+    harmonic, phase-locked to the emulated clock ``t_s``, not to the drive), noise, ±10 V output."""
     g = sa[a, S_G] + (x_um - sa[a, S_G]) * pa[a, S_BW_ALPHA]
     sa[a, S_G] = g
     sa[a, S_GOFF] += pa[a, S_DRIFT_UM]
     s = g / pa[a, S_RANGE_UM]
     xm = g + sa[a, S_GOFF] + pa[a, S_NL_UM] * _NL_SHAPE * (s * s * s - s) + pa[a, S_NOISE_UM] * nz
+    if pa[a, S_PICK_UM] > 0.0 or pa[a, S_PICK3_UM] > 0.0:
+        w = pa[a, S_PICK_OMEGA] * t_s
+        xm += pa[a, S_PICK_UM] * math.sin(w) + pa[a, S_PICK3_UM] * math.sin(3.0 * w + 0.7)
     v = xm * pa[a, S_V_PER_UM]
     vr = pg[G_RANGE_V]
     if abs(v) >= vr:
@@ -430,16 +442,16 @@ def world_sample(pg, pa, sg, sa, ring, tp, ps, ev, ca, cw, cs, ao0, ao1, noise, 
     sg[SG_TEMP_C] = temp
     vp0 = _amplifier(pg, pa, sa, 0, in0, noise[kn, 0])
     vp1 = _amplifier(pg, pa, sa, 1, in1, noise[kn, 1])
-    x0 = _piezo(pa, sa, tp, ps, ev, ca, cw, cs, 0, vp0, temp)
-    x1 = _piezo(pa, sa, tp, ps, ev, ca, cw, cs, 1, vp1, temp)
+    x0 = _piezo(pa, sa, tp, ps, ev, ca, cw, cs, 0, vp0, temp, t)
+    x1 = _piezo(pa, sa, tp, ps, ev, ca, cw, cs, 1, vp1, temp, t)
     pos0 = _flexure(pa, sa, 0, x0)
     pos1 = _flexure(pa, sa, 1, x1)
     y0 = pos0 + pa[0, C_FROM_OTHER] * pos1
     y1 = pos1 + pa[1, C_FROM_OTHER] * pos0
     sa[0, S_XTOOL] = y0
     sa[1, S_XTOOL] = y1
-    out[ko, 0] = _gauge(pg, pa, sa, 0, y0, noise[kn, 2])
-    out[ko, 1] = _gauge(pg, pa, sa, 1, y1, noise[kn, 3])
+    out[ko, 0] = _gauge(pg, pa, sa, 0, y0, noise[kn, 2], t)
+    out[ko, 1] = _gauge(pg, pa, sa, 1, y1, noise[kn, 3], t)
     mr = pg[G_MON_RATIO]
     out[ko, 2] = quantise(vp0 * mr, pg[G_LSB_AI_V], vr, qon)
     out[ko, 3] = quantise(vp1 * mr, pg[G_LSB_AI_V], vr, qon)

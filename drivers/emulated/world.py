@@ -125,7 +125,9 @@ class World:
             pa[a, K.A_GAIN] = amp["gain_v_per_v"]
             pa[a, K.A_VMIN_V] = amp["output_min_v"]
             pa[a, K.A_VMAX_V] = amp["output_max_v"]
-            pa[a, K.A_CAP_F] = amp["load_capacitance_f"]
+            # a PZT stack's large-signal capacitance exceeds its rated (small-signal) one: the current
+            # limit holds the stack's voltage to I/(factor·C), which the bench's own checks (on C) do not see
+            pa[a, K.A_CAP_F] = amp["load_capacitance_f"] * amp.get("large_signal_capacitance_factor", 1.0)
             pa[a, K.A_NOISE_V] = amp["noise"]["rms_v"] * _on(amp["noise"])
             pa[a, K.A_FAULT_S] = amp["overcurrent_fault_s"]
             pa[a, K.A_OC_RESET_S] = amp["overcurrent_reset_s"]
@@ -139,6 +141,9 @@ class World:
             temp = pz["temperature"]
             pa[a, K.P_TC_PER_C] = temp["gain_per_c"] * _on(temp)
             pa[a, K.P_TREF_C] = temp["reference_c"]
+            depol = pz["depolarisation"]
+            pa[a, K.P_DEPOL_LOSS] = depol["loss_fraction"] * _on(depol)
+            pa[a, K.P_DEPOL_RATE] = 1.0 / depol["time_constant_s"]
             lo, hi, step = amp["output_min_v"] - 5.0, amp["output_max_v"] + 5.0, 0.5
             n = int(round((hi - lo) / step)) + 1
             pa[a, K.P_GRID_LO_V] = lo
@@ -150,6 +155,10 @@ class World:
             pa[a, K.S_RANGE_UM] = rng_um
             pa[a, K.S_NOISE_UM] = gauge["noise"]["rms_nm"] * 1e-3 * _on(gauge["noise"])
             pa[a, K.S_NL_UM] = gauge["nonlinearity"]["fraction_of_range"] * 2 * rng_um * _on(gauge["nonlinearity"])
+            pickup = gauge["pickup"]
+            pa[a, K.S_PICK_OMEGA] = 2 * math.pi * pickup["frequency_hz"]
+            pa[a, K.S_PICK_UM] = pickup["amplitude_nm"] * 1e-3 * _on(pickup)
+            pa[a, K.S_PICK3_UM] = pickup["third_harmonic_nm"] * 1e-3 * _on(pickup)
         size = max(t.shape[0] for t in self.tables)
         self.ev = np.zeros((2, size, size))
         for a, table in enumerate(self.tables):
@@ -190,7 +199,8 @@ class World:
             c = cfg["axes"][ax]
             amp, pz, flex, gauge = c["amplifier"], c["piezo"], c["flexure"], c["gauge"]
             pa[a, K.A_SLEW_DV] = amp["slew_limit_v_per_s"] * dt
-            pa[a, K.A_CUR_DV] = amp["current_limit_a"] / amp["load_capacitance_f"] * dt
+            cap_f = amp["load_capacitance_f"] * amp.get("large_signal_capacitance_factor", 1.0)
+            pa[a, K.A_CUR_DV] = amp["current_limit_a"] / cap_f * dt
             pa[a, K.A_BW_ALPHA] = self._lag_alpha(amp["bandwidth"], "bandwidth_hz", dt)
             pa[a, K.S_BW_ALPHA] = self._lag_alpha(gauge["bandwidth"], "bandwidth_hz", dt)
             rd = pz["rate_dependence"]

@@ -210,11 +210,46 @@ WORLDS = {
 
 
 # -- recording ------------------------------------------------------------------------------------
+#: the amplifier of the "slew" stage: 40 mA into a 1.8 µF stack moves it at most I/C (V/s)
+SLEW_V_PER_S = 0.04 / 1.8e-6
+#: the "hum" stage's lines on the gauge: (frequency Hz, amplitude µm, phase rad), t from each record's start
+HUM_LINES = ((50.0, 0.012, 0.4), (150.0, 0.004, 1.1))
+#: the "gainfade" stage's gain: falls this share per second from each record's start
+GAIN_FADE_PER_S = 0.001
+#: the effects ``hidden`` may name
+HIDDEN = ("creep", "delay", "slew", "hum", "gainfade")
+
+
+@njit(cache=True)
+def _slewed(u, step_v):
+    out = np.empty(u.size)
+    y = u[0]
+    for k in range(u.size):
+        y += min(max(u[k] - y, -step_v), step_v)
+        out[k] = y
+    return out
+
+
+def stage_drive_v(effect: str | None, u_v: np.ndarray, fs: float) -> np.ndarray:
+    """The drive the stack sees: the plan, or ("slew") the plan through an amplifier whose output moves at
+    most SLEW_V_PER_S (its current limit into the stack's capacitance)."""
+    if effect == "slew":
+        return _slewed(np.ascontiguousarray(u_v, dtype=float), SLEW_V_PER_S / fs)
+    return u_v
+
+
 def hidden_um(effect: str | None, u_v: np.ndarray, x_um: np.ndarray, fs: float) -> np.ndarray:
     """The stage's output with one physical effect behind (or beside) the material: "creep" (the drive
-    through first-order lags of 0.3 and 3 s, 0.003 µm/V each), "delay" (0.3 ms, linear interpolation)."""
-    if effect is None:
+    through first-order lags of 0.3 and 3 s, 0.003 µm/V each), "delay" (0.3 ms, linear interpolation),
+    "hum" (HUM_LINES on the gauge), "gainfade" (the gain falls GAIN_FADE_PER_S); "slew" acts on the
+    drive (``stage_drive_v``), not here."""
+    if effect is None or effect == "slew":
         return x_um
+    t = np.arange(x_um.size) / fs
+    if effect == "hum":
+        return x_um + sum(a * np.sin(2 * np.pi * f * t + p) for f, a, p in HUM_LINES)
+    if effect == "gainfade":
+        return x_um * (1.0 - GAIN_FADE_PER_S * t)
     if effect == "creep":
         from scipy import signal
 
@@ -234,14 +269,15 @@ def record_blocks(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, f
     material = WORLDS[world]
     out = []
     for u in blocks_v(u_max_v, bipolar, fs=fs):
-        out.append((u, hidden_um(hidden, u, material(u, bipolar), fs) + rng.normal(0.0, noise_um, u.size)))
+        x = material(stage_drive_v(hidden, u, fs), bipolar)
+        out.append((u, hidden_um(hidden, u, x, fs) + rng.normal(0.0, noise_um, u.size)))
     return out
 
 
 def record_long(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
     """(u_v, x_um) of every block one after the other, with their rests, in one record."""
     u = np.concatenate(blocks_v(u_max_v, bipolar, fs=fs))
-    x = hidden_um(hidden, u, WORLDS[world](u, bipolar), fs)
+    x = hidden_um(hidden, u, WORLDS[world](stage_drive_v(hidden, u, fs), bipolar), fs)
     return u, x + np.random.default_rng(seed).normal(0.0, noise_um, u.size)
 
 

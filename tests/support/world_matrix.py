@@ -18,7 +18,7 @@ import json
 import time
 import warnings
 
-from tests.support.hysteresis_worlds import WORLDS, records
+from tests.support.hysteresis_worlds import HIDDEN, WORLDS, records
 
 
 def run_stage(
@@ -88,7 +88,7 @@ def main(argv=None) -> None:
     ap.add_argument("--noise-nm", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bipolar", action="store_true")
-    ap.add_argument("--hidden", choices=["creep", "delay"], help="one physical effect behind the material")
+    ap.add_argument("--hidden", choices=HIDDEN, help="one physical effect behind the material")
     ap.add_argument("--json")
     ap.add_argument("--base-only", action="store_true", help="fit the hysterons base alone, no loop")
     ap.add_argument("--n-operators", type=int, default=10, help="with --base-only: the PI's play operators")

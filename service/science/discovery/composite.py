@@ -20,6 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from service.science.data.record import Record, as_record_list, finite_array
+from service.science.data.signals import drive_derivatives
 from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
 from service.science.discovery.composite_fit import FitProblem, TransformSearch
 from service.science.discovery.composite_inverse import (
@@ -41,6 +42,11 @@ HELD_OUT_NOTE = (
     "last ceil(20 %) of the full cycles of every block; means are over blocks. "
     "held_out_frequencies: each frequency left out of the fit in turn"
 )
+
+
+#: the records' fastest drive rate, for a drive stage's grid: this percentile of every sample's rate (the
+#: few samples of a step are left out; a 100 Hz block's steepest stretch is kept)
+FASTEST_RATE_PERCENTILE = 99.95
 
 
 class CompositeModel(TransformSearch):
@@ -117,9 +123,21 @@ class CompositeModel(TransformSearch):
     def transforms(self) -> list[str]:
         return [e for e in self.effects if EFFECTS[e].stage == "transform"]
 
+    @property
+    def drive_stages(self) -> list[str]:
+        """The effects that map the drive before everything else (the amplifier's rate limit)."""
+        return [e for e in self.effects if EFFECTS[e].stage == "drive"]
+
     def _context(self, drive: Drive) -> RecordContext:
         du, ddu = drive.derivatives()
         return self.context(drive.u_v, drive.require_rate(), du, ddu, drive.u_other_v, drive.x_other_um, drive.temp_c)
+
+    def staged_drive(self, u_v: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+        """The drive (V) the stack sees for the planned ``u_v`` (V): through every drive stage fitted."""
+        for name in self.drive_stages:
+            if name in self.theta:
+                u_v = EFFECTS[name].drive(u_v, sample_rate_hz, self.theta[name])
+        return u_v
 
     def context(
         self,
@@ -132,7 +150,10 @@ class CompositeModel(TransformSearch):
         temp_c: np.ndarray | None = None,
     ) -> RecordContext:
         """What the effects see of a drive ``u_v`` (V) at ``sample_rate_hz``, with this model's thresholds and
-        scales (so every effect block has the width its fitted weights have)."""
+        scales (so every effect block has the width its fitted weights have); the drive stages first."""
+        if any(name in self.theta for name in self.drive_stages):
+            u_v = self.staged_drive(u_v, sample_rate_hz)
+            du, ddu = drive_derivatives(u_v, sample_rate_hz)
         origin = self.u_origin_v
         p = play_outputs(u_v, origin, self.thresholds_v)
         p_other = None if u_other_v is None else play_outputs(u_other_v, origin, self.thresholds_v)
@@ -160,6 +181,7 @@ class CompositeModel(TransformSearch):
             time_scale_s,
             x_other_um,
             temp_dev,
+            learned=self.scales.get("learned", {}),
         )
 
     def raw_blocks(self, drive: Drive) -> list[Block]:
@@ -171,7 +193,8 @@ class CompositeModel(TransformSearch):
             ctx.fs_hz,
             self.u_origin_v,
             np.asarray(self.thresholds_v, dtype=float).tobytes(),
-            tuple(sorted(self.scales.items())),
+            repr(sorted(self.scales.items())),
+            repr([self.theta.get(name) for name in self.drive_stages]),
         )
         out = [Block.make("weights_um_per_v", ctx.p, lower=0.0), Block.make("offset_um", np.ones(ctx.n))]
         for name in self.effects:
@@ -218,6 +241,9 @@ class CompositeModel(TransformSearch):
         temps = [r.temp_c for r in records if getattr(r, "temp_c", None) is not None]
         if temps:
             self.scales["temp_ref_c"] = float(np.mean(np.concatenate(temps)))
+        learned = {name: EFFECTS[name].setup(records) for name in self.effects}
+        if any(learned.values()):
+            self.scales["learned"] = {name: v for name, v in learned.items() if v}
 
     @shared_effect_columns()  # the warm-started second fit reuses the first's columns
     def fit(
@@ -244,6 +270,11 @@ class CompositeModel(TransformSearch):
         """Transforms named in ``fixed_theta`` keep those parameters (only the others are searched)."""
         self._setup(records)
         self._fs = records[0].sample_rate_hz
+        self.theta = {n: dict(fixed_theta[n]) for n in self.drive_stages if n in fixed_theta}
+        for name in self.drive_stages:
+            if name not in fixed_theta:
+                self.theta[name] = self._search_drive(records, name, fixed_theta, exclude_frequency_hz)
+        drive_theta = dict(self.theta)
         problem = FitProblem(self, records, exclude_frequency_hz)
         self.sign = problem.sign
         free = [name for name in self.transforms if name not in fixed_theta]
@@ -253,10 +284,30 @@ class CompositeModel(TransformSearch):
             theta, sol = self._refine_locally(problem, free, start)
         else:
             theta, sol = self._search_transforms(problem, free, fixed_theta)
-        self.theta = theta
+        self.theta = {**drive_theta, **theta}
         coef, train_rms, names, splits = self._fit_gauge(problem, theta, sol)
         self.coef = {nm: coef[splits[j] : splits[j + 1]].copy() for j, nm in enumerate(names)}
         self.train_rms_um = train_rms
+
+    def _search_drive(self, records: list[Record], name: str, fixed_theta: dict, exclude_frequency_hz) -> dict:
+        """A drive stage's parameters: its grid (from the records' fastest drive rate, V/s, the
+        FASTEST_RATE_PERCENTILE of every sample's), then its
+        refinement, each value costed by the weights' training RMS with the transforms as given or at
+        identity (the columns rebuilt for each value)."""
+        eff = EFFECTS[name]
+        held = {t: dict(fixed_theta.get(t) or self._identity_theta(t)) for t in self.transforms}
+        rates = np.concatenate([np.abs(np.diff(r.u_v)) * r.sample_rate_hz for r in records])
+        fastest = float(np.percentile(rates, FASTEST_RATE_PERCENTILE))  # a step's jump is not a rate
+
+        def cost(th: dict) -> float:
+            self.theta[name] = eff.clamp(th, self._fs)
+            return FitProblem(self, records, exclude_frequency_hz).solve(held).rms
+
+        grid = eff.grid(self._fs, self.scales["min_period_s"], fastest)
+        costs = [cost(th) for th in grid]
+        k = int(np.argmin(costs))
+        bracket = (grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)])
+        return eff.clamp(eff.refine(grid[k], cost, bracket=bracket), self._fs)
 
     def _fit_gauge(self, problem: FitProblem, theta: dict, sol):
         """The weights of ``sol`` and, when the model has an output effect (the gauge's bow), the bow

@@ -137,8 +137,8 @@ def _candidate(
     eff = EFFECTS[name]
     reference = _reference_for(name)
     _, res_ref, v_ref = fits.get(reference)
-    # a transform's parameters are searched once, on the model with it alone, then kept
-    theta = fits.get((name,))[0].theta if eff.stage == "transform" else None
+    # a transform's (or a drive stage's) parameters are searched once, on the model with it alone, then kept
+    theta = fits.get((name,))[0].theta if eff.stage in ("transform", "drive") else None
     _, res_trial, v_trial = fits.get(reference + (name,), theta)
     if eff.gain_change_test:
         res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
@@ -195,6 +195,21 @@ def _candidate(
         how,
         v_trial,
     )
+
+
+def _seen_at_rest(name, fits: _Fits, rests: dict, noise, v0, k0, sig, floor, alpha) -> dict:
+    """A disturbance the rests show (service/science/discovery/rests.py), already taken out of the record:
+    claimed on the rests' held-out test (its strongest line's z, one-sided), its gain the lines' mean square."""
+    from statistics import NormalDist
+
+    z = max(line["z"] for line in rests["lines"])
+    p = float(1.0 - NormalDist().cdf(z))
+    gain = float(sum(line["amplitude_um"] ** 2 / 2 for line in rests["lines"]))
+    how = (
+        f"{disturbance(rests)['text']} (held-out z = {z:.3g} at rest against a threshold of "
+        f"{rests['threshold_z']:.3g}, Bonferroni over {len(rests['tried'])} frequencies)"
+    )
+    return _entry(name, fits, noise, v0, k0, sig, floor, p < alpha, p, gain, (), v0, how)
 
 
 def _test_words(test: dict, noise: float) -> str:
@@ -439,6 +454,9 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
     alpha = candidate_alpha(tested)  # more candidates, the same family-wise false-claim rate
     for name, why_not in why_not_of.items():
         eff = EFFECTS[name]
+        if eff.seen_at_rest and rests and rests["lines"]:  # seen at rest, and out of the record already
+            candidates.append(_seen_at_rest(name, fits, rests, noise, v0, k0, sig, floor, alpha))
+            continue
         if why_not is not None:
             untestable.append(
                 {

@@ -11,21 +11,27 @@ from service.science.effects.cross_coupling import CrossCoupling
 from service.science.effects.delay import Delay
 from service.science.effects.drift import Drift
 from service.science.effects.dynamics import Dynamics
+from service.science.effects.gain_change import GainChange
 from service.science.effects.hysterons import Hysterons
+from service.science.effects.line_disturbance import LineDisturbance
 from service.science.effects.operators import Operators
 from service.science.effects.rate_dependence import RateDependence
 from service.science.effects.registry import BUILTIN, Registry
 from service.science.effects.sensor_nonlinearity import SensorNonlinearity
+from service.science.effects.slew_limit import SlewLimit
 from service.science.effects.temperature import Temperature
 
-#: the built-ins in application order (additive regressors, then transforms, then the gauge, capacity)
+#: the built-ins in application order (the drive, additive regressors, then transforms, then the gauge, capacity)
 BUILTINS = (
+    SlewLimit,
     RateDependence,
     Creep,
     Asymmetry,
     CrossCoupling,
     Drift,
     Temperature,
+    GainChange,
+    LineDisturbance,
     Delay,
     Dynamics,
     SensorNonlinearity,

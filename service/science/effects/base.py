@@ -8,9 +8,13 @@ Everything about an effect lives on its class, so that no module outside the eff
   test it, or None) and ``sweep``, the /api/sweeps body that would;
 - its evidence in words: ``signature`` and ``evidence(sig, floor)``;
 - its feedforward inverse: ``inverse`` ("iterate", "response", "invert" or "none" with ``no_inverse``);
-- its emulator variant, as data: ``emulator_bench``, a bench config in fixtures/benches/.
+- its emulator variant, as data: ``emulator_bench``, a bench config in fixtures/benches/;
+- constants it learns from the records before any fit (``setup``: a disturbance's line frequencies),
+  stored with the model and given back in ``RecordContext.learned``.
 
-An effect acts on the composite model's design in one of four places (``stage``):
+An effect acts on the composite model's design in one of five places (``stage``):
+- ``drive``: a map of the drive before everything else (the amplifier's rate limit: ``drive``), its
+  one parameter found by a 1-D search (``grid``, ``refine``) like a transform's;
 - ``additive``: extra regressor columns (weights by least squares);
 - ``transform``: a linear operator applied to every column (delay, flexure dynamics) whose few
   nonlinear parameters are found by a 1-D/2-D outer search;
@@ -64,6 +68,8 @@ class RecordContext:
     #: the stack's temperature less the data set's mean (K), where the records carry temp_c
     temp_dev_k: np.ndarray | None = None
     cache: dict = field(default_factory=dict)
+    #: what each effect's ``setup`` learned from the fitted records, by effect name
+    learned: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -124,8 +130,20 @@ class Effect:
     identity: ClassVar[dict] = {}
     #: part of the flexible rate-independent base every physical candidate must beat (diagnosis)
     in_flexible_base: ClassVar[bool] = False
+    #: a disturbance the record's rests show (a line at rest): the diagnosis takes it out of the record
+    #: before the model is judged and names this effect for it, the rests' held-out test its evidence
+    seen_at_rest: ClassVar[bool] = False
     #: look-alikes: other effect -> (how to tell them apart in words, the /api/sweeps body that does)
     separated_from: ClassVar[dict[str, tuple[str, dict]]] = {}
+
+    def setup(self, records) -> dict:
+        """Constants (JSON types, units in the keys) learned from the records a model is fitted on,
+        before any fit; a model stores them and its ``RecordContext.learned[name]`` gives them back."""
+        return {}
+
+    def drive(self, u_v: np.ndarray, fs_hz: float, theta: dict) -> np.ndarray:
+        """Stage ``drive``: the drive (V) the stack sees for the planned ``u_v`` (V) at ``fs_hz``."""
+        return u_v
 
     def untestable(self, records) -> str | None:
         """Why ``records`` cannot test this effect (in words), or None when they can."""

@@ -93,7 +93,7 @@ def _declaration(effect: Effect, builtin: bool) -> list[Failure]:
         out.append(Failure("name", f"{name!r} must be 2–40 lower-case letters, digits or _, not 'hysteresis'"))
     if effect.kind not in ("physical", "capacity"):
         out.append(Failure("kind", f"{effect.kind!r} is not 'physical' or 'capacity'"))
-    stages = PLUGIN_STAGES + (("output",) if builtin else ())
+    stages = PLUGIN_STAGES + (("output", "drive") if builtin else ())
     if effect.stage not in stages:
         out.append(Failure("stage", f"{effect.stage!r} is not one of {', '.join(stages)}"))
     for attr in ("signature", "rule"):
@@ -140,6 +140,22 @@ def _transform(effect: Effect, record: Record) -> tuple[list[Failure], dict]:
     except Exception as exc:
         return [Failure("grid", f"raised {_error(exc)}")], {}
     return out + _transformed(effect, record, theta), theta
+
+
+def _drive(effect: Effect, record: Record) -> tuple[list[Failure], dict]:
+    """A drive stage's failures (units, shape, finite) at its grid's middle parameters."""
+    try:
+        grid = effect.grid(record.sample_rate_hz, 0.02, 50.0)
+        theta = dict(grid[len(grid) // 2])
+        moved = np.asarray(effect.drive(record.u_v, record.sample_rate_hz, theta))
+    except Exception as exc:
+        return [Failure("drive", f"raised {_error(exc)}")], {}
+    out: list[Failure] = []
+    for key in theta:
+        _unit(effect, key, "drive parameter", out)
+    if moved.shape != record.u_v.shape or not np.all(np.isfinite(moved)):
+        out.append(Failure("drive", f"returned shape {moved.shape} for {record.u_v.shape}, or non-finite values"))
+    return out, theta
 
 
 def _transformed(effect: Effect, record: Record, theta: dict) -> list[Failure]:
@@ -230,6 +246,9 @@ def check_effect(effect: Effect, builtin: bool = False) -> list[Failure]:
     theta = {}
     if effect.stage == "transform":
         found, theta = _transform(effect, record)
+        failures += found
+    elif effect.stage == "drive":
+        found, theta = _drive(effect, record)
         failures += found
     failures += _words_and_rules(effect, record)
     failures += _parameters(effect, blocks, theta)

@@ -27,7 +27,7 @@ from service.science.effects.conformance import _error, check_effect
 ENTRY_POINT_GROUP = "evcbench.effects"
 ENV_DIR = "EVCBENCH_EFFECTS_DIR"
 BUILTIN = "builtin"
-STAGE_ORDER = ("additive", "transform", "output", "capacity")
+STAGE_ORDER = ("drive", "additive", "transform", "output", "capacity")
 
 
 class Refused(ValueError):
