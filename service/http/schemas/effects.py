@@ -14,7 +14,7 @@ class EffectEntry(BaseModel):
     name: str
     origin: str = Field(description='"builtin", "entry point NAME (module:attr)" or the plug-in file\'s path')
     kind: str = Field(description="physical | capacity")
-    stage: str = Field(description="additive | transform | output | capacity")
+    stage: str = Field(description="drive | additive | transform | output | capacity")
     signature: str = Field(description="what the residual shows, in words")
     rule: str = Field(description="what the data must contain to test it, in words")
     sweep: dict = Field(description="the /api/sweeps body (without axes) whose data tests it")

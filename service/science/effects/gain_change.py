@@ -73,14 +73,10 @@ class GainChange(Effect):
     def parameters(self, theta, values, scales, sign):
         """``gain_change_pct_per_s``: the change of the stroke from rest to the full drive scale per second,
         as a share of the stroke (%/s; negative: the gain fades); ``gain_change_pct`` over the longest record."""
-        change, weights = values.get("gain_change_um"), values.get("weights_um_per_v")
-        if change is None or weights is None:
+        change, stroke_um = values.get("gain_change_um"), scales.get("stroke_um")
+        if change is None or not stroke_um:
             return {}
-        u = scales["u_scale_v"]
-        stroke_um = stroke_share(np.asarray(weights) * u, u)
-        if not stroke_um:
-            return {}
-        share = stroke_share(np.asarray(change), u) / stroke_um  # over the longest record
+        share = stroke_share(np.asarray(change), scales["u_scale_v"]) / stroke_um  # over the longest record
         return {"gain_change_pct": 100 * share, "gain_change_pct_per_s": 100 * share / scales["time_scale_s"]}
 
     def describe(self, theta, values):

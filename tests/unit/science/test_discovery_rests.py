@@ -51,11 +51,11 @@ def hum_long():
 
 def test_hum_is_a_disturbance_not_a_loop_shape(hum_long):
     """Before issue 38 this stage claimed asymmetry (p = 0) and creep at a 2.03 nm floor: the 50 Hz line
-    repeats in the 1/10/50 Hz blocks. Now the hum is reported from the rests, removed, and nothing
-    physical is claimed; the floor is the gauge's 2 nm from the rests."""
+    repeats in the 1/10/50 Hz blocks. Now the hum is reported from the rests, removed, and named as a
+    line_disturbance (the only physical claim); the floor is the gauge's 2 nm from the rests."""
     d = hum_long
     physical = [c["effect"] for c in d["candidates"] if c["claimed"] and c["kind"] == "physical"]
-    assert physical == []
+    assert physical == ["line_disturbance"]
     assert not LOOP_SHAPE_OR_RATE & {c["effect"] for c in d["candidates"] if c["claimed"]}
     lines = {round(li["frequency_hz"]): li["amplitude_um"] for li in d["disturbance"]["lines"]}
     assert lines[50] == pytest.approx(0.012, rel=0.1) and lines[150] == pytest.approx(0.004, rel=0.15)
@@ -73,10 +73,11 @@ def test_the_step_hold_is_named_in_the_failures(hum_long):
 @pytest.mark.slow
 def test_gain_fade_is_not_claimed_as_creep():
     """The issue's foreign stage, one long record, gain falling 0.1 %/s: creep was claimed
-    (p = 4.5e-10). Now creep must beat a gain changing with time: not claimed; the description's leading
-    signature is the gain's fall, 1.17 % over the 11.7 s record (within 0.25 %)."""
+    (p = 4.5e-10). Now creep must beat a gain changing with time: not claimed; the built-in gain_change is
+    the one physical claim, and the description's leading signature is the gain's fall, 1.17 % over the
+    11.7 s record (within 0.25 %)."""
     d = _diagnose(foreign_records("gainfade", "long"))
-    assert not [c["effect"] for c in d["candidates"] if c["claimed"] and c["kind"] == "physical"]
+    assert [c["effect"] for c in d["candidates"] if c["claimed"] and c["kind"] == "physical"] == ["gain_change"]
     creep = next(c for c in d["candidates"] if c["effect"] == "creep")
     assert creep["p_value"] > d["candidate_alpha"]
     top = d["remainder"]["signatures"][0]
