@@ -117,9 +117,9 @@ def test_the_docs_example_is_found_first_and_discover_reaches_the_floor(service,
     base = api.identify("y", [ds["id"]], model="static_pi")
     diagnosis = api.http.get(f"/api/models/{base['id']}/diagnosis", timeout=600).json()
     top = diagnosis["candidates"][0]
-    assert (top["effect"], top["claimed"], diagnosis["verdict"]) == ("self_heating", True, "missing_effect"), (
-        diagnosis["verdict_text"]
-    )
+    assert (top["effect"], top["claimed"], diagnosis["verdict"]) == ("self_heating", True, "missing_effect"), diagnosis[
+        "verdict_text"
+    ]
     assert top["signature"].startswith("the output moves in proportion to the drive's travelled path")
     job = api.discover(base["id"], continue_past_ambiguity=True)
     assert job["state"] == "succeeded", job
