@@ -2,9 +2,11 @@
 poling relaxes after power-up or a large field) or grows (self-heating raises d33) in proportion to the
 time since the record started, x(t) = x_stack·(1 + g·t).
 
-Columns: the time since the record started (s, scaled by the longest record) times each play operator's
-output (normalised by the drive scale): the hysteresis base's own columns, changing with time, so the
-fitted weights are the change of each operator's weight over the longest record (µm). No t·1 column: an
+Columns: the time since the record started (s, scaled by the longest record) times the normalised drive
+u/u_max and the normalised hysteretic state S/u_max (S = Σ_{i≥1} P_i, the play operators above the
+first), as the temperature effect scales the loop with ΔT: two weights (µm over the longest record), so
+that it cannot give each block (each at its own time in a long record) a loop shape of its own, as one
+column per operator did (11.0 → 11.4 nm held out on a Bouc–Wen β > γ stage). No t·1 column: an
 output that moves whatever the displacement is ``drift`` (additive in time), and one that relaxes after
 each step of the drive, logarithmically in time, is ``creep``; a gain change is zero where the stack is
 at rest and grows with the displacement. The held-out cycles are later in time than the training ones,
@@ -23,12 +25,11 @@ from service.science.models.base import equal_thresholds
 MIN_DURATION_S = 2.0
 
 
-def stroke_share(weights: np.ndarray, u_scale_v: float) -> float:
-    """Σ w_i·max(1 − r_i/u_scale, 0): the output (in units of w) of play operators with weights ``w``
-    (per unit of normalised output) loaded from rest to the full drive scale, thresholds r_i equally
-    spaced from 0 to half the drive scale."""
-    r = equal_thresholds(u_scale_v, weights.size) / u_scale_v
-    return float(np.dot(weights, np.maximum(1.0 - r, 0.0)))
+def state_at_full_drive(n_operators: int, u_scale_v: float) -> float:
+    """S/u_max at the full drive scale, loaded from rest: Σ_{i≥1} max(1 − r_i/u_max, 0) over ``n_operators``
+    play operators with thresholds r_i equally spaced from 0 to half the drive scale."""
+    r = equal_thresholds(u_scale_v, n_operators)[1:] / u_scale_v
+    return float(np.sum(np.maximum(1.0 - r, 0.0)))
 
 
 class GainChange(Effect):
@@ -59,7 +60,9 @@ class GainChange(Effect):
 
     def blocks(self, ctx: RecordContext) -> list[Block]:
         t = ctx.t_s / ctx.time_scale_s
-        return [Block.make("gain_change_um", t[:, None] * ctx.p / ctx.u_scale_v)]
+        u = ctx.u_v / ctx.u_scale_v
+        s = ctx.p[:, 1:].sum(axis=1) / ctx.u_scale_v if ctx.p.shape[1] > 1 else u
+        return [Block.make("gain_change_um", np.column_stack([t * u, t * s]))]
 
     def untestable(self, records) -> str | None:
         longest = max((r.n_samples / r.sample_rate_hz for r in records), default=0.0)
@@ -74,14 +77,16 @@ class GainChange(Effect):
         """``gain_change_pct_per_s``: the change of the stroke from rest to the full drive scale per second,
         as a share of the stroke (%/s; negative: the gain fades); ``gain_change_pct`` over the longest record."""
         change, stroke_um = values.get("gain_change_um"), scales.get("stroke_um")
-        if change is None or not stroke_um:
+        weights = values.get("weights_um_per_v")
+        if change is None or not stroke_um or weights is None:
             return {}
-        share = stroke_share(np.asarray(change), scales["u_scale_v"]) / stroke_um  # over the longest record
+        at_full = float(change[0]) + float(change[1]) * state_at_full_drive(len(weights), scales["u_scale_v"])
+        share = at_full / stroke_um  # over the longest record
         return {"gain_change_pct": 100 * share, "gain_change_pct_per_s": 100 * share / scales["time_scale_s"]}
 
     def describe(self, theta, values):
         change = values.get("gain_change_um")
-        return "" if change is None else f"the operators' weights change by {float(np.sum(change)) * 1e3:.4g} nm in all"
+        return "" if change is None else f"the loop's weights change by {float(np.sum(change)) * 1e3:.4g} nm in all"
 
     def evidence(self, sig, floor):
         return (
