@@ -147,18 +147,7 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     "bench, first_added, ambiguous_at",
     [
         ("dynamics", "dynamics", None),
-        pytest.param(
-            "default",
-            "asymmetry",
-            0,
-            marks=pytest.mark.xfail(
-                reason="since the rests/claims change (issue 38) the default bench's one-call discover ends at 4.0× "
-                "its noise floor (12.53 nm against 3.13 nm, at max_steps), above this test's 3×: creep, which the "
-                "library draws (the same effects + creep: 7.86 nm, 2.5×), is not claimed (p = 0.0032, then 0.013 "
-                "after drift); docs/discovery.md, 'What the default bench's residual is made of'",
-                strict=False,
-            ),
-        ),
+        ("default", "asymmetry", 0),
     ],
 )
 def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_added, ambiguous_at):

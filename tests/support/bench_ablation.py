@@ -5,6 +5,9 @@ bench with one emulated physics switched off per variant, fits ``hysteresis + ef
 axis and prints its held-out RMS per block (nm). Where switching a physics off lowers the figure,
 that physics is part of what the model leaves. ``--store DIR --datasets ID,ID`` fits the same
 effects on datasets a service stored (a discover run's, its experiments' included) instead.
+``--anchors creep,drift`` instead tests those candidates against the model + the flexible base as
+the diagnosis does (less a gain changing with time), and prints the claim test's p and size with
+each block's level anchored at its last training cycle (the diagnosis's p) and at its training mean.
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ import warnings
 import numpy as np
 
 from service.lab.emulated import sweep_records
-from service.science.discovery.composite import fit_composite
+from service.science.discovery import decision
+from service.science.discovery.composite import CompositeModel, fit_composite
 from service.science.fitting.validation import evaluate_records
 
 #: one emulated physics off per variant (dotted keys of fixtures/benches/<bench>.toml), axis ``{a}``
@@ -45,6 +49,36 @@ def held_out(records, effects: list[str]) -> tuple[float, list[float], dict]:
     return ev["validation_rms_um"] * 1e3, blocks, model.theta
 
 
+def anchored_tests(records, effects: list[str], candidates: list[str]) -> None:
+    """Print each candidate's claim test over the model ``hysteresis + effects`` + the flexible base,
+    on both anchors: p (one-sided signed-rank over the held-out segments) and size (nm²)."""
+    from scipy import stats
+
+    model = fit_composite(records, effects, 10, {})
+
+    def residuals(extra):
+        m = CompositeModel(sorted(set(effects) | set(extra)), 10, fixed_theta=model.theta).fit(records)
+        return decision.less_gain_change(records, [r.x_um - m.predict(r) for r in records])
+
+    ref = residuals(("operators", "asymmetry"))
+    for name in candidates:
+        trial = residuals(("operators", "asymmetry", name))
+        test = decision.held_out_improvement(records, ref, trial)
+        diffs = []
+        for rec, r0, r1 in zip(records, ref, trial):
+            for s in rec.splits:
+                e0, e1 = decision._training_mean_free(r0, s), decision._training_mean_free(r1, s)
+                for i, j in decision._segments(rec, s):
+                    ms0, ms1 = np.mean(e0[i:j] ** 2), np.mean(e1[i:j] ** 2)
+                    if abs(ms0 - ms1) > decision.TIE_SHARE * (ms0 + ms1):
+                        diffs.append(ms0 - ms1)
+        p_mean = float(stats.wilcoxon(np.array(diffs), alternative="greater").pvalue)
+        print(
+            f"{name}: last training cycle p = {test['p']:.2g}, size {test['gain_mse_um2'] * 1e6:.3g} nm²; "
+            f"training mean p = {p_mean:.2g}, size {test['gain_trend_mse_um2'] * 1e6:.3g} nm²"
+        )
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--bench", default="default")
@@ -56,6 +90,7 @@ def main(argv=None) -> None:
     ap.add_argument("--variants", nargs="*", default=["none"], choices=sorted(VARIANTS))
     ap.add_argument("--store", default=None, help="a service's data directory (with --datasets)")
     ap.add_argument("--datasets", default=None)
+    ap.add_argument("--anchors", default=None, help="candidates whose claim test to print on both anchors")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     effects = [e for e in args.effects.split(",") if e]
@@ -74,6 +109,9 @@ def main(argv=None) -> None:
             runs.append((name, [recs[args.axis]]))
     for name, records in runs:
         t = time.time()
+        if args.anchors:
+            anchored_tests(records, effects, args.anchors.split(","))
+            continue
         rms, blocks, theta = held_out(records, effects)
         print(
             f"{name:<14} held-out {rms:6.2f} nm  per block {np.round(blocks, 1).tolist()}  {theta}  {time.time() - t:.0f} s"

@@ -213,9 +213,10 @@ def _seen_at_rest(name, fits: _Fits, rests: dict, noise, v0, k0, sig, floor, alp
 
 
 def _test_words(test: dict, noise: float) -> str:
-    """A held-out test's figures in words (both anchorings of the blocks' levels)."""
+    """A held-out test's figures in words (both anchorings of the blocks' levels; the p is of the larger)."""
+    at = " at the training mean" if test.get("p_anchor") == "training_mean" else ""
     return (
-        f"(p = {test['p']:.2g} over {test['segments']} held-out segments; {fmt_nm2(test['gain_mse_um2'])} "
+        f"(p = {test['p']:.2g}{at} over {test['segments']} held-out segments; {fmt_nm2(test['gain_mse_um2'])} "
         f"of mean square with each block's level anchored at its last training cycle, "
         f"{fmt_nm2(test['gain_trend_mse_um2'])} at its training mean; against σ² = {fmt_nm2(noise**2)})"
     )
