@@ -8,6 +8,8 @@ effects on datasets a service stored (a discover run's, its experiments' include
 ``--anchors creep,drift`` instead tests those candidates against the model + the flexible base as
 the diagnosis does (less a gain changing with time), and prints the claim test's p and size with
 each block's level anchored at its last training cycle (the diagnosis's p) and at its training mean.
+``--loop`` instead runs the report's discovery loop (continue_past_ambiguity, as the discover job's test
+compares it) from hysteresis and prints each step's held-out RMS against the noise floor.
 """
 
 from __future__ import annotations
@@ -79,12 +81,25 @@ def anchored_tests(records, effects: list[str], candidates: list[str]) -> None:
         )
 
 
+def loop(records) -> None:
+    """Print the report loop's steps on ``records``: effects, held-out RMS and floor (nm), verdict."""
+    from service.science.discovery.loop import discovery_run
+
+    for k, step in enumerate(discovery_run(records, continue_past_ambiguity=True)):
+        d = step["diagnosis"]
+        rms, floor = d["residual_rms_um"] * 1e3, d["noise_floor_um"] * 1e3
+        print(
+            f"{k} {'+'.join(step['effects'])}: {rms:.2f} nm, floor {floor:.2f} nm ({rms / floor:.2f}x), {d['verdict']}"
+        )
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--bench", default="default")
     ap.add_argument("--axis", default="y", choices=["y", "z"])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--effects", required=True, help="comma-separated effects beyond hysteresis")
+    ap.add_argument("--effects", default="", help="comma-separated effects beyond hysteresis")
+    ap.add_argument("--loop", action="store_true", help="run the report's discovery loop instead")
     ap.add_argument("--frequencies", default="10,100")
     ap.add_argument("--cycles", type=int, default=5)
     ap.add_argument("--variants", nargs="*", default=["none"], choices=sorted(VARIANTS))
@@ -109,6 +124,9 @@ def main(argv=None) -> None:
             runs.append((name, [recs[args.axis]]))
     for name, records in runs:
         t = time.time()
+        if args.loop:
+            loop(records)
+            continue
         if args.anchors:
             anchored_tests(records, effects, args.anchors.split(","))
             continue
