@@ -491,3 +491,20 @@ def test_a_latched_amplifier_fault_is_reset_from_the_bench_page(page, server):
     assert api.delete("/admin/faults").status_code == 200
     again = api.post("/sweeps", json={"axes": ["z"], "frequencies_hz": [50], "cycles": 3}).json()
     assert wait_job(job_of(server), again["job_id"])["state"] == "succeeded"
+
+
+def test_a_single_axis_file_whose_header_names_its_columns_imports_on_the_axis_shown(page, server, tmp_path):
+    """A new user's 't_s,u_V,x_um' file, roles left as the page guessed them and the axis select as it
+    shows (y): imported on axis y (it was refused, "needs axis set … got None", while the page showed y)."""
+    path = tmp_path / "bw.csv"
+    path.write_text(
+        "t_s,u_V,x_um\n" + "".join(f"{i / 1000},{50 - 50 * math.cos(i / 100):.6f},{0.1 * i:.4f}\n" for i in range(2000))
+    )
+    goto(page, server, "datasets")
+    page.set_input_files("#import-file", str(path))
+    page.wait_for_selector("#preview-table")
+    assert page.input_value("#import-axis") == "y"
+    page.click("#import-submit")
+    page.wait_for_selector("#import-done")
+    ds = server["api"].get(f"/datasets/{page.get_attribute('#import-done', 'data-dataset-id')}").json()
+    assert ds["axes"] == ["y"] and ds["samples"] == 2000

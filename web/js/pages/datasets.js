@@ -117,7 +117,9 @@ async function submitImport(root) {
   if (!named || overridden) {
     if (Object.keys(map).length) form.append('columns', JSON.stringify(map));
   }
-  if (map.u !== undefined || map.x !== undefined || (!named && !Object.keys(map).length)) form.append('axis', root.querySelector('#import-axis').value);
+  // the axis the select shows is the one sent: the service reads it only for a single-axis file (u, x),
+  // whether its columns were mapped here or recognised from the header (u_V, x_um)
+  form.append('axis', root.querySelector('#import-axis').value);
   const rate = root.querySelector('#import-rate').value;
   if (rate) form.append('sample_rate_hz', rate);
   const delimiter = root.querySelector('#import-delimiter').value || (parsed ? parsed.delimiter : '');
