@@ -155,7 +155,7 @@ class Candidate(BaseModel):
             "0..1: the held-out mean square its own test removes (against its reference: the model for "
             "capacity, the model + the flexible base for physics), as a share of this model's held-out mean "
             "square above the noise floor (one denominator, so scores rank as gains do; the candidates: claimed "
-            "physics by their own test's held-out drop (reference → with it), then the other physics and capacity in score order); the claim is decided by the held-out test, not by the score"
+            "physics by the share of the excess adding each removes, then the other physics and capacity in score order); the claim is decided by the held-out test, not by the score"
         ),
     )
     score_of: str | None = Field(
@@ -233,7 +233,7 @@ class Disturbance(BaseModel):
 
 class Diagnosis(BaseModel):
     """Residual vs noise floor, the verdict, the candidates (claimed physics, the other physics,
-    capacity; the claimed by their own test's held-out drop, the others by score), failures, and the answer the pages show first."""
+    capacity; the claimed by the excess adding each removes, the others by score), failures, and the answer the pages show first."""
 
     model_config = OPEN
     model_id: str | None = None

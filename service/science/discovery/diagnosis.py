@@ -305,23 +305,14 @@ def _entry(
     }
 
 
-def own_test_drop_um2(c: dict) -> float:
-    """A candidate's own test as the column prints it: its reference's held-out mean square less the
-    reference's with it (µm²; where it was not tested against a fit of its own, this model's less this
-    model's with it)."""
-    after = c["tested_rms_um"] if c.get("tested_rms_um") is not None else c["expected_rms_um"]
-    return float(c["reference_rms_um"] ** 2 - after**2)
-
-
 def rank_key(c: dict) -> tuple:
     """Claimed physics first, then the other physical candidates, capacity last. The claimed rank by
-    their own test's held-out drop as printed (reference → with it, ``own_test_drop_um2``): each against the
-    reference that holds its look-alikes, in plain held-out RMS, whatever anchoring or gain-change
-    correction its claim's p was taken at (those make scores of different tests incomparable: drift,
-    tested beyond a gain change, outscored the temperature that removes twice as much). The others rank
-    by score (one denominator for every score, so the order is the held-out gain's)."""
+    what adding each to this model gives (the share of the excess it removes on held-out data, the
+    figure printed beside it): their tests may differ in reference (a time effect is tested beyond a
+    gain change), so their scores do not compare. The others rank by score (one denominator for every
+    score, so the order is the held-out gain's)."""
     claimed_physics = c["claimed"] and c["kind"] != "capacity"
-    first = -own_test_drop_um2(c) if claimed_physics else -c["score"]
+    first = -c["excess_removed"] if claimed_physics else -c["score"]
     return (c["kind"] == "capacity", not c["claimed"], first, -c["score"], -c["gain_mse_um2"])
 
 

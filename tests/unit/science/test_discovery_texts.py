@@ -17,7 +17,7 @@ from service.science.data.record import Record
 from service.science.data.segmentation import blocks_without_table
 from service.science.data.units import fmt_nm2
 from service.science.discovery.composite import fit_composite
-from service.science.discovery.diagnosis import diagnose, own_test_drop_um2
+from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.records import records_from_arrays
 from tests.support.foreign_stage import SAMPLE_RATE_HZ, drive_v, stage_um
 from tests.support.realdata import MODEL_VI_DO
@@ -113,10 +113,10 @@ def test_candidates_in_rank_order_and_the_answer_is_the_verdicts(diagnoses, sour
         groups = [(c["kind"] == "capacity", c["kind"] == "physical" and not c["claimed"]) for c in testable]
         assert groups == sorted(groups)  # claimed physics, the other physics, capacity
         for group in set(groups):
-            # the claimed physics by their own test's held-out drop as printed, the others by score
-            rank = own_test_drop_um2 if group == (False, False) else (lambda c: c["score"])
-            figures = [rank(c) for c, g in zip(testable, groups) if g == group]
-            assert figures == sorted(figures, reverse=True), (group, figures)
+            # the claimed physics by the share of the excess adding each removes, the others by score
+            key = "excess_removed" if group == (False, False) else "score"
+            figures = [c[key] for c, g in zip(testable, groups) if g == group]
+            assert figures == sorted(figures, reverse=True), (group, key, figures)
         a = d["answer"]
         claimed = [c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"]]
         if d["verdict"] == "missing_effect":
