@@ -16,7 +16,7 @@ from service.usecases.discover import diagnose_model, history, refine_params
 from service.usecases.discover_experiments import ExperimentPolicy
 from service.usecases.discover_run import discover
 from service.usecases.identify import identify, require_fit_memory
-from service.usecases.provenance import imported_datasets
+from service.usecases.provenance import imported_datasets, recorded_elsewhere
 
 router = APIRouter(prefix="/models", tags=["discovery"])
 
@@ -81,12 +81,7 @@ def start_discovery(
     def run_experiment(ctx, sweep_body: dict) -> dict:
         return sweep_and_wait(ctx, jobs, bench, store, sweep_body, name=f"experiment of discovery from {model_id}")
 
-    elsewhere = (
-        f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: run it on the stage that "
-        "recorded the data and import the record"
-        if imported
-        else None
-    )
+    elsewhere = recorded_elsewhere(imported, "run it on the stage that recorded the data and import the record")
     policy = ExperimentPolicy(
         run=run_experiment,
         busy=jobs.bench_jobs,

@@ -11,7 +11,7 @@ from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
 from service.store import Store
 from service.usecases.identify import load_model, load_records, require_fit_memory
-from service.usecases.provenance import imported_datasets
+from service.usecases.provenance import imported_datasets, recorded_elsewhere
 
 
 def model_effects(row: dict) -> list[str]:
@@ -87,12 +87,10 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
             "datasets": datasets,
             "axis": row["axis"],
             "experiments_run_here": not imported,
-            "experiments_note": None
-            if not imported
-            else (
-                f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: recorded on another "
-                "stage, whose experiments this bench cannot run (a different stack behind a different amplifier). "
-                "Run the experiment on that stage, over the range it names, and import the result"
+            "experiments_note": recorded_elsewhere(
+                imported,
+                "recorded on another stage, whose experiments this bench cannot run (a different stack behind a "
+                "different amplifier). Run the experiment on that stage, over the range it names, and import the result",
             ),
         }
     )

@@ -32,6 +32,14 @@ def model_origin(store: Store, dataset_ids) -> dict:
     return {"fitted_on": fitted_on, "imported": imported}
 
 
+def recorded_elsewhere(imported: list[str], then: str) -> str | None:
+    """What to do about an experiment when ``imported`` datasets (ids) were recorded on another stage:
+    "<ids> was/were imported: <then>" (None when nothing was imported)."""
+    if not imported:
+        return None
+    return f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: {then}"
+
+
 def foreign_model_warning(axis: str, model_id: str, origin: dict) -> str | None:
     """The warning a trajectory run carries when ``axis``'s feedforward model was fitted on imported
     data (None otherwise)."""
