@@ -39,7 +39,7 @@ from service.science.discovery.decision import (
 from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.remainder import describe_remainder, remainder_words
-from service.science.discovery.rests import disturbance, read_rests, remove_lines
+from service.science.discovery.rests import disturbance, without_lines
 from service.science.discovery.symmetry import asymmetry_test
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
@@ -434,10 +434,8 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor, alpha) -> 
 @shared_effect_columns()  # its dozen fits share each effect's columns of the same records
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
     """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
-    records = list(records)
-    rests = read_rests(records)
+    records, rests = without_lines(records)
     if rests and rests["lines"]:  # a disturbance, not the model: out of the record before the model is judged
-        records = remove_lines(records, rests)
         if model is not None:
             model = CompositeModel(model.effects, model.n_operators, fixed_theta=model.theta).fit(records)
     model = model or CompositeModel(effects, n_operators).fit(records)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
+from service.science.discovery.rests import without_lines
 from service.science.fitting.validation import evaluate_records
 
 
@@ -33,6 +34,7 @@ def like_for_like(
     effect set another shares gets the same figures."""
     done = {}
     fitted = fitted or {}
+    records = without_lines(records)[0]  # judged as the steps' diagnoses judged them: a line at rest is not the model's
     for effects, theta in steps:
         key = effects_key(effects)
         if key in done:

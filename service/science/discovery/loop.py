@@ -19,6 +19,7 @@ from service.science.discovery.base_capacity import capacity_before_physics
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel, fit_composite
 from service.science.discovery.diagnosis import diagnose, helpful_capacity
+from service.science.discovery.rests import without_lines
 from service.science.fitting.validation import evaluate_records
 
 MAX_STEPS = 8
@@ -31,7 +32,7 @@ def discovery_step(
     """Fit ``hysteresis + effects`` (warm at ``theta``; or take the fitted ``model`` as it is) and
     diagnose it: ``(model, {"effects", "diagnosis", "per_block"})``, per-block validation RMS and
     noise floor in µm."""
-    model = model if model is not None else fit_composite(records, effects, n_operators, theta)
+    model = model if model is not None else fit_composite(without_lines(records)[0], effects, n_operators, theta)
     d = diagnose(records, model=model)
     per_block = [
         {
@@ -76,8 +77,9 @@ def try_step(
     with the step diagnosed as ``discovery_step`` does, or ``(model, None, not_kept(...))`` when
     the added effect raised the held-out RMS — then nothing is diagnosed and the loop goes back to
     the step before."""
-    model = fit_composite(records, effects, n_operators, theta)
-    rejected = not_kept(added, before_um, held_out_rms_um(records, model))
+    line_free = without_lines(records)[0]  # the records its diagnosis judged ``before_um`` on
+    model = fit_composite(line_free, effects, n_operators, theta)
+    rejected = not_kept(added, before_um, held_out_rms_um(line_free, model))
     if rejected is not None:
         return model, None, rejected
     model, step = discovery_step(records, effects, n_operators, model=model)
