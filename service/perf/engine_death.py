@@ -32,9 +32,9 @@ import time
 
 import numpy as np
 
-from drivers.bench import RunInterrupted
 from drivers.emulated.output_stage import OutputStageLink
 from drivers.interfaces import BenchLost
+from drivers.record import RunInterrupted
 from drivers.safe_state import zero_outputs
 from service.runtime.engine import EngineBench, start_engine
 from service.runtime.supervisor import HANG_LIMIT_S, Supervisor

@@ -23,8 +23,9 @@ import time
 
 import numpy as np
 
-from drivers.bench import RUN_BLOCK_SAMPLES, RunInterrupted
+from drivers.bench import RUN_BLOCK_SAMPLES
 from drivers.factory import open_bench
+from drivers.record import RunInterrupted
 from service.science.control.session import SAMPLE_RATE_HZ
 
 FS = SAMPLE_RATE_HZ

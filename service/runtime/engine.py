@@ -23,8 +23,9 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from drivers.bench import RUN_BLOCK_SAMPLES, STOPPED_ON_REQUEST, BenchRecord, RunInterrupted
+from drivers.bench import RUN_BLOCK_SAMPLES, STOPPED_ON_REQUEST
 from drivers.limits import LimitsMixin
+from drivers.record import BenchRecord, RunInterrupted
 from service.runtime.engine_link import (
     BenchLatched,
     EngineLink,

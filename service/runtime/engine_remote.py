@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from drivers.bench import BenchRecord, RunInterrupted
+from drivers.record import BenchRecord, RunInterrupted
 
 
 class _FaultView:

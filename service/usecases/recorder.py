@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.bench import Bench, BenchRecord, RunInterrupted
+from drivers.bench import Bench
+from drivers.record import BenchRecord, RunInterrupted
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.datasets import units_for
 from service.store import DatasetRow, Store, placement, utc_now

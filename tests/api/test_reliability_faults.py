@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.bench import RunInterrupted
 from drivers.factory import open_bench
+from drivers.record import RunInterrupted
 from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, wait_job

@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
-from drivers.bench import RunInterrupted
 from drivers.composed import check_transport
 from drivers.emulated import kernels as K
 from drivers.factory import open_bench
+from drivers.record import RunInterrupted
 from service.frontends.client import Client
 from service.http.app import create_app
 from service.runtime.settings import Settings

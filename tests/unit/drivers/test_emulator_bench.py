@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.bench import Bench, RunInterrupted
+from drivers.bench import Bench
 from drivers.emulated import FAULT_KINDS, list_benches, load_config
 from drivers.factory import open_bench
 from drivers.interfaces import Amplifier, Daq, DisplacementSensor, DriverError, LimitError
+from drivers.record import RunInterrupted
 from service.science.data import signals
 
 FS = 20000.0

@@ -257,7 +257,7 @@ def test_gauge_offset_drift_is_visible_over_ten_seconds():
 
 
 def test_gauge_saturation_is_reported():
-    from drivers.bench import RunInterrupted
+    from drivers.record import RunInterrupted
 
     bench = open_bench("default", seed=13, overrides={"axes.y.gauge.scale_um_per_v": 0.4})  # ±4 µm
     t = np.arange(int(FS / 10)) / FS
