@@ -67,8 +67,9 @@ def _loop() -> None:
 
 
 def _models() -> None:
-    """The paper's models fitted, predicted and inverted, and a composite with the effects whose
-    columns are compiled (Duhem operators, the flexure's resonance) fitted and inverted."""
+    """The paper's models fitted, predicted and inverted, a composite with the effects whose
+    columns are compiled (Duhem operators, the flexure's resonance) fitted and inverted, and one with
+    the other compiled columns and drive stage (hysterons, the rate limit) fitted and predicted."""
     from service.science.data.record import Record
     from service.science.data.signals import biased_sine
     from service.science.discovery.composite import CompositeModel
@@ -104,6 +105,9 @@ def _models() -> None:
     for model in models:
         model.predict(record)
         model.inverse(x_ref, sample_rate_hz=record.sample_rate_hz)
+    # the wider base's hysterons and the amplifier's rate limit (a drive stage, no inverse): every
+    # diagnosis tries them, so each test worker compiled them (4.8 s of CPU) when it was not done here
+    CompositeModel(["hysterons", "slew_limit"]).fit([record]).predict(record)
 
 
 #: part -> what it compiles (run by ``warm``)

@@ -22,7 +22,7 @@ import numpy as np
 from service.science.data.record import Record, as_record_list, finite_array
 from service.science.data.signals import drive_derivatives
 from service.science.discovery.column_memo import effect_blocks, play_outputs, shared_effect_columns
-from service.science.discovery.composite_fit import FitProblem, TransformSearch
+from service.science.discovery.composite_fit import FitProblem, TransformSearch, remembered
 from service.science.discovery.composite_inverse import (
     COMPOSITE_LIMITS_V,
     FIXED_POINT_ITERATIONS,
@@ -299,9 +299,13 @@ class CompositeModel(TransformSearch):
         rates = np.concatenate([np.abs(np.diff(r.u_v)) * r.sample_rate_hz for r in records])
         fastest = float(np.percentile(rates, FASTEST_RATE_PERCENTILE))  # a step's jump is not a rate
 
-        def cost(th: dict) -> float:
-            self.theta[name] = eff.clamp(th, self._fs)
+        @remembered  # by the clamped value: the refinement re-asks for the grid's best
+        def solved(th: dict) -> float:
+            self.theta[name] = th
             return FitProblem(self, records, exclude_frequency_hz).solve(held).rms
+
+        def cost(th: dict) -> float:
+            return solved(eff.clamp(th, self._fs))
 
         grid = eff.grid(self._fs, self.scales["min_period_s"], fastest)
         costs = [cost(th) for th in grid]

@@ -8,7 +8,7 @@ The raw columns (play operators, offset, effect columns) are built once per fit;
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import minimize
@@ -83,6 +83,20 @@ class FitProblem:
     def solve(self, theta: dict, exact: str | None = None):
         """Weights for ``theta`` (see ``design``)."""
         return self.solve_design(self.design(theta, exact))
+
+
+def remembered(cost: Callable[[dict], float]) -> Callable[[dict], float]:
+    """``cost(theta)`` computed once per parameter set (an exact cost is a whole solve; a search's
+    refinement re-asks for the grid point it starts from)."""
+    seen: dict[tuple, float] = {}
+
+    def once(theta: dict) -> float:
+        key = tuple(sorted(theta.items()))
+        if key not in seen:
+            seen[key] = cost(theta)
+        return seen[key]
+
+    return once
 
 
 OUTER_ITERATIONS = 2
@@ -232,6 +246,7 @@ class TransformSearch:
 
     def _grid_refine(self, name, cost, sample_rate_hz=None) -> dict:
         eff = EFFECTS[name]
+        cost = remembered(cost)  # the refinement starts from the grid's best, whose cost is known
         fs = sample_rate_hz or self._fs
         grid = eff.grid(fs, self.scales["min_period_s"], 1.0 / self.scales["min_period_s"])
         costs = [cost(th) for th in grid]

@@ -77,7 +77,8 @@ def projected_costs(h: np.ndarray, data: HarmonicData, ridge: float = 1e-9) -> n
     k, p = a.shape
     outer = np.real(np.conj(a)[:, :, None] * a[:, None, :]).reshape(k, p * p)
     normal = (np.abs(h) ** 2 @ outer).reshape(-1, p, p)
-    normal += ridge * np.eye(p)[None] * np.trace(normal, axis1=1, axis2=2)[:, None, None] / p
+    diagonal = np.arange(p)
+    normal[:, diagonal, diagonal] += ridge * np.trace(normal, axis1=1, axis2=2)[:, None] / p  # on the diagonal only
     rhs = np.real(np.conj(h) @ (np.conj(a) * data.x[:, None]))
     coef = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
     return float(np.sum(np.abs(data.x) ** 2)) - np.einsum("gp,gp->g", rhs, coef)
