@@ -3,14 +3,14 @@ code on tests/support/hysteresis_worlds.py's materials and drives, and the measu
 `discover` says about them: does its description of what remains lead with the right signature?
 
 Kinds (each a form no built-in effect draws, so the library can at best approximate it):
-- ``"gain_relax"``: the stack depolarises and settles, its gain falling 0.6 % towards a new level
-  with a 3 s time constant (x·(1 − 0.006·(1 − e^(−t/3 s))); the library's gain change is linear in t);
+- ``"gain_relax"``: the stack depolarises and settles, its gain falling 2 % towards a new level
+  with a 2 s time constant (x·(1 − 0.02·(1 − e^(−t/2 s))); the library's gain change is linear in t);
 - ``"self_heating"``: the gain rises 0.5 % per kelvin of a temperature no thermometer records, heated
-  by the drive's rate (a loss ∝ |u̇|) and cooling with a 2 s time constant;
+  by the drive's rate (a loss ∝ |u̇|, 0.2 K per kV moved) and cooling with a 20 s time constant;
 - ``"chirp_line"``: a machine spinning up nearby, a 10 nm line sweeping 30 → 45 Hz over the record
   (the library's line is one fixed frequency);
 - ``"two_lines"``: 10 nm of 50 Hz mains and 8 nm at 37.3 Hz from a pump, neither locked to the drive;
-- ``"offset_settle"``: the gauge's mount settles thermally, its zero moving 40 nm with a 4 s time
+- ``"offset_settle"``: the gauge's mount settles thermally, its zero moving 40 nm with a 1 s time
   constant (the library's drift is a polynomial in t).
 
 Each is recorded as one long record with rests (5 kHz, 2 nm of gauge noise) on a Prandtl–Ishlinskii
@@ -49,9 +49,9 @@ DEFAULT_WORLDS = ("maxwell_slip", "bw_beta_lt_gamma")
 
 
 def _self_heating_gain(u_v: np.ndarray, fs: float) -> np.ndarray:
-    """1 + 0.005·T, T (K) heated at 2e-5 K per volt moved and cooling with a 2 s time constant."""
-    heat = np.abs(np.diff(u_v, prepend=u_v[0])) * 2e-5
-    decay, temp, out = np.exp(-1.0 / (2.0 * fs)), 0.0, np.empty(u_v.size)
+    """1 + 0.005·T, T (K) heated at 2e-4 K per volt moved and cooling with a 20 s time constant."""
+    heat = np.abs(np.diff(u_v, prepend=u_v[0])) * 2e-4
+    decay, temp, out = np.exp(-1.0 / (20.0 * fs)), 0.0, np.empty(u_v.size)
     for k in range(u_v.size):
         temp = temp * decay + heat[k]
         out[k] = temp
@@ -64,7 +64,7 @@ def hidden_um(kind: str, u_v: np.ndarray, x_um: np.ndarray, fs: float) -> np.nda
     if kind == "clean":
         return x_um
     if kind == "gain_relax":
-        return x_um * (1.0 - 0.006 * (1.0 - np.exp(-t / 3.0)))
+        return x_um * (1.0 - 0.02 * (1.0 - np.exp(-t / 2.0)))
     if kind == "self_heating":
         return x_um * _self_heating_gain(u_v, fs)
     if kind == "chirp_line":
@@ -74,7 +74,7 @@ def hidden_um(kind: str, u_v: np.ndarray, x_um: np.ndarray, fs: float) -> np.nda
     if kind == "two_lines":
         return x_um + 0.010 * np.sin(2 * np.pi * 50.0 * t + 0.4) + 0.008 * np.sin(2 * np.pi * 37.3 * t + 1.9)
     if kind == "offset_settle":
-        return x_um + 0.040 * (1.0 - np.exp(-t / 4.0))
+        return x_um + 0.040 * (1.0 - np.exp(-t / 1.0))
     raise ValueError(f"unknown kind {kind!r}")
 
 
