@@ -10,8 +10,8 @@ import sys
 
 import httpx
 
+from service.frontends.cli_text import ProgressBar, discovery_text, nm_text, num_text
 from service.frontends.client import DEFAULT_URL, ApiError, Client, StopNotDelivered
-from service.science.data.units import fmt_nm
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -211,7 +211,7 @@ def _identify(api: Client, args) -> int:
         args,
         model,
         f"model {model['id']} ({model['kind']}, axis {model['axis']}): train RMS "
-        f"{_nm(m['train_rms_um'])}, held-out RMS {_nm(m['validation_rms_um'])}",
+        f"{nm_text(m['train_rms_um'])}, held-out RMS {nm_text(m['validation_rms_um'])}",
     )
 
 
@@ -231,14 +231,14 @@ def _compare(api: Client, args) -> int:
     )
     for b in m["per_block"]:
         print(
-            f"{b['index']:>5} {b['kind']:>9} {_num(b['frequency_hz'], '.4g'):>8} {_num(b['train']['rms_um']):>13} "
-            f"{_num(b['validation']['rms_um']):>15} {_num(b['validation']['max_abs_um']):>15} "
-            f"{_num(b['validation']['fit_pct'], '.2f'):>16}"
+            f"{b['index']:>5} {b['kind']:>9} {num_text(b['frequency_hz'], '.4g'):>8} {num_text(b['train']['rms_um']):>13} "
+            f"{num_text(b['validation']['rms_um']):>15} {num_text(b['validation']['max_abs_um']):>15} "
+            f"{num_text(b['validation']['fit_pct'], '.2f'):>16}"
         )
     o = m["overall"]
     print(
-        f"overall: RMS {_nm(o['rms_um'])}, max {_nm(o['max_abs_um'])}, fit {_num(o['fit_pct'], '.2f')} %; "
-        f"mean held-out RMS {_nm(m['validation_rms_um'])}"
+        f"overall: RMS {nm_text(o['rms_um'])}, max {nm_text(o['max_abs_um'])}, fit {num_text(o['fit_pct'], '.2f')} %; "
+        f"mean held-out RMS {nm_text(m['validation_rms_um'])}"
     )
     return 0
 
@@ -251,7 +251,7 @@ def _discover(api: Client, args) -> int:
         for step in steps[len(seen) :]:
             print(
                 f"\rstep {step['step']}: {' + '.join(step['effects']):<50} {step['model_id']}  held-out "
-                f"{_nm(step['validation_rms_um'])}, noise floor {_nm(step['noise_floor_um'])}",
+                f"{nm_text(step['validation_rms_um'])}, noise floor {nm_text(step['noise_floor_um'])}",
                 file=sys.stderr,
             )
         seen[:] = steps
@@ -267,71 +267,6 @@ def _discover(api: Client, args) -> int:
         max_experiments=args.max_experiments,
     )
     return _finish(args, job, discovery_text(job["result"]) if job.get("result") else "")
-
-
-def discovery_text(result: dict) -> str:
-    """A discover job's result in words: final model, effects found with their parameters, what remains."""
-    lines = [
-        f"final model {result['final_model_id']}: {' + '.join(result['effects'] or [])} (stopped: {result['stopped']})"
-    ]
-    for step in result["steps"]:
-        change = (
-            f"+{step['added']}"
-            if step["added"]
-            else f"+data {step['experiment_dataset_id']}"
-            if step.get("experiment_dataset_id")
-            else ""
-        )
-        same = step.get("like_for_like_rms_um")
-        lines.append(
-            f"  step {step['step']} {change:<18} {step['model_id']}  "
-            f"held-out {_nm(step['validation_rms_um'])}  noise floor {_nm(step['noise_floor_um'])}"
-            + (
-                f"  like for like {_nm(same)} (original data {_nm(step.get('original_data_rms_um'))})"
-                if same is not None and result.get("experiments")
-                else ""
-            )
-        )
-        lines += [f"    tried next: {r['text']} (model {r['model_id']})" for r in step.get("not_kept", [])]
-    if result.get("experiments"):
-        lines.append(
-            "  like for like: every step refitted and scored on all of "
-            + ", ".join(result.get("like_for_like_datasets") or [])
-            + "; original data: on "
-            + ", ".join(result.get("original_datasets") or [])
-        )
-    for ran in result["experiments"]:
-        lines.append(
-            f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
-            f"{ran['sweep_job_id']}), "
-            + ("resolved" if ran.get("resolved") else "not resolved by it")
-            + (f"; cut to the bench's limits: {'; '.join(ran['cut_to_bench'])}" if ran.get("cut_to_bench") else "")
-        )
-    for skipped in [x for x in result.get("suggested_experiments", []) if x.get("skipped")]:
-        lines.append(f"experiment for {' / '.join(skipped['effects'])} skipped: {skipped['not_run_because']}")
-    for found in result["effects_found"]:
-        figures = ", ".join(f"{k} {v:.4g}" for k, v in found["parameters"].items())
-        lines.append(
-            f"found {found['effect']}" + (f": {figures}" if figures else "") + f"\n  evidence: {found['evidence']}"
-        )
-    remains = result.get("remains") or {}
-    if remains:
-        lines.append(
-            f"remains: held-out {_nm(remains['validation_rms_um'])} = {remains['ratio_to_noise_floor']:.2f}× "
-            f"the noise floor ({_nm(remains['noise_floor_um'])}): {remains['verdict_text']}"
-        )
-    if result.get("needed_experiment"):
-        need = result["needed_experiment"]
-        lines.append(
-            f"an experiment would help ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
-            " — or run again with --allow-experiments"
-            + (
-                ""
-                if result["stopped"] != "needs_experiment"
-                else ", or with --continue-past-ambiguity to add the leading effect and go on"
-            )
-        )
-    return "\n".join(lines)
 
 
 def _jobs(api: Client, args) -> int:
@@ -452,7 +387,7 @@ def _models(api: Client, args) -> int:
         args,
         rows,
         "\n".join(
-            f"{r['id']}  {r['kind']:<10} axis {r['axis']}  held-out RMS {_nm(r['metrics']['validation_rms_um'])}  "
+            f"{r['id']}  {r['kind']:<10} axis {r['axis']}  held-out RMS {nm_text(r['metrics']['validation_rms_um'])}  "
             f"datasets {','.join(r['datasets'])}"
             for r in rows
         ),
@@ -460,36 +395,6 @@ def _models(api: Client, args) -> int:
 
 
 # ---------------------------------------------------------------------- helpers
-class ProgressBar:
-    """A one-line text bar on stderr, redrawn from the job's SSE progress events; into a pipe or a log
-    (not a terminal) a line per new message and the end state instead of a carriage-return redraw."""
-
-    def __init__(self, width: int = 30, stream=None):
-        self.width, self.stream, self._last = width, stream or sys.stderr, None
-        self.redraw = bool(getattr(self.stream, "isatty", lambda: False)())
-
-    def __call__(self, job: dict) -> None:
-        ended = job["state"] in ("succeeded", "failed", "cancelled")
-        percent = f"{job['progress'] * 100:5.1f} %"
-        if self.redraw:
-            filled = int(round(job["progress"] * self.width))
-            line = (
-                f"\r[{'#' * filled}{'-' * (self.width - filled)}] {percent} "
-                f"{job['state']}: {(job.get('message') or '')[:50]:<50}"
-            )
-            key = line
-        else:  # a new line only when the state or the message changes; the percentage it was reached at
-            key = (job["state"], job.get("message") or "")
-            line = f"{percent} {job['state']}: {job.get('message') or ''}\n"
-        if key != self._last and (self.redraw or ended or job.get("message")):
-            self.stream.write(line)
-            self.stream.flush()
-            self._last = key
-        if ended and self.redraw:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 def _guarded(func, args) -> int:
     try:
         with Client(args.url, token=args.token) as api:
@@ -531,12 +436,3 @@ def _emit(args, payload, text: str) -> int:
 
 def _list(text: str) -> list[str]:
     return [part.strip() for part in str(text).split(",") if part.strip()]
-
-
-def _num(value, fmt: str = ".4f") -> str:
-    return "-" if value is None else format(value, fmt)
-
-
-def _nm(value_um) -> str:
-    """An error or noise figure (µm) as the CLI prints it: nm, like every page and text."""
-    return "-" if value_um is None else fmt_nm(value_um, 4)

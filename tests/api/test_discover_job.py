@@ -12,7 +12,7 @@ import warnings
 
 import pytest
 
-from service.frontends.cli_remote import discovery_text
+from service.frontends.cli_text import discovery_text
 from service.frontends.client import Client
 from service.http.app import create_app
 from service.runtime.jobs import JobContext
@@ -319,7 +319,7 @@ def test_the_progress_bar_writes_lines_into_a_pipe_and_redraws_on_a_terminal():
     """A new user's `evcbench sweep --wait | cat` got some 100 carriage-return redraws in its log."""
     import io
 
-    from service.frontends.cli_remote import ProgressBar
+    from service.frontends.cli_text import ProgressBar
 
     class Terminal(io.StringIO):
         def isatty(self):
