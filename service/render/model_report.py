@@ -299,7 +299,7 @@ def _diagnosis_section(d: dict) -> str:
         + "</p>"
         + (f"<p class='muted'>{escape(d['claim_rule'])}</p>" if d.get("claim_rule") else "")
         + "<h3>Candidate effects (claimed physical effects, then the others, then model capacity; each in "
-        "score order, but the claimed physics by the share of the excess adding each removes)</h3>"
+        "score order, but the claimed physics by their size: the held-out mean square each removes over its claim's reference)</h3>"
         + "<p class='muted'>The score: the held-out mean square the effect's own test removes, as a share of this "
         "model's held-out mean square above the noise floor. Its test is a fit of its own (against its reference); "
         "'added to this model' is this model refitted with it, and only for a claimed effect or capacity.</p>"

@@ -155,7 +155,7 @@ class Candidate(BaseModel):
             "0..1: the held-out mean square its own test removes (against its reference: the model for "
             "capacity, the model + the flexible base for physics), as a share of this model's held-out mean "
             "square above the noise floor (one denominator, so scores rank as gains do; the candidates: claimed "
-            "physics by the share of the excess adding each removes, then the other physics and capacity in score order); the claim is decided by the held-out test, not by the score"
+            "physics by their size (claim_size_um2: the held-out mean square each removes over its own claim's reference), then the other physics and capacity in score order); the claim is decided by the held-out test, not by the score"
         ),
     )
     score_of: str | None = Field(
@@ -164,6 +164,12 @@ class Candidate(BaseModel):
         "levels anchored, over this model's excess above the noise floor; not the RMS figures of its test",
     )
     expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
+    claim_size_um2: float | None = Field(
+        default=None,
+        description="claimed physics only (µm²): the held-out mean square it removes over its claim's reference "
+        "(the model + the flexible base; the model for the loop-shape pair), levels anchored at each block's "
+        "training mean: one figure for every claim, the rank's",
+    )
     evidence: str | None = None
 
 
@@ -233,7 +239,7 @@ class Disturbance(BaseModel):
 
 class Diagnosis(BaseModel):
     """Residual vs noise floor, the verdict, the candidates (claimed physics, the other physics,
-    capacity; the claimed by the excess adding each removes, the others by score), failures, and the answer the pages show first."""
+    capacity; the claimed by their size, claim_size_um2, the others by score), failures, and the answer the pages show first."""
 
     model_config = OPEN
     model_id: str | None = None

@@ -38,6 +38,7 @@ from service.science.discovery.decision import (
 )
 from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
+from service.science.discovery.ranking import rank_key, size_claims
 from service.science.discovery.remainder import describe_remainder, remainder_words
 from service.science.discovery.rests import disturbance, without_lines
 from service.science.discovery.symmetry import asymmetry_test
@@ -305,17 +306,6 @@ def _entry(
     }
 
 
-def rank_key(c: dict) -> tuple:
-    """Claimed physics first, then the other physical candidates, capacity last. The claimed rank by
-    what adding each to this model gives (the share of the excess it removes on held-out data, the
-    figure printed beside it): their tests may differ in reference (a time effect is tested beyond a
-    gain change), so their scores do not compare. The others rank by score (one denominator for every
-    score, so the order is the held-out gain's)."""
-    claimed_physics = c["claimed"] and c["kind"] != "capacity"
-    first = -c["excess_removed"] if claimed_physics else -c["score"]
-    return (c["kind"] == "capacity", not c["claimed"], first, -c["score"], -c["gain_mse_um2"])
-
-
 #: the loop-shape pair: a stack that is not point-symmetric, and a gauge that bows what it reads
 LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
@@ -482,6 +472,8 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
                 candidates += pair
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor, alpha))
+    at_rest = {n for n, e in EFFECTS.items() if e.seen_at_rest} if rests and rests["lines"] else set()
+    size_claims(candidates, records, fits, at_rest)  # one comparable size for every claim: ranking.py
     candidates.sort(key=rank_key)
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and physical[0]["claimed"]

@@ -113,8 +113,8 @@ def test_candidates_in_rank_order_and_the_answer_is_the_verdicts(diagnoses, sour
         groups = [(c["kind"] == "capacity", c["kind"] == "physical" and not c["claimed"]) for c in testable]
         assert groups == sorted(groups)  # claimed physics, the other physics, capacity
         for group in set(groups):
-            # the claimed physics by the share of the excess adding each removes, the others by score
-            key = "excess_removed" if group == (False, False) else "score"
+            # the claimed physics by their size (one figure for every claim: ranking.py), the others by score
+            key = "claim_size_um2" if group == (False, False) else "score"
             figures = [c[key] for c, g in zip(testable, groups) if g == group]
             assert figures == sorted(figures, reverse=True), (group, key, figures)
         a = d["answer"]
