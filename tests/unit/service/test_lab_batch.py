@@ -148,12 +148,6 @@ def _by_bench(result: dict) -> dict:
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("lab_batch")
-@pytest.mark.xfail(
-    reason="since claimed physics rank by the share of the excess adding each removes (792d4b5), the dynamics "
-    "bench's batch names rate_dependence before dynamics on one axis (CI at 2647833); ranking by each claim's "
-    "own test drop fixes this but lost paper_measured's rate dependence in its first two (CI at d23a655)",
-    strict=False,
-)
 def test_in_process_batch_names_the_hidden_effects(lab):
     address, result = lab
     assert (result["ran"], result["ok"], result["skipped"], result["failed"]) == (6, 6, 0, 0)
