@@ -147,17 +147,19 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     "bench, first_added, ambiguous_at",
     [
         ("dynamics", "dynamics", None),
-        ("default", "rate_dependence", None),
+        ("default", "rate_dependence", 0),
     ],
 )
 def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_added, ambiguous_at):
     """Issue 20's "Done when" on the dynamics and default benches as on the creep one: the job's steps
     are the report loop's on the same records, effect for effect and figure for figure (1e-6). Where the
     report's loop stops at an ambiguity, the job without experiments stops there too and names the
-    sweep; with continue_past_ambiguity both add the leading effect and go on. The default bench's first
-    diagnosis used to stop at the stack's asymmetry against the gauge's curvature; since claimed physics
-    rank by the share of the excess each removes (792d4b5), rate dependence (109 → 62.2 nm) leads it,
-    and the loop ends within 3× its 3.13 nm floor once creep is claimed (docs/discovery.md). The dynamics bench has
+    sweep; with continue_past_ambiguity both add the leading effect and go on. On the default bench's quick
+    sweep the claims rank by one size (ranking.py): rate dependence 8679 nm², the mode 8456 nm², the
+    stack's asymmetry 5977 nm²; the mode and rate dependence are both on the bench and look alike at
+    10/100 Hz, so the first diagnosis names that ambiguity (before, asymmetry ranked between them and hid
+    it); continued, the loop adds rate dependence first and ends within 3× its 3.13 nm floor
+    (docs/discovery.md, "Ranking the claims: one size"). The dynamics bench has
     no ambiguity: its second diagnosis named the same pair while the symmetry test read the mode's
     ring-down after each block's start as a loop that is not point-symmetric (it has no asymmetry)."""
     warnings.simplefilter("ignore")

@@ -8,6 +8,8 @@ effects on datasets a service stored (a discover run's, its experiments' include
 ``--anchors creep,drift`` instead tests those candidates against the model + the flexible base as
 the diagnosis does (less a gain changing with time), and prints the claim test's p and size with
 each block's level anchored at its last training cycle (the diagnosis's p) and at its training mean.
+``--diagnose`` instead diagnoses the model ``hysteresis + effects`` as the diagnosis does and prints its
+physical candidates in rank order (claimed, p, size in nm²: ``claim_size_um2`` where claimed).
 ``--loop`` instead runs the report's discovery loop (continue_past_ambiguity, as the discover job's test
 compares it) from hysteresis and prints each step's held-out RMS against the noise floor.
 """
@@ -81,6 +83,17 @@ def anchored_tests(records, effects: list[str], candidates: list[str]) -> None:
         )
 
 
+def diagnosed(records, effects: list[str]) -> None:
+    """Print the diagnosis of ``hysteresis + effects`` on ``records``: its physical candidates in rank order."""
+    from service.science.discovery.diagnosis import diagnose
+
+    d = diagnose(records, model=CompositeModel(effects, 10).fit(records))
+    for c in d["candidates"]:
+        if c["kind"] == "physical" and c.get("testable", True):
+            size = c.get("claim_size_um2", c["gain_mse_um2"]) * 1e6
+            print(f"  {c['effect']:<20} {'claimed' if c['claimed'] else '-':<8} p = {c['p_value']:.2g}, {size:.1f} nm²")
+
+
 def loop(records) -> None:
     """Print the report loop's steps on ``records``: effects, held-out RMS and floor (nm), verdict."""
     from service.science.discovery.loop import discovery_run
@@ -100,6 +113,7 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--effects", default="", help="comma-separated effects beyond hysteresis")
     ap.add_argument("--loop", action="store_true", help="run the report's discovery loop instead")
+    ap.add_argument("--diagnose", action="store_true", help="print the diagnosis of hysteresis + effects instead")
     ap.add_argument("--frequencies", default="10,100")
     ap.add_argument("--cycles", type=int, default=5)
     ap.add_argument("--variants", nargs="*", default=["none"], choices=sorted(VARIANTS))
@@ -126,6 +140,10 @@ def main(argv=None) -> None:
         t = time.time()
         if args.loop:
             loop(records)
+            continue
+        if args.diagnose:
+            print(name)
+            diagnosed(records, effects)
             continue
         if args.anchors:
             anchored_tests(records, effects, args.anchors.split(","))
