@@ -192,8 +192,10 @@ class Client:
     def job(self, job_id: str) -> dict:
         return self._request("GET", f"/api/jobs/{job_id}")
 
-    def jobs(self, limit: int = 100) -> list[dict]:
-        return self._request("GET", "/api/jobs", params={"limit": limit})
+    def jobs(self, limit: int = 100, kind: str | None = None, model_id: str | None = None) -> list[dict]:
+        """The newest jobs; ``kind`` and ``model_id`` narrow them as GET /api/jobs does."""
+        filters = {k: v for k, v in (("kind", kind), ("model_id", model_id)) if v is not None}
+        return self._request("GET", "/api/jobs", params={"limit": limit, **filters})
 
     def cancel(self, job_id: str) -> dict:
         return self._request("DELETE", f"/api/jobs/{job_id}")

@@ -7,7 +7,7 @@ from fastapi.responses import StreamingResponse
 
 from service.http.auth import require_token, token_recheck
 from service.http.deps import get_jobs
-from service.http.schemas.common import BENCH_FILTER, Job
+from service.http.schemas.common import BENCH_FILTER, Job, JobKind
 from service.http.schemas.streams import JOB_EVENTS
 from service.runtime.jobs import JobManager
 
@@ -16,11 +16,23 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 @router.get("", response_model=list[Job])
 def list_jobs(
-    limit: int = Query(100, ge=1, le=1000), bench_id: str | None = BENCH_FILTER, jobs: JobManager = Depends(get_jobs)
+    limit: int = Query(100, ge=1, le=1000),
+    bench_id: str | None = BENCH_FILTER,
+    kind: JobKind | None = Query(None, description="only the jobs of this kind"),
+    model_id: str | None = Query(
+        None,
+        min_length=1,
+        max_length=40,
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9_-]*$",
+        description="only the jobs started from this model (params.model_id) or that ended at it (a "
+        "discover run's result.final_model_id)",
+    ),
+    jobs: JobManager = Depends(get_jobs),
 ) -> list[dict]:
     """The newest jobs first (of every bench of the lab): id, kind, state, progress (0..1), message,
-    result, error, timestamps, bench_id."""
-    return jobs.list(limit, bench_id=bench_id)
+    result, error, timestamps, bench_id. ``kind`` and ``model_id`` narrow the list (a dashboard page
+    asks for one model's discover runs, not every job's result)."""
+    return jobs.list(limit, bench_id=bench_id, kind=kind, model_id=model_id)
 
 
 @router.get("/{job_id}", response_model=Job)

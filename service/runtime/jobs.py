@@ -171,9 +171,10 @@ class JobManager:
         """The job as the API shows it (live progress overlaid on the stored record)."""
         return self._overlay(self.store.get_job(job_id))
 
-    def list(self, limit: int = 100, bench_id: str | None = None) -> list[dict]:
-        """The newest ``limit`` jobs (of every bench; ``bench_id``: that bench's), newest first."""
-        return [self._overlay(row) for row in self.store.list_jobs(limit, bench_id=bench_id)]
+    def list(self, limit: int = 100, bench_id: str | None = None, **filters: str | None) -> list[dict]:
+        """The newest ``limit`` jobs (of every bench; ``bench_id``: that bench's), newest first;
+        ``filters``: ``kind`` and ``model_id`` as Store.list_jobs reads them."""
+        return [self._overlay(row) for row in self.store.list_jobs(limit, bench_id=bench_id, **filters)]
 
     def _overlay(self, row: dict) -> dict:
         live = self._live.get(row["id"])

@@ -319,9 +319,19 @@ class Store:
     def get_job(self, job_id: str) -> JobRow:
         return self._get(tables.jobs, job_id, "job")
 
-    def list_jobs(self, limit: int | None = 100, bench_id: str | None = None) -> list[JobRow]:
-        """The newest ``limit`` jobs (of every bench), newest first; ``bench_id``: only that bench's."""
-        return self._list(tables.jobs, limit=limit, newest_first=True, bench_id=bench_id)
+    def list_jobs(
+        self, limit: int | None = 100, bench_id: str | None = None, kind: str | None = None, model_id: str | None = None
+    ) -> list[JobRow]:
+        """The newest ``limit`` jobs (of every bench), newest first; ``bench_id``: only that bench's;
+        ``kind``: only that kind; ``model_id``: only those started from that model (``params.model_id``)
+        or that ended at it (``result.final_model_id``, a discover run's last model)."""
+        job, where = tables.jobs.c, []
+        if kind is not None:
+            where.append(job.kind == kind)
+        if model_id is not None:
+            started = job.params["model_id"].as_string() == model_id
+            where.append(or_(started, job.result["final_model_id"].as_string() == model_id))
+        return self._list(tables.jobs, limit=limit, newest_first=True, bench_id=bench_id, where=where)
 
     def unfinished_jobs(self) -> list[JobRow]:
         """This bench's jobs neither succeeded, failed nor cancelled (queued or running), oldest first:
@@ -352,10 +362,10 @@ class Store:
         return dict(row)
 
     def _list(
-        self, table, limit: int | None = None, newest_first: bool = False, bench_id: str | None = None
+        self, table, limit: int | None = None, newest_first: bool = False, bench_id: str | None = None, where=()
     ) -> list[dict]:
         order = table.c.created_at.desc() if newest_first else table.c.created_at
-        query = select(table).order_by(order, table.c.id)
+        query = select(table).order_by(order, table.c.id).where(*where)
         if bench_id is not None:
             query = query.where(table.c.bench_id == bench_id)
         if limit is not None:

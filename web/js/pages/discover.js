@@ -63,12 +63,12 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
   restoreLastRun(box, model, { signal, imported }).catch((e) => showError(box.querySelector('#discover-run'), e));
 }
 
-/** The last discover run that started from `model` or ended at it (GET /api/jobs), shown again after a
- * reload or a visit to another page: a run's answer outlives the page that started it. */
+/** The last discover run that started from `model` or ended at it (GET /api/jobs?kind=discover&model_id=,
+ * this model's runs alone), shown again after a reload or a visit to another page: a run's answer outlives
+ * the page that started it. A run still queued has no steps yet: the newest with steps is shown. */
 async function restoreLastRun(box, model, { signal, imported }) {
-  const jobs = await api('/jobs?limit=200', { signal });
-  const job = jobs.find((j) => j.kind === 'discover' && j.result?.steps
-    && (j.params?.model_id === model.id || j.result.final_model_id === model.id));
+  const jobs = await api(`/jobs?kind=discover&model_id=${encodeURIComponent(model.id)}&limit=5`, { signal });
+  const job = jobs.find((j) => j.result?.steps);
   const out = box.querySelector('#discover-run');
   if (!job || signal?.aborted || out.childElementCount) return;   // none, or a run started here meanwhile
   renderRun(out, job.result, { signal, imported });
