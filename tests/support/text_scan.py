@@ -34,6 +34,12 @@ PART_OF = re.compile(
     rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) of (?:the |their |its |this model's )?(?:remaining |held-out |unseen )?"
     rf"(?P<whole>{NUMBER}) (?P<u2>nm²|nm)"
 )
+#: "A nm² (of held-out mean square) removed by its test (…) / B nm² (…) above the noise floor": a score's
+#: numerator over its denominator, a part of its whole
+REMOVED_OVER = re.compile(
+    rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) (?:of held-out mean square )?removed by its test[^/;]*? / "
+    rf"(?P<whole>{NUMBER}) (?P<u2>nm²|nm)"
+)
 #: "N % of …": a share
 PERCENT_OF = re.compile(rf"(?P<pct>{NUMBER}) ?% of the")
 
@@ -57,9 +63,10 @@ def unit_problems(text: str) -> list[str]:
 
 
 def part_whole_problems(text: str) -> list[str]:
-    """Each "A nm of B nm" with A > B (at the printed digits) and each share above 100 %."""
+    """Each "A nm of B nm" or "A nm² removed by its test … / B nm²" with A > B (at the printed digits)
+    and each share above 100 %."""
     out = []
-    for m in PART_OF.finditer(text):
+    for m in (*PART_OF.finditer(text), *REMOVED_OVER.finditer(text)):
         if m["u1"] == m["u2"] and _number(m["part"]) > _number(m["whole"]):
             out.append(f"part > whole: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
     for m in PERCENT_OF.finditer(text):

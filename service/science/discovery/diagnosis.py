@@ -223,15 +223,22 @@ def _test_words(test: dict, noise: float) -> str:
     )
 
 
-def score_words(gain_um2: float, excess_um2: float) -> str:
+def score_words(gain_um2: float, excess_um2: float, reference: tuple = ()) -> str:
     """What a candidate's score is of (one denominator for every row): its test's held-out mean-square
-    drop (µm²: the mean over held-out stretches, every block alike, levels anchored at the last training
-    cycle) over this model's held-out mean square above the noise floor (µm²). Not the ratio of the RMS
-    figures printed beside it, which are means of per-block RMS without the anchoring."""
-    return (
-        f"{fmt_nm2(gain_um2)} of held-out mean square removed by its test (mean over held-out stretches, "
-        f"each block's level anchored at its last training cycle) / {fmt_nm2(excess_um2)} above the noise floor"
+    drop (µm²: against its ``reference``, the mean over held-out stretches, every block alike, levels
+    anchored at the last training cycle) over this model's held-out mean square above the noise floor
+    (µm²: its held-out RMS² − σ², levels not anchored). Not the ratio of the RMS figures printed beside
+    it. The two come from different fits and anchorings: where the drop is the larger, the words say
+    so and that the score is capped at 1, never a part over a smaller whole."""
+    against = "the model" + "".join(f" + {name}" for name in reference)
+    gain = (
+        f"{fmt_nm2(gain_um2)} of held-out mean square removed by its test (against {against}, mean over held-out "
+        "stretches, each block's level anchored at its last training cycle)"
     )
+    whole = f"{fmt_nm2(excess_um2)} of this model's held-out mean square above the noise floor (its held-out RMS² − σ², levels not anchored)"
+    if fmt_nm2(gain_um2) != fmt_nm2(excess_um2) and gain_um2 > excess_um2:
+        return f"{gain}; more than {whole}, a whole of another fit and anchoring: the score is capped at 1"
+    return f"{gain} / {whole}"
 
 
 def _entry(
@@ -292,7 +299,7 @@ def _entry(
         "significant": bool(is_claimed),
         # one denominator for every candidate (this model's excess), so that scores rank as gains do
         "score": round(float(np.clip(gain / excess, 0, 1)), 4),
-        "score_of": score_words(gain, excess),
+        "score_of": score_words(gain, excess, reference),
         "p_value": p_value,
         "gain_mse_um2": gain,
         "reference": list(reference),

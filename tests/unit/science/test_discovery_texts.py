@@ -101,6 +101,13 @@ def test_the_scanner_finds_what_it_is_for():
     assert part_whole_problems("11.5 nm of the remaining 10.6 nm repeats cycle to cycle")
     assert not part_whole_problems("9.5 nm of their 10.6 nm RMS repeats cycle to cycle")
     assert part_whole_problems("(104 % of the excess above the noise floor)")
+    # a score's words: numerator over denominator (the walk's "score 1" row)
+    assert part_whole_problems("11300 nm² removed by its test / 8280 nm² above the noise floor")
+    assert part_whole_problems(
+        "11300 nm² of held-out mean square removed by its test (against the model, mean over held-out stretches, "
+        "each block's level anchored at its last training cycle) / 8280 nm² of this model's held-out mean square"
+    )
+    assert not part_whole_problems("5150 nm² removed by its test (against the model + drift) / 8280 nm² above")
     assert unit_problems("fitted delay 4.11e-05 ms") and unit_problems("0.009225 µm beside 5 nm²")
     assert unit_problems("weights sum -0.0128 µm·ms/V") and unit_problems("σ² = 4.3e+03 nm²")
     assert not unit_problems("delay 24.1 µs, resonance 481.4 Hz, 5150 nm², p = 6.9e-06, 12 nm/s")
