@@ -32,13 +32,20 @@ class RateDependence(Effect):
         return out
 
     def describe(self, theta, values):
+        p = self.parameters(theta, values, {}, 1.0)
+        return "" if not p else f"operator-rate weights sum {plain(p['operator_rate_weights_sum_nm_s_per_v'])} nm·s/V"
+
+    def parameters(self, theta, values, scales, sign):
+        """``operator_rate_weights_sum_nm_s_per_v``: the sum of the hysteretic operators' rate weights
+        (nm·s/V), the figure the report's words print."""
         lag = values.get("rate_operator_lag_um_s_per_v")
-        return "" if lag is None else f"operator-rate weights sum {plain(float(np.sum(lag)) * 1e3)} nm·s/V"
+        return {} if lag is None else {"operator_rate_weights_sum_nm_s_per_v": float(np.sum(lag)) * 1e3}
 
     units = {
         "rate_alpha_um_per_v2_s": "µm·s/V²",
         "rate_beta_um_per_v2_s2": "µm·s²/V²",
         "rate_operator_lag_um_s_per_v": "µm·s/V",
+        "operator_rate_weights_sum_nm_s_per_v": "nm·s/V",
     }
     rule = "at least two drive rates a factor 2 apart: at one rate a rate-dependent loop is one fixed shape"
     emulator_bench = "rate_dependence"

@@ -58,17 +58,23 @@ class SensorNonlinearity(Effect):
         return z
 
     def describe(self, theta, values):
-        w = values.get(self.block_name)
+        p = self.parameters(theta, values, {}, 1.0)
         return (
             ""
-            if w is None
+            if not p
             else (
-                f"gauge bow {100 * float(w[0]):.3g} % and S-bend {100 * float(w[1]):.3g} % of "
+                f"gauge bow {p['gauge_bow_pct']:.3g} % and S-bend {p['s_bend_pct']:.3g} % of "
                 "the half span at the ends of the range"
             )
         )
 
-    units = {"gauge_bow_um": "µm"}
+    def parameters(self, theta, values, scales, sign):
+        """``gauge_bow_pct`` and ``s_bend_pct``: the reading's bow and S-bend at the ends of the range (%
+        of the half span), as the words print them."""
+        w = values.get(self.block_name)
+        return {} if w is None else {"gauge_bow_pct": 100 * float(w[0]), "s_bend_pct": 100 * float(w[1])}
+
+    units = {"gauge_bow_um": "µm", "gauge_bow_pct": "%", "s_bend_pct": "%"}
     rule = "a drive that spans a range (any loop); told from asymmetry where x at one drive differs"
     inverse = "invert"
     emulator_bench = "sensor_nonlinearity"

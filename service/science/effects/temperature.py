@@ -26,10 +26,15 @@ class Temperature(Effect):
         return [Block.make("temperature_um_per_k", np.column_stack([ctx.temp_dev_k * u, ctx.temp_dev_k * s]))]
 
     def describe(self, theta, values):
-        w = values.get("temperature_um_per_k")
-        return "" if w is None else f"gain change {plain(float(np.sum(w)) * 1e3)} nm/K at full drive"
+        p = self.parameters(theta, values, {}, 1.0)
+        return "" if not p else f"gain change {plain(p['gain_change_nm_per_k'])} nm/K at full drive"
 
-    units = {"temperature_um_per_k": "µm/K"}
+    def parameters(self, theta, values, scales, sign):
+        """``gain_change_nm_per_k``: the output's change per kelvin at full drive (nm/K), as the words print it."""
+        w = values.get("temperature_um_per_k")
+        return {} if w is None else {"gain_change_nm_per_k": float(np.sum(w)) * 1e3}
+
+    units = {"temperature_um_per_k": "µm/K", "gain_change_nm_per_k": "nm/K"}
     rule = "a temp_c column that varies by at least 0.5 K"
     sweep = {"waveform": "sine", "frequencies_hz": [1.0], "cycles": 60}
     emulator_bench = "temperature"
