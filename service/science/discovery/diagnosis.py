@@ -180,6 +180,7 @@ def _candidate(
                 "fits over the flexible base is loop shape that base leaves, not this effect: not claimed"
             )
             is_claimed = False
+    gain, anchor = _claimed_size(test, is_claimed)
     return _entry(
         name,
         fits,
@@ -190,12 +191,22 @@ def _candidate(
         floor,
         is_claimed,
         test["p"],
-        test["gain_mse_um2"],
+        gain,
         reference,
         v_ref,
         how,
         v_trial,
+        anchor=anchor,
     )
+
+
+def _claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:
+    """The held-out mean-square drop (µm²) a row's score and words are of, and its anchoring: a claim
+    rests on the anchoring its p is of (the larger size), so a claim is never printed with the other
+    anchoring's figure (drift was claimed at its training mean with −1.15 nm² and score 0 printed);
+    a candidate not claimed, at the last training cycle, as every row's was."""
+    anchor = test["p_anchor"] if is_claimed else "last_cycle"
+    return (test["gain_trend_mse_um2"] if anchor == "training_mean" else test["gain_mse_um2"]), anchor
 
 
 def _seen_at_rest(name, fits: _Fits, rests: dict, noise, v0, k0, sig, floor, alpha) -> dict:
@@ -223,17 +234,23 @@ def _test_words(test: dict, noise: float) -> str:
     )
 
 
-def score_words(gain_um2: float, excess_um2: float, reference: tuple = ()) -> str:
+def score_words(gain_um2: float, excess_um2: float, reference: tuple = (), anchor: str = "last_cycle") -> str:
     """What a candidate's score is of (one denominator for every row): its test's held-out mean-square
     drop (µm²: against its ``reference``, the mean over held-out stretches, every block alike, levels
     anchored at the last training cycle) over this model's held-out mean square above the noise floor
     (µm²: its held-out RMS² − σ², levels not anchored). Not the ratio of the RMS figures printed beside
     it. The two come from different fits and anchorings: where the drop is the larger, the words say
-    so and that the score is capped at 1, never a part over a smaller whole."""
+    so and that the score is capped at 1, never a part over a smaller whole. ``anchor``
+    "training_mean": a claim that rests on the levels anchored at the block's training mean."""
     against = "the model" + "".join(f" + {name}" for name in reference)
+    level = (
+        "at its training mean, the anchoring its claim rests on"
+        if anchor == "training_mean"
+        else "at its last training cycle"
+    )
     gain = (
         f"{fmt_nm2(gain_um2)} of held-out mean square removed by its test (against {against}, mean over held-out "
-        "stretches, each block's level anchored at its last training cycle)"
+        f"stretches, each block's level anchored {level})"
     )
     whole = f"{fmt_nm2(excess_um2)} of this model's held-out mean square above the noise floor (its held-out RMS² − σ², levels not anchored)"
     if fmt_nm2(gain_um2) != fmt_nm2(excess_um2) and gain_um2 > excess_um2:
@@ -257,6 +274,7 @@ def _entry(
     how: str,
     v_trial: float | None = None,
     kind: str | None = None,
+    anchor: str = "last_cycle",
 ) -> dict:
     """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
     (``v_trial``: the held-out RMS of its reference with it, where it was tested against one;
@@ -299,7 +317,7 @@ def _entry(
         "significant": bool(is_claimed),
         # one denominator for every candidate (this model's excess), so that scores rank as gains do
         "score": round(float(np.clip(gain / excess, 0, 1)), 4),
-        "score_of": score_words(gain, excess, reference),
+        "score_of": score_words(gain, excess, reference, anchor),
         "p_value": p_value,
         "gain_mse_um2": gain,
         "reference": list(reference),
@@ -331,6 +349,8 @@ def _loop_shape_as_capacity(fits: _Fits, records, noise, v0, k0, sig, floor) -> 
             f"the base draws any rate-independent loop shape, so what {name}'s columns add is that base's "
             f"shape, offered as capacity and not as physics (p = {test['p']:.2g} against the model itself)"
         )
+        is_claimed = claimed(test, 0.0)
+        gain, anchor = _claimed_size(test, is_claimed)
         rows.append(
             _entry(
                 name,
@@ -340,13 +360,14 @@ def _loop_shape_as_capacity(fits: _Fits, records, noise, v0, k0, sig, floor) -> 
                 k0,
                 sig,
                 floor,
-                claimed(test, 0.0),
+                is_claimed,
                 test["p"],
-                test["gain_mse_um2"],
+                gain,
                 (),
                 v0,
                 how,
                 kind="capacity",
+                anchor=anchor,
             )
         )
     return rows

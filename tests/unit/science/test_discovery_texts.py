@@ -94,6 +94,16 @@ def test_each_score_prints_the_figures_it_is_the_ratio_of(diagnoses, source):
             assert c["score"] == pytest.approx(min(max(gain / excess, 0.0), 1.0), abs=0.01, rel=0.01), c["score_of"]
 
 
+@pytest.mark.parametrize("source", ["default", "foreign", "clean"])
+def test_a_claim_prints_a_positive_removal_at_the_anchoring_it_rests_on(diagnoses, source):
+    """No claim is printed beside a removal ≤ 0 ("drift claimed with score 0 and −1.15 nm² removed": the
+    claim rested on the training-mean anchoring, the words printed the last training cycle's)."""
+    for d in diagnoses[source]:
+        for c in (c for c in d["candidates"] if c.get("claimed") and c.get("score_of")):
+            assert c["gain_mse_um2"] > 0 and c["score"] > 0, (c["effect"], c["score_of"])
+            assert not c["score_of"].startswith(("-", "−")), c["score_of"]
+
+
 def test_the_scanner_finds_what_it_is_for():
     """The scanner's own negatives: each of the issue's examples is found."""
     assert empty_clauses("In this model's residual, before any fit: . Its test") and empty_clauses("gives ()")
