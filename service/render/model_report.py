@@ -104,7 +104,7 @@ def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
         1040,
         320,
         "Error history: held-out RMS per step, every step on the same data",
-        "lineage step",
+        "lineage step (0: the first model)",
         f"held-out RMS ({unit}, log scale)",
         log_y=True,
         integer_x=True,
@@ -113,7 +113,7 @@ def history_figure(steps: list[dict], noise_floor_um: float | None) -> str:
     if noise_floor_um:
         panel.band(0.0, noise_floor_um * factor, f"noise floor {fmt_nm(noise_floor_um)}")
         panel.hline(2 * noise_floor_um * factor, "2× noise floor")
-    shown = [(i + 1, v * factor, s["change"] or "first fit") for i, (s, v) in enumerate(zip(steps, rms)) if v]
+    shown = [(i, v * factor, s["change"] or "first fit") for i, (s, v) in enumerate(zip(steps, rms)) if v]
     panel.points([p[0] for p in shown], [p[1] for p in shown], [p[2] for p in shown])
     return figure([panel], "error history: held-out RMS per lineage step with the noise floor")
 
@@ -209,7 +209,7 @@ def _datasets_section(datasets: list[dict], axis: str) -> str:
 def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
     rows = [
         [
-            str(i + 1),
+            str(i),
             f"<code>{escape(s['model_id'])}</code>",
             escape(s["change"] or "first fit"),
             escape(" + ".join(s["effects"])),
@@ -221,7 +221,7 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
         for i, s in enumerate(steps)
     ]
     return (
-        "<h2>4. Lineage</h2><p>From the first model to this one; each step is a stored model. Held-out RMS: on the "
+        "<h2>4. Lineage</h2><p>From the first model (step 0) to this one; each step is a stored model. Held-out RMS: on the "
         "data the step was fitted on; like for like: its effects on this model's datasets (refitted there where "
         "the step had fewer), so that every step is scored on the same held-out cycles.</p>"
         + _table(

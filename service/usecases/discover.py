@@ -129,7 +129,8 @@ def refined_effects(row: dict, add: str | None, remove: str | None, effects: lis
 
 
 def history(store: Store, model_id: str) -> list[dict]:
-    """The lineage root → ``model_id`` with train and validation RMS and the change at each step:
+    """The lineage root → ``model_id`` with train and validation RMS and the change at each step
+    (``step``: 0 is the lineage's first model, as a discover run's step 0 is the model it starts from):
     effects added (+e) or removed (−e), datasets added (+data ds_…: its RMS is over other data, not
     comparable with the step before), else "refit"; and each step like for like (``like_for_like``)."""
     chain, seen = [], set()
@@ -153,6 +154,7 @@ def history(store: Store, model_id: str) -> list[dict]:
             ) or "refit"
         out.append(
             {
+                "step": len(out),
                 "model_id": r["id"],
                 "parent_id": r["parent_id"],
                 "effects": ["hysteresis"] + effects,

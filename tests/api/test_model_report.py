@@ -98,7 +98,7 @@ def test_the_report_of_a_refined_model(refined):
 
     # the lineage: steps and their RMS as GET /history gives them, to the printed precision
     steps = http.get(f"/api/models/{model}/history").json()["steps"]
-    assert [s["model_id"] for s in steps] == [refined["base"], model]
+    assert [s["model_id"] for s in steps] == [refined["base"], model] and [s["step"] for s in steps] == [0, 1]
     lineage = html[html.index('id="lineage"') :]
     for cls, key in (("rms-heldout", "validation_rms_um"), ("rms-train", "train_rms_um")):
         printed = re.findall(rf'class="{cls}">([^<]*)<', lineage)[: len(steps)]
@@ -244,3 +244,24 @@ def test_refine_bodies_and_dataset_requests():
         "plan": {"import": {"filename": "a.csv", "axis": None}, "drive_range_v": {}},
     }
     assert dataset_request(imported) == {"kind": "import", "body": {"filename": "a.csv", "name": "lab"}}
+
+
+def test_the_reports_lineage_numbers_its_steps_from_0():
+    """One numbering (issue 39: 0-based on the Discover page, 1-based in the history table and the
+    report): step 0 is the lineage's first model, in the table and the error history's x axis."""
+    from service.render.model_report import _lineage_section
+
+    steps = [
+        {"step": k, "model_id": f"mdl_{k}", "change": change, "effects": ["hysteresis", *extra]}
+        | {"train_rms_um": rms, "validation_rms_um": rms, "like_for_like_rms_um": rms}
+        for k, (change, extra, rms) in enumerate(
+            [(None, [], 0.02), ("+creep", ["creep"], 0.01), ("+drift", ["creep", "drift"], 0.008)]
+        )
+    ]
+    html = _lineage_section(steps, 0.004)
+    assert re.findall(r'<tr><td class="num">(\d+)</td><td><code>(mdl_\d)</code>', html) == [
+        ("0", "mdl_0"),
+        ("1", "mdl_1"),
+        ("2", "mdl_2"),
+    ]
+    assert "first model (step 0)" in html and "lineage step (0: the first model)" in html

@@ -155,3 +155,11 @@ def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
         assert [again.nth(i).get_attribute("data-model-id") for i in range(again.count())] == [
             s["model_id"] for s in steps
         ]
+        # steps numbered from 0 on the run, its lineage and the history alike
+        assert again.first.get_attribute("data-step") == "0" and again.first.locator("td").first.inner_text() == "0"
+        lineage = api.get(f"/models/{final}/history").json()["steps"]
+        assert [s["step"] for s in lineage] == list(range(len(lineage)))
+        page.wait_for_selector("#compare-b option")
+        assert page.locator("#compare-b option").nth(0).inner_text().startswith("step 0: ")
+        page.wait_for_selector("#history tr td")
+        assert page.locator("#history tr").nth(1).locator("td").first.inner_text() == "0"

@@ -286,6 +286,7 @@ class Diagnosis(BaseModel):
 
 class HistoryStep(BaseModel):
     model_config = ConfigDict(protected_namespaces=())
+    step: int = Field(description="0: the lineage's first model (a discover run's step 0 is the model it starts from)")
     model_id: str
     parent_id: str | None
     effects: list[str]

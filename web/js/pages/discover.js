@@ -70,11 +70,12 @@ async function restoreLastRun(box, model, { signal, imported }) {
   const jobs = await api(`/jobs?kind=discover&model_id=${encodeURIComponent(model.id)}&limit=5`, { signal });
   const job = jobs.find((j) => j.result?.steps);
   const out = box.querySelector('#discover-run');
-  if (!job || signal?.aborted || out.childElementCount) return;   // none, or a run started here meanwhile
+  if (!job || signal?.aborted || out.childElementCount) return null;   // none, or a run started here meanwhile
   renderRun(out, job.result, { signal, imported });
   const when = job.finished_at || job.started_at || job.created_at;
   out.prepend(h(`<p class="muted" id="discover-restored" data-job-id="${esc(job.id)}">The last discover run from
     ${esc(job.params?.model_id || '')} (job ${esc(job.id)}, ${esc(job.state)}${when ? `, ${esc(when)}` : ''}).</p>`));
+  return job;
 }
 
 async function discover(box, model, state, { signal, imported, onModels, figures }) {
@@ -117,7 +118,7 @@ function renderRun(out, r, { signal, imported }) {
   const suggested = r.suggested_experiments || [];
   const done = r.stopped && r.stopped !== 'running';
   out.innerHTML = `<h3>Steps</h3>
-    <table id="discover-steps"><tr><th>step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
+    <table id="discover-steps"><tr><th title="0: the model the run starts from, as the lineage's step 0 is its first model">step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
       <th class="num" title="this step's effects refitted on every dataset the run has now (the experiments' too), scored on the same held-out cycles as every other step">like for like</th>
       <th class="num" title="the same model scored on the held-out cycles of the data the run started from">on the original data</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
@@ -209,7 +210,7 @@ async function showFigures(box, modelId, state, signal) {
 async function fillLineage(box, modelId, state, signal) {
   const r = await api(`/models/${encodeURIComponent(modelId)}/history`, { signal });
   state.steps = r.steps;
-  const options = r.steps.map((s, i) => `<option value="${esc(s.model_id)}">${i}: ${esc(s.model_id)} · ${esc(s.change || 'first fit')}</option>`).join('');
+  const options = r.steps.map((s, i) => `<option value="${esc(s.model_id)}">step ${s.step ?? i}: ${esc(s.model_id)} · ${esc(s.change || 'first fit')}</option>`).join('');
   const a = box.querySelector('#compare-a');
   const b = box.querySelector('#compare-b');
   a.innerHTML = options;

@@ -105,7 +105,7 @@ async function showModel(el, modelId, query) {
     </div>
     <div id="discover"></div>
     <div class="grid-1-2">
-      <div class="card"><h2>Error history <span class="muted">(held-out RMS per model version)</span></h2><div id="history-chart"></div><div id="history-table"></div></div>
+      <div class="card"><h2>Error history <span class="muted">(held-out RMS per lineage step; step 0 is the first model)</span></h2><div id="history-chart"></div><div id="history-table"></div></div>
       <div class="card" id="diagnosis-card"><h2>Diagnosis</h2><div id="diagnosis"></div><div id="refine-job"></div><div id="separate-job"></div></div>
     </div>
     <div class="card"><h2>Compare: measured vs model</h2><div id="compare-table"></div>
@@ -264,7 +264,7 @@ async function renderHistory(el, model, canHistory) {
   chartEl.dataset.points = String(steps.length);
   const old = charts.find((c) => c.root && chartEl.contains(c.root));
   if (old) { old.destroy(); charts.splice(charts.indexOf(old), 1); }
-  charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i + 1), xLabel: 'model version',
+  charts.push(await lineChart(chartEl, { xs: steps.map((_, i) => i), xLabel: 'lineage step (0: the first model)',
     yLabel: 'held-out RMS (nm)', series: [
       { label: 'like for like: every step on the same data (nm)', values: steps.map((s) => (s.same ?? s.rms) * 1e3), points: true, width: 2 },
       ...(steps.some((s) => s.same !== null && s.same !== s.rms)
@@ -272,8 +272,8 @@ async function renderHistory(el, model, canHistory) {
     height: 220, points: true, integerX: true }));
   const table = el.querySelector('#history-table');
   if (!table) return;
-  table.innerHTML = `<table id="history"><tr><th>#</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>
-    ${steps.map((s, i) => `<tr data-rms="${s.rms}" data-like-for-like="${s.same ?? ''}" title="${esc((s.effects || []).join(' + '))}"><td>${i + 1}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
+  table.innerHTML = `<table id="history"><tr><th title="0: the lineage's first model, as a discover run's step 0 is the model it starts from">step</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>
+    ${steps.map((s, i) => `<tr data-rms="${s.rms}" data-like-for-like="${s.same ?? ''}" title="${esc((s.effects || []).join(' + '))}"><td>${i}</td><td><a href="#/models/${esc(s.id)}">${esc(s.id)}</a></td>
       <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtErrorNm(s.rms, 4)}</td><td class="num">${fmtErrorNm(s.same, 4)}</td></tr>`).join('')}</table>`;
 }
 
