@@ -155,11 +155,17 @@ def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
         assert [again.nth(i).get_attribute("data-model-id") for i in range(again.count())] == [
             s["model_id"] for s in steps
         ]
-        # steps numbered from 0 on the run, its lineage and the history alike
+        # steps numbered from 0 on the run, its lineage and the history alike; after a reload the Compare
+        # selects still hold the run's later steps (they held the lineage up to this model alone)
         assert again.first.get_attribute("data-step") == "0" and again.first.locator("td").first.inner_text() == "0"
+        page.wait_for_function(
+            "n => document.querySelectorAll('#compare-b option').length >= n", arg=len(steps), timeout=60_000
+        )
+        options = page.locator("#compare-b option")
+        values = [options.nth(i).get_attribute("value") for i in range(options.count())]
+        assert values[-len(steps) :] == [s["model_id"] for s in steps] and page.input_value("#compare-b") == final
         lineage = api.get(f"/models/{final}/history").json()["steps"]
         assert [s["step"] for s in lineage] == list(range(len(lineage)))
-        page.wait_for_selector("#compare-b option")
-        assert page.locator("#compare-b option").nth(0).inner_text().startswith("step 0: ")
+        assert options.nth(0).inner_text().startswith("step 0: ")
         page.wait_for_selector("#history tr td")
         assert page.locator("#history tr").nth(1).locator("td").first.inner_text() == "0"

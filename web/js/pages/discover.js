@@ -59,8 +59,14 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
     const b = e.target.closest('button[data-figures]');
     if (b) figures(b.dataset.figures);
   });
-  fillLineage(box, model.id, state, signal).catch((e) => showError(box.querySelector('#compare-models'), e));
-  restoreLastRun(box, model, { signal, imported }).catch((e) => showError(box.querySelector('#discover-run'), e));
+  // the lineage up to the last run's final model (this model's later steps too), else up to this model
+  const lineage = (id) => fillLineage(box, id, state, signal).catch((e) => {
+    if (id === model.id) showError(box.querySelector('#compare-models'), e);
+    else return lineage(model.id);   // the run's final model is gone: this model's own lineage
+  });
+  restoreLastRun(box, model, { signal, imported })
+    .catch((e) => { showError(box.querySelector('#discover-run'), e); return null; })
+    .then((job) => { if (!signal?.aborted && !state.ran) return lineage(job?.result?.final_model_id || model.id); });
 }
 
 /** The last discover run that started from `model` or ended at it (GET /api/jobs?kind=discover&model_id=,
@@ -84,6 +90,7 @@ async function discover(box, model, state, { signal, imported, onModels, figures
     continue_past_ambiguity: f.get('continue_past_ambiguity') === 'on' };
   const button = box.querySelector('#discover-start');
   const out = box.querySelector('#discover-run');
+  state.ran = true;   // this run fills the lineage selects when it ends, not the restored one
   button.disabled = true;
   out.replaceChildren();
   out.classList.remove('error');
