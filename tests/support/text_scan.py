@@ -114,7 +114,11 @@ def repeated_part_within_whole(d: dict) -> list[str]:
     for c in d.get("candidates") or []:
         if not 0.0 <= c.get("score", 0.0) <= 1.0 or c.get("excess_removed", 0.0) > 1.0:
             out.append(f"{c['effect']}: score {c.get('score')}, excess removed {c.get('excess_removed')}")
-    for s in (d.get("remainder") or {}).get("signatures") or []:
+    remainder = d.get("remainder") or {}
+    for s in remainder.get("signatures") or []:
         if not 0.0 <= s["share_of_excess"] <= 1.0:
             out.append(f"remainder {s['signature']}: share {s['share_of_excess']}")
+    total = sum(s["share_of_excess"] for s in remainder.get("signatures") or [])
+    if total > 1.0 and not (remainder.get("shares_overlap") and "overlap" in remainder.get("shares_text", "")):
+        out.append(f"remainder shares of one whole sum to {100 * total:.1f} %, not labelled as overlapping")
     return out

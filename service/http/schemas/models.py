@@ -201,6 +201,10 @@ class Remainder(BaseModel):
     threshold_t: float = Field(description="the Bonferroni-corrected threshold a signature's t must pass")
     tried: list[str]
     signatures: list[RemainderSignature] = Field(description="the significant ones, largest share first (at most 3)")
+    shares_overlap: bool = Field(
+        default=False, description="the signatures' shares (each fitted alone) sum to more than the whole: they overlap"
+    )
+    shares_text: str = Field(default="", description="what the shares are of and whether they overlap, in words")
 
 
 class Answer(BaseModel):

@@ -58,8 +58,9 @@ function remainderHtml(r, answer) {
   return `<h3>What remains, described <span class="muted">(the residual on rows the model never fitted — held-out
       cycles, rests, holds — read against physical signatures; each fitted on the training rows)</span></h3>
     <ol id="remainder">${r.signatures.map((s, i) => `<li data-signature="${esc(s.signature)}" data-share="${s.share_of_excess}"${answer && answer.remains === s.signature ? ' class="in-answer" title="the description the answer above names"' : ''}>
-      <b>${esc(s.signature)}</b> — ${fmt(100 * s.share_of_excess, 3)} % of the unseen residual above the noise (t = ${fmt(s.t, 3)}):
+      <b>${esc(s.signature)}</b> — ${fmt(100 * s.share_of_excess, 3)} % of the unseen residual above the noise${r.signatures.length > 1 ? ', fitted alone' : ''} (t = ${fmt(s.t, 3)}):
       ${esc(s.text)}<div class="remainder-figure" data-i="${i}"></div></li>`).join('')}</ol>
+    ${r.shares_text ? `<p class="muted" id="remainder-shares" data-overlap="${r.shares_overlap ? 1 : 0}">${esc(r.shares_text)}</p>` : ''}
     <p class="muted">Tried: ${r.tried.map(esc).join(', ')}; a signature is shown when its held-out gain passes t > ${fmt(r.threshold_t, 3)}
       (1 % over all of them) and it explains at least 5 % of what remains.</p>`;
 }
