@@ -76,37 +76,45 @@ class BenchRows:
 
 
 def latest_models(engine: Engine, axis: str | None = None, parameters: bool = False) -> list[dict]:
-    """Per bench and axis (or only ``axis``), its newest model (by ``created_at``): id, bench_id,
-    axis, kind, effects, metrics, job_id, created_at (and ``parameters`` with their sha256 if asked).
-    Models without a bench (stored before benches had ids) are left out. One query (a window)."""
-    columns = [
-        models.c.id,
-        models.c.bench_id,
-        models.c.axis,
-        models.c.kind,
-        models.c.effects,
-        models.c.metrics,
-        models.c.job_id,
-        models.c.created_at,
-    ]
-    if parameters:
-        columns += [models.c.parameters, models.c.parameters_sha256]
-    rank = (
-        func.row_number()
-        .over(
-            partition_by=(models.c.bench_id, models.c.axis), order_by=(models.c.created_at.desc(), models.c.id.desc())
-        )
-        .label("rank")
+    """Per bench and axis (or only ``axis``), its newest model (by ``created_at``) fitted on that bench's
+    own data, and apart from it its newest fitted on imported data (any dataset imported: recorded on
+    another stage): id, bench_id, axis, kind, effects, datasets, metrics, job_id, created_at,
+    ``imported_data`` (and ``parameters`` with their sha256 if asked). A model fitted on an import
+    describes the stage that recorded it, never its bench's: the two are kept apart. Models without a
+    bench (stored before benches had ids) are left out."""
+    imported = select(datasets.c.id).where(datasets.c.source == "import")
+    light = select(models.c.id, models.c.bench_id, models.c.axis, models.c.datasets).where(
+        models.c.bench_id.is_not(None)
     )
-    inner = select(*columns, rank).where(models.c.bench_id.is_not(None))
     if axis is not None:
-        inner = inner.where(models.c.axis == axis)
-    inner = inner.subquery()
-    query = (
-        select(*[inner.c[c.name] for c in columns]).where(inner.c.rank == 1).order_by(inner.c.bench_id, inner.c.axis)
-    )
+        light = light.where(models.c.axis == axis)
+    light = light.order_by(models.c.created_at.desc(), models.c.id.desc())
     with engine.connect() as conn:
-        return [dict(row) for row in conn.execute(query).mappings()]
+        imported_ids = {row[0] for row in conn.execute(imported)}
+        newest: dict[tuple, str] = {}
+        for row in conn.execute(light):
+            is_imported = any(d in imported_ids for d in row.datasets or ())
+            newest.setdefault((row.bench_id, row.axis, is_imported), row.id)
+        columns = [
+            models.c.id,
+            models.c.bench_id,
+            models.c.axis,
+            models.c.kind,
+            models.c.effects,
+            models.c.datasets,
+            models.c.metrics,
+            models.c.job_id,
+            models.c.created_at,
+        ]
+        if parameters:
+            columns += [models.c.parameters, models.c.parameters_sha256]
+        query = select(*columns).where(models.c.id.in_(list(newest.values())))
+        rows = {row["id"]: dict(row) for row in conn.execute(query).mappings()}
+    return [
+        {**rows[model_id], "imported_data": key[2]}
+        for key, model_id in sorted(newest.items(), key=lambda kv: kv[0])
+        if model_id in rows
+    ]
 
 
 def dataset_counts(engine: Engine) -> dict[str | None, int]:

@@ -13,6 +13,7 @@ from service.science.discovery.parameters import physical_parameters
 from service.store import IntegrityError, NotFoundError, Store, clean_json, json_sha256
 from service.store.benches import dataset_counts, latest_models
 from service.usecases.identify import load_model
+from service.usecases.provenance import model_origin
 
 AXES = ("y", "z")
 
@@ -20,36 +21,45 @@ AXES = ("y", "z")
 def benches(store: Store) -> dict:
     """``{"benches": [...], "offline_after_heartbeats", "this_bench_id"}``: each bench's row (no
     config snapshot) with ``online``, ``heartbeat_age_s``, ``datasets`` (how many it holds) and
-    ``latest_models`` ``{axis: summary | None}``."""
+    ``latest_models`` ``{axis: summary | None}`` (fitted on its own data) and, apart,
+    ``latest_imported_models`` ``{axis: summary | None}`` (fitted on data another stage recorded, with
+    its ``origin``: the files it was imported from)."""
     now = datetime.now(UTC)
-    latest: dict[tuple[str, str], dict] = {(m["bench_id"], m["axis"]): m for m in latest_models(store.engine)}
+    latest = {(m["bench_id"], m["axis"], m["imported_data"]): m for m in latest_models(store.engine)}
     counts = dataset_counts(store.engine)
     out = []
     for row in store.benches.list():
         view = _bench_summary(row, now)
         view["datasets"] = counts.get(row["id"], 0)
-        view["latest_models"] = {axis: _model_summary(store, latest.get((row["id"], axis))) for axis in AXES}
+        for field, imported in (("latest_models", False), ("latest_imported_models", True)):
+            view[field] = {axis: _model_summary(store, latest.get((row["id"], axis, imported))) for axis in AXES}
         out.append(view)
     return {"benches": out, "offline_after_heartbeats": OFFLINE_AFTER_HEARTBEATS, "this_bench_id": store.bench_id}
 
 
 def compare(store: Store, axis: str) -> dict:
-    """Per registered bench, its newest model of ``axis`` (None if it has none): the summary plus
-    ``parameters`` ``{effect: {name_unit: value}}`` (service.science.discovery.parameters) and
-    ``parameter_names``, the union over benches (``effect.name``), in a stable order."""
+    """Per registered bench, its newest model of ``axis`` fitted on its own data (None if it has none):
+    the summary plus ``parameters`` ``{effect: {name_unit: value}}`` (service.science.discovery.parameters);
+    ``imported``: per bench, its newest model fitted on imported data, with its ``origin`` (the stage
+    it describes is another's, so it is not that bench's row); ``parameter_names``, the union over
+    them all (``effect.name``), in a stable order."""
     now = datetime.now(UTC)
-    latest = {m["bench_id"]: m for m in latest_models(store.engine, axis=axis, parameters=True)}
-    rows, names = [], {}
+    latest = {(m["bench_id"], m["imported_data"]): m for m in latest_models(store.engine, axis=axis, parameters=True)}
+    rows, imported, names = [], [], {}
+
+    def compared(model: dict) -> dict:
+        out = {**_model_summary(store, model), "parameters": discovered_parameters(model)}
+        for effect, values in out["parameters"].items():
+            for name in values:
+                names.setdefault(f"{effect}.{name}", None)
+        return out
+
     for row in store.benches.list():
-        model = latest.get(row["id"])
-        entry = {**_bench_summary(row, now), "model": None}
-        if model is not None:
-            entry["model"] = {**_model_summary(store, model), "parameters": discovered_parameters(model)}
-            for effect, values in entry["model"]["parameters"].items():
-                for name in values:
-                    names.setdefault(f"{effect}.{name}", None)
-        rows.append(entry)
-    return {"axis": axis, "benches": rows, "parameter_names": list(names)}
+        own, other = latest.get((row["id"], False)), latest.get((row["id"], True))
+        rows.append({**_bench_summary(row, now), "model": compared(own) if own is not None else None})
+        if other is not None:
+            imported.append({"bench_id": row["id"], "model": compared(other)})
+    return {"axis": axis, "benches": rows, "imported": imported, "parameter_names": list(names)}
 
 
 def discovered_parameters(model_row: dict) -> dict[str, dict[str, float]]:
@@ -102,4 +112,5 @@ def _model_summary(store: Store, model: dict | None) -> dict | None:
         "train_rms_um": metrics.get("train_rms_um"),
         "noise_floor_um": noise_floor_um(store, model),
         "created_at": model["created_at"],
+        "origin": model_origin(store, model.get("datasets") or []),
     }

@@ -132,3 +132,27 @@ def test_recent_jobs_read_in_words_without_internals(page, server):
     text = page.inner_text("#jobs")
     assert "loop_cpu_s" not in text and "_um" not in text
     assert "model md_" in text and "held-out RMS" in text and " nm" in text
+
+
+def test_the_lab_page_never_lists_an_imported_model_as_this_benchs(page, server):
+    """The newest model of imported data (its dataset's bench_id is this service's) is listed apart, with
+    the file it came from; the bench's newest is the newest fitted on its own data."""
+    api = server["api"]
+    newer = posted_result(server, "/models", {"axis": "y", "datasets": [server["imported"]]})["model_id"]
+    bench = api.get("/lab/benches").json()["this_bench_id"]
+    goto(page, server, "lab")
+    row = f"#lab-benches tr[data-bench-id='{bench}']"
+    page.wait_for_selector(f"{row} .imported-model")
+    newest = page.locator(f"{row} td[data-model-id]").first
+    assert newest.get_attribute("data-model-id") == server["recorded_model"]
+    apart = page.locator(f"{row} .imported-model").first
+    assert apart.get_attribute("data-model-id") == newer and apart.get_attribute("data-origin") == "imported"
+    assert "not this bench's" in apart.inner_text() and "Model_Vi_Do.dat" in apart.inner_text()
+    assert "recorded on another stage" in apart.inner_text()
+    # the comparison: the bench's row is its own model; the import's is apart, named by its file
+    page.wait_for_selector(f"#lab-compare tr[data-bench-id='{bench}']")
+    assert page.get_attribute(f"#lab-compare tr[data-bench-id='{bench}']", "data-model-id") == server["recorded_model"]
+    imported = page.locator("#lab-compare tr.imported-model")
+    assert imported.count() == 1 and imported.get_attribute("data-model-id") == newer
+    assert imported.get_attribute("data-stored-by") == bench and "Model_Vi_Do.dat" in imported.inner_text()
+    shot(page, "provenance_lab")

@@ -3,7 +3,7 @@ models compared across benches. Lengths in µm, times in s, timestamps ISO-8601 
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -21,6 +21,11 @@ class LatestModel(BaseModel):
         description="from its metrics, or the discovery step that stored it; null if neither knows it"
     )
     created_at: str
+    origin: dict[str, Any] = Field(
+        default_factory=dict,
+        description='where its data came from: {"fitted_on": "this_bench" | "imported" | "mixed", "imported": '
+        '[{"dataset_id", "name", "filename"}]}',
+    )
 
 
 class BenchSummary(BaseModel):
@@ -44,7 +49,13 @@ class BenchSummary(BaseModel):
 
 class LabBench(BenchSummary):
     datasets: int = Field(description="how many datasets it holds")
-    latest_models: dict[Literal["y", "z"], LatestModel | None]
+    latest_models: dict[Literal["y", "z"], LatestModel | None] = Field(
+        description="per axis its newest model fitted on this bench's own data"
+    )
+    latest_imported_models: dict[Literal["y", "z"], LatestModel | None] = Field(
+        default_factory=dict,
+        description="per axis its newest model fitted on imported data (another stage's record, see its origin)",
+    )
 
 
 class LabBenches(BaseModel):
@@ -66,9 +77,16 @@ class ComparedBench(BenchSummary):
     model: ComparedModel | None = Field(description="its newest model of the axis (null: none yet)")
 
 
+class ImportedComparison(BaseModel):
+    bench_id: str = Field(description="the bench that stored it (not the stage it describes: see its origin)")
+    model: ComparedModel
+
+
 class LabComparison(BaseModel):
-    """``GET /api/lab/compare?axis=``: per bench, its newest model of the axis."""
+    """``GET /api/lab/compare?axis=``: per bench, its newest model of the axis fitted on its own data;
+    ``imported``: the newest fitted on imported data, apart."""
 
     axis: Literal["y", "z"]
     benches: list[ComparedBench]
+    imported: list[ImportedComparison] = Field(default_factory=list)
     parameter_names: list[str] = Field(description="effect.parameter over every bench's model, for a table's columns")

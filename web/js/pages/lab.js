@@ -51,11 +51,23 @@ function status(b) {
   return { key: 'offline', text: `OFFLINE · silent ${fmt(b.heartbeat_age_s, 3)} s (last ${b.state})`, cls: 'bad' };
 }
 
-function modelCell(m) {
-  if (!m) return '<td class="muted">none</td>';
+/** The files an imported model's data came from (its origin), by file and name. */
+export function originWords(origin) {
+  const files = (origin?.imported || []).map((i) => (i.filename && i.name && i.filename !== i.name
+    ? `${i.filename} (“${i.name}”)` : i.filename || i.name || i.dataset_id));
+  const what = origin?.fitted_on === 'mixed' ? 'partly imported data' : 'imported data';
+  return `${what}${files.length ? `: ${files.join(', ')}` : ''}, recorded on another stage`;
+}
+
+/** A bench's newest model of one axis fitted on its own data; under it, apart and marked, its newest
+ *  fitted on imported data (that model describes the stage that recorded the file, not this bench). */
+function modelCell(m, imported) {
+  const other = imported ? `<div class="muted imported-model" data-model-id="${esc(imported.id)}" data-origin="${esc(imported.origin?.fitted_on || 'imported')}">
+    not this bench's: <a href="#/models/${esc(imported.id)}">${esc(imported.id)}</a> on ${esc(originWords(imported.origin))}</div>` : '';
+  if (!m) return `<td class="muted">none${other}</td>`;
   return `<td data-model-id="${esc(m.id)}" data-validation-rms-um="${m.validation_rms_um ?? ''}">
     <a href="#/models/${esc(m.id)}">${esc(m.id)}</a><br><span class="muted">${esc(m.effects.join(' + '))}</span>
-    · held-out ${fmtErrorNm(m.validation_rms_um)}${m.noise_floor_um ? ` · floor ${fmtErrorNm(m.noise_floor_um)}` : ''}</td>`;
+    · held-out ${fmtErrorNm(m.validation_rms_um)}${m.noise_floor_um ? ` · floor ${fmtErrorNm(m.noise_floor_um)}` : ''}${other}</td>`;
 }
 
 async function refreshBenches(root) {
@@ -73,9 +85,22 @@ async function refreshBenches(root) {
         <td class="num" title="${esc(b.heartbeat_at)}">${fmt(b.heartbeat_age_s, 2)} s ago</td>
         <td class="running-job">${b.running_job_id ? esc(b.running_job_id) : '<span class="muted">–</span>'}</td>
         <td class="num">${b.datasets}</td>
-        ${AXES.map((a) => modelCell(b.latest_models[a])).join('')}
+        ${AXES.map((a) => modelCell(b.latest_models[a], (b.latest_imported_models || {})[a])).join('')}
         <td><a href="${esc(b.url)}/web/" target="_blank" rel="noopener">${esc(b.url)}</a></td></tr>`;
     }).join('');
+}
+
+/** A compared model's cells: id, effects, held-out RMS, noise floor and each physical parameter. */
+function comparedCells(m, names) {
+  const cells = names.map((n) => {
+    const [effect, parameter] = n.split('.');
+    const value = (m.parameters[effect] || {})[parameter];
+    return value === undefined || value === null ? `<td class="num muted" data-parameter="${esc(n)}">–</td>`
+      : `<td class="num" data-parameter="${esc(n)}" data-value="${value}">${fmt(value, 4)}</td>`;
+  }).join('');
+  return `<td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a><br><span class="muted">${esc(m.kind)}, ${esc(m.created_at)}</span></td>
+    <td class="effects">${esc(m.effects.join(' + '))}</td>
+    <td class="num">${fmtErrorNm(m.validation_rms_um)}</td><td class="num">${fmtErrorNm(m.noise_floor_um)}</td>${cells}`;
 }
 
 /** "creep (%/decade)" for a known parameter, else "effect · parameter". */
@@ -99,18 +124,13 @@ async function refreshCompare(root) {
           return `<tr data-bench-id="${esc(b.id)}" data-model-id=""><td><b>${esc(b.id)}</b></td><td class="${s.cls}">${esc(s.key)}</td>
             <td class="muted" colspan="${4 + c.parameter_names.length}">no ${axis.toUpperCase()} model yet</td></tr>`;
         }
-        const cells = c.parameter_names.map((n) => {
-          const [effect, parameter] = n.split('.');
-          const value = (m.parameters[effect] || {})[parameter];
-          return value === undefined || value === null ? `<td class="num muted" data-parameter="${esc(n)}">–</td>`
-            : `<td class="num" data-parameter="${esc(n)}" data-value="${value}">${fmt(value, 4)}</td>`;
-        }).join('');
         return `<tr data-bench-id="${esc(b.id)}" data-model-id="${esc(m.id)}" data-validation-rms-um="${m.validation_rms_um ?? ''}">
-          <td><b>${esc(b.id)}</b></td><td class="${s.cls}">${esc(s.key)}</td>
-          <td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a><br><span class="muted">${esc(m.kind)}, ${esc(m.created_at)}</span></td>
-          <td class="effects">${esc(m.effects.join(' + '))}</td>
-          <td class="num">${fmtErrorNm(m.validation_rms_um)}</td><td class="num">${fmtErrorNm(m.noise_floor_um)}</td>${cells}</tr>`;
-      }).join('');
+          <td><b>${esc(b.id)}</b></td><td class="${s.cls}">${esc(s.key)}</td>${comparedCells(m, c.parameter_names)}</tr>`;
+      }).join('') +
+      (c.imported || []).map((x) => `<tr data-bench-id="" data-stored-by="${esc(x.bench_id)}" data-model-id="${esc(x.model.id)}" data-origin="${esc(x.model.origin?.fitted_on || 'imported')}"
+          data-validation-rms-um="${x.model.validation_rms_um ?? ''}" class="imported-model">
+          <td colspan="2"><b>${esc(originWords(x.model.origin))}</b><br><span class="muted">not a bench of this lab; stored by ${esc(x.bench_id)}</span></td>
+          ${comparedCells(x.model, c.parameter_names)}</tr>`).join('');
   } catch (err) {
     showError(table, err);
   }
