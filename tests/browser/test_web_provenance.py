@@ -66,16 +66,17 @@ def test_trajectories_offer_this_benchs_models_first_and_mark_the_imported(page,
     goto(page, server, "trajectories")
     select = "#traj-form select[name=feedforward_model_y]"
     page.wait_for_selector(select)
+    listed = f"[...document.querySelector('{select}').options].map(o => o.value)"
+    # unticked, the drop-down lists this bench's models alone (a hidden optgroup was still listed)
+    assert not page.is_checked("#traj-show-imported")
+    assert server["recorded_model"] in page.evaluate(listed) and server["imported_model"] not in page.evaluate(listed)
+    assert page.locator(f"{select} optgroup").count() == 0
+    page.check("#traj-show-imported")  # offered when asked, marked apart
     marked = page.locator(f"{select} optgroup.imported-models option").evaluate_all("os => os.map(o => o.value)")
     assert marked == [server["imported_model"]]
-    top = page.locator(f"{select} > option").evaluate_all("os => os.map(o => o.value)")
-    assert server["recorded_model"] in top and server["imported_model"] not in top
-    # offered only when asked: hidden and not selectable until the toggle is ticked
-    group = page.locator(f"{select} optgroup.imported-models")
-    assert group.evaluate("g => g.hidden && g.disabled")
-    page.check("#traj-show-imported")
-    assert group.evaluate("g => !g.hidden && !g.disabled")
     page.select_option(select, server["imported_model"])
+    page.uncheck("#traj-show-imported")  # and gone again, the choice with it
+    assert server["imported_model"] not in page.evaluate(listed) and page.input_value(select) == ""
 
 
 def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):

@@ -24,14 +24,15 @@ export async function enter(root) {
     paperFigures(signal)]);
   PAPER = trackingCases(paper);
   const option = (m) => `<option value="${esc(m.id)}">${esc(m.id)}${m.name ? ` “${esc(m.name)}”` : ''} · ${esc(m.kind)} · ${m.effects.map(esc).join('+')} · ${fmtErrorNm(m.metrics.validation_rms_um)}</option>`;
-  // Models of this bench first; those fitted on another stage's imported data are marked apart: their
-  // low held-out RMS describes that stage, not this one.
-  const options = (axis) => {
+  // Models of this bench only; those fitted on another stage's imported data (their low held-out RMS
+  // describes that stage, not this one) are in the list, marked apart, only while the toggle is ticked:
+  // a hidden, disabled optgroup was still listed by the browser's drop-down.
+  const options = (axis, showImported = false) => {
     const mine = models.filter((m) => m.axis === axis).reverse();
     const here = mine.filter((m) => !onImportedData(m));
     const elsewhere = mine.filter((m) => onImportedData(m));
     return `<option value="">none</option>` + here.map(option).join('') +
-      (elsewhere.length ? `<optgroup label="fitted on imported data (another stage)" class="imported-models" hidden disabled>${elsewhere.map(option).join('')}</optgroup>` : '');
+      (elsewhere.length && showImported ? `<optgroup label="fitted on imported data (another stage)" class="imported-models">${elsewhere.map(option).join('')}</optgroup>` : '');
   };
   root.append(h(`<div>
     <h1>Trajectories</h1>
@@ -71,7 +72,14 @@ export async function enter(root) {
   </div>`));
   const form = root.querySelector('#traj-form');
   root.querySelector('#traj-show-imported').addEventListener('change', (e) => {
-    root.querySelectorAll('#traj-form optgroup.imported-models').forEach((g) => { g.hidden = !e.target.checked; g.disabled = !e.target.checked; });
+    for (const axis of ['y', 'z']) {   // rebuilt: the models added since (just identified) and the choice kept
+      const select = form.elements[`feedforward_model_${axis}`];
+      const added = [...select.options].filter((o) => o.dataset.added);
+      const chosen = select.value;
+      select.innerHTML = options(axis, e.target.checked);
+      select.append(...added);
+      select.value = [...select.options].some((o) => o.value === chosen) ? chosen : '';
+    }
   });
   root.querySelector('#traj-pid').addEventListener('change', (e) => {
     root.querySelector('#traj-gains').hidden = e.target.value !== 'custom';
@@ -175,7 +183,11 @@ async function prepareModels(root) {
 /** Select model `id` for `axis` in the form (a new option if the list does not have it yet). */
 function selectModel(form, axis, id) {
   const select = form.elements[`feedforward_model_${axis}`];
-  if (![...select.options].some((o) => o.value === id)) select.append(new Option(`${id} · just identified`, id));
+  if (![...select.options].some((o) => o.value === id)) {
+    const added = new Option(`${id} · just identified`, id);
+    added.dataset.added = '1';
+    select.append(added);
+  }
   select.value = id;
 }
 
