@@ -52,8 +52,10 @@ def dataset_view(row: DatasetRow, full: bool = True) -> dict:
     view = {k: row[k] for k in SUMMARY_KEYS}
     view["duration_s"] = row["samples"] / row["sample_rate_hz"]
     view["n_blocks"] = len(row["blocks"])
+    plan = row["plan"] if isinstance(row["plan"], dict) else {}
+    # an import's file, in the list as on its page (the list named it by its name, the page by its file)
+    view["import_filename"] = (plan.get("import") or {}).get("filename") if row["source"] == "import" else None
     if full:
-        plan = row["plan"] if isinstance(row["plan"], dict) else {}
         view.update(
             blocks=row["blocks"],
             plan=row["plan"],

@@ -34,8 +34,11 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     assert imported.get_attribute("data-imported") == "1" and "imported from" in imported.inner_text()
     recorded = page.locator(f"#dataset-list tr[data-dataset-id='{server['recorded']}'] td.origin")
     assert recorded.get_attribute("data-imported") == "0" and "imported" not in recorded.inner_text()
+    listed = imported.inner_text()
     goto(page, server, f"datasets/{server['imported']}")
     assert "imported from Model_Vi_Do.dat" in page.inner_text("#dataset-origin")
+    # the list and the page name an import alike: its file (and the name it was given, if another)
+    assert page.inner_text("#dataset-origin") == listed and "Model_Vi_Do.dat" in listed, listed
 
     # a model of imported data says so in the list and on its page, beside the bench that stored it
     goto(page, server, "models")

@@ -22,10 +22,11 @@ export function modelOriginHtml(model) {
   return `${o.fitted_on === 'mixed' ? 'partly ' : ''}imported data (${files}): another stage`;
 }
 
-/** A dataset's origin (HTML-escaped): the bench that recorded it, or the file it was imported from (the
- * list's rows carry no plan: there the dataset's name stands for the file). */
+/** A dataset's origin (HTML-escaped): the bench that recorded it, or the file it was imported from and
+ * the name it was given, alike in the list and on its page. */
 export function originHtml(d) {
   if (!isImported(d)) return esc(d.bench_id || 'this bench');
-  const file = d.plan?.import?.filename || d.name;
-  return `imported from <code>${esc(file)}</code>`;
+  const file = d.import_filename || d.plan?.import?.filename;
+  if (!file) return `imported as “${esc(d.name)}”`;
+  return `imported from <code>${esc(file)}</code>${d.name && d.name !== file ? ` as “${esc(d.name)}”` : ''}`;
 }

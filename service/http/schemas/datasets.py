@@ -83,6 +83,7 @@ class DatasetSummary(BaseModel):
     tags: list[str] = Field(default=[], description="a user's labels (PATCH /api/datasets/{id})")
     notes: str | None = None
     bench_id: str | None = BENCH_ID_FIELD
+    import_filename: str | None = Field(default=None, description="an import's file (None for data recorded here)")
 
 
 class Dataset(DatasetSummary):

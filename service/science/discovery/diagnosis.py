@@ -228,10 +228,20 @@ def _test_words(test: dict, noise: float) -> str:
     """A held-out test's figures in words (both anchorings of the blocks' levels; the p is of the larger)."""
     at = " at the training mean" if test.get("p_anchor") == "training_mean" else ""
     return (
-        f"(p = {test['p']:.2g}{at} over {test['segments']} held-out segments; {fmt_nm2(test['gain_mse_um2'])} "
+        f"({p_words(test['p'], test['segments'], at)}; {fmt_nm2(test['gain_mse_um2'])} "
         f"of mean square with each block's level anchored at its last training cycle, "
         f"{fmt_nm2(test['gain_trend_mse_um2'])} at its training mean; against σ² = {fmt_nm2(noise**2)})"
     )
+
+
+def p_words(p: float, segments: int, at: str = "") -> str:
+    """A held-out test's p in words: over how many segments, or that there were too few to test on
+    ("p = 1 over 0 held-out segments" read as a test that found nothing)."""
+    if segments == 0:
+        return "no held-out segments to test on (none held out, or none changed beyond a tie): not tested"
+    if segments == 1:
+        return "one held-out segment: too few to test (a signed-rank test needs two), not tested"
+    return f"p = {p:.2g}{at} over {segments} held-out segments"
 
 
 def score_words(gain_um2: float, excess_um2: float, reference: tuple = (), anchor: str = "last_cycle") -> str:
