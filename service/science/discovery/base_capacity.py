@@ -13,7 +13,7 @@ candidates are judged again on it at the next step.
 
 from __future__ import annotations
 
-from service.science.discovery.diagnosis import SEPARATED_EXCESS_RATIO, remaining_excess
+from service.science.discovery.ambiguity import SEPARATED_EXCESS_RATIO, remaining_excess
 
 
 def capacity_before_physics(d: dict) -> dict | None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.data.units import fmt_nm, fmt_nm2
+from service.science.discovery.ambiguity import ambiguity, separating
 from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.column_memo import shared_effect_columns
@@ -42,11 +43,17 @@ from service.science.discovery.ranking import rank_key, size_claims
 from service.science.discovery.remainder import describe_remainder, remainder_words
 from service.science.discovery.rests import disturbance, without_lines
 from service.science.discovery.symmetry import asymmetry_test
+from service.science.discovery.verdict import (
+    CLEAR_DROP_NOISE,
+    helpful_capacity,
+    residual_words,
+    score_words,
+    test_words,
+    verdict_text,
+    worst_repeatable_to_noise,
+)
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
-
-#: with the flexible base, a held-out drop smaller than this many noise floors is "at the noise floor"
-CLEAR_DROP_NOISE = 2.0
 
 
 def flexible_base() -> tuple[str, ...]:
@@ -147,7 +154,7 @@ def _candidate(
     against = "the model" if not reference else "the model + " + " + ".join(reference)
     how = (
         f"against {against} (held-out RMS {fmt_nm(v_ref)}), adding {name} gives {fmt_nm(v_trial)} "
-        f"{_test_words(test, noise)}"
+        f"{test_words(test, noise)}"
     )
     is_claimed = claimed(test, noise, alpha)
     unseen = _unseen_rates(name, fits, records, reference) if is_claimed and eff.unseen_rate_test else None
@@ -222,50 +229,6 @@ def _seen_at_rest(name, fits: _Fits, rests: dict, noise, v0, k0, sig, floor, alp
         f"{rests['threshold_z']:.3g}, Bonferroni over {len(rests['tried'])} frequencies)"
     )
     return _entry(name, fits, noise, v0, k0, sig, floor, p < alpha, p, gain, (), v0, how)
-
-
-def _test_words(test: dict, noise: float) -> str:
-    """A held-out test's figures in words (both anchorings of the blocks' levels; the p is of the larger)."""
-    at = " at the training mean" if test.get("p_anchor") == "training_mean" else ""
-    return (
-        f"({p_words(test['p'], test['segments'], at)}; {fmt_nm2(test['gain_mse_um2'])} "
-        f"of mean square with each block's level anchored at its last training cycle, "
-        f"{fmt_nm2(test['gain_trend_mse_um2'])} at its training mean; against σ² = {fmt_nm2(noise**2)})"
-    )
-
-
-def p_words(p: float, segments: int, at: str = "") -> str:
-    """A held-out test's p in words: over how many segments, or that there were too few to test on
-    ("p = 1 over 0 held-out segments" read as a test that found nothing)."""
-    if segments == 0:
-        return "no held-out segments to test on (none held out, or none changed beyond a tie): not tested"
-    if segments == 1:
-        return "one held-out segment: too few to test (a signed-rank test needs two), not tested"
-    return f"p = {p:.2g}{at} over {segments} held-out segments"
-
-
-def score_words(gain_um2: float, excess_um2: float, reference: tuple = (), anchor: str = "last_cycle") -> str:
-    """What a candidate's score is of (one denominator for every row): its test's held-out mean-square
-    drop (µm²: against its ``reference``, the mean over held-out stretches, every block alike, levels
-    anchored at the last training cycle) over this model's held-out mean square above the noise floor
-    (µm²: its held-out RMS² − σ², levels not anchored). Not the ratio of the RMS figures printed beside
-    it. The two come from different fits and anchorings: where the drop is the larger, the words say
-    so and that the score is capped at 1, never a part over a smaller whole. ``anchor``
-    "training_mean": a claim that rests on the levels anchored at the block's training mean."""
-    against = "the model" + "".join(f" + {name}" for name in reference)
-    level = (
-        "at its training mean, the anchoring its claim rests on"
-        if anchor == "training_mean"
-        else "at its last training cycle"
-    )
-    gain = (
-        f"{fmt_nm2(gain_um2)} of held-out mean square removed by its test (against {against}, mean over held-out "
-        f"stretches, each block's level anchored {level})"
-    )
-    whole = f"{fmt_nm2(excess_um2)} of this model's held-out mean square above the noise floor (its held-out RMS² − σ², levels not anchored)"
-    if fmt_nm2(gain_um2) != fmt_nm2(excess_um2) and gain_um2 > excess_um2:
-        return f"{gain}; more than {whole}, a whole of another fit and anchoring: the score is capped at 1"
-    return f"{gain} / {whole}"
 
 
 def _entry(
@@ -541,7 +504,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
         "at_noise_floor": bool(at_floor),
         "verdict": "missing_effect" if missing else "complete",
         "verdict_text": (f"{disturbed['text']}. " if disturbed else "")
-        + _verdict_text(missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio)
+        + verdict_text(missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio)
         + remainder_words(remainder),
         "disturbance": disturbed,
         "remainder": remainder,
@@ -565,158 +528,3 @@ def _leading(pair_ambiguity: dict | None, physical: list[dict]) -> dict | None:
     if pair_ambiguity is None or not physical or physical[0]["effect"] != pair_ambiguity["effects"][0]:
         return None
     return pair_ambiguity
-
-
-def residual_words(records) -> str:
-    """What ``residual_rms_um`` is: the mean of per-block held-out RMS over every block of the records
-    (the blocks that leave the axis undriven too), of the diagnosis's fit; the stored model's own
-    figure (``metrics.validation_rms_um``) is over the blocks that drive its axis."""
-    n_all = sum(len(r.splits) for r in records)
-    n_own = sum(len(r.splits_of(own_axis_only=True)) for r in records)
-    undriven = f" ({n_own} that drive the axis, {n_all - n_own} that leave it undriven)" if n_all != n_own else ""
-    return f"the mean of per-block held-out RMS over {n_all} blocks{undriven}, of the diagnosis's fit"
-
-
-def worst_repeatable_to_noise(per_block: list[dict]) -> float | None:
-    """The largest ratio over blocks of the repeatable part to that block's own noise: "at the noise
-    floor" must hold at every frequency, not only on average."""
-    ratios = [
-        b["repeatable_um"] / b["noise_um"]
-        for b in per_block
-        if b.get("repeatable_um") is not None and b.get("noise_um") and np.isfinite(b["noise_um"])
-    ]
-    return max(ratios) if ratios else None
-
-
-def helpful_capacity(candidates, residual_rms_um: float | None = None) -> list[dict]:
-    """Capacity candidates that lower the held-out RMS: those the claim rule passes, and (given the
-    model's ``residual_rms_um``) any whose held-out RMS is lower — capacity is validated, not claimed."""
-    return [
-        c
-        for c in candidates
-        if c["kind"] == "capacity"
-        and (c.get("claimed") or (residual_rms_um is not None and c["expected_rms_um"] < residual_rms_um))
-    ]
-
-
-#: a claimed effect that removes less than this share of this model's excess on its own is said to
-#: need the flexible base beside it (its claim was against that base)
-ALONE_GAIN_SHARE = 0.1
-
-
-def _repeated_words(floor: dict, noise: float) -> str:
-    """The repeated cycles' figures as a part of their own whole (the residual's RMS over the same
-    cycles, training ones included), never of the held-out figure beside it: "12 nm of their 13 nm
-    repeats cycle to cycle, against 3 nm of noise"."""
-    rep, whole = floor.get("repeatable_rms_um"), floor.get("repeated_cycles_rms_um")
-    if rep is None or whole is None:
-        return f"no cycle repeats, so no repeatable part is measured ({fmt_nm(noise)} of noise)"
-    return (
-        f"in the repeated cycles (training and held-out), {fmt_nm(rep)} of their {fmt_nm(whole)} RMS repeats "
-        f"cycle to cycle, against {fmt_nm(noise)} of noise"
-    )
-
-
-def _verdict_text(
-    missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio=None, held_out_ratio=None
-) -> str:
-    """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
-    whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
-    if missing:
-        top = physical[0]
-        tested = ""
-        if top.get("tested_rms_um") is not None and top["reference"]:
-            tested = (
-                f"the model + {' + '.join(top['reference'])} {fmt_nm(top['reference_rms_um'])} → "
-                f"{fmt_nm(top['tested_rms_um'])} with it; "
-            )
-        alone = ""
-        if top["expected_rms_um"] >= v0 - (v0 - noise) * ALONE_GAIN_SHARE:  # its own gain hides in loop shape
-            alone = (
-                f" (alone it gains little here: the rest is a loop shape this model cannot draw; add "
-                f"{' and '.join(top['reference'])} as well)"
-                if top["reference"]
-                else ""
-            )
-        return (
-            f"missing effect: {top['effect']} (p = {top['p_value']:.2g}; {tested}this model's held-out "
-            f"{fmt_nm(v0)} → {fmt_nm(top['expected_rms_um'])} with it added{alone}); "
-            f"held-out RMS {fmt_nm(v0)} against a noise floor of {fmt_nm(noise)}"
-        )
-    if at_floor:
-        text = (
-            f"complete: the held-out residual {fmt_nm(v0)} is at the noise floor in every block ("
-            f"{_repeated_words(floor, noise)}; at most {ratio:.1f}× a block's own noise)"
-        )
-    elif ratio is not None and ratio <= CLEAR_DROP_NOISE:
-        where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
-        text = (
-            f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual "
-            f"{fmt_nm(v0)} is {held_out_ratio:.1f}× the {fmt_nm(noise)} of noise, although the repeated "
-            f"cycles are within {ratio:.1f}× their own noise — the error is where the drive does not "
-            f"repeat (amplitude changes, holds). No physical effect in the library removes it{where}"
-        )
-    else:
-        where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""
-        per_block = (
-            f"up to {ratio:.1f}× a block's own noise"
-            if ratio is not None
-            else "no block's own noise could be measured: none repeats a cycle, or none shows any noise"
-        )
-        text = (
-            f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual is "
-            f"{fmt_nm(v0)}; {_repeated_words(floor, noise)} ({per_block}). No physical "
-            f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
-            f"outside the library{where}"
-        )
-    cap = helpful_capacity(candidates)
-    if cap:
-        text += (
-            f"; more hysteresis capacity ({cap[0]['effect']}) would remove {100 * cap[0]['excess_removed']:.0f} % "
-            f"of the excess (held-out {fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics"
-        )
-    return text
-
-
-def separating() -> dict[frozenset, tuple[str, dict]]:
-    """Pairs of effects that look alike on a sine sweep -> (how to tell them apart in words, the
-    /api/sweeps body that does), from every registered effect's ``separated_from``."""
-    return {
-        frozenset((name, other)): told for name, eff in EFFECTS.items() for other, told in eff.separated_from.items()
-    }
-
-
-#: two leading candidates are told apart when the runner-up leaves at least this many times the
-#: unexplained excess (held-out RMS² above the noise floor²) of the leader
-SEPARATED_EXCESS_RATIO = 2.0
-
-
-def remaining_excess(candidate: dict, noise: float) -> float:
-    """What a candidate leaves unexplained above the noise floor (µm²), never below (σ/10)²."""
-    return max(candidate["expected_rms_um"] ** 2 - noise**2, (0.1 * noise) ** 2)
-
-
-def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
-    """Two leading claimed candidates that are look-alikes (a pair of ``separating()``: their residual
-    signatures coincide on the data at hand) and explain the residual about equally well (the
-    runner-up leaving less than twice the leader's unexplained excess), with the experiment that
-    separates them. Two claimed effects that do not look alike are both present, not alternatives:
-    the loop adds the larger and the next diagnosis tests the other."""
-    if len(physical) < 2 or not (physical[0]["claimed"] and physical[1]["claimed"]):
-        return None
-    a, b = physical[0], physical[1]
-    pair = frozenset((a["effect"], b["effect"]))
-    ratio = remaining_excess(b, noise) / remaining_excess(a, noise)
-    pairs = separating()
-    if pair not in pairs or ratio >= SEPARATED_EXCESS_RATIO:
-        return None
-    why, body = pairs[pair]
-    axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return {
-        "effects": [a["effect"], b["effect"]],
-        "excess_ratio": ratio,
-        "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-        f"(held-out {fmt_nm(a['expected_rms_um'])} and "
-        f"{fmt_nm(b['expected_rms_um'])}); {why}",
-        "experiment": experiment_body(records, axes, **body),
-    }

@@ -18,8 +18,9 @@ from service.science.data.units import fmt_nm
 from service.science.discovery.base_capacity import capacity_before_physics
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel, fit_composite
-from service.science.discovery.diagnosis import diagnose, helpful_capacity
+from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.rests import without_lines
+from service.science.discovery.verdict import helpful_capacity
 from service.science.fitting.validation import evaluate_records
 
 MAX_STEPS = 8

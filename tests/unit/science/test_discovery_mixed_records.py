@@ -8,7 +8,8 @@ import warnings
 
 import pytest
 
-from service.science.discovery.diagnosis import diagnose, separating
+from service.science.discovery.ambiguity import separating
+from service.science.discovery.diagnosis import diagnose
 
 STEP_HOLD = {"axes": ["y"], **separating()[frozenset(("creep", "drift"))][1]}
 

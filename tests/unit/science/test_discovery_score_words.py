@@ -5,7 +5,7 @@ each is labelled, and where the drop is the larger the words say the score is ca
 
 from __future__ import annotations
 
-from service.science.discovery.diagnosis import score_words
+from service.science.discovery.verdict import score_words
 from tests.support.text_scan import part_whole_problems
 
 

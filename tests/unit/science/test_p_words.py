@@ -5,7 +5,7 @@ list and on its page."""
 from __future__ import annotations
 
 from service.http.datasets import dataset_view
-from service.science.discovery.diagnosis import p_words
+from service.science.discovery.verdict import p_words
 
 
 def test_no_segments_is_not_printed_as_a_p_value():
