@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.science.data.plans import PlanBase
 from service.science.effects import EFFECTS
 from service.science.effects.rules import (  # noqa: F401  (re-exported: the rules' figures and helpers)
     INDEPENDENT_SHARE,
@@ -23,15 +24,23 @@ from service.science.effects.rules import (  # noqa: F401  (re-exported: the rul
 
 
 def experiment_body(records, axes: list[str], **body) -> dict:
-    """A ready-to-POST /api/sweeps body on ``axes``; a sine sweep spans the data's own drive range
-    (``v_min``/``v_max``, V, rounded out to 0.1 V), so that an experiment asked for data of another
-    stage or range is that range — and a bench that cannot drive it refuses it, naming the field."""
+    """A ready-to-POST /api/sweeps body on ``axes``; a sine or step sweep spans the data's own drive
+    range (``v_min``/``v_max``, V, rounded out to 0.1 V; a step's ``levels_v``, given on a default plan's
+    0–120 V, moved onto it in proportion), so that an experiment asked for data of another stage or
+    range is that range — and a bench that cannot drive it refuses it, naming the field."""
     out = {"axes": axes, **body}
     drives = [np.asarray(r.u_v, dtype=float) for r in records if getattr(r, "u_v", None) is not None and r.u_v.size]
-    if body.get("waveform") == "sine" and drives:
-        lo, hi = min(float(u.min()) for u in drives), max(float(u.max()) for u in drives)
-        if hi > lo:
-            out.update(v_min=float(np.floor(lo * 10.0) / 10.0), v_max=float(np.ceil(hi * 10.0) / 10.0))
+    if body.get("waveform") not in ("sine", "step") or not drives:
+        return out
+    lo, hi = min(float(u.min()) for u in drives), max(float(u.max()) for u in drives)
+    if hi <= lo:
+        return out
+    v_min, v_max = float(np.floor(lo * 10.0) / 10.0), float(np.ceil(hi * 10.0) / 10.0)
+    out.update(v_min=v_min, v_max=v_max)
+    if body.get("levels_v"):  # an effect's step levels are on a default plan's range: moved onto the data's
+        nominal = PlanBase()
+        share = (np.asarray(body["levels_v"], dtype=float) - nominal.v_min) / (nominal.v_max - nominal.v_min)
+        out["levels_v"] = [float(np.clip(round(v_min + x * (v_max - v_min), 1), v_min, v_max)) for x in share]
     return out
 
 
