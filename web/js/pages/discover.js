@@ -194,13 +194,14 @@ async function showFigures(box, modelId, state, signal) {
   status.textContent = `drawing the figures of ${modelId} (it runs a diagnosis)…`;
   try {
     const f = await api(`/models/${encodeURIComponent(modelId)}/report/figures`, { signal });
-    if (!box.isConnected) return;  // the user left the page while the figures were drawn
+    const [of, history, blocks] = ['#figures-of', '#figures-history', '#figures-blocks'].map((q) => box.querySelector(q));
+    // the user left the page, or the panel was drawn again (a restored run), while the figures were drawn
+    if (!box.isConnected || !of || !history || !blocks) return;
     state.figures = f;
-    box.querySelector('#figures-of').textContent = `of ${modelId} · noise floor ${fmtErrorNm(f.noise_floor_um)} · verdict ${f.verdict}`;
-    const history = box.querySelector('#figures-history');
+    of.textContent = `of ${modelId} · noise floor ${fmtErrorNm(f.noise_floor_um)} · verdict ${f.verdict}`;
     history.replaceChildren(safeSvg(f.history_svg));
     history.dataset.modelId = modelId;
-    box.querySelector('#figures-blocks').replaceChildren(...f.blocks.map((b) => {
+    blocks.replaceChildren(...f.blocks.map((b) => {
       const cell = h(`<div class="block-figure${b.worst ? ' worst' : ''}" data-dataset-id="${esc(b.dataset_id)}" data-block-index="${b.block_index ?? ''}"
         data-rms="${b.held_out_rms_um ?? ''}"><h3>${b.worst ? '<span class="bad">▲ worst block (largest held-out RMS)</span> · ' : ''}${esc(b.title)}
         <span class="muted">· held-out RMS ${fmtErrorNm(b.held_out_rms_um)} · ${esc(b.dataset_id)}</span></h3></div>`);
