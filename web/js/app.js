@@ -66,6 +66,7 @@ async function emergencyStop() {
  *  event 'evc:engine'. */
 async function refreshEngineState() {
   const strip = document.getElementById('engine-state');
+  if (!strip) return;   // the document is no longer the dashboard (replaced while a refresh was due)
   let health = null;
   try {
     const response = await fetch('/api/health');
@@ -91,6 +92,7 @@ async function refreshEngineState() {
 async function refreshPill() {
   refreshEngineState();
   const pill = document.getElementById('bench-pill');
+  if (!pill) return;
   try {
     const bench = await api('/bench');
     stopPort = (bench.engine && bench.engine.stop_port) || null;
