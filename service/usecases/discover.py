@@ -7,6 +7,7 @@ from service.science.data.holdout import BlockSplit, other_axes
 from service.science.discovery.composite import as_composite, fit_composite
 from service.science.discovery.diagnosis import diagnose
 from service.science.discovery.like_for_like import effects_key, like_for_like
+from service.science.discovery.rests import LineFree
 from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
 from service.store import Store
@@ -191,7 +192,7 @@ def like_for_like_history(store: Store, chain: list[dict], steps: list[dict]) ->
     }
     n_first = len([d for d in first if d in final]) if set(first) <= set(final) else 0
     figures = like_for_like(
-        records,
+        LineFree.of(records),
         n_first,
         [(m.effects, m.theta) for m in models],
         int(chain[-1]["options"].get("n_operators", 10)),

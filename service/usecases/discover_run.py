@@ -25,9 +25,11 @@ from dataclasses import replace
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
+from service.science.discovery.diagnosis import fitted_without_lines
 from service.science.discovery.like_for_like import effects_key, like_for_like
 from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, try_step
 from service.science.discovery.parameters import physical_parameters
+from service.science.discovery.rests import LineFree
 from service.science.effects import EFFECTS, ordered
 from service.store import Store
 from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy
@@ -99,7 +101,11 @@ class _Loop:
         self.n_original = len(records)
         start = as_composite(load_model(row))
         self.effects, self.theta = list(start.effects), dict(start.theta)
-        self.model = start if start.is_fitted else None  # a paper's PI stands for the unfitted composite
+        #: the records as every step fits and judges them (without the rests' lines), made again when they grow
+        self.line_free = LineFree.of(records)
+        # the start model, fitted on the records as recorded, as fitted without their lines; a paper's
+        # PI stands for the unfitted composite
+        self.model = fitted_without_lines(self.line_free, start) if start.is_fitted else None
         #: step 0's figure is the stand-in composite's, not the stored model's own: both are labelled
         self.stands_in = (
             None
@@ -148,7 +154,7 @@ class _Loop:
         self.model_steps += 0 if self.joined else 1
         what = "refitting with the experiment's data" if self.joined else "fitting and diagnosing"
         self._progress(ctx, max_steps, f"step {index}: {what} hysteresis + {' + '.join(self.effects) or 'nothing'}")
-        self.model, step = discovery_step(self.records, self.effects, self.n_operators, self.theta, model=self.model)
+        self.model, step = discovery_step(self.line_free, self.effects, self.n_operators, self.theta, model=self.model)
         return self._keep(ctx, store, step, max_steps)
 
     def try_add(self, ctx: JobContext, store: Store, effect: str, d: dict, max_steps: int) -> dict | None:
@@ -161,7 +167,7 @@ class _Loop:
         self._progress(ctx, max_steps, f"step {index}: fitting hysteresis + {' + '.join(self.effects + [effect])}")
         effects = self.effects + [effect]
         model, step, rejected = try_step(
-            self.records, effects, effect, self.n_operators, self.theta, d["residual_rms_um"]
+            self.line_free, effects, effect, self.n_operators, self.theta, d["residual_rms_um"]
         )
         if rejected is not None:
             model_id = self._store(store, ctx, model, effects)
@@ -199,7 +205,7 @@ class _Loop:
         """Each step's held-out RMS on the records as they are now and on the original ones."""
         todo = [(e, t) for e, t in self.history if effects_key(e) not in self.scores]
         for (effects, _), figures in zip(
-            todo, like_for_like(self.records, self.n_original, todo, self.n_operators, self.fitted)
+            todo, like_for_like(self.line_free, self.n_original, todo, self.n_operators, self.fitted)
         ):
             self.scores[effects_key(effects)] = figures
         for summary, (effects, _) in zip(self.run["steps"], self.history):
@@ -226,6 +232,7 @@ class _Loop:
         self.joined = dataset_id
         self.datasets.append(dataset_id)
         self.records.append(load_record(store, dataset_id, self.axis))
+        self.line_free = LineFree.of(self.records)
         self.model = None
 
     def not_kept_words(self) -> str:

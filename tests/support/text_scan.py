@@ -37,7 +37,7 @@ PART_OF = re.compile(
 #: "A nm² (of held-out mean square) removed by its test (…) / B nm² (…) above the noise floor": a score's
 #: numerator over its denominator, a part of its whole
 REMOVED_OVER = re.compile(
-    rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) (?:of held-out mean square )?removed by its test[^/;]*? / "
+    rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) (?:of held-out mean square )?removed by (?:its test|adding it)[^/;]*? / "
     rf"(?P<whole>{NUMBER}) (?P<u2>nm²|nm)"
 )
 #: "N % of …": a share

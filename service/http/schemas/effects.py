@@ -17,7 +17,10 @@ class EffectEntry(BaseModel):
     stage: str = Field(description="drive | additive | transform | output | capacity")
     signature: str = Field(description="what the residual shows, in words")
     rule: str = Field(description="what the data must contain to test it, in words")
-    sweep: dict = Field(description="the /api/sweeps body (without axes) whose data tests it")
+    sweep: dict = Field(
+        description="the /api/sweeps body (without axes) whose data tests it; a step sweep's levels as level_shares "
+        "(0…1 of the drive range: a diagnosis places them on its data's range as levels_v)"
+    )
     parameters: list[EffectParameter]
     inverse: str = Field(description="iterate | response | invert | none: how a feedforward undoes it")
     no_inverse: str | None = Field(default=None, description="why there is no inverse")

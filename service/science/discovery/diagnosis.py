@@ -39,9 +39,9 @@ from service.science.discovery.decision import (
 )
 from service.science.discovery.identifiability import experiment_body, not_testable
 from service.science.discovery.noise import noise_floor
-from service.science.discovery.ranking import rank_key, size_claims
+from service.science.discovery.ranking import claim_size, rank_key, size_claims
 from service.science.discovery.remainder import describe_remainder, remainder_words
-from service.science.discovery.rests import disturbance, without_lines
+from service.science.discovery.rests import LineFree, disturbance
 from service.science.discovery.symmetry import asymmetry_test
 from service.science.discovery.verdict import (
     CLEAR_DROP_NOISE,
@@ -144,10 +144,11 @@ def _candidate(
     the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
     eff = EFFECTS[name]
     reference = _reference_for(name)
-    _, res_ref, v_ref = fits.get(reference)
+    _, raw_ref, v_ref = fits.get(reference)
     # a transform's (or a drive stage's) parameters are searched once, on the model with it alone, then kept
     theta = fits.get((name,))[0].theta if eff.stage in ("transform", "drive") else None
-    _, res_trial, v_trial = fits.get(reference + (name,), theta)
+    _, raw_trial, v_trial = fits.get(reference + (name,), theta)
+    res_ref, res_trial = raw_ref, raw_trial
     if eff.gain_change_test:
         res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
     test = held_out_improvement(records, res_ref, res_trial)
@@ -187,7 +188,10 @@ def _candidate(
                 "fits over the flexible base is loop shape that base leaves, not this effect: not claimed"
             )
             is_claimed = False
-    gain, anchor = _claimed_size(test, is_claimed)
+    if is_claimed and eff.kind == "physical":  # one figure for the claim: its size, the rank's (ranking.py)
+        gain, anchor = claim_size(records, raw_ref, raw_trial), "training_mean"
+    else:
+        gain, anchor = _claimed_size(test, is_claimed)
     return _entry(
         name,
         fits,
@@ -399,10 +403,11 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor, alpha) -> 
             floor,
             name == winner,
             test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
-            even2 if name == winner else 0.0,
+            claim_size(records, fits.get(())[1], res_a if name == "asymmetry" else res_s) if name == winner else 0.0,
             (),
             v0,
             f"{shape}; {h2h}",
+            anchor="training_mean" if name == winner else "last_cycle",
         )
         for name in LOOP_SHAPE
     ]
@@ -422,14 +427,28 @@ def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor, alpha) -> 
     }
 
 
-@shared_effect_columns()  # its dozen fits share each effect's columns of the same records
+def fitted_without_lines(line_free: LineFree, model: CompositeModel) -> CompositeModel:
+    """``model`` (fitted on the records as recorded) as fitted on ``line_free``'s records: itself where
+    the rests showed no lines, else refitted there with its transform parameters kept."""
+    if not line_free.had_lines:
+        return model
+    return CompositeModel(model.effects, model.n_operators, fixed_theta=model.theta).fit(line_free.records)
+
+
 def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel | None = None) -> dict:
-    """The diagnosis of ``hysteresis + effects`` on ``records`` (fitted here unless ``model``)."""
-    records, rests = without_lines(records)
-    if rests and rests["lines"]:  # a disturbance, not the model: out of the record before the model is judged
-        if model is not None:
-            model = CompositeModel(model.effects, model.n_operators, fixed_theta=model.theta).fit(records)
-    model = model or CompositeModel(effects, n_operators).fit(records)
+    """The diagnosis of ``hysteresis + effects`` on ``records`` as recorded (fitted here unless
+    ``model``, fitted on them): a line the rests show is a disturbance, not the model, so it is taken
+    out of the records before the model is judged."""
+    line_free = LineFree.of(records)
+    if model is None:
+        model = CompositeModel(effects, n_operators).fit(line_free.records)
+    return diagnose_line_free(line_free, fitted_without_lines(line_free, model))
+
+
+@shared_effect_columns()  # its dozen fits share each effect's columns of the same records
+def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
+    """The diagnosis of ``model``, fitted on ``line_free.records`` (the records without the rests' lines)."""
+    records, rests = line_free.records, line_free.rests
     fits = _Fits(records, model)
     _, res, v0 = fits.get(())
     preds = [r.x_um - e for r, e in zip(records, res)]
@@ -474,7 +493,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor, alpha))
     at_rest = {n for n, e in EFFECTS.items() if e.seen_at_rest} if rests and rests["lines"] else set()
-    size_claims(candidates, records, fits, at_rest)  # one comparable size for every claim: ranking.py
+    size_claims(candidates, at_rest)  # one comparable size for every claim: ranking.py
     candidates.sort(key=rank_key)
     physical = [c for c in candidates if c["kind"] == "physical"]
     missing = bool(physical) and physical[0]["claimed"]

@@ -25,23 +25,36 @@ from service.science.effects.rules import (  # noqa: F401  (re-exported: the rul
 
 def experiment_body(records, axes: list[str], **body) -> dict:
     """A ready-to-POST /api/sweeps body on ``axes``; a sine or step sweep spans the data's own drive
-    range (``v_min``/``v_max``, V, rounded out to 0.1 V; a step's ``levels_v``, given on a default plan's
-    0–120 V, moved onto it in proportion), so that an experiment asked for data of another stage or
-    range is that range — and a bench that cannot drive it refuses it, naming the field."""
+    range (``v_min``/``v_max``, V, rounded out to 0.1 V), so that an experiment asked for data of
+    another stage or range is that range, and a bench that cannot drive it refuses it, naming the
+    field. A step's ``level_shares`` (0…1 of that range, the effects' contract) become its ``levels_v``
+    (V, rounded to 0.1 V; on a default plan's range where the records hold no drive); a sine's
+    ``rate_multiples`` (of the data's fastest drive rate) become its ``frequencies_hz``."""
     out = {"axes": axes, **body}
+    shares = out.pop("level_shares", None)
+    multiples = out.pop("rate_multiples", None)
+    if multiples is not None:  # rates above the data's: multiples of its fastest (a rate sweep's, 100 Hz, without one)
+        fastest = fastest_drive_hz(records) or max(RATE_SWEEP["frequencies_hz"])
+        out["frequencies_hz"] = [round(float(m) * fastest, 3) for m in multiples]
     drives = [np.asarray(r.u_v, dtype=float) for r in records if getattr(r, "u_v", None) is not None and r.u_v.size]
-    if body.get("waveform") not in ("sine", "step") or not drives:
-        return out
-    lo, hi = min(float(u.min()) for u in drives), max(float(u.max()) for u in drives)
-    if hi <= lo:
-        return out
-    v_min, v_max = float(np.floor(lo * 10.0) / 10.0), float(np.ceil(hi * 10.0) / 10.0)
-    out.update(v_min=v_min, v_max=v_max)
-    if body.get("levels_v"):  # an effect's step levels are on a default plan's range: moved onto the data's
+    lo = min((float(u.min()) for u in drives), default=0.0)
+    hi = max((float(u.max()) for u in drives), default=0.0)
+    spans_data = body.get("waveform") in ("sine", "step") and hi > lo
+    if spans_data:
+        out.update(v_min=float(np.floor(lo * 10.0) / 10.0), v_max=float(np.ceil(hi * 10.0) / 10.0))
+    if shares is not None:
         nominal = PlanBase()
-        share = (np.asarray(body["levels_v"], dtype=float) - nominal.v_min) / (nominal.v_max - nominal.v_min)
-        out["levels_v"] = [float(np.clip(round(v_min + x * (v_max - v_min), 1), v_min, v_max)) for x in share]
+        v_min, v_max = (out["v_min"], out["v_max"]) if spans_data else (nominal.v_min, nominal.v_max)
+        out["levels_v"] = [float(np.clip(round(v_min + x * (v_max - v_min), 1), v_min, v_max)) for x in shares]
     return out
+
+
+def fastest_drive_hz(records) -> float | None:
+    """The fastest rate (Hz) at which ``records`` drive their own axis, None where no block has one."""
+    rates = [
+        s.block["frequency_hz"] for r in records for s in r.splits_of(own_axis_only=True) if s.block.get("frequency_hz")
+    ]
+    return max(rates, default=None)
 
 
 def _axes(records) -> list[str]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.rests import without_lines
+from service.science.discovery.rests import LineFree
 from service.science.fitting.validation import evaluate_records
 
 
@@ -24,17 +24,21 @@ def effects_key(effects) -> tuple[str, ...]:
 
 @shared_effect_columns()  # the steps' refits share each effect's columns of the same records
 def like_for_like(
-    records, n_original: int, steps: list[tuple[list[str], dict]], n_operators: int = 10, fitted: dict | None = None
+    line_free: LineFree,
+    n_original: int,
+    steps: list[tuple[list[str], dict]],
+    n_operators: int = 10,
+    fitted: dict | None = None,
 ) -> list[dict]:
     """Per step ``(effects, theta)`` (its effects beyond hysteresis, its transform parameters):
     ``{"like_for_like_rms_um", "original_data_rms_um"}``, the held-out RMS (µm, mean over blocks) of
-    those effects fitted on ``records`` with the transforms kept, over every record and over the first
+    those effects fitted on ``line_free``'s records (judged as the steps' diagnoses judged them) with the transforms kept, over every record and over the first
     ``n_original`` (the data the run started from). ``fitted``: models already fitted on these
     records, by ``effects_key`` (the steps since the data last grew), scored as they are. A step whose
     effect set another shares gets the same figures."""
     done = {}
     fitted = fitted or {}
-    records = without_lines(records)[0]  # judged as the steps' diagnoses judged them: a line at rest is not the model's
+    records = line_free.records
     for effects, theta in steps:
         key = effects_key(effects)
         if key in done:

@@ -18,8 +18,9 @@ from service.science.data.units import fmt_nm
 from service.science.discovery.base_capacity import capacity_before_physics
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel, fit_composite
-from service.science.discovery.diagnosis import diagnose
-from service.science.discovery.rests import without_lines
+from service.science.discovery.diagnosis import diagnose_line_free
+from service.science.discovery.identifiability import fastest_drive_hz
+from service.science.discovery.rests import LineFree
 from service.science.discovery.verdict import helpful_capacity
 from service.science.fitting.validation import evaluate_records
 
@@ -28,13 +29,17 @@ MAX_STEPS = 8
 
 @shared_effect_columns()  # the step's fit and its diagnosis share each effect's columns
 def discovery_step(
-    records, effects, n_operators: int = 10, theta: dict | None = None, model: CompositeModel | None = None
+    line_free: LineFree,
+    effects,
+    n_operators: int = 10,
+    theta: dict | None = None,
+    model: CompositeModel | None = None,
 ) -> tuple[CompositeModel, dict]:
-    """Fit ``hysteresis + effects`` (warm at ``theta``; or take the fitted ``model`` as it is) and
-    diagnose it: ``(model, {"effects", "diagnosis", "per_block"})``, per-block validation RMS and
-    noise floor in µm."""
-    model = model if model is not None else fit_composite(without_lines(records)[0], effects, n_operators, theta)
-    d = diagnose(records, model=model)
+    """Fit ``hysteresis + effects`` on ``line_free``'s records (warm at ``theta``; or take ``model``,
+    fitted on them, as it is) and diagnose it: ``(model, {"effects", "diagnosis", "per_block"})``,
+    per-block validation RMS and noise floor in µm."""
+    model = model if model is not None else fit_composite(line_free.records, effects, n_operators, theta)
+    d = diagnose_line_free(line_free, model)
     per_block = [
         {
             "dataset_id": ds["dataset_id"],
@@ -71,19 +76,18 @@ def not_kept(effect: str, before_um: float, after_um: float) -> dict | None:
 
 @shared_effect_columns()
 def try_step(
-    records, effects, added: str, n_operators: int, theta: dict, before_um: float
+    line_free: LineFree, effects, added: str, n_operators: int, theta: dict, before_um: float
 ) -> tuple[CompositeModel, dict | None, dict | None]:
     """Fit ``hysteresis + effects`` (``added`` the effect new in them, warm at ``theta``) on the
-    records the step before was diagnosed on (held-out RMS ``before_um``): ``(model, step, None)``
-    with the step diagnosed as ``discovery_step`` does, or ``(model, None, not_kept(...))`` when
-    the added effect raised the held-out RMS — then nothing is diagnosed and the loop goes back to
-    the step before."""
-    line_free = without_lines(records)[0]  # the records its diagnosis judged ``before_um`` on
-    model = fit_composite(line_free, effects, n_operators, theta)
-    rejected = not_kept(added, before_um, held_out_rms_um(line_free, model))
+    line-free records the step before was diagnosed on (held-out RMS ``before_um``): ``(model, step,
+    None)`` with the step diagnosed as ``discovery_step`` does, or ``(model, None, not_kept(...))``
+    when the added effect raised the held-out RMS — then nothing is diagnosed and the loop goes back
+    to the step before."""
+    model = fit_composite(line_free.records, effects, n_operators, theta)
+    rejected = not_kept(added, before_um, held_out_rms_um(line_free.records, model))
     if rejected is not None:
         return model, None, rejected
-    model, step = discovery_step(records, effects, n_operators, model=model)
+    model, step = discovery_step(line_free, effects, n_operators, model=model)
     return model, step, None
 
 
@@ -152,15 +156,7 @@ def still_separates(asked: dict, runnable: dict, records) -> str | None:
     if asked.get("waveform") == "step":
         levels = set(runnable.get("levels_v") or [])
         return None if len(levels) >= 2 else "cut to the bench's voltage range, its steps would not change the drive"
-    data_fastest = max(
-        (
-            s.block["frequency_hz"]
-            for r in records
-            for s in r.splits_of(own_axis_only=True)
-            if s.block.get("frequency_hz")
-        ),
-        default=0.0,
-    )
+    data_fastest = fastest_drive_hz(records) or 0.0
     asked_fastest = max(asked.get("frequencies_hz") or [0.0])
     kept_fastest = max(runnable.get("frequencies_hz") or [0.0])
     if asked_fastest > data_fastest and kept_fastest < SEPARATING_RATE_RATIO * data_fastest:
@@ -179,7 +175,8 @@ def discovery_run(
     the next candidate). At most ``max_steps`` fits, the ones not kept included. It stops at an
     ambiguity (the last step's diagnosis names the separating sweep) unless
     ``continue_past_ambiguity``, as the discover job does without experiments."""
-    model, step = discovery_step(records, [], n_operators, {})
+    line_free = LineFree.of(records)  # every step is fitted and judged without the rests' lines
+    model, step = discovery_step(line_free, [], n_operators, {})
     steps, theta, excluded = [{**step, "not_kept": []}], model.theta, []
     added = _next_or_stop(step["diagnosis"], excluded, continue_past_ambiguity)
     for _ in range(max_steps - 1):
@@ -187,7 +184,7 @@ def discovery_run(
             break
         effects = steps[-1]["effects"][1:] + [added]
         before = steps[-1]["diagnosis"]["residual_rms_um"]
-        model, step, rejected = try_step(records, effects, added, n_operators, theta, before)
+        model, step, rejected = try_step(line_free, effects, added, n_operators, theta, before)
         if rejected is not None:
             steps[-1]["not_kept"].append(rejected)
             excluded.append(added)

@@ -26,12 +26,12 @@ from service.science.data.units import fmt_nm2
 from service.science.discovery.decision import held_out_improvement
 
 
-def claim_size(records, fits, name: str, reference: tuple) -> float:
-    """The held-out mean square (µm²) that ``name`` removes over ``reference`` (both fitted by
-    ``fits``, a diagnosis's cached composite fits), each block's level anchored at its training mean."""
-    _, res_ref, _ = fits.get(tuple(reference))
-    _, res_with, _ = fits.get(tuple(reference) + (name,))
-    return float(held_out_improvement(records, res_ref, res_with)["gain_trend_mse_um2"])
+def claim_size(records, res_reference, res_with) -> float:
+    """A claim's size (µm²): the held-out mean square removed from the residuals of its reference
+    (``res_reference``) by those of the reference with it (``res_with``), the claim's own fits, each
+    block's level anchored at its training mean. The claimed row's score is of this figure, so the
+    rank and the row say one number."""
+    return float(held_out_improvement(records, res_reference, res_with)["gain_trend_mse_um2"])
 
 
 def size_words(size_um2: float, reference: tuple) -> str:
@@ -52,20 +52,18 @@ def rank_key(c: dict) -> tuple:
     return (c["kind"] == "capacity", not c["claimed"], first, -c["score"], -c["gain_mse_um2"])
 
 
-def size_claims(candidates: list[dict], records, fits, at_rest=frozenset()) -> None:
-    """Give every claimed physical row its ``claim_size_um2`` (µm²) and say it in its evidence; the
-    effects in ``at_rest`` (a disturbance the rests showed, already out of the record) are sized by
-    their test's figure, the lines' mean square."""
+def size_claims(candidates: list[dict], at_rest=frozenset()) -> None:
+    """Give every claimed physical row its ``claim_size_um2`` (µm²), the figure its score is of
+    (``gain_mse_um2``: ``claim_size`` on its test's fits, or for the effects in ``at_rest``, a disturbance
+    the rests showed and already out of the record, the lines' mean square), and say it in its evidence."""
     for c in candidates:
         if not c["claimed"] or c["kind"] == "capacity":
             continue
         reference = tuple(c["reference"])
-        at_rest_row = c["effect"] in at_rest
-        size = c["gain_mse_um2"] if at_rest_row else claim_size(records, fits, c["effect"], reference)
-        c["claim_size_um2"] = size
+        size = c["claim_size_um2"] = c["gain_mse_um2"]
         words = (
             f"its size, the rank's figure: {fmt_nm2(size)} of mean square in the lines seen at rest"
-            if at_rest_row
+            if c["effect"] in at_rest
             else size_words(size, reference)
         )
         c["evidence"] = c["evidence"].rstrip(".") + f"; {words}."

@@ -20,7 +20,7 @@ the model is judged. Units: µm in, nm in the texts, s, Hz. Pure numpy: no store
 
 from __future__ import annotations
 
-import threading
+from dataclasses import dataclass
 from statistics import NormalDist
 
 import numpy as np
@@ -236,28 +236,26 @@ def remove_lines(records, rests: dict | None) -> list:
     return out
 
 
-#: the lists of records whose lines were last taken out, kept for the fits and diagnoses that follow
-LINE_FREE_KEPT = 2
-_line_free: list[tuple[tuple, tuple, dict | None]] = []  # (records, without their lines, rests), newest last
-_line_free_lock = threading.Lock()
+@dataclass(frozen=True)
+class LineFree:
+    """Records with the rests' lines taken out (``records``) and what the rests showed (``rests``,
+    ``read_rests``'s answer): what every fit, held-out figure and diagnosis of them judges the model
+    on. Its owner (the discover loop, a diagnosis) makes it once per list of records, so that the
+    fits that follow get the same record objects and share their columns."""
 
+    records: list
+    rests: dict | None
 
-def without_lines(records) -> tuple[list, dict | None]:
-    """``(records with the rests' lines taken out, read_rests(records))``: what every fit, every
-    held-out figure and every diagnosis of these records judges the model on (a line seen at rest is
-    a disturbance, not model error). Read once per list of records: the loop's fits, its comparisons
-    and its diagnoses get the same line-free records (the same objects, so their columns are shared)."""
-    records = tuple(records)
-    with _line_free_lock:
-        for kept, line_free, rests in _line_free:
-            if len(kept) == len(records) and all(a is b for a, b in zip(kept, records)):
-                return list(line_free), rests
-    rests = read_rests(records)
-    line_free = tuple(remove_lines(records, rests))
-    with _line_free_lock:
-        _line_free.append((records, line_free, rests))
-        del _line_free[:-LINE_FREE_KEPT]
-    return list(line_free), rests
+    @classmethod
+    def of(cls, records) -> LineFree:
+        """``records`` read at rest, their lines taken out."""
+        rests = read_rests(records)
+        return cls(remove_lines(records, rests), rests)
+
+    @property
+    def had_lines(self) -> bool:
+        """Whether lines were taken out (else ``records`` are the records as recorded)."""
+        return bool(self.rests and self.rests["lines"])
 
 
 def _line_text(line: dict) -> str:

@@ -46,7 +46,7 @@ def score_words(gain_um2: float, excess_um2: float, reference: tuple = (), ancho
         else "at its last training cycle"
     )
     gain = (
-        f"{fmt_nm2(gain_um2)} of held-out mean square removed by its test (against {against}, mean over held-out "
+        f"{fmt_nm2(gain_um2)} of held-out mean square removed by {'adding it' if anchor == 'training_mean' else 'its test'} (against {against}, mean over held-out "
         f"stretches, each block's level anchored {level})"
     )
     whole = f"{fmt_nm2(excess_um2)} of this model's held-out mean square above the noise floor (its held-out RMS² − σ², levels not anchored)"

@@ -108,7 +108,11 @@ class Effect:
     units: ClassVar[dict[str, str]] = {}
     #: the identifiability rule in words: what the data must contain to test the effect
     rule: ClassVar[str] = "any record: every record can test it"
-    #: the /api/sweeps body (without ``axes``) whose data would test the effect
+    #: the /api/sweeps body (without ``axes``) whose data would test the effect. An effect does not
+    #: know the stage's range: a step body gives ``level_shares`` (0…1 of the drive range the data
+    #: span, 0 its low end), never volts; service.science.discovery.identifiability.experiment_body
+    #: places them on that range as ``levels_v`` (and a sine spans it); a sine above the data's rates
+    #: gives ``rate_multiples`` of the data's fastest drive rate instead of ``frequencies_hz``
     sweep: ClassVar[dict] = RATE_SWEEP
     #: the sweep drives both axes, one at a time (an effect of the other axis)
     sweep_both_axes: ClassVar[bool] = False
@@ -133,7 +137,8 @@ class Effect:
     #: a disturbance the record's rests show (a line at rest): the diagnosis takes it out of the record
     #: before the model is judged and names this effect for it, the rests' held-out test its evidence
     seen_at_rest: ClassVar[bool] = False
-    #: look-alikes: other effect -> (how to tell them apart in words, the /api/sweeps body that does)
+    #: look-alikes: other effect -> (how to tell them apart in words, the /api/sweeps body that does;
+    #: a step body's levels as ``level_shares``, as in ``sweep``)
     separated_from: ClassVar[dict[str, tuple[str, dict]]] = {}
 
     def setup(self, records) -> dict:

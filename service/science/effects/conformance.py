@@ -107,9 +107,28 @@ def _declaration(effect: Effect, builtin: bool) -> list[Failure]:
         out.append(Failure("inverse", "a transform's inverse is 'response' (with ``response``) or 'none'"))
     if not isinstance(effect.sweep, dict) or "waveform" not in effect.sweep:
         out.append(Failure("sweep", "``sweep`` must be an /api/sweeps body with a 'waveform'"))
+    for where, body in [("sweep", effect.sweep)] + [
+        (f"separated_from[{other!r}]", sep[1]) for other, sep in (effect.separated_from or {}).items()
+    ]:
+        out += _step_levels_failures(where, body)
     if effect.emulator_bench is not None and not (isinstance(effect.emulator_bench, str) and effect.emulator_bench):
         out.append(Failure("emulator_bench", "must be None or a bench config's name"))
     return out
+
+
+def _step_levels_failures(where: str, body) -> list[Failure]:
+    """A step body names its levels as shares of the drive range (``level_shares``, 0…1), not volts:
+    the effect does not know the stage's range."""
+    if not isinstance(body, dict) or body.get("waveform") != "step":
+        return []
+    shares = body.get("level_shares")
+    if "levels_v" in body or not shares or not all(isinstance(x, int | float) and 0 <= x <= 1 for x in shares):
+        return [
+            Failure(
+                where, "a step body gives its levels as ``level_shares`` (0…1 of the drive range), not ``levels_v``"
+            )
+        ]
+    return []
 
 
 def _blocks(effect: Effect, ctx: RecordContext, where: str) -> tuple[list[Block], list[Failure]]:

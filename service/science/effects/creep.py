@@ -70,7 +70,7 @@ class Creep(Effect):
             "a step-hold sweep up and down: creep relaxes logarithmically after each "
             "step and reverses when the drive steps down; drift keeps its direction "
             "and pace regardless of the steps",
-            {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0},
+            {"waveform": "step", "level_shares": [5 / 6, 1 / 6, 5 / 6, 1 / 6], "hold_s": 4.0},
         )
     }
 

@@ -12,7 +12,7 @@ from service.science.effects.base import Effect, sum_of_taps
 from service.science.effects.rules import two_rates
 
 #: the sweep that separates a delay from the other rate effects (above the paper's band)
-HIGHER_SWEEP = {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10}
+HIGHER_SWEEP = {"waveform": "sine", "rate_multiples": [1.0, 1.5, 2.0], "cycles": 10}
 
 
 def shift_columns(columns: np.ndarray, delay_samples: float) -> np.ndarray:

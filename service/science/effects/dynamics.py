@@ -200,7 +200,7 @@ class Dynamics(Effect):
     separated_from = {
         "rate_dependence": (
             "a higher-frequency sine sweep: a resonance's gain rises as f², rate dependence widens the loop",
-            {"waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10},
+            {"waveform": "sine", "rate_multiples": [1.0, 1.5, 2.0], "cycles": 10},
         )
     }
 

@@ -54,7 +54,7 @@ class GainChange(Effect):
         "creep": (
             "a step-hold sweep up and down: creep relaxes logarithmically after each step and reverses when "
             "the drive steps down; a gain change grows steadily with time at every level",
-            {"waveform": "step", "levels_v": [100.0, 20.0, 100.0, 20.0], "hold_s": 4.0},
+            {"waveform": "step", "level_shares": [5 / 6, 1 / 6, 5 / 6, 1 / 6], "hold_s": 4.0},
         ),
     }
 

@@ -21,6 +21,7 @@ from service.science.discovery.loop import (
     still_separates,
     try_step,
 )
+from service.science.discovery.rests import LineFree
 from service.science.errors import FieldError
 from service.usecases.acquire import plan_sweep, runnable_sweep
 
@@ -59,19 +60,19 @@ def test_an_added_effect_that_raises_the_held_out_rms_is_not_kept(default_y):
     records = [_wandering(default_y, 0.2)]
     base = fit_composite(records, [], 10)
     before = held_out_rms_um(records, base)
-    model, step, rejected = try_step(records, ["creep"], "creep", 10, base.theta, before)
+    model, step, rejected = try_step(LineFree.of(records), ["creep"], "creep", 10, base.theta, before)
     after = held_out_rms_um(records, model)
     assert step is None and rejected["effect"] == "creep", (before, after)
     assert rejected["held_out_rms_um"] == pytest.approx(after, rel=1e-12) and after > before + 0.003
     assert rejected["text"].startswith("adding creep raised the held-out RMS from 18")
-    _, kept, none = try_step(records, ["asymmetry"], "asymmetry", 10, base.theta, before)
+    _, kept, none = try_step(LineFree.of(records), ["asymmetry"], "asymmetry", 10, base.theta, before)
     assert none is None and kept["diagnosis"]["residual_rms_um"] < before
 
 
 def test_the_loop_passes_over_what_it_did_not_keep(default_y):
     """next_effect with the effects tried and not kept excluded: the next candidate of the same
     diagnosis (the default bench's first names several), and None once none is left."""
-    _, step = discovery_step([default_y], [], 10)
+    _, step = discovery_step(LineFree.of([default_y]), [], 10)
     d = step["diagnosis"]
     tried = []
     while (effect := next_effect(d, tried)) is not None:
@@ -89,9 +90,9 @@ def test_every_step_is_scored_on_the_same_data(default_y):
     records = [default_y, extra]
     base = fit_composite([default_y], [], 10)
     steps = [([], {}), (["asymmetry"], {}), ([], {})]
-    figures = like_for_like(records, 1, steps, 10)
+    figures = like_for_like(LineFree.of(records), 1, steps, 10)
     assert figures[0] == figures[2]
-    alone = like_for_like([default_y], 1, [([], {})], 10)[0]
+    alone = like_for_like(LineFree.of([default_y]), 1, [([], {})], 10)[0]
     assert alone["like_for_like_rms_um"] == pytest.approx(held_out_rms_um([default_y], base), rel=1e-9)
     assert alone["original_data_rms_um"] == alone["like_for_like_rms_um"]
     # on both records: a different figure from the original data's, and asymmetry lowers both
@@ -99,7 +100,7 @@ def test_every_step_is_scored_on_the_same_data(default_y):
     assert figures[1]["like_for_like_rms_um"] < figures[0]["like_for_like_rms_um"]
     assert figures[1]["original_data_rms_um"] < figures[0]["original_data_rms_um"]
     both = fit_composite(records, ["asymmetry"], 10)
-    given = like_for_like(records, 1, steps[1:2], 10, fitted={("asymmetry",): both})[0]
+    given = like_for_like(LineFree.of(records), 1, steps[1:2], 10, fitted={("asymmetry",): both})[0]
     assert given["like_for_like_rms_um"] == pytest.approx(held_out_rms_um(records, both), rel=1e-12)
     assert np.isfinite(given["original_data_rms_um"])
 

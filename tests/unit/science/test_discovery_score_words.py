@@ -37,5 +37,5 @@ def test_a_claim_at_the_training_mean_prints_that_anchorings_figure():
     assert _claimed_size(test, False) == (-1.15e-6, "last_cycle")  # not claimed: as every row's
     gain, anchor = _claimed_size(test, True)
     words = score_words(gain, 8280e-6, ("creep",), anchor)
-    assert words.startswith("142 nm² of held-out mean square removed by its test (against the model + creep")
+    assert words.startswith("142 nm² of held-out mean square removed by adding it (against the model + creep")
     assert "anchored at its training mean, the anchoring its claim rests on" in words and "−1.15" not in words
