@@ -20,6 +20,7 @@ from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.discovery.registry import MODELS, model_for, model_from_dict
+from service.science.discovery.rests import read_rests
 from service.science.effects import effect_names, ordered
 from service.science.errors import FieldError
 from service.science.fitting.memory import memory_shortfall
@@ -236,9 +237,12 @@ def store_model(
     store it (``parent_id``: the model it refines; ``labels``: more fields of the row, such as its
     bench and tags); the stored row."""
     metrics = estimator.validate(records)
-    # the data's own noise floor (µm RMS, from the cycle-to-cycle differences of the residual), so that a
-    # lab comparing models across benches sees how far each is from what its data allow
-    metrics["noise_floor_um"] = noise_floor(records, [r.x_um - estimator.predict(r) for r in records])["noise_floor_um"]
+    # the data's own noise floor (µm RMS), so that a lab comparing models across benches sees how far each
+    # is from what its data allow: by the diagnosis's rule (what the gauge shows at rest less the lines
+    # seen there, else the residual's cycle-to-cycle differences), so a model's page and its diagnosis
+    # print one floor (a walk read 3.05 nm here against 3.153 nm at rest in the diagnosis)
+    residuals = [r.x_um - estimator.predict(r) for r in records]
+    metrics["noise_floor_um"] = noise_floor(records, residuals, read_rests(records))["noise_floor_um"]
     # the loops it was trained on: a trajectory checks its own against them without reading the data
     metrics["trained_loops_v"] = trained_loops_v(records)
     return store.add_model(

@@ -47,6 +47,9 @@ def test_discovery_over_rest(http):
         assert key in d
     assert d["verdict"] == "missing_effect"
     assert d["candidates"][0]["effect"] == "creep"
+    # one noise floor for one model's data: its page (stored metrics) and its diagnosis, both read at rest
+    stored = http.get(f"/api/models/{base_id}").json()["metrics"]["noise_floor_um"]
+    assert d["noise"]["source"] == "rests" and stored == pytest.approx(d["noise_floor_um"], rel=1e-9)
     assert {"effect", "score", "expected_rms_um", "evidence", "kind"} <= set(d["candidates"][0])
     # a failing block is named by what it is, beside the record and block it is
     blocks = [f for f in d["failures"] if f["by"] == "frequency"]
