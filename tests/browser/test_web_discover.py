@@ -144,9 +144,9 @@ def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
     assert "creep" in effects_b
     _card_shot(page, "#lineage-compare", "discover_compare")
 
-    # 4. The run outlives the page: back on the starting model after a reload, and on its final model,
-    # the last run is shown again with every step as the job has it
-    for model_id in (base, job["result"]["final_model_id"]):
+    # 4. The run outlives the page: back on the starting model after a reload, on a middle step's model
+    # (the run that stored it) and on its final model, the last run is shown again with every step as the job has it
+    for model_id in dict.fromkeys([base] + [s["model_id"] for s in steps] + [job["result"]["final_model_id"]]):
         goto(page, server, f"models/{model_id}")
         page.wait_for_selector("#discover-restored", timeout=60_000)
         assert page.get_attribute("#discover-restored", "data-job-id") == job["id"]

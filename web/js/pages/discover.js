@@ -70,11 +70,16 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
 }
 
 /** The last discover run that started from `model` or ended at it (GET /api/jobs?kind=discover&model_id=,
- * this model's runs alone), shown again after a reload or a visit to another page: a run's answer outlives
- * the page that started it. A run still queued has no steps yet: the newest with steps is shown. */
+ * this model's runs alone), else the run that stored it (a middle step: its `job_id`), shown again after a
+ * reload or a visit to another page: a run's answer outlives the page that started it. A run still queued
+ * has no steps yet: the newest with steps is shown. */
 async function restoreLastRun(box, model, { signal, imported }) {
   const jobs = await api(`/jobs?kind=discover&model_id=${encodeURIComponent(model.id)}&limit=5`, { signal });
-  const job = jobs.find((j) => j.result?.steps);
+  let job = jobs.find((j) => j.result?.steps);
+  if (!job && model.job_id) {
+    const own = await api(`/jobs/${encodeURIComponent(model.job_id)}`, { signal }).catch(() => null);
+    if (own?.kind === 'discover' && own.result?.steps) job = own;
+  }
   const out = box.querySelector('#discover-run');
   if (!job || signal?.aborted || out.childElementCount) return null;   // none, or a run started here meanwhile
   renderRun(out, job.result, { signal, imported });
