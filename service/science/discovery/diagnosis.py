@@ -23,9 +23,10 @@ from __future__ import annotations
 import numpy as np
 
 from service.science.data.units import fmt_nm, fmt_nm2
-from service.science.discovery.ambiguity import ambiguity, separating
+from service.science.discovery.ambiguity import ambiguity
 from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.breakdown import failures, signatures
+from service.science.discovery.candidate_rows import DiagnosisFits, candidate_row, claimed_size
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.decision import (
@@ -37,17 +38,16 @@ from service.science.discovery.decision import (
     rule_text,
     unseen_block_improvement,
 )
-from service.science.discovery.identifiability import experiment_body, not_testable
+from service.science.discovery.identifiability import not_testable
+from service.science.discovery.loop_shape import LOOP_SHAPE, loop_shape_pair
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.ranking import claim_size, rank_key, size_claims
 from service.science.discovery.remainder import describe_remainder, remainder_words
 from service.science.discovery.rests import LineFree, disturbance
-from service.science.discovery.symmetry import asymmetry_test
 from service.science.discovery.verdict import (
     CLEAR_DROP_NOISE,
     helpful_capacity,
     residual_words,
-    score_words,
     test_words,
     verdict_text,
     worst_repeatable_to_noise,
@@ -78,48 +78,7 @@ def _reference_for(name: str) -> tuple[str, ...]:
     return () if EFFECTS[name].kind == "capacity" else tuple(e for e in flexible_base() if e != name)
 
 
-class _Fits:
-    """Composite fits of one diagnosis, each fitted once (warm-started at the model's transforms)."""
-
-    def __init__(self, records, model: CompositeModel):
-        self.records, self.model, self._cache = records, model, {}
-
-    def get(self, effects, theta: dict | None = None) -> tuple[CompositeModel, list[np.ndarray], float]:
-        """The model + ``effects``: fitted, its residuals and held-out RMS. The model's transforms are
-        kept, and so are ``theta`` (transforms an earlier fit found: a transform's whole search on the
-        flexible base costs ten fits), but a row-local one's (a delay's) are refined from there: found on
-        a PI that cannot draw a foreign stage's loop, a delay stayed 30 % short and lost to rate
-        dependence. A mode's come from its harmonics above the drive band, which the loop's shape
-        hardly moves (refining them too cost 60 % more per diagnosis)."""
-        key = tuple(sorted(set(self.model.effects) | set(effects)))
-        if key not in self._cache:
-            local = {k: v for k, v in (theta or {}).items() if EFFECTS[k].row_local}
-            held = {**self.model.theta, **{k: v for k, v in (theta or {}).items() if k not in local}}
-            m = (
-                self.model
-                if set(key) == set(self.model.effects)
-                else CompositeModel(list(key), self.model.n_operators, fixed_theta=held, local_theta=local).fit(
-                    self.records
-                )
-            )
-            preds = [m.predict(r) for r in self.records]
-            held_out_um = evaluate_records(self.records, preds)["validation_rms_um"]
-            self._cache[key] = (m, [r.x_um - p for r, p in zip(self.records, preds)], held_out_um)
-        return self._cache[key]
-
-    def without(self, effects, frequency_hz: float) -> list[np.ndarray]:
-        """The residuals of the model + ``effects`` fitted without the blocks at ``frequency_hz``
-        (the model's transforms kept)."""
-        m = CompositeModel(
-            sorted(set(self.model.effects) | set(effects)),
-            self.model.n_operators,
-            fixed_theta=self.model.theta,
-            exclude_frequency_hz=frequency_hz,
-        ).fit(self.records)
-        return [r.x_um - m.predict(r) for r in self.records]
-
-
-def _unseen_rates(name: str, fits: _Fits, records, reference: tuple) -> dict | None:
+def _unseen_rates(name: str, fits: DiagnosisFits, records, reference: tuple) -> dict | None:
     """The mean drop in mean square (µm²) that ``name`` gives, over the reference, on the blocks at
     each drive frequency between the lowest and the highest when both were fitted without them
     (``gain_mse_um2``, ``frequencies_hz``); None without such a frequency."""
@@ -138,7 +97,7 @@ def _unseen_rates(name: str, fits: _Fits, records, reference: tuple) -> dict | N
 
 
 def _candidate(
-    name, fits: _Fits, records, noise: float, v0: float, k0: int, sig: dict, floor: dict, alpha: float
+    name, fits: DiagnosisFits, records, noise: float, v0: float, k0: int, sig: dict, floor: dict, alpha: float
 ) -> dict:
     """One testable candidate: its test against its reference, the claim, and what adding it to
     the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
@@ -191,8 +150,8 @@ def _candidate(
     if is_claimed and eff.kind == "physical":  # one figure for the claim: its size, the rank's (ranking.py)
         gain, anchor = claim_size(records, raw_ref, raw_trial), "training_mean"
     else:
-        gain, anchor = _claimed_size(test, is_claimed)
-    return _entry(
+        gain, anchor = claimed_size(test, is_claimed)
+    return candidate_row(
         name,
         fits,
         noise,
@@ -211,16 +170,7 @@ def _candidate(
     )
 
 
-def _claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:
-    """The held-out mean-square drop (µm²) a row's score and words are of, and its anchoring: a claim
-    rests on the anchoring its p is of (the larger size), so a claim is never printed with the other
-    anchoring's figure (drift was claimed at its training mean with −1.15 nm² and score 0 printed);
-    a candidate not claimed, at the last training cycle, as every row's was."""
-    anchor = test["p_anchor"] if is_claimed else "last_cycle"
-    return (test["gain_trend_mse_um2"] if anchor == "training_mean" else test["gain_mse_um2"]), anchor
-
-
-def _seen_at_rest(name, fits: _Fits, rests: dict, noise, v0, k0, sig, floor, alpha) -> dict:
+def _seen_at_rest(name, fits: DiagnosisFits, rests: dict, noise, v0, k0, sig, floor, alpha) -> dict:
     """A disturbance the rests show (service/science/discovery/rests.py), already taken out of the record:
     claimed on the rests' held-out test (its strongest line's z, one-sided), its gain the lines' mean square."""
     from statistics import NormalDist
@@ -232,199 +182,7 @@ def _seen_at_rest(name, fits: _Fits, rests: dict, noise, v0, k0, sig, floor, alp
         f"{disturbance(rests)['text']} (held-out z = {z:.3g} at rest against a threshold of "
         f"{rests['threshold_z']:.3g}, Bonferroni over {len(rests['tried'])} frequencies)"
     )
-    return _entry(name, fits, noise, v0, k0, sig, floor, p < alpha, p, gain, (), v0, how)
-
-
-def _entry(
-    name,
-    fits: _Fits,
-    noise,
-    v0,
-    k0,
-    sig,
-    floor,
-    is_claimed: bool,
-    p_value: float,
-    gain: float,
-    reference: tuple,
-    v_ref: float,
-    how: str,
-    v_trial: float | None = None,
-    kind: str | None = None,
-    anchor: str = "last_cycle",
-) -> dict:
-    """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
-    (``v_trial``: the held-out RMS of its reference with it, where it was tested against one;
-    ``kind``: "capacity" where this model makes a physical effect's columns capacity)."""
-    eff = EFFECTS[name]
-    kind = kind or eff.kind
-    v, added, fitted = v0, 0, ""
-    if is_claimed or kind == "capacity":
-        own, _, v = fits.get((name,))  # what the user gets by adding it to this model
-        added, fitted = own.n_parameters() - k0, own.describe().get(name) or ""
-    excess = max(v0**2 - noise**2, 1e-30)  # this model's held-out mean square above the floor (µm²)
-    removed = min((v0**2 - v**2) / excess, 1.0)  # below the floor: all of the excess
-    words = eff.evidence(sig, floor)
-    evidence = (
-        (
-            f"In this model's residual, before any fit: {words}. "
-            if words
-            else "No measure of its signature is taken before a fit. "
-        )
-        + f"Its test, a fit of its own: {how}"
-        + (
-            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
-            if v != v0
-            else ". Not claimed, so not fitted into this model"
-        )
-        + (
-            f"; the diagnosis's own fit of this model + {name} gives {fitted} (a refine refits it, so the stored "
-            "model's parameters may differ)"
-            if fitted
-            else ""
-        )
-        + "."
-    )
-    return {
-        "effect": name,
-        "kind": kind,
-        "testable": True,
-        "claimed": bool(is_claimed),
-        "high": bool(is_claimed),
-        "significant": bool(is_claimed),
-        # one denominator for every candidate (this model's excess), so that scores rank as gains do
-        "score": round(float(np.clip(gain / excess, 0, 1)), 4),
-        "score_of": score_words(gain, excess, reference, anchor),
-        "p_value": p_value,
-        "gain_mse_um2": gain,
-        "reference": list(reference),
-        "reference_rms_um": v_ref,
-        "tested_rms_um": v_trial,
-        "expected_rms_um": v,
-        "excess_removed": round(float(removed), 4),
-        "added_parameters": added,
-        "evidence": evidence,
-        "signature": eff.signature,
-    }
-
-
-#: the loop-shape pair: a stack that is not point-symmetric, and a gauge that bows what it reads
-LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
-
-
-def _loop_shape_as_capacity(fits: _Fits, records, noise, v0, k0, sig, floor) -> list[dict]:
-    """The loop-shape pair on a base that draws any rate-independent loop shape (issue 37's wider
-    base): what either still explains is that base's shape, so each is offered as capacity (validated
-    against the model itself, never claimed as physics). The stack's asymmetry and the gauge's bow
-    are named as physics only while the base is point-symmetric, where they can be told apart."""
-    _, res0, _ = fits.get(())
-    rows = []
-    for name in LOOP_SHAPE:
-        _, res, _ = fits.get((name,))
-        test = held_out_improvement(records, res0, res)
-        how = (
-            f"the base draws any rate-independent loop shape, so what {name}'s columns add is that base's "
-            f"shape, offered as capacity and not as physics (p = {test['p']:.2g} against the model itself)"
-        )
-        is_claimed = claimed(test, 0.0)
-        gain, anchor = _claimed_size(test, is_claimed)
-        rows.append(
-            _entry(
-                name,
-                fits,
-                noise,
-                v0,
-                k0,
-                sig,
-                floor,
-                is_claimed,
-                test["p"],
-                gain,
-                (),
-                v0,
-                how,
-                kind="capacity",
-                anchor=anchor,
-            )
-        )
-    return rows
-
-
-def _loop_shape_pair(fits: _Fits, records, noise, v0, k0, sig, floor, alpha) -> tuple[list[dict], dict | None]:
-    """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
-    point-symmetric is tested without a model (a point-symmetric stack of any family has no even
-    part; symmetry.py); if it is not, the stack's asymmetry (a function of the drive and the loop's
-    state) and the gauge's curvature (a function of x) are fitted head to head, each on the model:
-    the one that fits the held-out cycles significantly better (the claim rule's p) is claimed; if
-    neither does, the better one is claimed and the pair is returned as an ambiguity."""
-    # the model's residual where the model draws a point-symmetric loop itself (then its even part is
-    # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
-    # (or a base that draws any loop shape, issue 37: an asymmetric loop it draws is the base's, not physics)
-    if any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects):
-        return _loop_shape_as_capacity(fits, records, noise, v0, k0, sig, floor), None
-    symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
-    test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise, alpha)
-    even2 = (test["even_rms_um"] or 0.0) ** 2
-    shape = (
-        f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
-        f"{fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
-        f"noise σ = {fmt_nm(noise)})"
-    )
-    if not test["claimed"]:
-        gauge = (
-            shape + "; a gauge's bow would show there, so there is none to see (its S-bend alone is a loop "
-            "shape the flexible base draws)"
-        )
-        return [
-            _entry("asymmetry", fits, noise, v0, k0, sig, floor, False, test["p"], even2, (), v0, shape),
-            _entry("sensor_nonlinearity", fits, noise, v0, k0, sig, floor, False, 1.0, 0.0, (), v0, gauge),
-        ], None
-    _, res_a, v_a = fits.get(("asymmetry",))
-    _, res_s, v_s = fits.get(("sensor_nonlinearity",))
-    gauge_better = held_out_improvement(records, res_a, res_s)
-    stack_better = held_out_improvement(records, res_s, res_a)
-    if claimed(gauge_better, 0.0, alpha) or claimed(stack_better, 0.0, alpha):
-        winner, separated = ("sensor_nonlinearity" if claimed(gauge_better, 0.0, alpha) else "asymmetry"), True
-    else:
-        winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
-    h2h = (
-        f"head to head on the model, the stack's asymmetry leaves {fmt_nm(v_a)} held out and the gauge's "
-        f"curvature {fmt_nm(v_s)} (p = {stack_better['p']:.2g} that the stack fits better, "
-        f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)"
-    )
-    rows = [
-        _entry(
-            name,
-            fits,
-            noise,
-            v0,
-            k0,
-            sig,
-            floor,
-            name == winner,
-            test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
-            claim_size(records, fits.get(())[1], res_a if name == "asymmetry" else res_s) if name == winner else 0.0,
-            (),
-            v0,
-            f"{shape}; {h2h}",
-            anchor="training_mean" if name == winner else "last_cycle",
-        )
-        for name in LOOP_SHAPE
-    ]
-    if separated:
-        return rows, None
-    other = next(n for n in LOOP_SHAPE if n != winner)
-    why, body = separating()[frozenset(LOOP_SHAPE)]
-    axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return rows, {
-        "effects": [winner, other],
-        "excess_ratio": None,
-        "text": (
-            f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
-            f"(held-out {fmt_nm(min(v_a, v_s))} and {fmt_nm(max(v_a, v_s))}); {why}"
-        ),
-        "experiment": experiment_body(records, axes, **body),
-    }
+    return candidate_row(name, fits, noise, v0, k0, sig, floor, p < alpha, p, gain, (), v0, how)
 
 
 def fitted_without_lines(line_free: LineFree, model: CompositeModel) -> CompositeModel:
@@ -449,7 +207,7 @@ def diagnose(records, effects=(), n_operators: int = 10, model: CompositeModel |
 def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     """The diagnosis of ``model``, fitted on ``line_free.records`` (the records without the rests' lines)."""
     records, rests = line_free.records, line_free.rests
-    fits = _Fits(records, model)
+    fits = DiagnosisFits(records, model)
     _, res, v0 = fits.get(())
     preds = [r.x_um - e for r, e in zip(records, res)]
     ev = evaluate_records(records, preds)
@@ -488,7 +246,7 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
             continue
         if name in LOOP_SHAPE and not set(LOOP_SHAPE) & set(model.effects):
             if name == LOOP_SHAPE[0]:  # the pair is weighed together, once
-                pair, shape_ambiguity = _loop_shape_pair(fits, records, noise, v0, k0, sig, floor, alpha)
+                pair, shape_ambiguity = loop_shape_pair(fits, records, noise, v0, k0, sig, floor, alpha)
                 candidates += pair
             continue
         candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor, alpha))

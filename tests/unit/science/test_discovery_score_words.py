@@ -30,12 +30,12 @@ def test_a_drop_within_the_excess_is_its_numerator_over_its_denominator():
 def test_a_claim_at_the_training_mean_prints_that_anchorings_figure():
     """A claim rests on the anchoring its p is of: drift claimed at its training mean (142 nm²) printed the
     last training cycle's −1.15 nm² and score 0 beside its claim."""
-    from service.science.discovery.diagnosis import _claimed_size
+    from service.science.discovery.candidate_rows import claimed_size
 
     test = {"gain_mse_um2": -1.15e-6, "gain_trend_mse_um2": 142e-6, "p": 5.3e-4, "p_anchor": "training_mean"}
-    assert _claimed_size(test, True) == (142e-6, "training_mean")
-    assert _claimed_size(test, False) == (-1.15e-6, "last_cycle")  # not claimed: as every row's
-    gain, anchor = _claimed_size(test, True)
+    assert claimed_size(test, True) == (142e-6, "training_mean")
+    assert claimed_size(test, False) == (-1.15e-6, "last_cycle")  # not claimed: as every row's
+    gain, anchor = claimed_size(test, True)
     words = score_words(gain, 8280e-6, ("creep",), anchor)
     assert words.startswith("142 nm² of held-out mean square removed by adding it (against the model + creep")
     assert "anchored at its training mean, the anchoring its claim rests on" in words and "−1.15" not in words

@@ -1,0 +1,134 @@
+"""The loop-shape pair (the stack's asymmetry and the gauge's bow) in a diagnosis: whether the
+measured loop is point-symmetric is tested without a model (service.science.discovery.symmetry); if
+it is not, the two are fitted head to head on the model, and the one that fits the held-out cycles
+better is claimed, or the pair is an ambiguity with its separating sweep. On a base that draws any
+rate-independent loop shape both are capacity. Units: µm, µm² (nm in the texts)."""
+
+from __future__ import annotations
+
+from service.science.data.units import fmt_nm
+from service.science.discovery.ambiguity import separating
+from service.science.discovery.candidate_rows import DiagnosisFits, candidate_row, claimed_size
+from service.science.discovery.decision import claimed, held_out_improvement
+from service.science.discovery.identifiability import experiment_body
+from service.science.discovery.ranking import claim_size
+from service.science.discovery.symmetry import asymmetry_test
+from service.science.effects import EFFECTS
+
+#: the loop-shape pair: a stack that is not point-symmetric, and a gauge that bows what it reads
+LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
+
+
+def loop_shape_as_capacity(fits: DiagnosisFits, records, noise, v0, k0, sig, floor) -> list[dict]:
+    """The loop-shape pair on a base that draws any rate-independent loop shape (issue 37's wider
+    base): what either still explains is that base's shape, so each is offered as capacity (validated
+    against the model itself, never claimed as physics). The stack's asymmetry and the gauge's bow
+    are named as physics only while the base is point-symmetric, where they can be told apart."""
+    _, res0, _ = fits.get(())
+    rows = []
+    for name in LOOP_SHAPE:
+        _, res, _ = fits.get((name,))
+        test = held_out_improvement(records, res0, res)
+        how = (
+            f"the base draws any rate-independent loop shape, so what {name}'s columns add is that base's "
+            f"shape, offered as capacity and not as physics (p = {test['p']:.2g} against the model itself)"
+        )
+        is_claimed = claimed(test, 0.0)
+        gain, anchor = claimed_size(test, is_claimed)
+        rows.append(
+            candidate_row(
+                name,
+                fits,
+                noise,
+                v0,
+                k0,
+                sig,
+                floor,
+                is_claimed,
+                test["p"],
+                gain,
+                (),
+                v0,
+                how,
+                kind="capacity",
+                anchor=anchor,
+            )
+        )
+    return rows
+
+
+def loop_shape_pair(fits: DiagnosisFits, records, noise, v0, k0, sig, floor, alpha) -> tuple[list[dict], dict | None]:
+    """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
+    point-symmetric is tested without a model (a point-symmetric stack of any family has no even
+    part; symmetry.py); if it is not, the stack's asymmetry (a function of the drive and the loop's
+    state) and the gauge's curvature (a function of x) are fitted head to head, each on the model:
+    the one that fits the held-out cycles significantly better (the claim rule's p) is claimed; if
+    neither does, the better one is claimed and the pair is returned as an ambiguity."""
+    # the model's residual where the model draws a point-symmetric loop itself (then its even part is
+    # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
+    # (or a base that draws any loop shape, issue 37: an asymmetric loop it draws is the base's, not physics)
+    if any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects):
+        return loop_shape_as_capacity(fits, records, noise, v0, k0, sig, floor), None
+    symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
+    test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise, alpha)
+    even2 = (test["even_rms_um"] or 0.0) ** 2
+    shape = (
+        f"the mean cycles' even part (what a point-symmetric loop of any family cannot have) is "
+        f"{fmt_nm(test['even_rms_um'] or 0.0)} RMS over {test['blocks']} blocks (p = {test['p']:.2g}, "
+        f"noise σ = {fmt_nm(noise)})"
+    )
+    if not test["claimed"]:
+        gauge = (
+            shape + "; a gauge's bow would show there, so there is none to see (its S-bend alone is a loop "
+            "shape the flexible base draws)"
+        )
+        return [
+            candidate_row("asymmetry", fits, noise, v0, k0, sig, floor, False, test["p"], even2, (), v0, shape),
+            candidate_row("sensor_nonlinearity", fits, noise, v0, k0, sig, floor, False, 1.0, 0.0, (), v0, gauge),
+        ], None
+    _, res_a, v_a = fits.get(("asymmetry",))
+    _, res_s, v_s = fits.get(("sensor_nonlinearity",))
+    gauge_better = held_out_improvement(records, res_a, res_s)
+    stack_better = held_out_improvement(records, res_s, res_a)
+    if claimed(gauge_better, 0.0, alpha) or claimed(stack_better, 0.0, alpha):
+        winner, separated = ("sensor_nonlinearity" if claimed(gauge_better, 0.0, alpha) else "asymmetry"), True
+    else:
+        winner, separated = ("sensor_nonlinearity" if v_s < v_a else "asymmetry"), False
+    h2h = (
+        f"head to head on the model, the stack's asymmetry leaves {fmt_nm(v_a)} held out and the gauge's "
+        f"curvature {fmt_nm(v_s)} (p = {stack_better['p']:.2g} that the stack fits better, "
+        f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)"
+    )
+    rows = [
+        candidate_row(
+            name,
+            fits,
+            noise,
+            v0,
+            k0,
+            sig,
+            floor,
+            name == winner,
+            test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
+            claim_size(records, fits.get(())[1], res_a if name == "asymmetry" else res_s) if name == winner else 0.0,
+            (),
+            v0,
+            f"{shape}; {h2h}",
+            anchor="training_mean" if name == winner else "last_cycle",
+        )
+        for name in LOOP_SHAPE
+    ]
+    if separated:
+        return rows, None
+    other = next(n for n in LOOP_SHAPE if n != winner)
+    why, body = separating()[frozenset(LOOP_SHAPE)]
+    axes = sorted({r.axis for r in records if r.axis}) or ["y"]
+    return rows, {
+        "effects": [winner, other],
+        "excess_ratio": None,
+        "text": (
+            f"the loop is not point-symmetric, and {winner} and {other} explain it about equally well "
+            f"(held-out {fmt_nm(min(v_a, v_s))} and {fmt_nm(max(v_a, v_s))}); {why}"
+        ),
+        "experiment": experiment_body(records, axes, **body),
+    }
