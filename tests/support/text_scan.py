@@ -42,6 +42,8 @@ REMOVED_OVER = re.compile(
 )
 #: "N % of …": a share
 PERCENT_OF = re.compile(rf"(?P<pct>{NUMBER}) ?% of the")
+#: "−A nm² (of held-out mean square) removed": a negative amount stated as a removal (it is a rise)
+NEGATIVE_REMOVED = re.compile(r"[-−]\d+(?:[.,]\d+)* ?(?:nm²|nm|%)(?: of [^.;:/()]*?)? remov(?:ed|es)\b")
 
 
 def _number(text: str) -> float:
@@ -63,15 +65,17 @@ def unit_problems(text: str) -> list[str]:
 
 
 def part_whole_problems(text: str) -> list[str]:
-    """Each "A nm of B nm" or "A nm² removed by its test … / B nm²" with A > B (at the printed digits)
-    and each share above 100 %."""
+    """Each "A nm of B nm" or "A nm² removed by its test … / B nm²" with A > B (at the printed digits),
+    each share outside 0–100 % and each negative amount "removed" (a rise)."""
     out = []
     for m in (*PART_OF.finditer(text), *REMOVED_OVER.finditer(text)):
         if m["u1"] == m["u2"] and _number(m["part"]) > _number(m["whole"]):
             out.append(f"part > whole: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
     for m in PERCENT_OF.finditer(text):
-        if _number(m["pct"]) > 100.0:
-            out.append(f"share above 100 %: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
+        if not 0.0 <= _number(m["pct"]) <= 100.0:
+            out.append(f"share outside 0–100 %: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
+    for m in NEGATIVE_REMOVED.finditer(text):
+        out.append(f"a negative amount removed: …{text[max(0, m.start() - 80) : m.end() + 40]}…")
     return out
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from service.science.data.units import fmt_nm
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.verdict import score_words
+from service.science.discovery.verdict import score_words, share_words
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
 
@@ -102,7 +102,7 @@ def candidate_row(
         )
         + f"Its test, a fit of its own: {how}"
         + (
-            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({100 * removed:.0f} % of the excess above the noise floor)"
+            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({share_words(removed)})"
             if v != v0
             else ". Not claimed, so not fitted into this model"
         )

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from service.science.data.units import fmt_nm2
 from service.science.discovery.decision import held_out_improvement
+from service.science.discovery.verdict import raised
 
 
 def claim_size(records, res_reference, res_with) -> float:
@@ -37,10 +38,10 @@ def claim_size(records, res_reference, res_with) -> float:
 def size_words(size_um2: float, reference: tuple) -> str:
     """The claim's size in words, with what it was measured against."""
     against = "the model" if not reference else "the model + " + " + ".join(reference)
-    return (
-        f"its size, the rank's figure: {fmt_nm2(size_um2)} of held-out mean square removed over {against} "
-        "(each block's level anchored at its training mean)"
-    )
+    anchored = "(each block's level anchored at its training mean)"
+    if raised(size_um2):
+        return f"its size, the rank's figure: held-out mean square raised by {fmt_nm2(-size_um2)} over {against} {anchored}"
+    return f"its size, the rank's figure: {fmt_nm2(size_um2)} of held-out mean square removed over {against} {anchored}"
 
 
 def rank_key(c: dict) -> tuple:

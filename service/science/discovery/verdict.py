@@ -45,14 +45,31 @@ def score_words(gain_um2: float, excess_um2: float, reference: tuple = (), ancho
         if anchor == "training_mean"
         else "at its last training cycle"
     )
-    gain = (
-        f"{fmt_nm2(gain_um2)} of held-out mean square removed by {'adding it' if anchor == 'training_mean' else 'its test'} (against {against}, mean over held-out "
-        f"stretches, each block's level anchored {level})"
-    )
+    by = "adding it" if anchor == "training_mean" else "its test"
+    how = f"(against {against}, mean over held-out stretches, each block's level anchored {level})"
     whole = f"{fmt_nm2(excess_um2)} of this model's held-out mean square above the noise floor (its held-out RMS² − σ², levels not anchored)"
+    if raised(gain_um2):  # a negative drop is no removal: the test's fit did worse on the held-out cycles
+        return (
+            f"{by} raised the held-out mean square by {fmt_nm2(-gain_um2)} {how}: nothing removed of {whole}, score 0"
+        )
+    gain = f"{fmt_nm2(gain_um2)} of held-out mean square removed by {by} {how}"
     if fmt_nm2(gain_um2) != fmt_nm2(excess_um2) and gain_um2 > excess_um2:
         return f"{gain}; more than {whole}, a whole of another fit and anchoring: the score is capped at 1"
     return f"{gain} / {whole}"
+
+
+def raised(drop_um2: float) -> bool:
+    """Whether a mean-square drop (µm²) is negative at the printed digits: a rise, never printed as a
+    negative amount "removed" (−1520000 nm² removed)."""
+    return drop_um2 < 0 and fmt_nm2(drop_um2) != fmt_nm2(0.0)
+
+
+def share_words(removed: float) -> str:
+    """What adding an effect did to this model's held-out mean square above the noise floor, ``removed``
+    its share (≤ 1; negative: the held-out RMS rose, which no share "of the excess" states)."""
+    if round(100 * removed) < 0:
+        return "none of the excess above the noise floor removed: the held-out RMS rises"
+    return f"{100 * removed:.0f} % of the excess above the noise floor"
 
 
 def residual_words(records) -> str:

@@ -39,3 +39,23 @@ def test_a_claim_at_the_training_mean_prints_that_anchorings_figure():
     words = score_words(gain, 8280e-6, ("creep",), anchor)
     assert words.startswith("142 nm² of held-out mean square removed by adding it (against the model + creep")
     assert "anchored at its training mean, the anchoring its claim rests on" in words and "−1.15" not in words
+
+
+def test_a_negative_drop_is_worded_as_a_rise_not_a_removal():
+    """A test whose fit did worse on the held-out cycles (gain −1.52 µm²) printed "−1520000 nm² … removed by
+    its test": a negative removal is a rise of the held-out mean square, said so, with score 0."""
+    from service.science.discovery.ranking import size_words
+    from service.science.discovery.verdict import share_words
+
+    words = score_words(-1.52, 8280e-6, ("drift",))
+    assert part_whole_problems(words) == [], words
+    assert words.startswith("its test raised the held-out mean square by 1520000 nm² (against the model + drift")
+    assert "removed by its test" not in words and words.endswith("score 0")
+    assert "nothing removed of 8280 nm² of this model's held-out mean square above the noise floor" in words
+    # a drop that prints as 0 is not a rise
+    assert score_words(-1e-13, 8280e-6).startswith("0 nm² of held-out mean square removed by its test")
+    size = size_words(-2.5e-6, ("creep",))
+    assert "raised by 2.5 nm² over the model + creep" in size and part_whole_problems(size) == []
+    assert share_words(0.734) == "73 % of the excess above the noise floor"
+    assert share_words(-0.2) == "none of the excess above the noise floor removed: the held-out RMS rises"
+    assert part_whole_problems(f"Added to this model: 10 nm → 12 nm ({share_words(-0.2)}).") == []

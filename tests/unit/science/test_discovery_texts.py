@@ -90,7 +90,12 @@ def test_each_score_prints_the_figures_it_is_the_ratio_of(diagnoses, source):
     for d in diagnoses[source]:
         for c in (c for c in d["candidates"] if c.get("testable", True)):
             gain, excess = (float(v) for v in re.findall(r"(-?[\d.]+) nm²", c["score_of"])[:2])
-            assert c["score_of"].startswith(f"{fmt_nm2(c['gain_mse_um2'])} of held-out mean square removed by ")
+            if " raised the held-out mean square by " in c["score_of"]:  # a negative drop, worded as a rise
+                gain = -gain
+                assert f" raised the held-out mean square by {fmt_nm2(-c['gain_mse_um2'])} (" in c["score_of"]
+                assert c["score"] == 0
+            else:
+                assert c["score_of"].startswith(f"{fmt_nm2(c['gain_mse_um2'])} of held-out mean square removed by ")
             assert c["score"] == pytest.approx(min(max(gain / excess, 0.0), 1.0), abs=0.01, rel=0.01), c["score_of"]
 
 
@@ -118,6 +123,14 @@ def test_the_scanner_finds_what_it_is_for():
         "each block's level anchored at its last training cycle) / 8280 nm² of this model's held-out mean square"
     )
     assert not part_whole_problems("5150 nm² removed by its test (against the model + drift) / 8280 nm² above")
+    # a negative amount "removed" is a rise, and a share below 0 % is none (the walk's "−1520000 nm² removed")
+    assert part_whole_problems("−1520000 nm² of held-out mean square removed by its test (against the model)")
+    assert part_whole_problems("its size, the rank's figure: -2.5 nm² of held-out mean square removed over the model")
+    assert part_whole_problems("Added to this model: 10 nm → 12 nm (-20 % of the excess above the noise floor)")
+    assert not part_whole_problems(
+        "its test raised the held-out mean square by 1520000 nm²: nothing removed of 8280 nm²"
+    )
+    assert not part_whole_problems("1520000 nm² of held-out mean square removed by its test (against the model)")
     assert unit_problems("fitted delay 4.11e-05 ms") and unit_problems("0.009225 µm beside 5 nm²")
     assert unit_problems("weights sum -0.0128 µm·ms/V") and unit_problems("σ² = 4.3e+03 nm²")
     assert not unit_problems("delay 24.1 µs, resonance 481.4 Hz, 5150 nm², p = 6.9e-06, 12 nm/s")
