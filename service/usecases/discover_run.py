@@ -362,6 +362,7 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
             "kind": EFFECTS[name].kind,
             "added_at_step": index,
             "parameters": parameters.get(name, {}),
+            "units": {k: EFFECTS[name].units.get(k, "") for k in parameters.get(name, {})},
             "evidence": c["evidence"],
             "p_value": c["p_value"],
             "score": c["score"],

@@ -120,6 +120,11 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     final = load_model(store.get_model(result["final_model_id"]))
     assert found["creep"]["parameters"] == pytest.approx(physical_parameters(final)["creep"], rel=1e-9)
     assert result["final_parameters"]["creep"] == found["creep"]["parameters"]
+    assert found["creep"]["units"] == {
+        "creep_nm_per_decade": "nm/decade",
+        "creep_step_v": "V",
+        "creep_pct_per_decade": "%/decade",
+    }
     # the creep bench's stack creeps 3 % of its strain per decade (fixtures/benches/creep.toml); a
     # half-second record sees the first decades of it
     assert 2.0 < found["creep"]["parameters"]["creep_pct_per_decade"] < 4.0, found["creep"]["parameters"]

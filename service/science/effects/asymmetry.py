@@ -23,9 +23,23 @@ class Asymmetry(Effect):
     def blocks(self, ctx: RecordContext) -> list[Block]:
         u = ctx.u_v / ctx.u_scale_v
         s = ctx.p[:, 1:].sum(axis=1) / ctx.u_scale_v if ctx.p.shape[1] > 1 else u
-        return [Block.make("asymmetry_um", np.column_stack([u**2, u**3, s**2, u * s]))]
+        return [Block.make(self.block_name, np.column_stack([u**2, u**3, s**2, u * s]))]
 
-    units = {"asymmetry_um": "µm"}
+    block_name = "asymmetry_um"
+    #: the columns of ``asymmetry_um``, in order, as the parameters name them
+    TERMS = ("u2", "u3", "s2", "us")
+
+    def parameters(self, theta, values, scales, sign):
+        """The output each column adds at the full drive scale (column value 1: u = u_scale_v, S = 1), in
+        nm and the gauge's sign: ``asymmetry_u2_nm`` (∝ u², electrostriction), ``asymmetry_u3_nm`` (∝ u³,
+        saturation), ``asymmetry_s2_nm`` (∝ S²) and ``asymmetry_us_nm`` (∝ u·S): the stored weights
+        ``asymmetry_um`` × 1000 (they were missing, so Discover's "Effects found" showed "–")."""
+        weights = values.get(self.block_name)
+        if weights is None:
+            return {}
+        return {f"asymmetry_{t}_nm": sign * float(w) * 1e3 for t, w in zip(self.TERMS, np.ravel(weights))}
+
+    units = {"asymmetry_um": "µm", **{f"asymmetry_{t}_nm": "nm" for t in TERMS}}
     rule = "a drive that spans a range (any loop)"
     emulator_bench = "asymmetry"
     in_flexible_base = True

@@ -62,7 +62,12 @@ class Creep(Effect):
             out["creep_pct_per_decade"] = 100.0 * per_decade_um / scales["stroke_um"]
         return out
 
-    units = {"creep_weights_um": "µm", "creep_nm_per_decade": "nm", "creep_step_v": "V", "creep_pct_per_decade": "%"}
+    units = {
+        "creep_weights_um": "µm",
+        "creep_nm_per_decade": "nm/decade",
+        "creep_step_v": "V",
+        "creep_pct_per_decade": "%/decade",
+    }
     rule = "any record long enough to see a slow change; telling it from drift needs a hold after a step"
     emulator_bench = "creep"
     separated_from = {

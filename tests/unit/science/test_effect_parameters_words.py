@@ -46,3 +46,16 @@ def test_the_words_figures_are_the_parameters(effect, values, expected, printed)
 def test_an_unfitted_effect_has_neither_words_nor_parameters():
     for effect in ("rate_dependence", "temperature", "sensor_nonlinearity"):
         assert EFFECTS[effect].parameters({}, {}, SCALES, 1.0) == {} and EFFECTS[effect].describe({}, {}) == ""
+
+
+def test_asymmetrys_stored_weights_are_its_parameters_with_units():
+    """Discover's "Effects found" showed asymmetry's parameters as "–" although the stored model holds
+    ``coef.asymmetry_um``: its four weights are its parameters, the output each column adds at the full
+    drive scale in nm and the gauge's sign, each with its unit."""
+    e = EFFECTS["asymmetry"]
+    stored = {"asymmetry_um": [12.052540559599436, -11.73341694065384, -0.32796721328100503, 1.6654131432633035]}
+    params = e.parameters({}, stored, SCALES, -1.0)
+    assert list(params) == ["asymmetry_u2_nm", "asymmetry_u3_nm", "asymmetry_s2_nm", "asymmetry_us_nm"]
+    assert list(params.values()) == pytest.approx([-12052.54, 11733.42, 327.97, -1665.41], abs=0.01)
+    assert all(e.units[name] == "nm" for name in params)
+    assert e.parameters({}, {}, SCALES, 1.0) == {}

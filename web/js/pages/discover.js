@@ -119,6 +119,9 @@ async function discover(box, model, state, { signal, imported, onModels, figures
   }
 }
 
+/** A parameter's unit after its value (" nm", " Hz"); none for a ratio (unit "1") or an unknown one. */
+const unitText = (unit) => (unit && unit !== '1' ? ` ${esc(unit)}` : '');
+
 const ratio = (r) => (r === null || r === undefined ? '–' : `${fmt(r, 3)}×`);
 
 /** The run so far (the job's partial result while it runs, then its result). `imported`: the model's
@@ -150,7 +153,7 @@ function renderRun(out, r, { signal, imported }) {
     ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${pageWords(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
     ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters <span class="muted">(the stored model's)</span></th><th>evidence <span class="muted">(from the diagnosis's held-out test, a fit of its own)</span></th></tr>
       ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
-        <td>${Object.entries(e.parameters || {}).map(([k, v]) => `<code>${esc(k)}</code> = ${Array.isArray(v) ? v.map((x) => fmt(x)).join(', ') : fmt(v)}`).join('<br>') || '–'}</td>
+        <td>${Object.entries(e.parameters || {}).map(([k, v]) => `<code>${esc(k)}</code> = ${Array.isArray(v) ? v.map((x) => fmt(x)).join(', ') : fmt(v)}${unitText(e.units?.[k])}`).join('<br>') || '–'}</td>
         <td class="evidence">${esc(e.evidence)}</td></tr>`).join('')}</table>` : ''}
     ${rem ? `<h3>What remains</h3><p id="discover-remains" data-ratio="${rem.ratio_to_noise_floor ?? ''}">Held-out RMS <b>${fmtErrorNm(rem.validation_rms_um)}</b>
       against a noise floor of ${fmtErrorNm(rem.noise_floor_um)}: ${ratio(rem.ratio_to_noise_floor)}${rem.at_noise_floor ? ', at the noise floor' : ''}.

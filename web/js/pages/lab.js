@@ -11,6 +11,8 @@ const PARAMETER_TITLES = {
   resonance_hz: 'resonance (Hz)', damping_ratio: 'resonance damping ζ', creep_pct_per_decade: 'creep (%/decade)',
   creep_nm_per_decade: 'creep (nm/decade)', creep_step_v: 'creep step (V)', delay_us: 'delay (µs)',
   drift_nm_per_s: 'drift (nm/s)', coupling_ratio: 'coupling (µm/µm)',
+  asymmetry_u2_nm: 'asymmetry u² (nm)', asymmetry_u3_nm: 'asymmetry u³ (nm)', asymmetry_s2_nm: 'asymmetry S² (nm)',
+  asymmetry_us_nm: 'asymmetry u·S (nm)',
 };
 
 let timer = null;
