@@ -135,7 +135,24 @@ def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]
     return rows
 
 
-def _model_section(row: dict, description: dict) -> str:
+def physical_table(physical: dict) -> str:
+    """The stored model's physical parameters (``{effect: {name: (value, unit)}}``), each with its unit, as
+    Discover's "Effects found" and the Lab page print them; "" when it has none (a paper's PI)."""
+    rows = [
+        [
+            escape(effect),
+            f"<code>{escape(name)}</code>",
+            f'<span data-parameter="{escape(effect)}.{escape(name)}" data-value="{value!r}">{_num(value)}</span>'
+            + (f" {escape(unit)}" if unit and unit != "1" else ""),
+        ]
+        for effect, values in physical.items()
+        for name, (value, unit) in values.items()
+    ]
+    head = ["effect", "parameter", "value (the stored model's)"]
+    return _table(head, rows, {2}, ' id="physical-parameters"') if rows else ""
+
+
+def _model_section(row: dict, description: dict, physical: dict) -> str:
     m = row["metrics"]
     labels = [
         [k, escape(str(v))]
@@ -165,6 +182,7 @@ def _model_section(row: dict, description: dict) -> str:
         "<h2>1. Model</h2>"
         + text
         + "<h2>2. Fitted parameters</h2>"
+        + physical_table(physical)
         + (_table(["effect", "fitted, in words"], words) if words else "")
         + _table(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
         + "<details><summary>Every stored parameter (<code>model.to_dict()</code>, JSON)</summary><pre>"
@@ -359,16 +377,17 @@ def render_report(
     commands: dict[str, str],
     generated_at: str,
     worst: int | None = None,
+    physical: dict | None = None,
 ) -> str:
     """The whole report as HTML text; ``worst``: the index in ``blocks`` of the block with the largest
-    held-out RMS (marked)."""
+    held-out RMS (marked); ``physical``: the model's physical parameters ``{effect: {name: (value, unit)}}``."""
     title = f"Model {model_row['id']}: {model_row['kind']}, axis {model_row['axis'].upper()}"
     return (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
         f"<title>{escape(title)}</title><style>{CSS}</style></head><body>"
         f'<h1>{escape(title)}</h1><p class="muted">{escape(" + ".join(model_row["effects"]))} · '
         f"EVC Bench report generated {escape(generated_at)}</p>"
-        + _model_section(model_row, description)
+        + _model_section(model_row, description, physical or {})
         + _datasets_section(datasets, model_row["axis"])
         + _lineage_section(steps, diagnosis.get("noise_floor_um"))
         + _diagnosis_section(diagnosis)

@@ -12,10 +12,12 @@ from service.render.model_report import BlockCurves, block_figure, history_figur
 from service.render.reproduce import commands
 from service.render.svg import decimate
 from service.science.data.record import Record
+from service.science.effects import EFFECTS
 from service.science.fitting.metrics import rms
 from service.store import Store, utc_now
 from service.usecases.discover import block_title, diagnose_model, history
 from service.usecases.identify import load_model, load_records, require_fit_memory
+from service.usecases.lab import discovered_parameters
 
 #: dataset row fields the report shows
 DATASET_FIELDS = (
@@ -109,7 +111,17 @@ def model_report(store: Store, model_id: str) -> str:
         commands(dataset_rows, steps, root),
         utc_now(),
         worst_block(g["blocks"]),
+        physical_with_units(row),
     )
+
+
+def physical_with_units(row: dict) -> dict:
+    """The stored model's physical parameters, each with its unit: ``{effect: {name: (value, unit)}}``."""
+    return {
+        effect: {name: (value, EFFECTS[effect].units.get(name, "")) for name, value in values.items()}
+        for effect, values in discovered_parameters(row).items()
+        if values
+    }
 
 
 def model_figures(store: Store, model_id: str) -> dict:

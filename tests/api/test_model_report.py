@@ -123,6 +123,23 @@ def test_the_report_of_a_refined_model(refined):
         assert row and int(row[1]) == len(values)
         assert np.allclose([float(v) for v in row[2].split(", ")], values, rtol=1e-5, atol=1e-12)
 
+    # the physical parameters, each with its unit, as Discover's "Effects found" and the Lab page print them
+    # (the creep's nm/decade was missing from the report)
+    compared = http.get("/api/lab/compare", params={"axis": "y"}).json()["benches"][0]["model"]
+    assert compared["id"] == model
+    physical = compared["parameters"]
+    assert set(physical["creep"]) == {"creep_nm_per_decade", "creep_step_v", "creep_pct_per_decade"}, physical
+    for name, unit in (
+        ("creep_nm_per_decade", "nm/decade"),
+        ("creep_step_v", "V"),
+        ("creep_pct_per_decade", "%/decade"),
+    ):
+        cell = re.search(rf'data-parameter="creep\.{name}" data-value="([^"]*)">([^<]*)</span> ([^<]*)</td>', html)
+        assert cell, name
+        assert float(cell[1]) == physical["creep"][name] and cell[3] == unit, (name, cell.groups())
+        assert float(cell[2]) == pytest.approx(physical["creep"][name], rel=5e-4)  # 4 significant digits
+    assert 2.0 < physical["creep"]["creep_pct_per_decade"] < 4.0  # fixtures/benches/creep.toml: 3 %/decade
+
     # the commands that reproduce it: the sweep's stored plan as the POST /api/sweeps body, the
     # identification and the refine step
     plan = http.get(f"/api/datasets/{refined['dataset']}").json()["plan"]
