@@ -5,6 +5,8 @@ Screenshots: tests/artifacts/web_provenance_*.png. Set-up: tests/support/browser
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from tests.support.browser import goto, posted_result, serving, shot
@@ -128,6 +130,10 @@ def test_the_answer_is_on_the_first_screen_of_a_model(page, server):
     text = answer.inner_text()
     assert (f"Missing: {leading['effect']}." in text) if leading else ("Missing:" not in text)
     assert "nm" in text and "µm" not in text
+    # the error history's step axis spans the steps there are: one step, 0 alone (uPlot drew 0–100)
+    page.wait_for_selector("#history-chart[data-x-range]")
+    assert page.get_attribute("#history-chart", "data-points") == "1"
+    assert json.loads(page.get_attribute("#history-chart", "data-x-range")) == [-0.5, 0.5]
 
 
 def test_recent_jobs_read_in_words_without_internals(page, server):

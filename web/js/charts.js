@@ -66,7 +66,7 @@ export async function lineChart(el, { title, xs, series, xLabel, yLabel, y2Label
   if (y2Label) axes.push({ label: y2Label, scale: 'y2', side: 1, grid: { show: false }, size: 60 });
   const opts = {
     ...size(el, height),
-    scales: { x: integerX ? { time: false, range: (u, lo, hi) => [Math.min(lo, 1) - 0.5, hi + 0.5] } : { time: false }, y: yRange ? { auto: false, range: yRange } : { auto: true }, ...(y2Label ? { y2: { auto: true } } : {}) },
+    scales: { x: integerX ? { time: false, range: integerRange } : { time: false }, y: yRange ? { auto: false, range: yRange } : { auto: true }, ...(y2Label ? { y2: { auto: true } } : {}) },
     axes,
     series: [{ label: xLabel }, ...series.map((s, i) => ({
       label: s.label, stroke: s.color || COLORS[i % COLORS.length], width: s.width || 1.25,
@@ -74,11 +74,21 @@ export async function lineChart(el, { title, xs, series, xLabel, yLabel, y2Label
     }))],
     plugins: [shadePlugin(shade)],
     legend: { live: true },
+    // the x range drawn, for a reader (and a test) of the page
+    hooks: { setScale: [(u, key) => { if (key === 'x') el.dataset.xRange = JSON.stringify([u.scales.x.min, u.scales.x.max]); }] },
   };
   const chart = new uPlot(opts, [xs, ...series.map((s) => s.values)], body);
   el.dataset.series = JSON.stringify(series.map((s) => s.label));
   el.dataset.length = String(xs.length);
   return chart;
+}
+
+/** An integer x axis (steps, periods) spans the values there are, half a step either side: uPlot widens a
+ * single value to 0–100 before the range function sees it, so the range is of the data, not of lo/hi. */
+function integerRange(u) {
+  const xs = u.data[0];
+  if (!xs.length) return [-0.5, 0.5];
+  return [xs.reduce((a, b) => Math.min(a, b)) - 0.5, xs.reduce((a, b) => Math.max(a, b)) + 0.5];
 }
 
 function niceTicks(lo, hi, n = 6) {
