@@ -117,8 +117,15 @@ def latest_models(engine: Engine, axis: str | None = None, parameters: bool = Fa
     ]
 
 
-def dataset_counts(engine: Engine) -> dict[str | None, int]:
-    """How many datasets each bench holds (None: datasets stored before benches had ids)."""
-    query = select(datasets.c.bench_id, func.count()).group_by(datasets.c.bench_id)
+def dataset_counts(engine: Engine) -> dict[str | None, dict[str, int]]:
+    """Per bench (None: datasets stored before benches had ids), how many datasets it ``recorded`` and
+    how many ``imported`` ones it stores: an import's bench_id is the service that stored it, but
+    another stage recorded it, so it is never counted as the bench's recording."""
+    imported = func.coalesce(datasets.c.source == "import", False)
+    query = select(datasets.c.bench_id, imported, func.count()).group_by(datasets.c.bench_id, imported)
+    out: dict[str | None, dict[str, int]] = {}
     with engine.connect() as conn:
-        return {bench_id: int(n) for bench_id, n in conn.execute(query)}
+        for bench_id, is_import, n in conn.execute(query):
+            counts = out.setdefault(bench_id, {"recorded": 0, "imported": 0})
+            counts["imported" if is_import else "recorded"] += int(n)
+    return out

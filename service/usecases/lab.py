@@ -20,7 +20,8 @@ AXES = ("y", "z")
 
 def benches(store: Store) -> dict:
     """``{"benches": [...], "offline_after_heartbeats", "this_bench_id"}``: each bench's row (no
-    config snapshot) with ``online``, ``heartbeat_age_s``, ``datasets`` (how many it holds) and
+    config snapshot) with ``online``, ``heartbeat_age_s``, ``datasets`` (how many it recorded),
+    ``imported_datasets`` (imports it stores: another stage recorded them) and
     ``latest_models`` ``{axis: summary | None}`` (fitted on its own data) and, apart,
     ``latest_imported_models`` ``{axis: summary | None}`` (fitted on data another stage recorded, with
     its ``origin``: the files it was imported from)."""
@@ -30,7 +31,8 @@ def benches(store: Store) -> dict:
     out = []
     for row in store.benches.list():
         view = _bench_summary(row, now)
-        view["datasets"] = counts.get(row["id"], 0)
+        count = counts.get(row["id"]) or {}
+        view["datasets"], view["imported_datasets"] = count.get("recorded", 0), count.get("imported", 0)
         for field, imported in (("latest_models", False), ("latest_imported_models", True)):
             view[field] = {axis: _model_summary(store, latest.get((row["id"], axis, imported))) for axis in AXES}
         out.append(view)

@@ -38,6 +38,9 @@ def test_an_imported_models_is_not_the_benchs_newest(tmp_path):
         assert latest == {("y", False): own, ("y", True): foreign}
         bench = lab.benches(store)["benches"][0]
         assert bench["id"] == "default_realtime" and bench["latest_models"]["y"]["id"] == own
+        # the import's bench_id is the service's, but it is not one of the bench's recordings
+        assert store.get_dataset(imported)["bench_id"] == "default_realtime"
+        assert (bench["datasets"], bench["imported_datasets"]) == (1, 1)
         assert bench["latest_models"]["y"]["origin"] == {"fitted_on": "this_bench", "imported": []}
         apart = bench["latest_imported_models"]["y"]
         assert apart["id"] == foreign and apart["validation_rms_um"] == 0.0092

@@ -48,6 +48,13 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     assert page.get_attribute(row, "data-fitted-on") == "imported" and "Model_Vi_Do.dat" in page.inner_text(row)
     row = f"#model-list tr[data-model-id='{server['recorded_model']}'] td.origin"
     assert page.get_attribute(row, "data-fitted-on") == "this_bench" and "imported" not in page.inner_text(row)
+    # its "recorded on" cell: another stage, the bench that stores it named apart (an import's bench_id is ours)
+    bench = server["api"].get("/lab/benches").json()["this_bench_id"]
+    cell = f"#model-list tr[data-model-id='{server['imported_model']}'] td.bench"
+    assert page.get_attribute(cell, "data-recorded-here") == "0"
+    assert page.inner_text(cell) == f"another stage (stored by {bench})"
+    cell = f"#model-list tr[data-model-id='{server['recorded_model']}'] td.bench"
+    assert page.get_attribute(cell, "data-recorded-here") == "1" and page.inner_text(cell) == bench
 
     # a model of imported data: no control that runs an experiment on this bench, and no Table 6
     goto(page, server, f"models/{server['imported_model']}")
@@ -153,6 +160,10 @@ def test_the_lab_page_never_lists_an_imported_model_as_this_benchs(page, server)
     goto(page, server, "lab")
     row = f"#lab-benches tr[data-bench-id='{bench}']"
     page.wait_for_selector(f"{row} .imported-model")
+    # one sweep recorded here; the import is stored here but counted apart, recorded on another stage
+    counted = page.locator(f"{row} td.datasets")
+    assert (counted.get_attribute("data-recorded"), counted.get_attribute("data-imported")) == ("1", "1")
+    assert counted.inner_text() == "1\n+ 1 imported (recorded on another stage)"
     newest = page.locator(f"{row} td[data-model-id]").first
     assert newest.get_attribute("data-model-id") == server["recorded_model"]
     apart = page.locator(f"{row} .imported-model").first

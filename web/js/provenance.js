@@ -30,3 +30,13 @@ export function originHtml(d) {
   if (!file) return `imported as “${esc(d.name)}”`;
   return `imported from <code>${esc(file)}</code>${d.name && d.name !== file ? ` as “${esc(d.name)}”` : ''}`;
 }
+
+/** The bench a model's data were recorded on (HTML-escaped): its bench for this bench's data; for imported
+ * data another stage, the bench that stores it named apart (an import's bench_id is the service's own). */
+export function modelBenchHtml(model) {
+  const bench = esc(model.bench_id || '—');
+  const fittedOn = model.origin?.fitted_on || 'this_bench';
+  if (fittedOn === 'this_bench') return bench;
+  const stored = `<span class="muted">(stored by ${bench})</span>`;
+  return fittedOn === 'mixed' ? `${bench} and another stage ${stored}` : `another stage ${stored}`;
+}

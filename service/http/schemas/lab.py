@@ -48,7 +48,12 @@ class BenchSummary(BaseModel):
 
 
 class LabBench(BenchSummary):
-    datasets: int = Field(description="how many datasets it holds")
+    datasets: int = Field(
+        description="how many datasets it recorded (imports not counted: another stage recorded them)"
+    )
+    imported_datasets: int = Field(
+        default=0, description="how many datasets imported from another stage's file it stores (bench_id is its own)"
+    )
     latest_models: dict[Literal["y", "z"], LatestModel | None] = Field(
         description="per axis its newest model fitted on this bench's own data"
     )

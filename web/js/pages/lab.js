@@ -76,7 +76,7 @@ async function refreshBenches(root) {
   const lab = await api('/lab/benches', { signal: controller.signal });
   root.querySelector('#lab-offline-after').textContent = lab.offline_after_heartbeats;
   root.querySelector('#lab-benches').innerHTML = `<tr><th>bench</th><th>config</th><th>status</th>
-    <th class="num">last heartbeat</th><th>running job</th><th class="num">datasets</th>
+    <th class="num">last heartbeat</th><th>running job</th><th class="num" title="the datasets it recorded; imports it stores are counted apart (another stage recorded them)">datasets recorded</th>
     ${AXES.map((a) => `<th>newest ${a.toUpperCase()} model</th>`).join('')}<th>service</th></tr>` +
     lab.benches.map((b) => {
       const s = status(b);
@@ -86,7 +86,8 @@ async function refreshBenches(root) {
         <td class="status ${s.cls}" data-status="${s.key}">${esc(s.text)}</td>
         <td class="num" title="${esc(b.heartbeat_at)}">${fmt(b.heartbeat_age_s, 2)} s ago</td>
         <td class="running-job">${b.running_job_id ? esc(b.running_job_id) : '<span class="muted">–</span>'}</td>
-        <td class="num">${b.datasets}</td>
+        <td class="num datasets" data-recorded="${b.datasets}" data-imported="${b.imported_datasets || 0}">${b.datasets}${b.imported_datasets
+          ? `<br><span class="muted">+ ${b.imported_datasets} imported (recorded on another stage)</span>` : ''}</td>
         ${AXES.map((a) => modelCell(b.latest_models[a], (b.latest_imported_models || {})[a])).join('')}
         <td><a href="${esc(b.url)}/web/" target="_blank" rel="noopener">${esc(b.url)}</a></td></tr>`;
     }).join('');
