@@ -64,6 +64,21 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     assert page.locator("#discover-form input[name=allow_experiments]").count() == 0
     assert "recorded on another stage" in page.inner_text("#experiments-elsewhere-note")
     assert page.locator("#table6 td.paper").count() == 0 and page.is_visible("#table6-omitted")
+    # max |e| in nm is the stored figure (one block: its training max), and says where it falls: the first
+    # sample, a start transient (13070 nm beside a held-out max of 929 nm read as a contradiction)
+    compared = (
+        server["api"]
+        .get(f"/models/{server['imported_model']}/compare", params={"dataset": server["imported"], "arrays": "false"})
+        .json()["metrics"]["overall"]
+    )
+    stored = server["api"].get(f"/models/{server['imported_model']}").json()["metrics"]
+    assert float(page.get_attribute("#compare-max-abs", "data-value")) == compared["max_abs_um"]
+    assert compared["max_abs_um"] == stored["train_max_abs_um"] > 10 * stored["validation_max_abs_um"]
+    printed = page.inner_text("#compare-max-abs")
+    assert printed.endswith(" nm") and float(printed[:-3]) == pytest.approx(compared["max_abs_um"] * 1e3, rel=5e-4)
+    assert page.get_attribute("#compare-max-at", "data-t-s") == "0" and "the first sample" in page.inner_text(
+        "#compare-max-at"
+    )
     shot(page, "provenance_imported_model")
 
     # a model of data recorded here: the experiments may run, and Table 6 stands beside it in nm
