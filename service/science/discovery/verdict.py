@@ -69,7 +69,7 @@ def share_words(removed: float) -> str:
     its share (≤ 1; negative: the held-out RMS rose, which no share "of the excess" states)."""
     if round(100 * removed) < 0:
         return "none of the excess above the noise floor removed: the held-out RMS rises"
-    return f"{100 * removed:.0f} % of the excess above the noise floor"
+    return f"{max(100 * removed, 0.0):.0f} % of the excess above the noise floor"  # never "-0 %"
 
 
 def residual_words(records) -> str:

@@ -57,5 +57,6 @@ def test_a_negative_drop_is_worded_as_a_rise_not_a_removal():
     size = size_words(-2.5e-6, ("creep",))
     assert "raised by 2.5 nm² over the model + creep" in size and part_whole_problems(size) == []
     assert share_words(0.734) == "73 % of the excess above the noise floor"
+    assert share_words(-0.003) == "0 % of the excess above the noise floor"  # not "-0 %"
     assert share_words(-0.2) == "none of the excess above the noise floor removed: the held-out RMS rises"
     assert part_whole_problems(f"Added to this model: 10 nm → 12 nm ({share_words(-0.2)}).") == []
