@@ -5,6 +5,8 @@ Pure numpy: no store, no HTTP."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from service.science.data.units import fmt_nm
@@ -64,14 +66,24 @@ def claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:
     return (test["gain_trend_mse_um2"] if anchor == "training_mean" else test["gain_mse_um2"]), anchor
 
 
+@dataclass(frozen=True)
+class Judged:
+    """What every candidate row of one diagnosis is judged against: its ``fits`` on ``records``, the
+    noise floor ``noise`` (µm; ``floor``, its figures), this model's held-out RMS ``v0`` (µm) and number
+    of parameters ``k0``, and the residual's signature measures ``sig``."""
+
+    fits: DiagnosisFits
+    records: list
+    noise: float
+    v0: float
+    k0: int
+    sig: dict
+    floor: dict
+
+
 def candidate_row(
     name,
-    fits: DiagnosisFits,
-    noise,
-    v0,
-    k0,
-    sig,
-    floor,
+    judged: Judged,
     is_claimed: bool,
     p_value: float,
     gain: float,
@@ -85,6 +97,7 @@ def candidate_row(
     """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
     (``v_trial``: the held-out RMS of its reference with it, where it was tested against one;
     ``kind``: "capacity" where this model makes a physical effect's columns capacity)."""
+    fits, noise, v0, k0, sig, floor = judged.fits, judged.noise, judged.v0, judged.k0, judged.sig, judged.floor
     eff = EFFECTS[name]
     kind = kind or eff.kind
     v, added, fitted = v0, 0, ""

@@ -26,7 +26,7 @@ from service.science.data.units import fmt_nm, fmt_nm2
 from service.science.discovery.ambiguity import ambiguity
 from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.breakdown import failures, signatures
-from service.science.discovery.candidate_rows import DiagnosisFits, candidate_row, claimed_size
+from service.science.discovery.candidate_rows import DiagnosisFits, Judged, candidate_row, claimed_size
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.decision import (
@@ -96,11 +96,10 @@ def _unseen_rates(name: str, fits: DiagnosisFits, records, reference: tuple) -> 
     return {"gain_mse_um2": float(np.mean(gains)), "frequencies_hz": freqs[1:-1]} if gains else None
 
 
-def _candidate(
-    name, fits: DiagnosisFits, records, noise: float, v0: float, k0: int, sig: dict, floor: dict, alpha: float
-) -> dict:
+def _candidate(name, judged: Judged, alpha: float) -> dict:
     """One testable candidate: its test against its reference, the claim, and what adding it to
     the model gives (fitted only when it is claimed or is capacity: the others change nothing)."""
+    fits, records, noise, v0 = judged.fits, judged.records, judged.noise, judged.v0
     eff = EFFECTS[name]
     reference = _reference_for(name)
     _, raw_ref, v_ref = fits.get(reference)
@@ -153,12 +152,7 @@ def _candidate(
         gain, anchor = claimed_size(test, is_claimed)
     return candidate_row(
         name,
-        fits,
-        noise,
-        v0,
-        k0,
-        sig,
-        floor,
+        judged,
         is_claimed,
         test["p"],
         gain,
@@ -170,7 +164,7 @@ def _candidate(
     )
 
 
-def _seen_at_rest(name, fits: DiagnosisFits, rests: dict, noise, v0, k0, sig, floor, alpha) -> dict:
+def _seen_at_rest(name, judged: Judged, rests: dict, alpha: float) -> dict:
     """A disturbance the rests show (service/science/discovery/rests.py), already taken out of the record:
     claimed on the rests' held-out test (its strongest line's z, one-sided), its gain the lines' mean square."""
     from statistics import NormalDist
@@ -182,7 +176,7 @@ def _seen_at_rest(name, fits: DiagnosisFits, rests: dict, noise, v0, k0, sig, fl
         f"{disturbance(rests)['text']} (held-out z = {z:.3g} at rest against a threshold of "
         f"{rests['threshold_z']:.3g}, Bonferroni over {len(rests['tried'])} frequencies)"
     )
-    return candidate_row(name, fits, noise, v0, k0, sig, floor, p < alpha, p, gain, (), v0, how)
+    return candidate_row(name, judged, p < alpha, p, gain, (), judged.v0, how)
 
 
 def fitted_without_lines(line_free: LineFree, model: CompositeModel) -> CompositeModel:
@@ -215,6 +209,7 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     noise = floor["noise_floor_um"] or 0.0
     sig = signatures(records, res, preds)
     k0 = model.n_parameters()
+    judged = Judged(fits, records, noise, v0, k0, sig, floor)
     candidates, untestable, shape_ambiguity = [], [], None
     why_not_of = {name: not_testable(name, records) for name in EFFECTS if name not in model.effects}
     tested = sum(why is None for why in why_not_of.values())
@@ -222,7 +217,7 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     for name, why_not in why_not_of.items():
         eff = EFFECTS[name]
         if eff.seen_at_rest and rests and rests["lines"]:  # seen at rest, and out of the record already
-            candidates.append(_seen_at_rest(name, fits, rests, noise, v0, k0, sig, floor, alpha))
+            candidates.append(_seen_at_rest(name, judged, rests, alpha))
             continue
         if why_not is not None:
             untestable.append(
@@ -246,10 +241,10 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
             continue
         if name in LOOP_SHAPE and not set(LOOP_SHAPE) & set(model.effects):
             if name == LOOP_SHAPE[0]:  # the pair is weighed together, once
-                pair, shape_ambiguity = loop_shape_pair(fits, records, noise, v0, k0, sig, floor, alpha)
+                pair, shape_ambiguity = loop_shape_pair(judged, alpha)
                 candidates += pair
             continue
-        candidates.append(_candidate(name, fits, records, noise, v0, k0, sig, floor, alpha))
+        candidates.append(_candidate(name, judged, alpha))
     at_rest = {n for n, e in EFFECTS.items() if e.seen_at_rest} if rests and rests["lines"] else set()
     size_claims(candidates, at_rest)  # one comparable size for every claim: ranking.py
     candidates.sort(key=rank_key)

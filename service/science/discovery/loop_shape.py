@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from service.science.data.units import fmt_nm
 from service.science.discovery.ambiguity import separating
-from service.science.discovery.candidate_rows import DiagnosisFits, candidate_row, claimed_size
+from service.science.discovery.candidate_rows import Judged, candidate_row, claimed_size
 from service.science.discovery.decision import claimed, held_out_improvement
 from service.science.discovery.identifiability import experiment_body
 from service.science.discovery.ranking import claim_size
@@ -19,11 +19,12 @@ from service.science.effects import EFFECTS
 LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
 
-def loop_shape_as_capacity(fits: DiagnosisFits, records, noise, v0, k0, sig, floor) -> list[dict]:
+def loop_shape_as_capacity(judged: Judged) -> list[dict]:
     """The loop-shape pair on a base that draws any rate-independent loop shape (issue 37's wider
     base): what either still explains is that base's shape, so each is offered as capacity (validated
     against the model itself, never claimed as physics). The stack's asymmetry and the gauge's bow
     are named as physics only while the base is point-symmetric, where they can be told apart."""
+    fits, records, v0 = judged.fits, judged.records, judged.v0
     _, res0, _ = fits.get(())
     rows = []
     for name in LOOP_SHAPE:
@@ -38,12 +39,7 @@ def loop_shape_as_capacity(fits: DiagnosisFits, records, noise, v0, k0, sig, flo
         rows.append(
             candidate_row(
                 name,
-                fits,
-                noise,
-                v0,
-                k0,
-                sig,
-                floor,
+                judged,
                 is_claimed,
                 test["p"],
                 gain,
@@ -57,7 +53,7 @@ def loop_shape_as_capacity(fits: DiagnosisFits, records, noise, v0, k0, sig, flo
     return rows
 
 
-def loop_shape_pair(fits: DiagnosisFits, records, noise, v0, k0, sig, floor, alpha) -> tuple[list[dict], dict | None]:
+def loop_shape_pair(judged: Judged, alpha: float) -> tuple[list[dict], dict | None]:
     """Asymmetry and sensor_nonlinearity, neither in the model. Whether the measured loop is
     point-symmetric is tested without a model (a point-symmetric stack of any family has no even
     part; symmetry.py); if it is not, the stack's asymmetry (a function of the drive and the loop's
@@ -67,8 +63,9 @@ def loop_shape_pair(fits: DiagnosisFits, records, noise, v0, k0, sig, floor, alp
     # the model's residual where the model draws a point-symmetric loop itself (then its even part is
     # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
     # (or a base that draws any loop shape, issue 37: an asymmetric loop it draws is the base's, not physics)
+    fits, records, noise, v0 = judged.fits, judged.records, judged.noise, judged.v0
     if any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects):
-        return loop_shape_as_capacity(fits, records, noise, v0, k0, sig, floor), None
+        return loop_shape_as_capacity(judged), None
     symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
     test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise, alpha)
     even2 = (test["even_rms_um"] or 0.0) ** 2
@@ -83,8 +80,8 @@ def loop_shape_pair(fits: DiagnosisFits, records, noise, v0, k0, sig, floor, alp
             "shape the flexible base draws)"
         )
         return [
-            candidate_row("asymmetry", fits, noise, v0, k0, sig, floor, False, test["p"], even2, (), v0, shape),
-            candidate_row("sensor_nonlinearity", fits, noise, v0, k0, sig, floor, False, 1.0, 0.0, (), v0, gauge),
+            candidate_row("asymmetry", judged, False, test["p"], even2, (), v0, shape),
+            candidate_row("sensor_nonlinearity", judged, False, 1.0, 0.0, (), v0, gauge),
         ], None
     _, res_a, v_a = fits.get(("asymmetry",))
     _, res_s, v_s = fits.get(("sensor_nonlinearity",))
@@ -102,12 +99,7 @@ def loop_shape_pair(fits: DiagnosisFits, records, noise, v0, k0, sig, floor, alp
     rows = [
         candidate_row(
             name,
-            fits,
-            noise,
-            v0,
-            k0,
-            sig,
-            floor,
+            judged,
             name == winner,
             test["p"] if name == winner else (stack_better if name == "asymmetry" else gauge_better)["p"],
             claim_size(records, fits.get(())[1], res_a if name == "asymmetry" else res_s) if name == winner else 0.0,
