@@ -263,15 +263,20 @@ def hidden_um(effect: str | None, u_v: np.ndarray, x_um: np.ndarray, fs: float) 
     raise ValueError(effect)
 
 
+def material_blocks(world, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
+    """[(u_v, x_um)] the material's own output per block (no gauge effect, no noise), each block from
+    rest at 0 V and from the material's virgin state, as the "one CSV per block" form records them."""
+    material = WORLDS[world]
+    return [(u, material(stage_drive_v(hidden, u, fs), bipolar)) for u in blocks_v(u_max_v, bipolar, fs=fs)]
+
+
 def record_blocks(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
     """[(u_v, x_um)] one per block, each from rest (the "one CSV per block" form)."""
     rng = np.random.default_rng(seed)
-    material = WORLDS[world]
-    out = []
-    for u in blocks_v(u_max_v, bipolar, fs=fs):
-        x = material(stage_drive_v(hidden, u, fs), bipolar)
-        out.append((u, hidden_um(hidden, u, x, fs) + rng.normal(0.0, noise_um, u.size)))
-    return out
+    return [
+        (u, hidden_um(hidden, u, x, fs) + rng.normal(0.0, noise_um, u.size))
+        for u, x in material_blocks(world, u_max_v, bipolar, fs, hidden)
+    ]
 
 
 def record_long(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
@@ -285,17 +290,22 @@ def records(world: str, form: str = "blocks", noise_um: float = 0.002, seed: int
     """Held-out product Records of the world, imported as a lab's CSVs would be (blocks cut by the
     importer): ``form`` "blocks" (one record per block) or "long" (one record); ``drive``: u_max_v,
     bipolar, fs (Hz) and hidden (an effect of ``hidden_um``)."""
-    from service.science.data.segmentation import blocks_without_table
-    from service.science.discovery.records import records_from_arrays
-
-    fs = drive.get("fs", SAMPLE_RATE_HZ)
     pairs = (
         record_blocks(world, noise_um, seed, **drive)
         if form == "blocks"
         else [record_long(world, noise_um, seed, **drive)]
     )
+    return imported_records(pairs, drive.get("fs", SAMPLE_RATE_HZ), f"{world}:{form}")
+
+
+def imported_records(pairs, fs: float, label: str) -> list:
+    """Held-out product Records (axis y) of [(u_v, x_um)] pairs sampled at ``fs`` (Hz), one per pair
+    (labelled ``<label><k>:y``), their blocks cut by the product's importer as an imported CSV's are."""
+    from service.science.data.segmentation import blocks_without_table
+    from service.science.discovery.records import records_from_arrays
+
     out = []
     for k, (u, x) in enumerate(pairs):
         table = blocks_without_table({"y": u}, fs)
-        out += records_from_arrays({"u_y_v": u, "x_y_um": x}, fs, table, ("y",), f"{world}:{form}{k}:")
+        out += records_from_arrays({"u_y_v": u, "x_y_um": x}, fs, table, ("y",), f"{label}{k}:")
     return out

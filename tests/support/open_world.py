@@ -13,11 +13,23 @@ Kinds (each a form no built-in effect draws, so the library can at best approxim
 - ``"offset_settle"``: the gauge's mount settles thermally, its zero moving 40 nm with a 1 s time
   constant (the library's drift is a polynomial in t).
 
-Each is recorded as one long record with rests (5 kHz, 2 nm of gauge noise) on a Prandtl–Ishlinskii
-material (Maxwell-slip) and a non-PI one (Bouc–Wen, β < γ).
+Each is recorded (5 kHz, 2 nm of gauge noise) on a Prandtl–Ishlinskii material (Maxwell-slip) and a
+non-PI one (Bouc–Wen, β < γ), in either of a lab's two record forms (``--forms``):
+- ``"long"``: one record, every block one after the other with their rests, the material's state
+  carried through; the hidden effect runs on the record's own time;
+- ``"blocks"``: one record per block, as a lab cuts one file per block: each from rest at 0 V and its
+  own t = 0, the material from its virgin state (tests/support/hysteresis_worlds.material_blocks, as
+  the repo's clean stages are), with FILE_GAP_S of unrecorded rest at 0 V between files. Every hidden
+  effect runs on the session's clock (since the stage and gauge were powered), which no file carries:
+  a stack's depolarisation and a gauge mount's settling follow power-up, not a file's start; the
+  unrecorded temperature is a state that cools in the gaps and carries into the next file; a machine's
+  sweep and the mains and pump lines keep the wall clock's phase (restarting them with each file would
+  lock them to the drive's start, which nothing in a lab does). So the settling kinds sit mostly in the
+  first file, and a file's own time is not the time the effect follows.
 
-Run: ``python -m tests.support.open_world [--kinds ...] [--worlds ...] [--seeds 0 1]``; prints one
-row per stage and the share whose description leads with the right signature (JSON with ``--json``).
+Run: ``python -m tests.support.open_world [--kinds ...] [--worlds ...] [--seeds 0 1] [--forms blocks long]``
+(``--forms`` defaults to ``long``, the form of the first measured table); prints one row per stage and,
+per form, the share whose description leads with the right signature (JSON with ``--json``).
 Units: µm for displacements, V for drives, s for time, Hz for frequencies.
 """
 
@@ -30,9 +42,12 @@ import warnings
 
 import numpy as np
 
-from tests.support.hysteresis_worlds import WORLDS, blocks_v
+from tests.support.hysteresis_worlds import WORLDS, blocks_v, imported_records, material_blocks
 
 FS_HZ = 5000.0
+#: "blocks" form: the unrecorded rest at 0 V between one file and the next (s), a lab saving a file
+FILE_GAP_S = 1.0
+FORMS = ("long", "blocks")
 #: the signature (its name's start) a right description leads with, per kind
 EXPECTED = {
     "gain_relax": "gain changing with time",
@@ -78,24 +93,39 @@ def hidden_um(kind: str, u_v: np.ndarray, x_um: np.ndarray, fs: float) -> np.nda
     raise ValueError(f"unknown kind {kind!r}")
 
 
-def records(world: str, kind: str, noise_um: float = 0.002, seed: int = 0, fs: float = FS_HZ):
-    """The stage as one long held-out product Record, its blocks cut by the product's importer."""
-    from service.science.data.segmentation import blocks_without_table
-    from service.science.discovery.records import records_from_arrays
+def session_files(world: str, kind: str, fs: float = FS_HZ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(u_v, x_um)] one per block, before the gauge's noise: each block's material output from rest,
+    laid on the session's clock with FILE_GAP_S of rest between files, ``kind`` applied on that clock,
+    then cut back into files that each start at their own t = 0."""
+    gap = int(round(FILE_GAP_S * fs))
+    loops = material_blocks(world, fs=fs)
+    u_s = np.concatenate([np.concatenate([u, np.zeros(gap)]) for u, _ in loops])
+    x_s = np.concatenate([np.concatenate([x, np.full(gap, x[-1])]) for _, x in loops])
+    seen = hidden_um(kind, u_s, x_s, fs)
+    starts = np.cumsum([0] + [u.size + gap for u, _ in loops[:-1]])
+    return [(u, seen[s : s + u.size]) for s, (u, _) in zip(starts, loops)]
 
+
+def records(world: str, kind: str, noise_um: float = 0.002, seed: int = 0, fs: float = FS_HZ, form: str = "long"):
+    """The stage as held-out product Records in ``form`` (module docstring), cut by the product's importer."""
     rng = np.random.default_rng(seed)
-    u = np.concatenate(blocks_v(fs=fs))
-    x = hidden_um(kind, u, WORLDS[world](u, False), fs) + rng.normal(0.0, noise_um, u.size)
-    table = blocks_without_table({"y": u}, fs)
-    return records_from_arrays({"u_y_v": u, "x_y_um": x}, fs, table, ("y",), f"{world}:{kind}:")
+    if form == "long":
+        u = np.concatenate(blocks_v(fs=fs))
+        pairs = [(u, hidden_um(kind, u, WORLDS[world](u, False), fs))]
+    elif form == "blocks":
+        pairs = session_files(world, kind, fs)
+    else:
+        raise ValueError(f"unknown form {form!r}")
+    noisy = [(u, x + rng.normal(0.0, noise_um, u.size)) for u, x in pairs]
+    return imported_records(noisy, fs, f"{world}:{kind}:{form}")
 
 
-def measure(world: str, kind: str, seed: int) -> dict:
+def measure(world: str, kind: str, seed: int, form: str = "long") -> dict:
     """One discover run on the stage: what it added, where it ended, and what its description leads with."""
     from service.science.discovery.loop import discovery_run
 
     start = time.perf_counter()
-    steps = discovery_run(records(world, kind, seed=seed), continue_past_ambiguity=True)
+    steps = discovery_run(records(world, kind, seed=seed, form=form), continue_past_ambiguity=True)
     last = steps[-1]["diagnosis"]
     remainder = last.get("remainder") or {}
     leading = (remainder.get("signatures") or [{}])[0].get("signature")
@@ -105,6 +135,7 @@ def measure(world: str, kind: str, seed: int) -> dict:
     return {
         "world": world,
         "kind": kind,
+        "form": form,
         "seed": seed,
         "added": added,
         "end_to_floor": last["residual_rms_um"] / last["noise_floor_um"],
@@ -117,36 +148,44 @@ def measure(world: str, kind: str, seed: int) -> dict:
     }
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--kinds", nargs="+", default=list(EXPECTED))
-    ap.add_argument("--worlds", nargs="+", default=list(DEFAULT_WORLDS))
-    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
-    warnings.simplefilter("ignore")
-    rows = []
-    for kind in args.kinds:
-        for world in args.worlds:
-            for seed in args.seeds:
-                row = measure(world, kind, seed)
-                rows.append(row)
-                if not args.json:
-                    print(
-                        f"{kind:14s} {world:18s} s{seed} added={'+'.join(row['added']) or '-':40s} "
-                        f"end {row['end_to_floor']:.2f}x floor lead={row['leading_signature']!s:28s} "
-                        f"right={row['right']} loop-shape={row['loop_shape_claimed']} ({row['seconds']} s)",
-                        flush=True,
-                    )
+def summary(rows: list[dict]) -> dict:
+    """Stages, those ended at the floor, those described and led by the right signature, and stages of
+    an unlocked disturbance given a loop-shape effect."""
     described = [r for r in rows if not r["at_noise_floor"]]
-    summary = {
+    return {
         "stages": len(rows),
         "ended_at_floor": len(rows) - len(described),
         "described": len(described),
         "leading_right": sum(r["right"] for r in described),
         "loop_shape_claims_for_unlocked": sum(bool(r["loop_shape_claimed"]) for r in rows),
     }
-    print(json.dumps({"rows": rows, "summary": summary}) if args.json else json.dumps(summary))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kinds", nargs="+", default=list(EXPECTED))
+    ap.add_argument("--worlds", nargs="+", default=list(DEFAULT_WORLDS))
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
+    ap.add_argument("--forms", nargs="+", choices=FORMS, default=["long"])
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    rows = []
+    for form in args.forms:
+        for kind in args.kinds:
+            for world in args.worlds:
+                for seed in args.seeds:
+                    row = measure(world, kind, seed, form)
+                    rows.append(row)
+                    if not args.json:
+                        print(
+                            f"{form:6s} {kind:14s} {world:18s} s{seed} added={'+'.join(row['added']) or '-':40s} "
+                            f"end {row['end_to_floor']:.2f}x floor lead={row['leading_signature']!s:28s} "
+                            f"right={row['right']} loop-shape={row['loop_shape_claimed']} ({row['seconds']} s)",
+                            flush=True,
+                        )
+    by_form = {form: summary([r for r in rows if r["form"] == form]) for form in args.forms}
+    print(json.dumps({"rows": rows, "summary": by_form}) if args.json else json.dumps(by_form))
 
 
 if __name__ == "__main__":
