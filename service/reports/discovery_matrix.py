@@ -194,7 +194,7 @@ def main(argv=None) -> int:
     parser.add_argument("--clean-seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     parser.add_argument("--families", nargs="+", default=list(FAMILIES))
     parser.add_argument("--json", help="write the result here")
-    parser.add_argument("--markdown", action="store_true", help="print the tables for docs/discovery.md")
+    parser.add_argument("--markdown", action="store_true", help="print the tables for docs/discovery-evidence.md")
     parser.add_argument("--from-json", help="print the tables of a result written earlier by --json (no run)")
     args = parser.parse_args(argv)
     if args.from_json:

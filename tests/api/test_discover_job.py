@@ -164,7 +164,7 @@ def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_add
     stack's asymmetry 5977 nm²; the mode and rate dependence are both on the bench and look alike at
     10/100 Hz, so the first diagnosis names that ambiguity (before, asymmetry ranked between them and hid
     it); continued, the loop adds rate dependence first and ends within 3× its 3.13 nm floor
-    (docs/discovery.md, "Ranking the claims: one size"). The dynamics bench has
+    (docs/discovery-evidence.md, "In what order the claims come: one size"). The dynamics bench has
     no ambiguity: its second diagnosis named the same pair while the symmetry test read the mode's
     ring-down after each block's start as a loop that is not point-symmetric (it has no asymmetry)."""
     warnings.simplefilter("ignore")

@@ -28,7 +28,7 @@ The reference is what keeps *systematic* misfit from being claimed: for a physic
 the model plus a flexible rate-independent base (finer operators and a non-symmetric loop shape),
 so that a loop shape the paper's PI cannot draw is never called physics. The false-claim rate of
 this rule on clean benches of several hysteresis families is measured by
-``python -m service.reports.discovery_matrix`` and stated in docs/discovery.md.
+``python -m service.reports.discovery_matrix`` and stated in docs/discovery-evidence.md.
 Pure numpy/scipy: no store, no HTTP.
 """
 

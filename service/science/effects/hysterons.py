@@ -119,7 +119,7 @@ class Hysterons(Effect):
     kind = "capacity"
     #: twice the PI's play widths (20 for the default 10): the plane is discrete in width, and a density
     #: that changes over a few volts of width (a Jiles–Atherton or Bouc–Wen n = 2 stack) needs the finer
-    #: grid (held out at 5 kHz: JA 4.6 → 2.6 nm, Bouc–Wen n = 2 3.2 → 2.3 nm; docs/discovery.md)
+    #: grid (held out at 5 kHz: JA 4.6 → 2.6 nm, Bouc–Wen n = 2 3.2 → 2.3 nm; docs/discovery-evidence.md)
     operator_factor = 2
     stage = "capacity"
     signature = (

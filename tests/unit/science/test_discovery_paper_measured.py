@@ -7,7 +7,7 @@ Measured (seed 0): added asymmetry, rate_dependence, cross_coupling, creep, oper
 RMS 4.7 nm against a 3.0 nm noise floor (1.6×); per block ≤ 2× except Z's own 100 Hz block (10.3 nm,
 3.4×). On Y's record rate dependence comes fourth, after asymmetry, cross-coupling and creep, so
 the test reads Z's: there the stack's asymmetry and the coupling are larger effects than the rate
-dependence, and creep is claimed for the bench's 18.3 ms rate relaxation (docs/discovery.md,
+dependence, and creep is claimed for the bench's 18.3 ms rate relaxation (docs/discovery-evidence.md,
 "paper_measured Y: rate dependence is not among the two largest effects").
 """
 

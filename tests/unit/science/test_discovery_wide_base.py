@@ -1,7 +1,7 @@
 """Issue 37: a rate-independent base of a wider family than play operators, on stages built without
 the product's code (tests/support/hysteresis_worlds.py: an exact Bouc–Wen stack with β < γ, and a
 Preisach plane with a correlated Gaussian density), each block recorded as its own CSV from rest,
-2 nm of gauge noise, at 5 kHz here to keep the tests short (the matrix in docs/discovery.md is
+2 nm of gauge noise, at 5 kHz here to keep the tests short (the matrix in docs/discovery-evidence.md is
 at 20 kHz: python -m tests.support.world_matrix).
 
 A sum of play operators obeys Masing's rule and cannot draw either loop: held out, the PI base

@@ -4,7 +4,7 @@ variant on Bouc–Wen and Maxwell-slip stacks (top candidate right and claimed, 
 held-out RMS), clean benches of every family with independent and collinear drives (nothing
 physical claimed; collinear drives leave cross-coupling not testable), and several effects at once.
 The Preisach variants are tests/unit/science/test_discovery_variants.py. Nothing here is tuned to a family: the
-figures are the report's (docs/discovery.md)."""
+figures are the report's (docs/discovery-evidence.md)."""
 
 from __future__ import annotations
 
