@@ -45,9 +45,11 @@ def new_instance() -> str:
 
 
 def age_s(row: dict, now: datetime | None = None) -> float:
-    """Seconds since the row's last heartbeat (clocks of the lab's machines are assumed in step)."""
+    """Seconds since the row's last heartbeat, to the millisecond the lab view reports (clocks of the
+    lab's machines are assumed in step). ``is_online`` decides on this same figure, so a bench shown
+    offline never reports an age within the limit (1.5 s against 3 × 0.5 s, rounded from 1.5004 s)."""
     now = now or datetime.now(UTC)
-    return (now - datetime.fromisoformat(row["heartbeat_at"].replace("Z", "+00:00"))).total_seconds()
+    return round((now - datetime.fromisoformat(row["heartbeat_at"].replace("Z", "+00:00"))).total_seconds(), 3)
 
 
 def is_online(row: dict, now: datetime | None = None) -> bool:

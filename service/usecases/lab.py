@@ -99,7 +99,7 @@ def _bench_summary(row: dict, now: datetime) -> dict:
         "heartbeat_s",
         "software_version",
     )
-    return {**{k: row[k] for k in keys}, "online": is_online(row, now), "heartbeat_age_s": round(age_s(row, now), 3)}
+    return {**{k: row[k] for k in keys}, "online": is_online(row, now), "heartbeat_age_s": age_s(row, now)}
 
 
 def _model_summary(store: Store, model: dict | None) -> dict | None:

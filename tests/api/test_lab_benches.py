@@ -17,6 +17,7 @@ from service.runtime.heartbeat import (
     OFFLINE_AFTER_HEARTBEATS,
     BenchIdInUse,
     Heartbeat,
+    age_s,
     claim,
     is_online,
     new_instance,
@@ -277,3 +278,15 @@ def test_lab_routes_in_process(tmp_path, monkeypatch):
         assert "http://b2:8000" in sent.json()["detail"]
     assert app.state.store.benches.get("creep")["state"] == "stopped"  # a clean shut-down
     other.close()
+
+
+@pytest.mark.parametrize("late_s", [0.0004, 0.0006, 0.2])
+def test_an_offline_bench_never_reports_an_age_within_the_limit(late_s):
+    """A bench offline after 3 silent heartbeats of 0.5 s reports an age above 1.5 s: the lab view's age
+    is rounded to the ms and the online test read the unrounded one (1.5004 s: offline, shown as 1.5 s)."""
+    now = datetime(2026, 12, 6, 12, 0, 0, tzinfo=UTC)
+    limit_s = OFFLINE_AFTER_HEARTBEATS * 0.5
+    row = {"state": "idle", "heartbeat_s": 0.5, "heartbeat_at": (now - timedelta(seconds=limit_s + late_s)).isoformat()}
+    age = age_s(row, now)
+    assert is_online(row, now) == (age <= limit_s)
+    assert age == round(limit_s + late_s, 3)
