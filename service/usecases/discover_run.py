@@ -28,7 +28,7 @@ from service.science.discovery.composite import as_composite
 from service.science.discovery.diagnosis import fitted_without_lines
 from service.science.discovery.like_for_like import effects_key, like_for_like
 from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, try_step
-from service.science.discovery.parameters import physical_parameters
+from service.science.discovery.parameters import parameter_units, physical_parameters
 from service.science.discovery.rests import LineFree
 from service.science.effects import EFFECTS, ordered
 from service.store import Store
@@ -225,6 +225,7 @@ class _Loop:
             self.run["steps"][-1]["model_id"],
             ctx.job_id,
             self.labels,
+            line_free=self.line_free,
         )["id"]
 
     def join(self, store: Store, dataset_id: str) -> None:
@@ -362,7 +363,7 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
             "kind": EFFECTS[name].kind,
             "added_at_step": index,
             "parameters": parameters.get(name, {}),
-            "units": {k: EFFECTS[name].units.get(k, "") for k in parameters.get(name, {})},
+            "units": parameter_units(name, parameters.get(name, {})),
             "evidence": c["evidence"],
             "p_value": c["p_value"],
             "score": c["score"],

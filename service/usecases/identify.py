@@ -20,7 +20,7 @@ from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.discovery.registry import MODELS, model_for, model_from_dict
-from service.science.discovery.rests import read_rests
+from service.science.discovery.rests import LineFree, read_rests
 from service.science.effects import effect_names, ordered
 from service.science.errors import FieldError
 from service.science.fitting.memory import memory_shortfall
@@ -232,17 +232,20 @@ def store_model(
     parent_id: str | None,
     job_id: str | None,
     labels: dict | None = None,
+    line_free: LineFree | None = None,
 ) -> dict:
     """Validate a fitted model on the held-out cycles of ``records`` (train/held-out RMS in µm) and
     store it (``parent_id``: the model it refines; ``labels``: more fields of the row, such as its
-    bench and tags); the stored row."""
+    bench and tags; ``line_free``: what ``records``' rests showed, where the caller has read them
+    already, as the discover loop has); the stored row."""
     metrics = estimator.validate(records)
     # the data's own noise floor (µm RMS), so that a lab comparing models across benches sees how far each
     # is from what its data allow: by the diagnosis's rule (what the gauge shows at rest less the lines
     # seen there, else the residual's cycle-to-cycle differences), so a model's page and its diagnosis
     # print one floor (a walk read 3.05 nm here against 3.153 nm at rest in the diagnosis)
     residuals = [r.x_um - estimator.predict(r) for r in records]
-    metrics["noise_floor_um"] = noise_floor(records, residuals, read_rests(records))["noise_floor_um"]
+    rests = line_free.rests if line_free is not None else read_rests(records)
+    metrics["noise_floor_um"] = noise_floor(records, residuals, rests)["noise_floor_um"]
     # the loops it was trained on: a trajectory checks its own against them without reading the data
     metrics["trained_loops_v"] = trained_loops_v(records)
     return store.add_model(

@@ -12,7 +12,7 @@ from service.render.model_report import BlockCurves, block_figure, history_figur
 from service.render.reproduce import commands
 from service.render.svg import decimate
 from service.science.data.record import Record
-from service.science.effects import EFFECTS
+from service.science.discovery.parameters import parameter_units
 from service.science.fitting.metrics import rms
 from service.store import Store, utc_now
 from service.usecases.discover import block_title, diagnose_model, history
@@ -117,11 +117,12 @@ def model_report(store: Store, model_id: str) -> str:
 
 def physical_with_units(row: dict) -> dict:
     """The stored model's physical parameters, each with its unit: ``{effect: {name: (value, unit)}}``."""
-    return {
-        effect: {name: (value, EFFECTS[effect].units.get(name, "")) for name, value in values.items()}
-        for effect, values in discovered_parameters(row).items()
-        if values
-    }
+    out = {}
+    for effect, values in discovered_parameters(row).items():
+        units = parameter_units(effect, values)
+        if values:
+            out[effect] = {name: (value, units[name]) for name, value in values.items()}
+    return out
 
 
 def model_figures(store: Store, model_id: str) -> dict:

@@ -24,3 +24,9 @@ def physical_parameters(model: CompositeModel) -> dict[str, dict[str, float]]:
         raise RuntimeError("composite model is not fitted")
     scales = {**model.scales, "stroke_um": stroke_um(model)}
     return {e: EFFECTS[e].parameters(model.theta.get(e, {}), model.coef, scales, model.sign) for e in model.effects}
+
+
+def parameter_units(effect: str, names) -> dict[str, str]:
+    """The unit of each of ``effect``'s parameters ``names`` as its contract states it ("" if none): the
+    one lookup a page, the discover result and the report print units from."""
+    return {name: EFFECTS[effect].units.get(name, "") for name in names}
