@@ -125,12 +125,23 @@ def compare(store: Store, model_id: str, dataset_id: str, max_points: int | None
         "stride": stride,
         **signals,
         "metrics": {
-            "overall": sample_metrics(record.x_um[in_blocks], predicted[in_blocks]),
+            "overall": _overall(record, predicted, in_blocks, row["sample_rate_hz"]),
             "train_rms_um": figures["train_rms_um"],
             "validation_rms_um": figures["validation_rms_um"],
             "per_block": figures["blocks"],
         },
     }
+
+
+def _overall(record: Record, predicted: np.ndarray, in_blocks: np.ndarray, sample_rate_hz: float) -> dict:
+    """The figures over every sample inside a block, and where the largest |error| falls
+    (``max_abs_at_s``, s from the record's start): a start transient's maximum reads as one."""
+    figures = sample_metrics(record.x_um[in_blocks], predicted[in_blocks])
+    inside = np.flatnonzero(in_blocks)
+    if inside.size:
+        worst = inside[np.argmax(np.abs(record.x_um[inside] - predicted[inside]))]
+        figures["max_abs_at_s"] = float(worst / sample_rate_hz)
+    return figures
 
 
 def check_identify_request(store: Store, axis: str, datasets: list[str], effects: list[str], model: str) -> None:

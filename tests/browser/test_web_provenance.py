@@ -74,6 +74,7 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     stored = server["api"].get(f"/models/{server['imported_model']}").json()["metrics"]
     assert float(page.get_attribute("#compare-max-abs", "data-value")) == compared["max_abs_um"]
     assert compared["max_abs_um"] == stored["train_max_abs_um"] > 10 * stored["validation_max_abs_um"]
+    assert compared["max_abs_at_s"] == 0.0  # over every sample, not the page's decimated arrays
     printed = page.inner_text("#compare-max-abs")
     assert printed.endswith(" nm") and float(printed[:-3]) == pytest.approx(compared["max_abs_um"] * 1e3, rel=5e-4)
     assert page.get_attribute("#compare-max-at", "data-t-s") == "0" and "the first sample" in page.inner_text(

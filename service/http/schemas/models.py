@@ -115,9 +115,15 @@ class FitFigures(BaseModel):
     samples: int | None = None
 
 
+class OverallFigures(FitFigures):
+    max_abs_at_s: float | None = Field(
+        default=None, description="where the largest |error| falls, s from the record's start"
+    )
+
+
 class ComparisonMetrics(BaseModel):
     model_config = OPEN
-    overall: FitFigures = Field(description="over every sample inside a block")
+    overall: OverallFigures = Field(description="over every sample inside a block")
     train_rms_um: float | None
     validation_rms_um: float | None
     per_block: list[dict[str, Any]] = Field(description="per block: train and validation figures")

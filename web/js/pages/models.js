@@ -277,15 +277,13 @@ async function renderHistory(el, model, canHistory) {
       <td>${esc(s.change || (i ? '' : 'first fit'))}</td><td class="num">${fmtErrorNm(s.rms, 4)}</td><td class="num">${fmtErrorNm(s.same, 4)}</td></tr>`).join('')}</table>`;
 }
 
-/** Where the largest |error| of the compare answer `c` falls (" (at t = 0 s)"), when its arrays (decimated)
- * hold it: a start transient's figure (13070 nm at the first sample of an import whose held-out max is
- * 929 nm) reads as one. "" when they do not. */
-function whereMax(c, maxUm) {
-  const r = c.residual_um || [];
-  let i = -1;
-  r.forEach((v, k) => { if (i < 0 || Math.abs(v) > Math.abs(r[i])) i = k; });
-  if (i < 0 || !(Math.abs(r[i]) >= 0.999 * maxUm)) return '';
-  return ` <span class="muted" id="compare-max-at" data-t-s="${c.t_s[i]}">(at t = ${fmt(c.t_s[i], 4)} s${i === 0 ? ', the first sample' : ''})</span>`;
+/** Where the largest |error| falls (the compare's `max_abs_at_s`, over every sample, not the decimated
+ * arrays): a start transient's figure (13070 nm at the first sample of an import whose held-out max is
+ * 929 nm) reads as one. */
+function whereMax(o) {
+  const t = o.max_abs_at_s;
+  if (t === null || t === undefined) return '';
+  return ` <span class="muted" id="compare-max-at" data-t-s="${t}">(at t = ${fmt(t, 4)} s${t === 0 ? ', the first sample' : ''})</span>`;
 }
 
 async function renderCompare(el, model, datasetId, diagnosis) {
@@ -310,7 +308,7 @@ async function renderCompare(el, model, datasetId, diagnosis) {
   const o = c.metrics.overall;
   el.querySelector('#compare-table').innerHTML = `<p>Dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a>
     (${c.used_in_fit ? 'used in the fit: the held-out cycles are unseen' : 'not used in the fit: all of it is unseen'}) ·
-    RMS over every sample of the blocks that drive ${axis.toUpperCase()} (training and held-out cycles; the table's held-out figures are per block) <b id="compare-overall-rms" data-value="${o.rms_um}">${fmtErrorNm(o.rms_um, 4)}</b> · max |e| <b id="compare-max-abs" data-value="${o.max_abs_um}">${fmtErrorNm(o.max_abs_um, 4)}</b>${whereMax(c, o.max_abs_um)} · fit ${fmt(o.fit_pct, 4)} %</p>
+    RMS over every sample of the blocks that drive ${axis.toUpperCase()} (training and held-out cycles; the table's held-out figures are per block) <b id="compare-overall-rms" data-value="${o.rms_um}">${fmtErrorNm(o.rms_um, 4)}</b> · max |e| <b id="compare-max-abs" data-value="${o.max_abs_um}">${fmtErrorNm(o.max_abs_um, 4)}</b>${whereMax(o)} · fit ${fmt(o.fit_pct, 4)} %</p>
     <table id="table6"><tr><th rowspan="2">axis</th><th rowspan="2" class="num">frequency (Hz)</th>
       <th colspan="4">this model (${esc(model.kind)}${model.effects.length > 1 ? ' + ' + model.effects.filter((e) => e !== 'hysteresis').map(esc).join(' + ') : ''})</th>
       ${showPaper ? '<th colspan="3">paper, Table 6: RMS (nm)</th>' : ''}</tr>
