@@ -52,7 +52,13 @@ def discovery_text(result: dict) -> str:
     for found in result["effects_found"]:
         figures = ", ".join(f"{k} {v:.4g}" for k, v in found["parameters"].items())
         lines.append(
-            f"found {found['effect']}" + (f": {figures}" if figures else "") + f"\n  evidence: {found['evidence']}"
+            (
+                f"added {found['effect']} as model capacity, not physics"
+                if found["kind"] == "capacity"
+                else f"found {found['effect']}"
+            )
+            + (f": {figures}" if figures else "")
+            + f"\n  evidence: {found['evidence']}"
         )
     remains = result.get("remains") or {}
     if remains:

@@ -30,7 +30,7 @@ from service.science.discovery.like_for_like import effects_key, like_for_like
 from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, try_step
 from service.science.discovery.parameters import parameter_units, physical_parameters
 from service.science.discovery.rests import LineFree
-from service.science.effects import EFFECTS, ordered
+from service.science.effects import ordered
 from service.store import Store
 from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy
 from service.usecases.identify import load_model, load_record, load_records, store_model
@@ -360,7 +360,9 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
     found = [
         {
             "effect": name,
-            "kind": EFFECTS[name].kind,
+            # the role it was added in: a loop-shape effect on a base that draws any loop shape is
+            # capacity there (loop_shape.loop_shape_as_capacity), never reported as physics
+            "kind": c["kind"],
             "added_at_step": index,
             "parameters": parameters.get(name, {}),
             "units": parameter_units(name, parameters.get(name, {})),

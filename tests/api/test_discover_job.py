@@ -346,3 +346,38 @@ def test_the_progress_bar_writes_lines_into_a_pipe_and_redraws_on_a_terminal():
         "100.0 % succeeded: done",
     ]
     assert "\r" not in piped.getvalue() and tty.getvalue().count("\r") == 101 and tty.getvalue().endswith("\n")
+
+
+def test_a_loop_shape_effect_added_on_the_wider_base_is_reported_as_capacity(tmp_path):
+    """A Maxwell-slip stage whose gain drifts with its own heating (tests/support/open_world.py,
+    built without the product's model code), one CSV per block: the loop widens the base to
+    ``hysterons`` and then adds asymmetry's columns, which on a base that draws any loop shape are
+    that base's shape (loop_shape.loop_shape_as_capacity). The one-call result must say so: the
+    effect is found as capacity, never as physics, on the API and in the CLI's words."""
+    import numpy as np
+
+    from tests.support.open_world import FS_HZ, session_files
+
+    rng = np.random.default_rng(1)
+    with authed_client(create_app(Settings(data_dir=tmp_path / "var", bench="default", seed=0))) as http:
+        datasets = []
+        for k, (u, x) in enumerate(session_files("maxwell_slip", "self_heating")):
+            path = tmp_path / f"block{k}.csv"
+            noisy = x + rng.normal(0.0, 0.002, u.size)
+            np.savetxt(path, np.column_stack([u, noisy]), delimiter=",", header="u,x", comments="", fmt="%.9g")
+            with path.open("rb") as f:
+                answer = http.post(
+                    "/api/datasets", files={"file": (path.name, f)}, data={"sample_rate_hz": str(FS_HZ), "axis": "y"}
+                )
+            assert answer.status_code == 201, answer.text
+            datasets.append(answer.json()["id"])
+        r = http.post("/api/models", json={"axis": "y", "datasets": datasets, "effects": ["hysteresis"]})
+        base = _result(http, r.json()["job_id"])["model_id"]
+        r = http.post(f"/api/models/{base}/discover", json={"max_steps": 3, "continue_past_ambiguity": True})
+        result = _result(http, r.json()["job_id"])
+    found = {f["effect"]: f for f in result["effects_found"]}
+    assert list(found) == ["hysterons", "asymmetry"], list(found)
+    assert {f["kind"] for f in found.values()} == {"capacity"}, found
+    assert "as capacity and not as physics" in found["asymmetry"]["evidence"]
+    words = discovery_text(result)
+    assert "added asymmetry as model capacity, not physics" in words and "found asymmetry" not in words, words

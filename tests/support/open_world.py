@@ -143,9 +143,21 @@ def measure(world: str, kind: str, seed: int, form: str = "long") -> dict:
         "leading_signature": leading,
         "leading_text": (remainder.get("signatures") or [{}])[0].get("text"),
         "right": bool(right),
-        "loop_shape_claimed": sorted(set(added) - NOT_LOOP_SHAPE) if kind in UNLOCKED else [],
+        "loop_shape_claimed": sorted(set(_added_as_physics(steps)) - NOT_LOOP_SHAPE) if kind in UNLOCKED else [],
         "seconds": round(time.perf_counter() - start, 1),
     }
+
+
+def _added_as_physics(steps: list[dict]) -> list[str]:
+    """The effects the run added as physics: each one's row in the diagnosis before it was added is of
+    kind "physical" (a loop-shape effect on a base that draws any loop shape is offered as capacity)."""
+    out = []
+    for before, step in zip(steps, steps[1:]):
+        added = step["effects"][-1]
+        row = next(c for c in before["diagnosis"]["candidates"] if c["effect"] == added)
+        if row["kind"] == "physical":
+            out.append(added)
+    return out
 
 
 def summary(rows: list[dict]) -> dict:
