@@ -95,3 +95,28 @@ def test_held_out_rows_do_not_influence_the_fit(name):
     np.testing.assert_allclose(dirty.predict(Record(u, x, fs)), clean.predict(Record(u, x, fs)), atol=1e-6)
     held = evaluate_record(x, clean.predict(Record(u, x, fs)), splits)
     assert held["validation_rms_um"] < 0.1  # and the model is a reasonable one
+
+
+def _two_block_loops(fs=2000.0):
+    """The backlash stage of ``_loops`` driven at 5 Hz then 25 Hz, 10 cycles each, one record."""
+    u5, x5, _, _ = _loops(fs, 5.0)
+    u25, x25, _, _ = _loops(fs, 25.0)
+    blocks = [_block(0, 0, u5.size, f=5.0, cycles=10), _block(1, u5.size, u5.size + u25.size, f=25.0, cycles=10)]
+    return Record(np.concatenate([u5, u25]), np.concatenate([x5, x25]), fs, blocks=blocks, hold_out=True)
+
+
+@pytest.mark.parametrize("family", ["static_pi", "composite"])
+def test_the_largest_error_is_the_largest_over_blocks_in_every_model_family(family):
+    """``train_max_abs_um`` / ``validation_max_abs_um`` name one quantity in every family: the largest
+    |error| over all blocks (the composite gave the mean of the blocks' maxima under the same name)."""
+    from service.science.discovery.composite import CompositeModel
+
+    record = _two_block_loops()
+    model = PAPER_MODELS["static_pi"](n_operators=6) if family == "static_pi" else CompositeModel([], n_operators=6)
+    model.fit([record])
+    figures = model.validate([record])
+    blocks = [b for d in figures["per_dataset"] for b in d["blocks"]]
+    maxima = {part: [b[part]["max_abs_um"] for b in blocks] for part in ("train", "validation")}
+    assert len(blocks) == 2 and maxima["validation"][0] != pytest.approx(maxima["validation"][1], rel=1e-3)
+    assert figures["train_max_abs_um"] == max(maxima["train"])
+    assert figures["validation_max_abs_um"] == max(maxima["validation"])
