@@ -56,6 +56,20 @@ def _num(value, digits: int = 4) -> str:
     return "–" if value is None else plain(value, digits)
 
 
+def _without_lines_fact(w: dict | None) -> list[list[str]]:
+    """The held-out RMS with the lines seen at rest taken out, as a fact row, where there were lines."""
+    if not w:
+        return []
+    lines = ", ".join(f"{f:.4g} Hz" for f in w["lines_hz"])
+    return [
+        [
+            f"held-out RMS, the {lines} line{'s' if len(w['lines_hz']) > 1 else ''} seen at rest taken out "
+            "(the records the diagnosis and discover judge on)",
+            f'<span id="model-heldout-without-lines">{fmt_nm(w["validation_rms_um"], 4)}</span>',
+        ]
+    ]
+
+
 def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
     """An HTML table (``head`` None: no header row); cells are already-escaped HTML; columns in
     ``numeric`` right-aligned."""
@@ -169,6 +183,7 @@ def _model_section(row: dict, description: dict, physical: dict) -> str:
         ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
         ["training RMS", fmt_nm(m.get("train_rms_um"), 4)],
         ["held-out RMS", f'<span id="model-heldout">{fmt_nm(m.get("validation_rms_um"), 4)}</span>'],
+        *_without_lines_fact(m.get("without_lines")),
         ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
         ["created", escape(row["created_at"])],
         ["software", escape(row["software_version"])],

@@ -20,7 +20,7 @@ from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.records import record_for_axis
 from service.science.discovery.registry import MODELS, model_for, model_from_dict
-from service.science.discovery.rests import LineFree, read_rests
+from service.science.discovery.rests import LineFree
 from service.science.effects import effect_names, ordered
 from service.science.errors import FieldError
 from service.science.fitting.memory import memory_shortfall
@@ -232,6 +232,17 @@ def identify(
     }
 
 
+def without_lines_metrics(estimator, line_free: LineFree) -> dict:
+    """The model's train and held-out RMS (µm) on its records with the lines seen at rest taken out,
+    the figures its diagnosis and a discover step give, and those lines' frequencies (Hz)."""
+    figures = estimator.evaluate(line_free.records)
+    return {
+        "train_rms_um": figures["train_rms_um"],
+        "validation_rms_um": figures["validation_rms_um"],
+        "lines_hz": [line["frequency_hz"] for line in line_free.rests["lines"]],
+    }
+
+
 def store_model(
     store: Store,
     estimator,
@@ -255,8 +266,10 @@ def store_model(
     # seen there, else the residual's cycle-to-cycle differences), so a model's page and its diagnosis
     # print one floor (a walk read 3.05 nm here against 3.153 nm at rest in the diagnosis)
     residuals = [r.x_um - estimator.predict(r) for r in records]
-    rests = line_free.rests if line_free is not None else read_rests(records)
-    metrics["noise_floor_um"] = noise_floor(records, residuals, rests)["noise_floor_um"]
+    line_free = line_free if line_free is not None else LineFree.of(records)
+    metrics["noise_floor_um"] = noise_floor(records, residuals, line_free.rests)["noise_floor_um"]
+    if line_free.had_lines:  # the held-out figures the diagnosis and discover judge: the lines out
+        metrics["without_lines"] = without_lines_metrics(estimator, line_free)
     # the loops it was trained on: a trajectory checks its own against them without reading the data
     metrics["trained_loops_v"] = trained_loops_v(records)
     return store.add_model(

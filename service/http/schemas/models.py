@@ -65,6 +65,12 @@ class ModelMetrics(BaseModel):
     validation_max_abs_um: float | None = None
     per_dataset: list[dict[str, Any]] | None = None
     held_out: str | None = Field(default=None, description="what was held out of the fit")
+    noise_floor_um: float | None = Field(default=None, description="the data's noise floor, by the diagnosis's rule")
+    without_lines: dict[str, Any] | None = Field(
+        default=None,
+        description="only where the gauge showed lines at rest: train_rms_um and validation_rms_um on the "
+        "records with those lines (lines_hz) taken out, the figures the diagnosis and discover give",
+    )
     trained_loops_v: list[list[float]] | None = Field(
         default=None,
         description="[min, max] V of the drive over each training stretch of the axis's own "

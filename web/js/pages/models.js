@@ -94,7 +94,7 @@ async function showModel(el, modelId, query) {
       ${model.effects.map(esc).join(' + ')}${model.parent_id ? ` · refined from <a href="#/models/${esc(model.parent_id)}">${esc(model.parent_id)}</a>` : ''}</span></h2>
       <p id="model-origin" data-fitted-on="${esc(model.origin?.fitted_on || '')}">Fitted on ${modelOriginHtml(model)}${onImportedData(model) ? ' — it may not describe this bench' : ''}.</p>
       <p><span title="the mean over the model's blocks of each block's held-out RMS, every block counting equally">Mean of per-block held-out RMS</span>${blockCount(model) ? ` <span class="muted" id="model-validation-blocks">(the stored model's, over the ${blockCount(model)} blocks it was evaluated on)</span>` : ''} <b id="model-validation-rms" data-value="${model.metrics.validation_rms_um}">${fmtErrorNm(model.metrics.validation_rms_um, 4)}</b>
-        · training RMS ${fmtErrorNm(model.metrics.train_rms_um, 4)} · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
+        · training RMS ${fmtErrorNm(model.metrics.train_rms_um, 4)}${withoutLines(model.metrics.without_lines)} · datasets ${model.datasets.map((d) => `<a href="#/datasets/${esc(d)}">${esc(d)}</a>`).join(', ')}</p>
       <div class="row"><label>compare with dataset <select id="compare-dataset"></select></label>
         <button id="report-download" title="one self-contained HTML file: data, lineage, diagnosis, parameters, figures, the commands that reproduce it; print it for a PDF">Report (HTML)</button>
         <span id="report-status" class="muted"></span></div>
@@ -152,6 +152,12 @@ async function showModel(el, modelId, query) {
 }
 
 /** How many blocks the stored held-out mean covers (its datasets' blocks it was evaluated on), or 0. */
+/** The held-out RMS with the lines the gauge showed at rest taken out (the figure the diagnosis and a
+ * discover step give), labelled as such; nothing where the rests showed no line. */
+const withoutLines = (w) => (w ? ` · <span id="model-validation-without-lines" data-value="${w.validation_rms_um}">held-out RMS
+  <b>${fmtErrorNm(w.validation_rms_um, 4)}</b> <span class="muted">with the ${(w.lines_hz || []).map((f) => `${fmt(f, 4)} Hz`).join(', ')}
+  line${(w.lines_hz || []).length === 1 ? '' : 's'} seen at rest taken out: the records the diagnosis and discover judge on</span></span>` : '');
+
 const blockCount = (model) => (model.metrics.per_dataset || []).reduce((n, d) => n + (d.blocks || []).length, 0);
 
 /** The page's answer on its first screen: how far the model is from the noise floor, then the
