@@ -173,6 +173,12 @@ class AxisLimits:
         f_slew = self.slew_limit_v_per_s / (np.pi * vpp_v)
         return float(min(f_current, f_slew))
 
+    @property
+    def max_rate_v_per_s(self) -> float:
+        """The fastest the amplifier can move the stack's voltage (V/s): its current limit over the
+        stack's capacitance (I/C), or its slew rating where that is lower."""
+        return float(min(self.slew_limit_v_per_s, self.current_limit_a / self.capacitance_f))
+
     def as_dict(self) -> dict:
         return asdict(self)
 

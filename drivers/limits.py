@@ -95,7 +95,7 @@ class LimitsMixin:
     def clamp(self, axis: str, u_v: float, previous_v: float, dt_s: float) -> float:
         """Clamp one command to the voltage range and to the largest step the limits allow."""
         lim = self.limits[axis]
-        max_step = dt_s * min(lim.slew_limit_v_per_s, lim.current_limit_a / lim.capacitance_f)
+        max_step = dt_s * lim.max_rate_v_per_s
         u = min(max(u_v, previous_v - max_step), previous_v + max_step)
         return min(max(u, lim.v_min_v), lim.v_max_v)
 
@@ -103,7 +103,7 @@ class LimitsMixin:
         """Vector form of ``clamp`` for a block of commands (sequential because of the rate limit)."""
         lim = self.limits[axis]
         u = np.clip(np.nan_to_num(np.asarray(u_v, dtype=float), nan=0.0), lim.v_min_v, lim.v_max_v)
-        max_step = min(lim.slew_limit_v_per_s, lim.current_limit_a / lim.capacitance_f) / sample_rate_hz
+        max_step = lim.max_rate_v_per_s / sample_rate_hz
         steps = np.diff(np.concatenate(([previous_v], u)))
         if np.all(np.abs(steps) <= max_step):
             return u

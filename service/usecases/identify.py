@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivers.interfaces import AxisLimits
 from service.runtime.jobs import JobContext, JobInterrupted
 from service.science.data.datasets import stored_sample_rate_hz
 from service.science.data.export import json_stride
@@ -40,9 +41,20 @@ def load_record(store: Store, dataset_id: str, axis: str, field: str = "datasets
         raise FieldError(field, f"dataset {dataset_id} has no {axis} axis (it has {', '.join(row['axes'])})")
     sample_rate_hz = stored_sample_rate_hz(row, field)
     try:
-        return record_for_axis(dataset_id, store.load_arrays(dataset_id), sample_rate_hz, row["blocks"], axis)
+        arrays = store.load_arrays(dataset_id)
+        return record_for_axis(dataset_id, arrays, sample_rate_hz, row["blocks"], axis, rated_rate_v_per_s(row, axis))
     except ValueError as exc:
         raise FieldError(field, f"dataset {dataset_id} cannot be modelled: {exc}") from None
+
+
+def rated_rate_v_per_s(row: dict, axis: str) -> float | None:
+    """The fastest the amplifier that recorded dataset ``row`` was rated to move ``axis``'s stack (V/s),
+    from the bench configuration stored with it; None for an import (its stage's amplifier is unknown)."""
+    limits = ((row.get("config") or {}).get("limits") or {}).get(axis)
+    try:
+        return None if not limits else AxisLimits(**limits).max_rate_v_per_s
+    except (TypeError, ZeroDivisionError):  # a dataset stored before the limits had these fields
+        return None
 
 
 def load_records(store: Store, dataset_ids: list[str], axis: str, field: str = "datasets") -> list[Record]:

@@ -51,6 +51,9 @@ def test_discovery_over_rest(http):
     stored = http.get(f"/api/models/{base_id}").json()["metrics"]["noise_floor_um"]
     assert d["noise"]["source"] == "rests" and stored == pytest.approx(d["noise_floor_um"], rel=1e-9)
     assert {"effect", "score", "expected_rms_um", "evidence", "kind"} <= set(d["candidates"][0])
+    # the sweep's dataset carries its amplifier's rating (0.2 A into 1.8 µF): its 37.7 kV/s cannot test a limit
+    slew = next(c for c in d["not_testable"] if c["effect"] == "slew_limit")
+    assert "37.7 kV/s" in slew["reason"] and "111 kV/s" in slew["reason"], slew
     # a failing block is named by what it is, beside the record and block it is
     blocks = [f for f in d["failures"] if f["by"] == "frequency"]
     assert blocks, d["failures"]

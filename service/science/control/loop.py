@@ -151,11 +151,7 @@ class Tracker:
                 [
                     bench.limits[a].v_min_v,
                     bench.limits[a].v_max_v,
-                    min(
-                        bench.limits[a].slew_limit_v_per_s,
-                        bench.limits[a].current_limit_a / bench.limits[a].capacitance_f,
-                    )
-                    / self.fs,
+                    bench.limits[a].max_rate_v_per_s / self.fs,
                     bench.parts.amplifiers[a].gain_v_per_v,
                 ]
                 for a in bench.axes

@@ -218,10 +218,7 @@ def plan_for_bench(plan: PlanBase, bench: Bench) -> PlannedSweep:
             f"{plan.sample_rate_hz:g} Hz gives fewer than {MIN_SAMPLES_PER_CYCLE} "
             f"samples per cycle at {fastest:g} Hz; a loop needs at least that many",
         )
-    max_rate = min(
-        min(bench.limits[a].slew_limit_v_per_s, bench.limits[a].current_limit_a / bench.limits[a].capacitance_f)
-        for a in plan.axes
-    )
+    max_rate = min(bench.limits[a].max_rate_v_per_s for a in plan.axes)
     planned = build(plan, max_rate)
     try:
         bench.check_waveform(planned.u_v, planned.sample_rate_hz)

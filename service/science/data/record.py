@@ -73,6 +73,7 @@ class Record:
         x_other_um=None,
         hold_out: bool = False,
         temp_c=None,
+        rated_rate_v_per_s: float | None = None,
     ):
         where = f"record '{label}': " if label else ""
         try:
@@ -107,6 +108,9 @@ class Record:
         self.u_v, self.x_um, self.sample_rate_hz, self.label = u, arrays["x_um"], fs, str(label)
         self.u_other_v, self.x_other_um = arrays["u_other_v"], arrays["x_other_um"]
         self.temp_c = arrays["temp_c"]  #: the stack's temperature (°C) where a thermometer read it
+        #: the fastest the amplifier was rated to move the stack's voltage when this was recorded (V/s: its
+        #: current limit over the stack's capacitance, or its slew rating if lower); None when unknown (imports)
+        self.rated_rate_v_per_s = None if rated_rate_v_per_s is None else float(rated_rate_v_per_s)
         self.axis, self.hold_out = axis, bool(hold_out)
         self._table = list(blocks) if blocks else None
         self._dominant_period = period
@@ -142,6 +146,7 @@ class Record:
             x_other_um=self.x_other_um,
             hold_out=self.hold_out,
             temp_c=self.temp_c,
+            rated_rate_v_per_s=self.rated_rate_v_per_s,
         )
 
     # -- shape and time ---------------------------------------------------------------

@@ -12,10 +12,13 @@ from service.science.data.plans import plan_for_bench, trim_blocks
 from service.science.data.record import Record
 
 
-def record_for_axis(label: str, arrays: dict, sample_rate_hz: float, blocks: list, axis: str) -> Record:
+def record_for_axis(
+    label: str, arrays: dict, sample_rate_hz: float, blocks: list, axis: str, rated_rate_v_per_s: float | None = None
+) -> Record:
     """The held-out Record of ``axis`` from dataset-style arrays (``u_<axis>_v``, ``x_<axis>_um``),
-    with the other axis's drive and measured displacement when the arrays have them; ValueError
-    (naming the array and the label) if it cannot be modelled."""
+    with the other axis's drive and measured displacement when the arrays have them, and the
+    amplifier's rated rate (V/s) where the bench that recorded it is known; ValueError (naming the
+    array and the label) if it cannot be modelled."""
     other = [a for a in ("y", "z") if a != axis and f"u_{a}_v" in arrays]
     u_other = arrays[f"u_{other[0]}_v"] if other else None
     x_other = arrays.get(f"x_{other[0]}_um") if other else None
@@ -30,12 +33,17 @@ def record_for_axis(label: str, arrays: dict, sample_rate_hz: float, blocks: lis
         x_other_um=x_other,
         hold_out=True,
         temp_c=arrays.get("temp_c"),
+        rated_rate_v_per_s=rated_rate_v_per_s,
     )
 
 
-def records_from_arrays(arrays: dict, sample_rate_hz: float, blocks: list, axes, label: str = "") -> list[Record]:
-    """One Record per axis, labelled ``<label><axis>``."""
-    return [record_for_axis(f"{label}{axis}", arrays, sample_rate_hz, blocks, axis) for axis in axes]
+def records_from_arrays(
+    arrays: dict, sample_rate_hz: float, blocks: list, axes, label: str = "", rated_rates_v_per_s: dict | None = None
+) -> list[Record]:
+    """One Record per axis, labelled ``<label><axis>`` (``rated_rates_v_per_s``: the amplifier's rated
+    rate per axis, V/s, where the bench is known)."""
+    rates = rated_rates_v_per_s or {}
+    return [record_for_axis(f"{label}{axis}", arrays, sample_rate_hz, blocks, axis, rates.get(axis)) for axis in axes]
 
 
 def run_records(bench: Bench, sweep, label: str = "") -> dict[str, Record]:
@@ -44,7 +52,8 @@ def run_records(bench: Bench, sweep, label: str = "") -> dict[str, Record]:
     planned = plan_for_bench(sweep, bench)
     rec = bench.run(planned.u_v, planned.sample_rate_hz)
     blocks = trim_blocks(planned.blocks, rec.samples, rec.sample_rate_hz)
-    return {r.axis: r for r in records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, sweep.axes, label)}
+    rates = {axis: bench.limits[axis].max_rate_v_per_s for axis in sweep.axes}
+    return {r.axis: r for r in records_from_arrays(_arrays(rec), rec.sample_rate_hz, blocks, sweep.axes, label, rates)}
 
 
 def _arrays(rec) -> dict:

@@ -27,6 +27,10 @@ from service.science.effects.base import Effect
 GRID_STEP, GRID_SPAN = 1.1, 10.0
 #: evaluations of the bounded search between grid values
 REFINE_EVALUATIONS = 10
+#: where the bench that recorded the data is known, a limit can bite only if the drive's fastest rate
+#: comes within this factor of the amplifier's rated I/C: a stack's capacitance at large signal exceeds
+#: its small-signal rating (the emulated slew bench's stacks by 1.75×), so the rating alone is not the bound
+RATED_MARGIN = 2.0
 
 
 @njit(cache=True, nogil=True)
@@ -70,7 +74,8 @@ class SlewLimit(Effect):
     units = {"slew_v_per_s": "V/s", "slew_kv_per_s": "kV/s"}
     rule = (
         "a drive whose fastest rate exceeds the limit, beside blocks that stay under it: the error appears above "
-        "a rate, not in proportion to the frequency"
+        "a rate, not in proportion to the frequency; on a bench whose amplifier rating is known, the fastest rate "
+        "must reach half its rated I/C"
     )
     sweep = {"waveform": "sine", "frequencies_hz": [10.0, 50.0, 100.0, 150.0], "cycles": 10}
     inverse = "none"
@@ -122,10 +127,20 @@ class SlewLimit(Effect):
         return {} if s is None else {"slew_v_per_s": float(s), "slew_kv_per_s": float(s) / 1e3}
 
     def untestable(self, records):
-        rates = sorted({round(float(np.max(np.abs(np.diff(r.u_v)))) * r.sample_rate_hz, -1) for r in records})
-        if len(records) and rates and rates[-1] > 0:
-            return None
-        return "the drive does not move: no rate to limit"
+        """None when a rate limit could act on ``records``: their drive moves and, where the amplifier that
+        recorded them is known (``Record.rated_rate_v_per_s``), comes within RATED_MARGIN of its rating."""
+        fastest = [float(np.max(np.abs(np.diff(r.u_v)))) * r.sample_rate_hz for r in records]
+        if not fastest or max(fastest) <= 0:
+            return "the drive does not move: no rate to limit"
+        rated = [r.rated_rate_v_per_s for r in records]
+        if any(v is None for v in rated) or any(f * RATED_MARGIN >= v for f, v in zip(fastest, rated)):
+            return None  # an import's amplifier is unknown; a drive near the rating can be held back
+        return (
+            f"the drive's fastest rate, {max(fastest) / 1e3:.3g} kV/s, stays under 1/{RATED_MARGIN:g} of the rate the "
+            f"amplifier that recorded it is rated to move the stack ({min(rated) / 1e3:.3g} kV/s: its current over the "
+            "stack's capacitance, or its slew rating), a margin wider than a stack's large-signal capacitance "
+            "exceeds its rating: no rate limit can act on these records"
+        )
 
     def evidence(self, sig, floor):
         growth = sig.get("rms_growth_exponent")
