@@ -71,9 +71,10 @@ def anchored_tests(records, effects: list[str], candidates: list[str]) -> None:
         diffs = []
         for rec, r0, r1 in zip(records, ref, trial):
             for s in rec.splits:
-                e0, e1 = decision._training_mean_free(r0, s), decision._training_mean_free(r1, s)
+                a = s.held_out[0]
+                e0, e1 = decision.training_mean_free(r0, s), decision.training_mean_free(r1, s)
                 for i, j in decision._segments(rec, s):
-                    ms0, ms1 = np.mean(e0[i:j] ** 2), np.mean(e1[i:j] ** 2)
+                    ms0, ms1 = np.mean(e0[i - a : j - a] ** 2), np.mean(e1[i - a : j - a] ** 2)
                     if abs(ms0 - ms1) > decision.TIE_SHARE * (ms0 + ms1):
                         diffs.append(ms0 - ms1)
         p_mean = float(stats.wilcoxon(np.array(diffs), alternative="greater").pvalue)

@@ -65,29 +65,30 @@ def _segments(rec, split) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(edges[:-1], edges[1:]) if e > s]
 
 
-def _less_mean_from(residual: np.ndarray, split, start: int) -> np.ndarray:
-    """The block's residual less its mean over training rows ``start``..the end of training."""
-    out = residual.copy()
+def _held_out_less_mean(residual: np.ndarray, split, start: int) -> np.ndarray:
+    """The block's held-out residual (rows ``split.held_out``) less its mean over training rows
+    ``start``..the end of training (a slice, not a copy of the whole record: a diagnosis takes it
+    about 500 times)."""
+    a, b = split.held_out
     cut = split.train[1]
-    if cut > start:
-        out[split.train[0] : split.held_out[1]] -= float(np.mean(residual[start:cut]))
-    return out
+    held = residual[a:b]
+    return held - float(np.mean(residual[start:cut])) if cut > start else held
 
 
-def _training_mean_free(residual: np.ndarray, split) -> np.ndarray:
-    """The residual less its mean over the block's training rows (the level the fit itself sets)."""
-    return _less_mean_from(residual, split, split.train[0])
+def training_mean_free(residual: np.ndarray, split) -> np.ndarray:
+    """The held-out residual less its mean over the block's training rows (the level the fit itself sets)."""
+    return _held_out_less_mean(residual, split, split.train[0])
 
 
 def _offset_free(residual: np.ndarray, rec, split) -> np.ndarray:
-    """The residual less its mean over the block's last training cycle (the last fifth of the
+    """The held-out residual less its mean over the block's last training cycle (the last fifth of the
     training rows of a non-periodic block): where the loop sits vertically in one block is history
     the base may get wrong (a Bouc–Wen or Maxwell-slip stack has no wiping-out memory, so it comes to
     rest elsewhere than a Preisach model predicts); a candidate must explain what changes *after*
     the training cycles — the held-out ones come last."""
     a, cut = split.train
     period = rec.period_samples(split)
-    return _less_mean_from(residual, split, max(a, cut - int(round(period)) if period else cut - (cut - a) // 5))
+    return _held_out_less_mean(residual, split, max(a, cut - int(round(period)) if period else cut - (cut - a) // 5))
 
 
 def held_out_improvement(records, res_ref, res_trial) -> dict:
@@ -107,13 +108,13 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
             a, b = s.held_out
             if b - a < 2:
                 continue
-            e0, e1 = _offset_free(r0, rec, s), _offset_free(r1, rec, s)
-            gains.append(float(np.mean(e0[a:b] ** 2) - np.mean(e1[a:b] ** 2)))
-            m0, m1 = _training_mean_free(r0, s), _training_mean_free(r1, s)
-            trend_gains.append(float(np.mean(m0[a:b] ** 2) - np.mean(m1[a:b] ** 2)))
+            e0, e1 = _offset_free(r0, rec, s), _offset_free(r1, rec, s)  # the held-out rows a..b
+            gains.append(float(np.mean(e0**2) - np.mean(e1**2)))
+            m0, m1 = training_mean_free(r0, s), training_mean_free(r1, s)
+            trend_gains.append(float(np.mean(m0**2) - np.mean(m1**2)))
             for i, j in _segments(rec, s):
                 for anchor, (f0, f1) in (("last_cycle", (e0, e1)), ("training_mean", (m0, m1))):
-                    ms0, ms1 = float(np.mean(f0[i:j] ** 2)), float(np.mean(f1[i:j] ** 2))
+                    ms0, ms1 = float(np.mean(f0[i - a : j - a] ** 2)), float(np.mean(f1[i - a : j - a] ** 2))
                     if abs(ms0 - ms1) > TIE_SHARE * (ms0 + ms1):
                         diffs[anchor].append(ms0 - ms1)
     from scipy import stats  # imported when used: scipy.stats costs a service 0.4 s of start-up

@@ -101,3 +101,17 @@ def test_a_step_hold_drive_is_not_point_symmetric():
     assert _drive_point_symmetric(sine, FS / 10.0)
     steps = np.tile(step_hold_v(fs=FS), 2)
     assert not _drive_point_symmetric(steps, FS * 1.0)
+
+
+def test_the_stepped_phasors_give_the_coherent_power_of_each_frequency():
+    """The refinement grid's power (phasors stepped by a complex multiply, restarted from exp() every
+    PHASOR_RESTART points) is each frequency's phase-coherent power, to 1e-10 of the largest."""
+    from service.science.discovery import rests as rests_module
+
+    recs = records("bw_beta_lt_gamma", "hum", "long", fs=FS)
+    pooled = [rests_module._Rests(r, rests_module.pool_factor(recs)) for r in recs]
+    start, step, count = 49.0, 0.0125, 200  # past three restarts, across the 50 Hz line
+    fast = rests_module._grid_power(pooled, start, step, count)
+    exact = np.array([rests_module._coherent_power(pooled, start + k * step) for k in range(count)])
+    assert np.max(np.abs(fast - exact)) <= 1e-10 * exact.max()
+    assert abs(start + step * int(np.argmax(fast)) - HUM_LINES[0][0]) < 0.02
