@@ -150,20 +150,29 @@ def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]
 
 
 def physical_table(physical: dict) -> str:
-    """The stored model's physical parameters (``{effect: {name: (value, unit)}}``), each with its unit, as
-    Discover's "Effects found" and the Lab page print them; "" when it has none (a paper's PI)."""
+    """The stored model's effect parameters (``{effect: {"role", "values": {name: (value, unit)}}}``), each
+    with its unit and the effect's role, as Discover's "Effects found" and the Lab page print them; ""
+    when it has none (a paper's PI)."""
     rows = [
         [
             escape(effect),
+            escape(ROLE_WORDS.get(entry["role"], entry["role"])),
             f"<code>{escape(name)}</code>",
             f'<span data-parameter="{escape(effect)}.{escape(name)}" data-value="{value!r}">{_num(value)}</span>'
             + (f" {escape(unit)}" if unit and unit != "1" else ""),
         ]
-        for effect, values in physical.items()
-        for name, (value, unit) in values.items()
+        for effect, entry in physical.items()
+        for name, (value, unit) in entry["values"].items()
     ]
-    head = ["effect", "parameter", "value (the stored model's)"]
-    return _table(head, rows, {2}, ' id="physical-parameters"') if rows else ""
+    head = ["effect", "as", "parameter", "value (the stored model's)"]
+    return _table(head, rows, {3}, ' id="physical-parameters"') if rows else ""
+
+
+#: an effect's role in the model, in the report's words
+ROLE_WORDS = {
+    "physical": "physics",
+    "capacity": "model capacity, not physics (on a base that draws any loop shape, a loop-shape effect's weights are that base's shape)",
+}
 
 
 def _model_section(row: dict, description: dict, physical: dict) -> str:

@@ -12,6 +12,7 @@ from service.render.model_report import BlockCurves, block_figure, history_figur
 from service.render.reproduce import commands
 from service.render.svg import decimate
 from service.science.data.record import Record
+from service.science.discovery.loop_shape import role_in_model
 from service.science.discovery.parameters import parameter_units
 from service.science.fitting.metrics import rms
 from service.store import Store, utc_now
@@ -116,12 +117,17 @@ def model_report(store: Store, model_id: str) -> str:
 
 
 def physical_with_units(row: dict) -> dict:
-    """The stored model's physical parameters, each with its unit: ``{effect: {name: (value, unit)}}``."""
+    """The stored model's effect parameters, each with its unit, and the effect's role in the model
+    ("physical", or "capacity" for a loop-shape effect on a base that draws any loop shape):
+    ``{effect: {"role": role, "values": {name: (value, unit)}}}``."""
     out = {}
     for effect, values in discovered_parameters(row).items():
         units = parameter_units(effect, values)
         if values:
-            out[effect] = {name: (value, units[name]) for name, value in values.items()}
+            out[effect] = {
+                "role": role_in_model(effect, row["effects"]),
+                "values": {name: (value, units[name]) for name, value in values.items()},
+            }
     return out
 
 

@@ -139,6 +139,7 @@ def test_the_report_of_a_refined_model(refined):
         assert float(cell[1]) == physical["creep"][name] and cell[3] == unit, (name, cell.groups())
         assert float(cell[2]) == pytest.approx(physical["creep"][name], rel=5e-4)  # 4 significant digits
     assert 2.0 < physical["creep"]["creep_pct_per_decade"] < 4.0  # fixtures/benches/creep.toml: 3 %/decade
+    assert "<tr><td>creep</td><td>physics</td><td><code>creep_nm_per_decade</code>" in html  # its role beside it
 
     # the commands that reproduce it: the sweep's stored plan as the POST /api/sweeps body, the
     # identification and the refine step

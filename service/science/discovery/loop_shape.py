@@ -19,6 +19,21 @@ from service.science.effects import EFFECTS
 LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
 
+def base_draws_any_loop_shape(effects) -> bool:
+    """Whether a model of ``effects`` has a base that draws any rate-independent loop shape (issue 37's
+    wider base): on it the loop-shape pair is that base's shape, not physics."""
+    return any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in effects)
+
+
+def role_in_model(effect: str, effects) -> str:
+    """What ``effect`` is in a model of ``effects``: its library kind ("physical" or "capacity"), except
+    the loop-shape pair on a base that draws any loop shape, which is capacity there (as the diagnosis
+    offered it: ``loop_shape_as_capacity``)."""
+    if effect in LOOP_SHAPE and base_draws_any_loop_shape(effects):
+        return "capacity"
+    return EFFECTS[effect].kind
+
+
 def loop_shape_as_capacity(judged: Judged) -> list[dict]:
     """The loop-shape pair on a base that draws any rate-independent loop shape (issue 37's wider
     base): what either still explains is that base's shape, so each is offered as capacity (validated
@@ -64,7 +79,7 @@ def loop_shape_pair(judged: Judged, alpha: float) -> tuple[list[dict], dict | No
     # the measurement's less the transients the model draws, a mode's ring-down); else the measurement
     # (or a base that draws any loop shape, issue 37: an asymmetric loop it draws is the base's, not physics)
     fits, records, noise, v0 = judged.fits, judged.records, judged.noise, judged.v0
-    if any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in fits.model.effects):
+    if base_draws_any_loop_shape(fits.model.effects):
         return loop_shape_as_capacity(judged), None
     symmetric = all(EFFECTS[e].point_symmetric for e in fits.model.effects)
     test = asymmetry_test(records, fits.get(())[1] if symmetric else [r.x_um for r in records], noise, alpha)

@@ -133,3 +133,16 @@ def test_the_base_grows_first_only_when_it_leaves_less_than_half_the_physics_exc
     assert capacity_before_physics(d) is None and next_effect(d) == "asymmetry"
     # capacity the claim rule does not pass never comes first
     assert capacity_before_physics(_diagnosis(30.0, 2.8, capacity_claimed=False)) is None
+
+
+def test_a_loop_shape_effect_is_capacity_on_the_wider_base_and_physics_on_the_pi():
+    """The role the report prints beside an effect's parameters: asymmetry and the gauge's bow are the
+    stack's and the gauge's (physics) on a point-symmetric PI base, and the base's own shape (capacity)
+    on the hysterons base that draws any loop shape; other effects keep their library kind."""
+    from service.science.discovery.loop_shape import role_in_model
+
+    assert role_in_model("asymmetry", ["asymmetry"]) == "physical"
+    assert role_in_model("asymmetry", ["hysterons", "asymmetry"]) == "capacity"
+    assert role_in_model("sensor_nonlinearity", ["hysterons", "sensor_nonlinearity"]) == "capacity"
+    assert role_in_model("creep", ["hysterons", "creep"]) == "physical"
+    assert role_in_model("operators", ["operators"]) == "capacity"
