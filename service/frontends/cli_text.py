@@ -27,7 +27,7 @@ def discovery_text(result: dict) -> str:
             f"  step {step['step']} {change:<18} {step['model_id']}  "
             f"held-out {nm_text(step['validation_rms_um'])}  noise floor {nm_text(step['noise_floor_um'])}"
             + (
-                f"  like for like {nm_text(same)} (original data {nm_text(step.get('original_data_rms_um'))})"
+                f"  like for like {nm_text(same)} (that fit on the original data {nm_text(step.get('original_data_rms_um'))})"
                 if same is not None and result.get("experiments")
                 else ""
             )

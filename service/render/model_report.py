@@ -16,6 +16,7 @@ from html import escape
 
 import numpy as np
 
+from service.render.model_facts import operators_text, physical_table, table_html, value_text, without_lines_fact
 from service.render.svg import COLOURS, ERROR_UNIT, MAX_CURVE_POINTS, Panel, figure, length_unit
 from service.science.data.units import fmt_nm, plain
 
@@ -50,36 +51,6 @@ class BlockCurves:
     x_model_um: np.ndarray
     held_out_rms_um: float | None
     train_rms_um: float | None
-
-
-def _num(value, digits: int = 4) -> str:
-    return "–" if value is None else plain(value, digits)
-
-
-def _without_lines_fact(w: dict | None) -> list[list[str]]:
-    """The held-out RMS with the lines seen at rest taken out, as a fact row, where there were lines."""
-    if not w:
-        return []
-    lines = ", ".join(f"{f:.4g} Hz" for f in w["lines_hz"])
-    return [
-        [
-            f"held-out RMS, the {lines} line{'s' if len(w['lines_hz']) > 1 else ''} seen at rest taken out "
-            "(the records the diagnosis and discover judge on)",
-            f'<span id="model-heldout-without-lines">{fmt_nm(w["validation_rms_um"], 4)}</span>',
-        ]
-    ]
-
-
-def _table(head: list[str] | None, rows: list[list[str]], numeric: set[int] = frozenset(), attrs: str = "") -> str:
-    """An HTML table (``head`` None: no header row); cells are already-escaped HTML; columns in
-    ``numeric`` right-aligned."""
-    cls = lambda i: ' class="num"' if i in numeric else ""  # noqa: E731
-    out = [
-        f"<table{attrs}>"
-        + ("<tr>" + "".join(f"<th{cls(i)}>{h}</th>" for i, h in enumerate(head)) + "</tr>" if head else "")
-    ]
-    out += ["<tr>" + "".join(f"<td{cls(i)}>{c}</td>" for i, c in enumerate(r)) + "</tr>" for r in rows]
-    return "".join(out) + "</table>"
 
 
 #: the title's mark on the block with the largest held-out RMS of those the report prints
@@ -149,32 +120,6 @@ def parameter_rows(params: dict, prefix: str = "") -> list[tuple[str, int, str]]
     return rows
 
 
-def physical_table(physical: dict) -> str:
-    """The stored model's effect parameters (``{effect: {"role", "values": {name: (value, unit)}}}``), each
-    with its unit and the effect's role, as Discover's "Effects found" and the Lab page print them; ""
-    when it has none (a paper's PI)."""
-    rows = [
-        [
-            escape(effect),
-            escape(ROLE_WORDS.get(entry["role"], entry["role"])),
-            f"<code>{escape(name)}</code>",
-            f'<span data-parameter="{escape(effect)}.{escape(name)}" data-value="{value!r}">{_num(value)}</span>'
-            + (f" {escape(unit)}" if unit and unit != "1" else ""),
-        ]
-        for effect, entry in physical.items()
-        for name, (value, unit) in entry["values"].items()
-    ]
-    head = ["effect", "as", "parameter", "value (the stored model's)"]
-    return _table(head, rows, {3}, ' id="physical-parameters"') if rows else ""
-
-
-#: an effect's role in the model, in the report's words
-ROLE_WORDS = {
-    "physical": "physics",
-    "capacity": "model capacity, not physics (on a base that draws any loop shape, a loop-shape effect's weights are that base's shape)",
-}
-
-
 def _model_section(row: dict, description: dict, physical: dict) -> str:
     m = row["metrics"]
     labels = [
@@ -189,16 +134,16 @@ def _model_section(row: dict, description: dict, physical: dict) -> str:
         ["axis", escape(row["axis"].upper())],
         ["effects", escape(" + ".join(row["effects"]))],
         ["refined from", f"<code>{escape(row['parent_id'])}</code>" if row.get("parent_id") else "– (root)"],
-        ["operators", escape(str((row.get("options") or {}).get("n_operators", "–")))],
+        ["play operators", escape(operators_text(row))],
         ["training RMS", fmt_nm(m.get("train_rms_um"), 4)],
         ["held-out RMS", f'<span id="model-heldout">{fmt_nm(m.get("validation_rms_um"), 4)}</span>'],
-        *_without_lines_fact(m.get("without_lines")),
+        *without_lines_fact(m.get("without_lines")),
         ["held out", escape(str(m.get("held_out") or "the last ⌈20 %⌉ cycles of every block"))],
         ["created", escape(row["created_at"])],
         ["software", escape(row["software_version"])],
         ["parameters SHA-256", f"<code>{escape(row['parameters_sha256'])}</code>"],
     ]
-    text = _table(None, facts)
+    text = table_html(None, facts)
     words = [[escape(k), escape(v)] for k, v in description.items() if v]
     params = {k: v for k, v in row["parameters"].items() if k not in ("model", "config")}
     values = [[f"<code>{escape(name)}</code>", str(n), escape(text)] for name, n, text in parameter_rows(params)]
@@ -207,8 +152,8 @@ def _model_section(row: dict, description: dict, physical: dict) -> str:
         + text
         + "<h2>2. Fitted parameters</h2>"
         + physical_table(physical)
-        + (_table(["effect", "fitted, in words"], words) if words else "")
-        + _table(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
+        + (table_html(["effect", "fitted, in words"], words) if words else "")
+        + table_html(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
         + "<details><summary>Every stored parameter (<code>model.to_dict()</code>, JSON)</summary><pre>"
         + escape(json.dumps({"config": row["parameters"].get("config"), **params}))
         + "</pre></details>"
@@ -240,7 +185,7 @@ def _datasets_section(datasets: list[dict], axis: str) -> str:
     return (
         f"<h2>3. Data</h2><p>Axis {escape(axis.upper())} of these datasets; the last ⌈20 %⌉ cycles of every "
         "block are held out of the fit.</p>"
-        + _table(
+        + table_html(
             ["dataset", "name · tags · notes", "source", "axes", "samples", "rate (Hz)", "state", "blocks"],
             rows,
             {4, 5},
@@ -258,7 +203,9 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
             f'<span class="rms-train">{fmt_nm(s["train_rms_um"], 4)}</span>',
             f'<span class="rms-heldout">{fmt_nm(s["validation_rms_um"], 4)}</span>',
             f'<span class="rms-like-for-like">{fmt_nm(s.get("like_for_like_rms_um"), 4)}</span>',
-            _num(s["validation_rms_um"] / noise_floor_um, 3) if noise_floor_um and s["validation_rms_um"] else "–",
+            value_text(s["validation_rms_um"] / noise_floor_um, 3)
+            if noise_floor_um and s["validation_rms_um"]
+            else "–",
         ]
         for i, s in enumerate(steps)
     ]
@@ -266,7 +213,7 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
         "<h2>4. Lineage</h2><p>From the first model (step 0) to this one; each step is a stored model. Held-out RMS: on the "
         "data the step was fitted on; like for like: its effects on this model's datasets (refitted there where "
         "the step had fewer), so that every step is scored on the same held-out cycles.</p>"
-        + _table(
+        + table_html(
             [
                 "step",
                 "model",
@@ -308,7 +255,8 @@ def _diagnosis_section(d: dict) -> str:
             escape(c["effect"]),
             escape(c.get("kind") or ""),
             "yes" if c.get("claimed") else "no",
-            _num(c.get("score"), 3) + (f"<br><small>{escape(c['score_of'])}</small>" if c.get("score_of") else ""),
+            value_text(c.get("score"), 3)
+            + (f"<br><small>{escape(c['score_of'])}</small>" if c.get("score_of") else ""),
             _tested_words(c),
             fmt_nm(c.get("expected_rms_um"), 4)
             if c.get("expected_rms_um") != d.get("residual_rms_um")
@@ -345,7 +293,7 @@ def _diagnosis_section(d: dict) -> str:
         + "<p class='muted'>The score: the held-out mean square the effect's own test removes, as a share of this "
         "model's held-out mean square above the noise floor. Its test is a fit of its own (against its reference); "
         "'added to this model' is this model refitted with it, and only for a claimed effect or capacity.</p>"
-        + _table(
+        + table_html(
             [
                 "effect",
                 "kind",

@@ -316,7 +316,9 @@ class HistoryStep(BaseModel):
         "this step was fitted on fewer): every step on the same data",
     )
     original_data_rms_um: float | None = Field(
-        default=None, description="the same model's held-out RMS (µm) on the first model's datasets"
+        default=None,
+        description="the like-for-like fit's held-out RMS (µm: this step's effects refitted on the last model's "
+        "datasets) on the first model's datasets; not this step's own fit, so it can differ from its held-out RMS",
     )
     created_at: str
 

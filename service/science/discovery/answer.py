@@ -16,6 +16,7 @@ def diagnosis_answer(
     noise_um: float,
     at_floor: bool,
     remainder: dict | None,
+    first_capacity: dict | None = None,
 ) -> dict:
     """``{"missing", "kind", "expected_rms_um", "remains", "remains_share", "text"}``: ``missing`` the
     effect the verdict names (the best claimed physical one), else the capacity that lowers the held-out
@@ -23,7 +24,10 @@ def diagnosis_answer(
     remainder's leading signature (None when nothing is described), read from ``remainder`` itself."""
     top = (remainder or {}).get("signatures") or []
     remains = top[0] if top else None
-    if claimed_physical:
+    if first_capacity is not None:  # the base cannot draw the loop: it grows first (base_capacity.py)
+        lead, kind = first_capacity, "capacity"
+        head = first_capacity_words(first_capacity, claimed_physical[0], residual_um)
+    elif claimed_physical:
         lead, kind = claimed_physical[0], "physical"
         head = (
             f"Missing: {lead['effect']}. Adding it should bring the held-out error from {fmt_nm(residual_um, 4)} "
@@ -58,3 +62,14 @@ def diagnosis_answer(
         "remains_share": None if remains is None else remains["share_of_excess"],
         "text": head + tail,
     }
+
+
+def first_capacity_words(capacity: dict, physical: dict, residual_um: float) -> str:
+    """The sentence for a diagnosis whose base cannot draw the loop (``capacity`` comes before the
+    claimed ``physical`` effect; service.science.discovery.base_capacity): what the next step adds."""
+    return (
+        f"The base cannot draw this loop: more hysteresis capacity ({capacity['effect']}) first should bring the "
+        f"held-out error from {fmt_nm(residual_um, 4)} to about {fmt_nm(capacity['expected_rms_um'], 4)}, a "
+        f"model-capacity change, not physics. {physical['effect']} is claimed against the base as it is (to about "
+        f"{fmt_nm(physical['expected_rms_um'], 4)}); it is judged again on the wider base."
+    )

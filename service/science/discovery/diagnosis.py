@@ -24,7 +24,8 @@ import numpy as np
 
 from service.science.data.units import fmt_nm, fmt_nm2
 from service.science.discovery.ambiguity import ambiguity
-from service.science.discovery.answer import diagnosis_answer
+from service.science.discovery.answer import diagnosis_answer, first_capacity_words
+from service.science.discovery.base_capacity import capacity_before_physics
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.candidate_rows import DiagnosisFits, Judged, candidate_row, claimed_size
 from service.science.discovery.column_memo import shared_effect_columns
@@ -259,8 +260,11 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     at_floor = ratio is not None and ratio <= CLEAR_DROP_NOISE and held_out_ratio <= np.hypot(1.0, CLEAR_DROP_NOISE)
     worst = failures(records, res)
     remainder = None if at_floor else describe_remainder(records, res, preds, noise)
+    first = capacity_before_physics(
+        {"verdict": "missing_effect" if missing else "complete", "noise_floor_um": noise, "candidates": candidates}
+    )
     answer = diagnosis_answer(
-        [c for c in physical if c["claimed"]], helpful_capacity(candidates), v0, noise, bool(at_floor), remainder
+        [c for c in physical if c["claimed"]], helpful_capacity(candidates), v0, noise, bool(at_floor), remainder, first
     )
     disturbed = disturbance(rests)
     return {
@@ -276,6 +280,7 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
         "at_noise_floor": bool(at_floor),
         "verdict": "missing_effect" if missing else "complete",
         "verdict_text": (f"{disturbed['text']}. " if disturbed else "")
+        + (f"{first_capacity_words(first, physical[0], v0)} " if first else "")
         + verdict_text(missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio)
         + remainder_words(remainder),
         "disturbance": disturbed,

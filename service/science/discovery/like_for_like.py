@@ -5,8 +5,9 @@ harder data (faster rates, the other axis driven): their held-out RMS is not com
 steps before, and a history read step by step rose where the model had got better. Here each step's
 effects are refitted on the enlarged records — their transforms (a delay, a mode) kept as the step
 found them, the weights fitted again exactly on the training cycles — and scored on the same held-out
-cycles as every other step: ``like_for_like_rms_um``. Beside it, ``original_data_rms_um``: the same
-model scored on the held-out cycles of the records the run started from. Pure science: no store.
+cycles as every other step: ``like_for_like_rms_um``. Beside it, ``original_data_rms_um``: that same
+like-for-like fit scored on the held-out cycles of the records the run started from (not the step's own
+fit, which had fewer records: the two differ on the same data). Pure science: no store.
 """
 
 from __future__ import annotations

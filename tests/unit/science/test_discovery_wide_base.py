@@ -91,6 +91,8 @@ def test_the_loop_widens_the_base_first_and_says_it_is_capacity():
     first, last = steps[0]["diagnosis"], steps[-1]["diagnosis"]
     assert steps[1]["effects"] == ["hysteresis", "hysterons"]
     assert next(c for c in first["candidates"] if c["effect"] == "hysterons")["kind"] == "capacity"
+    # the headline (the Models page's first screen) names what the loop adds next, as capacity
+    assert (first["answer"]["missing"], first["answer"]["kind"]) == ("hysterons", "capacity"), first["answer"]
     assert last["residual_rms_um"] <= 1.5 * last["noise_floor_um"], last["verdict_text"]
     assert first["residual_rms_um"] >= FALL_FACTOR * last["residual_rms_um"]
 

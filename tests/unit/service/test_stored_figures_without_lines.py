@@ -46,6 +46,8 @@ def test_a_model_stored_from_a_hummed_record_keeps_the_diagnosis_figure_beside_i
     section = _model_section(store.get_model(row["id"]), {}, {})
     assert fmt_nm(stored["validation_rms_um"], 4) in section
     assert "lines seen at rest taken out" in section and fmt_nm(judged["residual_rms_um"], 4) in section
+    # the play operators as the parameters hold them: the wider base doubles the 10 asked for
+    assert len(row["parameters"]["thresholds_v"]) == 20 and "20 (10 asked; hysterons multiplies them)" in section
 
 
 def test_a_model_stored_from_a_quiet_record_has_one_figure(tmp_path):

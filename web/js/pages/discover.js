@@ -135,7 +135,7 @@ function renderRun(out, r, { signal, imported }) {
   out.innerHTML = `<h3>Steps</h3>
     <table id="discover-steps"><tr><th title="0: the model the run starts from, as the lineage's step 0 is its first model">step</th><th>added</th><th>model</th><th>effects</th><th class="num">held-out RMS</th>
       <th class="num" title="this step's effects refitted on every dataset the run has now (the experiments' too), scored on the same held-out cycles as every other step">like for like</th>
-      <th class="num" title="the same model scored on the held-out cycles of the data the run started from">on the original data</th>
+      <th class="num" title="the like-for-like fit (this step's effects refitted on every dataset the run has now) scored on the held-out cycles of the data the run started from: not the step's own fit, so it can differ from its held-out RMS on the same data">like for like, on the original data</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
       <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(held-out RMS over more data; like for like beside it)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
@@ -149,7 +149,7 @@ function renderRun(out, r, { signal, imported }) {
         ${esc(x.text)} (model <a href="#/models/${esc(x.model_id)}">${esc(x.model_id)}</a>)</td></tr>`).join('')}`).join('')}
     </table>
     ${(r.experiments || []).length ? `<p class="muted">Like for like: every step refitted and scored on ${esc((r.like_for_like_datasets || []).join(', '))};
-      on the original data: ${esc((r.original_datasets || []).join(', '))}.</p>` : ''}
+      the same fits on the original data: ${esc((r.original_datasets || []).join(', '))}. Each step's own held-out RMS is of its own fit, on the data it had.</p>` : ''}
     ${done ? `<p id="discover-stopped" data-stopped="${esc(r.stopped)}">Stopped: <b>${esc(r.stopped.replace(/_/g, ' '))}</b>${r.stop_reason ? ` — ${pageWords(r.stop_reason)}` : ''}</p>` : '<p class="muted">running…</p>'}
     ${found.length ? `<h3>Effects found</h3><table id="discover-found"><tr><th>effect</th><th>kind</th><th>added at step</th><th>fitted parameters <span class="muted">(the stored model's)</span></th><th>evidence <span class="muted">(from the diagnosis's held-out test, a fit of its own)</span></th></tr>
       ${found.map((e) => `<tr data-effect="${esc(e.effect)}"><td><b>${esc(e.effect)}</b></td><td>${esc(e.kind)}</td><td>${e.added_at_step}</td>
