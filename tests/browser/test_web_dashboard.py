@@ -133,6 +133,10 @@ def test_trajectory_pid_select_offers_auto_tuned_paper_and_custom(page, server):
     page.select_option("#traj-pid", "paper")  # refused before anything runs (issue 19 §2)
     page.click("#traj-start")
     page.wait_for_function("() => document.querySelector('#traj-error').textContent.includes('paper')")
+    # in the page's words: the API's body path (controller.pid) is named by its control's label, marked
+    refusal = page.inner_text("#traj-error")
+    assert "controller." not in refusal and "“PID”" in refusal, refusal
+    assert "invalid" in (page.get_attribute("#traj-pid", "class") or "")
     assert all("422" in e for e in page.console_errors)  # the browser logs the refusal it was meant to get
     page.console_errors.clear()
 

@@ -87,7 +87,7 @@ async function preview(root) {
   };
   out.innerHTML = `<p class="muted">${header ? 'Header row found: the columns are named by it; pick roles to override.'
       : 'No header row: pick which column is the drive u (V), the displacement x (µm) and, if any, time t (s).'}
-      Delimiter: <b id="preview-delimiter">${chosen}</b>, ${width} columns (numbered from 1), first ${rows.length} rows.</p>
+      Delimiter: <b id="preview-delimiter">${chosen}</b>, ${width} columns (numbered from 1 here; the API's and <code>evcbench import --columns</code>' indices count from 0), first ${rows.length} rows.</p>
     <table id="preview-table"><tr>${Array.from({ length: width }, (_, i) => `<th>
       <div class="col-number" title="numbered from 1, as labs describe their files (the API's columns count from 0: this is ${i})">col ${i + 1}${header ? ` · ${esc(header[i] ?? '')}` : ''}</div>
       <select class="col-role" data-col="${i}">${ROLES.map((r) => `<option value="${r}"${r === roleOf(i) ? ' selected' : ''}>${r || '—'}</option>`).join('')}</select>

@@ -174,10 +174,37 @@ async function prepareModels(root) {
     out.append(h(`<p class="ok" id="traj-prepared">Models ready and selected, with PID ${esc(recipe.controller.pid)}${recipe.controller.ilc ? ' and ILC' : ''}:
       press Run. <span class="muted">Why these: ${esc(recipe.why)}.</span></p>`));
   } catch (e) {
-    showError(err, e);
+    showError(err, inPageWords(root.querySelector('#traj-form'), e));
   } finally {
     button.disabled = false;
   }
+}
+
+/** A refusal in the page's words: the API names its fields by their body paths
+ * ("controller.feedforward_model_y"); each one the form has a control for is named by that control's
+ * label ("feedforward model Y"), and the control the refusal is about is marked. */
+function inPageWords(form, e) {
+  if (!form || !e || !e.message) return e;
+  const labelOf = (name) => {
+    const control = form.elements[name];
+    const label = control && control.closest ? control.closest('label') : null;
+    return label ? [...label.childNodes].filter((n) => n.nodeType === 3).map((n) => n.textContent).join('').trim() : null;
+  };
+  // a body path (controller.pid) or a snake_case field (feedforward_model_y); plain words stay as they are
+  const text = e.message.replace(/\b(?:(?:controller|trajectory)\.([a-z][a-z0-9_]*)|([a-z][a-z0-9]*_[a-z0-9_]+))\b/g,
+    (whole, path, snake) => {
+      const name = path || snake;
+      const words = form.elements[name] ? labelOf(name) : null;
+      return words ? `“${words}”` : whole;
+    });
+  const named = e.field ? form.elements[e.field.split('.').pop()] : null;
+  if (named && named.classList) {
+    named.classList.add('invalid');
+    named.addEventListener('change', () => named.classList.remove('invalid'), { once: true });
+  }
+  const out = new Error(text);
+  out.field = e.field;
+  return out;
 }
 
 /** Select model `id` for `axis` in the form (a new option if the list does not have it yet). */
@@ -244,7 +271,7 @@ async function run(root) {
       showError(err, new Error(job.error || `the trajectory run was ${job.state}`));
     }
   } catch (e) {
-    showError(err, e);
+    showError(err, inPageWords(root.querySelector('#traj-form'), e));
   } finally {
     button.disabled = false;
   }
