@@ -46,13 +46,27 @@ class Ellipse:
             raise FieldError(
                 "inclination_deg",
                 f"no ellipse inclined {self.inclination_deg:g}° to Z has "
-                f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm",
+                f"a Y span of {2 * ay:g} µm and a Z span of {2 * az:g} µm" + _span_ratio_hint(ay, az, th),
             )
         return float(np.sqrt(a2)), float(np.sqrt(b2))
 
     @property
     def peak_to_peak_um(self) -> dict[str, float]:
         return {"y": self.y_range_um[1] - self.y_range_um[0], "z": self.z_range_um[1] - self.z_range_um[0]}
+
+
+def _span_ratio_hint(ay: float, az: float, th: float) -> str:
+    """What spans an ellipse at inclination ``th`` (rad, |th| < 45°) can have: its Z span lies between
+    its Y span and cot|th| times it (semi-spans ``ay``, ``az`` in µm)."""
+    if abs(np.tan(th)) < 1e-12 or abs(th) >= np.pi / 4:
+        return ""
+    bound = 1.0 / abs(np.tan(th))
+    return (
+        f": inclined {np.degrees(abs(th)):g}°, the Z span lies between the Y span and {bound:.3g}× it "
+        f"(here {az / ay:.3g}×); change a span or the inclination"
+        if ay > 0
+        else ""
+    )
 
 
 def validate(e: Ellipse) -> None:

@@ -70,6 +70,11 @@ def test_ellipse_ranges_inclination_and_ramps():
         reference(Ellipse((1, 6), (1, 11), 0, 123.0, 4), 20_000.0)
     with pytest.raises(ValueError, match="inclination_deg"):
         Ellipse((1, 11), (1, 2), 10, 100, 4).semi_axes_um()
+    # the refusal says which spans the inclination allows: Z between the Y span and cot 20° = 2.75× it
+    with pytest.raises(ValueError, match=r"between the Y span and 2\.75× it \(here 100×\)"):
+        Ellipse((1, 6), (1, 501), 20, 100, 4).semi_axes_um()
+    a, b = Ellipse((1, 6), (1, 1 + 2.7 * 5), 20, 100, 4).semi_axes_um()  # just inside the bound: an ellipse
+    assert a >= b > 0
 
 
 @pytest.fixture(scope="module")
