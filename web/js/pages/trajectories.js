@@ -317,11 +317,13 @@ export function leave() {
 // predicted on the identified plant.
 function renderPid(root, report) {
   const num = (v, unit) => (v === null || v === undefined ? '—' : `${fmt(v)} ${unit}`);
-  const damping = (d) => (d ? `${fmt(d.gain_v_per_um)} V/µm at ${fmt(d.frequency_hz)} Hz, ζ ${fmt(d.damping_ratio)}` : 'none');
+  // the PPF section's own tuning, not the mode: it sits above the mode the feedforward model's plant has
+  const damping = (d, plant) => (d ? `PPF section tuned to ${fmt(d.frequency_hz)} Hz${plant && plant.resonance_hz
+    ? ` (${fmt(d.frequency_hz / plant.resonance_hz, 3)}× the plant model's ${fmt(plant.resonance_hz)} Hz mode)` : ''}, ζ ${fmt(d.damping_ratio)}, ${fmt(d.gain_v_per_um)} V/µm` : 'none');
   const rows = Object.entries(report.axes).map(([axis, a]) => {
     const m = a.margins || {};
     return `<tr><td>${esc(axis.toUpperCase())}</td><td>${fmt(a.kp)}</td><td>${fmt(a.ki)}</td><td>${fmt(a.kd)}</td>
-      <td>${damping(a.damping)}</td>
+      <td class="mode-damping">${damping(a.damping, a.plant)}</td>
       <td>${a.margins ? (m.stable ? 'stable' : 'unstable') : 'not predicted'}</td><td>${num(m.phase_margin_deg, '°')}</td>
       <td>${num(m.gain_margin_db, 'dB')}</td><td>${m.delay_margin_s != null ? fmt(m.delay_margin_s * 1e6) + ' µs' : '—'}</td></tr>`;
   }).join('');
