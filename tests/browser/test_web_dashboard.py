@@ -63,6 +63,12 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     page.wait_for_timeout(800)  # a few live samples
     bench = server["api"].get("/bench").json()
     assert page.locator("#limits tr").count() == 1 + len(bench["axes"])
+    # one unit for a current on the page: the state's "current (mA)" and the hard limit's, both in mA
+    assert "current (mA)" in page.inner_text("#state tr:first-child") and "current (mA)" in page.inner_text(
+        "#limits tr:first-child"
+    )
+    limit_ma = page.locator("#limits tr").nth(1).locator("td").nth(4).inner_text()
+    assert float(limit_ma) == pytest.approx(bench["limits"]["y"]["current_limit_a"] * 1e3, rel=1e-3)
     assert abs(float(page.get_attribute("#state tr[data-axis=y] td[data-output-v]", "data-output-v"))) < 0.5
     assert "amplifier output (V)" in page.inner_text("#live") or page.locator("#live canvas").count() > 0
     shot(page, "bench")

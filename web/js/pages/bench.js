@@ -47,9 +47,9 @@ export async function enter(root) {
   const axes = bench.axes;
   const lim = root.querySelector('#limits');
   lim.innerHTML = `<tr><th>axis</th><th class="num">V min (V)</th><th class="num">V max (V)</th><th class="num">slew (V/s)</th>
-    <th class="num">current (A)</th><th class="num">C (µF)</th><th class="num">1st resonance (Hz)</th><th class="num">full-range f max (Hz)</th></tr>` +
+    <th class="num">current (mA)</th><th class="num">C (µF)</th><th class="num">1st resonance (Hz)</th><th class="num">full-range f max (Hz)</th></tr>` +
     axes.map((a) => { const l = bench.limits[a]; return `<tr><td>${a}</td><td class="num">${fmt(l.v_min_v)}</td><td class="num">${fmt(l.v_max_v)}</td>
-      <td class="num">${fmt(l.slew_limit_v_per_s)}</td><td class="num">${fmt(l.current_limit_a)}</td><td class="num">${fmt(l.capacitance_f * 1e6)}</td>
+      <td class="num">${fmt(l.slew_limit_v_per_s)}</td><td class="num">${fmt(l.current_limit_a * 1e3)}</td><td class="num">${fmt(l.capacitance_f * 1e6)}</td>
       <td class="num">${fmt(l.first_resonance_hz)}</td><td class="num">${fmt(l.max_frequency_hz_at_full_range)}</td></tr>`; }).join('');
   live = liveSignals(root.querySelector('#live'), axes);
   const poll = async () => {
@@ -146,13 +146,15 @@ const SUMMARY_FIELDS = [
   ['validation_rms_um', 'held-out RMS', (v) => fmtErrorNm(v, 4)],
   ['rms_error_um', 'RMS error', (v) => fmtErrorNm(v, 4)],
   ['relative_error_pct', 'relative error', (v) => `${fmt(v, 3)} %`],
-  ['stopped', 'ended', (v) => esc(String(v).replace(/_/g, ' '))],
+  // a discover's reason ("max_steps"), or a run's flag: true is an early stop, false says nothing
+  ['stopped', 'ended', (v) => (v === true ? 'early (stopped)' : esc(String(v).replace(/_/g, ' ')))],
 ];
 
 /** A job's result in a line of words (HTML): its dataset or model, and its headline figures. */
 function summary(result) {
   if (!result) return '';
-  return SUMMARY_FIELDS.filter(([k]) => result[k] !== null && result[k] !== undefined && typeof result[k] !== 'object')
+  return SUMMARY_FIELDS.filter(([k]) => result[k] !== null && result[k] !== undefined && result[k] !== false
+      && typeof result[k] !== 'object')
     .map(([k, words, show]) => `${words} ${show(result[k])}`).join(' · ');
 }
 
