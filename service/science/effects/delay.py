@@ -112,9 +112,12 @@ class Delay(Effect):
     def evidence(self, sig, floor):
         if sig.get("lag_ms") is None:
             return "no lag can be measured: the model's prediction does not move in any block"
-        per = ", ".join(f"{k} Hz: {fmt_us(1e-3 * v)}" for k, v in sig["lag_ms_by_frequency"].items())
+        per = ", ".join(  # a block without a frequency (a step-hold, an import's) is keyed "record"
+            f"{'a block without a frequency' if k == 'record' else f'{k} Hz'}: {fmt_us(1e-3 * v)}"
+            for k, v in sig["lag_ms_by_frequency"].items()
+        )
         spread = sig.get("lag_ms_spread")
         return (
-            f"the residual lags the drive by {fmt_us(1e-3 * sig['lag_ms'])} (slope-weighted mean; per block {per}, "
+            f"the residual lags the drive by {fmt_us(1e-3 * sig['lag_ms'])} (slope-weighted mean; per block: {per}; "
             f"spread {'unknown' if spread is None else fmt_us(1e-3 * spread, 2)}): delay"
         )

@@ -59,3 +59,12 @@ def test_asymmetrys_stored_weights_are_its_parameters_with_units():
     assert list(params.values()) == pytest.approx([-12052.54, 11733.42, 327.97, -1665.41], abs=0.01)
     assert all(e.units[name] == "nm" for name in params)
     assert e.parameters({}, {}, SCALES, 1.0) == {}
+
+
+def test_a_lag_in_a_block_without_a_frequency_is_named_as_such():
+    """A step-hold (or an import's block) has no frequency: its lag is keyed "record" by the breakdown,
+    which the evidence printed as "record Hz: -122 µs"."""
+
+    sig = {"lag_ms": -0.458, "lag_ms_by_frequency": {"record": -0.122, "100": -0.187}, "lag_ms_spread": 0.72}
+    words = EFFECTS["delay"].evidence(sig, {})
+    assert "record Hz" not in words and "a block without a frequency: -122 µs, 100 Hz: -187 µs" in words, words
