@@ -122,6 +122,15 @@ def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     assert MARKUP in page.inner_text("#model-name")  # shown as text
     assert MARKUP in page.inner_text(f"#model-list tr[data-model-id='{model}']")
     assert page.evaluate("window.__xss === undefined")
+    # a long name is cut to 18 em in the list (whole in its title), so the columns beside it stay in view
+    long_name = ("a very long name " * 11).strip()  # under the field's 200 characters
+    page.fill("#labels-form input[name=name]", long_name)
+    page.click("#labels-save")
+    page.wait_for_function("document.querySelector('#labels-status').textContent === 'saved'")
+    goto(page, server, f"models/{model}")
+    name = page.locator(f"#model-list tr[data-model-id='{model}'] .model-name")
+    width, em = name.evaluate("(e) => [e.getBoundingClientRect().width, parseFloat(getComputedStyle(e).fontSize)]")
+    assert width <= 18 * em + 1 and name.get_attribute("title") == long_name, (width, em)
 
     dataset = server["recorded"]
     goto(page, server, f"datasets/{dataset}")

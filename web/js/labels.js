@@ -27,11 +27,14 @@ export function renderLabels(el, kind, record, { signal, onSaved = () => {} } = 
     if (name || kind === 'models') body.name = name || null;
     const status = box.querySelector('#labels-status');
     status.classList.remove('error');
+    let updated;
     try {
-      const updated = await api(`/${kind}/${encodeURIComponent(record.id)}`, { method: 'PATCH', body, signal });
+      updated = await api(`/${kind}/${encodeURIComponent(record.id)}`, { method: 'PATCH', body, signal });
       status.textContent = 'saved';
-      onSaved(updated);
-    } catch (err) { showError(status, err, 'Not saved: '); }
+    } catch (err) { showError(status, err, 'Not saved: '); return; }
+    try {
+      await onSaved(updated);  // awaited, so that a refresh cut short by leaving the page is not uncaught
+    } catch (err) { showError(status, err, 'Saved; the page did not refresh: '); }
   });
   return box;
 }

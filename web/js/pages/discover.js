@@ -108,7 +108,7 @@ async function discover(box, model, state, { signal, imported, onModels, figures
     }
     const last = job.result?.final_model_id;
     if (last) {
-      onModels();
+      await onModels();  // awaited: a refresh cut short by leaving the page is caught below
       await fillLineage(box, last, state, signal);
       await figures(last);
     }
