@@ -141,7 +141,10 @@ def create_app(settings: Settings | None = None, bench_factory: Callable[[Settin
             claim(store, settings, instance)  # BenchIdInUse before anything is recovered
             app.state.recovery = recover(store)
             if settings.auth == "tokens":
-                ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
+                token_path = ensure_bootstrap_token(store, settings.data_dir, settings.bench_id)
+                logging.getLogger("uvicorn.error").info(  # printed with uvicorn's own start-up lines
+                    "API token: paste the content of %s under the dashboard's Settings (top right)", token_path
+                )
             _load_effect_plugins(settings)
             app.state.bench = factory(settings)
             try:

@@ -45,6 +45,8 @@ def test_real_process_sweep_identify_compare_cli_and_restart(data_dir, tmp_path)
     log = tmp_path / "server.log"
     server = Server(data_dir, log)
     try:
+        # a new user learns from the start-up lines where the dashboard's token is
+        assert f"API token: paste the content of {server.data_dir / 'admin.token'}" in log.read_text()
         with Client(server.url, token=server.token) as api:
             # --- the Python client
             events = []
