@@ -174,7 +174,7 @@ async function showDataset(root, id) {
       <p>Export: <a id="export-csv" href="/api/datasets/${esc(ds.id)}/data?format=csv" download="${esc(ds.id)}.csv">CSV</a> ·
         <a id="export-hdf5" href="/api/datasets/${esc(ds.id)}/data?format=hdf5" download="${esc(ds.id)}.h5">HDF5</a> ·
         <a href="#/models?dataset=${esc(ds.id)}">identify a model from it</a> · <a href="#/datasets">all datasets</a></p>
-      <table id="block-table"><tr><th>block</th><th>kind</th><th class="num">frequency (Hz)</th><th class="num">cycles</th><th class="num">start (s)</th><th class="num">stop (s)</th><th>axes</th><th title="stretches in no block: a rest, a ramp, the first cycle out of a rest">outside the blocks</th></tr>
+      <table id="block-table"><tr><th>block</th><th>kind</th><th class="num">frequency (Hz)</th><th class="num" title="whole cycles in the block: for an imported record, counted from the first crossing of the block's mean on the way up, so the part out of rest before it and the part cycle after the last crossing are outside the block (the models still run through them)">whole cycles</th><th class="num">start (s)</th><th class="num">stop (s)</th><th>axes</th><th title="stretches in no block: a rest, a ramp, the first cycle out of a rest">outside the blocks</th></tr>
       ${ds.blocks.map((b) => `<tr><td>${b.index ?? ''}</td><td>${esc(b.kind ?? '')}</td><td class="num">${blockFrequency(b)}</td><td class="num">${fmt(b.cycles)}</td>
         <td class="num">${fmt(b.start / ds.sample_rate_hz)}</td><td class="num">${fmt(b.stop / ds.sample_rate_hz)}</td><td>${(b.axes || ds.axes).join(', ')}</td>
         <td class="trimmed">${trimmedText(b)}</td></tr>`).join('')}</table></div>
