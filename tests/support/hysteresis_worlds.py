@@ -208,8 +208,10 @@ WORLDS = {
     "krasnoselskii_pokrovskii": lambda u, bp: krasnoselskii_pokrovskii_um(u, lo_v=-140.0 if bp else -20.0),
     # a Duhem stack with a wide loop (±1.5 µm on a 7.2 µm line over 120 V) and a flat anhysteretic
     # curve: the rate-independent stage a new user's walk wrote (x = 0.06·u + h, dh = 0.03·du − 0.02·|du|·h)
-    "duhem_wide": lambda u, bp: 0.06 * np.asarray(u, dtype=float)
-    + coleman_hodgdon_um(u, alpha_per_v=0.01 if bp else 0.02, a_um_per_v=0.0, b_um_per_v=0.03),
+    "duhem_wide": lambda u, bp: (
+        0.06 * np.asarray(u, dtype=float)
+        + coleman_hodgdon_um(u, alpha_per_v=0.01 if bp else 0.02, a_um_per_v=0.0, b_um_per_v=0.03)
+    ),
 }
 
 
