@@ -20,9 +20,10 @@ LOOP_SHAPE = ("asymmetry", "sensor_nonlinearity")
 
 
 def base_draws_any_loop_shape(effects) -> bool:
-    """Whether a model of ``effects`` has a base that draws any rate-independent loop shape (issue 37's
-    wider base): on it the loop-shape pair is that base's shape, not physics."""
-    return any(getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in effects)
+    """Whether a model of ``effects`` (a stored model's list names "hysteresis", the base, too) has a
+    base that draws any rate-independent loop shape (issue 37's wider base): on it the loop-shape pair
+    is that base's shape, not physics."""
+    return any(e in EFFECTS and getattr(EFFECTS[e], "draws_any_loop_shape", False) for e in effects)
 
 
 def role_in_model(effect: str, effects) -> str:
