@@ -161,6 +161,8 @@ def _check_discover_table(page, api, model) -> int:
         assert _close(cells[8].rstrip("×"), s["ratio_to_noise_floor"], 3)
         checked += 3
     for e in job["effects_found"]:
+        added_as = page.locator(f"#discover-found tr[data-effect='{e['effect']}'] td.added-as").inner_text()
+        assert added_as == ("model capacity" if e["kind"] == "capacity" else "physics"), (e["effect"], added_as)
         cell = page.locator(f"#discover-found tr[data-effect='{e['effect']}'] td").nth(3).inner_text()
         assert e["parameters"] or e["effect"] != "asymmetry", e  # its stored weights showed "–"
         for name, value in e["parameters"].items():
