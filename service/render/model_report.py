@@ -309,6 +309,13 @@ def _diagnosis_section(d: dict) -> str:
         )
         + (f'<h3>Not testable with this data</h3><ul id="not-testable">{untestable}</ul>' if untestable else "")
         + (
+            '<p class="muted" id="not-tried">Not tried: '
+            + "; ".join(f"<b>{escape(c['effect'])}</b> ({escape(c['reason'])})" for c in d["not_tried"])
+            + ".</p>"
+            if d.get("not_tried")
+            else ""
+        )
+        + (
             f'<h3>Ambiguity</h3><p id="ambiguity">{escape(amb.get("text") or "")}</p>'
             + (_experiment(amb["experiment"], here) if amb.get("experiment") else "")
             if amb

@@ -298,6 +298,11 @@ class Diagnosis(BaseModel):
     disturbance: Disturbance | None = Field(
         default=None, description="lines on the gauge at rest (mains pickup or another line): not the model"
     )
+    not_tried: list[dict[str, str]] | None = Field(
+        default=None,
+        description="candidates this diagnosis did not fit, each with why ({effect, reason}): a later grid of the "
+        "base when an earlier grid already reaches the floor, or the base is not what limits the model",
+    )
 
 
 class HistoryStep(BaseModel):

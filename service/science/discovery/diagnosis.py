@@ -25,7 +25,7 @@ import numpy as np
 from service.science.data.units import fmt_nm, fmt_nm2
 from service.science.discovery.ambiguity import ambiguity
 from service.science.discovery.answer import diagnosis_answer, first_capacity_words
-from service.science.discovery.base_capacity import capacity_before_physics
+from service.science.discovery.base_capacity import GOOD_ENOUGH_TO_NOISE, capacity_before_physics, later_grid
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.candidate_rows import DiagnosisFits, Judged, candidate_row, claimed_size
 from service.science.discovery.column_memo import shared_effect_columns
@@ -72,6 +72,60 @@ def flexible_base() -> tuple[str, ...]:
 # not seen worse (a user's foreign stages: 12 of 14 with a mode claimed it after dynamics); a rate
 # effect predicts the frequencies between the ones it was fitted on (the emulated rate-dependent
 # benches: +6000 nm² of mean square)
+
+
+def offered(in_model) -> list[str]:
+    """The effects a diagnosis of a model with effects ``in_model`` tests: those not in it, and not
+    an alternative (``Effect.alternative_to``) to one in it."""
+    have = set(in_model)
+    return [n for n, e in EFFECTS.items() if n not in have and not have & set(e.alternative_to)]
+
+
+#: a later grid of the base is tried only where the base's shape is what limits the model: an earlier
+#: grid removes at least this share of the model's held-out excess over the noise floor (on a bench
+#: whose residual is mostly physics, another grid has nothing to say yet, and each costs a fit)
+BASE_LIMITS_SHARE = 0.5
+
+
+def _alternative_not_needed(name: str, candidates: list[dict], noise: float) -> str | None:
+    """Why ``name`` is not tried (in words), or None: an alternative to it, tested before it in this
+    diagnosis, already leaves a held-out RMS within GOOD_ENOUGH_TO_NOISE × the noise floor, or
+    removes less than BASE_LIMITS_SHARE of the model's excess (the base is not what limits it)."""
+    earlier = [c for c in candidates if c["effect"] in set(EFFECTS[name].alternative_to)]
+    for c in earlier:
+        if c["expected_rms_um"] <= GOOD_ENOUGH_TO_NOISE * noise:
+            return (
+                f"{c['effect']} already leaves {fmt_nm(c['expected_rms_um'])} held out, within "
+                f"{GOOD_ENOUGH_TO_NOISE:g} × the noise floor ({fmt_nm(noise)}); the smaller grid is kept"
+            )
+    if earlier and max(c["excess_removed"] for c in earlier) < BASE_LIMITS_SHARE:
+        best = max(earlier, key=lambda c: c["excess_removed"])
+        return (
+            f"the base's shape is not what limits this model: {best['effect']} removes "
+            f"{100 * best['excess_removed']:.0f} % of its excess over the noise floor"
+        )
+    return None
+
+
+def _untested_row(name: str, why: dict, evidence: str, v0: float) -> dict:
+    """A candidate row for an effect the diagnosis did not test (``why``: its ``effect``, ``reason``
+    and any experiment), at the model's held-out RMS ``v0`` (µm)."""
+    return {
+        **why,
+        "kind": EFFECTS[name].kind,
+        "testable": False,
+        "claimed": False,
+        "high": False,
+        "significant": False,
+        "score": 0.0,
+        "p_value": 1.0,
+        "gain_mse_um2": 0.0,
+        "expected_rms_um": v0,
+        "excess_removed": 0.0,
+        "added_parameters": 0,
+        "evidence": evidence,
+        "signature": EFFECTS[name].signature,
+    }
 
 
 def _reference_for(name: str) -> tuple[str, ...]:
@@ -211,9 +265,10 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     sig = signatures(records, res, preds)
     k0 = model.n_parameters()
     judged = Judged(fits, records, noise, v0, k0, sig, floor)
-    candidates, untestable, shape_ambiguity = [], [], None
-    why_not_of = {name: not_testable(name, records) for name in EFFECTS if name not in model.effects}
-    tested = sum(why is None for why in why_not_of.values())
+    candidates, untestable, not_tried, shape_ambiguity = [], [], [], None
+    why_not_of = {name: not_testable(name, records) for name in offered(model.effects)}
+    # alternatives (one base's grids) are one question of the family: counted once
+    tested = sum(why is None and not later_grid(name) for name, why in why_not_of.items())
     alpha = candidate_alpha(tested)  # more candidates, the same family-wise false-claim rate
     for name, why_not in why_not_of.items():
         eff = EFFECTS[name]
@@ -221,24 +276,11 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
             candidates.append(_seen_at_rest(name, judged, rests, alpha))
             continue
         if why_not is not None:
-            untestable.append(
-                {
-                    **why_not,
-                    "kind": eff.kind,
-                    "testable": False,
-                    "claimed": False,
-                    "high": False,
-                    "significant": False,
-                    "score": 0.0,
-                    "p_value": 1.0,
-                    "gain_mse_um2": 0.0,
-                    "expected_rms_um": v0,
-                    "excess_removed": 0.0,
-                    "added_parameters": 0,
-                    "evidence": f"not testable: {why_not['reason']}",
-                    "signature": eff.signature,
-                }
-            )
+            untestable.append(_untested_row(name, why_not, f"not testable: {why_not['reason']}", v0))
+            continue
+        enough = _alternative_not_needed(name, candidates, noise)
+        if enough is not None:
+            not_tried.append(_untested_row(name, {"effect": name, "reason": enough}, f"not tried: {enough}", v0))
             continue
         if name in LOOP_SHAPE and not set(LOOP_SHAPE) & set(model.effects):
             if name == LOOP_SHAPE[0]:  # the pair is weighed together, once
@@ -286,8 +328,9 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
         "disturbance": disturbed,
         "remainder": remainder,
         "answer": answer,
-        "candidates": candidates + untestable,
+        "candidates": candidates + untestable + not_tried,
         "not_testable": untestable,
+        "not_tried": [{"effect": c["effect"], "reason": c["reason"]} for c in not_tried],
         "claim_rule": rule_text(noise, tested),
         "candidates_tested": tested,
         "candidate_alpha": alpha,

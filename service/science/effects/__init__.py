@@ -12,7 +12,7 @@ from service.science.effects.delay import Delay
 from service.science.effects.drift import Drift
 from service.science.effects.dynamics import Dynamics
 from service.science.effects.gain_change import GainChange
-from service.science.effects.hysterons import Hysterons
+from service.science.effects.hysterons import Hysterons, SlowHysterons
 from service.science.effects.line_disturbance import LineDisturbance
 from service.science.effects.operators import Operators
 from service.science.effects.rate_dependence import RateDependence
@@ -37,6 +37,7 @@ BUILTINS = (
     SensorNonlinearity,
     Operators,
     Hysterons,
+    SlowHysterons,
 )
 
 #: the process's registry: the built-ins, and the plug-ins once the service loads them

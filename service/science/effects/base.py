@@ -132,6 +132,9 @@ class Effect:
     operator_factor: ClassVar[int] = 1
     #: transforms: the parameters for which the transform is the identity (where a search starts)
     identity: ClassVar[dict] = {}
+    #: capacity levels this one is an alternative to: it is a candidate only while none of them is in
+    #: the model (two grids of one base, chosen between on held-out data, never stacked)
+    alternative_to: ClassVar[tuple[str, ...]] = ()
     #: part of the flexible rate-independent base every physical candidate must beat (diagnosis)
     in_flexible_base: ClassVar[bool] = False
     #: a disturbance the record's rests show (a line at rest): the diagnosis takes it out of the record

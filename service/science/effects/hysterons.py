@@ -21,6 +21,11 @@ exactly with it):
   of a Duhem-type stack, with no wiping-out memory (a Preisach plane cannot; the ``operators``
   capacity's Duhem operators are the share-1 column alone).
 
+Two grids of this base are offered as alternatives (``LEVELS``; never both in one model): the
+default ``hysterons`` and ``hysterons_slow`` (slow Duhem hysterons more). The slower grid fits some
+stages far better and others worse on held-out cycles, so the loop takes the one that leaves the
+lower held-out RMS: capacity grows by validation (service.science.discovery.base_capacity).
+
 A loop shape wrong at every frequency alike is this base's, never physics.
 """
 
@@ -34,6 +39,11 @@ from service.science.fitting.lsq import Block
 
 #: highest Chebyshev order of each play operator's output map (orders 2…DEGREE are this block's)
 DEGREE = 4
+#: the base's grids, alternatives to each other (``Effect.alternative_to``): the loop takes the one
+#: held-out data ask for, and never stacks two
+LEVELS = ("hysterons", "hysterons_slow")
+#: the slow grid's Duhem hysterons' scales, as shares of the drive's span (``hysterons_slow``)
+SLOW_SCALES = (0.4, 0.7)
 #: Bouc–Wen hysterons: β/(β + γ) shares, and voltage scales as shares of the drive's span (V/V)
 BW_SHARES = (0.2, 0.4, 0.6, 0.8, 1.0)
 BW_SCALES = (0.03, 0.08, 0.2)
@@ -121,6 +131,11 @@ class Hysterons(Effect):
     #: that changes over a few volts of width (a Jiles–Atherton or Bouc–Wen n = 2 stack) needs the finer
     #: grid (held out at 5 kHz: JA 4.6 → 2.6 nm, Bouc–Wen n = 2 3.2 → 2.3 nm; docs/discovery-evidence.md)
     operator_factor = 2
+    #: highest Chebyshev order of each play operator's output map
+    envelope_degree = DEGREE
+    alternative_to = LEVELS[1:]
+    #: slow Duhem hysterons (share 1) beside the Bouc–Wen ones: voltage scales as shares of the span
+    slow_scales: tuple[float, ...] = ()
     stage = "capacity"
     signature = (
         "the loop's rising and falling branches differ in shape, not only in position (no Masing rule: a "
@@ -133,12 +148,35 @@ class Hysterons(Effect):
         and the Bouc–Wen hysterons of the drive (µm/V weights); free sign."""
         scales = np.asarray(BW_SCALES) * ctx.u_scale_v
         u = np.ascontiguousarray(ctx.u_v, dtype=float)
-        return [
-            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, DEGREE)),
+        out = [
+            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, self.envelope_degree)),
             Block.make("bouc_wen_weights_um_per_v", bouc_wen_hysterons(u, scales, np.asarray(BW_SHARES, dtype=float))),
         ]
+        if self.slow_scales:
+            slow = np.asarray(self.slow_scales) * ctx.u_scale_v
+            out.append(Block.make("slow_duhem_weights_um_per_v", bouc_wen_hysterons(u, slow, np.ones(1))))
+        return out
 
     units = {"preisach_envelope_um": "µm", "bouc_wen_weights_um_per_v": "µm/V"}
 
     def evidence(self, sig, floor):
         return ""
+
+
+class SlowHysterons(Hysterons):
+    """The same base with slow Duhem hysterons more (scales SLOW_SCALES of the drive's span, share
+    1: an exponential approach after each reversal, no wiping-out memory). A stack whose branches
+    relax over half its span (a Duhem stack with a flat anhysteretic line) needs them: held out at
+    5 kHz, 15.8 → 2.3 nm on such a stage in both record forms. Where nothing is that slow, their
+    50–85 V memory is poorly held by a long record's rests and holds (Bouc–Wen β < γ, one long
+    record: 2.2 → 3.5 nm; Jiles–Atherton 2.9 → 7.4 nm), so it is an alternative grid the loop takes
+    only where held-out data ask (docs/discovery-evidence.md)."""
+
+    name = "hysterons_slow"
+    alternative_to = LEVELS[:1]
+    slow_scales = SLOW_SCALES
+    signature = (
+        "as hysterons, with a slow Duhem hysteron (the branches relax over half the drive's span after "
+        "each reversal); a model-capacity change, not physics"
+    )
+    units = {**Hysterons.units, "slow_duhem_weights_um_per_v": "µm/V"}

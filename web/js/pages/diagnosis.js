@@ -116,6 +116,7 @@ export function renderDiagnosis(box, model, d, opts) {
       <b>${esc(u.effect)}</b>: ${esc(u.reason)}. ${d.experiments_run_here === false ? '<span class="muted">On the stage that recorded the data:</span>'
         : `<button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>`}
       <span class="muted">(${describe(u.experiment)})</span></li>`).join('')}</ul>` : ''}
+    ${(d.not_tried || []).length ? `<p class="muted" id="not-tried">Not tried: ${d.not_tried.map((u) => `<span data-effect="${esc(u.effect)}"><b>${esc(u.effect)}</b> (${esc(u.reason)})</span>`).join('; ')}.</p>` : ''}
     ${d.experiments_note ? `<p class="warn" id="experiments-elsewhere">${esc(d.experiments_note)}</p>` : ''}
     <div id="separate"></div>`;
   drawRemainder(box, d.remainder);
