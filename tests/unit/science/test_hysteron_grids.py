@@ -85,3 +85,17 @@ def test_the_slower_grid_is_not_tried_where_the_base_already_reaches_the_floor()
     assert [u["effect"] for u in d["not_tried"]] == ["hysterons_slow"]
     assert d["not_tried"][0]["reason"].startswith("hysterons already leaves "), d["not_tried"]
     assert "hysterons_slow" not in {c["effect"] for c in d["not_testable"]}
+
+
+def test_a_model_is_not_at_the_floor_while_a_capacity_passes_the_claim_rule():
+    """A Coleman–Hodgdon stage under 10 nm of noise: the PI holds out 1.7× the floor, inside the two
+    at-floor figures, but the wider base passes the claim rule (to 1.02×): a repeatable model error
+    the figures let through, so the loop goes on (it stopped at 1.69× before)."""
+    from service.science.discovery.diagnosis import diagnose
+
+    d = diagnose(records("coleman_hodgdon", "blocks", noise_um=0.010, fs=FS))
+    base = next(c for c in d["candidates"] if c["effect"] == "hysterons")
+    assert d["residual_rms_um"] >= 1.5 * d["noise_floor_um"] and base["claimed"], (d["residual_rms_um"], base)
+    assert base["expected_rms_um"] <= 1.1 * d["noise_floor_um"]
+    assert d["at_noise_floor"] is False
+    assert (d["answer"]["missing"], d["answer"]["kind"]) == ("hysterons", "capacity"), d["answer"]
