@@ -131,8 +131,6 @@ class Hysterons(Effect):
     #: that changes over a few volts of width (a Jiles–Atherton or Bouc–Wen n = 2 stack) needs the finer
     #: grid (held out at 5 kHz: JA 4.6 → 2.6 nm, Bouc–Wen n = 2 3.2 → 2.3 nm; docs/discovery-evidence.md)
     operator_factor = 2
-    #: highest Chebyshev order of each play operator's output map
-    envelope_degree = DEGREE
     alternative_to = LEVELS[1:]
     #: slow Duhem hysterons (share 1) beside the Bouc–Wen ones: voltage scales as shares of the span
     slow_scales: tuple[float, ...] = ()
@@ -149,7 +147,7 @@ class Hysterons(Effect):
         scales = np.asarray(BW_SCALES) * ctx.u_scale_v
         u = np.ascontiguousarray(ctx.u_v, dtype=float)
         out = [
-            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, self.envelope_degree)),
+            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, DEGREE)),
             Block.make("bouc_wen_weights_um_per_v", bouc_wen_hysterons(u, scales, np.asarray(BW_SHARES, dtype=float))),
         ]
         if self.slow_scales:

@@ -11,6 +11,8 @@ the later grid comes before the physics only where it draws the record to the no
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -85,6 +87,13 @@ def test_the_slower_grid_is_not_tried_where_the_base_already_reaches_the_floor()
     assert [u["effect"] for u in d["not_tried"]] == ["hysterons_slow"]
     assert d["not_tried"][0]["reason"].startswith("hysterons already leaves "), d["not_tried"]
     assert "hysterons_slow" not in {c["effect"] for c in d["not_testable"]}
+    # the report prints it, apart from what the data cannot test (the Diagnosis page reads the same field)
+    from service.render.model_report import _diagnosis_section
+
+    html = _diagnosis_section(d)
+    assert 'id="not-tried"' in html and "hysterons already leaves " in html
+    untestable_list = re.search(r'<ul id="not-testable">(.*?)</ul>', html)
+    assert untestable_list is None or "hysterons_slow" not in untestable_list.group(1)
 
 
 def test_a_model_is_not_at_the_floor_while_a_capacity_passes_the_claim_rule():
