@@ -12,7 +12,7 @@ from service.science.effects.delay import Delay
 from service.science.effects.drift import Drift
 from service.science.effects.dynamics import Dynamics
 from service.science.effects.gain_change import GainChange
-from service.science.effects.hysterons import Hysterons, SlowHysterons
+from service.science.effects.hysterons import FineHysterons, Hysterons, SlowHysterons
 from service.science.effects.line_disturbance import LineDisturbance
 from service.science.effects.operators import Operators
 from service.science.effects.rate_dependence import RateDependence
@@ -38,6 +38,7 @@ BUILTINS = (
     Operators,
     Hysterons,
     SlowHysterons,
+    FineHysterons,
 )
 
 #: the process's registry: the built-ins, and the plug-ins once the service loads them

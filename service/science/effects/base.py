@@ -135,6 +135,10 @@ class Effect:
     #: capacity levels this one is an alternative to: it is a candidate only while none of them is in
     #: the model (two grids of one base, chosen between on held-out data, never stacked)
     alternative_to: ClassVar[tuple[str, ...]] = ()
+    #: a later alternative adds a kind of memory the earlier ones lack (a slow relaxation that may draw
+    #: part of a creep): it comes before the physics only where it reaches the noise floor itself
+    #: (service.science.discovery.base_capacity); False: it only refines the earlier grid's own maps
+    adds_memory: ClassVar[bool] = True
     #: part of the flexible rate-independent base every physical candidate must beat (diagnosis)
     in_flexible_base: ClassVar[bool] = False
     #: a disturbance the record's rests show (a line at rest): the diagnosis takes it out of the record

@@ -21,10 +21,12 @@ exactly with it):
   of a Duhem-type stack, with no wiping-out memory (a Preisach plane cannot; the ``operators``
   capacity's Duhem operators are the share-1 column alone).
 
-Two grids of this base are offered as alternatives (``LEVELS``; never both in one model): the
-default ``hysterons`` and ``hysterons_slow`` (slow Duhem hysterons more). The slower grid fits some
-stages far better and others worse on held-out cycles, so the loop takes the one that leaves the
-lower held-out RMS: capacity grows by validation (service.science.discovery.base_capacity).
+Three grids of this base are offered as alternatives (``LEVELS``; never two in one model): the
+default ``hysterons``, ``hysterons_slow`` (slow Duhem hysterons more) and ``hysterons_fine`` (each
+play output's map to a higher Chebyshev order). Each fits some stages far better and others worse
+on held-out cycles, so the loop takes the one that leaves the lower held-out RMS, a freer grid only
+where it clearly earns its columns: capacity grows by validation
+(service.science.discovery.base_capacity).
 
 A loop shape wrong at every frequency alike is this base's, never physics.
 """
@@ -39,9 +41,11 @@ from service.science.fitting.lsq import Block
 
 #: highest Chebyshev order of each play operator's output map (orders 2…DEGREE are this block's)
 DEGREE = 4
+#: the fine grid's highest Chebyshev order (``hysterons_fine``)
+FINE_DEGREE = 8
 #: the base's grids, alternatives to each other (``Effect.alternative_to``): the loop takes the one
 #: held-out data ask for, and never stacks two
-LEVELS = ("hysterons", "hysterons_slow")
+LEVELS = ("hysterons", "hysterons_slow", "hysterons_fine")
 #: the slow grid's Duhem hysterons' scales, as shares of the drive's span (``hysterons_slow``)
 SLOW_SCALES = (0.4, 0.7)
 #: Bouc–Wen hysterons: β/(β + γ) shares, and voltage scales as shares of the drive's span (V/V)
@@ -134,6 +138,10 @@ class Hysterons(Effect):
     alternative_to = LEVELS[1:]
     #: slow Duhem hysterons (share 1) beside the Bouc–Wen ones: voltage scales as shares of the span
     slow_scales: tuple[float, ...] = ()
+    #: highest Chebyshev order of each play operator's output map
+    degree = DEGREE
+    #: refines the first grid's own maps (Effect.adds_memory)
+    adds_memory = False
     stage = "capacity"
     signature = (
         "the loop's rising and falling branches differ in shape, not only in position (no Masing rule: a "
@@ -147,7 +155,7 @@ class Hysterons(Effect):
         scales = np.asarray(BW_SCALES) * ctx.u_scale_v
         u = np.ascontiguousarray(ctx.u_v, dtype=float)
         out = [
-            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, DEGREE)),
+            Block.make("preisach_envelope_um", envelope_columns(ctx.p, ctx.u_scale_v, self.degree)),
             Block.make("bouc_wen_weights_um_per_v", bouc_wen_hysterons(u, scales, np.asarray(BW_SHARES, dtype=float))),
         ]
         if self.slow_scales:
@@ -171,10 +179,25 @@ class SlowHysterons(Hysterons):
     only where held-out data ask (docs/discovery-evidence.md)."""
 
     name = "hysterons_slow"
-    alternative_to = LEVELS[:1]
+    alternative_to = (LEVELS[0], LEVELS[2])
     slow_scales = SLOW_SCALES
+    #: slow relaxation after each reversal, which the first grid lacks (Effect.adds_memory)
+    adds_memory = True
     signature = (
         "as hysterons, with a slow Duhem hysteron (the branches relax over half the drive's span after "
         "each reversal); a model-capacity change, not physics"
     )
     units = {**Hysterons.units, "slow_duhem_weights_um_per_v": "µm/V"}
+
+
+class FineHysterons(Hysterons):
+    """The same base with each play operator's output map drawn to order FINE_DEGREE: a Preisach
+    density that changes sharply along the centre (a Krasnosel'skii–Pokrovskii kernel's ridge)."""
+
+    name = "hysterons_fine"
+    alternative_to = LEVELS[:2]
+    degree = FINE_DEGREE
+    signature = (
+        "as hysterons, with each play operator's output map drawn to a higher order (a Preisach density "
+        "that changes sharply along the centre); a model-capacity change, not physics"
+    )
