@@ -349,25 +349,26 @@ def test_the_progress_bar_writes_lines_into_a_pipe_and_redraws_on_a_terminal():
 
 
 def test_a_loop_shape_effect_added_on_the_wider_base_is_reported_as_capacity(tmp_path):
-    """A Maxwell-slip stage whose gain drifts with its own heating (tests/support/open_world.py,
-    built without the product's model code), one CSV per block: the loop widens the base to
-    ``hysterons`` and then adds asymmetry's columns, which on a base that draws any loop shape are
-    that base's shape (loop_shape.loop_shape_as_capacity). The one-call result must say so: the
-    effect is found as capacity, never as physics, on the API and in the CLI's words."""
+    """A Jiles–Atherton stage (tests/support/hysteresis_worlds.py, built without the product's model
+    code), one CSV per block at 5 kHz: its loops lean, so the loop widens the base to ``hysterons`` and
+    then adds asymmetry's columns, which on a base that draws any loop shape are that base's shape
+    (loop_shape.loop_shape_as_capacity). The one-call result must say so: the effect is found as
+    capacity, never as physics, on the API and in the CLI's words. (The self-heating Maxwell-slip stage
+    this test first used now adds ``rate_dependence`` there: its heat follows the drive's rate, and
+    with its step-hold read as steps that is what the held-out data show.)"""
     import numpy as np
 
-    from tests.support.open_world import FS_HZ, session_files
+    from tests.support.hysteresis_worlds import record_blocks
 
-    rng = np.random.default_rng(1)
+    fs_hz = 5000.0
     with authed_client(create_app(Settings(data_dir=tmp_path / "var", bench="default", seed=0))) as http:
         datasets = []
-        for k, (u, x) in enumerate(session_files("maxwell_slip", "self_heating")):
+        for k, (u, x) in enumerate(record_blocks("jiles_atherton", 0.002, 1, fs=fs_hz)):
             path = tmp_path / f"block{k}.csv"
-            noisy = x + rng.normal(0.0, 0.002, u.size)
-            np.savetxt(path, np.column_stack([u, noisy]), delimiter=",", header="u,x", comments="", fmt="%.9g")
+            np.savetxt(path, np.column_stack([u, x]), delimiter=",", header="u,x", comments="", fmt="%.9g")
             with path.open("rb") as f:
                 answer = http.post(
-                    "/api/datasets", files={"file": (path.name, f)}, data={"sample_rate_hz": str(FS_HZ), "axis": "y"}
+                    "/api/datasets", files={"file": (path.name, f)}, data={"sample_rate_hz": str(fs_hz), "axis": "y"}
                 )
             assert answer.status_code == 201, answer.text
             datasets.append(answer.json()["id"])

@@ -23,8 +23,11 @@ from service.science.data.signals import Waveform, dominant_period_samples, driv
 MIN_SAMPLES_PER_CYCLE = 20
 #: keep at least this many samples per cycle in the rows a decimated fit uses (``fit_rows``)
 FIT_SAMPLES_PER_CYCLE = 400
-#: rows a decimated fit keeps of one non-periodic block (a step-hold: slow, so evenly decimated)
+#: rows a decimated fit keeps of one non-periodic block (a step-hold: slow, so evenly decimated), and
+#: at most this many per second of it (a lab's six half-second holds at 20 kHz gave 4000 rows each,
+#: outweighing all the sine blocks' rows and doubling a discovery's time, for the same figures)
 MAX_STEP_ROWS = 4000
+MAX_STEP_ROWS_PER_S = 1000.0
 
 
 def finite_array(name: str, values, label: str = "") -> np.ndarray:
@@ -238,7 +241,8 @@ class Record:
                 continue
             period = self.period_samples(s)
             span = s.train[1] - s.train[0]
-            stride = max(1, int(period // FIT_SAMPLES_PER_CYCLE)) if period else max(1, span // MAX_STEP_ROWS)
+            step_stride = max(1, span // MAX_STEP_ROWS, int(self.sample_rate_hz // MAX_STEP_ROWS_PER_S))
+            stride = max(1, int(period // FIT_SAMPLES_PER_CYCLE)) if period else step_stride
             rows.append(np.arange(s.train[0], s.train[1], stride))
         return np.concatenate(rows) if rows else np.zeros(0, dtype=int)
 

@@ -4,7 +4,8 @@ A characterisation exported without its block table (one CSV of a 1/10/50/100 Hz
 in turn) must still be validated per frequency: held out are the last cycles *of each block*, not
 the last 20 % of the file (which would be one axis at rest). ``detect_blocks`` finds runs of
 turning points of the drive with a steady spacing (each half period within 20 % of the run's
-median), at least two whole cycles long, and returns them as sweep-style blocks; runs that
+median) and steady levels (each within 5 % of the swing of the one a cycle before), at least two
+whole cycles long, and returns them as sweep-style blocks; runs that
 coincide on both axes (driven together) become one block with both axes. Holds, ramps between
 levels and irregular stretches fall outside every block.
 """
@@ -16,11 +17,17 @@ import math
 import numpy as np
 
 from service.science.data.signals import STEADY_HALF_PERIOD_SHARE, longest_linked_run, turning_points
+from service.science.data.steps import step_blocks
 
 #: successive mid-level crossings of one steady run are one period apart within this share
 CROSSING_SHARE = 0.03
 #: a run needs at least this many whole cycles to be a block
 MIN_CYCLES = 2
+#: a steady oscillation repeats: each turning point within this share of the run's first swing of the
+#: one a cycle before (a step-hold's levels, 96/24/120/48/84 V a half second apart, have a steady
+#: spacing but are not cycles: read as a 1 Hz block they put a frequency into the record that no
+#: drive had; a drive's own noise moves a turning point by far less)
+REPEAT_LEVEL_SHARE = 0.05
 #: runs of two axes at frequencies this close (share of the higher) are one oscillation on both
 SAME_FREQUENCY_SHARE = 0.01
 #: simultaneous runs at different frequencies repeat together if each ratio to the slowest is p/q,
@@ -35,11 +42,17 @@ def steady_runs(u: np.ndarray, sample_rate_hz: float) -> list[dict]:
     u = np.asarray(u, dtype=float)
     tp = turning_points(u)
     half = np.diff(tp).astype(float)
+    levels = u[tp]
     runs, i = [], 0
     while i < half.size:
         ref = float(np.median(half[i : i + 5]))  # the run's half period, from its first few
+        swing = abs(levels[i + 1] - levels[i])
         j = i
-        while j < half.size and abs(half[j] - ref) <= STEADY_HALF_PERIOD_SHARE * ref:
+        while (
+            j < half.size
+            and abs(half[j] - ref) <= STEADY_HALF_PERIOD_SHARE * ref
+            and (j == i or abs(levels[j + 1] - levels[j - 1]) <= REPEAT_LEVEL_SHARE * swing)
+        ):
             j += 1
         if j - i >= 2 * MIN_CYCLES:  # half periods i..j-1: turning points i..j
             half_period = int(round((tp[j] - tp[i]) / (j - i)))  # a half period of margin each side
@@ -243,9 +256,10 @@ def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float)
     of more than one period comes before or after that oscillation, the block is the oscillation
     alone and ``trimmed`` says how long the rest was (s) before and after it. With several blocks,
     each block's ``trimmed`` gives the stretch between the previous block (or the record's start)
-    and it, and the last block's also the stretch after it: what no block holds is reported."""
-    blocks = detect_blocks(drives_v, sample_rate_hz)
+    and it, and the last block's also the stretch after it: what no block holds is reported. A
+    step-hold between or around the oscillations is one block per level (service.science.data.steps)."""
     n = len(next(iter(drives_v.values())))
+    blocks = _with_steps(detect_blocks(drives_v, sample_rate_hz), drives_v, sample_rate_hz, n)
     if len(blocks) >= 2:
         previous_stop = 0
         for k, block in enumerate(blocks):
@@ -294,3 +308,20 @@ def blocks_without_table(drives_v: dict[str, np.ndarray], sample_rate_hz: float)
         cycles = int(np.floor(n * f / sample_rate_hz + 1e-9)) if f else None
         whole.update(frequency_hz=f, cycles=cycles, axes=run["axes"], **together)
     return [whole]
+
+
+def _with_steps(blocks: list[dict], drives_v: dict[str, np.ndarray], sample_rate_hz: float, n: int) -> list[dict]:
+    """``blocks`` and the step-holds in the stretches between them (one axis's: the first whose drive
+    steps there), in time order, indexed from 0."""
+    edges = [0] + [e for b in blocks for e in (int(b["start"]), int(b["stop"]))] + [n]
+    steps = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        for axis, u in drives_v.items():
+            found = step_blocks(u, sample_rate_hz, a, b, [axis])
+            if found:
+                steps.extend(found)
+                break
+    if not steps:
+        return blocks
+    merged = sorted(blocks + steps, key=lambda blk: int(blk["start"]))
+    return [{**blk, "index": k} for k, blk in enumerate(merged)]

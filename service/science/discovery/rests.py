@@ -25,16 +25,12 @@ from statistics import NormalDist
 
 import numpy as np
 
+from service.science.data.steps import held_still
 from service.science.data.units import fmt_nm
 from service.science.discovery.signature_dictionary import MAINS_LINES_HZ, pool, pool_factor
 
 #: a rest: the drive within this share of its span of the level it starts from, and still
 REST_LEVEL_SHARE = 0.01
-#: still (a rest or a hold; the description of what remains and the failures read holds alike): the drive
-#: within this share of its span over a window of this many seconds centred on the sample (a 1 Hz sine's
-#: peak moves 2.4 % of its span over ±50 ms)
-HOLD_SPAN_SHARE = 0.002
-HOLD_WINDOW_S = 0.1
 #: read a rest only after the drive has been still this long (s)
 SETTLE_S = 0.05
 #: a rest stretch shorter than this after settling is not read (s); a longer one than twice CHUNK_S is
@@ -57,18 +53,11 @@ REFINE_STEPS = 8
 
 
 def still_mask(rec) -> np.ndarray:
-    """Rows where ``rec``'s drive is held still: within HOLD_SPAN_SHARE of its span over the HOLD_WINDOW_S
-    centred on the row. (A rate under 1 % of the record's 95th-percentile rate took the whole 1 Hz burst
-    of a 1…100 Hz sweep for a hold: 2π·1 Hz is under 1 % of 2π·100 Hz.)"""
-    return _held(rec.u_v, rec.sample_rate_hz)
-
-
-def _held(u: np.ndarray, sample_rate_hz: float) -> np.ndarray:
-    from scipy.ndimage import maximum_filter1d, minimum_filter1d
-
-    size = max(3, int(HOLD_WINDOW_S * sample_rate_hz) | 1)
-    spread = maximum_filter1d(u, size, mode="nearest") - minimum_filter1d(u, size, mode="nearest")
-    return spread <= HOLD_SPAN_SHARE * max(float(np.ptp(u)), 1e-12)
+    """Rows where ``rec``'s drive is held still (service.science.data.steps.held_still: the description of
+    what remains and the failures read rests and holds alike). (A rate under 1 % of the record's
+    95th-percentile rate took the whole 1 Hz burst of a 1…100 Hz sweep for a hold: 2π·1 Hz is under
+    1 % of 2π·100 Hz.)"""
+    return held_still(rec.u_v, rec.sample_rate_hz)
 
 
 def at_rest_level(rec) -> np.ndarray:
@@ -84,7 +73,7 @@ def rest_stretches(rec) -> list[tuple[int, int]]:
     if rec.u_other_v is not None:  # the whole stage at rest: the other axis's motion couples into this gauge
         u = rec.u_other_v
         rest &= np.abs(u - u[0]) <= REST_LEVEL_SHARE * max(float(np.ptp(u)), 1e-12)
-        rest &= _held(u, rec.sample_rate_hz)
+        rest &= held_still(u, rec.sample_rate_hz)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     settle, shortest = int(SETTLE_S * rec.sample_rate_hz), int(MIN_STRETCH_S * rec.sample_rate_hz)
     out = []

@@ -60,11 +60,14 @@ def test_the_hum_is_named_a_line_disturbance_never_a_loop_shape():
 
 def test_fitted_parameters_come_back():
     """The rate limit within 2 % of I/C = 22.2 kV/s; the gain's fall within 0.02 %/s of 0.1 %/s; the lines
-    learned at rest are 50 and 150 Hz, the larger 12 nm within 15 %."""
+    learned at rest are 50 and 150 Hz, the larger 12 nm within 15 %. The gain's fall is fitted on the
+    flexible base, as discovery tests it: the stage is Bouc–Wen, and once its step-hold's levels are
+    fitted (read as steps, late in the record) a PI's loop-shape misfit there halves the fitted rate
+    (−0.045 %/s, 11.5 nm held out; −0.097 %/s, 2.2 nm with ``operators``)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         slew = CompositeModel(["slew_limit"]).fit(_stage("slew"))
-        fade = CompositeModel(["gain_change"]).fit(_stage("gainfade"))
+        fade = CompositeModel(["gain_change", "operators"]).fit(_stage("gainfade"))
         hum = CompositeModel(["line_disturbance"]).fit(_stage("hum"))
     assert slew.theta["slew_limit"]["slew_v_per_s"] == pytest.approx(SLEW_V_PER_S, rel=0.02)
     assert physical_parameters(fade)["gain_change"]["gain_change_pct_per_s"] == pytest.approx(-0.1, abs=0.02)
