@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from service.science.data.signals import STEADY_HALF_PERIOD_SHARE, longest_linked_run, turning_points
-from service.science.data.steps import step_blocks
+from service.science.data.steps import held_still, step_blocks
 
 #: successive mid-level crossings of one steady run are one period apart within this share
 CROSSING_SHARE = 0.03
@@ -314,10 +314,11 @@ def _with_steps(blocks: list[dict], drives_v: dict[str, np.ndarray], sample_rate
     """``blocks`` and the step-holds in the stretches between them (one axis's: the first whose drive
     steps there), in time order, indexed from 0."""
     edges = [0] + [e for b in blocks for e in (int(b["start"]), int(b["stop"]))] + [n]
+    still = {axis: held_still(u, sample_rate_hz) for axis, u in drives_v.items()}  # once per drive
     steps = []
     for a, b in zip(edges[::2], edges[1::2]):
         for axis, u in drives_v.items():
-            found = step_blocks(u, sample_rate_hz, a, b, [axis])
+            found = step_blocks(u, sample_rate_hz, a, b, [axis], still[axis])
             if found:
                 steps.extend(found)
                 break

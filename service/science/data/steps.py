@@ -47,14 +47,18 @@ def _holds(still: np.ndarray, start: int, stop: int, min_samples: int) -> list[t
     return [(int(a), int(b)) for a, b in runs if b - a >= min_samples]
 
 
-def step_blocks(u_v: np.ndarray, sample_rate_hz: float, start: int, stop: int, axes: list[str]) -> list[dict]:
+def step_blocks(
+    u_v: np.ndarray, sample_rate_hz: float, start: int, stop: int, axes: list[str], still: np.ndarray | None = None
+) -> list[dict]:
     """The step-hold in samples start..stop of drive ``u_v`` (V) as blocks, one per level after the
     first hold (from the end of the hold before it to the end of its own hold; kind "step",
     ``level_v``, no frequency or cycles, ``axes``); [] when the stretch holds fewer than
-    MIN_STEP_LEVELS distinct levels. Blocks are in time order; ``index`` is left to the caller."""
+    MIN_STEP_LEVELS distinct levels. Blocks are in time order; ``index`` is left to the caller.
+    ``still``: ``held_still`` of the whole drive, when the caller reads several stretches of it."""
     u = np.asarray(u_v, dtype=float)
     span = max(float(np.ptp(u)), 1e-12)
-    holds = _holds(held_still(u, sample_rate_hz), start, stop, max(2, int(MIN_HOLD_S * sample_rate_hz)))
+    still = held_still(u, sample_rate_hz) if still is None else still
+    holds = _holds(still, start, stop, max(2, int(MIN_HOLD_S * sample_rate_hz)))
     # a hold the window cut in two (noise on a long hold) is one level with the hold before it
     levels, merged = [], []
     for a, b in holds:
