@@ -57,7 +57,8 @@ def failures(records, residuals, top: int = 6) -> list[dict]:
                 where = (
                     f"step-hold block {s.block.get('index')} (levels held, read as {f:g} Hz)"
                     if f
-                    else "step-hold block"
+                    else f"step-hold block {s.block.get('index')}"
+                    + (f" (the hold at {s.block['level_v']:.4g} V)" if s.block.get("level_v") is not None else "")
                 )
             if others := other_axes(s.block, rec.axis):  # the other axis's block: cross-coupling's place
                 where += f" that drives {'/'.join(a.upper() for a in others)} ({rec.axis.upper()} undriven)"

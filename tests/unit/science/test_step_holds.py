@@ -10,6 +10,8 @@ plans.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -75,3 +77,17 @@ def test_a_steady_oscillation_repeats_its_levels():
     periodic = [b for b in blocks if b["kind"] == "detected"]
     assert len(periodic) == 2, blocks
     assert all(round(b["frequency_hz"], 3) == 10.0 for b in periodic)
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_a_failing_hold_is_named_by_its_level():
+    """With one block per level, six places were all called "step-hold block": the failures list names
+    each by its index and its level (a Jiles–Atherton stage, one file per block, 5 kHz)."""
+    from service.science.discovery.diagnosis import diagnose
+    from tests.support.hysteresis_worlds import records
+
+    d = diagnose(records("jiles_atherton", "blocks", fs=FS))
+    holds = [f["where"] for f in d["failures"] if "step-hold block" in f["where"]]
+    assert holds, [f["where"] for f in d["failures"]]
+    assert all(re.search(r"step-hold block \d+ \(the hold at -?[0-9.]+ V\)", w) for w in holds), holds
+    assert len(set(holds)) == len(holds)
