@@ -13,6 +13,7 @@ from service.http.schemas.datasets import SweepRequest
 from service.http.schemas.trajectories import TrackingRecipe, TrajectoryRequest
 from service.runtime.jobs import JobManager
 from service.store import Store
+from service.usecases.prepare_tracking import check_prepare, prepare_tracking
 from service.usecases.track import check_trajectory, run_trajectory, span_sweeps, tracking_recipe
 
 router = APIRouter(tags=["trajectories"])
@@ -48,6 +49,31 @@ def trajectory_span_sweeps(
     feedforward models, ± 5 V within the bench's limits: identify models on them for the run. Nothing
     runs; 422 naming controller.feedforward_model_<axis> when an axis has no model."""
     return span_sweeps(bench, store, body.ellipse(), body.controller.model_dump())
+
+
+@router.post("/trajectories/prepare", status_code=202, response_model=JobQueued)
+def prepare_trajectory(
+    body: TrajectoryRequest,
+    bench: Bench = Depends(get_bench),
+    store: Store = Depends(get_store),
+    jobs: JobManager = Depends(get_jobs),
+) -> dict:
+    """Queue the recommended path (GET /api/trajectories/recipe) as one job: the first sweep and a
+    model where an axis has no feedforward model, then the span sweeps this ellipse needs and models
+    on them. Each sweep is a bench job of its own; the result names the models to run with
+    (``feedforward_model_<axis>``), the ``controller`` to use, and the ``steps`` done (the partial
+    result while it runs, and after a failed step). 409 while another prepare job is unfinished; 422
+    naming the field if a given model cannot be used or the ellipse is beyond them."""
+    ellipse = body.ellipse()
+    controller = body.controller.model_dump()
+    check_prepare(jobs, bench, store, ellipse, controller)
+    job = jobs.submit(
+        "prepare",
+        body.model_dump(),
+        lambda ctx: prepare_tracking(ctx, jobs, bench, store, ellipse, controller),
+        needs_bench=False,
+    )
+    return {"job_id": job["id"], "state": job["state"]}
 
 
 @router.get("/trajectories/recipe", response_model=TrackingRecipe)

@@ -169,8 +169,9 @@ def test_trajectory_page_sweeps_the_span_the_ellipse_needs(page, server):
     page.select_option("#traj-form select[name=feedforward_model_z]", models["z"])
     page.click("#traj-span-sweep")
     page.wait_for_selector("#traj-prepared", timeout=300_000)
+    assert page.locator("#traj-span .jobline[data-state='succeeded']").count() == 1  # one prepare job
     for axis in ("y", "z"):  # a span sweep and a model on it per axis, the model selected
-        assert page.locator(f"#traj-span div[data-axis={axis}] .jobline[data-state='succeeded']").count() == 2
+        assert page.locator(f"#traj-span .prep-step[data-axis={axis}]").count() == 2
         chosen = page.input_value(f"#traj-form select[name=feedforward_model_{axis}]")
         assert chosen != models[axis] and server["api"].get(f"/models/{chosen}").json()["axis"] == axis
     assert "span" in page.inner_text("#traj-span") and " V for a 100 Hz ellipse" in page.inner_text("#traj-span")

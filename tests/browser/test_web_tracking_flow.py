@@ -1,7 +1,9 @@
 """Issue 39: from a fresh store, the Trajectories page takes a new user to the paper's case 2 in one
 guided flow — "Prepare the models it needs" runs the first sweep, the composite models, the span
-sweeps and the models on them, and selects them with the recommended controller — and the runs reach
-FF + PID (auto) ≤ 3 % and with ILC ≤ 0.5 % relative error. On the default bench (not paced).
+sweeps and the models on them as one service job, and selects them with the recommended controller —
+and the runs reach FF + PID (auto) ≤ 3 % and with ILC ≤ 0.5 % relative error. The page is reloaded
+while the job runs: it finds the job again, and the ellipse and the models come back. On the default
+bench (not paced).
 Screenshot: tests/artifacts/web_tracking_flow.png. Set-up: tests/support/browser.py."""
 
 from __future__ import annotations
@@ -33,8 +35,20 @@ def test_a_fresh_store_reaches_case_2_in_one_guided_flow(page, server):
     assert server["api"].get("/models").json() == []  # nothing to start from
     goto(page, server, "trajectories")
     page.select_option("#traj-preset", "case2")
+    ellipse = {
+        k: page.input_value(f"#traj-form input[name={k}]")
+        for k in ("amplitude_y_um", "amplitude_z_um", "inclination_deg")
+    }
     page.click("#traj-span-sweep")
+    page.wait_for_selector("#traj-span .prep-step[data-step=sweep]", timeout=300_000)  # the first sweep is done
+    page.reload()  # the job runs in the service: the reloaded page follows it and keeps its ellipse
+    page.wait_for_selector("#traj-span .jobline[data-job-id^='job_']")
+    assert {k: page.input_value(f"#traj-form input[name={k}]") for k in ellipse} == ellipse
     page.wait_for_selector("#traj-prepared", timeout=900_000)
+    steps = page.locator("#traj-span .prep-step").evaluate_all(
+        "els => els.map(e => e.dataset.step + ':' + e.dataset.axis)"
+    )
+    assert steps == ["sweep:y+z", "model:y", "model:z", "sweep:y", "model:y", "sweep:z", "model:z"], steps
     recipe = server["api"].get("/trajectories/recipe").json()
     for axis in ("y", "z"):
         chosen = page.input_value(f"#traj-form select[name=feedforward_model_{axis}]")

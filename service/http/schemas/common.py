@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 OPEN = ConfigDict(extra="allow")
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-JobKind = Literal["sweep", "trajectory", "identify", "refine", "discover"]
+JobKind = Literal["sweep", "trajectory", "identify", "refine", "discover", "prepare"]
 #: The ``?bench_id=`` of the list routes: only that bench's rows (a lab sees every bench's by default).
 BENCH_FILTER = Query(
     None,
@@ -75,7 +75,7 @@ class Job(BaseModel):
     ``{"model_id", …}``, a trajectory's errors), also on a partial run; ``error`` says why it failed."""
 
     id: str
-    kind: str = Field(description="sweep | trajectory | identify | refine | discover (JobKind)")
+    kind: str = Field(description="sweep | trajectory | identify | refine | discover | prepare (JobKind)")
     state: JobState
     progress: float = Field(ge=0, le=1)
     message: str | None

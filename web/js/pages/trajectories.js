@@ -3,6 +3,7 @@
 import { api, esc, fmt, fmtErrorNm, has } from '../api.js';
 import { lineChart, xyChart, destroyAll } from '../charts.js';
 import { paperFigures, trackingCases } from '../paper.js';
+import { startPrepare, resumePrepare } from '../prepare.js';
 import { onImportedData } from '../provenance.js';
 import { h, runJob, showError } from '../ui.js';
 
@@ -91,6 +92,8 @@ export async function enter(root) {
   form.addEventListener('submit', (e) => { e.preventDefault(); run(root); });
   root.querySelector('#traj-span-sweep').addEventListener('click', () => prepareModels(root));
   renderErrors(root, null);
+  // a prepare job started before (in another tab, or before a reload): followed, its models selected
+  resumePrepare(root, signal, selectModel).catch((e) => showError(root.querySelector('#traj-error'), e));
 }
 
 /** The paper's PID gains of one axis as 'kp/ki/kd' (V/µm, V/(µm·s), V·s/µm). */
@@ -128,51 +131,15 @@ function formBody(root) {
     inclination_deg: Number(f.get('inclination_deg')), frequency_hz: Number(f.get('frequency_hz')), cycles: Number(f.get('cycles')), controller: ctl };
 }
 
-// The guided path (GET /api/trajectories/recipe), from a fresh store to a run: an axis with no
-// feedforward model gets the first sweep and a composite model on it; then the sweeps over the span
-// this ellipse drives (± 5 V, within the bench's limits) and composite models on those, selected in
-// the form with the recommended controller. Each step shows its job; a failed step stops the path and
-// says why.
+// The guided path (GET /api/trajectories/recipe) as one service job (web/js/prepare.js): a failed step
+// stops the path and says why, in the page's words.
 async function prepareModels(root) {
-  const signal = controller.signal;
   const err = root.querySelector('#traj-error');
   err.textContent = '';
-  const out = root.querySelector('#traj-span');
-  out.innerHTML = '';
-  const form = root.querySelector('#traj-form');
   const button = root.querySelector('#traj-span-sweep');
   button.disabled = true;
-  const step = (text, axis = '') => {
-    const el = h(`<div class="prep-step" data-axis="${esc(axis)}"><p>${esc(text)}</p><div class="span-job"></div></div>`);
-    out.append(el);
-    return el.querySelector('.span-job');
-  };
-  const finished = (job, what) => {
-    if (job.state !== 'succeeded') throw new Error(`${what} ${job.state}: ${job.error || ''}`);
-    return job.result;
-  };
   try {
-    const recipe = await api('/trajectories/recipe', { signal });
-    const identify = async (axis, datasetId, on) => finished(await runJob(step(`${axis.toUpperCase()}: a model with ${recipe.effects.join(' + ')} on ${on}`, axis),
-      '/models', { axis, datasets: [datasetId], effects: recipe.effects }, 'identify', { signal }), 'the identification').model_id;
-    const missing = ['y', 'z'].filter((axis) => !form.elements[`feedforward_model_${axis}`].value);
-    if (missing.length) {
-      const body = { ...recipe.first_sweep, axes: missing };
-      const first = finished(await runJob(step(`First sweep of ${missing.join(' and ').toUpperCase()}: ${body.frequencies_hz.join(', ')} Hz, the full drive range`),
-        '/sweeps', body, 'sweep', { signal }), 'the first sweep').dataset_id;
-      for (const axis of missing) selectModel(form, axis, await identify(axis, first, 'the first sweep'));
-    }
-    const spans = await api('/trajectories/span-sweeps', { method: 'POST', body: formBody(root), signal });
-    for (const body of spans) {
-      const axis = body.axes[0];
-      const dataset = finished(await runJob(step(body.name, axis), '/sweeps', body, 'sweep', { signal }), 'the span sweep').dataset_id;
-      selectModel(form, axis, await identify(axis, dataset, 'the span this ellipse drives'));
-    }
-    form.elements.pid.value = recipe.controller.pid;
-    form.elements.ilc.checked = Boolean(recipe.controller.ilc);
-    root.querySelector('#traj-gains').hidden = true;
-    out.append(h(`<p class="ok" id="traj-prepared">Models ready and selected, with PID ${esc(recipe.controller.pid)}${recipe.controller.ilc ? ' and ILC' : ''}:
-      press Run. <span class="muted">Why these: ${esc(recipe.why)}.</span></p>`));
+    await startPrepare(root, formBody(root), controller.signal, selectModel);
   } catch (e) {
     showError(err, inPageWords(root.querySelector('#traj-form'), e));
   } finally {
