@@ -64,7 +64,8 @@ def discovery_text(result: dict) -> str:
     if remains:
         lines.append(
             f"remains: held-out {nm_text(remains['validation_rms_um'])} = {remains['ratio_to_noise_floor']:.2f}× "
-            f"the noise floor ({nm_text(remains['noise_floor_um'])}): {remains['verdict_text']}"
+            f"the noise floor ({nm_text(remains['noise_floor_um'])}): {remains.get('answer_text') or ''} "
+            f"{remains['verdict_text']}"
         )
     if result.get("needed_experiment"):
         need = result["needed_experiment"]

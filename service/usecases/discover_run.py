@@ -77,7 +77,7 @@ def discover(
                 stopped, reason = stop
                 break
         if add is None:
-            stopped, reason = _natural_stop(d), d["verdict_text"] + loop.not_kept_words()
+            stopped, reason = _natural_stop(d), d["answer"]["text"] + loop.not_kept_words()
             break
         if loop.model_steps >= max_steps:
             break
@@ -238,7 +238,7 @@ class _Loop:
 
     def not_kept_words(self) -> str:
         """The effects tried on the last step and not kept, in words ("" if none)."""
-        return "".join(f"; {r['text']}" for r in self.run["steps"][-1]["not_kept"])
+        return "".join(f" {r['text'][:1].upper()}{r['text'][1:]}." for r in self.run["steps"][-1]["not_kept"])
 
 
 def _experiment(
@@ -285,7 +285,7 @@ def _stop_without_experiment(d: dict, need: dict, add: str | None, why: str, go_
     on (``go_on``: continue_past_ambiguity, or the bench cannot run it — with the leading claimed
     effect, the step and the result naming the sweep that would tell the pair apart)."""
     if add is None:  # done as far as the data goes; the experiment would test more
-        return _natural_stop(d), f"{d['verdict_text']}; an experiment would test {', '.join(need['effects'])}: {why}"
+        return _natural_stop(d), f"{d['answer']['text']} An experiment would test {', '.join(need['effects'])}: {why}"
     if go_on:
         return None
     # ``need`` is the ambiguity (stops_at_ambiguity's answer)
@@ -329,6 +329,7 @@ def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str 
         "at_noise_floor": d["at_noise_floor"],
         "verdict": d["verdict"],
         "verdict_text": d["verdict_text"],
+        "answer_text": d["answer"]["text"],
         "ambiguous": d["ambiguity"]["effects"] if d.get("ambiguity") else None,
         "per_block": [
             {**b, "ratio_to_noise_floor": _ratio(b["validation_rms_um"], b["noise_floor_um"])}
@@ -386,6 +387,7 @@ def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, fi
                 "at_noise_floor",
                 "verdict",
                 "verdict_text",
+                "answer_text",
                 "per_block",
                 "not_testable",
             )

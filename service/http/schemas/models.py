@@ -266,7 +266,10 @@ class Diagnosis(BaseModel):
     train_rms_um: float | None = None
     noise_floor_um: float | None = None
     verdict: str | None = Field(default=None, description="missing_effect | complete")
-    verdict_text: str | None = None
+    verdict_text: str | None = Field(
+        default=None,
+        description="the verdict and its tests' figures; what to add next and what remains described are the answer's",
+    )
     candidates: list[Candidate] | None = None
     failures: list[Failure] | None = None
     ambiguity: dict[str, Any] | None = None

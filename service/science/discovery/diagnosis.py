@@ -24,7 +24,7 @@ import numpy as np
 
 from service.science.data.units import fmt_nm, fmt_nm2
 from service.science.discovery.ambiguity import ambiguity
-from service.science.discovery.answer import diagnosis_answer, first_capacity_words
+from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.base_capacity import GOOD_ENOUGH_TO_NOISE, capacity_before_physics, later_grid
 from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.candidate_rows import DiagnosisFits, Judged, candidate_row, claimed_size
@@ -43,7 +43,7 @@ from service.science.discovery.identifiability import not_testable
 from service.science.discovery.loop_shape import LOOP_SHAPE, loop_shape_pair
 from service.science.discovery.noise import noise_floor
 from service.science.discovery.ranking import claim_size, rank_key, size_claims
-from service.science.discovery.remainder import describe_remainder, remainder_words
+from service.science.discovery.remainder import describe_remainder
 from service.science.discovery.rests import LineFree, disturbance
 from service.science.discovery.verdict import (
     CLEAR_DROP_NOISE,
@@ -325,10 +325,10 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
         "held_out_to_noise": held_out_ratio,
         "at_noise_floor": bool(at_floor),
         "verdict": "missing_effect" if missing else "complete",
+        # the verdict and its tests' figures; what is missing or grows first, and what remains described,
+        # are the answer's alone (the page and the report print both: neither repeats the other)
         "verdict_text": (f"{disturbed['text']}. " if disturbed else "")
-        + (f"{first_capacity_words(first, physical[0], v0)} " if first else "")
-        + verdict_text(missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio, held_out_ratio)
-        + remainder_words(remainder),
+        + verdict_text(missing, physical, v0, noise, floor, at_floor, worst, ratio, held_out_ratio),
         "disturbance": disturbed,
         "remainder": remainder,
         "answer": answer,

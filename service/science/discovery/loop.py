@@ -241,6 +241,7 @@ def markdown(steps: list[dict]) -> str:
             f"{(d['repeatable_rms_um'] or 0) * 1e3:.2f} nm"
         )
         out.append(f"- verdict: **{d['verdict']}** — {d['verdict_text']}")
+        out.append(f"- answer: {d['answer']['text']}")
         for f in d["failures"][:3]:
             out.append(f"- fails worst at: {f['text']}")
         for c in d["candidates"][:3]:

@@ -251,14 +251,3 @@ def shares_words(shares: list[float]) -> str:
         if total > 100.0
         else f" (the shares sum to {total:.1f} %)."
     )
-
-
-def remainder_words(remainder: dict | None) -> str:
-    """The description's leading sentence for the verdict (empty when nothing is described)."""
-    if not remainder or not remainder["signatures"]:
-        return ""
-    top = remainder["signatures"][0]
-    return (
-        f"; what remains, described: {top['text']} ({100 * top['share_of_excess']:.0f} % of the unseen residual "
-        "above the noise)"
-    )

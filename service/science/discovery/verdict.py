@@ -122,11 +122,11 @@ def repeated_words(floor: dict, noise: float) -> str:
     )
 
 
-def verdict_text(
-    missing, physical, candidates, v0, noise, floor, at_floor, worst, ratio=None, held_out_ratio=None
-) -> str:
-    """The verdict in words. 'complete' (no physical effect in the library is missing) says plainly
-    whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not, where it is worst."""
+def verdict_text(missing, physical, v0, noise, floor, at_floor, worst, ratio=None, held_out_ratio=None) -> str:
+    """The verdict in words, with its tests' figures. 'complete' (no physical effect in the library is
+    missing) says plainly whether the repeatable part is at the noise floor (≤ 2σ) or not, and if not,
+    where it is worst. What to add next (physics or capacity) and what remains described are the
+    answer's (service.science.discovery.answer), printed beside it: not repeated here."""
     if missing:
         top = physical[0]
         tested = ""
@@ -174,10 +174,4 @@ def verdict_text(
             f"effect in the library removes it: it is the hysteresis model's own shape or an effect "
             f"outside the library{where}"
         )
-    cap = helpful_capacity(candidates)
-    if cap:
-        text += (
-            f"; more hysteresis capacity ({cap[0]['effect']}) would remove {100 * cap[0]['excess_removed']:.0f} % "
-            f"of the excess (held-out {fmt_nm(cap[0]['expected_rms_um'])}) — a model-capacity change, not physics"
-        )
-    return text
+    return text  # the capacity that would help is the answer's (answer.py), not repeated here

@@ -49,7 +49,7 @@ def test_default_bench_discovery_converges(sweeps):
             assert top["high"] and re.search(r"\d", top["evidence"]) and top["effect"] in top["evidence"]
         else:  # physics complete, not at the floor: capacity is added, and said to be capacity
             assert not d["at_noise_floor"] and "NOT at the noise floor" in d["verdict_text"]
-            assert "capacity" in d["verdict_text"]
+            assert "capacity" in d["answer"]["text"]
     capacity = [e for e in added if e == "operators"]
     assert not capacity or added[-1] == "operators"  # capacity only once physics is complete
     last = steps[-1]["diagnosis"]

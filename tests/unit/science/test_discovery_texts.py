@@ -160,5 +160,12 @@ def test_candidates_in_rank_order_and_the_answer_is_the_verdicts(diagnoses, sour
             assert not claimed and a["kind"] != "physical"
         top = ((d["remainder"] or {}).get("signatures") or [None])[0]
         assert a["remains"] == (top and top["signature"])
-        if top:  # the answer's description is the remainder's own sentence
-            assert top["text"] in a["text"] and top["text"] in d["verdict_text"]
+        if top:  # the answer's description is the remainder's own sentence, and only the answer says it
+            assert top["text"] in a["text"] and top["text"] not in d["verdict_text"]
+        # the page and the report print the answer beside the verdict: no clause is said twice
+        assert not clauses(a["text"]) & clauses(d["verdict_text"]), (a["text"], d["verdict_text"])
+
+
+def clauses(text: str) -> set[str]:
+    """A text's clauses of 30 characters or more (split at sentence ends, semicolons and colons)."""
+    return {c.strip() for c in re.split(r"(?<=[.;:])\s+", text) if len(c.strip()) >= 30}
