@@ -8,12 +8,13 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Upload
 from fastapi.responses import StreamingResponse
 
 from service.http.deps import get_store
-from service.http.schemas.common import BENCH_FILTER, DatasetLabelsUpdate, Deleted, with_figures
+from service.http.schemas.common import BENCH_FILTER, DatasetLabelsUpdate, Deleted, one_line, with_figures
 from service.http.schemas.datasets import Dataset, DatasetSummary
 from service.http.schemas.streams import DATASET_DOWNLOADS
 from service.runtime.bulk import iterate_bulk, run_bulk
 from service.science.data.datasets import SAMPLE_RATE_RANGE_HZ
 from service.science.data.export import JSON_DEFAULT_MAX_POINTS
+from service.science.errors import FieldError
 from service.store import DatasetRow, Store
 from service.usecases.exports import export_chunks
 from service.usecases.imports import import_table
@@ -102,7 +103,13 @@ async def import_dataset(
         "sample_rate_hz": sample_rate_hz,
         "delimiter": delimiter,
     }
-    row = await run_bulk(import_table, store, file.file, name or file.filename or "imported", options)
+    if name is not None:
+        try:
+            one_line(name)
+        except ValueError as exc:
+            raise FieldError("name", str(exc)) from None
+    default = " ".join((file.filename or "imported").split())  # a file name with line breaks, as one line
+    row = await run_bulk(import_table, store, file.file, name or default or "imported", options)
     return dataset_view(row)
 
 

@@ -20,7 +20,7 @@ from service.frontends.cli_remote import _models
 from service.frontends.client import Client
 from service.http.app import create_app
 from service.render.model_report import WORST_MARK
-from service.render.reproduce import dataset_request, refine_body
+from service.render.reproduce import commands, dataset_request, refine_body
 from service.render.svg import MAX_CURVE_POINTS, Panel, figure, nice_ticks
 from service.runtime.settings import Settings
 from service.science.data.units import fmt_nm
@@ -283,3 +283,50 @@ def test_the_reports_lineage_numbers_its_steps_from_0():
         ("2", "mdl_2"),
     ]
     assert "first model (step 0)" in html and "lineage step (0: the first model)" in html
+
+
+def test_a_stored_name_never_ends_a_script_comment(tmp_path):
+    """A walk stored a dataset name with a line break ("nl\\ntouch FILE #", before names had to be one
+    line): the reproduce script printed it in a comment, the line break ended the comment and the next
+    line ran. The shell scripts, run with curl, jq and evcbench as stubs, run no such line; every
+    comment is one line, and the name is kept in it."""
+    pwned = tmp_path / "pwned"
+    evil = f"nl\ntouch {pwned} #\r\u2028x"
+    rows = [
+        {"id": "ds_a", "source": "import", "name": evil, "plan": {"import": {"filename": "a\nb.csv"}}},
+        {"id": "ds_b", "source": "sweep", "name": evil, "plan": {"waveform": "sine", "cycles": 5}},
+    ]
+    steps = [
+        {"model_id": "mdl_1", "effects": ["hysteresis"], "datasets": ["ds_a", "ds_b"]},
+        {"model_id": "mdl_2", "change": evil, "effects": ["hysteresis", "creep"], "datasets": ["ds_a", "ds_b"]},
+    ]
+    root = {"kind": "static_pi", "effects": ["hysteresis"], "options": {"n_operators": 10}, "axis": "y"}
+    scripts = commands(rows, steps, root)
+    for key in ("curl", "cli"):
+        # every job "succeeded" at once: the helpers' wait loops end
+        stubs = "curl() { echo '{}'; }; jq() { cat >/dev/null; echo succeeded; }; evcbench() { echo '{}'; }\n"
+        ran = subprocess.run(
+            ["bash", "-c", stubs + scripts[key]], text=True, capture_output=True, cwd=tmp_path, timeout=60
+        )
+        assert not pwned.exists(), (key, scripts[key], ran.stderr)
+    for key, text in scripts.items():
+        comments = [line for line in text.split("\n") if line.startswith("#")]
+        assert sum(f"nl touch {pwned} #" in line for line in comments) >= 2, (key, text)  # the name, on one line
+        assert not any("\r" in line or "\u2028" in line for line in comments), key
+
+
+def test_names_and_tags_are_one_line(tmp_path):
+    """PATCH, identify and import refuse a name or tag with a line break (422 naming the field), and
+    nothing stored changes."""
+    with authed_client(create_app(Settings(data_dir=tmp_path, bench="default", seed=0))) as http:
+        files = {"file": ("lab.csv", "t,u,x\n" + "".join(f"{k / 1000},{k % 7},{(k % 7) * 0.1}\n" for k in range(400)))}
+        refused = http.post("/api/datasets", files=files, data={"name": "a\nb", "axis": "y"})
+        assert refused.status_code == 422 and refused.json()["field"] == "name", refused.text
+        assert http.get("/api/datasets").json() == []
+        dataset = http.post("/api/datasets", files=files, data={"name": "lab", "axis": "y"}).json()["id"]
+        for body, field in (({"name": "x\ny"}, "name"), ({"tags": ["ok", "a\tb"]}, "tags")):
+            answer = http.patch(f"/api/datasets/{dataset}", json=body)
+            assert answer.status_code == 422 and answer.json()["field"] == field, answer.text
+        assert http.get(f"/api/datasets/{dataset}").json()["name"] == "lab"
+        answer = http.post("/api/models", json={"axis": "y", "datasets": [dataset], "name": "m\r"})
+        assert answer.status_code == 422 and answer.json()["field"] == "name", answer.text

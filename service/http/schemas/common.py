@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import Query
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
 
 #: For response payloads that may grow: the named fields are documented, others pass through.
 OPEN = ConfigDict(extra="allow")
@@ -20,6 +20,19 @@ BENCH_FILTER = Query(
     pattern=r"^[a-z0-9][a-z0-9._-]*$",
     description="only the rows of this bench (GET /api/lab/benches lists them)",
 )
+
+
+def one_line(text: str) -> str:
+    """A name or tag is one line: no line break or control character (a name is printed in lists, in
+    script comments and in headers, where a line break would end them)."""
+    if any(ord(c) < 32 or 0x7F <= ord(c) < 0xA0 or c in "\u2028\u2029" for c in text):
+        raise ValueError("must be one line: no line break, tab or other control character")
+    return text
+
+
+#: a user's label of a dataset, model, sweep or run: one line, 1–200 characters
+Label = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(one_line)]
+
 BENCH_ID_FIELD = Field(
     default=None, description="the bench (GET /api/lab/benches) it belongs to; null: stored before benches had ids"
 )
@@ -31,7 +44,7 @@ class LabelsUpdate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: str | None = Field(default=None, min_length=1, max_length=200)
+    name: Label | None = None
     tags: list[str] | None = Field(default=None, max_length=50)
     notes: str | None = Field(default=None, max_length=20_000)
 
@@ -40,6 +53,8 @@ class LabelsUpdate(BaseModel):
     def _tags_are_words(cls, tags: list[str] | None) -> list[str] | None:
         if tags is not None and any(not t.strip() or len(t) > 60 for t in tags):
             raise ValueError("every tag must be 1–60 characters, not blank")
+        for tag in tags or []:
+            one_line(tag)
         return None if tags is None else list(dict.fromkeys(t.strip() for t in tags))
 
 

@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from service.http.schemas.common import BENCH_ID_FIELD, OPEN, JobState
+from service.http.schemas.common import BENCH_ID_FIELD, OPEN, JobState, Label
 
 
 class SweepRequest(BaseModel):
@@ -29,7 +29,7 @@ class SweepRequest(BaseModel):
     f_start_hz: float = Field(default=1.0, gt=0.0, description="chirp: start frequency")
     f_stop_hz: float = Field(default=100.0, gt=0.0, description="chirp: stop frequency")
     duration_s: float = Field(default=10.0, gt=0.0, le=3600.0, description="chirp: duration")
-    name: str | None = Field(default=None, max_length=200)
+    name: Label | None = Field(default=None)
 
     @field_validator("frequencies_hz")
     @classmethod

@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.http.schemas.common import BENCH_ID_FIELD, OPEN
+from service.http.schemas.common import BENCH_ID_FIELD, OPEN, Label
 from service.usecases.discover_experiments import MAX_EXPERIMENTS
 
 
@@ -24,7 +24,7 @@ class ModelRequest(BaseModel):
         "(static PI + effects; implied by any effect beyond hysteresis)",
     )
     n_operators: int = Field(default=10, ge=1, le=100)
-    name: str | None = Field(default=None, max_length=200, description="the model's label, as PATCH sets it")
+    name: Label | None = Field(default=None, description="the model's label, as PATCH sets it")
 
 
 class RefineRequest(BaseModel):

@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from service.http.schemas.common import Label
 from service.science.control.trajectory import Ellipse
 
 
@@ -61,7 +62,7 @@ class TrajectoryRequest(BaseModel):
     cycles: int = Field(default=50, ge=1, le=10_000)
     mode: Literal["point_by_point", "buffered"] = "point_by_point"
     controller: ControllerRequest = Field(default_factory=ControllerRequest)
-    name: str | None = Field(default=None, max_length=200)
+    name: Label | None = Field(default=None)
 
     @model_validator(mode="after")
     def _ranges(self):
