@@ -17,6 +17,7 @@ from service.science.errors import FieldError
 from service.store import TERMINAL_STATES, Store
 from service.usecases.acquire import plan_sweep, sweep_and_wait
 from service.usecases.identify import check_identify_request, identify
+from service.usecases.provenance import model_origin
 from service.usecases.track import build_controller, span_sweeps, tracking_recipe
 
 #: the ModelRequest defaults the dashboard's identify uses (the effects imply the composite)
@@ -31,14 +32,25 @@ class PrepareRunning(FieldError):
 
 def check_prepare(jobs: JobManager, bench: Bench, store: Store, ellipse: Ellipse, controller: dict) -> None:
     """Refuse before anything is queued: PrepareRunning while another prepare job is unfinished;
-    FieldError naming ``controller.feedforward_model_<axis>`` for a model that cannot be used, or the
-    span's refusal when every axis has its model (the span is read from them)."""
+    FieldError naming ``controller.feedforward_model_<axis>`` for a model that cannot be used or was
+    fitted on imported data (its span is another stage's: a walk swept 0–61 V where this bench needs
+    8–90 V, and the run was then refused), or the span's refusal when every axis has its model."""
     unfinished = [j for j in jobs.list(20, kind="prepare") if j["state"] not in TERMINAL_STATES]
     if unfinished:
         raise PrepareRunning(
             "job", f"prepare job {unfinished[0]['id']} is {unfinished[0]['state']}: follow it, or cancel it first"
         )
     build_controller(bench, store, {**controller, "pid": None}, ellipse.frequency_hz)
+    for axis in bench.axes:
+        model_id = controller.get(f"feedforward_model_{axis}")
+        origin = model_origin(store, store.get_model(model_id)["datasets"]) if model_id else None
+        if origin and origin["fitted_on"] != "this_bench":
+            raise FieldError(
+                f"controller.feedforward_model_{axis}",
+                f"model {model_id} was fitted on imported data (another stage's): the span this bench sweeps "
+                "is read from a model of this bench; leave the axis's model empty to start from this bench's "
+                "first sweep",
+            )
     if all(controller.get(f"feedforward_model_{axis}") for axis in bench.axes):
         span_sweeps(bench, store, ellipse, controller)
     else:

@@ -10,6 +10,7 @@ import pytest
 from service.http.app import create_app
 from service.runtime.settings import Settings
 from tests.support.api_client import authed_client, wait_job
+from tests.support.foreign_stage import SAMPLE_RATE_HZ, drive_v, stage_um
 
 CASE2 = {"shape": "ellipse", "y_range_um": [1, 5], "z_range_um": [1, 9], "inclination_deg": 20, "frequency_hz": 100}
 
@@ -30,6 +31,22 @@ def test_prepare_refuses_a_model_it_cannot_use_and_queues_nothing(client):
     assert answer.json()["field"] == "controller.feedforward_model_y"
     assert "mdl_none" in answer.json()["detail"]
     assert client.get("/api/jobs").json() == []
+
+
+def test_prepare_refuses_a_model_fitted_on_another_stages_data(client):
+    """The span is read from the given model: an imported model's span is another stage's (a walk
+    swept 0–61 V where this bench needs 8–90 V, and the run was then refused)."""
+    u = drive_v(frequencies_hz=(1,), cycles=(6,))
+    x = stage_um("clean", u)
+    lines = ["t_s,u_V,x_um"] + [f"{i / SAMPLE_RATE_HZ!r},{float(u[i])!r},{float(x[i])!r}" for i in range(u.size)]
+    files = {"file": ("other_lab.csv", "\n".join(lines).encode(), "text/csv")}
+    dataset = client.post("/api/datasets", files=files, data={"axis": "y"}).json()["id"]
+    job = wait_job(client, client.post("/api/models", json={"axis": "y", "datasets": [dataset]}).json()["job_id"])
+    model = job["result"]["model_id"]
+    answer = client.post("/api/trajectories/prepare", json={**CASE2, "controller": {"feedforward_model_y": model}})
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["field"] == "controller.feedforward_model_y" and "imported" in answer.json()["detail"]
+    assert client.get("/api/jobs?kind=prepare").json() == [] and client.get("/api/jobs?kind=sweep").json() == []
 
 
 def test_one_prepare_at_a_time_and_its_cancel_stops_the_sweep_it_waits_for(client):
