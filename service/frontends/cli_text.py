@@ -67,8 +67,12 @@ def discovery_text(result: dict) -> str:
             f"the noise floor ({nm_text(remains['noise_floor_um'])}): {remains.get('answer_text') or ''} "
             f"{remains['verdict_text']}"
         )
-    if result.get("needed_experiment"):
-        need = result["needed_experiment"]
+    need = result.get("needed_experiment")
+    if need and not need.get("experiment"):  # one this bench cannot run, even cut to its limits
+        lines.append(
+            f"an experiment would help ({need['reason']}), but this bench cannot run it: {need.get('not_runnable_here')}"
+        )
+    elif need:
         lines.append(
             f"an experiment would help ({need['reason']}): POST /api/sweeps {json.dumps(need['experiment'])}"
             " — or run again with --allow-experiments"

@@ -23,10 +23,15 @@ router = APIRouter(prefix="/models", tags=["discovery"])
 
 @router.get("/{model_id}/diagnosis", response_model=Diagnosis, response_model_exclude_unset=True)
 def get_diagnosis(
-    model_id: str, extra_datasets: list[str] = Query(default=[]), store: Store = Depends(get_store)
+    model_id: str,
+    extra_datasets: list[str] = Query(default=[]),
+    store: Store = Depends(get_store),
+    bench: Bench = Depends(get_bench),
 ) -> dict:
-    """Residual RMS, noise floor, verdict, ranked candidates with evidence, failures, ambiguity."""
-    return diagnose_model(store, model_id, extra_datasets)
+    """Residual RMS, noise floor, verdict, ranked candidates with evidence, failures, ambiguity. Each
+    experiment it proposes for this bench's data is one the bench runs (cut to its limits, said in
+    ``cut_to_limits``), or none, with ``not_runnable_here`` saying why."""
+    return diagnose_model(store, model_id, extra_datasets, bench_fit=lambda body: runnable_sweep(bench, body))
 
 
 @router.post("/{model_id}/refine", status_code=202, response_model=JobQueued)

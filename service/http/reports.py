@@ -5,10 +5,12 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import HTMLResponse
 
-from service.http.deps import get_store
+from drivers.bench import Bench
+from service.http.deps import get_bench, get_store
 from service.http.schemas.models import ReportFigures
 from service.runtime.bulk import run_bulk
 from service.store import Store
+from service.usecases.acquire import runnable_sweep
 from service.usecases.report import model_figures, model_report
 
 router = APIRouter(prefix="/models", tags=["reports"])
@@ -28,6 +30,7 @@ async def get_report(
     model_id: str,
     download: bool = Query(False, description="answer as an attachment (<model-id>-report.html)"),
     store: Store = Depends(get_store),
+    bench: Bench = Depends(get_bench),
 ) -> HTMLResponse:
     """The model as one self-contained HTML page: the model, its datasets, the lineage with the RMS of
     each step, the diagnosis (verdict, noise floor, candidates with evidence, what the data cannot
@@ -35,7 +38,7 @@ async def get_report(
     error history (inline SVG), and the curl / evcbench / Python commands that reproduce it. It runs
     a diagnosis, so it takes as long as GET /api/models/{id}/diagnosis. Print it from a browser for a
     PDF (the figures stay vectors)."""
-    html = await run_bulk(model_report, store, model_id)
+    html = await run_bulk(model_report, store, model_id, lambda body: runnable_sweep(bench, body))
     headers = {"Content-Disposition": f'attachment; filename="{model_id}-report.html"'} if download else {}
     return HTMLResponse(html, headers=headers)
 

@@ -232,6 +232,12 @@ def _lineage_section(steps: list[dict], noise_floor_um: float | None) -> str:
     )
 
 
+def _not_here(proposal: dict) -> str:
+    """Why this bench runs no experiment for a proposal (its ``not_runnable_here``), or nothing."""
+    why = proposal.get("not_runnable_here")
+    return f' <span class="muted">This bench cannot run the experiment: {escape(why)}.</span>' if why else ""
+
+
 def _experiment(body: dict, here: bool = True) -> str:
     """A sweep body: as the request to this service when this bench recorded the data, else as the plan
     to record on the stage that did (this bench cannot run another stage's experiments)."""
@@ -267,7 +273,7 @@ def _diagnosis_section(d: dict) -> str:
     ]
     untestable = "".join(
         f"<li><b>{escape(c['effect'])}</b>: {escape(c.get('reason') or '')}"
-        f"{_experiment(c['experiment'], here) if c.get('experiment') else ''}</li>"
+        f"{_experiment(c['experiment'], here) if c.get('experiment') else _not_here(c)}</li>"
         for c in d.get("not_testable") or []
     )
     amb = d.get("ambiguity")
@@ -317,7 +323,7 @@ def _diagnosis_section(d: dict) -> str:
         )
         + (
             f'<h3>Ambiguity</h3><p id="ambiguity">{escape(amb.get("text") or "")}</p>'
-            + (_experiment(amb["experiment"], here) if amb.get("experiment") else "")
+            + (_experiment(amb["experiment"], here) if amb.get("experiment") else _not_here(amb))
             if amb
             else ""
         )

@@ -11,6 +11,7 @@ from service.science.discovery.rests import LineFree
 from service.science.effects import EFFECTS, ordered
 from service.science.errors import FieldError
 from service.store import Store
+from service.usecases.discover_experiments import BenchFit, fit_experiments
 from service.usecases.identify import load_model, load_records, require_fit_memory
 from service.usecases.provenance import imported_datasets, recorded_elsewhere
 
@@ -59,9 +60,17 @@ def name_failing_blocks(failures: list[dict], records) -> None:
             f["block"] = block_title(rec.axis or "y", split, rec.sample_rate_hz)
 
 
-def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None = None, records=None) -> dict:
+def diagnose_model(
+    store: Store,
+    model_id: str,
+    extra_datasets: list[str] | None = None,
+    records=None,
+    bench_fit: BenchFit | None = None,
+) -> dict:
     """The diagnosis of a stored model on its datasets (plus ``extra_datasets``, refitted on all);
-    ``records``: those datasets' records when the caller has loaded them already."""
+    ``records``: those datasets' records when the caller has loaded them already; ``bench_fit``: the
+    bench's check and cut of a sweep (service.usecases.acquire.runnable_sweep), so that every
+    experiment proposed for data of this bench is one the bench runs (``fit_experiments``)."""
     row = store.get_model(model_id)
     datasets = list(row["datasets"]) + [d for d in (extra_datasets or []) if d not in row["datasets"]]
     if records is None:
@@ -95,6 +104,8 @@ def diagnose_model(store: Store, model_id: str, extra_datasets: list[str] | None
             ),
         }
     )
+    if bench_fit is not None and not imported:
+        fit_experiments(out, bench_fit, records)
     if out.get("ambiguity"):
         out["ambiguity"]["then"] = (
             f"POST /api/sweeps with the experiment body, then GET /api/models/{model_id}"

@@ -83,3 +83,23 @@ class ExperimentPolicy:
         if sweep["state"] != "succeeded" or not dataset_id:
             return None, sweep["id"], f"its sweep {sweep['id']} ended {sweep['state']}: {sweep.get('error')}"
         return dataset_id, sweep["id"], None
+
+
+def fit_experiments(out: dict, fit: BenchFit, records, ambiguity: bool = True) -> None:
+    """Each experiment diagnosis ``out`` proposes (what tests a not-testable effect, what separates an
+    ambiguity) as the bench runs it: cut to its limits where it asks more (``cut_to_limits`` says
+    how), or, where the bench cannot run one that still does its job, no experiment and
+    ``not_runnable_here`` saying why (a walk's button posted 150 Hz on a Z axis limited to 145 Hz).
+    ``ambiguity`` False: the not-testable effects' experiments only (a discover job fits the
+    ambiguity's itself when it asks for it)."""
+    policy = ExperimentPolicy(fit=fit)
+    proposals = list(out.get("not_testable") or [])
+    proposals += [out["ambiguity"]] if ambiguity and out.get("ambiguity") else []
+    for item in proposals:
+        if not item.get("experiment"):
+            continue
+        body, cuts, why = policy.runnable(item, records)
+        if why is not None:
+            item["experiment_asked"], item["experiment"], item["not_runnable_here"] = item["experiment"], None, why
+        elif cuts:
+            item["experiment"], item["cut_to_limits"] = body, cuts

@@ -32,7 +32,7 @@ from service.science.discovery.parameters import parameter_units, physical_param
 from service.science.discovery.rests import LineFree
 from service.science.effects import ordered
 from service.store import Store
-from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy
+from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments
 from service.usecases.identify import load_model, load_record, load_records, store_model
 
 
@@ -60,6 +60,8 @@ def discover(
     in the names)."""
     policy = replace(bench or ExperimentPolicy(), allowed=allow_experiments, max_experiments=max_experiments)
     loop = _Loop.start(store, model_id, labels)
+    # what each step proposes to test is what this bench runs (none for another stage's data)
+    loop.fit = policy.fit if policy.elsewhere is None else None
     stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} model steps", None
     d, fresh = loop.step(ctx, store, max_steps), True
     while True:
@@ -113,6 +115,8 @@ class _Loop:
             else {"kind": row["kind"], "validation_rms_um": (row.get("metrics") or {}).get("validation_rms_um")}
         )
         self.excluded, self.asked, self.model_steps = [], [], 0
+        #: the bench's check and cut of a sweep, for the experiments a step proposes (None: as named)
+        self.fit = None
         self.history, self.fitted, self.scores = [], {}, {}
         self.run = {
             "start_model_id": model_id,
@@ -187,6 +191,8 @@ class _Loop:
         self.theta, d = self.model.theta, step["diagnosis"]
         index = len(self.run["steps"])
         step_id = self.model_id if index == 0 else self._store(store, ctx, self.model, self.effects)
+        if self.fit is not None:
+            fit_experiments(d, self.fit, self.records, ambiguity=False)
         self.run["steps"].append(_step_summary(index, step_id, step, self.run, self.joined))
         self.run["steps"][-1]["fit"] = _fit_label(index, self.stands_in, step["effects"])
         if self.joined is not None:
@@ -249,10 +255,16 @@ def _experiment(
     no longer separating once cut, the sweep failed) — the loop goes on without it, and never asks
     for it again — rather than not allowed or not now."""
     after = len(loop.run["steps"]) - 1
+    asked = need["experiment"]
+    # the body the bench would run, whether or not it runs now: every sweep the result offers is one the
+    # bench accepts (another stage's data: its experiment as named, for that stage)
+    body, cuts, refused = policy.runnable(need, loop.records) if policy.elsewhere is None else (asked, [], None)
+    need.update({"experiment": body, "asked": asked, "cut_to_bench": cuts})
+    if refused is not None:
+        need["not_runnable_here"] = refused
     why = policy.why_not(len(loop.run["experiments"]))
     skipped = False
     if why is None:
-        body, cuts, why = policy.runnable(need, loop.records)
         if body is not None:
             ctx.progress(
                 min(0.99, loop.model_steps / max_steps),
@@ -260,22 +272,15 @@ def _experiment(
             )
             dataset_id, sweep_id, why = policy.sweep(ctx, body)
             if why is None:
-                loop.asked.append(need["experiment"])
+                loop.asked.append(asked)
                 loop.run["experiments"].append(
-                    {
-                        **need,
-                        "experiment": body,
-                        "asked": need["experiment"],
-                        "cut_to_bench": cuts,
-                        "sweep_job_id": sweep_id,
-                        "dataset_id": dataset_id,
-                        "after_step": after,
-                    }
+                    {**need, "sweep_job_id": sweep_id, "dataset_id": dataset_id, "after_step": after}
                 )
                 loop.join(store, dataset_id)
                 return None, False
+        why = why or refused
         skipped = True
-        loop.asked.append(need["experiment"])
+        loop.asked.append(asked)
     loop.run["suggested"].append({**need, "after_step": after, "not_run_because": why, "skipped": skipped})
     return why, skipped
 

@@ -65,7 +65,7 @@ def block_curves(record: Record, predicted, dataset_id: str) -> list[BlockCurves
     return out
 
 
-def _gather(store: Store, model_id: str) -> dict:
+def _gather(store: Store, model_id: str, bench_fit=None) -> dict:
     """What the report and its figures are drawn from: the model's row, lineage, dataset rows,
     diagnosis and per-block curves (NotFoundError for an unknown id)."""
     row = store.get_model(model_id)
@@ -73,7 +73,7 @@ def _gather(store: Store, model_id: str) -> dict:
     dataset_rows = [store.get_dataset(d) for d in row["datasets"]]
     require_fit_memory(store, list(row["datasets"]), field="model_id")
     records = load_records(store, row["datasets"], row["axis"])
-    diagnosis = diagnose_model(store, model_id, records=records)
+    diagnosis = diagnose_model(store, model_id, records=records, bench_fit=bench_fit)
     model = load_model(row)
     blocks = []
     for i, (dataset_id, record) in enumerate(zip(row["datasets"], records)):
@@ -96,9 +96,10 @@ def worst_block(blocks: list[BlockCurves]) -> int | None:
     return int(np.argmax(rms_of)) if blocks else None
 
 
-def model_report(store: Store, model_id: str) -> str:
-    """The report of a stored model as HTML text (NotFoundError for an unknown id)."""
-    g = _gather(store, model_id)
+def model_report(store: Store, model_id: str, bench_fit=None) -> str:
+    """The report of a stored model as HTML text (NotFoundError for an unknown id); ``bench_fit`` as
+    for service.usecases.discover.diagnose_model."""
+    g = _gather(store, model_id, bench_fit)
     row, steps, dataset_rows = g["row"], g["steps"], g["dataset_rows"]
     description = g["model"].describe() if hasattr(g["model"], "describe") else {}
     root = store.get_model(steps[0]["model_id"])

@@ -24,6 +24,16 @@ export function separatingExperiment(d) {
   return null;
 }
 
+/** What tests a not-testable effect: on imported data, the stage that recorded it; where this bench
+ * cannot run it (even cut to its limits), why, and no button; else the button, with the cuts made. */
+function testHtml(d, u) {
+  if (d.experiments_run_here === false) return `<span class="muted">On the stage that recorded the data: (${describe(u.experiment)})</span>`;
+  if (!u.experiment) return `<span class="muted not-runnable">This bench cannot run the experiment that tests it: ${esc(u.not_runnable_here || 'none is named')}.</span>`;
+  const cut = (u.cut_to_limits || []).length ? ` <span class="muted">(cut to this bench's limits: ${esc(u.cut_to_limits.join('; '))})</span>` : '';
+  return `<button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>
+    <span class="muted">(${describe(u.experiment)})</span>${cut}`;
+}
+
 const candidate = (d, effect) => (d.candidates || []).find((c) => c.effect === effect) || {};
 const score = (d, effect) => candidate(d, effect).score;
 const heldOutNm = (d, effect) => (candidate(d, effect).expected_rms_um ?? NaN) * 1e3;
@@ -113,9 +123,7 @@ export function renderDiagnosis(box, model, d, opts) {
     ${d.claim_rule ? `<p class="muted" id="claim-rule">Claim rule: ${esc(d.claim_rule)}.</p>` : ''}
     ${remainderHtml(d.remainder, d.answer)}
     ${untestable.length ? `<h3>Not testable with this data</h3><ul id="not-testable">${untestable.map((u) => `<li data-effect="${esc(u.effect)}">
-      <b>${esc(u.effect)}</b>: ${esc(u.reason)}. ${d.experiments_run_here === false ? '<span class="muted">On the stage that recorded the data:</span>'
-        : `<button type="button" class="run-test" data-effect="${esc(u.effect)}">Run the experiment that tests ${esc(u.effect)}</button>`}
-      <span class="muted">(${describe(u.experiment)})</span></li>`).join('')}</ul>` : ''}
+      <b>${esc(u.effect)}</b>: ${esc(u.reason)}. ${testHtml(d, u)}</li>`).join('')}</ul>` : ''}
     ${(d.not_tried || []).length ? `<p class="muted" id="not-tried">Not tried: ${d.not_tried.map((u) => `<span data-effect="${esc(u.effect)}"><b>${esc(u.effect)}</b> (${esc(u.reason)})</span>`).join('; ')}.</p>` : ''}
     ${d.experiments_note ? `<p class="warn" id="experiments-elsewhere">${esc(d.experiments_note)}</p>` : ''}
     <div id="separate"></div>`;
@@ -130,7 +138,13 @@ export function renderDiagnosis(box, model, d, opts) {
     else b.disabled = false;
   }));
   const offered = separatingExperiment(d);
-  if (!offered) return;
+  if (!offered) {
+    if (d.ambiguity && d.ambiguity.not_runnable_here) {   // an ambiguity this bench cannot separate: said, no button
+      box.querySelector('#separate').innerHTML = `<h3>Separate</h3><p>${esc(d.ambiguity.text || '')}</p>
+        <p class="muted" id="separate-not-here">This bench cannot run the experiment that separates them: ${esc(d.ambiguity.not_runnable_here)}.</p>`;
+    }
+    return;
+  }
   const sep = box.querySelector('#separate');
   if (d.experiments_run_here === false) {      // imported data: the experiment belongs to the stage that recorded it
     sep.innerHTML = `<h3>Separate</h3><p>${esc(offered.text || '')}</p>

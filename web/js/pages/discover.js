@@ -162,8 +162,10 @@ function renderRun(out, r, { signal, imported }) {
       ${suggested.map((x, i) => `<li data-effects="${esc(x.effects.join(','))}">after step ${x.after_step}: ${pageWords(x.reason || '')}
         ${imported ? `<span class="muted">Run this sweep on the stage that recorded the data, then import the record and refine with it:</span>`
           : `<span class="muted">(not run: ${pageWords(x.not_run_because || '')})</span>`}
-        <pre>${imported ? '' : 'POST /api/sweeps '}${esc(JSON.stringify(x.experiment))}</pre>
-        ${imported || x.skipped ? '' : `<button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
+        ${x.experiment ? `<pre>${imported ? '' : 'POST /api/sweeps '}${esc(JSON.stringify(x.experiment))}</pre>` : ''}
+        ${(x.cut_to_bench || []).length && !imported ? `<span class="muted">(cut to this bench's limits: ${esc(x.cut_to_bench.join('; '))})</span>` : ''}
+        ${!x.experiment && x.not_runnable_here ? `<span class="muted">This bench cannot run it: ${pageWords(x.not_runnable_here)}.</span>` : ''}
+        ${imported || x.skipped || !x.experiment ? '' : `<button type="button" class="run-experiment" data-i="${i}">Run this experiment (${esc(x.effects.join(' vs '))})</button>
         <div class="experiment-job"></div>`}</li>`).join('')}</ul>` : ''}`;
   out.querySelectorAll('.run-experiment').forEach((b) => b.addEventListener('click', async () => {
     const x = suggested[Number(b.dataset.i)];
