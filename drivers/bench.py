@@ -26,7 +26,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from drivers.interfaces import AxisLimits, BenchParts, DriverError, LimitError, NotSupportedError
-from drivers.limits import LimitsMixin, stack_rating_v
+from drivers.limits import LimitsMixin, highest_sine_hz, stack_rating_v
 from drivers.live import LiveMonitor
 from drivers.record import Acquired, BenchRecord
 from drivers.watchdog import SafetyConfig, Watchdog
@@ -366,7 +366,8 @@ class Bench(LimitsMixin):
                 for a, s in self.parts.sensors.items()
             },
             "limits": {
-                a: {**lim.as_dict(), "max_frequency_hz_at_full_range": lim.max_frequency_hz(lim.v_max_v - lim.v_min_v)}
+                # the resonance rule too: the sweeps' own limit, not only the amplifier's
+                a: {**lim.as_dict(), "max_frequency_hz_at_full_range": highest_sine_hz(lim, lim.v_max_v - lim.v_min_v)}
                 for a, lim in self.limits.items()
             },
             "safety": {

@@ -22,6 +22,14 @@ _RATE_CHECK_MARGIN = 1.02
 RESONANCE_FRACTION = 0.5
 
 
+def highest_sine_hz(lim, vpp_v: float) -> float:
+    """The largest sine frequency (Hz) an axis with limits ``lim`` (AxisLimits) allows at ``vpp_v``:
+    the amplifier's current and slew at that swing, and RESONANCE_FRACTION × the first resonance."""
+    resonance = lim.first_resonance_hz
+    cap = RESONANCE_FRACTION * resonance if np.isfinite(resonance) else float("inf")
+    return float(min(lim.max_frequency_hz(vpp_v), cap))
+
+
 def stack_rating_v(config: dict, axis: str) -> tuple[float, float]:
     """(min, max) V the axis's stack is rated for: ``[axes.<axis>.piezo] rated_min_v, rated_max_v``
     of the bench config (0–150 V for the default bench's PTJ150 on a PZD350); a config without

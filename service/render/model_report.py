@@ -145,7 +145,8 @@ def _model_section(row: dict, description: dict, physical: dict) -> str:
     ]
     text = table_html(None, facts)
     words = [[escape(k), escape(v)] for k, v in description.items() if v]
-    params = {k: v for k, v in row["parameters"].items() if k not in ("model", "config")}
+    # not the fit's own figures (its training RMS on the decimated training rows): the metrics above give them
+    params = {k: v for k, v in row["parameters"].items() if k not in ("model", "config") and not k.endswith("_rms_um")}
     values = [[f"<code>{escape(name)}</code>", str(n), escape(text)] for name, n, text in parameter_rows(params)]
     return (
         "<h2>1. Model</h2>"
@@ -153,8 +154,11 @@ def _model_section(row: dict, description: dict, physical: dict) -> str:
         + "<h2>2. Fitted parameters</h2>"
         + physical_table(physical)
         + (table_html(["effect", "fitted, in words"], words) if words else "")
+        # the stored values as the model keeps them (SI units, in their names) are folded: the table
+        # above gives each physical figure once, in its display unit (a delay in µs, not also in s)
+        + "<details><summary>Every stored parameter, as stored (SI units, in the names)</summary>"
         + table_html(["parameter (unit in the name)", "values", "fitted values"], values, {1}, ' id="parameters"')
-        + "<details><summary>Every stored parameter (<code>model.to_dict()</code>, JSON)</summary><pre>"
+        + "<p>As JSON (<code>model.to_dict()</code>):</p><pre>"
         + escape(json.dumps({"config": row["parameters"].get("config"), **params}))
         + "</pre></details>"
     )

@@ -11,7 +11,7 @@ import math
 import time
 
 from drivers.bench import Bench
-from drivers.limits import RESONANCE_FRACTION
+from drivers.limits import highest_sine_hz
 from service.runtime.jobs import JobContext, JobInterrupted, JobManager
 from service.science.data.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
 from service.science.errors import FieldError
@@ -55,7 +55,7 @@ def runnable_sweep(bench: Bench, values: dict) -> tuple[dict, list[str]]:
                 cuts.append(f"levels_v → {', '.join(f'{v:g}' for v in out['levels_v'])} V")
     if out.get("frequencies_hz") and limits:
         vpp = float(out.get("v_max", 120.0)) - float(out.get("v_min", 0.0))
-        cap = min(_highest_sine_hz(lim, vpp) for lim in limits)
+        cap = min(highest_sine_hz(lim, vpp) for lim in limits)
         kept = sorted({f if f <= cap else float(math.floor(cap)) for f in out["frequencies_hz"]})
         if kept != sorted(out["frequencies_hz"]):
             cuts.append(
@@ -65,13 +65,6 @@ def runnable_sweep(bench: Bench, values: dict) -> tuple[dict, list[str]]:
             out["frequencies_hz"] = kept
     plan_sweep(bench, out)  # FieldError naming the field if it is refused even so
     return out, cuts
-
-
-def _highest_sine_hz(lim, vpp_v: float) -> float:
-    """The largest sine frequency (Hz) an axis with limits ``lim`` allows at ``vpp_v``."""
-    resonance = lim.first_resonance_hz
-    cap = RESONANCE_FRACTION * resonance if math.isfinite(resonance) else math.inf
-    return min(lim.max_frequency_hz(vpp_v), cap)
 
 
 def queue_sweep(

@@ -54,7 +54,9 @@ class AxisLimits(BaseModel):
     slew_limit_v_per_s: float
     capacitance_f: float
     first_resonance_hz: float | None
-    max_frequency_hz_at_full_range: float | None
+    max_frequency_hz_at_full_range: float | None = Field(
+        description="the largest sine frequency (Hz) at the full voltage range: current, slew and 0.5 × the first resonance"
+    )
 
 
 class SafetyState(BaseModel):

@@ -6,7 +6,7 @@ description of a line disturbance, each built on its own). Errors in µm in the 
 
 from __future__ import annotations
 
-from service.science.data.units import fmt_nm
+from service.science.data.units import fmt_nm, plain
 
 
 def diagnosis_answer(
@@ -52,7 +52,7 @@ def diagnosis_answer(
         before = f" (before adding {lead['effect']})" if lead is not None else ""
         tail = (
             f" What remains in this model{before}, described: {remains['text']} "
-            f"({100 * remains['share_of_excess']:.0f} % of the unseen residual above the {fmt_nm(noise_um, 4)} noise)."
+            f"({plain(100 * remains['share_of_excess'])} % of the unseen residual above the {fmt_nm(noise_um, 4)} noise)."
         )
     return {
         "missing": None if lead is None else lead["effect"],

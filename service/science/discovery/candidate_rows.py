@@ -115,7 +115,8 @@ def candidate_row(
         )
         + f"Its test, a fit of its own: {how}"
         + (
-            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({share_words(removed)})"
+            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({share_words(removed)} by adding it; the score "
+            "is its own test's share, of a fit of its own)"
             if v != v0
             else ". Not claimed, so not fitted into this model"
         )

@@ -158,8 +158,9 @@ def verdict_text(missing, physical, v0, noise, floor, at_floor, worst, ratio=Non
         text = (
             f"complete as far as the effects library goes, but NOT at the noise floor: the held-out residual "
             f"{fmt_nm(v0)} is {held_out_ratio:.1f}× the {fmt_nm(noise)} of noise, although the repeated "
-            f"cycles are within {ratio:.1f}× their own noise — the error is where the drive does not "
-            f"repeat (amplitude changes, holds). No physical effect in the library removes it{where}"
+            f"cycles are within {ratio:.1f}× their own noise — the error is not a shape repeated cycle to cycle: it "
+            f"lies in what changes between cycles (a block's first cycles, holds or amplitude changes where the "
+            f"record has them, or a slow change over the record). No physical effect in the library removes it{where}"
         )
     else:
         where = f"; worst: {worst[0]['text']}" if worst and worst[0].get("text") else ""

@@ -103,11 +103,11 @@ export function renderDiagnosis(box, model, d, opts) {
   const named = d.answer ? d.answer.missing : null;       // what the verdict names: the answer's one stored value
   const leading = candidates.find((c) => c.effect === named);
   const untestable = d.not_testable || [];
+  // the verdict as a label: its sentence is the answer's, on the page's first screen
   box.innerHTML = `${before ? separationSummary(before, d, experiment, datasetId) : ''}
     <p id="diagnosis-verdict" data-verdict="${esc(d.verdict)}" data-extra-datasets="${esc(extra.join(','))}" class="${verdictClass}">
-      ${d.verdict !== 'complete' ? 'Something is missing from the model.'
-        : d.at_noise_floor === false ? 'No effect in the library is missing, but the model is not yet at the noise floor (see below).'
-        : 'The model explains the data down to the noise floor.'}
+      Verdict: <b>${d.verdict !== 'complete' ? 'an effect is missing'
+        : d.at_noise_floor === false ? 'complete as far as the library goes, not at the noise floor' : 'complete, at the noise floor'}</b>.
       Residual RMS <b data-value="${d.residual_rms_um}">${fmtErrorNm(d.residual_rms_um, 4)}</b> · noise floor ${fmtErrorNm(d.noise_floor_um, 4)}</p>
     ${d.verdict_text ? `<p class="muted">${esc(d.verdict_text)}</p>` : ''}
     ${d.diagnosed_as ? `<p class="muted" id="diagnosed-as">Diagnosed as ${esc(d.diagnosed_as)}.</p>` : ''}

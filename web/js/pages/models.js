@@ -28,10 +28,12 @@ export async function enter(root, [modelId], query = {}) {
       <div class="card"><h2>Identify</h2>
         <form id="identify-form" class="inline">
           <label>axis <select name="axis"><option>y</option><option>z</option></select></label>
-          <label>model <select name="model"><option value="static_pi">static PI</option><option value="dynamic_pi">dynamic PI</option><option value="grpi">GRPI</option></select></label>
+          <label>model <select name="model"><option value="static_pi">static PI</option><option value="dynamic_pi">dynamic PI</option><option value="grpi">GRPI</option>
+            <option value="composite" title="hysteresis with the effects the tracking recipe's feedforward models have (GET /api/trajectories/recipe)">composite (the tracking recipe's effects)</option>
+            <option value="hysterons" title="a wider rate-independent base than play operators: draws loops Prandtl–Ishlinskii cannot">hysterons (wider base)</option></select></label>
           <label>operators <input name="n_operators" type="number" min="1" max="100" step="1" value="10"></label>
           <label>datasets (Ctrl-click for several) <select name="datasets" id="identify-datasets" multiple size="4" style="min-width:320px">
-            ${datasets.slice().reverse().map((d, i) => `<option value="${esc(d.id)}"${(query.dataset ? d.id === query.dataset : i === 0) ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}</option>`).join('')}
+            ${identifiable(datasets).map((d, i) => `<option value="${esc(d.id)}"${(query.dataset ? d.id === query.dataset : i === 0) ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}</option>`).join('')}
           </select></label>
           <button class="primary" type="submit" id="identify-start">Identify</button>
         </form>
@@ -47,6 +49,10 @@ export async function enter(root, [modelId], query = {}) {
   root.querySelector('#identify-form').addEventListener('submit', (e) => { e.preventDefault(); identify(root); });
   if (modelId) await showModel(root.querySelector('#model-detail'), modelId, query);
 }
+
+/** The datasets a model can be identified on, newest first: those with blocks (a tracking run's
+ * record has none, so it is not offered, nor selected first). */
+const identifiable = (datasets) => datasets.slice().reverse().filter((d) => d.n_blocks > 0);
 
 function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
@@ -67,6 +73,7 @@ async function identify(root) {
   const button = root.querySelector('#identify-start');
   button.disabled = true;
   try {
+    if (body.model === 'composite') body.effects = (await api('/trajectories/recipe', { signal: controller.signal })).effects;
     const job = await runJob(root.querySelector('#identify-job'), '/models', body, 'identify', { signal: controller.signal });
     if (job.state === 'succeeded') {
       const id = job.result.model_id;
