@@ -15,13 +15,6 @@ import pytest
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.diagnosis import diagnose
 
-#: Known gap (issue 17), Y only: the emulator's rate dependence is a first-order relaxation of the
-#: switched strain (τ = 0.1 ms); the paper's segment form (α_s u̇ S + β_s ü S, plus Ṗ_i) takes most of it
-#: (held-out 90 % lower) but leaves a lag that delay and dynamics still take against the flexible base,
-#: so after the refine they are claimed too. Strict: this turns red once the library models the relaxation.
-RELAXATION_LAG_Y = pytest.mark.xfail(
-    strict=True, reason="after rate_dependence, the relaxation's remaining lag is claimed by delay and dynamics"
-)
 VARIANTS = [
     "creep",
     "dynamics",
@@ -32,8 +25,11 @@ VARIANTS = [
     "rate_dependence",
     "sensor_nonlinearity",
 ]
-#: the Y cases with a known gap
-KNOWN_GAPS_Y = {"rate_dependence": RELAXATION_LAG_Y}
+#: Z's creep bench: its creep modes start at 10 ms, inside the 100 Hz drive's period, where the library
+#: draws a relaxation as the switched strain's (rate dependence, up to half the shortest period) and
+#: creep from twice it: after creep, rate dependence may be claimed for that fastest mode, nothing else
+#: (measured: held-out 6.52 nm with creep, 5.72 nm with creep + rate_dependence, floor 3.08 nm)
+FAST_CREEP_AS_RELAXATION_Z = {"creep": {"rate_dependence"}}
 
 pytestmark = pytest.mark.slow  # a diagnosis takes seconds
 
@@ -61,14 +57,17 @@ def _benches(names, gaps=None):
     ]
 
 
-@pytest.mark.parametrize("bench", _benches(VARIANTS, KNOWN_GAPS_Y))
+@pytest.mark.parametrize("bench", _benches(VARIANTS))
 def test_hidden_effect_is_found_and_fixed(bench, sweeps):
+    """Each hidden effect on Y. The rate dependence bench's relaxation (τ = 0.1 ms of all the switched
+    strain) left a lag that delay and dynamics were claimed for, until the library's rate dependence drew
+    the switched strain's relaxation (refined: 7.97 → 7.03 nm, nothing claimed after)."""
     _found_and_fixed(sweeps, bench, "y")
 
 
 @pytest.mark.parametrize("bench", _benches(["creep", "dynamics", "cross_coupling", "asymmetry", "drift", "delay"]))
 def test_hidden_effect_is_found_on_z(bench, sweeps):
-    _found_and_fixed(sweeps, bench, "z")
+    _found_and_fixed(sweeps, bench, "z", allowed_after=FAST_CREEP_AS_RELAXATION_Z.get(bench, set()))
 
 
 @_shared("dynamics")
@@ -161,8 +160,9 @@ def _refined(sweeps, bench: str, axis: str) -> tuple[float, dict]:
     return copy.deepcopy(_REFINED[bench, axis])
 
 
-def _found_and_fixed(sweeps, bench, axis, expect_complete: bool | None = None):
-    """Ranked first, error halved by the refine, and (unless a known gap) nothing physical left."""
+def _found_and_fixed(sweeps, bench, axis, expect_complete: bool | None = None, allowed_after=frozenset()):
+    """Ranked first, error halved by the refine, and (unless a known gap) nothing physical left but
+    ``allowed_after``."""
     if expect_complete is None:
         expect_complete = bench != "dynamics"
     first = _first_diagnosis(sweeps, bench, axis)
@@ -179,7 +179,9 @@ def _found_and_fixed(sweeps, bench, axis, expect_complete: bool | None = None):
     assert after <= 0.5 * before, (before, after)
     # With the one hidden effect in the model, nothing physical is left to claim.
     claimed = [
-        (c["effect"], round(c["score"], 2)) for c in second["candidates"] if c["kind"] == "physical" and c["high"]
+        (c["effect"], round(c["score"], 2))
+        for c in second["candidates"]
+        if c["kind"] == "physical" and c["high"] and c["effect"] not in allowed_after
     ]
     if expect_complete:
         assert not claimed, claimed
