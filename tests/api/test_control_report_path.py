@@ -107,7 +107,7 @@ def test_case2_at_150_hz_tracks_within_half_a_percent_and_learns_as_predicted(ca
 def test_a_drive_beyond_the_amplifier_current_is_refused_naming_frequency_hz_and_the_figure(case2):
     """Case 2 at 500 Hz: past Z's mode the drive grows as f² (its current as f³): the predicted peak
     current of the mode-inverting drive exceeds the amplifier's limit, refused before the bench moves
-    (measured: Z 1787 mA against 0.9 × 200 mA, slew 993 V/ms, drive −75–165 V)."""
+    (measured: Z 1787 mA against 0.9 × 200 mA, slew 993 kV/s, drive −75–165 V)."""
     post, ff = case2
     with pytest.raises(Refused) as refused:
         post("/api/trajectories", {**CASE2, "frequency_hz": 500, "cycles": 10, "controller": _ff(ff)})

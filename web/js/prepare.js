@@ -54,7 +54,7 @@ function apply(root, job, selectModel) {
   form.elements.ilc.checked = Boolean(result.controller.ilc);
   root.querySelector('#traj-gains').hidden = true;
   out.append(h(`<p class="ok" id="traj-prepared">Models ready and selected (prepare job ${esc(job.id)}), with PID
-    ${esc(result.controller.pid)}${result.controller.ilc ? ' and ILC' : ''}: press Run.
+    ${esc(result.controller.pid)}${result.controller.ilc ? ' and ILC' : ''}<span class="run-hint">: press Run</span>.
     <span class="muted">Why these: ${esc(result.why)}.</span></p>`));
 }
 

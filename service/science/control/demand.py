@@ -68,8 +68,8 @@ class AxisDemand:
         allowed_slew = CURRENT_HEADROOM * self.slew_limit_v_per_s
         if self.peak_slew_v_per_s > allowed_slew:
             out.append(
-                f"slew {self.peak_slew_v_per_s / 1e3:.1f} V/ms exceeds {CURRENT_HEADROOM:g} × the amplifier's "
-                f"{self.slew_limit_v_per_s / 1e3:.1f} V/ms limit by "
+                f"slew {self.peak_slew_v_per_s / 1e3:.1f} kV/s exceeds {CURRENT_HEADROOM:g} × the amplifier's "
+                f"{self.slew_limit_v_per_s / 1e3:.1f} kV/s limit by "
                 f"{100 * (self.peak_slew_v_per_s / allowed_slew - 1):.0f} %"
             )
         lo, hi = self.drive_v

@@ -46,10 +46,10 @@ export async function enter(root) {
   });
   const axes = bench.axes;
   const lim = root.querySelector('#limits');
-  lim.innerHTML = `<tr><th>axis</th><th class="num">V min (V)</th><th class="num">V max (V)</th><th class="num">slew (V/s)</th>
+  lim.innerHTML = `<tr><th>axis</th><th class="num">V min (V)</th><th class="num">V max (V)</th><th class="num">slew (kV/s)</th>
     <th class="num">current (mA)</th><th class="num">C (µF)</th><th class="num">1st resonance (Hz)</th><th class="num">full-range f max (Hz)</th></tr>` +
     axes.map((a) => { const l = bench.limits[a]; return `<tr><td>${a}</td><td class="num">${fmt(l.v_min_v)}</td><td class="num">${fmt(l.v_max_v)}</td>
-      <td class="num">${fmt(l.slew_limit_v_per_s)}</td><td class="num">${fmt(l.current_limit_a * 1e3)}</td><td class="num">${fmt(l.capacitance_f * 1e6)}</td>
+      <td class="num">${fmt(l.slew_limit_v_per_s / 1e3)}</td><td class="num">${fmt(l.current_limit_a * 1e3)}</td><td class="num">${fmt(l.capacitance_f * 1e6)}</td>
       <td class="num">${fmt(l.first_resonance_hz)}</td><td class="num">${fmt(l.max_frequency_hz_at_full_range)}</td></tr>`; }).join('');
   live = liveSignals(root.querySelector('#live'), axes);
   const poll = async () => {

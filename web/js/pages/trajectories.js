@@ -136,6 +136,7 @@ function formBody(root) {
 async function prepareModels(root) {
   const err = root.querySelector('#traj-error');
   err.textContent = '';
+  root.querySelector('#traj-warnings').innerHTML = '';   // an earlier run's, not this path's
   const button = root.querySelector('#traj-span-sweep');
   button.disabled = true;
   try {
@@ -188,6 +189,8 @@ function selectModel(form, axis, id) {
 async function run(root) {
   const err = root.querySelector('#traj-error');
   err.textContent = '';
+  const prepared = root.querySelector('#traj-prepared .run-hint');
+  if (prepared) prepared.remove();   // "press Run" is done; which models and why stay
   root.querySelector('#traj-warnings').innerHTML = '';
   root.querySelector('#traj-pid-report').innerHTML = '';
   const body = formBody(root);
