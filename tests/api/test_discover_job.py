@@ -152,7 +152,7 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     "bench, first_added, ambiguous_at",
     [
         ("dynamics", "dynamics", None),
-        ("default", "rate_dependence", 0),
+        ("default", "rate_dependence", 1),
     ],
 )
 def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_added, ambiguous_at):
@@ -160,11 +160,12 @@ def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_add
     are the report loop's on the same records, effect for effect and figure for figure (1e-6). Where the
     report's loop stops at an ambiguity, the job without experiments stops there too and names the
     sweep; with continue_past_ambiguity both add the leading effect and go on. On the default bench's quick
-    sweep the claims rank by one size (ranking.py): rate dependence 8679 nm², the mode 8456 nm², the
-    stack's asymmetry 5977 nm²; the mode and rate dependence are both on the bench and look alike at
-    10/100 Hz, so the first diagnosis names that ambiguity (before, asymmetry ranked between them and hid
-    it); continued, the loop adds rate dependence first and ends within 3× its 3.13 nm floor
-    (docs/discovery-evidence.md, "In what order the claims come: one size"). The dynamics bench has
+    sweep the claims rank by one size (ranking.py): rate dependence 8683 nm², the mode 8456 nm², the
+    stack's asymmetry 5977 nm². The mode and rate dependence are both on the bench; since rate dependence
+    draws the switched strain's relaxation, the first diagnosis tells them apart (it named their
+    ambiguity before) and the second names the stack's asymmetry against the gauge's bow, with the sweep
+    that separates them; continued, the loop adds rate dependence, asymmetry, cross_coupling, creep,
+    dynamics, hysterons and ends at 6.64 nm, 2.12× its 3.13 nm floor (7.63 nm, 2.44×, before). The dynamics bench has
     no ambiguity: its second diagnosis named the same pair while the symmetry test read the mode's
     ring-down after each block's start as a loop that is not point-symmetric (it has no asymmetry)."""
     warnings.simplefilter("ignore")
@@ -187,7 +188,7 @@ def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_add
         for step, ref in zip(stopped["steps"], reference):
             assert step["validation_rms_um"] == pytest.approx(ref["diagnosis"]["residual_rms_um"], rel=1e-6)
         assert stopped["needed_experiment"]["effects"] == need["effects"]
-        assert stopped["needed_experiment"]["experiment"] == need["experiment"]
+        assert stopped["needed_experiment"]["asked"] == need["experiment"]  # as named; "experiment": as run here
         assert "continue_past_ambiguity" in stopped["stop_reason"] and "allow_experiments" in stopped["stop_reason"]
     steps = result["steps"]
     assert [s["effects"] for s in steps] == [s["effects"] for s in reference]

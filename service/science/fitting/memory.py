@@ -3,8 +3,9 @@
 A composite fit builds every effect's columns over every sample (a filter or a delay needs the
 samples between the training rows), and a diagnosis fits a dozen candidates on them: its peak grows
 with the samples, not with the training rows. Measured: the diagnosis of a standard 266 000-sample sweep
-peaks at 0.96 GB of allocations (tracemalloc), 3.61 kB a sample, since the base's Preisach plane has 20
-widths and the library three more effects (0.51 GB before), the description of what remains
+peaks at 1.13 GB of allocations (tracemalloc), 4.24 kB a sample, since rate dependence draws the switched
+strain's relaxation (0.96 GB before; 0.51 GB before the base's Preisach plane had 20 widths and the
+library three more effects), the description of what remains
 (service.science.discovery.remainder, its columns built a chunk of rows at a time) included; of a
 2 000 000-sample import (Y and
 Z, 17 blocks) it raised the process's peak RSS from 0.34 to 3.63 GB, 1.65 kB a sample (the column
@@ -14,8 +15,8 @@ kernel kill the service mid-job, so such a request is refused first, naming what
 
 from __future__ import annotations
 
-#: the peak a fit or diagnosis adds per sample of its records (bytes): the 3.61 kB measured, with 15 % to spare
-FIT_BYTES_PER_SAMPLE = 4200
+#: the peak a fit or diagnosis adds per sample of its records (bytes): the 4.24 kB measured, with 15 % to spare
+FIT_BYTES_PER_SAMPLE = 4900
 #: the share of the memory free now that one fit may plan to use (the service, its bench engine
 #: and other jobs go on)
 USABLE_SHARE = 0.8
