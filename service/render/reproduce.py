@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import shlex
 
+from service.render.text import one_line_text
+
 #: the stored plan's keys that are the planner's figures, not part of the request body
 PLAN_FIGURES = ("samples", "duration_s")
 #: sweep body keys with their own ``evcbench sweep`` flag or form (the rest map to --key-with-dashes)
@@ -64,12 +66,6 @@ def _vars(ids: list[str], prefix: str) -> dict[str, str]:
     return {i: f"{prefix}{n}" for n, i in enumerate(ids, 1)}
 
 
-def _comment(text) -> str:
-    """``text`` for a comment line of a script: every line break and control character shown as a space,
-    so that no stored name or file name ends the comment and runs as a command."""
-    return "".join(" " if ord(c) < 32 or 0x7F <= ord(c) < 0xA0 or c in "\u2028\u2029" else c for c in str(text))
-
-
 def _json(value) -> str:
     """``value`` as JSON for a single-quoted shell word (a quote in it closed, escaped, reopened)."""
     return json.dumps(value, separators=(", ", ": ")).replace("'", "'\\''")
@@ -120,7 +116,7 @@ def commands(dataset_rows: list[dict], steps: list[dict], root: dict) -> dict[st
     ]
     for row in dataset_rows:
         req, var = dataset_request(row), ds[row["id"]]
-        note = _comment(f"# {var} = {row['id']} ({row.get('name')}, {req['kind']})")
+        note = one_line_text(f"# {var} = {row['id']} ({row.get('name')}, {req['kind']})")
         for out, line in zip((curl, cli, py), _dataset_lines(req, var)):
             out += [note, line]
     for out, lines in zip((curl, cli, py), _identify_lines(root, steps[0], ds, md, names)):
@@ -144,7 +140,7 @@ def _dataset_lines(req: dict, var: str) -> tuple[str, str, str]:
         fname = body.get("filename") or "FILE.csv"
         return (
             f'{var}=$(curl -sf -X POST "$URL/api/datasets" -H "$AUTH" -F file=@{shlex.quote(fname)} '
-            f"{form} | jq -r .id)   " + _comment(f"# the original file: {fname}"),
+            f"{form} | jq -r .id)   " + one_line_text(f"# the original file: {fname}"),
             f"{var}=$(evcbench import {shlex.quote(fname)} --json"
             + "".join(
                 f" --{k.replace('_', '-')} {shlex.quote(str(v))}" for k, v in body.items() if k not in ("filename",)
@@ -180,7 +176,7 @@ def _identify_lines(root: dict, first: dict, ds: dict, md: dict, names: dict) ->
         "n_operators": n_ops,
     }
     m1 = md[first["model_id"]]
-    note = _comment(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(effects)}")
+    note = one_line_text(f"# {m1} = {first['model_id']}: {kind}, {' + '.join(effects)}")
     return (
         [note, f"{m1}=$(wait_job $(post /models '{_with_vars(_json(body), names)}') model_id)"],
         [
@@ -204,7 +200,7 @@ def _refine_lines(prev: dict, step: dict, md: dict, names: dict) -> tuple[list, 
     """The (curl, cli, python) lines that refine the lineage's model ``prev`` into ``step``."""
     var, parent = md[step["model_id"]], md[prev["model_id"]]
     body = refine_body(step, prev)
-    note = _comment(f"# {var} = {step['model_id']}: {step['change']}")
+    note = one_line_text(f"# {var} = {step['model_id']}: {step['change']}")
     refine = f"{var}=$(wait_job $(post /models/${parent}/refine '{_with_vars(_json(body), names)}') model_id)"
     args = ", ".join(f"{k}={_py(v, names)}" for k, v in body.items())
     return (

@@ -16,7 +16,7 @@ from service.science.control.trajectory import Ellipse
 from service.science.errors import FieldError
 from service.store import TERMINAL_STATES, Store
 from service.usecases.acquire import plan_sweep, sweep_and_wait
-from service.usecases.identify import check_identify_request, identify
+from service.usecases.identify import identify, require_fit_memory
 from service.usecases.provenance import model_origin
 from service.usecases.track import build_controller, span_sweeps, tracking_recipe
 
@@ -121,7 +121,9 @@ class _Path:
         """Fit the recipe's composite model of ``axis`` on ``dataset_id``; its model id."""
         what = f"{axis.upper()}: a model with {' + '.join(effects)} on {on}"
         try:
-            check_identify_request(self.store, axis, [dataset_id], effects, MODEL)
+            # the recipe's effects are valid and the sweep just ran on this bench: only the memory is checked
+            # (check_identify_request would read the dataset once more before the fit reads it)
+            require_fit_memory(self.store, [dataset_id])
             fitted = identify(self._context(what), self.store, axis, [dataset_id], effects, MODEL, N_OPERATORS)
         except JobInterrupted:
             raise
@@ -157,7 +159,7 @@ def prepare_tracking(
     path.models.update({axis: model for axis, model in given.items() if model})
     if missing:
         body = {**recipe["first_sweep"], "axes": missing}
-        first = path.sweep(body, f"the first sweep of {' and '.join(missing).upper()}")
+        first = path.sweep(body, f"the first sweep of {' and '.join(axis.upper() for axis in missing)}")
         for axis in missing:
             path.identify(axis, first, effects, "the first sweep")
     chosen = {**controller, **{f"feedforward_model_{axis}": path.models[axis] for axis in bench.axes}}

@@ -72,5 +72,7 @@ def test_one_prepare_at_a_time_and_its_cancel_stops_the_sweep_it_waits_for(clien
     assert prepare["params"]["y_range_um"] == [1, 5]  # the ellipse it prepared for, for a reloaded page
     sweep = wait_job(client, first[0]["id"], timeout_s=60)
     assert sweep["state"] == "cancelled", sweep
+    partial = client.get(f"/api/datasets/{sweep['result']['dataset_id']}").json()  # its samples kept
+    assert partial["name"] == "the first sweep of Y and Z" and partial["partial"], partial
     # nothing is left running: a new prepare is accepted once the last one has ended
     assert client.post("/api/trajectories/prepare", json=CASE2).status_code == 202

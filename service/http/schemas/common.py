@@ -7,6 +7,8 @@ from typing import Annotated, Any, Literal
 from fastapi import Query
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
 
+from service.render.text import breaks_a_line
+
 #: For response payloads that may grow: the named fields are documented, others pass through.
 OPEN = ConfigDict(extra="allow")
 
@@ -25,7 +27,7 @@ BENCH_FILTER = Query(
 def one_line(text: str) -> str:
     """A name or tag is one line: no line break or control character (a name is printed in lists, in
     script comments and in headers, where a line break would end them)."""
-    if any(ord(c) < 32 or 0x7F <= ord(c) < 0xA0 or c in "\u2028\u2029" for c in text):
+    if any(breaks_a_line(c) for c in text):
         raise ValueError("must be one line: no line break, tab or other control character")
     return text
 

@@ -51,7 +51,7 @@ class RateDependence(Effect):
         out = [Block.make("rate_alpha_um_per_v2_s", col_a), Block.make("rate_beta_um_per_v2_s2", col_b)]
         if dp.shape[1]:
             out.append(Block.make("rate_operator_lag_um_s_per_v", dp))
-            switched = ctx.p[:, 1:].sum(axis=1)
+            switched = s - ctx.p[:, 0]  # the hysteretic operators' sum: all but the reversible r = 0 one
             taus = relaxation_time_constants_s(ctx.min_period_s)
             relaxing = np.column_stack([first_order_lowpass(switched, tau, ctx.fs_hz) - switched for tau in taus])
             out.append(Block.make("rate_relaxation_um_per_v", relaxing, lower=0.0))
