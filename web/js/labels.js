@@ -27,6 +27,7 @@ export function renderLabels(el, kind, record, { signal, onSaved = () => {} } = 
     if (name || kind === 'models') body.name = name || null;
     const status = box.querySelector('#labels-status');
     status.classList.remove('error');
+    status.textContent = 'saving…';  // set at once, so a second save is never read as the first's 'saved'
     let updated;
     try {
       updated = await api(`/${kind}/${encodeURIComponent(record.id)}`, { method: 'PATCH', body, signal });
