@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query, Request
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import StreamingResponse
 
 from service.http.auth import require_token, token_recheck
@@ -10,6 +10,7 @@ from service.http.deps import get_jobs
 from service.http.schemas.common import BENCH_FILTER, Job, JobKind
 from service.http.schemas.streams import JOB_EVENTS
 from service.runtime.jobs import JobManager
+from service.store import TERMINAL_STATES
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -54,9 +55,19 @@ async def job_events(
     )
 
 
-@router.delete("/{job_id}", status_code=202, response_model=Job)
-def cancel_job(job_id: str, jobs: JobManager = Depends(get_jobs)) -> dict:
+@router.delete(
+    "/{job_id}",
+    status_code=202,
+    response_model=Job,
+    responses={200: {"model": Job, "description": "The job had already ended; it is left as it was."}},
+)
+def cancel_job(job_id: str, response: Response, jobs: JobManager = Depends(get_jobs)) -> dict:
     """Cancel: a queued job is cancelled at once; a running sweep stops at its next block,
-    leaves the output at 0 V and keeps the samples so far as a partial dataset. 409 (``field``
+    leaves the output at 0 V and keeps the samples so far as a partial dataset (202). A job that
+    had already ended is left as it was and answered with its final state (200). 409 (``field``
     job_id, with the ``bench_id`` and ``url`` of its service) for another bench's unfinished job."""
-    return jobs.cancel(job_id)
+    was_over = jobs.get(job_id)["state"] in TERMINAL_STATES
+    job = jobs.cancel(job_id)
+    if was_over:
+        response.status_code = 200
+    return job

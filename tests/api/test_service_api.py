@@ -198,9 +198,13 @@ def test_cancelled_sweep_keeps_partial_data_and_leaves_zero_volts(service):
 
     cancelled = api.cancel(second["job_id"])  # queued: cancelled at once, never started
     assert cancelled["state"] == "cancelled" and cancelled["started_at"] is None
-    api.cancel(first["job_id"])
+    asked = api.http.delete(f"/api/jobs/{first['job_id']}")
+    assert asked.status_code == 202  # accepted: the sweep stops at its next block
     job = wait_job(api.job, first["job_id"])
     assert job["state"] == "cancelled" and job["error"] is None
+    again = api.http.delete(f"/api/jobs/{first['job_id']}")  # already over: nothing to accept
+    assert again.status_code == 200 and again.json()["state"] == "cancelled"
+    assert again.json()["finished_at"] == job["finished_at"]
     assert all(abs(v) < 0.05 for v in app.state.bench.output_v().values())
 
     ds = api.dataset(job["result"]["dataset_id"])
