@@ -330,9 +330,13 @@ def test_trajectory_with_ilc_error_falls_on_screen(page, server):
     models = _static_pi_per_axis(server, frequencies_hz=[10, 50, 100], cycles=3)
     goto(page, server, "trajectories")
     page.select_option("#traj-preset", "case1")
+    page.fill("#traj-form input[name=amplitude_y_um]", "7")  # no longer the paper's case 1 ellipse
+    assert page.input_value("#traj-preset") == ""
+    page.select_option("#traj-preset", "case1")
     page.select_option("#traj-form select[name=feedforward_model_y]", models["y"])
     page.select_option("#traj-form select[name=feedforward_model_z]", models["z"])
     page.fill("#traj-form input[name=cycles]", "30")
+    assert page.input_value("#traj-preset") == "case1"  # the periods are not the ellipse
     page.set_checked("#traj-form input[name=ilc]", True)
     page.click("#traj-start")
     page.wait_for_selector("#traj-job .jobline[data-state='succeeded']", timeout=150_000)

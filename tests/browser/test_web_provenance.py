@@ -131,6 +131,9 @@ def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     name = page.locator(f"#model-list tr[data-model-id='{model}'] .model-name")
     width, em = name.evaluate("(e) => [e.getBoundingClientRect().width, parseFloat(getComputedStyle(e).fontSize)]")
     assert width <= 18 * em + 1 and name.get_attribute("title") == long_name, (width, em)
+    # on the tests' 1280 px screen the whole list stays in its card (no column scrolled out of view)
+    box = page.locator("#model-list").evaluate("(t) => [t.parentElement.scrollWidth, t.parentElement.clientWidth]")
+    assert box[0] <= box[1] + 1, box
 
     dataset = server["recorded"]
     goto(page, server, f"datasets/{dataset}")

@@ -44,6 +44,7 @@ def test_a_fresh_store_reaches_case_2_in_one_guided_flow(page, server):
     page.reload()  # the job runs in the service: the reloaded page follows it and keeps its ellipse
     page.wait_for_selector("#traj-span .jobline[data-job-id^='job_']")
     assert {k: page.input_value(f"#traj-form input[name={k}]") for k in ellipse} == ellipse
+    assert page.input_value("#traj-preset") == "case2"  # the case those fields hold, named again
     page.wait_for_selector("#traj-prepared", timeout=900_000)
     steps = page.locator("#traj-span .prep-step").evaluate_all(
         "els => els.map(e => e.dataset.step + ':' + e.dataset.axis)"
@@ -56,7 +57,10 @@ def test_a_fresh_store_reaches_case_2_in_one_guided_flow(page, server):
         assert model["axis"] == axis and set(model["effects"]) == set(recipe["effects"])
     assert page.input_value("#traj-pid") == "auto"
 
+    prepared = page.inner_text("#traj-prepared")
+    assert "recommended: PID auto with ILC" in prepared and "press Run" in prepared, prepared
     pid = _run(page, server, ilc=False)
+    assert "press Run" not in page.inner_text("#traj-prepared")  # done; the recommendation stays
     assert pid["relative_error_pct"] <= 3.0, pid["relative_error_pct"]
     # the PPF section's tuning is not read as the mode: beside it, the plant model's mode it sits above
     page.wait_for_selector("#traj-pid-table td.mode-damping")

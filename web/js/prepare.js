@@ -34,6 +34,7 @@ function restoreEllipse(form, job) {
   for (const key of ELLIPSE_FIELDS) {
     if (job.params && job.params[key] !== null && job.params[key] !== undefined) form.elements[key].value = job.params[key];
   }
+  form.dispatchEvent(new Event('input'));  // as if typed: what reads the fields (the preset) follows
 }
 
 /** Put an ended prepare job's outcome in the form: its ellipse, its models and the controller the
@@ -53,8 +54,9 @@ function apply(root, job, selectModel) {
   form.elements.pid.value = result.controller.pid;
   form.elements.ilc.checked = Boolean(result.controller.ilc);
   root.querySelector('#traj-gains').hidden = true;
-  out.append(h(`<p class="ok" id="traj-prepared">Models ready and selected (prepare job ${esc(job.id)}), with PID
-    ${esc(result.controller.pid)}${result.controller.ilc ? ' and ILC' : ''}<span class="run-hint">: press Run</span>.
+  // the recommendation, not what a later run used: the form may be changed before each run
+  out.append(h(`<p class="ok" id="traj-prepared">Models ready and selected (prepare job ${esc(job.id)}); recommended:
+    PID ${esc(result.controller.pid)}${result.controller.ilc ? ' with ILC' : ''}<span class="run-hint">, set in the form: press Run</span>.
     <span class="muted">Why these: ${esc(result.why)}.</span></p>`));
 }
 

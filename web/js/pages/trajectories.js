@@ -12,10 +12,10 @@ let controller = null;
 
 // The paper's tracking cases (GET /api/paper), read on entering the page.
 let PAPER = null;
-// PID: "auto" (the service tunes each axis on the plant identified on the bench, for a 60° phase
-// margin), "tuned" (what auto gives on the default bench), "paper" (refused with its predicted
-// margins unless forced), or custom gains per axis (kp V/µm, ki V/(µm·s), kd V·s/µm), refused when
-// predicted unstable. The result reports the gains and their predicted margins.
+// PID: "auto" (the service tunes each axis on the plant its feedforward model gives, with this
+// bench's first resonance and loop delay, for a 60° phase margin), "tuned" (what auto gives on the
+// default bench), "paper" (refused with its predicted margins unless forced), or custom gains per
+// axis (kp V/µm, ki V/(µm·s), kd V·s/µm), refused when predicted unstable. The result reports the gains and their predicted margins.
 const GAINS = ['kp_y', 'ki_y', 'kd_y', 'kp_z', 'ki_z', 'kd_z'];
 
 export async function enter(root) {
@@ -52,7 +52,7 @@ export async function enter(root) {
         <label>feedforward model Z <select name="feedforward_model_z">${options('z')}</select></label>
         <label class="check" title="models fitted on data recorded on another stage (imported): they describe that stage, not this bench"><input type="checkbox" id="traj-show-imported">show models fitted on other stages' data</label>
         <label>PID <select name="pid" id="traj-pid"><option value="">none</option>
-          <option value="auto">auto (tuned on this bench's identified plant)</option>
+          <option value="auto">auto (tuned per axis on its feedforward model and this bench's resonance)</option>
           <option value="tuned">tuned (auto on the default bench)</option>
           <option value="paper">paper gains (Y ${paperGains(paper, 'y')}, Z ${paperGains(paper, 'z')})</option>
           <option value="custom">custom…</option></select></label>
@@ -89,11 +89,22 @@ export async function enter(root) {
     const preset = PAPER[e.target.value];
     if (preset) for (const [k, v] of Object.entries(preset.form)) form.elements[k].value = v;
   });
+  // the preset names the case the ellipse fields hold, whoever set them (typing, a reloaded prepare
+  // job's ellipse: web/js/prepare.js sends the same event)
+  form.addEventListener('input', (e) => { if (e.target.id !== 'traj-preset') showPreset(root); });
   form.addEventListener('submit', (e) => { e.preventDefault(); run(root); });
   root.querySelector('#traj-span-sweep').addEventListener('click', () => prepareModels(root));
   renderErrors(root, null);
   // a prepare job started before (in another tab, or before a reload): followed, its models selected
   resumePrepare(root, signal, selectModel).catch((e) => showError(root.querySelector('#traj-error'), e));
+}
+
+/** Show in the preset list the paper case whose ellipse the form holds, or "—" for none. */
+function showPreset(root) {
+  const form = root.querySelector('#traj-form');
+  const same = (a, b) => Math.abs(Number(a) - Number(b)) <= 1e-9 * Math.max(1, Math.abs(Number(b)));
+  const match = Object.entries(PAPER).find(([, p]) => Object.entries(p.form).every(([k, v]) => same(form.elements[k].value, v)));
+  root.querySelector('#traj-preset').value = match ? match[0] : '';
 }
 
 /** The paper's PID gains of one axis as 'kp/ki/kd' (V/µm, V/(µm·s), V·s/µm). */
