@@ -11,7 +11,7 @@ from service.http.schemas.models import Diagnosis, DiscoverRequest, History, Ref
 from service.runtime.jobs import JobManager
 from service.science.errors import FieldError
 from service.store import Store
-from service.usecases.acquire import runnable_sweep, sweep_and_wait
+from service.usecases.acquire import BenchExperiments, sweep_and_wait
 from service.usecases.discover import diagnose_model, history, refine_params
 from service.usecases.discover_experiments import ExperimentPolicy
 from service.usecases.discover_run import discover
@@ -31,7 +31,7 @@ def get_diagnosis(
     """Residual RMS, noise floor, verdict, ranked candidates with evidence, failures, ambiguity. Each
     experiment it proposes for this bench's data is one the bench runs (cut to its limits, said in
     ``cut_to_limits``), or none, with ``not_runnable_here`` saying why."""
-    return diagnose_model(store, model_id, extra_datasets, bench_fit=lambda body: runnable_sweep(bench, body))
+    return diagnose_model(store, model_id, extra_datasets, bench_fit=BenchExperiments(bench))
 
 
 @router.post("/{model_id}/refine", status_code=202, response_model=JobQueued)
@@ -90,7 +90,7 @@ def start_discovery(
     policy = ExperimentPolicy(
         run=run_experiment,
         busy=jobs.bench_jobs,
-        fit=lambda sweep_body: runnable_sweep(bench, sweep_body),
+        fit=BenchExperiments(bench),
         elsewhere=elsewhere,
     )
     job = jobs.submit("discover", params, lambda ctx: discover(ctx, store, bench=policy, **params), needs_bench=False)

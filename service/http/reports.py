@@ -10,7 +10,7 @@ from service.http.deps import get_bench, get_store
 from service.http.schemas.models import ReportFigures
 from service.runtime.bulk import run_bulk
 from service.store import Store
-from service.usecases.acquire import runnable_sweep
+from service.usecases.acquire import BenchExperiments
 from service.usecases.report import model_figures, model_report
 
 router = APIRouter(prefix="/models", tags=["reports"])
@@ -38,7 +38,7 @@ async def get_report(
     error history (inline SVG), and the curl / evcbench / Python commands that reproduce it. It runs
     a diagnosis, so it takes as long as GET /api/models/{id}/diagnosis. Print it from a browser for a
     PDF (the figures stay vectors)."""
-    html = await run_bulk(model_report, store, model_id, lambda body: runnable_sweep(bench, body))
+    html = await run_bulk(model_report, store, model_id, BenchExperiments(bench))
     headers = {"Content-Disposition": f'attachment; filename="{model_id}-report.html"'} if download else {}
     return HTMLResponse(html, headers=headers)
 

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
+
+import numpy as np
 
 from drivers.bench import Bench
 from drivers.limits import highest_sine_hz
 from service.runtime.jobs import JobContext, JobInterrupted, JobManager
 from service.science.data.plans import PlannedSweep, plan_for_bench, plan_from_dict, trim_blocks
+from service.science.discovery.records import record_for_axis
 from service.science.errors import FieldError
 from service.store import TERMINAL_STATES, Store
 from service.usecases.recorder import Recorder, bench_snapshot, record_arrays
@@ -65,6 +69,50 @@ def runnable_sweep(bench: Bench, values: dict) -> tuple[dict, list[str]]:
             out["frequencies_hz"] = kept
     plan_sweep(bench, out)  # FieldError naming the field if it is refused even so
     return out, cuts
+
+
+def widest_sweep(bench: Bench, values: dict) -> dict | None:
+    """A sine sweep ``values`` over its axes' whole common voltage range (a sine's fastest rate, π f
+    Vpp, grows with its swing), or None where it spans that range already or is not a sine."""
+    limits = [bench.limits[a] for a in values.get("axes") or ["y"] if a in bench.limits]
+    if values.get("waveform", "sine") != "sine" or not limits:
+        return None
+    lo, hi = max(lim.v_min_v for lim in limits), min(lim.v_max_v for lim in limits)
+    plan = plan_from_dict(values)
+    return None if (plan.v_min, plan.v_max) == (lo, hi) else {**values, "v_min": lo, "v_max": hi}
+
+
+def planned_records(bench: Bench, values: dict, axis: str) -> list:
+    """The records sweep ``values`` would make on ``axis`` as this bench plans it: its drive, its
+    block table and the amplifier's rated rate, the displacement not yet known (zeros), for a rule
+    that reads the drive (an effect's ``untestable``). [] where the sweep does not drive ``axis``.
+    Never touches the hardware."""
+    planned, _ = plan_sweep(bench, values)
+    if axis not in planned.u_v:
+        return []
+    arrays = {f"u_{a}_v": u for a, u in planned.u_v.items()}
+    arrays.update({f"x_{a}_um": np.zeros_like(u) for a, u in planned.u_v.items()})
+    rates = {a: bench.limits[a].max_rate_v_per_s for a in planned.u_v}
+    blocks = trim_blocks(planned.blocks, planned.samples, planned.sample_rate_hz)
+    return [record_for_axis("planned", arrays, planned.sample_rate_hz, blocks, axis, rates[axis])]
+
+
+@dataclass(frozen=True)
+class BenchExperiments:
+    """What a diagnosis or a discover job asks of the bench about a proposed experiment, without
+    running it: ``cut`` (``runnable_sweep``), ``widest`` (``widest_sweep``) and ``records``
+    (``planned_records``: what the sweep's drive would be, for the effect's own rule)."""
+
+    bench: Bench
+
+    def cut(self, values: dict) -> tuple[dict, list[str]]:
+        return runnable_sweep(self.bench, values)
+
+    def widest(self, values: dict) -> dict | None:
+        return widest_sweep(self.bench, values)
+
+    def records(self, values: dict, axis: str) -> list:
+        return planned_records(self.bench, values, axis)
 
 
 def queue_sweep(

@@ -69,7 +69,7 @@ def diagnose_model(
 ) -> dict:
     """The diagnosis of a stored model on its datasets (plus ``extra_datasets``, refitted on all);
     ``records``: those datasets' records when the caller has loaded them already; ``bench_fit``: the
-    bench's check and cut of a sweep (service.usecases.acquire.runnable_sweep), so that every
+    bench's check and cut of a sweep (service.usecases.acquire.BenchExperiments), so that every
     experiment proposed for data of this bench is one the bench runs (``fit_experiments``)."""
     row = store.get_model(model_id)
     datasets = list(row["datasets"]) + [d for d in (extra_datasets or []) if d not in row["datasets"]]

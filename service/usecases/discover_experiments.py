@@ -5,9 +5,10 @@ An experiment is run when ``allow_experiments`` is set, the bench is free and fe
 ``max_experiments`` have run. The body the diagnosis names is first checked as POST /api/sweeps
 checks it (service.usecases.acquire.runnable_sweep: voltage range, current, slew, 0.5 × the first
 resonance); where the bench refuses it, it is cut to the bench's limits, and run if it still does
-what it was asked for (service.science.discovery.loop.still_separates). A sweep the bench refuses
-even so, or that ends without a dataset, is a step skipped with its reason: the loop goes on.
-"""
+what it was asked for: an ambiguity's sweep still separates (service.science.discovery.loop.
+still_separates); a not-testable effect's sweep passes that effect's own rule (``untestable``) on
+the drive it would make, if need be over the whole voltage range. A sweep the bench refuses even
+so, or that ends without a dataset, is a step skipped with its reason: the loop goes on."""
 
 from __future__ import annotations
 
@@ -16,13 +17,14 @@ from dataclasses import dataclass
 
 from service.runtime.jobs import JobContext
 from service.science.discovery.loop import still_separates
+from service.science.effects import EFFECTS
 from service.science.errors import FieldError
+from service.usecases.acquire import BenchExperiments
 
 #: ``run_experiment(ctx, sweep_body) -> the sweep's finished job`` (service.usecases.acquire.sweep_and_wait)
 ExperimentRunner = Callable[[JobContext, dict], dict]
-#: ``fit_to_bench(sweep_body) -> (the body the bench runs, the cuts made in words)``; FieldError when
-#: even cut it is refused (service.usecases.acquire.runnable_sweep)
-BenchFit = Callable[[dict], tuple[dict, list[str]]]
+#: the bench's check and cut of a proposed sweep (service.usecases.acquire.BenchExperiments)
+BenchFit = BenchExperiments
 
 #: experiments a discover job runs at most, unless asked otherwise (``max_experiments``)
 MAX_EXPERIMENTS = 3
@@ -57,20 +59,47 @@ class ExperimentPolicy:
             return f"max_experiments = {self.max_experiments} have run"
         return None
 
-    def runnable(self, need: dict, records) -> tuple[dict | None, list[str], str | None]:
+    def runnable(self, need: dict, records, effect: str | None = None) -> tuple[dict | None, list[str], str | None]:
         """``(body, cuts, None)``: the sweep the bench runs for ``need`` (its experiment cut to the
         bench's limits, ``cuts`` in words); or ``(None, cuts, why)`` when the bench cannot run a sweep
-        that still does what it was asked for."""
+        that still does what it was asked for. ``effect``: the not-testable effect the experiment is
+        for, judged by its own rule (``untestable``) on the drive the cut sweep would make; where the
+        cut falls short, the same sweep over the axes' whole voltage range is tried (its rate grows
+        with its swing: a slew test cut to 145 Hz at 0–120 V stayed under the rate its rule needs)."""
         if self.fit is None:
             return need["experiment"], [], None
+        asked = need["experiment"]
         try:
-            body, cuts = self.fit(need["experiment"])
+            body, cuts = self.fit.cut(asked)
         except FieldError as exc:
             return None, [], f"the bench refuses it even cut to its limits ({exc.field}: {exc.message})"
-        why = still_separates(need["experiment"], body, records) if cuts else None
+        if not cuts:
+            return body, cuts, None
+        why = self._short_of(effect, asked, body, records)
+        wider = self.fit.widest(asked) if why is not None and effect else None
+        if wider is not None:
+            try:
+                wide_body, wide_cuts = self.fit.cut(wider)
+            except FieldError:
+                wide_body = None
+            if wide_body is not None and self._short_of(effect, asked, wide_body, records) is None:
+                span = (
+                    f"voltage range → {wide_body['v_min']:g}–{wide_body['v_max']:g} V "
+                    f"(the axes' whole range: testing {effect} needs the rate)"
+                )
+                return wide_body, [span, *wide_cuts], None
         if why is not None:
             return None, cuts, f"cut to the bench's limits ({'; '.join(cuts)}), it no longer separates: {why}"
         return body, cuts, None
+
+    def _short_of(self, effect: str | None, asked: dict, body: dict, records) -> str | None:
+        """Why the cut sweep ``body`` no longer does what ``asked`` was for, or None: for a not-testable
+        ``effect``, its own rule on the records so far and the drive ``body`` would make; else
+        ``still_separates``."""
+        if effect is None:
+            return still_separates(asked, body, records)
+        axis = next((r.axis for r in records if r.axis), "y")
+        return EFFECTS[effect].untestable(list(records) + self.fit.records(body, axis))
 
     def sweep(self, ctx: JobContext, body: dict) -> tuple[str | None, str | None, str | None]:
         """Run ``body``: ``(dataset_id, sweep_job_id, None)``, or ``(None, sweep_job_id, why)``
@@ -98,7 +127,7 @@ def fit_experiments(out: dict, fit: BenchFit, records, ambiguity: bool = True) -
     for item in proposals:
         if not item.get("experiment"):
             continue
-        body, cuts, why = policy.runnable(item, records)
+        body, cuts, why = policy.runnable(item, records, effect=item.get("effect"))
         if why is not None:
             item["experiment_asked"], item["experiment"], item["not_runnable_here"] = item["experiment"], None, why
         elif cuts:

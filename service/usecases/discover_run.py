@@ -258,7 +258,11 @@ def _experiment(
     asked = need["experiment"]
     # the body the bench would run, whether or not it runs now: every sweep the result offers is one the
     # bench accepts (another stage's data: its experiment as named, for that stage)
-    body, cuts, refused = policy.runnable(need, loop.records) if policy.elsewhere is None else (asked, [], None)
+    # one effect: a not-testable effect's experiment, judged by its own rule; two: an ambiguity's
+    tested = need["effects"][0] if len(need["effects"]) == 1 else None
+    body, cuts, refused = (
+        policy.runnable(need, loop.records, effect=tested) if policy.elsewhere is None else (asked, [], None)
+    )
     need.update({"experiment": body, "asked": asked, "cut_to_bench": cuts})
     if refused is not None:
         need["not_runnable_here"] = refused

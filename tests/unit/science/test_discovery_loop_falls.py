@@ -23,7 +23,10 @@ from service.science.discovery.loop import (
 )
 from service.science.discovery.rests import LineFree
 from service.science.errors import FieldError
-from service.usecases.acquire import plan_sweep, runnable_sweep
+from service.science.discovery.identifiability import not_testable
+from service.science.effects import EFFECTS
+from service.usecases.acquire import BenchExperiments, plan_sweep, planned_records, runnable_sweep
+from service.usecases.discover_experiments import ExperimentPolicy
 
 #: the sweep the diagnosis names to tell delay, dynamics and rate dependence apart (diagnosis.SEPARATING)
 FASTER = {"axes": ["z"], "waveform": "sine", "frequencies_hz": [100.0, 150.0, 200.0], "cycles": 10, "v_max": 120.0}
@@ -131,3 +134,23 @@ def test_a_cut_experiment_runs_only_if_it_still_separates(default_y):
     step = {"waveform": "step", "levels_v": [100.0, 20.0]}
     assert still_separates(step, {**step, "levels_v": [100.0, 100.0]}, records) is not None
     assert still_separates(step, step, records) is None
+
+
+def test_a_cut_test_of_an_effect_is_judged_by_that_effects_rule():
+    """A walk's dead end: on Z (0–120 V data up to 100 Hz, 37.7 kV/s) the slew-limit test asks for
+    150 Hz; cut to 145 Hz at 0–120 V its drive reaches 54.7 kV/s, under the half of the amplifier's
+    111 kV/s rating the rule needs, and the data it adds still cannot test the effect. Judged by
+    slew_limit's own rule, the cut sweep runs over the whole 0–150 V range instead (68 kV/s)."""
+    warnings.simplefilter("ignore")
+    z = sweep_records("default", 0, frequencies_hz=(10.0, 100.0), cycles=3)["z"]
+    need = not_testable("slew_limit", [z])
+    assert need is not None and max(need["experiment"]["frequencies_hz"]) == 150.0
+    bench = open_bench("default", 0)
+    rule = EFFECTS["slew_limit"].untestable
+    short, _ = runnable_sweep(bench, need["experiment"])
+    assert rule([z, *planned_records(bench, short, "z")]) is not None  # the plain cut: still untestable
+    body, cuts, why = ExperimentPolicy(fit=BenchExperiments(bench)).runnable(need, [z], effect="slew_limit")
+    assert why is None and (body["v_min"], body["v_max"]) == (0.0, 150.0) and max(body["frequencies_hz"]) == 145.0
+    assert "0–150 V" in cuts[0] and "slew_limit" in cuts[0]
+    assert rule([z, *planned_records(bench, body, "z")]) is None  # what it adds tests the effect
+    plan_sweep(bench, body)  # and POST /api/sweeps accepts it
