@@ -12,6 +12,7 @@ import pytest
 
 from service.lab.emulated import open_bench, sweep_records
 from service.science.discovery.composite import fit_composite
+from service.science.discovery.identifiability import not_testable
 from service.science.discovery.like_for_like import like_for_like
 from service.science.discovery.loop import (
     discovery_step,
@@ -22,9 +23,8 @@ from service.science.discovery.loop import (
     try_step,
 )
 from service.science.discovery.rests import LineFree
-from service.science.errors import FieldError
-from service.science.discovery.identifiability import not_testable
 from service.science.effects import EFFECTS
+from service.science.errors import FieldError
 from service.usecases.acquire import BenchExperiments, plan_sweep, planned_records, runnable_sweep
 from service.usecases.discover_experiments import ExperimentPolicy
 
