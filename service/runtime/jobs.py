@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import queue
 import sys
 import threading
@@ -26,6 +27,8 @@ from service.runtime.heap import freeze_heap
 from service.runtime.priority import WORK_NICE, set_thread_nice
 from service.runtime.settings import MAX_QUEUED_BENCH_JOBS, MAX_QUEUED_COMPUTE_JOBS, QUEUE_RETRY_AFTER_S
 from service.store import TERMINAL_STATES, Store, clean_json, utc_now
+
+log = logging.getLogger("evcbench.jobs")
 
 PERSIST_EVERY_S = 0.5
 #: The interpreter's thread switch interval (s) while a bench job runs: a thread waiting for the GIL
@@ -103,6 +106,24 @@ class JobContext:
     def cancelled(self) -> bool:
         live = self._manager._live.get(self.job_id)
         return live is None or live.cancel.is_set()
+
+
+#: exceptions that only a fault in the service's code raises (a refusal, bad data, a driver's or the
+#: store's trouble each have their own types, whose words are the job's error as they are)
+FAULT_TYPES = (AttributeError, TypeError, NameError, IndexError, AssertionError, ZeroDivisionError)
+
+
+def is_fault(exc: Exception) -> bool:
+    """Whether ``exc`` is a fault of the service's code (a bare KeyError too; not a NotFoundError)."""
+    return isinstance(exc, FAULT_TYPES) or type(exc) is KeyError
+
+
+def failure_text(exc: Exception) -> str:
+    """A failed job's ``error``: the exception's own words; for a fault of the service (``is_fault``),
+    its type and words and where its traceback is (the service's log)."""
+    if is_fault(exc):
+        return f"an internal error ({type(exc).__name__}: {exc}); its traceback is in the service's log"
+    return str(exc) or type(exc).__name__
 
 
 class JobManager:
@@ -308,7 +329,9 @@ class JobManager:
             if live.cancel.is_set():  # cancelled while it failed (an emergency stop's hold): cancelled
                 self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
             else:
-                self._finish(job_id, "failed", message="failed", error=str(exc) or type(exc).__name__)
+                self._finish(job_id, "failed", message="failed", error=failure_text(exc))
+                if is_fault(exc):
+                    log.error("job %s failed", job_id, exc_info=exc)
         else:
             if live.cancel.is_set() and not result:
                 self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
