@@ -25,8 +25,9 @@ from tests.support.hysteresis_worlds import records
 
 FS = 5000.0  # Hz
 EFFECTS_KIND = {name: effect.kind for name, effect in EFFECTS.items()}
-#: the grids' columns with the default 10 play operators (20 widths): Chebyshev orders × widths + hysterons
-GRID_PARAMETERS = {"hysterons_slow": 77, "hysterons_fine": 155}
+#: the grids' columns with the default 10 play operators: Chebyshev orders × widths + hysterons (the slow
+#: grid on 20 widths, the fine one on 30)
+GRID_PARAMETERS = {"hysterons_slow": 77, "hysterons_fine": 225}
 
 pytestmark = pytest.mark.filterwarnings("ignore")  # the fits' numerical warnings on synthetic stages
 
@@ -37,6 +38,18 @@ def test_the_grids_are_offered_while_none_is_in_the_model_and_never_stacked():
         now = offered([level, "creep"])
         assert not set(LEVELS) & set(now), (level, now)
         assert "operators" in now and "creep" not in now
+
+
+def test_the_fine_grid_is_finer_in_width_and_along_the_centre():
+    """30 play widths for the default 10 (a Krasnosel'skii–Pokrovskii ridge of 8 V on a 120 V span
+    needs a width every 4 V), each mapped through T₂…T₈: its columns are GRID_PARAMETERS's."""
+    recs = records("krasnoselskii_pokrovskii", "blocks", fs=FS)[:2]
+    model = CompositeModel(["hysterons_fine"], n_operators=10).fit(recs)
+    assert len(model.thresholds_v) == 30
+    assert (
+        len(model.coef["preisach_envelope_um"]) + len(model.coef["bouc_wen_weights_um_per_v"])
+        == (GRID_PARAMETERS["hysterons_fine"])
+    )
 
 
 def test_a_model_on_the_slower_grid_round_trips_through_json():
@@ -74,7 +87,7 @@ def test_the_later_grid_comes_before_the_physics_only_where_it_reaches_the_floor
 
 
 def test_a_freer_grid_is_taken_only_where_it_halves_the_smaller_grids_excess():
-    """Parsimony among the base's grids: the fine grid (twice the columns) 13 % lower held out than
+    """Parsimony among the base's grids: the fine grid (three times the columns) 13 % lower held out than
     ``hysterons`` is not taken (a Jiles–Atherton record: it came with a gain change read into the
     virgin curve); one that leaves a tenth of its excess is."""
     from service.science.discovery.base_capacity import parsimonious
@@ -82,7 +95,7 @@ def test_a_freer_grid_is_taken_only_where_it_halves_the_smaller_grids_excess():
     noise = 2.03e-3
     rows = [
         {"effect": "hysterons", "expected_rms_um": 3.41e-3, "added_parameters": 75},
-        {"effect": "hysterons_fine", "expected_rms_um": 2.98e-3, "added_parameters": 155},
+        {"effect": "hysterons_fine", "expected_rms_um": 2.98e-3, "added_parameters": GRID_PARAMETERS["hysterons_fine"]},
         {"effect": "operators", "expected_rms_um": 48.1e-3, "added_parameters": 20},
     ]
     assert parsimonious(rows, noise)["effect"] == "hysterons"
