@@ -66,9 +66,11 @@ class ExperimentPolicy:
         for, judged by its own rule (``untestable``) on the drive the cut sweep would make; where the
         cut falls short, the same sweep over the axes' whole voltage range is tried (its rate grows
         with its swing: a slew test cut to 145 Hz at 0–120 V stayed under the rate its rule needs)."""
-        if self.fit is None:
-            return need["experiment"], [], None
         asked = need["experiment"]
+        if asked is None:  # already found not runnable here (fit_experiments)
+            return None, [], need.get("not_runnable_here") or "this bench cannot run it"
+        if self.fit is None:
+            return asked, [], None
         try:
             body, cuts = self.fit.cut(asked)
         except FieldError as exc:

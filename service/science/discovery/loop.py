@@ -122,12 +122,13 @@ def needed_experiment(d: dict, stopping: bool, done=()) -> dict | None:
     amb = d.get("ambiguity")
     if capacity_before_physics(d) is not None:  # the base grows first; the next step diagnoses again
         return None
-    if amb and json.dumps(amb["experiment"], sort_keys=True) not in ran:
+    if amb and amb.get("experiment") and json.dumps(amb["experiment"], sort_keys=True) not in ran:
         return {"effects": list(amb["effects"]), "reason": amb["text"], "experiment": amb["experiment"]}
     if not stopping or d["at_noise_floor"]:
         return None
     for c in d.get("not_testable", []):
-        if c["kind"] == "physical" and json.dumps(c["experiment"], sort_keys=True) not in ran:
+        # an experiment this bench cannot run (``not_runnable_here``: no body) is said, never asked for
+        if c["kind"] == "physical" and c["experiment"] and json.dumps(c["experiment"], sort_keys=True) not in ran:
             return {"effects": [c["effect"]], "reason": c["reason"], "experiment": c["experiment"]}
     return None
 

@@ -17,6 +17,7 @@ from service.science.discovery.like_for_like import like_for_like
 from service.science.discovery.loop import (
     discovery_step,
     held_out_rms_um,
+    needed_experiment,
     next_effect,
     not_kept,
     still_separates,
@@ -154,3 +155,32 @@ def test_a_cut_test_of_an_effect_is_judged_by_that_effects_rule():
     assert "0–150 V" in cuts[0] and "slew_limit" in cuts[0]
     assert rule([z, *planned_records(bench, body, "z")]) is None  # what it adds tests the effect
     plan_sweep(bench, body)  # and POST /api/sweeps accepts it
+
+
+def test_an_experiment_the_bench_cannot_run_is_never_the_loops_next_sweep():
+    """A discover job on the default bench's Z failed with "'NoneType' object has no attribute 'get'":
+    the slew-limit test, which the bench could not run (``not_runnable_here``, its body None), was
+    taken as the next sweep. It is passed over, and the next one the bench can run is taken."""
+    runnable = {"axes": ["z"], "waveform": "sine", "frequencies_hz": [1.0], "cycles": 60}
+    d = {
+        "verdict": "complete",
+        "noise_floor_um": 3e-3,
+        "at_noise_floor": False,
+        "candidates": [],
+        "ambiguity": None,
+        "not_testable": [
+            {
+                "effect": "slew_limit",
+                "kind": "physical",
+                "reason": "too slow",
+                "experiment": None,
+                "experiment_asked": {"frequencies_hz": [150.0]},
+                "not_runnable_here": "cut, it no longer tests it",
+            },
+            {"effect": "temperature", "kind": "physical", "reason": "too short", "experiment": runnable},
+        ],
+    }
+    need = needed_experiment(d, stopping=True)
+    assert need == {"effects": ["temperature"], "reason": "too short", "experiment": runnable}
+    d["not_testable"].pop()
+    assert needed_experiment(d, stopping=True) is None
