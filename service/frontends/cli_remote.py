@@ -107,9 +107,9 @@ def _add_modelling(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--max-steps",
         type=int,
-        default=8,
+        default=None,
         help="model steps at most, the model's own diagnosis the first; a refit on an experiment's data "
-        "does not count (1–12, default 8)",
+        "does not count (1–16; default: the service's, 12)",
     )
     p.add_argument(
         "--max-experiments",

@@ -408,7 +408,7 @@ class Client:
         self,
         model_id: str,
         allow_experiments: bool = False,
-        max_steps: int = 8,
+        max_steps: int | None = None,
         wait: bool = True,
         on_progress: ProgressCallback | None = None,
         continue_past_ambiguity: bool = False,
@@ -418,12 +418,11 @@ class Client:
         finished job (its ``result``: steps, final_model_id, effects_found, remains, needed_experiment),
         ``on_progress`` called with the job at each step; else the queued job. It stops at an
         ambiguity it may not test (``stopped`` "needs_experiment") unless ``continue_past_ambiguity``;
-        ``max_experiments``: experiments it may run (the service's default, 3, when None)."""
-        body = {
-            "allow_experiments": allow_experiments,
-            "max_steps": max_steps,
-            "continue_past_ambiguity": continue_past_ambiguity,
-        }
+        ``max_steps``, ``max_experiments``: model steps and experiments at most (the service's defaults,
+        12 and 3, when None)."""
+        body = {"allow_experiments": allow_experiments, "continue_past_ambiguity": continue_past_ambiguity}
+        if max_steps is not None:
+            body["max_steps"] = max_steps
         if max_experiments is not None:
             body["max_experiments"] = max_experiments
         started = self._request("POST", f"/api/models/{model_id}/discover", json=body)

@@ -27,7 +27,7 @@ from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
 from service.science.discovery.diagnosis import fitted_without_lines
 from service.science.discovery.like_for_like import effects_key, like_for_like
-from service.science.discovery.loop import discovery_step, needed_experiment, next_effect, try_step
+from service.science.discovery.loop import MAX_STEPS, discovery_step, needed_experiment, next_effect, try_step
 from service.science.discovery.parameters import parameter_units, physical_parameters
 from service.science.discovery.rests import LineFree
 from service.science.effects import ordered
@@ -40,7 +40,7 @@ def discover(
     ctx: JobContext,
     store: Store,
     model_id: str,
-    max_steps: int = 8,
+    max_steps: int = MAX_STEPS,
     allow_experiments: bool = False,
     labels: dict | None = None,
     continue_past_ambiguity: bool = False,

@@ -66,7 +66,7 @@ def test_one_call_finds_creep_as_the_report_does(creep, progress_reports):
     dataset_id, base_id = _fresh_model(http, QUICK_SWEEP)
     for body, field in (
         ({"max_steps": 0}, "max_steps"),
-        ({"max_steps": 13}, "max_steps"),
+        ({"max_steps": 17}, "max_steps"),
         ({"colour": "red"}, "colour"),
         ({"allow_experiments": "perhaps"}, "allow_experiments"),
         ({"max_experiments": -1}, "max_experiments"),

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.http.schemas.common import BENCH_ID_FIELD, OPEN, Label
+from service.science.discovery.loop import MAX_STEPS, MAX_STEPS_ALLOWED
 from service.usecases.discover_experiments import MAX_EXPERIMENTS
 
 
@@ -49,7 +50,7 @@ class DiscoverRequest(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    max_steps: int = Field(default=8, ge=1, le=12)
+    max_steps: int = Field(default=MAX_STEPS, ge=1, le=MAX_STEPS_ALLOWED)
     allow_experiments: bool = False
     max_experiments: int = Field(default=MAX_EXPERIMENTS, ge=0, le=10)
     continue_past_ambiguity: bool = False

@@ -24,7 +24,11 @@ from service.science.discovery.rests import LineFree
 from service.science.discovery.verdict import helpful_capacity
 from service.science.fitting.validation import evaluate_records
 
-MAX_STEPS = 8
+#: model steps a discovery takes at most (the start and each effect tried): the default bench's Y
+#: needs 11 (seven physical effects and the base's capacity) after its experiments
+MAX_STEPS = 12
+#: the most a request may ask for
+MAX_STEPS_ALLOWED = 16
 
 
 @shared_effect_columns()  # the step's fit and its diagnosis share each effect's columns

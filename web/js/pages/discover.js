@@ -27,7 +27,7 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
     <div class="card" id="discover-card"><h2>Discover <span class="muted">(diagnose, add the top claimed effect, refit; until the
       verdict is complete, then more capacity while it validates and the model is not at the noise floor)</span></h2>
       <form id="discover-form" class="inline">
-        <label>max steps <input name="max_steps" type="number" min="1" max="12" step="1" value="8"></label>
+        <label>max steps <input name="max_steps" type="number" min="1" max="16" step="1" value="12"></label>
         ${experiments}
         <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> ${CHECKBOXES.continue_past_ambiguity}</label>
         <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
