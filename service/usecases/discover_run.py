@@ -27,7 +27,14 @@ from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
 from service.science.discovery.diagnosis import fitted_without_lines
 from service.science.discovery.like_for_like import effects_key, like_for_like
-from service.science.discovery.loop import MAX_STEPS, discovery_step, needed_experiment, next_effect, try_step
+from service.science.discovery.loop import (
+    MAX_STEPS,
+    discovery_step,
+    needed_experiment,
+    next_effect,
+    refitted_choice,
+    try_step,
+)
 from service.science.discovery.parameters import parameter_units, physical_parameters
 from service.science.discovery.rests import LineFree
 from service.science.effects import ordered
@@ -169,6 +176,7 @@ class _Loop:
         self.model_steps += 1
         index = len(self.run["steps"])
         self._progress(ctx, max_steps, f"step {index}: fitting hysteresis + {' + '.join(self.effects + [effect])}")
+        effect = refitted_choice(self.line_free, self.effects, effect, self.n_operators, self.theta, d)
         effects = self.effects + [effect]
         model, step, rejected = try_step(
             self.line_free, effects, effect, self.n_operators, self.theta, d["residual_rms_um"]
