@@ -99,14 +99,36 @@ def test_a_scale_in_the_mapping_is_the_whole_conversion():
     assert table.notes == []
 
 
-def test_a_header_of_words_is_refused_with_the_mapping_it_suggests():
+@pytest.mark.parametrize(
+    "header, scales",
+    [
+        ("Time [ms],Voltage (V),Displacement [nm]", (1e3, 1.0, 1e3)),
+        ("time_s,drive_V,displacement_um", (1.0, 1.0, 1.0)),  # a new user's file, refused before
+    ],
+)
+def test_a_header_of_words_whose_units_confirm_them_is_read(header, scales):
+    """Another lab's header: each column named by a word (time, voltage, displacement) and a unit
+    of that quantity. The unit confirms the word, so the file is read unasked (converted to the
+    service's units), and the note says how each column was read; only the axis must be given."""
+    content = _text(header, (T * scales[0], U * scales[1], X * scales[2])).encode()
+    table = parse_table(content, axis="y")
+    _exact(table)
+    assert any(n.startswith("columns: read by their words, each confirmed by its unit") for n in table.notes)
     with pytest.raises(DataError) as info:
-        parse_table(_text("Time [ms],Voltage (V),Displacement [nm]", (T * 1e3, U, X * 1e3)).encode())
+        parse_table(content)
+    assert info.value.field == "axis"
+
+
+def test_a_header_of_words_without_confirming_units_is_refused_with_the_mapping_it_suggests():
+    """'Output (V)' is a voltage, not the displacement the word may mean; without units nothing
+    confirms the words: refused, with the mapping to give."""
+    with pytest.raises(DataError) as info:
+        parse_table(_text("Time,Voltage,Displacement", (T, U, X)).encode())
     assert info.value.field == "file"
-    assert (
-        'give columns {"t": "Time [ms]", "u": "Voltage (V)", "x": "Displacement [nm]"} and the axis'
-        in info.value.message
-    )
+    assert 'give columns {"t": "Time", "u": "Voltage", "x": "Displacement"} and the axis' in info.value.message
+    with pytest.raises(DataError) as info:
+        parse_table(_text("time_s,input_V,output_V", (T, U, X)).encode(), axis="y")
+    assert info.value.field == "file" and "no known columns" in info.value.message
 
 
 @pytest.mark.parametrize(

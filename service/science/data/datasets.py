@@ -236,13 +236,22 @@ def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> tup
             canonical = _canonical(written)
             if canonical is not None and canonical not in mapping:
                 mapping[canonical] = index
+        read_by_words = None
         if not any(QUANTITY[name] in ("voltage", "length") for name in mapping):
-            raise DataError(
-                "file",
-                f"no known columns in header {layout.written}; expected t, u_y, x_y, u_z, "
-                "x_z, temp_c or u, x (a unit may follow: t_ms, 'x_y [nm]')" + _suggested_mapping(layout.written),
-            )
+            read_by_words = _unit_confirmed_mapping(layout.written)
+            if read_by_words is None:
+                raise DataError(
+                    "file",
+                    f"no known columns in header {layout.written}; expected t, u_y, x_y, u_z, "
+                    "x_z, temp_c or u, x (a unit may follow: t_ms, 'x_y [nm]')" + _suggested_mapping(layout.written),
+                )
+            mapping.update({key: layout.written.index(written) for key, written in read_by_words.items()})
     specs, notes = {}, []
+    if not given and read_by_words is not None:
+        notes.append(
+            "columns: read by their words, each confirmed by its unit: "
+            + ", ".join(f"{written!r} as {key}" for key, written in read_by_words.items())
+        )
     for name, spec in mapping.items():
         canonical = ALIASES.get(name, name)
         if canonical not in CANONICAL:
@@ -254,7 +263,8 @@ def _column_specs(mapping: dict | None, layout: Layout, axis: str | None) -> tup
     return _name_axes(specs, axis), notes
 
 
-#: words other labs name their columns with, for the mapping a refusal suggests (never applied unasked)
+#: words other labs name their columns with: read unasked where each column's unit confirms its quantity
+#: (``_unit_confirmed_mapping``), else the mapping a refusal suggests
 COLUMN_WORDS = {
     "t": ("t", "time", "zeit", "temps", "tiempo"),
     "u": ("u", "v", "voltage", "drive", "input", "command", "spannung", "vin", "ua"),
@@ -265,17 +275,40 @@ COLUMN_WORDS = {
 def _suggested_mapping(written: list[str]) -> str:
     """'; if …, give columns {…} and axis' when the header's words name one time, drive and
     displacement column each (e.g. 'Time [ms]', 'Voltage (V)', 'Displacement [nm]'), else ''."""
-    found = {}
-    for key, words in COLUMN_WORDS.items():
-        hits = [w for w in written if split_unit(w)[0] in words]
-        if len(hits) == 1:
-            found[key] = hits[0]
+    found = _words_of(written)
     if "u" not in found or "x" not in found:
         return ""
     return (
         f"; if {', '.join(repr(found[k]) + ' is ' + k for k in found)}, give columns "
         f"{json.dumps(found, ensure_ascii=False)} and the axis (units in the names are converted)"
     )
+
+
+#: the quantity a column of COLUMN_WORDS must carry a unit of, for its words to be read unasked
+WORD_QUANTITY = {"t": "time", "u": "voltage", "x": "length"}
+
+
+def _words_of(written: list[str]) -> dict[str, str]:
+    """key (t, u, x) → the one header name whose words name it (COLUMN_WORDS), where exactly one does."""
+    found = {}
+    for key, words in COLUMN_WORDS.items():
+        hits = [w for w in written if split_unit(w)[0] in words]
+        if len(hits) == 1:
+            found[key] = hits[0]
+    return found
+
+
+def _unit_confirmed_mapping(written: list[str]) -> dict[str, str] | None:
+    """The header names to read as u and x (and t) unasked, or None: each named by its words
+    (``_words_of``) and carrying a unit of its quantity (``drive_V``, ``Displacement [nm]``,
+    ``time_s``), so that the unit confirms what the words say. An ``Output (V)`` is a voltage, not the
+    displacement its word may mean: refused, with the mapping suggested."""
+    confirmed = {}
+    for key, name in _words_of(written).items():
+        unit = split_unit(name)[1]
+        if unit is not None and quantity_of_unit(unit) == WORD_QUANTITY[key]:
+            confirmed[key] = name
+    return confirmed if "u" in confirmed and "x" in confirmed else None
 
 
 def _canonical(written: str) -> str | None:
