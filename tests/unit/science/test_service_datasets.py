@@ -62,7 +62,8 @@ def test_single_axis_file_with_axis_and_scaled_mapping():
         (_csv(extra=(5, "0.005,abc,1")), {}, "file", "'abc' is not a number"),
         (_csv(extra=(5, "0.005,nan,1")), {}, "u_y", "NaN"),
         (_csv(header="time_ms,drive,pos"), {}, "file", "no known columns"),
-        (_csv(header="Time_ms,Drive_V,Pos_um"), {}, "file", "['Time_ms', 'Drive_V', 'Pos_um']"),  # as written
+        (_csv(header="Time_ms,Drive,Pos"), {}, "file", "['Time_ms', 'Drive', 'Pos']"),  # as written
+        (_csv(header="Time_ms,Drive_V,Pos_um"), {}, "axis", "needs axis set"),  # read by its units: which axis?
         (
             _csv(header="T,U_V,X_um"),
             {"columns": {"u": "U_V", "x": "Pos"}, "axis": "y"},
