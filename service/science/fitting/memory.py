@@ -3,9 +3,10 @@
 A composite fit builds every effect's columns over every sample (a filter or a delay needs the
 samples between the training rows), and a diagnosis fits a dozen candidates on them: its peak grows
 with the samples, not with the training rows. Measured: the diagnosis of a standard 266 000-sample sweep
-peaks at 1.13 GB of allocations (tracemalloc), 4.24 kB a sample, since rate dependence draws the switched
-strain's relaxation (0.96 GB before; 0.51 GB before the base's Preisach plane had 20 widths and the
-library three more effects), the description of what remains
+peaks at 1.44 GB of allocations (tracemalloc), 5.42 kB a sample, since the fine grid of the base has
+30 play widths (1.13 GB before, with 20; 0.96 GB before rate dependence drew the switched strain's
+relaxation; 0.51 GB before the base's Preisach plane had 20 widths and the library three more
+effects), the description of what remains
 (service.science.discovery.remainder, its columns built a chunk of rows at a time) included; of a
 2 000 000-sample import (Y and
 Z, 17 blocks) it raised the process's peak RSS from 0.34 to 3.63 GB, 1.65 kB a sample (the column
@@ -15,8 +16,8 @@ kernel kill the service mid-job, so such a request is refused first, naming what
 
 from __future__ import annotations
 
-#: the peak a fit or diagnosis adds per sample of its records (bytes): the 4.24 kB measured, with 15 % to spare
-FIT_BYTES_PER_SAMPLE = 4900
+#: the peak a fit or diagnosis adds per sample of its records (bytes): the 5.42 kB measured, with 15 % to spare
+FIT_BYTES_PER_SAMPLE = 6200
 #: the share of the memory free now that one fit may plan to use (the service, its bench engine
 #: and other jobs go on)
 USABLE_SHARE = 0.8
