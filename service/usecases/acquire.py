@@ -92,9 +92,9 @@ def planned_records(bench: Bench, values: dict, axis: str) -> list:
         return []
     arrays = {f"u_{a}_v": u for a, u in planned.u_v.items()}
     arrays.update({f"x_{a}_um": np.zeros_like(u) for a, u in planned.u_v.items()})
-    rates = {a: bench.limits[a].max_rate_v_per_s for a in planned.u_v}
     blocks = trim_blocks(planned.blocks, planned.samples, planned.sample_rate_hz)
-    return [record_for_axis("planned", arrays, planned.sample_rate_hz, blocks, axis, rates[axis])]
+    rate = bench.limits[axis].max_rate_v_per_s
+    return [record_for_axis("planned", arrays, planned.sample_rate_hz, blocks, axis, rate)]
 
 
 @dataclass(frozen=True)

@@ -91,7 +91,8 @@ class ExperimentPolicy:
                 )
                 return wide_body, [span, *wide_cuts], None
         if why is not None:
-            return None, cuts, f"cut to the bench's limits ({'; '.join(cuts)}), it no longer separates: {why}"
+            job = "separates" if effect is None else f"tests {effect}"
+            return None, cuts, f"cut to the bench's limits ({'; '.join(cuts)}), it no longer {job}: {why}"
         return body, cuts, None
 
     def _short_of(self, effect: str | None, asked: dict, body: dict, records) -> str | None:

@@ -176,10 +176,10 @@ class _Loop:
         self.model_steps += 1
         index = len(self.run["steps"])
         self._progress(ctx, max_steps, f"step {index}: fitting hysteresis + {' + '.join(self.effects + [effect])}")
-        effect = refitted_choice(self.line_free, self.effects, effect, self.n_operators, self.theta, d)
+        effect, fitted = refitted_choice(self.line_free, self.effects, effect, self.n_operators, self.theta, d)
         effects = self.effects + [effect]
         model, step, rejected = try_step(
-            self.line_free, effects, effect, self.n_operators, self.theta, d["residual_rms_um"]
+            self.line_free, effects, effect, self.n_operators, self.theta, d["residual_rms_um"], fitted
         )
         if rejected is not None:
             model_id = self._store(store, ctx, model, effects)

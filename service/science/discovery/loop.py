@@ -81,14 +81,20 @@ def not_kept(effect: str, before_um: float, after_um: float) -> dict | None:
 
 @shared_effect_columns()
 def try_step(
-    line_free: LineFree, effects, added: str, n_operators: int, theta: dict, before_um: float
+    line_free: LineFree,
+    effects,
+    added: str,
+    n_operators: int,
+    theta: dict,
+    before_um: float,
+    model: CompositeModel | None = None,
 ) -> tuple[CompositeModel, dict | None, dict | None]:
     """Fit ``hysteresis + effects`` (``added`` the effect new in them, warm at ``theta``) on the
     line-free records the step before was diagnosed on (held-out RMS ``before_um``): ``(model, step,
     None)`` with the step diagnosed as ``discovery_step`` does, or ``(model, None, not_kept(...))``
     when the added effect raised the held-out RMS — then nothing is diagnosed and the loop goes back
-    to the step before."""
-    model = fit_composite(line_free.records, effects, n_operators, theta)
+    to the step before. ``model``: that fit, made already (``refitted_choice``)."""
+    model = model if model is not None else fit_composite(line_free.records, effects, n_operators, theta)
     rejected = not_kept(added, before_um, held_out_rms_um(line_free.records, model))
     if rejected is not None:
         return model, None, rejected
@@ -97,7 +103,9 @@ def try_step(
 
 
 @shared_effect_columns()
-def refitted_choice(line_free: LineFree, effects, added: str, n_operators: int, theta: dict, d: dict) -> str:
+def refitted_choice(
+    line_free: LineFree, effects, added: str, n_operators: int, theta: dict, d: dict
+) -> tuple[str, CompositeModel | None]:
     """The grid of the base the loop adds when diagnosis ``d`` names ``added``, a grid with
     alternatives (``Effect.alternative_to``): each alternative ``d`` claimed, refitted with
     ``effects`` (the model's) as the step will be, chosen by ``parsimonious`` on those held-out
@@ -105,19 +113,21 @@ def refitted_choice(line_free: LineFree, effects, added: str, n_operators: int, 
     transforms move with the grid: on a Krasnosel'skii–Pokrovskii stage with a hidden delay, one
     file per block, they read 8.73 nm for ``hysterons`` and 6.88 nm for ``hysterons_fine`` (the
     coarser kept by parsimony, and the loop ended at 2.4× the floor), refitted 5.47 and 2.49 nm.
-    Any other effect is ``added`` itself."""
+    Returns the grid and its fitted model (the step takes it as it is); any other effect is
+    ``(added, None)``."""
     rows = [
         c
         for c in d["candidates"]
         if c.get("claimed") and (c["effect"] == added or c["effect"] in EFFECTS[added].alternative_to)
     ]
     if len(rows) < 2:
-        return added
-    refitted = []
+        return added, None
+    refitted, models = [], {}
     for row in rows:
-        model = fit_composite(line_free.records, [*effects, row["effect"]], n_operators, theta)
-        refitted.append({**row, "expected_rms_um": held_out_rms_um(line_free.records, model)})
-    return parsimonious(refitted, d["noise_floor_um"] or 0.0)["effect"]
+        models[row["effect"]] = fit_composite(line_free.records, [*effects, row["effect"]], n_operators, theta)
+        refitted.append({**row, "expected_rms_um": held_out_rms_um(line_free.records, models[row["effect"]])})
+    chosen = parsimonious(refitted, d["noise_floor_um"] or 0.0)["effect"]
+    return chosen, models[chosen]
 
 
 def next_effect(d: dict, exclude=()) -> str | None:
@@ -212,10 +222,12 @@ def discovery_run(
     for _ in range(max_steps - 1):
         if added is None:
             break
-        added = refitted_choice(line_free, steps[-1]["effects"][1:], added, n_operators, theta, steps[-1]["diagnosis"])
+        added, fitted = refitted_choice(
+            line_free, steps[-1]["effects"][1:], added, n_operators, theta, steps[-1]["diagnosis"]
+        )
         effects = steps[-1]["effects"][1:] + [added]
         before = steps[-1]["diagnosis"]["residual_rms_um"]
-        model, step, rejected = try_step(line_free, effects, added, n_operators, theta, before)
+        model, step, rejected = try_step(line_free, effects, added, n_operators, theta, before, fitted)
         if rejected is not None:
             steps[-1]["not_kept"].append(rejected)
             excluded.append(added)

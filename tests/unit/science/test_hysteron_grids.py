@@ -197,7 +197,8 @@ def test_the_grid_is_chosen_on_refitted_figures_not_the_diagnosis_quick_ones():
     quick[1]["added_parameters"] = GRID_PARAMETERS["hysterons_fine"] + 20
     d = {"noise_floor_um": 2.0e-3, "candidates": quick}
     assert parsimonious(quick, 2.0e-3)["effect"] == "hysterons"  # on the quick figures
-    assert refitted_choice(line_free, ["delay"], "hysterons", 10, theta, d) == "hysterons_fine"
+    chosen, model = refitted_choice(line_free, ["delay"], "hysterons", 10, theta, d)
+    assert chosen == "hysterons_fine" and set(model.effects) == {"delay", "hysterons_fine"}  # the step takes this fit
     refitted = {
         row["effect"]: {
             **row,
@@ -208,4 +209,4 @@ def test_the_grid_is_chosen_on_refitted_figures_not_the_diagnosis_quick_ones():
         for row in quick
     }
     assert remaining_excess(refitted["hysterons_fine"], 2.0e-3) < 0.5 * remaining_excess(refitted["hysterons"], 2.0e-3)
-    assert refitted_choice(line_free, ["delay"], "creep", 10, theta, d) == "creep"  # no alternatives: itself
+    assert refitted_choice(line_free, ["delay"], "creep", 10, theta, d) == ("creep", None)  # no alternatives
