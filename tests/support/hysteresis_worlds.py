@@ -276,26 +276,32 @@ def material_blocks(world, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidd
     return [(u, material(stage_drive_v(hidden, u, fs), bipolar)) for u in blocks_v(u_max_v, bipolar, fs=fs)]
 
 
-def record_blocks(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
-    """[(u_v, x_um)] one per block, each from rest (the "one CSV per block" form)."""
+def record_blocks(
+    world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None, stroke_scale=1.0
+):
+    """[(u_v, x_um)] one per block, each from rest (the "one CSV per block" form); ``stroke_scale``
+    multiplies the stage's motion (a smaller or larger stage behind the same gauge noise)."""
     rng = np.random.default_rng(seed)
     return [
-        (u, hidden_um(hidden, u, x, fs) + rng.normal(0.0, noise_um, u.size))
+        (u, stroke_scale * hidden_um(hidden, u, x, fs) + rng.normal(0.0, noise_um, u.size))
         for u, x in material_blocks(world, u_max_v, bipolar, fs, hidden)
     ]
 
 
-def record_long(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None):
-    """(u_v, x_um) of every block one after the other, with their rests, in one record."""
+def record_long(
+    world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, hidden=None, stroke_scale=1.0
+):
+    """(u_v, x_um) of every block one after the other, with their rests, in one record
+    (``stroke_scale`` as in ``record_blocks``)."""
     u = np.concatenate(blocks_v(u_max_v, bipolar, fs=fs))
-    x = hidden_um(hidden, u, WORLDS[world](stage_drive_v(hidden, u, fs), bipolar), fs)
+    x = stroke_scale * hidden_um(hidden, u, WORLDS[world](stage_drive_v(hidden, u, fs), bipolar), fs)
     return u, x + np.random.default_rng(seed).normal(0.0, noise_um, u.size)
 
 
 def records(world: str, form: str = "blocks", noise_um: float = 0.002, seed: int = 0, **drive):
     """Held-out product Records of the world, imported as a lab's CSVs would be (blocks cut by the
     importer): ``form`` "blocks" (one record per block) or "long" (one record); ``drive``: u_max_v,
-    bipolar, fs (Hz) and hidden (an effect of ``hidden_um``)."""
+    bipolar, fs (Hz), hidden (an effect of ``hidden_um``) and stroke_scale."""
     pairs = (
         record_blocks(world, noise_um, seed, **drive)
         if form == "blocks"

@@ -2,7 +2,7 @@
 with, against the noise floor, on held-out cycles.
 
     .venv/bin/python -m tests.support.world_matrix [--worlds bw_n2 preisach_gauss] [--forms blocks long]
-        [--noise-nm 2] [--bipolar] [--json out.json]
+        [--noise-nm 2] [--stroke-scale 0.1] [--bipolar] [--json out.json]
     .venv/bin/python -m tests.support.world_matrix --base-only [--n-operators 5] [--fs 5000] ...
 
 
@@ -24,12 +24,18 @@ from tests.support.hysteresis_worlds import HIDDEN, WORLDS, records
 
 
 def run_stage(
-    world: str, form: str, noise_nm: float = 2.0, seed: int = 0, bipolar: bool = False, hidden: str | None = None
+    world: str,
+    form: str,
+    noise_nm: float = 2.0,
+    seed: int = 0,
+    bipolar: bool = False,
+    hidden: str | None = None,
+    stroke_scale: float = 1.0,
 ) -> dict:
     """One stage through the discovery loop: figures in nm, effects added, seconds."""
     from service.science.discovery.loop import discovery_run
 
-    recs = records(world, form, noise_nm * 1e-3, seed, bipolar=bipolar, hidden=hidden)
+    recs = records(world, form, noise_nm * 1e-3, seed, bipolar=bipolar, hidden=hidden, stroke_scale=stroke_scale)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -42,6 +48,7 @@ def run_stage(
         "bipolar": bipolar,
         "hidden": hidden,
         "noise_nm": noise_nm,
+        "stroke_scale": stroke_scale,
         "first_nm": first["residual_rms_um"] * 1e3,
         "end_nm": last["residual_rms_um"] * 1e3,
         "floor_nm": floor,
@@ -91,6 +98,7 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bipolar", action="store_true")
     ap.add_argument("--hidden", choices=HIDDEN, help="one physical effect behind the material")
+    ap.add_argument("--stroke-scale", type=float, default=1.0, help="the stage's motion × this (same noise)")
     ap.add_argument("--json")
     ap.add_argument("--base-only", action="store_true", help="fit the hysterons base alone, no loop")
     ap.add_argument("--n-operators", type=int, default=10, help="with --base-only: the PI's play operators")
@@ -109,7 +117,7 @@ def main(argv=None) -> None:
     rows = []
     for world in args.worlds:
         for form in args.forms:
-            rows.append(run_stage(world, form, args.noise_nm, args.seed, args.bipolar, args.hidden))
+            rows.append(run_stage(world, form, args.noise_nm, args.seed, args.bipolar, args.hidden, args.stroke_scale))
             r = rows[-1]
             print(
                 f"{world:18s} {form:6s} first {r['first_nm']:7.2f} end {r['end_nm']:7.2f} floor {r['floor_nm']:5.2f} "
