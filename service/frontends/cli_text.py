@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
+from service.render.text import step_change
 from service.science.data.units import fmt_nm
 
 
@@ -15,12 +16,8 @@ def discovery_text(result: dict) -> str:
         f"final model {result['final_model_id']}: {' + '.join(result['effects'] or [])} (stopped: {result['stopped']})"
     ]
     for step in result["steps"]:
-        change = (
-            f"+{step['added']}"
-            if step["added"]
-            else f"+data {step['experiment_dataset_id']}"
-            if step.get("experiment_dataset_id")
-            else ""
+        change = step_change(step) or (
+            f"+data {step['experiment_dataset_id']}" if step.get("experiment_dataset_id") else ""
         )
         same = step.get("like_for_like_rms_um")
         lines.append(

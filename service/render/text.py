@@ -15,3 +15,11 @@ def breaks_a_line(character: str) -> bool:
 def one_line_text(text) -> str:
     """``text`` with every control character and line separator shown as a space."""
     return "".join(" " if breaks_a_line(c) else c for c in str(text))
+
+
+def step_change(step: dict) -> str | None:
+    """What a discover step changed, in words: "+creep", "hysterons_fine in place of hysterons" (the
+    base's grid swapped at the loop's end), or None (the start, or a refit on an experiment's data)."""
+    if step.get("replaced"):
+        return f"{step['added']} in place of {step['replaced']}"
+    return f"+{step['added']}" if step.get("added") else None

@@ -21,6 +21,7 @@ from fastapi.testclient import TestClient
 
 from service.frontends.client import Client
 from service.http.app import create_app
+from service.render.text import step_change
 from service.runtime.settings import Settings
 from service.science.data.units import fmt_nm
 
@@ -44,7 +45,7 @@ def table(result: dict) -> str:
     """The run as text: one line per step, then the experiments and the stop."""
     lines = ["step  change               held-out   like for like   original data   noise floor"]
     for s in result.get("steps", []):
-        change = f"+{s['added']}" if s["added"] else ("+data" if s["experiment_dataset_id"] else "start")
+        change = step_change(s) or ("+data" if s["experiment_dataset_id"] else "start")
         lines.append(
             f"{s['step']:>4}  {change:<20} {fmt_nm(s['validation_rms_um'], 4):>9}  "
             f"{fmt_nm(s['like_for_like_rms_um'], 4):>13}  {fmt_nm(s['original_data_rms_um'], 4):>14}  "

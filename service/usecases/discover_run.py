@@ -16,6 +16,8 @@ refit on an experiment's data does not. An added effect that raises the held-out
 is not kept (``not_kept``): the loop stays on the step before and tries the next candidate. When an
 experiment adds data, every step is scored again on the enlarged data (``like_for_like_rms_um``,
 service.science.discovery.like_for_like), beside its figure on the data the run started from.
+Where the loop would stop short of the noise floor, the base's grid is compared once with its
+alternatives refitted in its place (``grid_swap``); a step that swaps it reports ``replaced``.
 """
 
 from __future__ import annotations
@@ -23,23 +25,23 @@ from __future__ import annotations
 from dataclasses import replace
 
 from service.runtime.jobs import JobContext, JobInterrupted
-from service.science.data.units import fmt_nm
 from service.science.discovery.composite import as_composite
 from service.science.discovery.diagnosis import fitted_without_lines
 from service.science.discovery.like_for_like import effects_key, like_for_like
 from service.science.discovery.loop import (
     MAX_STEPS,
     discovery_step,
+    grid_swap,
     needed_experiment,
     next_effect,
     refitted_choice,
     try_step,
 )
-from service.science.discovery.parameters import parameter_units, physical_parameters
 from service.science.discovery.rests import LineFree
 from service.science.effects import ordered
 from service.store import Store
 from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments
+from service.usecases.discover_result import discover_result, fit_label, step_summary, step_words
 from service.usecases.identify import load_model, load_record, load_records, store_model
 
 
@@ -82,17 +84,25 @@ def discover(
                 continue
             needed = needed if skipped else need
             stop = _stop_without_experiment(d, need, add, why, continue_past_ambiguity or skipped)
+            swapped = loop.try_swap(ctx, store, d, max_steps) if stop is not None and add is None else None
+            if swapped is not None:
+                d, fresh = swapped, True
+                continue
             if stop is not None:
                 stopped, reason = stop
                 break
         if add is None:
+            swapped = loop.try_swap(ctx, store, d, max_steps)
+            if swapped is not None:
+                d, fresh = swapped, True
+                continue
             stopped, reason = _natural_stop(d), d["answer"]["text"] + loop.not_kept_words()
             break
         if loop.model_steps >= max_steps:
             break
         tried = loop.try_add(ctx, store, add, d, max_steps)
         d, fresh = (tried, True) if tried is not None else (d, False)
-    return _result(loop.run, needed, stopped, reason, loop.run.get("final_model"))
+    return discover_result(loop.run, needed, stopped, reason, loop.run.get("final_model"))
 
 
 class _Loop:
@@ -122,6 +132,8 @@ class _Loop:
             else {"kind": row["kind"], "validation_rms_um": (row.get("metrics") or {}).get("validation_rms_um")}
         )
         self.excluded, self.asked, self.model_steps = [], [], 0
+        #: whether the base's grid has been compared with its alternatives at the loop's end (once a run)
+        self.swapped = False
         #: the bench's check and cut of a sweep, for the experiments a step proposes (None: as named)
         self.fit = None
         self.history, self.fitted, self.scores = [], {}, {}
@@ -147,13 +159,15 @@ class _Loop:
         if ctx.cancelled:
             raise JobInterrupted(
                 f"cancelled after step {len(self.run['steps']) - 1}",
-                result=_result(self.run, None, "cancelled", "cancelled between steps", self.run.get("final_model")),
+                result=discover_result(
+                    self.run, None, "cancelled", "cancelled between steps", self.run.get("final_model")
+                ),
                 cancelled=True,
             )
 
     def _progress(self, ctx: JobContext, max_steps: int, message: str, partial: bool = False) -> None:
         fraction = min(0.99, self.model_steps / max_steps)
-        result = _result(self.run, None, "running", None, self.model) if partial else None
+        result = discover_result(self.run, None, "running", None, self.model) if partial else None
         ctx.progress(fraction, message, partial=result)
 
     def step(self, ctx: JobContext, store: Store, max_steps: int) -> dict:
@@ -194,6 +208,28 @@ class _Loop:
         self.effects, self.model, self.excluded = effects, model, []
         return self._keep(ctx, store, step, max_steps)
 
+    def try_swap(self, ctx: JobContext, store: Store, d: dict, max_steps: int) -> dict | None:
+        """Where the loop would stop short of the noise floor: the base's grid against its alternatives
+        refitted in its place (``grid_swap``, once a run, while model steps are left); the next step's
+        diagnosis when another grid wins, else None. A model step either way."""
+        if self.swapped or self.model is None or self.model_steps >= max_steps:
+            return None
+        self.raise_if_cancelled(ctx)
+        self.swapped = True
+        self.model_steps += 1
+        index = len(self.run["steps"])
+        self._progress(ctx, max_steps, f"step {index}: refitting the base's other grids with every effect kept")
+        swap = grid_swap(self.line_free, self.effects, self.n_operators, d, self.model)
+        if swap is None:
+            return None
+        effects = [e for e in self.effects if e != swap["replaced"]] + [swap["effect"]]
+        self.model, step = discovery_step(self.line_free, effects, self.n_operators, model=swap["model"])
+        index_added, _ = self.run["added"].pop(swap["replaced"], (index, None))
+        row = {"kind": "capacity", "evidence": swap["evidence"], "p_value": None, "score": None}
+        self.run["added"][swap["effect"]] = (index, {**row, "expected_rms_um": swap["held_out_rms_um"]})
+        self.effects, self.excluded = effects, []
+        return self._keep(ctx, store, step, max_steps)
+
     def _keep(self, ctx: JobContext, store: Store, step: dict, max_steps: int) -> dict:
         """The step just diagnosed joins the run: stored, scored like for like, reported."""
         self.theta, d = self.model.theta, step["diagnosis"]
@@ -201,8 +237,8 @@ class _Loop:
         step_id = self.model_id if index == 0 else self._store(store, ctx, self.model, self.effects)
         if self.fit is not None:
             fit_experiments(d, self.fit, self.records, ambiguity=False)
-        self.run["steps"].append(_step_summary(index, step_id, step, self.run, self.joined))
-        self.run["steps"][-1]["fit"] = _fit_label(index, self.stands_in, step["effects"])
+        self.run["steps"].append(step_summary(index, step_id, step, self.run, self.joined))
+        self.run["steps"][-1]["fit"] = fit_label(index, self.stands_in, step["effects"])
         if self.joined is not None:
             self.run["experiments"][-1]["resolved"] = _resolved(self.run["experiments"][-1]["effects"], d)
             self.fitted, self.scores = {}, {}  # the records grew: every step is scored again on them
@@ -212,7 +248,7 @@ class _Loop:
         self.fitted[effects_key(self.effects)] = self.model
         self._score()
         self.run["final_model"] = self.model
-        self._progress(ctx, max_steps, _step_words(self.run["steps"][-1]), partial=True)
+        self._progress(ctx, max_steps, step_words(self.run["steps"][-1]), partial=True)
         return d
 
     def _score(self) -> None:
@@ -324,119 +360,3 @@ def _resolved(effects: list[str], d: dict) -> bool:
     still = set(d["ambiguity"]["effects"]) if d.get("ambiguity") else set()
     still |= {c["effect"] for c in d.get("not_testable", [])}
     return not set(effects) <= still
-
-
-def _step_summary(index: int, model_id: str, step: dict, run: dict, joined: str | None) -> dict:
-    """One step as the result shows it (µm); ``joined``: the experiment's dataset new in its fit."""
-    d = step["diagnosis"]
-    previous = run["steps"][-1] if run["steps"] else None
-    added = [e for e in step["effects"] if previous and e not in previous["effects"]]
-    return {
-        "step": index,
-        "model_id": model_id,
-        "parent_id": previous["model_id"] if previous else None,
-        "effects": step["effects"],
-        "added": added[0] if added else None,
-        "experiment_dataset_id": joined,
-        "not_kept": [],
-        "validation_rms_um": d["residual_rms_um"],
-        "train_rms_um": d["train_rms_um"],
-        "noise_floor_um": d["noise_floor_um"],
-        "ratio_to_noise_floor": _ratio(d["residual_rms_um"], d["noise_floor_um"]),
-        "at_noise_floor": d["at_noise_floor"],
-        "verdict": d["verdict"],
-        "verdict_text": d["verdict_text"],
-        "answer_text": d["answer"]["text"],
-        "ambiguous": d["ambiguity"]["effects"] if d.get("ambiguity") else None,
-        "per_block": [
-            {**b, "ratio_to_noise_floor": _ratio(b["validation_rms_um"], b["noise_floor_um"])}
-            for b in step["per_block"]
-        ],
-        "not_testable": [
-            {"effect": c["effect"], "reason": c["reason"], "experiment": c["experiment"]} for c in d["not_testable"]
-        ],
-    }
-
-
-def _step_words(step: dict) -> str:
-    change = f"+{step['added']}" if step["added"] else ("refit with the experiment" if step["step"] else "start")
-    return (
-        f"step {step['step']} ({change}): model {step['model_id']}, held-out RMS "
-        f"{fmt_nm(step['validation_rms_um'])}, noise floor {fmt_nm(step['noise_floor_um'])}"
-    )
-
-
-def _ratio(value_um: float | None, floor_um: float | None) -> float | None:
-    return value_um / floor_um if value_um is not None and floor_um else None
-
-
-def _result(run: dict, needed: dict | None, stopped: str, reason: str | None, final_model) -> dict:
-    """The job's answer (also its partial result while it runs)."""
-    steps = run["steps"]
-    last = steps[-1] if steps else None
-    parameters = physical_parameters(final_model) if final_model is not None else {}
-    found = [
-        {
-            "effect": name,
-            # the role it was added in: a loop-shape effect on a base that draws any loop shape is
-            # capacity there (loop_shape.loop_shape_as_capacity), never reported as physics
-            "kind": c["kind"],
-            "added_at_step": index,
-            "parameters": parameters.get(name, {}),
-            "units": parameter_units(name, parameters.get(name, {})),
-            "evidence": c["evidence"],
-            "p_value": c["p_value"],
-            "score": c["score"],
-            "expected_rms_um": c["expected_rms_um"],
-        }
-        for name, (index, c) in run["added"].items()
-        if index < len(steps)
-    ]
-    remains = (
-        None
-        if last is None
-        else {
-            k: last[k]
-            for k in (
-                "validation_rms_um",
-                "noise_floor_um",
-                "ratio_to_noise_floor",
-                "at_noise_floor",
-                "verdict",
-                "verdict_text",
-                "answer_text",
-                "per_block",
-                "not_testable",
-            )
-        }
-    )
-    return {
-        "start_model_id": run["start_model_id"],
-        "axis": run["axis"],
-        "final_model_id": last["model_id"] if last else None,
-        "effects": last["effects"] if last else None,
-        "final_parameters": parameters,
-        "steps": list(steps),
-        "effects_found": found,
-        "remains": remains,
-        "stopped": stopped,
-        "stop_reason": reason,
-        "needed_experiment": needed,
-        "experiments": list(run["experiments"]),
-        "suggested_experiments": list(run["suggested"]),
-        "not_kept": list(run["not_kept"]),
-        "original_datasets": list(run["original_datasets"]),
-        "like_for_like_datasets": list(run.get("like_for_like_datasets") or run["original_datasets"]),
-    }
-
-
-def _fit_label(index: int, stands_in: dict | None, effects: list[str]) -> str:
-    """Which fit a step's figures are of. Step 0 of a paper's model (static/dynamic PI, GRPI) is the
-    composite fitted on the same data standing for it, whose held-out RMS differs from the one the
-    model's own page shows (the stored model's): both are named."""
-    if index == 0 and stands_in is not None:
-        return (
-            f"the composite {' + '.join(effects)} fitted on the same data, standing for this {stands_in['kind']} "
-            f"(the {stands_in['kind']}'s own held-out RMS, on its page: {fmt_nm(stands_in['validation_rms_um'], 4)})"
-        )
-    return "the start model as stored" if index == 0 else "this step's stored model"

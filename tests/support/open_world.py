@@ -153,6 +153,8 @@ def _added_as_physics(steps: list[dict]) -> list[str]:
     kind "physical" (a loop-shape effect on a base that draws any loop shape is offered as capacity)."""
     out = []
     for before, step in zip(steps, steps[1:]):
+        if step.get("replaced"):
+            continue  # the base's grid swapped at the loop's end: capacity, never physics
         added = step["effects"][-1]
         row = next(c for c in before["diagnosis"]["candidates"] if c["effect"] == added)
         if row["kind"] == "physical":

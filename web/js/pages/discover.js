@@ -138,7 +138,7 @@ function renderRun(out, r, { signal, imported }) {
       <th class="num" title="the like-for-like fit (this step's effects refitted on every dataset the run has now) scored on the held-out cycles of the data the run started from: not the step's own fit, so it can differ from its held-out RMS on the same data">like for like, on the original data</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
-      <td>${s.step}</td><td>${s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(held-out RMS over more data; like for like beside it)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
+      <td>${s.step}</td><td>${s.replaced ? `<b>${esc(s.added)}</b> <span class="muted">in place of ${esc(s.replaced)} (the base's grid, compared at the loop's end)</span>` : s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(held-out RMS over more data; like for like beside it)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
       <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
       <td class="num">${fmtErrorNm(s.validation_rms_um)}</td>
       <td class="num like-for-like" data-rms="${s.like_for_like_rms_um ?? ''}">${fmtErrorNm(s.like_for_like_rms_um)}</td>
