@@ -357,22 +357,8 @@ def test_a_loop_shape_effect_added_on_the_wider_base_is_reported_as_capacity(tmp
     capacity, never as physics, on the API and in the CLI's words. (The self-heating Maxwell-slip stage
     this test first used now adds ``rate_dependence`` there: its heat follows the drive's rate, and
     with its step-hold read as steps that is what the held-out data show.)"""
-    import numpy as np
-
-    from tests.support.hysteresis_worlds import record_blocks
-
-    fs_hz = 5000.0
     with authed_client(create_app(Settings(data_dir=tmp_path / "var", bench="default", seed=0))) as http:
-        datasets = []
-        for k, (u, x) in enumerate(record_blocks("jiles_atherton", 0.002, 1, fs=fs_hz)):
-            path = tmp_path / f"block{k}.csv"
-            np.savetxt(path, np.column_stack([u, x]), delimiter=",", header="u,x", comments="", fmt="%.9g")
-            with path.open("rb") as f:
-                answer = http.post(
-                    "/api/datasets", files={"file": (path.name, f)}, data={"sample_rate_hz": str(fs_hz), "axis": "y"}
-                )
-            assert answer.status_code == 201, answer.text
-            datasets.append(answer.json()["id"])
+        datasets = _imported_blocks(http, tmp_path, "jiles_atherton", seed=1)
         r = http.post("/api/models", json={"axis": "y", "datasets": datasets, "effects": ["hysteresis"]})
         base = _result(http, r.json()["job_id"])["model_id"]
         r = http.post(f"/api/models/{base}/discover", json={"max_steps": 3, "continue_past_ambiguity": True})
@@ -393,22 +379,8 @@ def test_the_base_grid_is_swapped_at_the_loop_end_where_another_grid_draws_the_r
     (``grid_swap``): with operators and asymmetry added, the fine grid halves the held-out RMS (4.68 →
     2.32 nm against a 2.00 nm floor, measured); the step says what it replaced, the grid is found as
     capacity, and the CLI's words agree."""
-    import numpy as np
-
-    from tests.support.hysteresis_worlds import record_blocks
-
-    fs_hz = 5000.0
     with authed_client(create_app(Settings(data_dir=tmp_path / "var", bench="default", seed=0))) as http:
-        datasets = []
-        for k, (u, x) in enumerate(record_blocks("krasnoselskii_pokrovskii", 0.002, 0, fs=fs_hz)):
-            path = tmp_path / f"block{k}.csv"
-            np.savetxt(path, np.column_stack([u, x]), delimiter=",", header="u,x", comments="", fmt="%.9g")
-            with path.open("rb") as f:
-                answer = http.post(
-                    "/api/datasets", files={"file": (path.name, f)}, data={"sample_rate_hz": str(fs_hz), "axis": "y"}
-                )
-            assert answer.status_code == 201, answer.text
-            datasets.append(answer.json()["id"])
+        datasets = _imported_blocks(http, tmp_path, "krasnoselskii_pokrovskii", seed=0)
         r = http.post("/api/models", json={"axis": "y", "datasets": datasets, "effects": ["hysteresis", "hysterons"]})
         base = _result(http, r.json()["job_id"])["model_id"]
         r = http.post(f"/api/models/{base}/discover", json={"max_steps": 8, "continue_past_ambiguity": True})
@@ -422,3 +394,23 @@ def test_the_base_grid_is_swapped_at_the_loop_end_where_another_grid_draws_the_r
     assert "hysterons" not in found and found["hysterons_fine"]["kind"] == "capacity", found
     assert "in place of hysterons" in found["hysterons_fine"]["evidence"]
     assert "hysterons_fine in place of hysterons" in discovery_text(result)
+
+
+def _imported_blocks(http, tmp_path, world: str, seed: int, fs_hz: float = 5000.0) -> list[str]:
+    """The ids of a stage of tests/support/hysteresis_worlds.py imported one CSV per block (u, x; 2 nm
+    of gauge noise; ``fs_hz``), as another lab's files would be."""
+    import numpy as np
+
+    from tests.support.hysteresis_worlds import record_blocks
+
+    datasets = []
+    for k, (u, x) in enumerate(record_blocks(world, 0.002, seed, fs=fs_hz)):
+        path = tmp_path / f"block{k}.csv"
+        np.savetxt(path, np.column_stack([u, x]), delimiter=",", header="u,x", comments="", fmt="%.9g")
+        with path.open("rb") as f:
+            answer = http.post(
+                "/api/datasets", files={"file": (path.name, f)}, data={"sample_rate_hz": str(fs_hz), "axis": "y"}
+            )
+        assert answer.status_code == 201, answer.text
+        datasets.append(answer.json()["id"])
+    return datasets
