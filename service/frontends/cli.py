@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections.abc import Callable
 from importlib.metadata import entry_points
@@ -34,8 +35,21 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     app = create_app(settings)
     server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
     install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
-    server.run()
+    try:
+        server.run()
+    finally:  # also when uvicorn re-raises Ctrl-C's KeyboardInterrupt after its shut-down
+        exit_if_a_job_is_left(getattr(app.state, "jobs", None))
     return 0
+
+
+def exit_if_a_job_is_left(jobs) -> None:
+    """After the service's shut-down (the bench closed at 0 V, the store closed, every job ended in
+    it): exit now if a job's thread is still at work — a fit sees its cancel only between steps, and
+    the interpreter would otherwise wait for it at exit, minutes with Ctrl-C seemingly ignored."""
+    if jobs is not None and jobs.job_threads_alive():
+        logging.getLogger("evcbench.jobs").warning("exiting without waiting for a job that did not stop")
+        logging.shutdown()
+        os._exit(0)
 
 
 def _serve_settings(args: argparse.Namespace) -> Settings:

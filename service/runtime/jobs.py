@@ -36,6 +36,12 @@ PERSIST_EVERY_S = 0.5
 BENCH_SWITCH_INTERVAL_S = 0.0005
 SSE_POLL_S = 0.1
 SSE_HEARTBEAT_S = 15.0
+#: how long a stopping service waits for its running jobs (s), and how often it looks (s)
+SHUTDOWN_WAIT_S, SHUTDOWN_POLL_S = 30.0, 0.05
+#: a job the service stopped under, ended in the store so (service.runtime.recovery would say "interrupted")
+SHUTDOWN_LEFT = "cancelled: the service stopped while it ran, and it did not reach a point where it could stop"
+#: the job threads' names begin so
+JOB_THREAD_PREFIX = "evc-job"
 #: How often an open event stream re-checks its caller's token (s): a revoked token's stream ends.
 SSE_RECHECK_S = 1.0
 
@@ -151,7 +157,7 @@ class JobManager:
         self._bench_queue: queue.Queue[str | None] = queue.Queue()
         # job threads run as any program even when a raised thread (the stop's, cancelling) starts them
         at_work = {"initializer": set_thread_nice, "initargs": (WORK_NICE,)}
-        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="evc-job", **at_work)
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=JOB_THREAD_PREFIX, **at_work)
         self._persister = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evc-progress", **at_work)
         self._bench_thread = threading.Thread(target=self._bench_worker, name="evc-bench-owner", daemon=True)
         self._running_bench_job: str | None = None
@@ -283,17 +289,37 @@ class JobManager:
                 last_sent = time.monotonic()
             await asyncio.sleep(SSE_POLL_S)
 
-    def shutdown(self, timeout_s: float = 30.0) -> None:
-        """Stop taking jobs, cancel the queued ones, ask the running ones to stop, and wait."""
+    def shutdown(self, timeout_s: float = SHUTDOWN_WAIT_S) -> list[str]:
+        """Stop taking jobs, cancel the queued ones, ask the running ones to stop, and wait for them at
+        most ``timeout_s`` (s). A job still running then (a fit sees its cancel only between steps, and
+        one step can take minutes) is ended in the store as cancelled, SHUTDOWN_LEFT; its thread is left
+        to the process's exit (``serve`` does not wait for it). Returns the ids of the jobs left so."""
         self._closed = True
-        with self._lock:
-            ids = [i for i, live in self._live.items() if live.state in ("queued", "running")]
-        for job_id in ids:
+        deadline = time.monotonic() + timeout_s
+        for job_id in self._unfinished(("queued", "running")):
             self.cancel(job_id)
         self._bench_queue.put(None)
-        self._bench_thread.join(timeout_s)
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._bench_thread.join(max(0.0, deadline - time.monotonic()))
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        while self._unfinished(("running",)) and time.monotonic() < deadline:
+            time.sleep(SHUTDOWN_POLL_S)
+        left = self._unfinished(("running",))
+        for job_id in left:
+            with self._lock:
+                if job_id in self._live:
+                    self._finish(job_id, "cancelled", message=SHUTDOWN_LEFT)
+        if left:
+            log.warning("service stopping: job(s) %s did not stop within %g s; ended as cancelled", left, timeout_s)
         self._persister.shutdown(wait=True)
+        return left
+
+    def job_threads_alive(self) -> bool:
+        """Whether a job's thread is still at work (after ``shutdown``: one that did not stop in time)."""
+        return any(t.name.startswith(JOB_THREAD_PREFIX) and t.is_alive() for t in threading.enumerate())
+
+    def _unfinished(self, states: tuple[str, ...]) -> list[str]:
+        with self._lock:
+            return [i for i, live in self._live.items() if live.state in states]
 
     # ------------------------------------------------------------------ workers
     def _bench_worker(self) -> None:

@@ -56,9 +56,9 @@ def safe_state(app: Any, reason: str) -> dict:
 
 
 def cancelled_words(running: str | None, queued: list[str]) -> str:
-    """The bench jobs a stop cancelled, in words: "running job J cancelled, queued K, L cancelled",
-    "no job was running, none queued"."""
-    ran = f"running job {running} cancelled" if running else "no job was running"
+    """The bench jobs a stop cancelled, in words: "running bench job J cancelled, queued K, L cancelled",
+    "no bench job was running, none queued" (a fit is no bench job: an emergency stop leaves it be)."""
+    ran = f"running bench job {running} cancelled" if running else "no bench job was running"
     return f"{ran}, " + (f"queued {', '.join(queued)} cancelled" if queued else "none queued")
 
 

@@ -6,17 +6,22 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
 from service.runtime import jobs as jobs_module
-from service.runtime.jobs import JobInterrupted, JobManager
+from service.runtime.jobs import SHUTDOWN_LEFT, JobInterrupted, JobManager
 from service.runtime.recovery import recover
 from service.security import auth
 from service.store import utc_now
 from tests.support.api_client import job_running, wait_job
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_bench_jobs_run_one_at_a_time_in_order_and_others_beside(store):
@@ -253,3 +258,41 @@ def test_a_running_job_shows_its_result_so_far_and_the_bench_jobs_are_listed(sto
         finish.set()
         bench_free.set()
         manager.shutdown()
+
+
+def test_a_job_that_does_not_stop_is_ended_and_never_holds_the_process(store, tmp_path):
+    """A fit sees its cancel only between steps (one can take minutes): shutdown waits for it at most
+    its timeout, ends it in the store as cancelled (SHUTDOWN_LEFT), and ``serve``'s exit does not wait
+    for its thread (a walk's service sat minutes in "Waiting for application shutdown", Ctrl-C ignored)."""
+    release = threading.Event()
+    manager = JobManager(store)
+    try:
+        stubborn = manager.submit("discover", None, lambda ctx: {"released": release.wait(60)}, needs_bench=False)
+        wait_job(manager.get, stubborn["id"], until=job_running())
+        left = manager.shutdown(timeout_s=0.3)
+        assert left == [stubborn["id"]] and not release.is_set()  # returned while the job was still at work
+        row = store.get_job(stubborn["id"])
+        assert row["state"] == "cancelled" and row["message"] == SHUTDOWN_LEFT, row
+        assert manager.job_threads_alive()
+    finally:
+        release.set()
+
+    # the same in a process of its own, through serve's exit: it ends though its job never would
+    program = tmp_path / "stubborn.py"
+    program.write_text(
+        "import threading, sys\n"
+        "from service.frontends.cli import exit_if_a_job_is_left\n"
+        "from service.runtime.jobs import JobManager\n"
+        "from service.store import Store\n"
+        f"store = Store('sqlite:///{tmp_path}/p.db', {str(tmp_path)!r})\n"
+        "manager = JobManager(store)\n"
+        "started = threading.Event()\n"
+        "job = manager.submit('discover', None, lambda ctx: (started.set(), threading.Event().wait(3600)), needs_bench=False)\n"
+        "started.wait(30)\n"
+        "print(manager.shutdown(timeout_s=0.2) == [job['id']], flush=True)\n"
+        "store.close()\n"
+        "exit_if_a_job_is_left(manager)\n"
+        "sys.exit(3)  # not reached: the exit above does not wait for the job\n"
+    )
+    done = subprocess.run([sys.executable, str(program)], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 0 and done.stdout.strip() == "True", done.stderr[-2000:]

@@ -337,9 +337,9 @@ def test_a_port_stop_logs_the_jobs_it_cancelled_in_words(store, caplog):
             queued = [manager.submit("sweep", None, lambda ctx: {}, needs_bench=True)["id"] for _ in range(2)]
             link._cancel_jobs("emergency stop")
         idle, busy = [r.getMessage() for r in caplog.records if r.name == "evcbench.safety"]
-        assert idle == "emergency stop (stop port): outputs at 0 V, no job was running, none queued"
+        assert idle == "emergency stop (stop port): outputs at 0 V, no bench job was running, none queued"
         assert busy == (
-            f"emergency stop (stop port): outputs at 0 V, running job {holder['id']} cancelled, "
+            f"emergency stop (stop port): outputs at 0 V, running bench job {holder['id']} cancelled, "
             f"queued {queued[0]}, {queued[1]} cancelled"
         )
     finally:
