@@ -27,6 +27,7 @@ from service.science.discovery.signature_dictionary import (
     pool,
     pool_factor,
 )
+from service.science.effects import EFFECTS
 
 #: family-wise false-description rate over the signatures tried on one residual
 FAMILY_ALPHA = 0.01
@@ -198,6 +199,8 @@ def describe_remainder(records, residuals, predictions, noise_um: float | None =
         "span_um": max(float(np.ptp(p)) for p in predictions),
         "frequencies_hz": sorted({f for r in records for s in r.splits if (f := axis_frequency_hz(s.block, r.axis))}),
         "rows": {id(r): _rows(r) for r in records},  # (training, unseen) per record
+        # the rate words name the amplifier only where a rate limit's own rule lets it act here
+        "amplifier_can_limit": any(e.limits_rate and e.untestable(records) is None for e in EFFECTS.values()),
     }
     judged = [j for s in signatures if (j := _judge(s, records, residuals, predictions, ctx, noise_um)) is not None]
     threshold = NormalDist().inv_cdf(1 - FAMILY_ALPHA / max(len(judged), 1))

@@ -95,19 +95,30 @@ def _square_words(coef, ctx) -> str:
     )
 
 
+#: where no rate limit can act on the records (the amplifier's rating is known and the drives stay well
+#: under it), the rate words say so rather than name the amplifier
+NOT_THE_AMPLIFIER = "not the amplifier: these drives stay well under its rated rate"
+
+
 def _rate_words(coef, ctx) -> str:
+    causes = (
+        "a lag, a rate-dependent loop, or an amplifier that cannot follow the command (a slew-rate limit)"
+        if ctx.get("amplifier_can_limit", True)
+        else f"a lag or a rate-dependent loop ({NOT_THE_AMPLIFIER})"
+    )
     return (
         "the error follows the drive's rate: it is largest where the drive moves fastest (the fastest block, "
-        "the steps) and changes sign with it: a lag, a rate-dependent loop, or an amplifier that cannot follow "
-        "the command (a slew-rate limit)"
+        f"the steps) and changes sign with it: {causes}"
     )
 
 
 def _slew_words(coef, ctx) -> str:
-    return (
-        "the error grows with the square of the drive's rate and appears only where the rate is highest: the "
-        "amplifier cannot follow the command there (a slew-rate or current limit into the stack's capacitance)"
+    causes = (
+        "the amplifier cannot follow the command there (a slew-rate or current limit into the stack's capacitance)"
+        if ctx.get("amplifier_can_limit", True)
+        else f"a rate-dependent loop or a mode the model does not draw ({NOT_THE_AMPLIFIER})"
     )
+    return f"the error grows with the square of the drive's rate and appears only where the rate is highest: {causes}"
 
 
 def _block_words(coef, ctx) -> str:
@@ -120,8 +131,13 @@ def _block_words(coef, ctx) -> str:
     if top == len(freqs) - 1 and (others.size == 0 or amp[top] > 3 * others.max()):
         return (
             f"the error repeats cycle to cycle only in the fastest block ({'; '.join(parts)}), where the drive's "
-            "rate is highest: the amplifier cannot follow there (a slew-rate or current limit into the stack's "
-            "capacitance), or a mode near that frequency"
+            "rate is highest: "
+            + (
+                "the amplifier cannot follow there (a slew-rate or current limit into the stack's capacitance), "
+                "or a mode near that frequency"
+                if ctx.get("amplifier_can_limit", True)
+                else f"a mode near that frequency or a rate-dependent loop ({NOT_THE_AMPLIFIER})"
+            )
         )
     growth = np.polyfit(np.log(freqs), np.log(np.maximum(amp, 1e-9)), 1)[0] if len(freqs) >= 3 else 0.0
     if growth > 0.5:

@@ -144,6 +144,10 @@ class Effect:
     #: a disturbance the record's rests show (a line at rest): the diagnosis takes it out of the record
     #: before the model is judged and names this effect for it, the rests' held-out test its evidence
     seen_at_rest: ClassVar[bool] = False
+    #: an amplifier's rate limit: a remainder's words name an amplifier that cannot follow only where
+    #: such an effect's own rule (``untestable``) lets it act on the records
+    #: (service.science.discovery.remainder)
+    limits_rate: ClassVar[bool] = False
     #: look-alikes: other effect -> (how to tell them apart in words, the /api/sweeps body that does;
     #: a step body's levels as ``level_shares``, as in ``sweep``)
     separated_from: ClassVar[dict[str, tuple[str, dict]]] = {}

@@ -66,6 +66,7 @@ def amplifier_slew_v_per_s(current_a: float, capacitance_f: float, slew_v_per_s:
 class SlewLimit(Effect):
     name = "slew_limit"
     stage = "drive"
+    limits_rate = True
     point_symmetric = True  # a rate limit of a point-symmetric drive is point-symmetric
     signature = (
         "the error appears only where the drive's rate is highest (the fastest block's steepest parts) and "
