@@ -227,6 +227,9 @@ class Answer(BaseModel):
     missing: str | None = Field(description="the effect the verdict names (physics), or the capacity to add, or None")
     kind: str | None = Field(description="physical | capacity | None")
     expected_rms_um: float | None = Field(description="the held-out RMS with it added")
+    ambiguous_with: str | None = Field(
+        default=None, description="the look-alike the data cannot tell ``missing`` from (the diagnosis's ambiguity)"
+    )
     remains: str | None = Field(description="the remainder's leading signature (its name), or None")
     remains_share: float | None = Field(description="that signature's share (0–1) of the unseen excess")
     text: str = Field(description="the answer in words, errors in nm")

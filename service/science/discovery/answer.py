@@ -17,11 +17,14 @@ def diagnosis_answer(
     at_floor: bool,
     remainder: dict | None,
     first_capacity: dict | None = None,
+    ambiguity: dict | None = None,
 ) -> dict:
-    """``{"missing", "kind", "expected_rms_um", "remains", "remains_share", "text"}``: ``missing`` the
-    effect the verdict names (the best claimed physical one), else the capacity that lowers the held-out
-    error when physics is complete and the model is not at the floor, else None; ``remains`` the
-    remainder's leading signature (None when nothing is described), read from ``remainder`` itself."""
+    """``{"missing", "kind", "expected_rms_um", "ambiguous_with", "remains", "remains_share", "text"}``:
+    ``missing`` the effect the verdict names (the best claimed physical one), else the capacity that
+    lowers the held-out error when physics is complete and the model is not at the floor, else None;
+    ``ambiguous_with`` the look-alike the data cannot tell it from (``ambiguity``: the diagnosis's), else
+    None; ``remains`` the remainder's leading signature (None when nothing is described), read from
+    ``remainder`` itself."""
     top = (remainder or {}).get("signatures") or []
     remains = top[0] if top else None
     if first_capacity is not None:  # the base cannot draw the loop: it grows first (base_capacity.py)
@@ -29,9 +32,14 @@ def diagnosis_answer(
         head = first_capacity_words(first_capacity, claimed_physical[0], residual_um)
     elif claimed_physical:
         lead, kind = claimed_physical[0], "physical"
+        other = look_alike(lead["effect"], ambiguity)
         head = (
             f"Missing: {lead['effect']}. Adding it should bring the held-out error from {fmt_nm(residual_um, 4)} "
             f"to about {fmt_nm(lead['expected_rms_um'], 4)}."
+            if other is None
+            else f"Missing: {lead['effect']} or {other}; the data cannot tell them apart. Adding {lead['effect']}, "
+            f"the leading claim, should bring the held-out error from {fmt_nm(residual_um, 4)} to about "
+            f"{fmt_nm(lead['expected_rms_um'], 4)}, but it is a guess until the experiment that separates them is run."
         )
     elif capacity and not at_floor:
         lead, kind = capacity[0], "capacity"
@@ -58,6 +66,7 @@ def diagnosis_answer(
         "missing": None if lead is None else lead["effect"],
         "kind": kind,
         "expected_rms_um": None if lead is None else lead["expected_rms_um"],
+        "ambiguous_with": look_alike(lead["effect"], ambiguity) if kind == "physical" else None,
         "remains": None if remains is None else remains["signature"],
         "remains_share": None if remains is None else remains["share_of_excess"],
         "text": head + tail,
@@ -73,3 +82,10 @@ def first_capacity_words(capacity: dict, physical: dict, residual_um: float) -> 
         f"model-capacity change, not physics. {physical['effect']} is claimed against the base as it is (to about "
         f"{fmt_nm(physical['expected_rms_um'], 4)}); it is judged again on the wider base."
     )
+
+
+def look_alike(effect: str, ambiguity: dict | None) -> str | None:
+    """The other effect of ``ambiguity`` (the diagnosis's: two claimed effects the data explain alike)
+    when ``effect`` is one of its two, else None."""
+    pair = list((ambiguity or {}).get("effects") or [])
+    return next((e for e in pair if e != effect), None) if effect in pair else None

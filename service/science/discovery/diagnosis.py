@@ -309,8 +309,16 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     first = capacity_before_physics(
         {"verdict": "missing_effect" if missing else "complete", "noise_floor_um": noise, "candidates": candidates}
     )
+    between = ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical)
     answer = diagnosis_answer(
-        [c for c in physical if c["claimed"]], helpful_capacity(candidates), v0, noise, bool(at_floor), remainder, first
+        [c for c in physical if c["claimed"]],
+        helpful_capacity(candidates),
+        v0,
+        noise,
+        bool(at_floor),
+        remainder,
+        first,
+        between,
     )
     disturbed = disturbance(rests)
     return {
@@ -340,7 +348,7 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
         "candidate_alpha": alpha,
         "failures": worst,
         "signature": sig,
-        "ambiguity": ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical),
+        "ambiguity": between,
         "noise": floor,
         "metrics": ev,
     }

@@ -175,7 +175,9 @@ function renderAnswer(box, model, d) {
   const ratio = d.noise_floor_um ? d.residual_rms_um / d.noise_floor_um : null;
   const a = d.answer;
   const where = `Held-out RMS ${fmtErrorNm(d.residual_rms_um, 4)}${d.residual_of ? ` <span class="muted" id="model-answer-of">(${esc(d.residual_of)})</span>` : ''}${ratio ? `, ${fmt(ratio, 3)}× the noise floor (${fmtErrorNm(d.noise_floor_um, 4)})` : ''}.`;
-  const how = a.missing ? ` Use “Add ${esc(a.missing)}” in the diagnosis, or Discover.` : '';
+  const how = !a.missing ? '' : (a.ambiguous_with
+    ? ` The diagnosis below offers the experiment that separates them; “Add ${esc(a.missing)}” adds the leading claim, and Discover stops here unless “at an ambiguity, add the leading effect and go on” is ticked.`
+    : ` Use “Add ${esc(a.missing)}” in the diagnosis, or Discover.`);
   box.innerHTML = `<p id="model-answer-text" data-ratio="${ratio ?? ''}" data-effect="${esc(a.missing || '')}"
     data-remains="${esc(a.remains || '')}">${where} ${esc(a.text)}${how}</p>`;
 }
