@@ -45,13 +45,16 @@ function separationSummary(before, after, experiment, datasetId) {
     nmBefore: heldOutNm(before, e), nmAfter: heldOutNm(after, e) }));
   const lead = rows.slice().sort((x, y) => (y.after ?? -1) - (x.after ?? -1) || x.nmAfter - y.nmAfter)[0];
   const other = rows.find((r) => r !== lead);
-  // the service judges the ambiguity (scores and unexplained excess); none left means told apart
-  const separated = !separatingExperiment(after);
+  // the service judges the ambiguity (scores and unexplained excess): told apart unless the diagnosis
+  // with the experiment still finds this same pair alike (another pair is another question, named)
+  const still = separatingExperiment(after);
+  const separated = !still || !([still.a, still.b].includes(a) && [still.a, still.b].includes(b));
+  const another = still && separated ? ` The diagnosis with it finds another pair alike: ${esc(still.a)} and ${esc(still.b)} (below).` : '';
   return `<div id="separation" data-dataset-id="${esc(datasetId)}"
       data-leader="${esc(lead.effect)}" data-separated="${separated}">
     <h3>Separating experiment: result</h3>
     <p class="${separated ? 'ok' : 'warn'}">${separated
-      ? `With dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, <b>${esc(lead.effect)}</b> explains the residual clearly better than ${esc(other.effect)} (held-out ${fmt(lead.nmAfter, 3)} nm against ${fmt(other.nmAfter, 3)} nm; score ${fmt(lead.after, 3)} against ${fmt(other.after, 3)}).`
+      ? `With dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, <b>${esc(lead.effect)}</b> explains the residual clearly better than ${esc(other.effect)} (held-out ${fmt(lead.nmAfter, 3)} nm against ${fmt(other.nmAfter, 3)} nm; score ${fmt(lead.after, 3)} against ${fmt(other.after, 3)}).${another}`
       : `Even with dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, ${esc(a)} and ${esc(b)} remain close; a longer experiment may be needed.`}</p>
     <table id="separation-table"><tr><th>effect</th><th class="num">score before</th><th class="num">score with the experiment</th>
       <th class="num">held-out before (nm)</th><th class="num">held-out with the experiment (nm)</th></tr>
