@@ -61,7 +61,7 @@ export async function enter(root) {
         <label class="check"><input type="checkbox" name="ilc" checked>ILC (learned periodic correction)</label>
         <label class="check" title="run a range beyond the axis's stroke with the command clamped at the axis's voltage limits"><input type="checkbox" name="allow_saturation">allow saturation</label>
         <button class="primary" type="submit" id="traj-start"${available ? '' : ' disabled'}>Run</button>
-        <button type="button" id="traj-span-sweep" title="the recommended path: a first sweep and models where an axis has none, then sweeps over the voltages this ellipse needs (± 5 V) and models on them, selected for the run"${available ? '' : ' disabled'}>Prepare the models it needs</button>
+        <button type="button" id="traj-span-sweep" title="the recommended path: a first sweep and models for each axis whose feedforward model is left empty above (a model chosen there is the start), then sweeps over the voltages this ellipse needs (± 5 V) and models on them, selected for the run"${available ? '' : ' disabled'}>Prepare the models it needs</button>
       </form>
       <div id="traj-job"></div><div id="traj-error"></div><div id="traj-warnings"></div><div id="traj-pid-report"></div><div id="traj-span"></div>
     </div>
