@@ -120,7 +120,7 @@ function renderState(root, b) {
       <td class="${amp.fault ? 'bad' : 'ok'}">${amp.fault ? esc(amp.fault_reason || 'fault') : (amp.enabled ? 'enabled' : 'disabled')}${amp.current_limited ? ' · current-limited' : ''}</td>
       <td class="${s.ok ? 'ok' : 'bad'}">${s.ok ? (s.saturated ? 'saturated' : 'ok') : esc(s.reason || 'not ok')}</td>
       <td class="num">${s.range_um.map((v) => fmt(v)).join(' … ')}</td></tr>`; }).join('') +
-    `<tr><td colspan="6" class="muted">running job: <span id="running">${esc(b.running_job_id || 'none')}</span></td></tr>`;
+    `<tr><td colspan="6" class="muted" title="the job that owns the outputs; fits (identify, diagnose, discover between its sweeps) run beside the bench and are listed under Recent jobs">running bench job: <span id="running">${esc(b.running_job_id || 'none')}</span></td></tr>`;
   const faulted = b.axes.some((a) => b.amplifiers[a].fault) || Boolean(b.engine && b.engine.latched_fault);
   root.querySelector('#fault-actions').hidden = !faulted || Boolean(b.running_job_id);
 }
