@@ -135,6 +135,7 @@ function setup() {
   document.getElementById('token-save').addEventListener('click', async () => {
     setToken(token.value.trim());
     askedForToken = false;
+    document.getElementById('settings').open = false;   // saved: out of the page's way (a 401 opens it again)
     await route();
     banner('API token saved in this browser.', 'info');
     refreshPill();
