@@ -70,6 +70,10 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     limit_ma = page.locator("#limits tr").nth(1).locator("td").nth(4).inner_text()
     assert float(limit_ma) == pytest.approx(bench["limits"]["y"]["current_limit_a"] * 1e3, rel=1e-3)
     assert abs(float(page.get_attribute("#state tr[data-axis=y] td[data-output-v]", "data-output-v"))) < 0.5
+    # a reading that rounds to zero prints unsigned: a signed zero (or -0.01 mA) is "0.0", not "-0.0"
+    fixed = "import('./js/api.js').then((m) => [m.fmtFixed(-0, 1), m.fmtFixed(-1e-5, 1), m.fmtFixed(-0.06, 1), m.fmtFixed(-0.004, 2)])"
+    assert page.evaluate(fixed) == ["0.0", "0.0", "-0.1", "0.00"]
+    assert not re.search(r"(?<![0-9])-0\.0+(?![0-9])", page.inner_text("#state"))
     assert "amplifier output (V)" in page.inner_text("#live") or page.locator("#live canvas").count() > 0
     shot(page, "bench")
 
