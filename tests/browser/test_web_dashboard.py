@@ -312,9 +312,20 @@ def test_discovery_story_in_the_browser(page, server):
     shot(page, "diagnosis")
 
     page.click(f"#candidates button.add-effect[data-effect='{HIDDEN}']")
-    page.wait_for_selector("#refine-job .jobline[data-state='succeeded']", timeout=150_000)
-    page.wait_for_selector("#refined")
-    child = page.get_attribute("#refined", "data-model-id")
+    # the refine job makes a new model and the page moves to it: its route and its content, as after Identify
+    page.wait_for_function(
+        "id => { const e = document.querySelector('#model-id'); return e && e.textContent !== id; }",
+        arg=model_id,
+        timeout=150_000,
+    )
+    child = page.inner_text("#model-id")
+    refine = server["api"].get("/jobs", params={"kind": "refine", "limit": 1}).json()[0]
+    assert refine["state"] == "succeeded" and refine["result"]["model_id"] == child
+    assert page.evaluate("location.hash") == f"#/models/{child}"
+    assert f"refined from {model_id}" in page.inner_text("#model-detail .card h2")
+    page.wait_for_selector("#page[data-ready='1']")
+    page.wait_for_selector("#candidates tr[data-effect]", timeout=120_000)  # the new model's own diagnosis
+    assert page.locator(f"#candidates button.add-effect[data-effect='{HIDDEN}']").count() == 0
     page.wait_for_function("() => JSON.parse(document.querySelector('#history-chart').dataset.values).length === 2")
     values = json.loads(page.get_attribute("#history-chart", "data-values"))
     models = json.loads(page.get_attribute("#history-chart", "data-models"))
@@ -325,8 +336,11 @@ def test_discovery_story_in_the_browser(page, server):
     # The refit lands where the diagnosis said it would (its expected RMS for the top candidate).
     assert values[1] == pytest.approx(diagnosis["candidates"][0]["expected_rms_um"], rel=0.1)
     assert server["api"].get(f"/models/{child}").json()["parent_id"] == model_id
-    page.wait_for_selector(f"#model-list tr[data-model-id='{child}']")  # the stored list shows it too
+    page.wait_for_selector(f"#model-list tr.best[data-model-id='{child}']")  # the stored list shows it, marked
     shot(page, "refine_history")
+    page.reload()  # the route is the new model's: a reload shows it again
+    page.wait_for_selector("#page[data-ready='1']")
+    assert page.inner_text("#model-id") == child
 
 
 def test_trajectory_with_ilc_error_falls_on_screen(page, server):

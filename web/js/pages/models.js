@@ -79,15 +79,20 @@ async function identify(root) {
       const id = job.result.model_id;
       root.querySelector('#identify-job').append(h(`<p class="ok" id="identify-done" data-model-id="${esc(id)}">Model
         <a href="#/models/${esc(id)}">${esc(id)}</a> identified: held-out RMS ${fmtErrorNm(job.result.validation_rms_um, 4)}.</p>`));
-      const target = `#/models/${id}`;
-      if (location.hash === target) window.dispatchEvent(new HashChangeEvent('hashchange'));   // the same route: render it again
-      else location.hash = target;
+      openModel(id);
     } else showError(err, new Error(job.error || `identification ${job.state}`));
   } catch (e) {
     showError(err, e);
   } finally {
     button.disabled = false;
   }
+}
+
+/** Move the page to model `id` (a job's new model): its route, and so its page, rendered anew. */
+function openModel(id) {
+  const target = `#/models/${id}`;
+  if (location.hash === target) window.dispatchEvent(new HashChangeEvent('hashchange'));   // the same route: render it again
+  else location.hash = target;
 }
 
 async function showModel(el, modelId, query) {
@@ -234,9 +239,7 @@ async function refine(el, model, effect, datasets = []) {
     if (job.state === 'succeeded') {
       const child = job.result.model_id;
       out.append(h(`<p class="ok" id="refined" data-model-id="${esc(child)}">Added ${esc(effect)}: model <a href="#/models/${esc(child)}">${esc(child)}</a>.</p>`));
-      await renderHistory(el, await api(`/models/${encodeURIComponent(child)}`, { signal: controller.signal }), true);
-      const list = document.querySelector('#model-list');
-      if (list) renderModelList(list, await api('/models', { signal: controller.signal }), model.id);
+      openModel(child);   // the new model's page: its diagnosis, its error history, its row marked in the list
     } else {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `refine ${job.state}`));
     }
