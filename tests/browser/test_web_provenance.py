@@ -169,6 +169,16 @@ def test_the_answer_is_on_the_first_screen_of_a_model(page, server):
     page.wait_for_selector("#history-chart[data-x-range]")
     assert page.get_attribute("#history-chart", "data-points") == "1"
     assert json.loads(page.get_attribute("#history-chart", "data-x-range")) == [-0.5, 0.5]
+    # its legend names the series, each beside its marker: no x row and no "label: --" of a live legend
+    legend = page.locator("#history-chart .u-legend")
+    names = [t.strip() for t in legend.locator("tr.u-series").all_inner_texts()]
+    assert names == json.loads(page.get_attribute("#history-chart", "data-series")), names
+    assert legend.locator(".u-value:visible").count() == 0 and "--" not in legend.inner_text()
+    marker, label = legend.locator("tr.u-series").first.evaluate(
+        "(r) => [r.querySelector('.u-marker').getBoundingClientRect().toJSON(),"
+        " r.querySelector('.u-label').getClientRects()[0].toJSON()]"
+    )
+    assert marker["top"] < label["bottom"] and label["top"] < marker["bottom"], (marker, label)  # one line
 
 
 def test_recent_jobs_read_in_words_without_internals(page, server):

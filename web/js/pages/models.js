@@ -285,7 +285,7 @@ async function renderHistory(el, model, canHistory) {
       { label: 'like for like: every step on the same data (nm)', values: steps.map((s) => (s.same ?? s.rms) * 1e3), points: true, width: 2 },
       ...(steps.some((s) => s.same !== null && s.same !== s.rms)
         ? [{ label: 'as fitted, on the data of its step (nm)', values: steps.map((s) => s.rms * 1e3), points: true, width: 1 }] : [])],
-    height: 220, points: true, integerX: true }));
+    height: 220, points: true, integerX: true, liveLegend: false }));   // the values: the table below
   const table = el.querySelector('#history-table');
   if (!table) return;
   table.innerHTML = `<table id="history"><tr><th title="0: the lineage's first model, as a discover run's step 0 is the model it starts from">step</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>
