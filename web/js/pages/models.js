@@ -58,7 +58,7 @@ function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
     <th class="num" title="the mean of per-block held-out RMS (the fit's own training RMS is on the model's page)">held-out RMS</th><th title="the bench its data were recorded on; imported data: another stage (the bench that stores it in brackets)">recorded on</th><th title="the stage its data were recorded on">fitted on</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a>${m.name ? ` <span class="model-name" title="${esc(m.name)}">“${esc(m.name)}”</span>` : ''}${(m.tags || []).map((t) => ` <span class="tag">${esc(t)}</span>`).join('')}</td><td>${m.axis}</td><td>${esc(m.kind)}</td>
-      <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
+      <td>${m.effects.map(esc).join(' + ')}</td><td class="parent">${esc(m.parent_id || '')}</td>
       <td class="num">${fmtErrorNm(m.metrics.validation_rms_um, 4)}</td>
       <td class="bench" data-recorded-here="${(m.origin?.fitted_on || 'this_bench') === 'this_bench' ? 1 : 0}">${modelBenchHtml(m)}</td><td class="origin" data-fitted-on="${esc(m.origin?.fitted_on || '')}">${modelOriginHtml(m)}</td></tr>`).join('');
 }
