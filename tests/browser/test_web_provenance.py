@@ -39,8 +39,19 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     listed = imported.inner_text()
     goto(page, server, f"datasets/{server['imported']}")
     assert "imported from Model_Vi_Do.dat" in page.inner_text("#dataset-origin")
-    # the list and the page name an import alike: its file (and the name it was given, if another)
+    # the list and the page name an import alike: its file and when (the import record keeps no name)
     assert page.inner_text("#dataset-origin") == listed and "Model_Vi_Do.dat" in listed, listed
+    created = server["api"].get(f"/datasets/{server['imported']}").json()["created_at"]
+    assert listed == f"imported from Model_Vi_Do.dat on {created[:10]} {created[11:16]} UTC", listed
+    # renamed, the origin stays the file's, now and after a reload; the new name stands beside it alone
+    page.fill("#labels-form input[name=name]", "lab B run")
+    page.click("#labels-save")
+    page.wait_for_function("document.querySelector('#labels-status').textContent === 'saved'")
+    assert page.inner_text("#dataset-name") == "lab B run" and page.inner_text("#dataset-origin") == listed
+    page.reload()
+    page.wait_for_selector("#page[data-ready='1']")
+    assert page.inner_text("#dataset-origin") == listed and "lab B run" not in page.inner_text("#dataset-origin")
+    server["api"].patch(f"/datasets/{server['imported']}", json={"name": "Model_Vi_Do.dat"}).raise_for_status()
 
     # a model of imported data says so in the list and on its page, beside the bench that stored it
     goto(page, server, "models")
