@@ -50,6 +50,8 @@ def test_the_dashboard_asks_for_a_token_and_keeps_it(live, page):
     page.click("#token-save")
     page.wait_for_selector("#banner.info")
     assert page.inner_text("#banner") == "API token saved in this browser."
+    # saved, the settings popover closes: it no longer covers the page
+    assert page.get_attribute("#settings", "open") is None and not page.is_visible("#token")
     assert page.evaluate("localStorage.getItem('evcbench.token')") == live.token
     page.reload()
     page.wait_for_selector("#page[data-ready='1']")

@@ -70,6 +70,10 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     limit_ma = page.locator("#limits tr").nth(1).locator("td").nth(4).inner_text()
     assert float(limit_ma) == pytest.approx(bench["limits"]["y"]["current_limit_a"] * 1e3, rel=1e-3)
     assert abs(float(page.get_attribute("#state tr[data-axis=y] td[data-output-v]", "data-output-v"))) < 0.5
+    # a reading that rounds to zero prints unsigned: a signed zero (or -0.01 mA) is "0.0", not "-0.0"
+    fixed = "import('./js/api.js').then((m) => [m.fmtFixed(-0, 1), m.fmtFixed(-1e-5, 1), m.fmtFixed(-0.06, 1), m.fmtFixed(-0.004, 2)])"
+    assert page.evaluate(fixed) == ["0.0", "0.0", "-0.1", "0.00"]
+    assert not re.search(r"(?<![0-9])-0\.0+(?![0-9])", page.inner_text("#state"))
     assert "amplifier output (V)" in page.inner_text("#live") or page.locator("#live canvas").count() > 0
     shot(page, "bench")
 
@@ -126,6 +130,10 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
     goto(page, server, "trajectories")
     assert page.locator("#traj-errors").inner_text().count("308") == 1  # the paper's 0.308 µm, in nm
     assert "154" in page.inner_text("#traj-errors") and "< 6.2" in page.inner_text("#traj-errors")
+    # the relative error says what it divides by what, as the service computes it (control/session.py)
+    defined = "the larger over Y and Z of (max |error| on the axis ÷ the reference's peak-to-peak on that axis"
+    assert page.get_attribute("#traj-errors tr[data-key=relative_error_pct] td", "title").startswith(defined)
+    assert page.inner_text("#traj-relative-note").startswith(f"Relative error: {defined}")
     shot(page, "trajectories")
 
 
@@ -308,9 +316,20 @@ def test_discovery_story_in_the_browser(page, server):
     shot(page, "diagnosis")
 
     page.click(f"#candidates button.add-effect[data-effect='{HIDDEN}']")
-    page.wait_for_selector("#refine-job .jobline[data-state='succeeded']", timeout=150_000)
-    page.wait_for_selector("#refined")
-    child = page.get_attribute("#refined", "data-model-id")
+    # the refine job makes a new model and the page moves to it: its route and its content, as after Identify
+    page.wait_for_function(
+        "id => { const e = document.querySelector('#model-id'); return e && e.textContent !== id; }",
+        arg=model_id,
+        timeout=150_000,
+    )
+    child = page.inner_text("#model-id")
+    refine = server["api"].get("/jobs", params={"kind": "refine", "limit": 1}).json()[0]
+    assert refine["state"] == "succeeded" and refine["result"]["model_id"] == child
+    assert page.evaluate("location.hash") == f"#/models/{child}"
+    assert f"refined from {model_id}" in page.inner_text("#model-detail .card h2")
+    page.wait_for_selector("#page[data-ready='1']")
+    page.wait_for_selector("#candidates tr[data-effect]", timeout=120_000)  # the new model's own diagnosis
+    assert page.locator(f"#candidates button.add-effect[data-effect='{HIDDEN}']").count() == 0
     page.wait_for_function("() => JSON.parse(document.querySelector('#history-chart').dataset.values).length === 2")
     values = json.loads(page.get_attribute("#history-chart", "data-values"))
     models = json.loads(page.get_attribute("#history-chart", "data-models"))
@@ -321,8 +340,11 @@ def test_discovery_story_in_the_browser(page, server):
     # The refit lands where the diagnosis said it would (its expected RMS for the top candidate).
     assert values[1] == pytest.approx(diagnosis["candidates"][0]["expected_rms_um"], rel=0.1)
     assert server["api"].get(f"/models/{child}").json()["parent_id"] == model_id
-    page.wait_for_selector(f"#model-list tr[data-model-id='{child}']")  # the stored list shows it too
+    page.wait_for_selector(f"#model-list tr.best[data-model-id='{child}']")  # the stored list shows it, marked
     shot(page, "refine_history")
+    page.reload()  # the route is the new model's: a reload shows it again
+    page.wait_for_selector("#page[data-ready='1']")
+    assert page.inner_text("#model-id") == child
 
 
 def test_trajectory_with_ilc_error_falls_on_screen(page, server):

@@ -39,8 +39,19 @@ def test_imported_data_shows_its_origin_and_no_experiment_runs_here(page, server
     listed = imported.inner_text()
     goto(page, server, f"datasets/{server['imported']}")
     assert "imported from Model_Vi_Do.dat" in page.inner_text("#dataset-origin")
-    # the list and the page name an import alike: its file (and the name it was given, if another)
+    # the list and the page name an import alike: its file and when (the import record keeps no name)
     assert page.inner_text("#dataset-origin") == listed and "Model_Vi_Do.dat" in listed, listed
+    created = server["api"].get(f"/datasets/{server['imported']}").json()["created_at"]
+    assert listed == f"imported from Model_Vi_Do.dat on {created[:10]} {created[11:16]} UTC", listed
+    # renamed, the origin stays the file's, now and after a reload; the new name stands beside it alone
+    page.fill("#labels-form input[name=name]", "lab B run")
+    page.click("#labels-save")
+    page.wait_for_function("document.querySelector('#labels-status').textContent === 'saved'")
+    assert page.inner_text("#dataset-name") == "lab B run" and page.inner_text("#dataset-origin") == listed
+    page.reload()
+    page.wait_for_selector("#page[data-ready='1']")
+    assert page.inner_text("#dataset-origin") == listed and "lab B run" not in page.inner_text("#dataset-origin")
+    server["api"].patch(f"/datasets/{server['imported']}", json={"name": "Model_Vi_Do.dat"}).raise_for_status()
 
     # a model of imported data says so in the list and on its page, beside the bench that stored it
     goto(page, server, "models")
@@ -107,6 +118,18 @@ def test_trajectories_offer_this_benchs_models_first_and_mark_the_imported(page,
     assert server["imported_model"] not in page.evaluate(listed) and page.input_value(select) == ""
 
 
+#: the stored-models list's box and its last column's cells: {header, scroll, client, right, visible_right,
+#: narrowest_em} (the right edge of the furthest cell, of the list's visible box; the narrowest cell in em)
+FITTED_ON_IN_VIEW = """(t) => {
+  const list = t.parentElement; const cells = [...t.querySelectorAll('tr > :last-child')];
+  const em = parseFloat(getComputedStyle(t).fontSize);
+  return { header: cells[0].textContent, scroll: list.scrollWidth, client: list.clientWidth,
+    right: Math.max(...cells.map((c) => c.getBoundingClientRect().right)),
+    visible_right: list.getBoundingClientRect().left + list.clientLeft + list.clientWidth,
+    narrowest_em: Math.min(...cells.slice(1).map((c) => c.getBoundingClientRect().width)) / em };
+}"""
+
+
 def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     model = server["recorded_model"]
     goto(page, server, f"models/{model}")
@@ -131,9 +154,14 @@ def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     name = page.locator(f"#model-list tr[data-model-id='{model}'] .model-name")
     width, em = name.evaluate("(e) => [e.getBoundingClientRect().width, parseFloat(getComputedStyle(e).fontSize)]")
     assert width <= 18 * em + 1 and name.get_attribute("title") == long_name, (width, em)
-    # on the tests' 1280 px screen the whole list stays in its card (no column scrolled out of view)
-    box = page.locator("#model-list").evaluate("(t) => [t.parentElement.scrollWidth, t.parentElement.clientWidth]")
-    assert box[0] <= box[1] + 1, box
+    # on the tests' 1280 px screen, and on one less a 15 px page scrollbar, the whole list stays in its card:
+    # no column scrolled out of view, the last ("fitted on") whole in the list's visible box, at a readable width
+    for width in (1280, 1265):
+        page.set_viewport_size({"width": width, "height": 800})
+        box = page.locator("#model-list").evaluate(FITTED_ON_IN_VIEW)
+        assert box["header"] == "fitted on" and box["scroll"] <= box["client"] + 1, (width, box)
+        assert box["right"] <= box["visible_right"] + 1 and box["narrowest_em"] >= 8, (width, box)
+    page.set_viewport_size({"width": 1280, "height": 800})
 
     dataset = server["recorded"]
     goto(page, server, f"datasets/{dataset}")
@@ -169,6 +197,16 @@ def test_the_answer_is_on_the_first_screen_of_a_model(page, server):
     page.wait_for_selector("#history-chart[data-x-range]")
     assert page.get_attribute("#history-chart", "data-points") == "1"
     assert json.loads(page.get_attribute("#history-chart", "data-x-range")) == [-0.5, 0.5]
+    # its legend names the series, each beside its marker: no x row and no "label: --" of a live legend
+    legend = page.locator("#history-chart .u-legend")
+    names = [t.strip() for t in legend.locator("tr.u-series").all_inner_texts()]
+    assert names == json.loads(page.get_attribute("#history-chart", "data-series")), names
+    assert legend.locator(".u-value:visible").count() == 0 and "--" not in legend.inner_text()
+    marker, label = legend.locator("tr.u-series").first.evaluate(
+        "(r) => [r.querySelector('.u-marker').getBoundingClientRect().toJSON(),"
+        " r.querySelector('.u-label').getClientRects()[0].toJSON()]"
+    )
+    assert marker["top"] < label["bottom"] and label["top"] < marker["bottom"], (marker, label)  # one line
 
 
 def test_recent_jobs_read_in_words_without_internals(page, server):

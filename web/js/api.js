@@ -177,6 +177,12 @@ export async function followJob(jobId, onUpdate = () => {}, { signal } = {}) {
 
 export const fmt = (v, digits = 4) => (v === null || v === undefined || Number.isNaN(Number(v))) ? '–'
   : String(Number(Number(v).toPrecision(digits)));
+/** A reading at a fixed number of decimals (volts, milliamps): a figure that rounds to zero prints
+ * unsigned ("0.0", not the "-0.0" of a signed zero or of -0.01 mA). */
+export const fmtFixed = (v, decimals) => {
+  const text = Number(v).toFixed(decimals);
+  return Number(text) === 0 ? (0).toFixed(decimals) : text;
+};
 /** An error or noise figure given in µm, printed in nm: the one unit for errors and noise across the
  * API's texts, the dashboard and the report (0.002945 → "2.95 nm", 1.2 → "1200 nm"). */
 export const fmtErrorNm = (um, digits = 3) => (um === null || um === undefined || !Number.isFinite(Number(um))) ? '–'

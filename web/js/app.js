@@ -1,6 +1,6 @@
 // The dashboard shell: hash routing between pages, the always-visible emergency stop, the bench
 // pill (which job owns the bench), and the API token in the settings corner.
-import { api, getToken, pressStop, setToken } from './api.js';
+import { api, fmtFixed, getToken, pressStop, setToken } from './api.js';
 import { banner } from './ui.js';
 
 const PAGES = {
@@ -47,7 +47,7 @@ async function emergencyStop() {
   button.disabled = true;
   try {
     const r = await pressStop(stopPort, benchId);
-    const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${(Math.abs(v) < 0.005 ? 0 : Number(v)).toFixed(2)} V`).join(', ');
+    const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${fmtFixed(v, 2)} V`).join(', ');
     banner(`Emergency stop (${r.door || 'service route'}): outputs at ${volts || '0 V'}` +
            (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no job was running') +
            ((r.cancelled_queued_job_ids || []).length ? `; queued bench jobs cancelled too: ${r.cancelled_queued_job_ids.join(', ')}.` : '.') +
@@ -135,6 +135,7 @@ function setup() {
   document.getElementById('token-save').addEventListener('click', async () => {
     setToken(token.value.trim());
     askedForToken = false;
+    document.getElementById('settings').open = false;   // saved: out of the page's way (a 401 opens it again)
     await route();
     banner('API token saved in this browser.', 'info');
     refreshPill();

@@ -55,10 +55,12 @@ function frame(el, title) {
 /**
  * A time series: x = xs, one line per entry of `series` ({label, values, color?, scale?}).
  * `xLabel`/`yLabel` carry units; `y2Label` names a second y axis for series with scale 'y2'.
- * `shade`: [[x0, x1], ...] ranges drawn behind the lines.
+ * `shade`: [[x0, x1], ...] ranges drawn behind the lines. `liveLegend: false`: the legend names the
+ * series alone (no x row, no values under the cursor: "label: --" until hovered), for a chart whose
+ * values are printed beside it.
  */
 export async function lineChart(el, { title, xs, series, xLabel, yLabel, y2Label, height = 260, shade = [],
-                                      points = false, yRange = null, integerX = false }) {
+                                      points = false, yRange = null, integerX = false, liveLegend = true }) {
   const uPlot = await loadUPlot();
   const body = frame(el, title);
   const axes = [{ label: xLabel, ...(integerX ? { incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500] } : {}) },
@@ -73,7 +75,7 @@ export async function lineChart(el, { title, xs, series, xLabel, yLabel, y2Label
       scale: s.scale || 'y', points: { show: points || !!s.points, size: 6 },
     }))],
     plugins: [shadePlugin(shade)],
-    legend: { live: true },
+    legend: { live: liveLegend },
     // the x range drawn, for a reader (and a test) of the page
     hooks: { setScale: [(u, key) => { if (key === 'x') el.dataset.xRange = JSON.stringify([u.scales.x.min, u.scales.x.max]); }] },
   };

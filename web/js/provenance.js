@@ -23,12 +23,13 @@ export function modelOriginHtml(model) {
 }
 
 /** A dataset's origin (HTML-escaped): the bench that recorded it, or the file it was imported from and
- * the name it was given, alike in the list and on its page. */
+ * when, alike in the list and on its page. No name: the import record keeps none (the dataset's name is
+ * a label, renamed at will, shown beside it). */
 export function originHtml(d) {
   if (!isImported(d)) return esc(d.bench_id || 'this bench');
   const file = d.import_filename || d.plan?.import?.filename;
-  if (!file) return `imported as “${esc(d.name)}”`;
-  return `imported from <code>${esc(file)}</code>${d.name && d.name !== file ? ` as “${esc(d.name)}”` : ''}`;
+  const at = d.created_at ? ` on <time datetime="${esc(d.created_at)}" title="${esc(d.created_at)}">${esc(String(d.created_at).slice(0, 16).replace('T', ' '))}${String(d.created_at).endsWith('Z') ? ' UTC' : ''}</time>` : '';
+  return `imported${file ? ` from <code>${esc(file)}</code>` : ''}${at}`;
 }
 
 /** The bench a model's data were recorded on (HTML-escaped): its bench for this bench's data; for imported

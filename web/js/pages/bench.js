@@ -1,6 +1,6 @@
 // Bench: devices and their state, the hard limits, recent jobs, live signals of any job (u and x
 // per axis, scrolling, from GET /api/bench/live) and the last recording.
-import { api, esc, fmt, fmtErrorNm, followJob } from '../api.js';
+import { api, esc, fmt, fmtErrorNm, fmtFixed, followJob } from '../api.js';
 import { lineChart, destroyAll } from '../charts.js';
 import { liveSignals } from '../live.js';
 import { h, jobLine } from '../ui.js';
@@ -115,8 +115,8 @@ function renderState(root, b) {
   root.querySelector('#reset-faults').disabled = false;
   el.innerHTML = `<tr><th>axis</th><th class="num">output (V)</th><th class="num">current (mA)</th><th>amplifier</th><th>sensor</th><th class="num">range (µm)</th></tr>` +
     b.axes.map((a) => { const amp = b.amplifiers[a]; const s = b.sensors[a]; return `<tr data-axis="${a}">
-      <td>${a}</td><td class="num" data-output-v="${amp.output_v}">${(Math.abs(amp.output_v) < 0.005 ? 0 : Number(amp.output_v)).toFixed(2)}</td>
-      <td class="num">${(1000 * amp.current_a).toFixed(1)}</td>
+      <td>${a}</td><td class="num" data-output-v="${amp.output_v}">${fmtFixed(amp.output_v, 2)}</td>
+      <td class="num">${fmtFixed(1000 * amp.current_a, 1)}</td>
       <td class="${amp.fault ? 'bad' : 'ok'}">${amp.fault ? esc(amp.fault_reason || 'fault') : (amp.enabled ? 'enabled' : 'disabled')}${amp.current_limited ? ' · current-limited' : ''}</td>
       <td class="${s.ok ? 'ok' : 'bad'}">${s.ok ? (s.saturated ? 'saturated' : 'ok') : esc(s.reason || 'not ok')}</td>
       <td class="num">${s.range_um.map((v) => fmt(v)).join(' … ')}</td></tr>`; }).join('') +

@@ -58,7 +58,7 @@ function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
     <th class="num" title="the mean of per-block held-out RMS (the fit's own training RMS is on the model's page)">held-out RMS</th><th title="the bench its data were recorded on; imported data: another stage (the bench that stores it in brackets)">recorded on</th><th title="the stage its data were recorded on">fitted on</th></tr>` + models.slice().reverse().map((m) => `
     <tr data-model-id="${esc(m.id)}"${m.id === modelId ? ' class="best"' : ''}><td><a href="#/models/${esc(m.id)}">${esc(m.id)}</a>${m.name ? ` <span class="model-name" title="${esc(m.name)}">“${esc(m.name)}”</span>` : ''}${(m.tags || []).map((t) => ` <span class="tag">${esc(t)}</span>`).join('')}</td><td>${m.axis}</td><td>${esc(m.kind)}</td>
-      <td>${m.effects.map(esc).join(' + ')}</td><td>${esc(m.parent_id || '')}</td>
+      <td>${m.effects.map(esc).join(' + ')}</td><td class="parent">${esc(m.parent_id || '')}</td>
       <td class="num">${fmtErrorNm(m.metrics.validation_rms_um, 4)}</td>
       <td class="bench" data-recorded-here="${(m.origin?.fitted_on || 'this_bench') === 'this_bench' ? 1 : 0}">${modelBenchHtml(m)}</td><td class="origin" data-fitted-on="${esc(m.origin?.fitted_on || '')}">${modelOriginHtml(m)}</td></tr>`).join('');
 }
@@ -79,15 +79,20 @@ async function identify(root) {
       const id = job.result.model_id;
       root.querySelector('#identify-job').append(h(`<p class="ok" id="identify-done" data-model-id="${esc(id)}">Model
         <a href="#/models/${esc(id)}">${esc(id)}</a> identified: held-out RMS ${fmtErrorNm(job.result.validation_rms_um, 4)}.</p>`));
-      const target = `#/models/${id}`;
-      if (location.hash === target) window.dispatchEvent(new HashChangeEvent('hashchange'));   // the same route: render it again
-      else location.hash = target;
+      openModel(id);
     } else showError(err, new Error(job.error || `identification ${job.state}`));
   } catch (e) {
     showError(err, e);
   } finally {
     button.disabled = false;
   }
+}
+
+/** Move the page to model `id` (a job's new model): its route, and so its page, rendered anew. */
+function openModel(id) {
+  const target = `#/models/${id}`;
+  if (location.hash === target) window.dispatchEvent(new HashChangeEvent('hashchange'));   // the same route: render it again
+  else location.hash = target;
 }
 
 async function showModel(el, modelId, query) {
@@ -236,9 +241,7 @@ async function refine(el, model, effect, datasets = []) {
     if (job.state === 'succeeded') {
       const child = job.result.model_id;
       out.append(h(`<p class="ok" id="refined" data-model-id="${esc(child)}">Added ${esc(effect)}: model <a href="#/models/${esc(child)}">${esc(child)}</a>.</p>`));
-      await renderHistory(el, await api(`/models/${encodeURIComponent(child)}`, { signal: controller.signal }), true);
-      const list = document.querySelector('#model-list');
-      if (list) renderModelList(list, await api('/models', { signal: controller.signal }), model.id);
+      openModel(child);   // the new model's page: its diagnosis, its error history, its row marked in the list
     } else {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `refine ${job.state}`));
     }
@@ -284,7 +287,7 @@ async function renderHistory(el, model, canHistory) {
       { label: 'like for like: every step on the same data (nm)', values: steps.map((s) => (s.same ?? s.rms) * 1e3), points: true, width: 2 },
       ...(steps.some((s) => s.same !== null && s.same !== s.rms)
         ? [{ label: 'as fitted, on the data of its step (nm)', values: steps.map((s) => s.rms * 1e3), points: true, width: 1 }] : [])],
-    height: 220, points: true, integerX: true }));
+    height: 220, points: true, integerX: true, liveLegend: false }));   // the values: the table below
   const table = el.querySelector('#history-table');
   if (!table) return;
   table.innerHTML = `<table id="history"><tr><th title="0: the lineage's first model, as a discover run's step 0 is the model it starts from">step</th><th>model</th><th>change</th><th class="num">held-out RMS</th><th class="num">like for like</th></tr>

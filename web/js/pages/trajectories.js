@@ -69,7 +69,8 @@ export async function enter(root) {
       <div class="card"><h2>Error per period</h2><div id="period-chart"></div></div>
       <div class="card"><h2>Reference and actual ellipse</h2><div id="ellipse-chart"></div></div>
     </div>
-    <div class="card"><h2>Errors beside the paper's</h2><table id="traj-errors"></table></div>
+    <div class="card"><h2>Errors beside the paper's</h2><table id="traj-errors"></table>
+      <p class="muted" id="traj-relative-note"></p></div>
   </div>`));
   const form = root.querySelector('#traj-form');
   root.querySelector('#traj-show-imported').addEventListener('change', (e) => {
@@ -275,18 +276,23 @@ async function drawEllipse(root, r, body) {
              { label: 'actual (2 steady periods)', x: tail('x_y_um'), y: tail('x_z_um'), color: '#d9480f' }] }));
 }
 
+/** What the service's relative_error_pct is (service/science/control/session.py, metrics). */
+const RELATIVE_ERROR = 'the larger over Y and Z of (max |error| on the axis ÷ the reference\'s peak-to-peak on that axis over one steady period), × 100';
+
 function renderErrors(root, r, body) {
   // errors in nm (the one unit for errors; the API's fields are in µm), the relative error in %
   const shown = (key, v) => (v === undefined || v === null ? '–' : key.endsWith('_um') ? fmt(v * 1e3) : fmt(v));
   const paperCell = (c, key) => `<td class="num">${c[key] !== undefined ? (key === 'relative_error_pct' ? '< ' : '') + shown(key, c[key]) : '–'}</td>`;
-  const row = (label, key, unit) => `<tr data-key="${key}"><td>${label} (${unit})</td>
+  const row = (label, key, unit, title = '') => `<tr data-key="${key}"><td${title ? ` title="${esc(title)}"` : ''}>${label} (${unit})</td>
     <td class="num" data-value="${r ? r[key] ?? '' : ''}">${r ? shown(key, r[key]) : '–'}</td>
     ${paperCell(PAPER.case1, key)}${paperCell(PAPER.case2, key)}</tr>`;
   root.querySelector('#traj-errors').innerHTML = `<tr><th>error</th><th class="num">this run${body ? ` (${fmt(body.frequency_hz)} Hz, ${fmt(body.inclination_deg)}°)` : ''}</th>
       <th class="num">${PAPER.case1.label}</th><th class="num">${PAPER.case2.label}</th></tr>` +
     row('max error Y', 'max_error_y_um', 'nm') + row('max error Z', 'max_error_z_um', 'nm') +
-    row('RMS error', 'rms_error_um', 'nm') + row('relative error', 'relative_error_pct', '%') +
+    row('RMS error', 'rms_error_um', 'nm') + row('relative error', 'relative_error_pct', '%', RELATIVE_ERROR) +
     (r && r.error_per_period_um ? `<tr><td>error per period, first → last (nm)</td><td class="num">${fmt(r.error_per_period_um[0] * 1e3)} → ${fmt(r.error_per_period_um[r.error_per_period_um.length - 1] * 1e3)}</td><td></td><td></td></tr>` : '');
+  const periods = r && r.evaluated_periods ? `${r.evaluated_periods} steady period${r.evaluated_periods === 1 ? '' : 's'}` : 'steady periods (up to 5)';
+  root.querySelector('#traj-relative-note').textContent = `Relative error: ${RELATIVE_ERROR}; the max errors and RMS are over the run's last ${periods}, after the ramp. The paper's columns give its stated bound.`;
 }
 
 export function leave() {
