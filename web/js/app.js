@@ -49,7 +49,7 @@ async function emergencyStop() {
     const r = await pressStop(stopPort, benchId);
     const volts = Object.entries(r.output_v || {}).map(([a, v]) => `${a} ${fmtFixed(v, 2)} V`).join(', ');
     banner(`Emergency stop (${r.door || 'service route'}): outputs at ${volts || '0 V'}` +
-           (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no job was running') +
+           (r.cancelled_job_id ? `; job ${r.cancelled_job_id} cancelled` : '; no bench job was running') +
            ((r.cancelled_queued_job_ids || []).length ? `; queued bench jobs cancelled too: ${r.cancelled_queued_job_ids.join(', ')}.` : '.') +
            (r.cancelled_queued_job_ids === null ? ' Queued bench jobs: cancelled by the service (the bench runs none until it has).' : ''), 'info');
     document.getElementById('banner').dataset.stopped = JSON.stringify(r);
