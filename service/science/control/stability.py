@@ -24,12 +24,14 @@ GRID_HZ = np.logspace(-2, np.log10(2e5), 12_000)
 @dataclass(frozen=True)
 class AxisPlant:
     """One axis as the loop sees it: static gain µm/V (the largest incremental slope, for safety),
-    first flexure mode (Hz, damping ratio) and the loop's pure delay (s)."""
+    first flexure mode (Hz, damping ratio) and the loop's pure delay (s); ``resonance_of``: where the
+    mode's frequency comes from, in words."""
 
     gain_um_per_v: float
     resonance_hz: float
     damping_ratio: float
     delay_s: float
+    resonance_of: str = "the bench's declared first resonance"
 
     def as_dict(self) -> dict:
         return asdict(self)

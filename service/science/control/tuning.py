@@ -109,9 +109,11 @@ def plant_from_model(model, resonance_hz: float, delay_s: float, sample_rate_hz:
     and at 0.17 on the same bench, whose true ratio is 0.04–0.05; tuning on 0.17 tripped the loop),
     so the damping is the lighter of the identified one and ``ASSUMED_DAMPING``."""
     mode = identified_mode(model)
-    fn_hz = resonance_hz if np.isfinite(resonance_hz) or mode is None else mode[0]
+    declared = np.isfinite(resonance_hz) or mode is None
+    fn_hz = resonance_hz if declared else mode[0]
     zeta = ASSUMED_DAMPING if mode is None else min(mode[1], ASSUMED_DAMPING)
-    return AxisPlant(largest_slope_um_per_v(model, sample_rate_hz), fn_hz, zeta, delay_s)
+    of = "the bench's declared first resonance" if declared else "the feedforward model's identified mode"
+    return AxisPlant(largest_slope_um_per_v(model, sample_rate_hz), fn_hz, zeta, delay_s, of)
 
 
 @dataclass(frozen=True)

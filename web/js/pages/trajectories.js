@@ -306,7 +306,7 @@ function renderPid(root, report) {
   const num = (v, unit) => (v === null || v === undefined ? '—' : `${fmt(v)} ${unit}`);
   // the PPF section's own tuning, not the mode: it sits above the mode the feedforward model's plant has
   const damping = (d, plant) => (d ? `PPF section tuned to ${fmt(d.frequency_hz)} Hz${plant && plant.resonance_hz
-    ? ` (${fmt(d.frequency_hz / plant.resonance_hz, 3)}× the plant model's ${fmt(plant.resonance_hz)} Hz mode)` : ''}, ζ ${fmt(d.damping_ratio)}, ${fmt(d.gain_v_per_um)} V/µm` : 'none');
+    ? ` (${fmt(d.frequency_hz / plant.resonance_hz, 3)}× the ${fmt(plant.resonance_hz)} Hz mode the tuning assumed${plant.resonance_of ? `: ${esc(plant.resonance_of)}` : ''})` : ''}, ζ ${fmt(d.damping_ratio)}, ${fmt(d.gain_v_per_um)} V/µm` : 'none');
   const rows = Object.entries(report.axes).map(([axis, a]) => {
     const m = a.margins || {};
     return `<tr><td>${esc(axis.toUpperCase())}</td><td>${fmt(a.kp)}</td><td>${fmt(a.ki)}</td><td>${fmt(a.kd)}</td>
