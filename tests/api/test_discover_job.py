@@ -373,17 +373,18 @@ def test_a_loop_shape_effect_added_on_the_wider_base_is_reported_as_capacity(tmp
 
 def test_the_base_grid_is_swapped_at_the_loop_end_where_another_grid_draws_the_record(tmp_path):
     """A Krasnosel'skii–Pokrovskii stage (tests/support/hysteresis_worlds.py), one CSV per block at 5 kHz,
-    from a model on the first grid (``hysterons``): its 8 V ridge needs the fine grid, which the
-    diagnosis never offers beside the grid already in the model. Where the loop would stop short of
-    the noise floor, the job refits the other grids in its place with every other effect kept
-    (``grid_swap``): with operators and asymmetry added, the fine grid halves the held-out RMS (4.68 →
-    2.32 nm against a 2.00 nm floor, measured); the step says what it replaced, the grid is found as
-    capacity, and the CLI's words agree."""
+    from a model on the first grid (``hysterons``, with the operators and asymmetry a discover from
+    ``hysterons`` alone adds): its 8 V ridge needs the fine grid, which the diagnosis never offers
+    beside the grid already in the model. Where the loop would stop short of the noise floor, the job
+    refits the other grids in its place with every other effect kept (``grid_swap``): the fine grid
+    halves the held-out RMS (4.68 → 2.32 nm against a 2.00 nm floor, measured from ``hysterons``
+    alone); the step says what it replaced, the grid is found as capacity, and the CLI's words agree."""
     with authed_client(create_app(Settings(data_dir=tmp_path / "var", bench="default", seed=0))) as http:
         datasets = _imported_blocks(http, tmp_path, "krasnoselskii_pokrovskii", seed=0)
-        r = http.post("/api/models", json={"axis": "y", "datasets": datasets, "effects": ["hysteresis", "hysterons"]})
+        effects = ["hysteresis", "hysterons", "operators", "asymmetry"]  # where the loop went from hysterons alone
+        r = http.post("/api/models", json={"axis": "y", "datasets": datasets, "effects": effects})
         base = _result(http, r.json()["job_id"])["model_id"]
-        r = http.post(f"/api/models/{base}/discover", json={"max_steps": 8, "continue_past_ambiguity": True})
+        r = http.post(f"/api/models/{base}/discover", json={"max_steps": 3, "continue_past_ambiguity": True})
         result = _result(http, r.json()["job_id"])
     swaps = [s for s in result["steps"] if s["replaced"]]
     assert [(s["replaced"], s["added"]) for s in swaps] == [("hysterons", "hysterons_fine")], result["steps"]
