@@ -7,7 +7,7 @@ from fastapi.responses import StreamingResponse
 
 from service.http.auth import require_token, token_recheck
 from service.http.deps import get_jobs
-from service.http.schemas.common import BENCH_FILTER, Job, JobKind
+from service.http.schemas.common import BENCH_FILTER, Job, JobKind, JobState
 from service.http.schemas.streams import JOB_EVENTS
 from service.runtime.jobs import JobManager
 from service.store import TERMINAL_STATES
@@ -20,6 +20,7 @@ def list_jobs(
     limit: int = Query(100, ge=1, le=1000),
     bench_id: str | None = BENCH_FILTER,
     kind: JobKind | None = Query(None, description="only the jobs of this kind"),
+    state: JobState | None = Query(None, description="only the jobs in this state (e.g. running)"),
     model_id: str | None = Query(
         None,
         min_length=1,
@@ -32,8 +33,9 @@ def list_jobs(
 ) -> list[dict]:
     """The newest jobs first (of every bench of the lab): id, kind, state, progress (0..1), message,
     result, error, timestamps, bench_id. ``kind`` and ``model_id`` narrow the list (a dashboard page
-    asks for one model's discover runs, not every job's result)."""
-    return jobs.list(limit, bench_id=bench_id, kind=kind, model_id=model_id)
+    asks for one model's discover runs, not every job's result), ``state`` to the jobs in one state
+    (the Bench page lists the running ones, however old, above the newest)."""
+    return jobs.list(limit, bench_id=bench_id, kind=kind, model_id=model_id, state=state)
 
 
 @router.get("/{job_id}", response_model=Job)

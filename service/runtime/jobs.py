@@ -200,7 +200,7 @@ class JobManager:
 
     def list(self, limit: int = 100, bench_id: str | None = None, **filters: str | None) -> list[dict]:
         """The newest ``limit`` jobs (of every bench; ``bench_id``: that bench's), newest first;
-        ``filters``: ``kind`` and ``model_id`` as Store.list_jobs reads them."""
+        ``filters``: ``kind``, ``state`` and ``model_id`` as Store.list_jobs reads them."""
         return [self._overlay(row) for row in self.store.list_jobs(limit, bench_id=bench_id, **filters)]
 
     def _overlay(self, row: dict) -> dict:
@@ -296,6 +296,8 @@ class JobManager:
         to the process's exit (``serve`` does not wait for it). Returns the ids of the jobs left so."""
         self._closed = True
         deadline = time.monotonic() + timeout_s
+        if running := self._unfinished(("running",)):
+            log.warning("service stopping: waiting at most %g s for job(s) %s to stop", timeout_s, running)
         for job_id in self._unfinished(("queued", "running")):
             self.cancel(job_id)
         self._bench_queue.put(None)

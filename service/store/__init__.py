@@ -320,14 +320,22 @@ class Store:
         return self._get(tables.jobs, job_id, "job")
 
     def list_jobs(
-        self, limit: int | None = 100, bench_id: str | None = None, kind: str | None = None, model_id: str | None = None
+        self,
+        limit: int | None = 100,
+        bench_id: str | None = None,
+        kind: str | None = None,
+        model_id: str | None = None,
+        state: str | None = None,
     ) -> list[JobRow]:
         """The newest ``limit`` jobs (of every bench), newest first; ``bench_id``: only that bench's;
-        ``kind``: only that kind; ``model_id``: only those started from that model (``params.model_id``)
-        or that ended at it (``result.final_model_id``, a discover run's last model)."""
+        ``kind``: only that kind; ``state``: only those in that state; ``model_id``: only those started
+        from that model (``params.model_id``) or that ended at it (``result.final_model_id``, a discover
+        run's last model)."""
         job, where = tables.jobs.c, []
         if kind is not None:
             where.append(job.kind == kind)
+        if state is not None:
+            where.append(job.state == state)
         if model_id is not None:
             started = job.params["model_id"].as_string() == model_id
             where.append(or_(started, job.result["final_model_id"].as_string() == model_id))

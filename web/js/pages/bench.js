@@ -30,7 +30,7 @@ export async function enter(root) {
       <div id="bench-job"></div>
       <div id="live"></div></div>
     <div class="card"><h2>Last recording <span class="muted" id="last-recording-name"></span></h2><div id="last-recording"></div></div>
-    <div class="card"><h2>Recent jobs</h2><table id="jobs"></table></div>
+    <div class="card"><h2>Recent jobs <span class="muted">(the running ones first)</span></h2><table id="jobs"></table></div>
   </div>`));
   renderState(root, bench);
   onEngine = (event) => { if (event.detail.status === 'degraded') markStale(root, event.detail.reason); };
@@ -61,7 +61,8 @@ export async function enter(root) {
   };
   timer = setInterval(poll, 1000);
   const jobs = await refreshJobs(root);
-  const last = jobs.find((j) => j.result && j.result.dataset_id);
+  const last = jobs.slice().sort((a, b) => String(b.created_at).localeCompare(String(a.created_at)))
+    .find((j) => j.result && j.result.dataset_id);   // the newest recording, whatever runs
   if (last) await showRecording(root, last.result.dataset_id);
   else root.querySelector('#last-recording').innerHTML = '<p class="muted" id="no-recording">Nothing recorded yet: run a sweep on the <a href="#/sweeps">Sweeps</a> page, and its drive and displacement appear here.</p>';
   if (bench.running_job_id) follow(root, bench.running_job_id);
@@ -126,7 +127,10 @@ function renderState(root, b) {
 }
 
 async function refreshJobs(root) {
-  const jobs = await api('/jobs?limit=10', { signal: controller.signal });
+  // the running jobs first, however old (a discover fitting for half an hour), then the newest
+  const [running, newest] = await Promise.all([api('/jobs?state=running&limit=20', { signal: controller.signal }),
+    api('/jobs?limit=10', { signal: controller.signal })]);
+  const jobs = [...running, ...newest.filter((j) => !running.some((r) => r.id === j.id))];
   const el = root.querySelector('#jobs');
   el.innerHTML = `<tr><th>job</th><th>kind</th><th>state</th><th class="num">progress</th><th>result / error</th><th>created</th></tr>` +
     jobs.map((j) => `<tr><td>${esc(j.id)}</td><td>${esc(j.kind)}</td><td class="state-${j.state}">${j.state}</td>
