@@ -166,10 +166,16 @@ def test_labels_are_edited_on_the_page_and_markup_stays_text(page, server):
     dataset = server["recorded"]
     goto(page, server, f"datasets/{dataset}")
     page.fill("#labels-form input[name=name]", "span sweep")
+    page.fill("#labels-form input[name=tags]", f"span, {MARKUP}")
     page.click("#labels-save")
     page.wait_for_function("document.querySelector('#labels-status').textContent === 'saved'")
-    assert server["api"].get(f"/datasets/{dataset}").json()["name"] == "span sweep"
+    stored = server["api"].get(f"/datasets/{dataset}").json()
+    assert stored["name"] == "span sweep" and stored["tags"] == ["span", MARKUP]
     assert page.inner_text("#dataset-name") == "span sweep"
+    # the list shows the tags, as text, beside the name
+    goto(page, server, "datasets")
+    tags = page.locator(f"#dataset-list tr[data-dataset-id='{dataset}'] .tag").all_inner_texts()
+    assert tags == ["span", MARKUP] and page.evaluate("window.__xss === undefined"), tags
     shot(page, "provenance_labels")
 
 

@@ -45,7 +45,7 @@ async function refreshList(root) {
   root.querySelector('#dataset-list').innerHTML = `<tr><th>id</th><th>name</th><th>source</th><th>axes</th>
     <th class="num">samples</th><th class="num">rate (Hz)</th><th class="num">duration (s)</th><th class="num">blocks</th><th>created</th><th title="the bench it was recorded on (a lab: see the Lab page), or the file it was imported from">origin</th></tr>` +
     rows.slice().reverse().map((d) => `<tr data-dataset-id="${esc(d.id)}"><td><a href="#/datasets/${esc(d.id)}">${esc(d.id)}</a></td>
-      <td>${esc(d.name)}${d.partial ? ' <span class="warn">(partial)</span>' : ''}</td><td>${esc(d.source)}</td><td>${d.axes.join(', ')}</td>
+      <td>${esc(d.name)}${d.partial ? ' <span class="warn">(partial)</span>' : ''}${(d.tags || []).map((t) => ` <span class="tag">${esc(t)}</span>`).join('')}</td><td>${esc(d.source)}</td><td>${d.axes.join(', ')}</td>
       <td class="num">${d.samples}</td><td class="num">${fmt(d.sample_rate_hz)}</td><td class="num">${fmt(d.duration_s)}</td>
       <td class="num">${d.n_blocks}</td><td>${esc(d.created_at)}</td><td class="bench origin" data-imported="${isImported(d) ? 1 : 0}">${originHtml(d)}</td></tr>`).join('');
 }
