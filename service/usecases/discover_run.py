@@ -35,6 +35,7 @@ from service.science.discovery.loop import (
     needed_experiment,
     next_effect,
     refitted_choice,
+    swappable_grid,
     try_step,
 )
 from service.science.discovery.rests import LineFree
@@ -211,8 +212,10 @@ class _Loop:
     def try_swap(self, ctx: JobContext, store: Store, d: dict, max_steps: int) -> dict | None:
         """Where the loop would stop short of the noise floor: the base's grid against its alternatives
         refitted in its place (``grid_swap``, once a run, while model steps are left); the next step's
-        diagnosis when another grid wins, else None. A model step either way."""
+        diagnosis when another grid wins, else None. A model step where the grids are refitted."""
         if self.swapped or self.model is None or self.model_steps >= max_steps:
+            return None
+        if swappable_grid(self.effects, d) is None:  # no grid, or at the floor: nothing is fitted
             return None
         self.raise_if_cancelled(ctx)
         self.swapped = True
@@ -224,7 +227,7 @@ class _Loop:
             return None
         effects = [e for e in self.effects if e != swap["replaced"]] + [swap["effect"]]
         self.model, step = discovery_step(self.line_free, effects, self.n_operators, model=swap["model"])
-        index_added, _ = self.run["added"].pop(swap["replaced"], (index, None))
+        self.run["added"].pop(swap["replaced"], None)  # the grid replaced is no longer found
         row = {"kind": "capacity", "evidence": swap["evidence"], "p_value": None, "score": None}
         self.run["added"][swap["effect"]] = (index, {**row, "expected_rms_um": swap["held_out_rms_um"]})
         self.effects, self.excluded = effects, []

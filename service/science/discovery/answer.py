@@ -26,13 +26,13 @@ def diagnosis_answer(
     None; ``remains`` the remainder's leading signature (None when nothing is described), read from
     ``remainder`` itself."""
     top = (remainder or {}).get("signatures") or []
+    other = look_alike(claimed_physical[0]["effect"], ambiguity) if claimed_physical else None
     remains = top[0] if top else None
     if first_capacity is not None:  # the base cannot draw the loop: it grows first (base_capacity.py)
         lead, kind = first_capacity, "capacity"
         head = first_capacity_words(first_capacity, claimed_physical[0], residual_um)
     elif claimed_physical:
         lead, kind = claimed_physical[0], "physical"
-        other = look_alike(lead["effect"], ambiguity)
         head = (
             f"Missing: {lead['effect']}. Adding it should bring the held-out error from {fmt_nm(residual_um, 4)} "
             f"to about {fmt_nm(lead['expected_rms_um'], 4)}."
@@ -66,7 +66,7 @@ def diagnosis_answer(
         "missing": None if lead is None else lead["effect"],
         "kind": kind,
         "expected_rms_um": None if lead is None else lead["expected_rms_um"],
-        "ambiguous_with": look_alike(lead["effect"], ambiguity) if kind == "physical" else None,
+        "ambiguous_with": other if kind == "physical" else None,
         "remains": None if remains is None else remains["signature"],
         "remains_share": None if remains is None else remains["share_of_excess"],
         "text": head + tail,

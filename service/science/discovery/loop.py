@@ -130,18 +130,27 @@ def refitted_choice(
     return chosen, models[chosen]
 
 
+def swappable_grid(effects, d: dict) -> str | None:
+    """The grid of the base in ``effects`` that ``grid_swap`` would compare with its alternatives
+    (an effect with ``Effect.alternative_to``), or None: there is none, or diagnosis ``d`` is at the
+    noise floor already."""
+    grid = next((e for e in effects if EFFECTS[e].alternative_to), None)
+    return None if grid is None or d["at_noise_floor"] else grid
+
+
 @shared_effect_columns()
 def grid_swap(line_free: LineFree, effects, n_operators: int, d: dict, model: CompositeModel) -> dict | None:
     """When the loop stops short of the noise floor with a grid of the base in the model (an effect
     with ``Effect.alternative_to``): each alternative grid refitted in its place, every other effect
     kept (warm at the model's theta), and chosen by ``parsimonious`` on the held-out figures, the
     model's own (diagnosis ``d``) among them. The grid was chosen when it was added, beside the
-    effects of that step; those added since can change which grid the record asks for (on a stage
-    100× its noise, the slow grid taken first left a Bouc–Wen stack at 1.45× the floor, the fine one
-    in its place 1.09×). ``{"replaced", "effect", "model", "held_out_rms_um", "evidence"}`` (µm)
-    when another grid wins; None when the model's own is kept or there is none."""
-    grid = next((e for e in effects if EFFECTS[e].alternative_to), None)
-    if grid is None or d["at_noise_floor"]:
+    effects of that step; those added since can change which grid the record asks for (a
+    Krasnosel'skii–Pokrovskii stage with a hidden slew limit, one file per block: the loop kept
+    ``hysterons`` and ended at 2.77× the floor; with the fine grid in its place, 2.06×).
+    ``{"replaced", "effect", "model", "held_out_rms_um", "evidence"}`` (µm) when another grid wins;
+    None when the model's own is kept or there is nothing to compare (``swappable_grid``)."""
+    grid = swappable_grid(effects, d)
+    if grid is None:
         return None
     rows = [{"effect": grid, "expected_rms_um": d["residual_rms_um"], "added_parameters": model.n_parameters()}]
     fitted = {}
