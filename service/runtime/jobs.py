@@ -357,9 +357,9 @@ class JobManager:
             if live.cancel.is_set():  # cancelled while it failed (an emergency stop's hold): cancelled
                 self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
             else:
-                self._finish(job_id, "failed", message="failed", error=failure_text(exc))
-                if is_fault(exc):
+                if is_fault(exc):  # logged first: the error that points to the log is read after it
                     log.error("job %s failed", job_id, exc_info=exc)
+                self._finish(job_id, "failed", message="failed", error=failure_text(exc))
         else:
             if live.cancel.is_set() and not result:
                 self._finish(job_id, "cancelled", message=live.cancel_reason or "cancelled")
