@@ -1,7 +1,7 @@
 """Describing what remains (service.science.discovery.remainder): stages written here, without the
 product's code, hide one effect outside the library each (a drift is the library's own effect, which
 the diagnosis claims; each stretch is read about its own level, so a slow drift shows only inside one); the model given to the describer is the
-stage's own base, so its residual is the effect plus 2 nm of gauge noise. The leading signature must
+stage's own base (for the heated stack, the base at each block's mean gain, as a fit takes it), so its residual is the effect plus 2 nm of gauge noise. The leading signature must
 be the hidden effect's, its sentence must carry the right figure, and a clean stage must describe
 nothing (the Bonferroni-corrected held-out test)."""
 
@@ -63,6 +63,30 @@ def _slew_limited(u: np.ndarray, v_per_s: float) -> np.ndarray:
     return out
 
 
+def _heated_gain(u: np.ndarray) -> np.ndarray:
+    """A stack heated by its drive: 1 + 0.5 %/K · T, T (K) rising 0.2 K per kV the drive moves (a loss
+    per volt moved) and cooling with a 20 s time constant."""
+    heat, decay = 2e-4 * np.abs(np.diff(u, prepend=u[0])), np.exp(-1.0 / (20.0 * FS))
+    temp, out = 0.0, np.empty(u.size)
+    for k in range(u.size):
+        temp = temp * decay + heat[k]
+        out[k] = temp
+    return 1.0 + 0.005 * out
+
+
+def _gain_per_block(rec: Record, base: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """What a model without the heating predicts: each block at the gain its training cycles had (a
+    rate-dependent gain fitted per block frequency takes a block's mean), the rest at the record's."""
+    train = np.zeros(base.size, dtype=bool)
+    for s in rec.splits:
+        train[s.train[0] : s.train[1]] = True
+    pred = base * gain[train].mean()
+    for s in rec.splits:
+        a, b = s.train[0], s.held_out[1]
+        pred[a:b] = base[a:b] * gain[s.train[0] : s.train[1]].mean()
+    return pred
+
+
 def _describe(hidden: str, seed: int, rated_rate_v_per_s: float | None = None) -> dict:
     rng = np.random.default_rng(seed)
     u, blocks = _drive()
@@ -81,10 +105,13 @@ def _describe(hidden: str, seed: int, rated_rate_v_per_s: float | None = None) -
         temp = 25.0 + 2.0 * np.sin(np.pi * t / t[-1])
         x = base * (1 + 0.004 * (temp - 25.0))
         kwargs["temp_c"] = temp
+    elif hidden == "self heating":  # the gain rises through each block as the drive heats the stack
+        x = base * _heated_gain(u)
     x = x + rng.normal(0, NOISE_UM, u.size)
     kwargs["rated_rate_v_per_s"] = rated_rate_v_per_s  # None: an import's amplifier, unknown
     rec = Record(u, x, FS, label=f"{hidden}:", blocks=blocks, axis="y", hold_out=True, **kwargs)
-    return describe_remainder([rec], [x - base], [base], noise_um=NOISE_UM)
+    pred = _gain_per_block(rec, base, _heated_gain(u)) if hidden == "self heating" else base
+    return describe_remainder([rec], [x - pred], [pred], noise_um=NOISE_UM)
 
 
 EXPECTED = {
@@ -94,6 +121,10 @@ EXPECTED = {
     # at the step and in the 100 Hz block alike: the rate, or the block where the rate is highest
     "slew limit": (("drive rate", "response per block", "rate limit"), "fastest"),
     "temperature": ("temperature", "%/K"),
+    # the model took each block's mean gain: what remains is the rise through each block, one held-out
+    # cycle at a block's end (read as nothing while each held-out stretch was cut into two halves, one
+    # branch each, for the cross-validation)
+    "self heating": ("gain changing with time", "rises"),
 }
 
 
