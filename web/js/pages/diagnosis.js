@@ -172,28 +172,59 @@ export function renderDiagnosis(box, model, d, opts) {
 /** Run the experiment (a sweep job), then the diagnosis with its dataset; null when either fails. */
 async function separate(out, model, experiment, extra, signal) {
   try {
-    const job = await runJob(out, '/sweeps', experiment.body, `separating experiment (${experiment.body.waveform || 'sweep'})`, { signal });
+    // the dataset keeps what it is the experiment of, so its result is shown again after a reload
+    const body = { ...experiment.body, experiment_of: { model_id: model.id, effects: [...new Set([experiment.a, experiment.b])], extra_datasets: extra } };
+    const job = await runJob(out, '/sweeps', body, `separating experiment (${experiment.body.waveform || 'sweep'})`, { signal });
     if (job.state !== 'succeeded' || !job.result?.dataset_id) {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `the experiment was ${job.state}`));
       return null;
     }
     const datasetId = job.result.dataset_id;
     const all = [...extra, datasetId];
-    const wait = h(`<p class="muted" id="separate-wait">Dataset ${esc(datasetId)} recorded. Re-running the diagnosis with it
-      (every candidate is refitted on all the data): <span>0</span> s…</p>`);
-    out.append(wait);
-    const t0 = Date.now();
-    const tick = setInterval(() => { wait.querySelector('span').textContent = String(Math.round((Date.now() - t0) / 1000)); }, 1000);
-    try {
-      const query = all.map((id) => `extra_datasets=${encodeURIComponent(id)}`).join('&');
-      const diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis?${query}`, { signal });
-      return { diagnosis, datasetId, extra: all };
-    } finally {
-      clearInterval(tick);
-      wait.remove();
-    }
+    const diagnosis = await diagnosedWith(out, model, all, `Dataset ${datasetId} recorded`, signal);
+    return { diagnosis, datasetId, extra: all };
   } catch (e) {
     showError(out.appendChild(document.createElement('p')), e, 'Separating experiment failed: ');
     return null;
+  }
+}
+
+/** GET the diagnosis of `model` with the datasets `extra` added, a wait line in `out` counting the seconds. */
+async function diagnosedWith(out, model, extra, said, signal) {
+  const wait = h(`<p class="muted" id="separate-wait">${esc(said)}. Re-running the diagnosis with it
+    (every candidate is refitted on all the data): <span>0</span> s…</p>`);
+  out.append(wait);
+  const t0 = Date.now();
+  const tick = setInterval(() => { wait.querySelector('span').textContent = String(Math.round((Date.now() - t0) / 1000)); }, 1000);
+  try {
+    const query = extra.map((id) => `extra_datasets=${encodeURIComponent(id)}`).join('&');
+    return await api(`/models/${encodeURIComponent(model.id)}/diagnosis${query ? `?${query}` : ''}`, { signal });
+  } finally {
+    clearInterval(tick);
+    wait.remove();
+  }
+}
+
+/** The newest separating experiment run from `model`'s diagnosis: the dataset that records it
+ *  (`experiment_of`: this model, two effects; not a discover run's), or null. `datasets`: oldest first. */
+export function lastSeparation(model, datasets) {
+  const runs = datasets.filter((d) => d.experiment_of && d.experiment_of.model_id === model.id
+    && !d.experiment_of.discover_job_id && (d.experiment_of.effects || []).length === 2 && !d.partial);
+  return runs.length ? runs[runs.length - 1] : null;
+}
+
+/** After a reload, the newest separating experiment's result again, from its stored dataset: the
+ *  diagnosis with it beside the diagnosis that proposed it (`d` when that one added no dataset). */
+export async function showLastSeparation(box, model, d, datasets, opts) {
+  const ds = lastSeparation(model, datasets);
+  if (!ds) return;
+  const { effects: [a, b], extra_datasets: earlier = [] } = ds.experiment_of;
+  const said = `The separating experiment of ${String(ds.created_at).slice(0, 16).replace('T', ' ')} (dataset ${ds.id})`;
+  try {
+    const before = earlier.length ? await diagnosedWith(opts.jobBox, model, earlier, said, opts.signal) : d;
+    const after = await diagnosedWith(opts.jobBox, model, [...earlier, ds.id], said, opts.signal);
+    renderDiagnosis(box, model, after, { ...opts, extra: [...earlier, ds.id], before, experiment: { a, b }, datasetId: ds.id });
+  } catch (e) {
+    showError(opts.jobBox.appendChild(document.createElement('p')), e, 'The separating experiment\'s result could not be read again: ');
   }
 }

@@ -10,7 +10,7 @@ import { renderLabels } from '../labels.js';
 import { renderEffects } from '../effects.js';
 import { paperFigures, table6 } from '../paper.js';
 import { importedIds, isImported, modelBenchHtml, modelOriginHtml, onImportedData } from '../provenance.js';
-import { renderDiagnosis } from './diagnosis.js';
+import { renderDiagnosis, showLastSeparation } from './diagnosis.js';
 import { renderDiscover } from './discover.js';
 
 const charts = [];
@@ -152,8 +152,9 @@ async function showModel(el, modelId, query) {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted" id="diagnosis-wait">Diagnosing: every candidate effect is fitted in turn on the held-out cycles…</p>';
     try {
       diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
-      renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, { canRefine, signal, jobBox: el.querySelector('#separate-job'),
-        onAdd: (effect, extra) => refine(el, model, effect, extra) });
+      const opts = { canRefine, signal, jobBox: el.querySelector('#separate-job'), onAdd: (effect, extra) => refine(el, model, effect, extra) };
+      renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, opts);
+      await showLastSeparation(el.querySelector('#diagnosis'), model, diagnosis, all, opts);   // its result kept over a reload
     } catch (e) { showError(el.querySelector('#diagnosis'), e, 'Diagnosis failed: '); }
   } else {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
