@@ -281,3 +281,24 @@ def test_a_renamed_import_is_named_by_its_new_name_on_every_page(page, server):
         assert page.evaluate("window.__xss === undefined")  # the name is text
     finally:
         api.patch(f"/datasets/{imported}", json={"name": "Model_Vi_Do.dat"}).raise_for_status()
+
+
+def test_identify_selects_the_data_in_view_or_the_users_newest_not_an_experiments(page, server):
+    """The walk's Identify preselected the newest dataset, an experiment's: it selects the datasets of the
+    model in view, else the newest the user recorded or imported; an experiment's stays offered, marked."""
+    api = server["api"]
+    # a newer dataset, the experiment a diagnosis of the recorded model proposed to test creep
+    made_for = {"model_id": server["recorded_model"], "effects": ["creep"]}
+    sweep = {"axes": ["y"], "frequencies_hz": [10], "cycles": 2, "experiment_of": made_for}
+    experiment = posted_result(server, "/sweeps", sweep)["dataset_id"]
+    newest = api.get("/datasets").json()[-1]
+    assert newest["id"] == experiment and newest["experiment_of"]["model_id"] == server["recorded_model"]
+    chosen = "[...document.querySelectorAll('#identify-datasets option:checked')].map(o => o.value)"
+    goto(page, server, "models")
+    assert page.evaluate(chosen) == [server["recorded"]]  # the sweep recorded after the import
+    option = page.locator(f"#identify-datasets option[value='{experiment}']")
+    assert option.get_attribute("data-experiment") == "1" and option.inner_text().endswith("(an experiment)")
+    goto(page, server, f"models/{server['imported_model']}")
+    assert page.evaluate(chosen) == [server["imported"]]  # the model in view's
+    page.select_option("#identify-datasets", [experiment])  # still selectable
+    assert page.evaluate(chosen) == [experiment]

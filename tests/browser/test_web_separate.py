@@ -11,7 +11,7 @@ import json
 import pytest
 
 from tests.support.api_client import wait_job
-from tests.support.browser import goto, job_of, serving, shot
+from tests.support.browser import goto, job_of, posted_result, serving, shot
 
 pytestmark = [pytest.mark.browser, pytest.mark.realtime, pytest.mark.xdist_group("web_separate")]
 
@@ -106,3 +106,27 @@ def _separation_figures(page) -> dict:
             for i in range(rows.count())
         },
     }
+
+
+def test_the_experiment_a_discover_run_needs_is_recorded_as_its_diagnosis_experiment(page, server):
+    """Discover stops at the ambiguity and offers its sweep; the button's dataset records the model whose
+    diagnosis proposed it and the effects it separates, so Identify does not preselect it."""
+    dataset_id = posted_result(server, "/sweeps", BOTH_AXES)["dataset_id"]
+    model_id = posted_result(server, "/models", {"axis": "y", "datasets": [dataset_id]})["model_id"]
+    goto(page, server, f"models/{model_id}")
+    page.fill("#discover-form input[name=max_steps]", "2")
+    page.click("#discover-start")
+    page.wait_for_selector("#discover-job .jobline[data-state='succeeded']", timeout=300_000)
+    button = page.locator("#discover-experiments .run-experiment")
+    assert button.count() == 1
+    effects = page.get_attribute("#discover-experiments li", "data-effects").split(",")
+    assert set(effects) == {"delay", "rate_dependence"}
+    button.click()
+    page.wait_for_selector("#discover-experiments .experiment-job .jobline[data-state='succeeded']", timeout=120_000)
+    job_id = page.get_attribute("#discover-experiments .experiment-job .jobline", "data-job-id")
+    made = server["api"].get(f"/jobs/{job_id}").json()["result"]["dataset_id"]
+    recorded = server["api"].get(f"/datasets/{made}").json()
+    assert recorded["experiment_of"] == {"model_id": model_id, "effects": effects, "extra_datasets": []}
+    goto(page, server, "models")
+    chosen = page.evaluate("[...document.querySelectorAll('#identify-datasets option:checked')].map(o => o.value)")
+    assert chosen == [dataset_id] and made != dataset_id
