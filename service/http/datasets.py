@@ -56,6 +56,8 @@ def dataset_view(row: DatasetRow, full: bool = True) -> dict:
     plan = row["plan"] if isinstance(row["plan"], dict) else {}
     # an import's file, in the list as on its page (the list named it by its name, the page by its file)
     view["import_filename"] = (plan.get("import") or {}).get("filename") if row["source"] == "import" else None
+    # an experiment's sweep (a diagnosis's or a discover run's), told from one the user planned
+    view["experiment_of"] = plan.get("experiment_of") if row["source"] == "sweep" else None
     if full:
         view.update(
             blocks=row["blocks"],

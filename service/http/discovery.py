@@ -84,7 +84,9 @@ def start_discovery(
     params = {"model_id": model_id, **body.model_dump()}
 
     def run_experiment(ctx, sweep_body: dict) -> dict:
-        return sweep_and_wait(ctx, jobs, bench, store, sweep_body, name=f"experiment of discovery from {model_id}")
+        made_for = {"experiment_of": {"model_id": model_id, "effects": [], "discover_job_id": ctx.job_id}}
+        body = {**sweep_body, **made_for}
+        return sweep_and_wait(ctx, jobs, bench, store, body, name=f"experiment of discovery from {model_id}")
 
     elsewhere = recorded_elsewhere(imported, "run it on the stage that recorded the data and import the record")
     policy = ExperimentPolicy(

@@ -266,6 +266,7 @@ def _diagnosis_section(d: dict) -> str:
             escape(c.get("kind") or ""),
             "yes" if c.get("claimed") else "no",
             value_text(c.get("score"), 3)
+            + (" (capped)" if c.get("score_capped") else "")
             + (f"<br><small>{escape(c['score_of'])}</small>" if c.get("score_of") else ""),
             _tested_words(c),
             fmt_nm(c.get("expected_rms_um"), 4)

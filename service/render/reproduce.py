@@ -14,8 +14,9 @@ import shlex
 
 from service.render.text import one_line_text
 
-#: the stored plan's keys that are the planner's figures, not part of the request body
-PLAN_FIGURES = ("samples", "duration_s")
+#: the stored plan's keys that are not part of the request body: the planner's figures, and the
+#: diagnosis an experiment was made for (a model the steps run again make anew)
+PLAN_NOT_IN_BODY = ("samples", "duration_s", "experiment_of")
 #: sweep body keys with their own ``evcbench sweep`` flag or form (the rest map to --key-with-dashes)
 _CLI_SPECIAL = {"axes", "frequencies_hz", "levels_v", "together", "name"}
 
@@ -39,7 +40,7 @@ def dataset_request(row: dict) -> dict:
         return {"kind": "import", "body": {**options, "name": row.get("name")}}
     if row.get("source") == "trajectory":
         return {"kind": "trajectory", "body": dict(plan)}
-    body = {k: v for k, v in plan.items() if k not in PLAN_FIGURES}
+    body = {k: v for k, v in plan.items() if k not in PLAN_NOT_IN_BODY}
     chirp = [b for b in row.get("blocks") or [] if b.get("kind") == "chirp"]
     if body.get("waveform") == "chirp" and chirp:  # the stored duration_s is the whole plan's: the chirp's
         body["duration_s"] = round((chirp[0]["stop"] - chirp[0]["start"]) / row["sample_rate_hz"], 6)

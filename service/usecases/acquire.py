@@ -119,8 +119,11 @@ def queue_sweep(
     jobs: JobManager, bench: Bench, store: Store, values: dict, name: str | None = None
 ) -> tuple[dict, PlannedSweep]:
     """Plan a sweep (``plan_sweep``: FieldError naming the field if it leaves the bench's limits) and
-    queue it as a bench job; ``(job, planned)``. POST /api/sweeps and the discover job's experiments."""
+    queue it as a bench job; ``(job, planned)``. POST /api/sweeps and the discover job's experiments.
+    ``values["experiment_of"]`` (the diagnosis it is the experiment of), when given, is kept in the plan."""
     planned, plan = plan_sweep(bench, values)
+    if values.get("experiment_of"):
+        plan["experiment_of"] = values["experiment_of"]
     job = jobs.submit("sweep", plan, lambda ctx: run_sweep(ctx, bench, store, planned, plan, name), needs_bench=True)
     return job, planned
 

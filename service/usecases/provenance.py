@@ -40,12 +40,20 @@ def recorded_elsewhere(imported: list[str], then: str) -> str | None:
     return f"{', '.join(imported)} {'was' if len(imported) == 1 else 'were'} imported: {then}"
 
 
+def imported_name(imported: dict) -> str:
+    """An imported dataset of a model's origin by its name as stored now, the file it came from beside
+    it where the name is another ('"stage B" from the file b.csv': the file had named it until a rename);
+    the file alone where the name is still the file's. The dashboard's provenance.importedDataName."""
+    name, filename = imported.get("name") or imported["dataset_id"], imported.get("filename")
+    return f"“{name}” from the file {filename}" if filename and filename != name else name
+
+
 def foreign_model_warning(axis: str, model_id: str, origin: dict) -> str | None:
     """The warning a trajectory run carries when ``axis``'s feedforward model was fitted on imported
     data (None otherwise)."""
     if origin["fitted_on"] == "this_bench":
         return None
-    files = ", ".join(i.get("filename") or i.get("name") or i["dataset_id"] for i in origin["imported"])
+    files = ", ".join(imported_name(i) for i in origin["imported"])
     return (
         f"{axis.upper()}: feedforward model {model_id} was fitted on imported data ({files}): the data was "
         "recorded on another stage, so its model may not describe this bench; identify one on this bench's sweeps"

@@ -286,10 +286,10 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     for e in ran["experiments"]:  # each through the sweep queue, then refitted on
         sweep = http.get(f"/api/jobs/{e['sweep_job_id']}").json()
         assert sweep["kind"] == "sweep" and sweep["result"]["dataset_id"] == e["dataset_id"]
-        assert (
-            http.get(f"/api/datasets/{e['dataset_id']}").json()["plan"]["frequencies_hz"]
-            == e["experiment"]["frequencies_hz"]
-        )
+        recorded = http.get(f"/api/datasets/{e['dataset_id']}").json()
+        assert recorded["plan"]["frequencies_hz"] == e["experiment"]["frequencies_hz"]
+        # an experiment's dataset, not one the user planned (Identify does not preselect it)
+        assert recorded["experiment_of"] == {"model_id": base_id, "effects": [], "discover_job_id": job["id"]}
         refit = ran["steps"][e["after_step"] + 1]
         assert refit["experiment_dataset_id"] == e["dataset_id"] and refit["added"] is None
         assert refit["parent_id"] == ran["steps"][e["after_step"]]["model_id"]

@@ -40,6 +40,11 @@ def test_a_model_on_imported_data_is_marked_imported_and_warned_on_a_trajectory(
         said = foreign_models(store, bench, {"feedforward_model_y": model_id})
         assert len(said) == 1 and said[0].startswith(f"Y: feedforward model {model_id} was fitted on imported data")
         assert "other_lab.csv" in said[0] and "another stage" in said[0]
+        # named by the dataset's name as stored now, its file beside it (the walk: the old name stayed)
+        assert http.patch(f"/api/datasets/{dataset}", json={"name": "stage B"}).status_code == 200
+        assert http.get(f"/api/models/{model_id}").json()["origin"]["imported"][0]["name"] == "stage B"
+        said = foreign_models(store, bench, {"feedforward_model_y": model_id})
+        assert "fitted on imported data (“stage B” from the file other_lab.csv)" in said[0], said
         assert foreign_models(store, bench, {}) == []
 
 

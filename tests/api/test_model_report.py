@@ -330,3 +330,16 @@ def test_names_and_tags_are_one_line(tmp_path):
         assert http.get(f"/api/datasets/{dataset}").json()["name"] == "lab"
         answer = http.post("/api/models", json={"axis": "y", "datasets": [dataset], "name": "m\r"})
         assert answer.status_code == 422 and answer.json()["field"] == "name", answer.text
+
+
+def test_a_capped_score_is_labelled_in_the_report():
+    """A score of 1 that is a cap (its test's drop exceeds this model's excess) reads "1 (capped)"; a
+    share reads bare (issue 39: the report printed a bare 1 beside a drop larger than its whole)."""
+    from service.render.model_report import _diagnosis_section
+
+    row = {"kind": "physical", "claimed": True, "evidence": "e", "expected_rms_um": 0.01, "score_of": "words"}
+    capped = {**row, "effect": "drift", "score": 1.0, "score_capped": True}
+    share = {**row, "effect": "creep", "score": 0.5, "score_capped": False}
+    html = _diagnosis_section({"candidates": [capped, share], "residual_rms_um": 0.02})
+    cells = re.findall(r"<td[^>]*>([^<]*)<br><small>words</small>", html)
+    assert cells == ["1 (capped)", "0.5"], cells

@@ -257,3 +257,48 @@ def test_the_lab_page_never_lists_an_imported_model_as_this_benchs(page, server)
     assert imported.count() == 1 and imported.get_attribute("data-model-id") == newer
     assert imported.get_attribute("data-stored-by") == bench and "Model_Vi_Do.dat" in imported.inner_text()
     shot(page, "provenance_lab")
+
+
+def test_a_renamed_import_is_named_by_its_new_name_on_every_page(page, server):
+    """The walk renamed an import and the Lab page still led with its old name (the file's, which named
+    it at import): the Lab and Models pages name it by its name as stored now, the file beside it."""
+    api, imported, model = server["api"], server["imported"], server["imported_model"]
+    renamed = f"stage B {MARKUP}"
+    api.patch(f"/datasets/{imported}", json={"name": renamed}).raise_for_status()
+    try:
+        said = f"imported data: “{renamed}” from the file Model_Vi_Do.dat, recorded on another stage"
+        goto(page, server, "lab")  # the newest model of the import (the Lab test fits another on it)
+        page.wait_for_selector("#lab-benches .imported-model")
+        newest = page.get_attribute("#lab-benches .imported-model", "data-model-id")
+        assert api.get(f"/models/{newest}").json()["datasets"] == [imported]
+        assert page.inner_text("#lab-benches .imported-model") == f"not this bench's: {newest} on {said}"
+        page.wait_for_selector(f"#lab-compare tr.imported-model[data-model-id='{newest}']")
+        assert page.inner_text(f"#lab-compare tr.imported-model[data-model-id='{newest}'] td b") == said
+        goto(page, server, f"models/{model}")
+        fitted_on = f"imported data (“{renamed}” from the file Model_Vi_Do.dat): another stage"
+        assert page.inner_text(f"#model-list tr[data-model-id='{model}'] td.origin") == fitted_on
+        assert page.inner_text("#model-origin").startswith(f"Fitted on {fitted_on}")
+        assert page.evaluate("window.__xss === undefined")  # the name is text
+    finally:
+        api.patch(f"/datasets/{imported}", json={"name": "Model_Vi_Do.dat"}).raise_for_status()
+
+
+def test_identify_selects_the_data_in_view_or_the_users_newest_not_an_experiments(page, server):
+    """The walk's Identify preselected the newest dataset, an experiment's: it selects the datasets of the
+    model in view, else the newest the user recorded or imported; an experiment's stays offered, marked."""
+    api = server["api"]
+    # a newer dataset, the experiment a diagnosis of the recorded model proposed to test creep
+    made_for = {"model_id": server["recorded_model"], "effects": ["creep"]}
+    sweep = {"axes": ["y"], "frequencies_hz": [10], "cycles": 2, "experiment_of": made_for}
+    experiment = posted_result(server, "/sweeps", sweep)["dataset_id"]
+    newest = api.get("/datasets").json()[-1]
+    assert newest["id"] == experiment and newest["experiment_of"]["model_id"] == server["recorded_model"]
+    chosen = "[...document.querySelectorAll('#identify-datasets option:checked')].map(o => o.value)"
+    goto(page, server, "models")
+    assert page.evaluate(chosen) == [server["recorded"]]  # the sweep recorded after the import
+    option = page.locator(f"#identify-datasets option[value='{experiment}']")
+    assert option.get_attribute("data-experiment") == "1" and option.inner_text().endswith("(an experiment)")
+    goto(page, server, f"models/{server['imported_model']}")
+    assert page.evaluate(chosen) == [server["imported"]]  # the model in view's
+    page.select_option("#identify-datasets", [experiment])  # still selectable
+    assert page.evaluate(chosen) == [experiment]

@@ -8,11 +8,13 @@ diagnosis's one stored answer, which the remainder's section marks. Set-up: test
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 
 import pytest
 
+from service.science.discovery.verdict import score_words
 from tests.support.browser import goto, posted_result, serving
 from tests.support.realdata import import_model_vi_do
 from tests.support.text_scan import part_whole_problems, scan, unit_problems
@@ -110,6 +112,9 @@ def _check_diagnosis_card(page, d) -> int:
         assert row.get_attribute("data-effect") == c["effect"]
         cells = row.locator("td").all_inner_texts()
         score = cells[2].split("\n")[0]  # the score, then what it is the ratio of (its score_of), folded
+        if c.get("score_capped"):  # a 1 that is a cap says so
+            assert c["score"] == 1 and score.endswith(" (capped)"), (c["effect"], cells[2])
+            score = score.removesuffix(" (capped)")
         assert _close(score, c["score"], 3), (c["effect"], cells[2], c["score"])
         if c.get("score_of"):
             assert row.locator(".score-of").text_content() == "of" + c["score_of"], cells[2]
@@ -221,3 +226,24 @@ def test_every_number_of_one_diagnosis_is_its_stored_value_or_labelled(page, ser
     report.close()
     assert errors == [], errors
     assert checked >= 30
+
+
+def test_a_score_of_1_that_is_a_cap_is_labelled_capped(page, server):
+    """A score is capped at 1 where its test's drop exceeds this model's excess (a whole of another fit):
+    the page printed a bare 1, the cap said only in the folded words. No stage here gives one, so the
+    page is served the diagnosis with its first row's drop twice the excess, worded as the service does."""
+    model, d = server["models"]["recorded"], copy.deepcopy(server["diagnosis"]["recorded"])
+    testable = [c for c in d["candidates"] if c.get("testable", True)]
+    excess = testable[0]["gain_mse_um2"] / testable[0]["score"] if testable[0]["score"] else 1e-3
+    testable[0].update(score=1.0, score_capped=True, score_of=score_words(2 * excess, excess))
+    page.route("**/api/models/*/diagnosis*", lambda route: route.fulfill(status=200, json=d))
+    goto(page, server, f"models/{model}")
+    page.wait_for_selector("#candidates tr[data-effect]")
+    scores = page.locator("#candidates td.score")
+    shown = [
+        (scores.nth(i).get_attribute("data-capped"), scores.nth(i).inner_text().split("\n")[0])
+        for i in range(scores.count())
+    ]
+    assert shown[0] == ("true", "1 (capped)"), shown
+    assert len(shown) == len(testable) and all(c == "false" and "capped" not in t for c, t in shown[1:]), shown
+    assert "the score is capped at 1" in page.locator("#candidates .score-of").first.text_content()

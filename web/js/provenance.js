@@ -14,11 +14,20 @@ export const importedIds = (datasets) => new Set(datasets.filter(isImported).map
 export const onImportedData = (model, imported) => (model.origin
   ? model.origin.fitted_on !== 'this_bench' : model.datasets.some((id) => imported?.has(id)));
 
-/** What a model describes (HTML-escaped): this bench's data, or the files another stage recorded. */
+/** An imported dataset of a model's origin (`{dataset_id, name, filename}`): by its name as stored now,
+ * the file it came from beside it where the name is another ("“stage B” from the file b.csv"; the file
+ * had named it until a rename); the file alone where the name is still the file's. Text, unless `text`
+ * and `file` render the name and the file name otherwise (HTML). */
+export function importedDataName(i, { text = (s) => s, file = text } = {}) {
+  const name = i.name || i.dataset_id;
+  return i.filename && i.filename !== name ? `“${text(name)}” from the file ${file(i.filename)}` : file(name);
+}
+
+/** What a model describes (HTML-escaped): this bench's data, or the data another stage recorded. */
 export function modelOriginHtml(model) {
   const o = model.origin;
   if (!o || o.fitted_on === 'this_bench') return 'this bench’s data';
-  const files = o.imported.map((i) => `<code>${esc(i.filename || i.name || i.dataset_id)}</code>`).join(', ');
+  const files = o.imported.map((i) => importedDataName(i, { text: esc, file: (f) => `<code>${esc(f)}</code>` })).join(', ');
   return `${o.fitted_on === 'mixed' ? 'partly ' : ''}imported data (${files}): another stage`;
 }
 

@@ -9,6 +9,19 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from service.http.schemas.common import BENCH_ID_FIELD, OPEN, JobState, Label
 
 
+class ExperimentOf(BaseModel):
+    """The diagnosis a sweep is the experiment of: the model it was proposed for and the effects it
+    separates (two) or tests (one)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    model_id: str = Field(min_length=1, max_length=40)
+    effects: list[str] = Field(default=[], max_length=2)
+    extra_datasets: list[str] = Field(
+        default=[], max_length=100, description="the datasets the diagnosis had added to the model's own"
+    )
+
+
 class SweepRequest(BaseModel):
     """A characterisation sweep. Volts at the actuator (default the paper's 0–120 V; the bench's
     limits, its stacks' rating, bound them: 0–150 V on the default bench), hertz, seconds."""
@@ -30,6 +43,11 @@ class SweepRequest(BaseModel):
     f_stop_hz: float = Field(default=100.0, gt=0.0, description="chirp: stop frequency")
     duration_s: float = Field(default=10.0, gt=0.0, le=3600.0, description="chirp: duration")
     name: Label | None = Field(default=None)
+    experiment_of: ExperimentOf | None = Field(
+        default=None,
+        description="the experiment a model's diagnosis proposed (the Models page's Separate): stored with "
+        "the dataset as its experiment_of, so its result is found again; absent for a sweep the user planned",
+    )
 
     @field_validator("frequencies_hz")
     @classmethod
@@ -84,6 +102,12 @@ class DatasetSummary(BaseModel):
     notes: str | None = None
     bench_id: str | None = BENCH_ID_FIELD
     import_filename: str | None = Field(default=None, description="an import's file (None for data recorded here)")
+    experiment_of: dict[str, Any] | None = Field(
+        default=None,
+        description="a sweep made as an experiment: the model whose diagnosis proposed it (model_id), the effects "
+        "it separates or tests (effects), and for a discover run's, its job (discover_job_id); None for data the "
+        "user recorded or imported",
+    )
 
 
 class Dataset(DatasetSummary):

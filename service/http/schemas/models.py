@@ -176,6 +176,9 @@ class Candidate(BaseModel):
         description="the figures the score is the ratio of (nm²): its test's held-out mean-square drop, "
         "levels anchored, over this model's excess above the noise floor; not the RMS figures of its test",
     )
+    score_capped: bool = Field(
+        default=False, description="the score is 1 because it is capped: its test's drop exceeds this model's excess"
+    )
     expected_rms_um: float | None = Field(default=None, description="held-out RMS with the effect added")
     claim_size_um2: float | None = Field(
         default=None,

@@ -11,7 +11,7 @@ import numpy as np
 
 from service.science.data.units import fmt_nm
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.verdict import score_words, share_words
+from service.science.discovery.verdict import score_capped, score_words, share_words
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
 
@@ -138,6 +138,7 @@ def candidate_row(
         # one denominator for every candidate (this model's excess), so that scores rank as gains do
         "score": round(float(np.clip(gain / excess, 0, 1)), 4),
         "score_of": score_words(gain, excess, reference, anchor),
+        "score_capped": score_capped(gain, excess),
         "p_value": p_value,
         "gain_mse_um2": gain,
         "reference": list(reference),

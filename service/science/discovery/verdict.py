@@ -53,9 +53,15 @@ def score_words(gain_um2: float, excess_um2: float, reference: tuple = (), ancho
             f"{by} raised the held-out mean square by {fmt_nm2(-gain_um2)} {how}: nothing removed of {whole}, score 0"
         )
     gain = f"{fmt_nm2(gain_um2)} of held-out mean square removed by {by} {how}"
-    if fmt_nm2(gain_um2) != fmt_nm2(excess_um2) and gain_um2 > excess_um2:
+    if score_capped(gain_um2, excess_um2):
         return f"{gain}; more than {whole}, a whole of another fit and anchoring: the score is capped at 1"
     return f"{gain} / {whole}"
+
+
+def score_capped(gain_um2: float, excess_um2: float) -> bool:
+    """Whether a score is capped at 1: its test's drop exceeds this model's excess at the printed digits
+    (a whole of another fit and anchoring), so the 1 is a cap, not a share."""
+    return fmt_nm2(gain_um2) != fmt_nm2(excess_um2) and gain_um2 > excess_um2
 
 
 def raised(drop_um2: float) -> bool:

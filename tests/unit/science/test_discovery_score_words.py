@@ -5,7 +5,7 @@ each is labelled, and where the drop is the larger the words say the score is ca
 
 from __future__ import annotations
 
-from service.science.discovery.verdict import score_words
+from service.science.discovery.verdict import score_capped, score_words
 from tests.support.text_scan import part_whole_problems
 
 
@@ -14,7 +14,7 @@ def test_a_drop_larger_than_the_excess_is_not_printed_as_its_part():
     assert part_whole_problems(words) == [], words
     assert words.startswith("11300 nm² of held-out mean square removed by its test (against the model + drift")
     assert "more than 8280 nm² of this model's held-out mean square above the noise floor" in words
-    assert words.endswith("the score is capped at 1")
+    assert words.endswith("the score is capped at 1") and score_capped(11300e-6, 8280e-6)
     assert "anchored at its last training cycle" in words and "levels not anchored" in words
 
 
@@ -25,6 +25,7 @@ def test_a_drop_within_the_excess_is_its_numerator_over_its_denominator():
     assert " / 8280 nm² of this model's held-out mean square above the noise floor" in words
     # equal at the printed digits: a whole, not "more than"
     assert "capped" not in score_words(8280.4e-6, 8280e-6)
+    assert not score_capped(8280.4e-6, 8280e-6) and not score_capped(5150e-6, 8280e-6)
 
 
 def test_a_claim_at_the_training_mean_prints_that_anchorings_figure():

@@ -97,6 +97,8 @@ def test_each_score_prints_the_figures_it_is_the_ratio_of(diagnoses, source):
             else:
                 assert c["score_of"].startswith(f"{fmt_nm2(c['gain_mse_um2'])} of held-out mean square removed by ")
             assert c["score"] == pytest.approx(min(max(gain / excess, 0.0), 1.0), abs=0.01, rel=0.01), c["score_of"]
+            # a 1 that is a cap is flagged, as its words say (the pages label it)
+            assert c["score_capped"] == c["score_of"].endswith("the score is capped at 1"), c["score_of"]
 
 
 @pytest.mark.parametrize("source", ["default", "foreign", "clean"])

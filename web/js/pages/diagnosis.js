@@ -36,6 +36,9 @@ function testHtml(d, u) {
 
 const candidate = (d, effect) => (d.candidates || []).find((c) => c.effect === effect) || {};
 const score = (d, effect) => candidate(d, effect).score;
+/** A candidate's score, labelled where it is 1 because it is capped (its test's drop exceeds the whole). */
+const scoreHtml = (c) => `${fmt(c.score, 3)}${c.score_capped ? ` <span class="capped" title="its test removed more than this
+  model's excess above the noise floor, a whole of another fit: the score is capped at 1">(capped)</span>` : ''}`;
 const heldOutNm = (d, effect) => (candidate(d, effect).expected_rms_um ?? NaN) * 1e3;
 
 /** Scores of the two effects before and after the experiment, and what the user should conclude. */
@@ -59,7 +62,7 @@ function separationSummary(before, after, experiment, datasetId) {
     <table id="separation-table"><tr><th>effect</th><th class="num">score before</th><th class="num">score with the experiment</th>
       <th class="num">held-out before (nm)</th><th class="num">held-out with the experiment (nm)</th></tr>
       ${rows.map((r) => `<tr data-effect="${esc(r.effect)}" data-before="${r.before ?? ''}" data-after="${r.after ?? ''}" data-nm-after="${r.nmAfter}"${r === lead ? ' class="best"' : ''}>
-        <td>${esc(r.effect)}</td><td class="num">${fmt(r.before, 3)}</td><td class="num">${fmt(r.after, 3)}</td>
+        <td>${esc(r.effect)}</td><td class="num">${scoreHtml(candidate(before, r.effect))}</td><td class="num">${scoreHtml(candidate(after, r.effect))}</td>
         <td class="num">${fmt(r.nmBefore, 3)}</td><td class="num">${fmt(r.nmAfter, 3)}</td></tr>`).join('')}</table>
     <p class="muted">The candidates below are ranked on all the data, the experiment included; "Add" refits with it.</p></div>`;
 }
@@ -119,7 +122,7 @@ export function renderDiagnosis(box, model, d, opts) {
     <h3>Candidate effects <span class="muted">(claimed physical effects, then the others, then model capacity; the claimed by their size: the held-out mean square each removes over its claim's reference, in the evidence; the others by score)</span></h3>
     <table id="candidates"><tr><th>#</th><th>effect</th><th class="num" title="the held-out mean square its own test removes (each block's level anchored at its last training cycle), as a share (0–1) of this model's held-out mean square above the noise floor: one scale for every candidate, the figures under it; it is not the ratio of the RMS figures beside it; whether it is claimed is the held-out test's answer, in the evidence">score <span class="muted">(of)</span></th><th class="num" title="the held-out RMS of the model the effect was tested against, then with it">its test: reference → with it</th><th class="num" title="the held-out RMS of this model with the effect added (fitted only when it is claimed)">added to this model</th><th>evidence <span class="muted">(its own test, a fit of its own: the stored model's parameters may differ)</span></th></tr>
     ${candidates.map((c, i) => `${groupRow(candidates, i)}<tr data-effect="${esc(c.effect)}" data-kind="${esc(c.kind)}" data-score="${c.score}" data-claimed="${c.claimed === true}"${c === leading ? ' class="best"' : ''}>
-      <td>${i + 1}</td><td class="effect">${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}${canRefine && !model.effects.includes(c.effect) ? `<br><button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td><td class="num score">${fmt(c.score, 3)}${c.score_of ? `<details class="muted score-of"><summary>of</summary>${esc(c.score_of)}</details>` : ''}</td><td class="num tested">${c.tested_rms_um === null || c.tested_rms_um === undefined ? '–' : `${fmtErrorNm(c.reference_rms_um, 4)} → ${fmtErrorNm(c.tested_rms_um, 4)}`}</td>
+      <td>${i + 1}</td><td class="effect">${esc(c.effect)}${c.claimed ? ' <b class="warn">claimed</b>' : ''}${canRefine && !model.effects.includes(c.effect) ? `<br><button type="button" class="primary add-effect" data-effect="${esc(c.effect)}">Add ${esc(c.effect)}</button>` : ''}</td><td class="num score" data-capped="${c.score_capped === true}">${scoreHtml(c)}${c.score_of ? `<details class="muted score-of"><summary>of</summary>${esc(c.score_of)}</details>` : ''}</td><td class="num tested">${c.tested_rms_um === null || c.tested_rms_um === undefined ? '–' : `${fmtErrorNm(c.reference_rms_um, 4)} → ${fmtErrorNm(c.tested_rms_um, 4)}`}</td>
       <td class="num expected">${c.expected_rms_um !== d.residual_rms_um ? fmtErrorNm(c.expected_rms_um, 4) : '<span class="muted">not fitted</span>'}</td>
       <td class="evidence">${describe(c.evidence)}</td></tr>`).join('')}
     </table>
@@ -172,28 +175,59 @@ export function renderDiagnosis(box, model, d, opts) {
 /** Run the experiment (a sweep job), then the diagnosis with its dataset; null when either fails. */
 async function separate(out, model, experiment, extra, signal) {
   try {
-    const job = await runJob(out, '/sweeps', experiment.body, `separating experiment (${experiment.body.waveform || 'sweep'})`, { signal });
+    // the dataset keeps what it is the experiment of, so its result is shown again after a reload
+    const body = { ...experiment.body, experiment_of: { model_id: model.id, effects: [...new Set([experiment.a, experiment.b])], extra_datasets: extra } };
+    const job = await runJob(out, '/sweeps', body, `separating experiment (${experiment.body.waveform || 'sweep'})`, { signal });
     if (job.state !== 'succeeded' || !job.result?.dataset_id) {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `the experiment was ${job.state}`));
       return null;
     }
     const datasetId = job.result.dataset_id;
     const all = [...extra, datasetId];
-    const wait = h(`<p class="muted" id="separate-wait">Dataset ${esc(datasetId)} recorded. Re-running the diagnosis with it
-      (every candidate is refitted on all the data): <span>0</span> s…</p>`);
-    out.append(wait);
-    const t0 = Date.now();
-    const tick = setInterval(() => { wait.querySelector('span').textContent = String(Math.round((Date.now() - t0) / 1000)); }, 1000);
-    try {
-      const query = all.map((id) => `extra_datasets=${encodeURIComponent(id)}`).join('&');
-      const diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis?${query}`, { signal });
-      return { diagnosis, datasetId, extra: all };
-    } finally {
-      clearInterval(tick);
-      wait.remove();
-    }
+    const diagnosis = await diagnosedWith(out, model, all, `Dataset ${datasetId} recorded`, signal);
+    return { diagnosis, datasetId, extra: all };
   } catch (e) {
     showError(out.appendChild(document.createElement('p')), e, 'Separating experiment failed: ');
     return null;
+  }
+}
+
+/** GET the diagnosis of `model` with the datasets `extra` added, a wait line in `out` counting the seconds. */
+async function diagnosedWith(out, model, extra, said, signal) {
+  const wait = h(`<p class="muted" id="separate-wait">${esc(said)}. Re-running the diagnosis with it
+    (every candidate is refitted on all the data): <span>0</span> s…</p>`);
+  out.append(wait);
+  const t0 = Date.now();
+  const tick = setInterval(() => { wait.querySelector('span').textContent = String(Math.round((Date.now() - t0) / 1000)); }, 1000);
+  try {
+    const query = extra.map((id) => `extra_datasets=${encodeURIComponent(id)}`).join('&');
+    return await api(`/models/${encodeURIComponent(model.id)}/diagnosis${query ? `?${query}` : ''}`, { signal });
+  } finally {
+    clearInterval(tick);
+    wait.remove();
+  }
+}
+
+/** The newest separating experiment run from `model`'s diagnosis: the dataset that records it
+ *  (`experiment_of`: this model, two effects; not a discover run's), or null. `datasets`: oldest first. */
+export function lastSeparation(model, datasets) {
+  const runs = datasets.filter((d) => d.experiment_of && d.experiment_of.model_id === model.id
+    && !d.experiment_of.discover_job_id && (d.experiment_of.effects || []).length === 2 && !d.partial);
+  return runs.length ? runs[runs.length - 1] : null;
+}
+
+/** After a reload, the newest separating experiment's result again, from its stored dataset: the
+ *  diagnosis with it beside the diagnosis that proposed it (`d` when that one added no dataset). */
+export async function showLastSeparation(box, model, d, datasets, opts) {
+  const ds = lastSeparation(model, datasets);
+  if (!ds) return;
+  const { effects: [a, b], extra_datasets: earlier = [] } = ds.experiment_of;
+  const said = `The separating experiment of ${String(ds.created_at).slice(0, 16).replace('T', ' ')} (dataset ${ds.id})`;
+  try {
+    const before = earlier.length ? await diagnosedWith(opts.jobBox, model, earlier, said, opts.signal) : d;
+    const after = await diagnosedWith(opts.jobBox, model, [...earlier, ds.id], said, opts.signal);
+    renderDiagnosis(box, model, after, { ...opts, extra: [...earlier, ds.id], before, experiment: { a, b }, datasetId: ds.id });
+  } catch (e) {
+    showError(opts.jobBox.appendChild(document.createElement('p')), e, 'The separating experiment\'s result could not be read again: ');
   }
 }

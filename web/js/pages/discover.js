@@ -172,7 +172,10 @@ function renderRun(out, r, { signal, imported }) {
     const jobBox = b.nextElementSibling;
     b.disabled = true;
     try {
-      const job = await runJob(jobBox, '/sweeps', x.experiment, `experiment for ${x.effects.join(', ')}`, { signal });
+      // its dataset keeps the model whose diagnosis proposed it (Identify does not preselect an experiment's)
+      const by = (steps.find((s) => s.step === x.after_step) || {}).model_id;
+      const body = by ? { ...x.experiment, experiment_of: { model_id: by, effects: x.effects.slice(0, 2) } } : x.experiment;
+      const job = await runJob(jobBox, '/sweeps', body, `experiment for ${x.effects.join(', ')}`, { signal });
       const ds = job.result?.dataset_id;
       if (job.state === 'succeeded' && ds) {
         jobBox.append(h(`<p class="ok">Dataset <a href="#/datasets/${esc(ds)}">${esc(ds)}</a> recorded: refine with it, or

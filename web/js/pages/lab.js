@@ -2,6 +2,7 @@
 // newest model per axis), refreshed every 2 s; and one axis's newest models compared across the
 // benches: effects, held-out RMS, noise floor and the physical parameters discovery fitted.
 import { api, esc, fmt, fmtErrorNm } from '../api.js';
+import { importedDataName } from '../provenance.js';
 import { h, showError } from '../ui.js';
 
 const REFRESH_MS = 2000;
@@ -53,10 +54,9 @@ function status(b) {
   return { key: 'offline', text: `OFFLINE · silent ${fmt(b.heartbeat_age_s, 3)} s (last ${b.state})`, cls: 'bad' };
 }
 
-/** The files an imported model's data came from (its origin), by file and name. */
+/** The data an imported model was fitted on (its origin): each dataset by its name now, with its file. */
 export function originWords(origin) {
-  const files = (origin?.imported || []).map((i) => (i.filename && i.name && i.filename !== i.name
-    ? `${i.filename} (“${i.name}”)` : i.filename || i.name || i.dataset_id));
+  const files = (origin?.imported || []).map((i) => importedDataName(i));
   const what = origin?.fitted_on === 'mixed' ? 'partly imported data' : 'imported data';
   return `${what}${files.length ? `: ${files.join(', ')}` : ''}, recorded on another stage`;
 }

@@ -10,7 +10,7 @@ import { renderLabels } from '../labels.js';
 import { renderEffects } from '../effects.js';
 import { paperFigures, table6 } from '../paper.js';
 import { importedIds, isImported, modelBenchHtml, modelOriginHtml, onImportedData } from '../provenance.js';
-import { renderDiagnosis } from './diagnosis.js';
+import { renderDiagnosis, showLastSeparation } from './diagnosis.js';
 import { renderDiscover } from './discover.js';
 
 const charts = [];
@@ -22,6 +22,7 @@ export async function enter(root, [modelId], query = {}) {
   const signal = controller.signal;
   const [models, datasets, effects] = await Promise.all(
     [api('/models', { signal }), api('/datasets', { signal }), api('/effects', { signal })]);
+  const chosen = firstChoice(identifiable(datasets), query.dataset, models.find((m) => m.id === modelId));
   root.append(h(`<div>
     <h1>Models</h1>
     <div class="grid-1-2">
@@ -33,7 +34,7 @@ export async function enter(root, [modelId], query = {}) {
             <option value="hysterons" title="a wider rate-independent base than play operators: draws loops Prandtl–Ishlinskii cannot">hysterons (wider base)</option></select></label>
           <label>operators <input name="n_operators" type="number" min="1" max="100" step="1" value="10"></label>
           <label>datasets (Ctrl-click for several) <select name="datasets" id="identify-datasets" multiple size="4" style="min-width:320px">
-            ${identifiable(datasets).map((d, i) => `<option value="${esc(d.id)}"${(query.dataset ? d.id === query.dataset : i === 0) ? ' selected' : ''}>${esc(d.id)} · ${esc(d.name)}</option>`).join('')}
+            ${identifiable(datasets).map((d) => `<option value="${esc(d.id)}"${chosen.has(d.id) ? ' selected' : ''}${d.experiment_of ? ' data-experiment="1"' : ''}>${esc(d.id)} · ${esc(d.name)}${d.experiment_of ? ' (an experiment)' : ''}</option>`).join('')}
           </select></label>
           <button class="primary" type="submit" id="identify-start">Identify</button>
         </form>
@@ -53,6 +54,18 @@ export async function enter(root, [modelId], query = {}) {
 /** The datasets a model can be identified on, newest first: those with blocks (a tracking run's
  * record has none, so it is not offered, nor selected first). */
 const identifiable = (datasets) => datasets.slice().reverse().filter((d) => d.n_blocks > 0);
+
+/** The ids Identify selects first among `offered` (newest first): the dataset the address names, else
+ *  the datasets of the model in view, else the newest the user made (a sweep or an import, not an
+ *  experiment a diagnosis or a discover run made), else the newest. */
+function firstChoice(offered, named, model) {
+  if (named) return new Set([named]);
+  const ids = new Set(offered.map((d) => d.id));
+  const own = model ? model.datasets.filter((id) => ids.has(id)) : [];
+  if (own.length) return new Set(own);
+  const made = offered.find((d) => !d.experiment_of) || offered[0];
+  return new Set(made ? [made.id] : []);
+}
 
 function renderModelList(table, models, modelId) {
   table.innerHTML = `<tr><th>model</th><th>axis</th><th>kind</th><th>effects</th><th>parent</th>
@@ -152,8 +165,9 @@ async function showModel(el, modelId, query) {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted" id="diagnosis-wait">Diagnosing: every candidate effect is fitted in turn on the held-out cycles…</p>';
     try {
       diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
-      renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, { canRefine, signal, jobBox: el.querySelector('#separate-job'),
-        onAdd: (effect, extra) => refine(el, model, effect, extra) });
+      const opts = { canRefine, signal, jobBox: el.querySelector('#separate-job'), onAdd: (effect, extra) => refine(el, model, effect, extra) };
+      renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, opts);
+      await showLastSeparation(el.querySelector('#diagnosis'), model, diagnosis, all, opts);   // its result kept over a reload
     } catch (e) { showError(el.querySelector('#diagnosis'), e, 'Diagnosis failed: '); }
   } else {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
