@@ -25,11 +25,13 @@ from service.science.models.base import equal_thresholds
 MIN_DURATION_S = 2.0
 
 
-def state_at_full_drive(n_operators: int, u_scale_v: float) -> float:
-    """S/u_max at the full drive scale, loaded from rest: Σ_{i≥1} max(1 − r_i/u_max, 0) over ``n_operators``
-    play operators with thresholds r_i equally spaced from 0 to half the drive scale."""
+def state_rise_on_branch(n_operators: int, u_scale_v: float) -> float:
+    """The rise of S/u_max on the loop's ascending branch from the drive's origin to its full scale, in
+    the steady state (after a descent from the top), the branch the base's ``stroke_um`` is read on:
+    Σ_{i≥1} max(1 − 2·r_i/u_max, 0) over ``n_operators`` play operators with thresholds r_i equally
+    spaced from 0 to half the drive scale."""
     r = equal_thresholds(u_scale_v, n_operators)[1:] / u_scale_v
-    return float(np.sum(np.maximum(1.0 - r, 0.0)))
+    return float(np.sum(np.maximum(1.0 - 2.0 * r, 0.0)))
 
 
 class GainChange(Effect):
@@ -74,13 +76,14 @@ class GainChange(Effect):
         )
 
     def parameters(self, theta, values, scales, sign):
-        """``gain_change_pct_per_s``: the change of the stroke from rest to the full drive scale per second,
-        as a share of the stroke (%/s; negative: the gain fades); ``gain_change_pct`` over the longest record."""
+        """``gain_change_pct_per_s``: the change of the stroke (the loop's rise from the drive's origin to its
+        full scale, ``stroke_um``) per second, as a share of it (%/s; negative: the gain fades);
+        ``gain_change_pct`` over the longest record."""
         change, stroke_um = values.get("gain_change_um"), scales.get("stroke_um")
         weights = values.get("weights_um_per_v")
         if change is None or not stroke_um or weights is None:
             return {}
-        at_full = float(change[0]) + float(change[1]) * state_at_full_drive(len(weights), scales["u_scale_v"])
+        at_full = float(change[0]) + float(change[1]) * state_rise_on_branch(len(weights), scales["u_scale_v"])
         share = at_full / stroke_um  # over the longest record
         return {"gain_change_pct": 100 * share, "gain_change_pct_per_s": 100 * share / scales["time_scale_s"]}
 
