@@ -298,16 +298,31 @@ def record_long(
     return u, x + np.random.default_rng(seed).normal(0.0, noise_um, u.size)
 
 
+def record_cut(world, noise_um=0.002, seed=0, u_max_v=120.0, bipolar=False, fs=SAMPLE_RATE_HZ, **effect):
+    """[(u_v, x_um)] the long record cut into one file per block, as a lab saves a session block by
+    block: each file holds its block with the rests either side, starts where the last one ended
+    (the stage's state carried over: the remnant displacement at 0 V, the memory of the last block's
+    extremes), and its own t = 0; ``effect``: hidden and stroke_scale, as in ``record_long``."""
+    u, x = record_long(world, noise_um, seed, u_max_v, bipolar, fs, **effect)
+    bounds = np.cumsum([0] + [b.size for b in blocks_v(u_max_v, bipolar, fs=fs)])
+    return [(u[a:b], x[a:b]) for a, b in zip(bounds, bounds[1:])]
+
+
+#: the record forms: one file per block from the virgin state, one long record, the long record cut
+FORMS = {"blocks": record_blocks, "long": lambda *a, **k: [record_long(*a, **k)], "cut": record_cut}
+
+
 def records(world: str, form: str = "blocks", noise_um: float = 0.002, seed: int = 0, **drive):
     """Held-out product Records of the world, imported as a lab's CSVs would be (blocks cut by the
-    importer): ``form`` "blocks" (one record per block) or "long" (one record); ``drive``: u_max_v,
-    bipolar, fs (Hz), hidden (an effect of ``hidden_um``) and stroke_scale."""
-    pairs = (
-        record_blocks(world, noise_um, seed, **drive)
-        if form == "blocks"
-        else [record_long(world, noise_um, seed, **drive)]
+    importer): ``form`` "blocks" (one record per block, each from the material's virgin state),
+    "long" (one record) or "cut" (the long record cut into one file per block, each starting in the
+    state the last left); ``drive``: u_max_v, bipolar, fs (Hz), hidden (an effect of ``hidden_um``)
+    and stroke_scale."""
+    if form not in FORMS:
+        raise ValueError(f"unknown form {form!r}: one of {', '.join(FORMS)}")
+    return imported_records(
+        FORMS[form](world, noise_um, seed, **drive), drive.get("fs", SAMPLE_RATE_HZ), f"{world}:{form}"
     )
-    return imported_records(pairs, drive.get("fs", SAMPLE_RATE_HZ), f"{world}:{form}")
 
 
 def imported_records(pairs, fs: float, label: str) -> list:

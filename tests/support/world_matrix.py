@@ -1,7 +1,7 @@
 """Issue 37's matrix on the stages of tests/support/hysteresis_worlds.py: what discovery's loop ends
 with, against the noise floor, on held-out cycles.
 
-    .venv/bin/python -m tests.support.world_matrix [--worlds bw_n2 preisach_gauss] [--forms blocks long]
+    .venv/bin/python -m tests.support.world_matrix [--worlds bw_n2 preisach_gauss] [--forms blocks long cut]
         [--noise-nm 2] [--stroke-scale 0.1] [--bipolar] [--json out.json]
     .venv/bin/python -m tests.support.world_matrix --base-only [--n-operators 5] [--fs 5000] ...
 
@@ -20,7 +20,7 @@ import json
 import time
 import warnings
 
-from tests.support.hysteresis_worlds import HIDDEN, WORLDS, records
+from tests.support.hysteresis_worlds import FORMS, HIDDEN, WORLDS, records
 
 
 def run_stage(
@@ -93,7 +93,7 @@ def markdown(rows: list[dict]) -> str:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--worlds", nargs="*", default=list(WORLDS))
-    ap.add_argument("--forms", nargs="*", default=["blocks", "long"])
+    ap.add_argument("--forms", nargs="*", default=["blocks", "long"], choices=list(FORMS))
     ap.add_argument("--noise-nm", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bipolar", action="store_true")
