@@ -55,6 +55,20 @@ def _wait(client: httpx.Client, job_id: str, states: tuple[str, ...], timeout_s:
     raise TimeoutError(f"job {job_id} not {states} within {timeout_s} s")
 
 
+def _wait_sweeping(client: httpx.Client, job_id: str, timeout_s: float = 300) -> None:
+    """Until the sweep job drives the stage (its progress above 0: the engine runs its plan). A job is
+    "running" while the service still plans and hands the sweep over; on a loaded machine a stop
+    pressed then found no plan at the engine to name (``cancelled_job_id`` None) and was counted as
+    not landed, although the outputs were at 0 V."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/api/jobs/{job_id}").json()
+        if job["state"] != "queued" and (job["progress"] > 0 or job["state"] != "running"):
+            return
+        time.sleep(0.02)
+    raise TimeoutError(f"sweep {job_id} did not start driving within {timeout_s} s")
+
+
 def write_import_csv(path: Path, megabytes: float) -> Path:
     """A two-axis CSV (t,u_y,x_y,u_z,x_z) of about ``megabytes`` MB: a 5 Hz sine sampled at 20 kHz."""
     rows = int(megabytes * 1e6 / 60)
@@ -101,7 +115,7 @@ def _press(
     """Start a long sweep, press the stop (``press``: through one door) at a random moment of it
     (``window_s``: seconds after it runs, uniform), return the figures."""
     job = client.post("/api/sweeps", json=LONG_SWEEP).json()
-    _wait(client, job["job_id"], ("running",))
+    _wait_sweeping(client, job["job_id"])
     time.sleep(window_s[0] + (window_s[1] - window_s[0]) * rng.random())
     t_send = time.monotonic()
     answer = press()
