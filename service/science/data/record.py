@@ -15,7 +15,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from service.science.data.holdout import HELD_OUT_FRACTION, BlockSplit, split_blocks, state_known_from, training_mask
+from service.science.data.holdout import HELD_OUT_FRACTION, BlockSplit, split_blocks, training_mask
 from service.science.data.segmentation import blocks_without_table
 from service.science.data.signals import Waveform, dominant_period_samples, drive_derivatives
 
@@ -199,9 +199,7 @@ class Record:
         if own_axis_only not in self._splits:
             axis = self.axis if own_axis_only else None
             fraction = HELD_OUT_FRACTION if self.hold_out else 0.0
-            self._splits[own_axis_only] = split_blocks(
-                self.blocks, self.n_samples, self.sample_rate_hz, axis, fraction, state_known_from(self.u_v)
-            )
+            self._splits[own_axis_only] = split_blocks(self.blocks, self.n_samples, self.sample_rate_hz, axis, fraction)
         return self._splits[own_axis_only]
 
     @property

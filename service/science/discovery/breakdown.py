@@ -8,7 +8,7 @@ import numpy as np
 
 from service.science.data.holdout import other_axes
 from service.science.data.units import fmt_nm
-from service.science.discovery.rests import at_rest_level, state_known, still_mask
+from service.science.discovery.rests import at_rest_level, still_mask
 from service.science.fitting.metrics import rms
 from service.science.models.kernels import segment_index
 
@@ -34,12 +34,12 @@ def _is_step_hold(rec, a: int, b: int) -> bool:
 
 
 def _holds_outside_blocks(rec) -> np.ndarray:
-    """Rows outside every block where the drive is held still away from its rest level, once the
-    record shows the stage's state (the model runs through them, never fitted there)."""
+    """Rows outside every block where the drive is held still away from its rest level (the model runs
+    through them, never fitted there)."""
     outside = np.ones(rec.n_samples, dtype=bool)
     for s in rec.splits:
         outside[s.train[0] : s.held_out[1]] = False
-    return outside & still_mask(rec) & ~at_rest_level(rec) & state_known(rec)
+    return outside & still_mask(rec) & ~at_rest_level(rec)
 
 
 def failures(records, residuals, top: int = 6) -> list[dict]:

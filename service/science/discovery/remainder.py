@@ -19,7 +19,7 @@ from statistics import NormalDist
 import numpy as np
 
 from service.science.data.holdout import axis_frequency_hz
-from service.science.discovery.rests import state_known, still_mask
+from service.science.discovery.rests import still_mask
 from service.science.discovery.signature_dictionary import (
     BUILT_IN,
     Signature,
@@ -55,7 +55,7 @@ def _rows(rec) -> tuple[np.ndarray, np.ndarray]:
     for s in rec.splits:
         train[s.train[0] : s.train[1]] = True
         held[s.held_out[0] : s.held_out[1]] = True
-    return train, held | (still_mask(rec) & ~train & state_known(rec))
+    return train, held | (still_mask(rec) & ~train)
 
 
 def _folds(rows: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,6 @@ from statistics import NormalDist
 
 import numpy as np
 
-from service.science.data.holdout import state_known_from
 from service.science.data.steps import held_still
 from service.science.data.units import fmt_nm
 from service.science.discovery.signature_dictionary import MAINS_LINES_HZ, pool, pool_factor
@@ -59,13 +58,6 @@ def still_mask(rec) -> np.ndarray:
     95th-percentile rate took the whole 1 Hz burst of a 1…100 Hz sweep for a hold: 2π·1 Hz is under
     1 % of 2π·100 Hz.)"""
     return held_still(rec.u_v, rec.sample_rate_hz)
-
-
-def state_known(rec) -> np.ndarray:
-    """Rows from the record's first visit to an end of its drive range on (holdout.state_known_from):
-    before it the stage's state is what the record does not show, so a hold there is neither fitted,
-    judged nor described (the rests still give the gauge's noise)."""
-    return np.arange(rec.n_samples) >= state_known_from(rec.u_v)
 
 
 def at_rest_level(rec) -> np.ndarray:

@@ -82,38 +82,12 @@ def test_a_steady_oscillation_repeats_its_levels():
 @pytest.mark.filterwarnings("ignore")
 def test_a_failing_hold_is_named_by_its_level():
     """With one block per level, six places were all called "step-hold block": the failures list names
-    each by its index and its level (a Jiles–Atherton stage, one long record, 5 kHz: one file per
-    block, the holds before the file first reaches 120 V are neither fitted nor judged, and the rest
-    fit well enough to leave the six worst places)."""
+    each by its index and its level (a Jiles–Atherton stage, one file per block, 5 kHz)."""
     from service.science.discovery.diagnosis import diagnose
     from tests.support.hysteresis_worlds import records
 
-    d = diagnose(records("jiles_atherton", "long", fs=FS))
+    d = diagnose(records("jiles_atherton", "blocks", fs=FS))
     holds = [f["where"] for f in d["failures"] if "step-hold block" in f["where"]]
     assert holds, [f["where"] for f in d["failures"]]
     assert all(re.search(r"step-hold block \d+ \(the hold at -?[0-9.]+ V\)", w) for w in holds), holds
     assert len(set(holds)) == len(holds)
-
-
-@pytest.mark.filterwarnings("ignore")
-def test_holds_before_the_state_is_shown_are_neither_fitted_nor_judged():
-    """A file cut from a session starts at the last block's remnant displacement, with its memory: its
-    staircase's holds at 96 and 24 V (before the drive first reaches 120 V) come from a state the file
-    does not show. They are left out of the fit and of what is judged, and the rest fits as well as on
-    the long record they were cut from (a Maxwell-slip stage: 2.83 nm with them against a 2.02 nm
-    floor, one file per block)."""
-    from service.science.data.holdout import state_known_from
-    from service.science.discovery.diagnosis import diagnose
-    from tests.support.hysteresis_worlds import records
-
-    cut = records("maxwell_slip", "cut", fs=FS)
-    staircase = cut[-1]
-    first_top = int(np.argmax(staircase.u_v >= staircase.u_v.max() - 1e-9))
-    assert state_known_from(staircase.u_v) == first_top
-    assert [s.block["level_v"] for s in staircase.splits] == pytest.approx([120.0, 48.0, 84.0, 0.0], abs=0.5)
-    assert all(s.train[0] >= first_top for s in staircase.splits)
-    effects = ("hysterons", "operators", "asymmetry")
-    held_out = {form: diagnose(records("maxwell_slip", form, fs=FS), effects) for form in ("cut", "long")}
-    assert held_out["cut"]["residual_rms_um"] <= 1.05 * held_out["long"]["residual_rms_um"], held_out
-    assert held_out["cut"]["residual_rms_um"] <= 1.1 * held_out["cut"]["noise_floor_um"]
-    assert not any("holds outside the blocks" in f["where"] for f in held_out["cut"]["failures"])
