@@ -45,28 +45,19 @@ PRESS_WINDOW_S = (0.3, 1.8)
 DOWNLOADERS = 4
 
 
-def _wait(client: httpx.Client, job_id: str, states: tuple[str, ...], timeout_s: float = 300) -> dict:
+def _wait(client: httpx.Client, job_id: str, states: tuple[str, ...], timeout_s: float = 300, driving=False) -> dict:
+    """The job once its state is one of ``states`` (polled every 50 ms); ``driving``: a "running" job
+    only once its progress is above 0, so the engine runs its plan. A job is "running" while the
+    service still plans and hands the sweep over; on a loaded machine a stop pressed then found no
+    plan at the engine to name (``cancelled_job_id`` None) and was counted as not landed, although
+    the outputs were at 0 V."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         job = client.get(f"/api/jobs/{job_id}").json()
-        if job["state"] in states:
+        if job["state"] in states and not (driving and job["state"] == "running" and job["progress"] <= 0):
             return job
         time.sleep(0.05)
     raise TimeoutError(f"job {job_id} not {states} within {timeout_s} s")
-
-
-def _wait_sweeping(client: httpx.Client, job_id: str, timeout_s: float = 300) -> None:
-    """Until the sweep job drives the stage (its progress above 0: the engine runs its plan). A job is
-    "running" while the service still plans and hands the sweep over; on a loaded machine a stop
-    pressed then found no plan at the engine to name (``cancelled_job_id`` None) and was counted as
-    not landed, although the outputs were at 0 V."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = client.get(f"/api/jobs/{job_id}").json()
-        if job["state"] != "queued" and (job["progress"] > 0 or job["state"] != "running"):
-            return
-        time.sleep(0.02)
-    raise TimeoutError(f"sweep {job_id} did not start driving within {timeout_s} s")
 
 
 def write_import_csv(path: Path, megabytes: float) -> Path:
@@ -115,7 +106,7 @@ def _press(
     """Start a long sweep, press the stop (``press``: through one door) at a random moment of it
     (``window_s``: seconds after it runs, uniform), return the figures."""
     job = client.post("/api/sweeps", json=LONG_SWEEP).json()
-    _wait_sweeping(client, job["job_id"])
+    _wait(client, job["job_id"], ("running", "succeeded", "failed", "cancelled"), driving=True)
     time.sleep(window_s[0] + (window_s[1] - window_s[0]) * rng.random())
     t_send = time.monotonic()
     answer = press()
