@@ -52,6 +52,24 @@ def test_row_weights_and_zero_columns():
     np.testing.assert_array_equal(got.values["dead"], [0.5, 0.0])
 
 
+def test_a_direction_no_record_determines_keeps_its_weights_near_zero():
+    """Two columns equal on the training rows to 1e-9 of their norm (the fine hysteron grid beside the
+    gauge's bow: a stored model's weights of 3.6e7 µm cancelled there and predicted 1.6e16 µm from the
+    rest before its first cycle). The damped solve splits the weight between them instead of
+    cancelling, leaves the fit unchanged to 1e-9 of the noise, and predicts the rest row sanely."""
+    rng = np.random.default_rng(4)
+    drive = rng.uniform(0.0, 1.0, 40_000)
+    twin = drive + 1e-9 * rng.normal(size=drive.size)
+    target = 3.0 * drive + rng.normal(0, 1e-3, drive.size)
+    got = solve_blocks([Block.make("weights", np.column_stack([drive, twin]))], target)
+    exact = np.linalg.lstsq(np.column_stack([drive, twin]), target, rcond=None)[0]
+    assert np.abs(exact).max() > 1e3  # the exact solve cancels: the hazard is real
+    assert np.abs(got.coef).max() < 3.1 and abs(got.coef.sum() - 3.0) < 1e-3
+    assert got.rms - 1e-3 < 1e-6
+    rest_row = np.array([0.0, 1.0])  # the twins differ off the training rows (a virgin state)
+    assert abs(rest_row @ got.coef) < 3.1
+
+
 def test_subnormal_entries_are_flushed_and_change_no_coefficient():
     """Columns whose second half is a filter's ring-down tail (1e-310 .. 5e-324): the triangle is
     built from chunks with those entries at 0, and the weights are those of the design with zeros."""
