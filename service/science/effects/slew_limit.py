@@ -21,6 +21,7 @@ from scipy.optimize import minimize_scalar
 from drivers.jit import njit
 from service.science.data.units import plain
 from service.science.effects.base import Effect
+from service.science.effects.rules import growth_words
 
 #: the grid: from 5 % above the records' fastest drive rate (no limit) down by this factor per step, to a
 #: tenth of it (the error grows fast below the true limit: 10 nm at the limit, 260 nm at 15 % under it)
@@ -144,8 +145,7 @@ class SlewLimit(Effect):
         )
 
     def evidence(self, sig, floor):
-        growth = sig.get("rms_growth_exponent")
-        steep = f" (the residual grows with frequency as f^{growth:.2f})" if growth is not None else ""
+        steep = f" ({growth_words(sig)})" if sig.get("rms_growth_exponent") is not None else ""
         return (
             "the error is largest where the drive is steepest" + steep + ": the amplifier's current limit (I/C) "
             "or slew rate holds the stack back: slew_limit"

@@ -4,6 +4,7 @@ user reading "worst: …" on Y's diagnosis is not sent to a Y sweep for what is 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from service.science.data.record import Record
 from service.science.discovery.breakdown import failures
@@ -48,3 +49,18 @@ def test_a_block_title_names_the_axis_the_block_drove():
     assert block_title("y", split, 1000.0) == "Z 5 Hz sine, Y undriven (held-out cycle 5)"
     own = BlockSplit({**block, "axes": ["y"]}, (0, 800), (800, 1000))
     assert block_title("y", own, 1000.0) == "Y 5 Hz sine (held-out cycle 5)"
+
+
+def test_the_mean_lag_lies_among_the_per_block_lags_printed_beside_it():
+    """Two 100 Hz blocks (two datasets) and a 1 Hz block whose slope is too small for a lag to show:
+    the printed 100 Hz figure is both blocks' weighted mean, not the last one's, and the overall lag is
+    the mean of the printed figures only (the walk read '26 µs, slope-weighted mean' beside blocks
+    that did not hold it)."""
+    from service.science.discovery.breakdown import mean_lag_s, visible_lags
+
+    lags = [(50.0, 30e-6, 10.0), (100.0, 90e-6, 40.0), (100.0, 70e-6, 40.0), (1.0, 5e-3, 0.01)]
+    per = visible_lags(lags)
+    assert set(per) == {50.0, 100.0}
+    assert per[100.0][0] == pytest.approx(80e-6) and per[100.0][1] == pytest.approx(80.0)
+    assert 30e-6 <= mean_lag_s(per) <= 80e-6
+    assert mean_lag_s(per) == pytest.approx((10 * 30e-6 + 80 * 80e-6) / 90)
