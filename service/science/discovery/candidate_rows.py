@@ -66,6 +66,15 @@ def claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:
     return (test["gain_trend_mse_um2"] if anchor == "training_mean" else test["gain_mse_um2"]), anchor
 
 
+def score_sentence(score: float, anchor: str) -> str:
+    """Which figure a row's score is, beside the share its evidence prints of adding it (a share of one
+    anchoring, the score of another: "score 0" stood beside "34 % of the excess" with nothing saying so)."""
+    level = "its training mean" if anchor == "training_mean" else "its last training cycle"
+    return (
+        f"the score, {score:.3g}, is its own test's share, a fit of its own with each block's level anchored at {level}"
+    )
+
+
 @dataclass(frozen=True)
 class Judged:
     """What every candidate row of one diagnosis is judged against: its ``fits`` on ``records``, the
@@ -107,6 +116,7 @@ def candidate_row(
     excess = max(v0**2 - noise**2, 1e-30)  # this model's held-out mean square above the floor (µm²)
     removed = min((v0**2 - v**2) / excess, 1.0)  # below the floor: all of the excess
     words = eff.evidence(sig, floor)
+    score = round(float(np.clip(gain / excess, 0, 1)), 4)
     evidence = (
         (
             f"In this model's residual, before any fit: {words}. "
@@ -115,8 +125,8 @@ def candidate_row(
         )
         + f"Its test, a fit of its own: {how}"
         + (
-            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({share_words(removed)} by adding it; the score "
-            "is its own test's share, of a fit of its own)"
+            f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({share_words(removed)} by adding it, levels not "
+            f"anchored; {score_sentence(score, anchor)})"
             if v != v0
             else ". Not claimed, so not fitted into this model"
         )
@@ -136,7 +146,7 @@ def candidate_row(
         "high": bool(is_claimed),
         "significant": bool(is_claimed),
         # one denominator for every candidate (this model's excess), so that scores rank as gains do
-        "score": round(float(np.clip(gain / excess, 0, 1)), 4),
+        "score": score,
         "score_of": score_words(gain, excess, reference, anchor),
         "score_capped": score_capped(gain, excess),
         "p_value": p_value,
