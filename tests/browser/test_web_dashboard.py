@@ -129,7 +129,10 @@ def test_every_page_renders_with_units_and_no_console_errors(page, server):
 
     goto(page, server, "trajectories")
     assert page.locator("#traj-errors").inner_text().count("308") == 1  # the paper's 0.308 µm, in nm
-    assert "154" in page.inner_text("#traj-errors") and "< 6.2" in page.inner_text("#traj-errors")
+    # the paper's relative errors by the page's own definition (case 2: 154 nm / 4 µm), its stated bound in the note
+    relative = page.locator("#traj-errors tr[data-key=relative_error_pct] td").all_inner_texts()
+    assert "154" in page.inner_text("#traj-errors") and relative[-2:] == ["6.16", "3.85"]
+    assert "< 6.2 %" in page.inner_text("#traj-relative-note")
     # the relative error says what it divides by what, as the service computes it (control/session.py)
     defined = "the larger over Y and Z of (max |error| on the axis ÷ the reference's peak-to-peak on that axis"
     assert page.get_attribute("#traj-errors tr[data-key=relative_error_pct] td", "title").startswith(defined)

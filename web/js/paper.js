@@ -21,7 +21,7 @@ export function trackingCases(paper) {
   return Object.fromEntries(Object.entries(paper.tracking_cases).map(([name, c]) => {
     const [y0, y1] = c.body.y_range_um, [z0, z1] = c.body.z_range_um;
     return [name, { label: c.label, max_error_y_um: c.max_error_um.y, max_error_z_um: c.max_error_um.z,
-      relative_error_pct: c.relative_error_below_pct,
+      relative_error_pct: c.relative_error_pct, relative_error_below_pct: c.relative_error_below_pct,
       form: { min_y_um: y0, amplitude_y_um: y1 - y0, min_z_um: z0, amplitude_z_um: z1 - z0, inclination_deg: c.body.inclination_deg } }];
   }));
 }

@@ -24,7 +24,11 @@ class TrackingCase(BaseModel):
     label: str
     body: dict = Field(description="the case as a POST /api/trajectories body (cycles left to the run)")
     max_error_um: dict[str, float] = Field(description="the paper's measured maximum error per axis (µm)")
-    relative_error_below_pct: float
+    relative_error_pct: float = Field(
+        description="the larger over the axes of the paper's max error / the case's peak-to-peak (%), the "
+        "definition the service measures its runs by"
+    )
+    relative_error_below_pct: float = Field(description="the bound the paper's text states, one for both cases (%)")
 
 
 class PaperFigures(BaseModel):
