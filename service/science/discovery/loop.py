@@ -189,7 +189,7 @@ def next_effect(d: dict, exclude=()) -> str | None:
         if claimed:
             return claimed[0]
     # complete as far as physics goes: more capacity if the model is not at the noise floor yet
-    capacity = helpful_capacity(d["candidates"], d["residual_rms_um"])  # only effects not in the model
+    capacity = helpful_capacity(d["candidates"], d["residual_rms_um"], d["noise_floor_um"] or 0.0)  # not in the model
     capacity = [c for c in capacity if c["effect"] not in exclude]
     if d["at_noise_floor"] or not capacity:
         return None

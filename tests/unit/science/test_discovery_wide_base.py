@@ -156,3 +156,28 @@ def test_a_loop_shape_effect_is_capacity_on_the_wider_base_and_physics_on_the_pi
     # a stored model's list names the base, "hysteresis", too (the report read it and raised KeyError)
     assert role_in_model("asymmetry", ["hysteresis", "asymmetry"]) == "physical"
     assert role_in_model("asymmetry", ["hysteresis", "hysterons", "asymmetry"]) == "capacity"
+
+
+def test_capacity_the_claim_rule_does_not_pass_is_added_only_for_a_tenth_of_the_excess():
+    """A complete model 25.8 nm over a 7.06 nm floor (a walk's step 6): capacity that would bring it to
+    25.7 nm (0.8 % of the excess, the gauge's bow as capacity beside hysterons) is not a step; one that
+    brings it to 20 nm (42 %) is."""
+    from service.science.discovery.loop import next_effect
+
+    def complete(expected_nm: float) -> dict:
+        row = {
+            "effect": "sensor_nonlinearity",
+            "kind": "capacity",
+            "claimed": False,
+            "expected_rms_um": expected_nm * 1e-3,
+        }
+        return {
+            "verdict": "complete",
+            "at_noise_floor": False,
+            "noise_floor_um": 7.06e-3,
+            "residual_rms_um": 25.8e-3,
+            "candidates": [row],
+        }
+
+    assert next_effect(complete(25.7)) is None
+    assert next_effect(complete(20.0)) == "sensor_nonlinearity"
