@@ -43,11 +43,37 @@ def ambiguity(physical: list[dict], records, noise: float = 0.0) -> dict | None:
         return None
     why, body = pairs[pair]
     axes = sorted({r.axis for r in records if r.axis}) or ["y"]
-    return {
+    experiment = experiment_body(records, axes, **body)
+    text = (
+        f"{a['effect']} and {b['effect']} explain the residual about equally well "
+        f"(held-out {fmt_nm(a['expected_rms_um'])} and {fmt_nm(b['expected_rms_um'])}); {why}"
+    )
+    if not in_the_data(experiment, records):
+        return {"effects": [a["effect"], b["effect"]], "excess_ratio": ratio, "text": text, "experiment": experiment}
+    return {  # run already (a Separate, a discover's experiment): proposing it again would change nothing
         "effects": [a["effect"], b["effect"]],
         "excess_ratio": ratio,
-        "text": f"{a['effect']} and {b['effect']} explain the residual about equally well "
-        f"(held-out {fmt_nm(a['expected_rms_um'])} and "
-        f"{fmt_nm(b['expected_rms_um'])}); {why}",
-        "experiment": experiment_body(records, axes, **body),
+        "text": text + ". The sweep that separates them is in the data already "
+        f"({', '.join(f'{f:g}' for f in experiment['frequencies_hz'])} Hz, {experiment.get('cycles', 1)} cycles), "
+        "and they still explain it alike: no sweep of this bench tells them apart",
+        "experiment": None,
+        "separating_sweep_in_data": experiment,
     }
+
+
+def in_the_data(experiment: dict, records) -> bool:
+    """Whether ``records`` already hold a sine sweep's every frequency (Hz, to 1e-6) on their own axis,
+    each in a block of at least its ``cycles`` (a step sweep or any other: never)."""
+    if experiment.get("waveform") != "sine" or not experiment.get("frequencies_hz"):
+        return False
+    held = [
+        (s.block["frequency_hz"], s.block.get("cycles") or 0)
+        for r in records
+        for s in r.splits_of(own_axis_only=True)
+        if s.block.get("frequency_hz")
+    ]
+    need = experiment.get("cycles") or 1
+    return all(
+        any(abs(f - float(asked)) <= 1e-6 * float(asked) and cycles >= need for f, cycles in held)
+        for asked in experiment["frequencies_hz"]
+    )

@@ -39,7 +39,12 @@ def diagnosis_answer(
             if other is None
             else f"Missing: {lead['effect']} or {other}; the data cannot tell them apart. Adding {lead['effect']}, "
             f"the leading claim, should bring the held-out error from {fmt_nm(residual_um, 4)} to about "
-            f"{fmt_nm(lead['expected_rms_um'], 4)}, but it is a guess until the experiment that separates them is run."
+            f"{fmt_nm(lead['expected_rms_um'], 4)}, but it is a guess "
+            + (
+                "until the experiment that separates them is run."
+                if not (ambiguity or {}).get("separating_sweep_in_data")
+                else "that the sweeps of this bench cannot settle: the one that would separate them is in the data already."
+            )
         )
     elif capacity and not at_floor:
         lead, kind = capacity[0], "capacity"

@@ -28,3 +28,43 @@ def test_an_answer_without_a_look_alike_is_unchanged():
             answer["text"]
             == "Missing: asymmetry. Adding it should bring the held-out error from 147.3 nm to about 93.4 nm."
         )
+
+
+def _sweep(frequencies_hz, cycles: int):
+    """One Y record of 1-second-ish sine blocks at ``frequencies_hz``, ``cycles`` each, 20 kHz."""
+    import numpy as np
+
+    from service.science.data.record import Record
+
+    fs, parts, blocks, start = 20000.0, [], [], 0
+    for i, f in enumerate(frequencies_hz):
+        n = int(round(cycles * fs / f))
+        parts.append(60.0 * (1.0 - np.cos(2 * np.pi * f * np.arange(n) / fs)))
+        blocks.append(
+            {"index": i, "start": start, "stop": start + n, "kind": "sine", "cycles": cycles, "frequency_hz": f}
+        )
+        start += n
+    u = np.concatenate(parts)
+    return Record(u, 0.06 * u, fs, blocks=blocks, axis="y", hold_out=True)
+
+
+def test_a_separating_sweep_already_in_the_data_is_not_proposed_again():
+    """A walk ran the Separate sweep for asymmetry and the gauge's bow (1–200 Hz, 10 cycles); the pair
+    still explained the residual alike, and the answer still said "a guess until the experiment that
+    separates them is run" while the report proposed the same sweep. With that sweep in the data the
+    ambiguity is said, with no sweep, and the answer says no sweep of this bench settles it."""
+    from service.science.discovery.ambiguity import ambiguity
+
+    claimed = [{**LEAD, "claimed": True}, {**OTHER, "claimed": True}]
+    before = ambiguity(claimed, [_sweep([1.0, 10.0, 50.0, 100.0], 5)], 0.00315)
+    assert before["experiment"]["frequencies_hz"] == [1.0, 10.0, 50.0, 100.0, 200.0]
+    after = ambiguity(
+        claimed, [_sweep([1.0, 10.0, 50.0, 100.0], 5), _sweep([1.0, 10.0, 50.0, 100.0, 200.0], 10)], 0.00315
+    )
+    assert after["experiment"] is None and after["separating_sweep_in_data"]["cycles"] == 10
+    assert "in the data already" in after["text"]
+    answer = diagnosis_answer(claimed, [], 0.1473, 0.00315, False, None, None, after)
+    assert "until the experiment" not in answer["text"] and "in the data already" in answer["text"]
+    # fewer cycles than it asks for are not that sweep
+    short = ambiguity(claimed, [_sweep([1.0, 10.0, 50.0, 100.0, 200.0], 5)], 0.00315)
+    assert short["experiment"] is not None

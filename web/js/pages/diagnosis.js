@@ -50,15 +50,17 @@ function separationSummary(before, after, experiment, datasetId) {
   const other = rows.find((r) => r !== lead);
   // the service judges the ambiguity (scores and unexplained excess): told apart unless the diagnosis
   // with the experiment still finds this same pair alike (another pair is another question, named)
-  const still = separatingExperiment(after);
-  const separated = !still || !([still.a, still.b].includes(a) && [still.a, still.b].includes(b));
-  const another = still && separated ? ` The diagnosis with it finds another pair alike: ${esc(still.a)} and ${esc(still.b)} (below).` : '';
+  const alike = (after && after.ambiguity && after.ambiguity.effects) || [];
+  const separated = !(alike.includes(a) && alike.includes(b));
+  const another = alike.length >= 2 && separated ? ` The diagnosis with it finds another pair alike: ${esc(alike[0])} and ${esc(alike[1])} (below).` : '';
+  // the same pair alike with the separating sweep in the data: no sweep of this bench settles it
+  const settled = !separated && after.ambiguity.separating_sweep_in_data ? ' No sweep of this bench tells them apart (see Separate below).' : ' A longer experiment may be needed.';
   return `<div id="separation" data-dataset-id="${esc(datasetId)}"
       data-leader="${esc(lead.effect)}" data-separated="${separated}">
     <h3>Separating experiment: result</h3>
     <p class="${separated ? 'ok' : 'warn'}">${separated
       ? `With dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, <b>${esc(lead.effect)}</b> explains the residual clearly better than ${esc(other.effect)} (held-out ${fmt(lead.nmAfter, 3)} nm against ${fmt(other.nmAfter, 3)} nm; score ${fmt(lead.after, 3)} against ${fmt(other.after, 3)}).${another}`
-      : `Even with dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, ${esc(a)} and ${esc(b)} remain close; a longer experiment may be needed.`}</p>
+      : `Even with dataset <a href="#/datasets/${esc(datasetId)}">${esc(datasetId)}</a> added, ${esc(a)} and ${esc(b)} remain close.${settled}`}</p>
     <table id="separation-table"><tr><th>effect</th><th class="num">score before</th><th class="num">score with the experiment</th>
       <th class="num">held-out before (nm)</th><th class="num">held-out with the experiment (nm)</th></tr>
       ${rows.map((r) => `<tr data-effect="${esc(r.effect)}" data-before="${r.before ?? ''}" data-after="${r.after ?? ''}" data-nm-after="${r.nmAfter}"${r === lead ? ' class="best"' : ''}>
@@ -148,6 +150,8 @@ export function renderDiagnosis(box, model, d, opts) {
     if (d.ambiguity && d.ambiguity.not_runnable_here) {   // an ambiguity this bench cannot separate: said, no button
       box.querySelector('#separate').innerHTML = `<h3>Separate</h3><p>${esc(d.ambiguity.text || '')}</p>
         <p class="muted" id="separate-not-here">This bench cannot run the experiment that separates them: ${esc(d.ambiguity.not_runnable_here)}.</p>`;
+    } else if (d.ambiguity && d.ambiguity.separating_sweep_in_data) {   // run already and still alike: no button
+      box.querySelector('#separate').innerHTML = `<h3>Separate</h3><p id="separate-in-data">${esc(d.ambiguity.text || '')}.</p>`;
     }
     return;
   }
