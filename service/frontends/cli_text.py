@@ -39,8 +39,12 @@ def discovery_text(result: dict) -> str:
         )
     for ran in result["experiments"]:
         lines.append(
-            f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} (sweep job "
-            f"{ran['sweep_job_id']}), "
+            f"experiment for {' / '.join(ran['effects'])}: dataset {ran['dataset_id']} "
+            + (
+                "(recorded before for this model, not run again), "
+                if ran.get("recorded_before")
+                else f"(sweep job {ran['sweep_job_id']}), "
+            )
             + ("resolved" if ran.get("resolved") else "not resolved by it")
             + (f"; cut to the bench's limits: {'; '.join(ran['cut_to_bench'])}" if ran.get("cut_to_bench") else "")
         )

@@ -117,6 +117,35 @@ class ExperimentPolicy:
         return dataset_id, sweep["id"], None
 
 
+#: what a sweep's stored plan holds that is not the sweep asked for (service.render.reproduce)
+PLAN_NOT_ASKED = ("samples", "duration_s", "experiment_of")
+
+
+def recorded_already(store, model_id: str, bodies: list[dict], exclude: list[str]) -> str | None:
+    """The id of a complete dataset this bench recorded as an experiment of ``model_id`` with one of the
+    sweeps ``bodies`` (every field of the body as the plan stored it), newest first, not in ``exclude``;
+    None when there is none. A walk ran a diagnosis's separating sweep from the Models page, then a
+    discover with experiments ran the identical sweep again."""
+    for row in reversed(store.list_datasets(bench_id=store.bench_id)):
+        plan = row.get("plan") or {}
+        if row["id"] in exclude or row.get("source") != "sweep" or row.get("partial"):
+            continue
+        if (plan.get("experiment_of") or {}).get("model_id") != model_id:
+            continue
+        if any(all(_same(plan.get(k), v) for k, v in body.items() if k not in PLAN_NOT_ASKED) for body in bodies):
+            return row["id"]
+    return None
+
+
+def _same(stored, asked) -> bool:
+    """Whether a plan's stored value is the asked one (numbers to 1e-9, lists element by element)."""
+    if isinstance(asked, (list, tuple)):
+        return isinstance(stored, (list, tuple)) and len(stored) == len(asked) and all(map(_same, stored, asked))
+    if isinstance(asked, (int, float)) and not isinstance(asked, bool):
+        return isinstance(stored, (int, float)) and abs(float(stored) - float(asked)) <= 1e-9 * max(1.0, abs(asked))
+    return stored == asked
+
+
 def fit_experiments(out: dict, fit: BenchFit, records, ambiguity: bool = True) -> None:
     """Each experiment diagnosis ``out`` proposes (what tests a not-testable effect, what separates an
     ambiguity) as the bench runs it: cut to its limits where it asks more (``cut_to_limits`` says

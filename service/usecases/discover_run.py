@@ -41,7 +41,7 @@ from service.science.discovery.loop import (
 from service.science.discovery.rests import LineFree
 from service.science.effects import ordered
 from service.store import Store
-from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments
+from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments, recorded_already
 from service.usecases.discover_result import discover_result, fit_label, step_summary, step_words
 from service.usecases.identify import load_model, load_record, load_records, store_model
 
@@ -313,6 +313,18 @@ def _experiment(
     need.update({"experiment": body, "asked": asked, "cut_to_bench": cuts})
     if refused is not None:
         need["not_runnable_here"] = refused
+    stored = (
+        None
+        if policy.elsewhere
+        else recorded_already(store, loop.model_id, [b for b in (body, asked) if b], loop.datasets)
+    )
+    if stored is not None:  # run already, from the Models page or a discover before: its dataset joins
+        loop.asked.append(asked)
+        loop.run["experiments"].append(
+            {**need, "sweep_job_id": None, "dataset_id": stored, "after_step": after, "recorded_before": True}
+        )
+        loop.join(store, stored)
+        return None, False
     why = policy.why_not(len(loop.run["experiments"]))
     skipped = False
     if why is None:

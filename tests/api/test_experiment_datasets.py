@@ -55,3 +55,23 @@ def test_an_experiments_dataset_keeps_what_it_is_the_experiment_of(http):
         if why:
             assert r.json()["field"] == "experiment_of" and why in r.json()["detail"], r.text
     assert len(http.get("/api/datasets").json()) == 2  # nothing queued for a refused one
+
+
+def test_a_discover_finds_the_experiment_already_recorded_for_its_model(http):
+    """The walk ran a diagnosis's separating sweep from the Models page, then a discover with
+    experiments ran the identical sweep again: the loop now joins the dataset recorded for that model
+    with that body (service.usecases.discover_experiments.recorded_already)."""
+    from service.usecases.discover_experiments import recorded_already
+
+    planned = _swept(http, SWEEP)
+    r = http.post("/api/models", json={"axis": "y", "datasets": [planned]})
+    model_id = wait_job(http, r.json()["job_id"])["result"]["model_id"]
+    body = {**SWEEP, "waveform": "sine", "frequencies_hz": [10.0, 20.0]}
+    experiment = _swept(http, {**body, "experiment_of": {"model_id": model_id, "effects": ["delay", "dynamics"]}})
+    store = http.app.state.store
+    assert recorded_already(store, model_id, [body], exclude=[planned]) == experiment
+    assert recorded_already(store, model_id, [{**body, "frequencies_hz": [10.0, 30.0]}], exclude=[]) is None
+    assert recorded_already(store, model_id, [body], exclude=[experiment]) is None
+    assert recorded_already(store, "md_other", [body], exclude=[]) is None
+    # the user's own sweep with the same body is not an experiment of the model: never joined for it
+    assert recorded_already(store, model_id, [SWEEP], exclude=[]) is None

@@ -124,6 +124,9 @@ const unitText = (unit) => (unit && unit !== '1' ? ` ${esc(unit)}` : '');
 
 const ratio = (r) => (r === null || r === undefined ? '–' : `${fmt(r, 3)}×`);
 
+/** Whether the run's experiment that added dataset `id` was one recorded before for its model (joined, not run again). */
+const reusedBefore = (r, id) => (r.experiments || []).some((x) => x.dataset_id === id && x.recorded_before);
+
 /** The run so far (the job's partial result while it runs, then its result). `imported`: the model's
  * data came from another stage, so a suggested experiment is shown as the sweep to run there, with no button. */
 function renderRun(out, r, { signal, imported }) {
@@ -138,7 +141,7 @@ function renderRun(out, r, { signal, imported }) {
       <th class="num" title="the like-for-like fit (this step's effects refitted on every dataset the run has now) scored on the held-out cycles of the data the run started from: not the step's own fit, so it can differ from its held-out RMS on the same data">like for like, on the original data</th>
       <th class="num">noise floor</th><th class="num">× noise floor</th><th>verdict</th><th></th></tr>
     ${steps.map((s) => `<tr data-step="${s.step}" data-model-id="${esc(s.model_id)}" data-added="${esc(s.added || '')}" data-rms="${s.validation_rms_um}">
-      <td>${s.step}</td><td>${s.replaced ? `<b>${esc(s.added)}</b> <span class="muted">in place of ${esc(s.replaced)} (the base's grid, compared at the loop's end)</span>` : s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(held-out RMS over more data; like for like beside it)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
+      <td>${s.step}</td><td>${s.replaced ? `<b>${esc(s.added)}</b> <span class="muted">in place of ${esc(s.replaced)} (the base's grid, compared at the loop's end)</span>` : s.added ? `<b>+${esc(s.added)}</b>` : (s.experiment_dataset_id ? `+data ${esc(s.experiment_dataset_id)} <span class="muted">(${reusedBefore(r, s.experiment_dataset_id) ? 'recorded before as this model\'s experiment, not run again; ' : ''}held-out RMS over more data; like for like beside it)</span>` : (s.step ? 'refit' : 'start'))}${!s.step && s.fit ? `<div class="muted step-fit">figures of ${esc(s.fit)}</div>` : ''}</td>
       <td><a href="#/models/${esc(s.model_id)}">${esc(s.model_id)}</a></td><td>${s.effects.map(esc).join(' + ')}</td>
       <td class="num">${fmtErrorNm(s.validation_rms_um)}</td>
       <td class="num like-for-like" data-rms="${s.like_for_like_rms_um ?? ''}">${fmtErrorNm(s.like_for_like_rms_um)}</td>
