@@ -71,6 +71,9 @@ def test_a_fresh_store_reaches_case_2_in_one_guided_flow(page, server):
         cell = page.locator("#traj-pid-table td.mode-damping").nth(i).inner_text()
         assert f"the {plant['resonance_hz']:.4g} Hz mode the tuning assumed: {plant['resonance_of']}" in cell, cell
         assert plant["resonance_of"] == "the bench's declared first resonance", plant
+    # the table stays within its card at the page's width: its long cell wraps (it overflowed at 1400 px)
+    card, table = (page.locator(s).bounding_box() for s in ("#traj-pid-report", "#traj-pid-table"))
+    assert table["x"] + table["width"] <= card["x"] + card["width"] + 1, (card, table)
     learned = _run(page, server, ilc=True)
     assert learned["relative_error_pct"] <= 0.5, learned["relative_error_pct"]
     shot(page, "tracking_flow")
