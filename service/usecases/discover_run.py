@@ -249,20 +249,24 @@ class _Loop:
         self.joined = None
         self.history.append((list(self.effects), dict(self.theta)))
         self.fitted[effects_key(self.effects)] = self.model
-        self._score()
+        self._score(ctx)
         self.run["final_model"] = self.model
         self._progress(ctx, max_steps, step_words(self.run["steps"][-1]), partial=True)
         return d
 
-    def _score(self) -> None:
-        """Each step's held-out RMS on the records as they are now and on the original ones."""
-        todo = [(e, t) for e, t in self.history if effects_key(e) not in self.scores]
-        for (effects, _), figures in zip(
-            todo, like_for_like(self.line_free, self.n_original, todo, self.n_operators, self.fitted)
-        ):
-            self.scores[effects_key(effects)] = figures
+    def _score(self, ctx: JobContext) -> None:
+        """Each step's held-out RMS on the records as they are now and on the original ones: one refit
+        per step not scored on them yet (every step after an experiment), the job's cancel read between
+        them (a walk's cancel took over 2 minutes to land while a run refitted its steps); a step left
+        unscored by a cancel reads None, and the next step's start ends the job."""
+        todo = {effects_key(e): (e, t) for e, t in self.history if effects_key(e) not in self.scores}
+        for key, step in todo.items():
+            if ctx.cancelled:
+                break
+            self.scores[key] = like_for_like(self.line_free, self.n_original, [step], self.n_operators, self.fitted)[0]
+        unscored = {"like_for_like_rms_um": None, "original_data_rms_um": None}
         for summary, (effects, _) in zip(self.run["steps"], self.history):
-            summary.update(self.scores[effects_key(effects)])
+            summary.update(self.scores.get(effects_key(effects), unscored))
         self.run["like_for_like_datasets"] = list(self.datasets)
 
     def _store(self, store: Store, ctx: JobContext, model, effects: list[str]) -> str:
