@@ -115,4 +115,17 @@ def _model_summary(store: Store, model: dict | None) -> dict | None:
         "noise_floor_um": noise_floor_um(store, model),
         "created_at": model["created_at"],
         "origin": model_origin(store, model.get("datasets") or []),
+        "made_by": _made_by(store, model.get("job_id")),
     }
+
+
+def _made_by(store: Store, job_id: str | None) -> dict | None:
+    """The job that stored a model: ``{"job_id", "kind", "state"}`` (a discover's step models are stored
+    as it goes, so the newest may be from a run that was cancelled: the page says so), None if unknown."""
+    if not job_id:
+        return None
+    try:
+        job = store.get_job(job_id)
+    except NotFoundError:
+        return None
+    return {"job_id": job_id, "kind": job["kind"], "state": job["state"]}

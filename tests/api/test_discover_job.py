@@ -217,6 +217,9 @@ def test_a_cancel_between_steps_keeps_the_steps_done(creep, monkeypatch):
     assert job["result"]["stopped"] == "cancelled" and len(job["result"]["steps"]) == 2
     step_1 = job["result"]["steps"][1]["model_id"]
     assert {m["id"] for m in http.get("/api/models").json()} == {base_id, step_1}  # nothing after the cancel
+    # the Lab's newest model of the axis is that step's, and it says the run that stored it was cancelled
+    newest = http.get("/api/lab/benches").json()["benches"][0]["latest_models"][job["result"]["axis"]]
+    assert newest["id"] == step_1 and newest["made_by"] == {"job_id": job_id, "kind": "discover", "state": "cancelled"}
 
 
 @pytest.fixture

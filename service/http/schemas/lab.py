@@ -26,6 +26,11 @@ class LatestModel(BaseModel):
         description='where its data came from: {"fitted_on": "this_bench" | "imported" | "mixed", "imported": '
         '[{"dataset_id", "name", "filename"}]}',
     )
+    made_by: dict[str, str] | None = Field(
+        None,
+        description='the job that stored it: {"job_id", "kind", "state"} (a discover stores each step as it goes, '
+        "so the newest may be from a run that was cancelled); null if unknown",
+    )
 
 
 class BenchSummary(BaseModel):

@@ -61,6 +61,12 @@ export function originWords(origin) {
   return `${what}${files.length ? `: ${files.join(', ')}` : ''}, recorded on another stage`;
 }
 
+/** Where a model came from when that is not a finished job: a step of a discover that was cancelled or failed. */
+function madeBy(job) {
+  if (!job || job.state === 'succeeded' || job.state === 'running' || job.state === 'queued') return '';
+  return `<div class="muted made-by" data-job-state="${esc(job.state)}">a step of ${esc(job.kind)} job ${esc(job.job_id)}, which was ${esc(job.state)}</div>`;
+}
+
 /** A bench's newest model of one axis fitted on its own data; under it, apart and marked, its newest
  *  fitted on imported data (that model describes the stage that recorded the file, not this bench). */
 function modelCell(m, imported) {
@@ -69,7 +75,7 @@ function modelCell(m, imported) {
   if (!m) return `<td class="muted">none${other}</td>`;
   return `<td data-model-id="${esc(m.id)}" data-validation-rms-um="${m.validation_rms_um ?? ''}">
     <a href="#/models/${esc(m.id)}">${esc(m.id)}</a><br><span class="muted">${esc(m.effects.join(' + '))}</span>
-    · held-out ${fmtErrorNm(m.validation_rms_um)}${m.noise_floor_um ? ` · floor ${fmtErrorNm(m.noise_floor_um)}` : ''}${other}</td>`;
+    · held-out ${fmtErrorNm(m.validation_rms_um)}${m.noise_floor_um ? ` · floor ${fmtErrorNm(m.noise_floor_um)}` : ''}${madeBy(m.made_by)}${other}</td>`;
 }
 
 async function refreshBenches(root) {
