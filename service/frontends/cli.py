@@ -8,6 +8,7 @@ import json
 import logging
 import os
 import sys
+import threading
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -33,21 +34,40 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         print(f"evcbench serve: {refusal}", file=sys.stderr)
         return 2
     app = create_app(settings)
-    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port, log_level="info"))
+    server = uvicorn.Server(
+        uvicorn.Config(
+            app,
+            host=settings.host,
+            port=settings.port,
+            log_level="info",
+            timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+        )
+    )
     install(server, app)  # SIGTERM/SIGINT: 0 V and the running job cancelled, then the normal shut-down
     try:
         server.run()
     finally:  # also when uvicorn re-raises Ctrl-C's KeyboardInterrupt after its shut-down
-        exit_if_a_job_is_left(getattr(app.state, "jobs", None))
+        exit_if_work_is_left(getattr(app.state, "jobs", None))
     return 0
 
 
-def exit_if_a_job_is_left(jobs) -> None:
+#: how long Ctrl-C or SIGTERM waits for requests still being answered before it cancels them (s); the
+#: outputs are at 0 V before this wait (service.runtime.safe_shutdown). A walk's Ctrl-C waited at
+#: "Waiting for background tasks to complete" for over 45 s with no job running, and a second Ctrl-C
+#: did not end the process.
+GRACEFUL_SHUTDOWN_S = 5.0
+
+
+def exit_if_work_is_left(jobs) -> None:
     """After the service's shut-down (the bench closed at 0 V, the store closed, every job ended in
-    it): exit now if a job's thread is still at work — a fit sees its cancel only between steps, and
-    the interpreter would otherwise wait for it at exit, minutes with Ctrl-C seemingly ignored."""
-    if jobs is not None and jobs.job_threads_alive():
-        logging.getLogger("evcbench.jobs").warning("exiting without waiting for a job that did not stop")
+    it): exit now if a job's thread, or a request's worker thread, is still at work — a fit sees its
+    cancel only between steps, and the interpreter would otherwise wait for it at exit, minutes with
+    Ctrl-C seemingly ignored."""
+    job_left = jobs is not None and jobs.job_threads_alive()
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
+    if job_left or others:
+        what = "a job" if job_left else f"{len(others)} thread(s) still answering"
+        logging.getLogger("evcbench.jobs").warning("exiting without waiting for %s that did not stop", what)
         logging.shutdown()
         os._exit(0)
 

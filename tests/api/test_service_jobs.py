@@ -281,7 +281,7 @@ def test_a_job_that_does_not_stop_is_ended_and_never_holds_the_process(store, tm
     program = tmp_path / "stubborn.py"
     program.write_text(
         "import threading, sys\n"
-        "from service.frontends.cli import exit_if_a_job_is_left\n"
+        "from service.frontends.cli import exit_if_work_is_left\n"
         "from service.runtime.jobs import JobManager\n"
         "from service.store import Store\n"
         f"store = Store('sqlite:///{tmp_path}/p.db', {str(tmp_path)!r})\n"
@@ -291,7 +291,7 @@ def test_a_job_that_does_not_stop_is_ended_and_never_holds_the_process(store, tm
         "started.wait(30)\n"
         "print(manager.shutdown(timeout_s=0.2) == [job['id']], flush=True)\n"
         "store.close()\n"
-        "exit_if_a_job_is_left(manager)\n"
+        "exit_if_work_is_left(manager)\n"
         "sys.exit(3)  # not reached: the exit above does not wait for the job\n"
     )
     done = subprocess.run([sys.executable, str(program)], capture_output=True, text=True, timeout=120, cwd=ROOT)
