@@ -73,6 +73,13 @@ def test_separate_two_look_alike_effects(page, server):
     held_out = {e: float(page.get_attribute(f"#separation-table tr[data-effect={e}]", "data-nm-after")) for e in (a, b)}
     assert held_out["rate_dependence"] > 1.5 * held_out["delay"], held_out
     assert page.locator("#separate-run").count() == 0  # no ambiguity left to separate
+    # the answer on the first screen is the diagnosis with the experiment's data, not the one before it
+    # (a walk read "Missing: asymmetry or sensor_nonlinearity … a guess" above a card that told them apart)
+    answer = page.inner_text("#model-answer-text")
+    assert f"or {b}" not in answer and f"or {a}" not in answer and "a guess" not in answer, answer
+    assert page.get_attribute("#model-answer-text", "data-effect") == page.get_attribute(
+        "#candidates tr.best", "data-effect"
+    )
     shot(page, "separate_result")
     # the dataset keeps what it was the experiment of, and after a reload the page shows the same result
     assert ds["experiment_of"] == {"model_id": model_id, "effects": [a, b], "extra_datasets": []}
@@ -83,6 +90,7 @@ def test_separate_two_look_alike_effects(page, server):
     page.wait_for_selector("#separation", timeout=180_000)
     assert _separation_figures(page) == shown
     assert page.get_attribute("#diagnosis-verdict", "data-extra-datasets") == new_id
+    assert "a guess" not in page.inner_text("#model-answer-text")
     assert page.locator("#separate-run").count() == 0
 
 

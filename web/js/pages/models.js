@@ -165,14 +165,16 @@ async function showModel(el, modelId, query) {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted" id="diagnosis-wait">Diagnosing: every candidate effect is fitted in turn on the held-out cycles…</p>';
     try {
       diagnosis = await api(`/models/${encodeURIComponent(model.id)}/diagnosis${datasetId ? `?dataset=${encodeURIComponent(datasetId)}` : ''}`, { signal });
-      const opts = { canRefine, signal, jobBox: el.querySelector('#separate-job'), onAdd: (effect, extra) => refine(el, model, effect, extra) };
+      // the answer on the first screen follows the diagnosis shown (after a Separate, the one with its data)
+      const opts = { canRefine, signal, jobBox: el.querySelector('#separate-job'), onAdd: (effect, extra) => refine(el, model, effect, extra),
+        onDiagnosis: (shown) => renderAnswer(el.querySelector('#model-answer'), model, shown) };
       renderDiagnosis(el.querySelector('#diagnosis'), model, diagnosis, opts);
       await showLastSeparation(el.querySelector('#diagnosis'), model, diagnosis, all, opts);   // its result kept over a reload
     } catch (e) { showError(el.querySelector('#diagnosis'), e, 'Diagnosis failed: '); }
   } else {
     el.querySelector('#diagnosis').innerHTML = '<p class="muted">This service does not offer a diagnosis yet (GET /api/models/{id}/diagnosis).</p>';
   }
-  renderAnswer(el.querySelector('#model-answer'), model, diagnosis);
+  if (!diagnosis) renderAnswer(el.querySelector('#model-answer'), model, null);
   await renderHistory(el, model, canHistory);
   if (datasetId) await renderCompare(el, model, datasetId, diagnosis);
 }
