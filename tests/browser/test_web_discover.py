@@ -170,3 +170,19 @@ def test_discover_run_its_figures_and_a_comparison_on_the_page(page, server):
         assert options.nth(0).inner_text().startswith("step 0: ")
         page.wait_for_selector("#history tr td")
         assert page.locator("#history tr").nth(1).locator("td").first.inner_text() == "0"
+
+
+def test_a_run_is_cancelled_from_the_page_and_keeps_its_steps(page, server):
+    """The Discover card has a Cancel button while a run is at work (a walk found no way to stop one
+    from the page): the job ends cancelled, the steps done are kept and shown, the button goes away."""
+    api, base = server["api"], server["base"]
+    goto(page, server, f"models/{base}")
+    page.wait_for_selector("#discover-start:not([disabled])", timeout=120_000)
+    page.fill("#discover-form input[name=max_steps]", "6")
+    page.click("#discover-start")
+    page.click("#discover-cancel", timeout=60_000)  # offered as soon as the job is queued or running
+    page.wait_for_selector("#discover-job .jobline[data-state='cancelled']", timeout=300_000)
+    job = api.get(f"/jobs/{page.get_attribute('#discover-job .jobline', 'data-job-id')}").json()
+    assert job["state"] == "cancelled" and job["result"]["stopped"] == "cancelled", job["state"]
+    assert page.locator("#discover-steps tr[data-step]").count() == len(job["result"]["steps"]) >= 1
+    assert page.locator("#discover-cancel").is_hidden()

@@ -31,6 +31,7 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
         ${experiments}
         <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> ${CHECKBOXES.continue_past_ambiguity}</label>
         <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
+        <button type="button" id="discover-cancel" hidden title="the run stops after the step it is fitting; the steps done are kept">Cancel the run</button>
       </form>
       <div id="discover-job"></div>
       <div id="discover-run"></div>
@@ -94,6 +95,9 @@ async function discover(box, model, state, { signal, imported, onModels, figures
   const body = { max_steps: Number(f.get('max_steps')), allow_experiments: f.get('allow_experiments') === 'on',
     continue_past_ambiguity: f.get('continue_past_ambiguity') === 'on' };
   const button = box.querySelector('#discover-start');
+  const cancel = box.querySelector('#discover-cancel');
+  cancel.disabled = false;
+  cancel.textContent = 'Cancel the run';
   const out = box.querySelector('#discover-run');
   state.ran = true;   // this run fills the lineage selects when it ends, not the restored one
   button.disabled = true;
@@ -101,7 +105,7 @@ async function discover(box, model, state, { signal, imported, onModels, figures
   out.classList.remove('error');
   try {
     const job = await runJob(box.querySelector('#discover-job'), `/models/${encodeURIComponent(model.id)}/discover`, body,
-      'discover', { signal, onUpdate: (j) => { if (j.result?.steps) renderRun(out, j.result, { signal, imported }); } });
+      'discover', { signal, onUpdate: (j) => { offerCancel(cancel, j); if (j.result?.steps) renderRun(out, j.result, { signal, imported }); } });
     if (job.result?.steps) renderRun(out, job.result, { signal, imported });
     if (job.state !== 'succeeded') {
       showError(out.appendChild(document.createElement('p')), new Error(job.error || `discover ${job.state}`));
@@ -116,7 +120,24 @@ async function discover(box, model, state, { signal, imported, onModels, figures
     showError(out.appendChild(document.createElement('p')), e, 'Discover failed: ');
   } finally {
     button.disabled = false;
+    cancel.hidden = true;
   }
+}
+
+/** The Cancel button beside a running discover job `job` (DELETE /api/jobs/{id}): the run stops after
+ *  the step it is fitting, its steps kept (a walk found no way to stop a run from the page). */
+function offerCancel(cancel, job) {
+  cancel.hidden = !['queued', 'running'].includes(job.state);
+  cancel.onclick = async () => {
+    cancel.disabled = true;
+    try {
+      await api(`/jobs/${encodeURIComponent(job.id)}`, { method: 'DELETE' });
+      cancel.textContent = 'Cancel requested: the run stops after the step it is fitting';
+    } catch (e) {
+      cancel.disabled = false;
+      showError(cancel.parentElement.appendChild(document.createElement('p')), e, 'Cancel failed: ');
+    }
+  };
 }
 
 /** A parameter's unit after its value (" nm", " Hz"); none for a ratio (unit "1") or an unknown one. */
