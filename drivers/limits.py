@@ -53,8 +53,8 @@ class LimitsMixin:
         if need_a > lim.current_limit_a:
             raise LimitError(
                 f"{vpp_v:g} Vpp at {frequency_hz:g} Hz needs {need_a * 1e3:.0f} mA; the amplifier's "
-                f"limit is {lim.current_limit_a * 1e3:.0f} mA (largest frequency at this amplitude: "
-                f"{lim.max_frequency_hz(vpp_v):.1f} Hz)"
+                f"limit is {lim.current_limit_a * 1e3:.0f} mA (largest frequency at this amplitude, within "
+                f"every limit of the axis: {highest_sine_hz(lim, vpp_v):.1f} Hz)"
             )
         slew = np.pi * frequency_hz * vpp_v
         if slew > lim.slew_limit_v_per_s:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -144,6 +146,13 @@ def test_overvoltage_request_is_refused_with_reason():
     assert bench.parts.world.time_s == 0.0  # nothing was written
     with pytest.raises(LimitError, match="mA"):
         bench.check_sine("z", 120.0, 300.0)
+    # the frequency the refusal offers passes every check (a walk was offered 294.7 Hz by the current
+    # limit, then refused 280 Hz by the resonance's 241.3 Hz on Y)
+    with pytest.raises(LimitError) as refused:
+        bench.check_sine("y", 120.0, 300.0)
+    offered = float(re.search(r"within every limit of the axis: ([\d.]+) Hz", str(refused.value)).group(1))
+    bench.check_sine("y", 120.0, offered)
+    assert offered == pytest.approx(241.3, abs=0.05)
 
 
 def test_stack_rating_is_the_limit_and_the_stack_moves_on_to_150_v():
