@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from service.render.reproduce import PLAN_NOT_IN_BODY
 from service.runtime.jobs import JobContext
 from service.science.discovery.loop import still_separates
 from service.science.effects import EFFECTS
@@ -117,10 +118,6 @@ class ExperimentPolicy:
         return dataset_id, sweep["id"], None
 
 
-#: what a sweep's stored plan holds that is not the sweep asked for (service.render.reproduce)
-PLAN_NOT_ASKED = ("samples", "duration_s", "experiment_of")
-
-
 def recorded_already(store, model_id: str, bodies: list[dict], exclude: list[str]) -> str | None:
     """The id of a complete dataset this bench recorded as an experiment of ``model_id`` with one of the
     sweeps ``bodies`` (every field of the body as the plan stored it), newest first, not in ``exclude``;
@@ -132,7 +129,7 @@ def recorded_already(store, model_id: str, bodies: list[dict], exclude: list[str
             continue
         if (plan.get("experiment_of") or {}).get("model_id") != model_id:
             continue
-        if any(all(_same(plan.get(k), v) for k, v in body.items() if k not in PLAN_NOT_ASKED) for body in bodies):
+        if any(all(_same(plan.get(k), v) for k, v in body.items() if k not in PLAN_NOT_IN_BODY) for body in bodies):
             return row["id"]
     return None
 
