@@ -16,7 +16,7 @@ def test_the_lab_effects_are_listed_as_builtins(tmp_path):
     expect = {
         "line_disturbance": ("additive", "none", {"line_um": "µm", "line_hz": "Hz"}),
         "gain_change": ("additive", "iterate", {"gain_change_um": "µm", "gain_change_pct_per_s": "%/s"}),
-        "slew_limit": ("drive", "none", {"slew_v_per_s": "V/s"}),
+        "slew_limit": ("drive", "none", {"slew_kv_per_s": "kV/s"}),
     }
     for name, (stage, inverse, units) in expect.items():
         e = by_name[name]

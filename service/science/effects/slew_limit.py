@@ -73,7 +73,7 @@ class SlewLimit(Effect):
         "the error appears only where the drive's rate is highest (the fastest block's steepest parts) and "
         "lags there by more than any delay: the amplifier cannot deliver the current to follow the drive"
     )
-    units = {"slew_v_per_s": "V/s", "slew_kv_per_s": "kV/s"}
+    units = {"slew_kv_per_s": "kV/s"}  # one unit per quantity: the bench page's and the evidence's
     rule = (
         "a drive whose fastest rate exceeds the limit, beside blocks that stay under it: the error appears above "
         "a rate, not in proportion to the frequency; on a bench whose amplifier rating is known, the fastest rate "
@@ -126,7 +126,7 @@ class SlewLimit(Effect):
 
     def parameters(self, theta, values, scales, sign):
         s = (theta or {}).get("slew_v_per_s")
-        return {} if s is None else {"slew_v_per_s": float(s), "slew_kv_per_s": float(s) / 1e3}
+        return {} if s is None else {"slew_kv_per_s": float(s) / 1e3}
 
     def untestable(self, records):
         """None when a rate limit could act on ``records``: their drive moves and, where the amplifier that

@@ -70,6 +70,8 @@ def test_fitted_parameters_come_back():
         fade = CompositeModel(["gain_change", "operators"]).fit(_stage("gainfade"))
         hum = CompositeModel(["line_disturbance"]).fit(_stage("hum"))
     assert slew.theta["slew_limit"]["slew_v_per_s"] == pytest.approx(SLEW_V_PER_S, rel=0.02)
+    # the user reads the rate once, in the bench page's unit (a walk saw V/s and kV/s side by side)
+    assert physical_parameters(slew)["slew_limit"] == {"slew_kv_per_s": pytest.approx(SLEW_V_PER_S / 1e3, rel=0.02)}
     assert physical_parameters(fade)["gain_change"]["gain_change_pct_per_s"] == pytest.approx(-0.1, abs=0.02)
     assert hum.scales["learned"]["line_disturbance"]["line_hz"] == [50.0, 150.0]
     line = physical_parameters(hum)["line_disturbance"]
