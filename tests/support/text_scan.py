@@ -31,7 +31,7 @@ WRONG_UNITS = {
 WRONG_COMPOUND = re.compile(r"(?:µm|μm|\bms\b)[·/]|[·/](?:µm|μm|ms)\b")
 #: "A nm of (their|the remaining|…) B nm": a part stated of a whole
 PART_OF = re.compile(
-    rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) of (?:the |their |its |this model's )?(?:remaining |held-out |unseen )?"
+    rf"(?P<part>{NUMBER}) (?P<u1>nm²|nm) of (?:the reference's |the |their |its |this model's )?(?:remaining |held-out |unseen )?"
     rf"(?P<whole>{NUMBER}) (?P<u2>nm²|nm)"
 )
 #: "A nm² (of held-out mean square) removed by its test (…) / B nm² (…) above the noise floor": a score's

@@ -66,6 +66,12 @@ def claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:
     return (test["gain_trend_mse_um2"] if anchor == "training_mean" else test["gain_mse_um2"]), anchor
 
 
+def anchored_whole(test: dict, anchor: str) -> float:
+    """The reference's own held-out mean square (µm²) at ``anchor``: the whole a drop at that anchoring
+    is a part of."""
+    return float(test["reference_trend_mse_um2" if anchor == "training_mean" else "reference_mse_um2"])
+
+
 def score_sentence(score: float, anchor: str) -> str:
     """Which figure a row's score is, beside the share its evidence prints of adding it (a share of one
     anchoring, the score of another: "score 0" stood beside "34 % of the excess" with nothing saying so)."""
@@ -102,10 +108,12 @@ def candidate_row(
     v_trial: float | None = None,
     kind: str | None = None,
     anchor: str = "last_cycle",
+    whole_um2: float | None = None,
 ) -> dict:
     """A candidate's row: the claim, its evidence in words, and what adding it to this model gives
     (``v_trial``: the held-out RMS of its reference with it, where it was tested against one;
-    ``kind``: "capacity" where this model makes a physical effect's columns capacity)."""
+    ``kind``: "capacity" where this model makes a physical effect's columns capacity; ``whole_um2``: the
+    reference's held-out mean square at ``anchor``, the whole ``gain`` is a part of, where known)."""
     fits, noise, v0, k0, sig, floor = judged.fits, judged.noise, judged.v0, judged.k0, judged.sig, judged.floor
     eff = EFFECTS[name]
     kind = kind or eff.kind
@@ -151,6 +159,7 @@ def candidate_row(
         "score_capped": score_capped(gain, excess),
         "p_value": p_value,
         "gain_mse_um2": gain,
+        "reference_mse_um2": whole_um2,
         "reference": list(reference),
         "reference_rms_um": v_ref,
         "tested_rms_um": v_trial,

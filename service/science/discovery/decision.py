@@ -98,11 +98,14 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
     with levels anchored at the block's training mean), ``p`` (one-sided signed-rank over the
     segments, anchored as the larger of the two sizes is: the p is of the figure the size is; a
     segment within ``TIE_SHARE`` of no change is a tie and left out), ``p_anchor`` ("last_cycle" or
-    "training_mean") and ``segments`` (those counted). With the p always at the last training cycle,
+    "training_mean"), ``segments`` (those counted), and ``reference_mse_um2`` /
+    ``reference_trend_mse_um2``: the reference's own held-out mean square at each anchoring, averaged
+    alike, the whole each drop is a part of. With the p always at the last training cycle,
     a slow effect whose size is its level was sized at one anchor and tested at the other: creep on
     the default bench's quick sweep, 142 nm² at the training mean (p = 0.00053) and 29.4 nm² at the
     last cycle (p = 0.0032), was never claimed, and drift (p = 0.31 at the training mean) took it."""
     diffs, gains, trend_gains = {"last_cycle": [], "training_mean": []}, [], []
+    wholes, trend_wholes = [], []
     for rec, r0, r1 in zip(records, res_ref, res_trial):
         for s in rec.splits:
             a, b = s.held_out
@@ -112,6 +115,8 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
             gains.append(float(np.mean(e0**2) - np.mean(e1**2)))
             m0, m1 = training_mean_free(r0, s), training_mean_free(r1, s)
             trend_gains.append(float(np.mean(m0**2) - np.mean(m1**2)))
+            wholes.append(float(np.mean(e0**2)))
+            trend_wholes.append(float(np.mean(m0**2)))
             for i, j in _segments(rec, s):
                 for anchor, (f0, f1) in (("last_cycle", (e0, e1)), ("training_mean", (m0, m1))):
                     ms0, ms1 = float(np.mean(f0[i - a : j - a] ** 2)), float(np.mean(f1[i - a : j - a] ** 2))
@@ -124,7 +129,15 @@ def held_out_improvement(records, res_ref, res_trial) -> dict:
     anchor = "training_mean" if trend_gain > gain else "last_cycle"
     d = np.asarray(diffs[anchor])
     p = 1.0 if d.size < 2 or not gains else float(stats.wilcoxon(d, alternative="greater").pvalue)
-    return {"gain_mse_um2": gain, "gain_trend_mse_um2": trend_gain, "p": p, "p_anchor": anchor, "segments": int(d.size)}
+    return {
+        "gain_mse_um2": gain,
+        "gain_trend_mse_um2": trend_gain,
+        "p": p,
+        "p_anchor": anchor,
+        "segments": int(d.size),
+        "reference_mse_um2": float(np.mean(wholes)) if wholes else 0.0,
+        "reference_trend_mse_um2": float(np.mean(trend_wholes)) if trend_wholes else 0.0,
+    }
 
 
 def less_gain_change(records, residuals) -> list[np.ndarray]:

@@ -27,7 +27,13 @@ from service.science.discovery.ambiguity import ambiguity
 from service.science.discovery.answer import diagnosis_answer
 from service.science.discovery.base_capacity import GOOD_ENOUGH_TO_NOISE, capacity_before_physics, later_grid
 from service.science.discovery.breakdown import failures, signatures
-from service.science.discovery.candidate_rows import DiagnosisFits, Judged, candidate_row, claimed_size
+from service.science.discovery.candidate_rows import (
+    DiagnosisFits,
+    Judged,
+    anchored_whole,
+    candidate_row,
+    claimed_size,
+)
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
 from service.science.discovery.decision import (
@@ -202,9 +208,10 @@ def _candidate(name, judged: Judged, alpha: float) -> dict:
             )
             is_claimed = False
     if is_claimed and eff.kind == "physical":  # one figure for the claim: its size, the rank's (ranking.py)
-        gain, anchor = claim_size(records, raw_ref, raw_trial), "training_mean"
+        (gain, whole), anchor = claim_size(records, raw_ref, raw_trial), "training_mean"
     else:
         gain, anchor = claimed_size(test, is_claimed)
+        whole = anchored_whole(test, anchor)
     return candidate_row(
         name,
         judged,
@@ -216,6 +223,7 @@ def _candidate(name, judged: Judged, alpha: float) -> dict:
         how,
         v_trial,
         anchor=anchor,
+        whole_um2=whole,
     )
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from service.science.data.units import fmt_nm
 from service.science.discovery.ambiguity import separating
-from service.science.discovery.candidate_rows import Judged, candidate_row, claimed_size
+from service.science.discovery.candidate_rows import Judged, anchored_whole, candidate_row, claimed_size
 from service.science.discovery.decision import NOISE_MULTIPLE, claimed, held_out_improvement
 from service.science.discovery.identifiability import experiment_body
 from service.science.discovery.ranking import claim_size, size_words
@@ -52,6 +52,7 @@ def loop_shape_as_capacity(judged: Judged) -> list[dict]:
         )
         is_claimed = claimed(test, 0.0)
         gain, anchor = claimed_size(test, is_claimed)
+        whole = anchored_whole(test, anchor)
         rows.append(
             candidate_row(
                 name,
@@ -64,6 +65,7 @@ def loop_shape_as_capacity(judged: Judged) -> list[dict]:
                 how,
                 kind="capacity",
                 anchor=anchor,
+                whole_um2=whole,
             )
         )
     return rows
@@ -112,14 +114,14 @@ def loop_shape_pair(judged: Judged, alpha: float) -> tuple[list[dict], dict | No
         f"curvature {fmt_nm(v_s)} (p = {stack_better['p']:.2g} that the stack fits better, "
         f"{gauge_better['p']:.2g} that the gauge does, over {gauge_better['segments']} segments)"
     )
-    size = claim_size(records, fits.get(())[1], res_a if winner == "asymmetry" else res_s)
+    size, whole = claim_size(records, fits.get(())[1], res_a if winner == "asymmetry" else res_s)
     # the claim rule's size: an even part that is there but that the winner's fit does not take out of
     # the held-out cycles (an imported static PI: 3.16 → 3.19 nm "with it") is no missing effect
     lowers = size >= NOISE_MULTIPLE * noise**2
     if not lowers:
         h2h += (
             f"; added to the model, {winner} does not lower the held-out error by the noise's σ² "
-            f"({size_words(size, ())}): neither is claimed"
+            f"({size_words(size, (), whole)}): neither is claimed"
         )
     rows = [
         candidate_row(
@@ -132,6 +134,7 @@ def loop_shape_pair(judged: Judged, alpha: float) -> tuple[list[dict], dict | No
             v0,
             f"{shape}; {h2h}",
             anchor="training_mean" if name == winner else "last_cycle",
+            whole_um2=whole if name == winner else None,
         )
         for name in LOOP_SHAPE
     ]

@@ -12,13 +12,28 @@ CLEAR_DROP_NOISE = 2.0
 
 
 def test_words(test: dict, noise: float) -> str:
-    """A held-out test's figures in words (both anchorings of the blocks' levels; the p is of the larger)."""
+    """A held-out test's figures in words (both anchorings of the blocks' levels; the p is of the larger),
+    each drop beside the reference's own held-out mean square at that anchoring, the whole it is a part
+    of (a walk read "10300 nm² removed" against a reference whose RMS, 92.2 nm, squares to 8500 nm²: the
+    RMS is of levels not anchored)."""
     at = " at the training mean" if test.get("p_anchor") == "training_mean" else ""
     return (
-        f"({p_words(test['p'], test['segments'], at)}; {fmt_nm2(test['gain_mse_um2'])} "
-        f"of mean square with each block's level anchored at its last training cycle, "
-        f"{fmt_nm2(test['gain_trend_mse_um2'])} at its training mean; against σ² = {fmt_nm2(noise**2)})"
+        f"({p_words(test['p'], test['segments'], at)}; "
+        f"{removal(test['gain_mse_um2'], test.get('reference_mse_um2'))} of mean square with each block's level "
+        f"anchored at its last training cycle, "
+        f"{removal(test['gain_trend_mse_um2'], test.get('reference_trend_mse_um2'))} at its training mean; "
+        f"against σ² = {fmt_nm2(noise**2)})"
     )
+
+
+def removal(drop_um2: float, whole_um2: float | None) -> str:
+    """A held-out mean-square drop (µm²) as a part of its reference's held-out mean square ``whole_um2``
+    at the same anchoring ("removed 10300 nm² of the reference's 12600 nm²"); a negative drop as a rise
+    ("added 50 nm² to the reference's 12600 nm²"); without a whole, the amount alone."""
+    verb, amount = ("added", fmt_nm2(-drop_um2)) if raised(drop_um2) else ("removed", fmt_nm2(drop_um2))
+    if not whole_um2:
+        return f"{verb} {amount}"
+    return f"{verb} {amount} {'to' if verb == 'added' else 'of'} the reference's {fmt_nm2(whole_um2)}"
 
 
 def p_words(p: float, segments: int, at: str = "") -> str:

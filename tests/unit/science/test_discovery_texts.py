@@ -171,3 +171,12 @@ def test_candidates_in_rank_order_and_the_answer_is_the_verdicts(diagnoses, sour
 def clauses(text: str) -> set[str]:
     """A text's clauses of 30 characters or more (split at sentence ends, semicolons and colons)."""
     return {c.strip() for c in re.split(r"(?<=[.;:])\s+", text) if len(c.strip()) >= 30}
+
+
+def test_the_scanner_reads_a_removal_against_its_reference():
+    """A drop is printed with the reference's own held-out mean square at its anchoring (a walk read
+    "10300 nm² removed" beside a reference of 92.2 nm held out, 8500 nm²: that RMS is of levels not
+    anchored, the drop's whole is not); the scanner checks that form."""
+    assert part_whole_problems("removed 10300 nm² of the reference's 8500 nm² at its training mean")
+    assert not part_whole_problems("removed 10300 nm² of the reference's 12600 nm² at its training mean")
+    assert not part_whole_problems("its size, the rank's figure: 10300 nm² of the 12600 nm² held-out mean square of")
