@@ -4,7 +4,8 @@ The decisions are the science loop's (service.science.discovery.loop: ``discover
 ``try_step``, ``next_effect``, ``needed_experiment``), so the job reaches what ``python -m
 service.reports.discovery`` reaches on the same records. Here only what the report cannot do: each
 fitted step is validated and stored with ``parent_id`` = the previous step; progress (with the
-steps so far) is reported after each; a cancel is honoured between steps; and when the loop needs an
+steps so far) is reported after each; a cancel stops the fit at work at its next solve
+(service.science.interrupt), the steps done kept; and when the loop needs an
 experiment it is run on the bench (service.usecases.discover_experiments: when allowed, the bench
 free, within ``max_experiments``, cut to the bench's limits) and its dataset joins the fit, or the
 job stops and names it (``stopped`` = "needs_experiment"; at an ambiguity ``continue_past_ambiguity``
@@ -40,6 +41,7 @@ from service.science.discovery.loop import (
 )
 from service.science.discovery.rests import LineFree
 from service.science.effects import ordered
+from service.science.interrupt import Interrupted, interruptible
 from service.store import Store
 from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments, recorded_already
 from service.usecases.discover_result import discover_result, fit_label, step_summary, step_words
@@ -72,6 +74,18 @@ def discover(
     loop = _Loop.start(store, model_id, labels)
     # what each step proposes to test is what this bench runs (none for another stage's data)
     loop.fit = policy.fit if policy.elsewhere is None else None
+    try:
+        with interruptible(lambda: ctx.cancelled):  # a cancel lands at the fit's next solve
+            return _run(ctx, store, loop, policy, max_steps, continue_past_ambiguity)
+    except Interrupted:
+        loop.raise_if_cancelled(ctx, during=True)
+        raise
+
+
+def _run(
+    ctx: JobContext, store: Store, loop: _Loop, policy: ExperimentPolicy, max_steps: int, continue_past_ambiguity: bool
+) -> dict:
+    """The loop's decisions, step by step, until a verdict, a stop or ``max_steps``: ``discover``'s result."""
     stopped, reason, needed = "max_steps", f"stopped after max_steps = {max_steps} model steps", None
     d, fresh = loop.step(ctx, store, max_steps), True
     while True:
@@ -155,13 +169,20 @@ class _Loop:
         row = store.get_model(model_id)
         return cls(model_id, row, load_records(store, list(row["datasets"]), row["axis"]), labels)
 
-    def raise_if_cancelled(self, ctx: JobContext) -> None:
-        """JobInterrupted (cancelled, with the result so far) when the job was cancelled."""
+    def raise_if_cancelled(self, ctx: JobContext, during: bool = False) -> None:
+        """JobInterrupted (cancelled, with the result so far) when the job was cancelled; ``during``: a
+        fit of the next step was stopped at a checkpoint (service.science.interrupt), its work dropped."""
         if ctx.cancelled:
+            done = len(self.run["steps"])
+            kept = {0: "no step kept", 1: "step 0 kept"}.get(done, f"steps 0–{done - 1} kept")
             raise JobInterrupted(
-                f"cancelled after step {len(self.run['steps']) - 1}",
+                f"cancelled during step {done}: {kept}" if during else f"cancelled after step {done - 1}",
                 result=discover_result(
-                    self.run, None, "cancelled", "cancelled between steps", self.run.get("final_model")
+                    self.run,
+                    None,
+                    "cancelled",
+                    f"cancelled while fitting step {done}; {kept}" if during else "cancelled between steps",
+                    self.run.get("final_model"),
                 ),
                 cancelled=True,
             )
@@ -249,8 +270,8 @@ class _Loop:
         self.joined = None
         self.history.append((list(self.effects), dict(self.theta)))
         self.fitted[effects_key(self.effects)] = self.model
+        self.run["final_model"] = self.model  # before the scoring, which a cancel may stop
         self._score(ctx)
-        self.run["final_model"] = self.model
         self._progress(ctx, max_steps, step_words(self.run["steps"][-1]), partial=True)
         return d
 

@@ -27,6 +27,7 @@ from service.science.errors import FieldError
 from service.science.fitting.memory import memory_shortfall
 from service.science.fitting.validation import evaluate_record, trained_loops_v
 from service.science.fitting.validation import metrics as sample_metrics
+from service.science.interrupt import Interrupted, interruptible
 from service.store import NotFoundError, Store
 
 
@@ -219,7 +220,11 @@ def identify(
         f"{sum(int(r.training_mask(own_axis_only=True).sum()) for r in records)} training samples",
     )
     with shared_effect_columns():  # the fit, and validation's refits and predictions, share columns
-        estimator.fit(records)
+        try:
+            with interruptible(lambda: ctx.cancelled):  # a cancel lands at the fit's next solve
+                estimator.fit(records)
+        except Interrupted:
+            raise JobInterrupted("cancelled while fitting: nothing stored", cancelled=True) from None
         if ctx.cancelled:
             raise JobInterrupted("cancelled before the model was stored")
         ctx.progress(0.8, "validating on held-out cycles")

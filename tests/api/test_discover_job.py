@@ -222,6 +222,51 @@ def test_a_cancel_between_steps_keeps_the_steps_done(creep, monkeypatch):
     assert newest["id"] == step_1 and newest["made_by"] == {"job_id": job_id, "kind": "discover", "state": "cancelled"}
 
 
+@pytest.mark.parametrize(
+    ("fitting", "kept"),
+    [("step 0: fitting and diagnosing", "no step kept"), ("step 1: fitting hysteresis + ", "step 0 kept")],
+)
+def test_a_cancel_during_a_fit_stops_it_at_its_next_solve(creep, monkeypatch, fitting, kept):
+    """A cancel that lands while a step's models are being fitted stops that fit (a checkpoint at every
+    least-squares solve: service.science.interrupt) instead of waiting for it: that step's model is
+    never stored, and the job says which step it was fitting. A walk's cancel waited 267 s for the fits."""
+    http = creep
+    _, base_id = _fresh_model(http, QUICK_SWEEP)
+    jobs, original = http.app.state.jobs, JobContext.progress
+
+    def cancel_as_the_step_is_fitted(self, fraction, message=None, partial=None):
+        original(self, fraction, message, partial)
+        if message and message.startswith(fitting):
+            jobs.cancel(self.job_id)
+
+    monkeypatch.setattr(JobContext, "progress", cancel_as_the_step_is_fitted)
+    job_id = http.post(f"/api/models/{base_id}/discover", json={"max_steps": 5}).json()["job_id"]
+    job = wait_job(http, job_id, timeout_s=300)
+    assert job["state"] == "cancelled", job
+    step = int(fitting.split(":")[0].split()[1])
+    assert len(job["result"]["steps"]) == step and job["result"]["stopped"] == "cancelled"
+    assert job["result"]["stop_reason"] == f"cancelled while fitting step {step}; {kept}", job["result"]
+    assert {m["id"] for m in http.get("/api/models").json()} == {base_id}  # the stopped fit stored nothing
+
+
+def test_a_cancel_during_an_identification_stops_its_fit(creep, monkeypatch):
+    """POST /api/models: a cancel read as the fit starts stops it at its first solve, nothing stored."""
+    http = creep
+    dataset_id, base_id = _fresh_model(http, QUICK_SWEEP)
+    jobs, original = http.app.state.jobs, JobContext.progress
+
+    def cancel_as_the_fit_starts(self, fraction, message=None, partial=None):
+        original(self, fraction, message, partial)
+        if message and message.startswith("fitting "):
+            jobs.cancel(self.job_id)
+
+    monkeypatch.setattr(JobContext, "progress", cancel_as_the_fit_starts)
+    body = {"axis": "y", "datasets": [dataset_id], "effects": ["hysteresis", "creep", "rate_dependence"]}
+    job = wait_job(http, http.post("/api/models", json=body).json()["job_id"], timeout_s=300)
+    assert job["state"] == "cancelled" and job["message"] == "cancelled while fitting: nothing stored", job
+    assert {m["id"] for m in http.get("/api/models").json()} == {base_id}
+
+
 @pytest.fixture
 def delay(tmp_path):
     warnings.simplefilter("ignore")

@@ -15,6 +15,8 @@ from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dgeqrf
 from scipy.optimize import least_squares, lsq_linear
 
+from service.science.interrupt import checkpoint
+
 
 @dataclass(frozen=True)
 class Block:
@@ -180,8 +182,10 @@ def solve_blocks(blocks: Sequence[Block], target, row_weights=None) -> LsqSoluti
     when ill-conditioned; read in place, record by record) and BVLS solves the small
     problem, damped by DAMPING per unit column (directions no record determines keep weights
     near 0). All-zero columns get the in-bounds value nearest 0. ``row_weights``
-    (optional, n_samples) multiplies each residual sample; the residual is unweighted.
+    (optional, n_samples) multiplies each residual sample; the residual is unweighted. A
+    checkpoint (service.science.interrupt): a cancelled owner's fit stops here.
     """
+    checkpoint()
     b = np.asarray(target, dtype=float)
     parts = _aligned_parts(blocks, b.size)
     lower = np.concatenate([blk.lower for blk in blocks])

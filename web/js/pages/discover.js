@@ -31,7 +31,7 @@ export function renderDiscover(el, model, { signal, imported = false, onModels =
         ${experiments}
         <label class="check" title="Without it the loop stops where two look-alike effects explain the data equally well, and names the sweep that tells them apart"><input type="checkbox" name="continue_past_ambiguity"> ${CHECKBOXES.continue_past_ambiguity}</label>
         <button class="primary" type="submit" id="discover-start">Discover from ${esc(model.id)}</button>
-        <button type="button" id="discover-cancel" hidden title="the run stops after the step it is fitting; the steps done are kept">Cancel the run</button>
+        <button type="button" id="discover-cancel" hidden title="the fit at work stops at its next solve; the steps done are kept">Cancel the run</button>
       </form>
       <div id="discover-job"></div>
       <div id="discover-run"></div>
@@ -125,14 +125,14 @@ async function discover(box, model, state, { signal, imported, onModels, figures
 }
 
 /** The Cancel button beside a running discover job `job` (DELETE /api/jobs/{id}): the run stops after
- *  the step it is fitting, its steps kept (a walk found no way to stop a run from the page). */
+ *  the fit at work's next solve, its steps done kept (a walk found no way to stop a run from the page). */
 function offerCancel(cancel, job) {
   cancel.hidden = !['queued', 'running'].includes(job.state);
   cancel.onclick = async () => {
     cancel.disabled = true;
     try {
       await api(`/jobs/${encodeURIComponent(job.id)}`, { method: 'DELETE' });
-      cancel.textContent = 'Cancel requested: the run stops after the step it is fitting';
+      cancel.textContent = 'Cancel requested: the fit at work stops at its next solve; the steps done are kept';
     } catch (e) {
       cancel.disabled = false;
       showError(cancel.parentElement.appendChild(document.createElement('p')), e, 'Cancel failed: ');
