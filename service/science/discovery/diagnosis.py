@@ -59,6 +59,7 @@ from service.science.discovery.verdict import (
     verdict_text,
     worst_repeatable_to_noise,
 )
+from service.science.discovery.wider_base import judge_on_wider_base
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
 
@@ -299,8 +300,10 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     at_rest = {n for n, e in EFFECTS.items() if e.seen_at_rest} if rests and rests["lines"] else set()
     size_claims(candidates, at_rest)  # one comparable size for every claim: ranking.py
     candidates.sort(key=rank_key)
-    physical = [c for c in candidates if c["kind"] == "physical"]
-    missing = bool(physical) and physical[0]["claimed"]
+    physical, missing, first = _claims(candidates, noise)
+    if first is not None and judge_on_wider_base(candidates, judged, first["effect"], alpha):
+        candidates.sort(key=rank_key)  # a claim the wider base does not confirm is no longer one
+        physical, missing, first = _claims(candidates, noise)
     repeatable = floor["repeatable_rms_um"]
     ratio = worst_repeatable_to_noise(floor["per_block"])
     # Both: every block's repeatable part within 2σ of its own noise, and the held-out residual
@@ -314,9 +317,6 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
     at_floor = at_floor and not any(c["kind"] == "capacity" and c["claimed"] for c in candidates)
     worst = failures(records, res)
     remainder = None if at_floor else describe_remainder(records, res, preds, noise)
-    first = capacity_before_physics(
-        {"verdict": "missing_effect" if missing else "complete", "noise_floor_um": noise, "candidates": candidates}
-    )
     between = ambiguity(physical, records, noise) or _leading(shape_ambiguity, physical)
     answer = diagnosis_answer(
         [c for c in physical if c["claimed"]],
@@ -360,6 +360,19 @@ def diagnose_line_free(line_free: LineFree, model: CompositeModel) -> dict:
         "noise": floor,
         "metrics": ev,
     }
+
+
+def _claims(candidates: list[dict], noise: float) -> tuple[list[dict], bool, dict | None]:
+    """Of ranked ``candidates``: the physical rows, whether the top one is claimed (an effect is
+    missing), and the capacity the loop adds before the physics (base_capacity.py), or None."""
+    physical = [c for c in candidates if c["kind"] == "physical"]
+    missing = bool(physical) and physical[0]["claimed"]
+    verdict = "missing_effect" if missing else "complete"
+    return (
+        physical,
+        missing,
+        capacity_before_physics({"verdict": verdict, "noise_floor_um": noise, "candidates": candidates}),
+    )
 
 
 def _leading(pair_ambiguity: dict | None, physical: list[dict]) -> dict | None:

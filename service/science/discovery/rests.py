@@ -347,8 +347,9 @@ def _stretch_median_noise(left: list[np.ndarray], rests: list[_Rests], q: int) -
 
 def disturbance(rests: dict | None) -> dict | None:
     """The disturbance the rests show, for the diagnosis (None without lines): its lines (frequency Hz,
-    amplitude µm, mains or not, z, sentence), the rests read (s), the RMS at rest with and without
-    the lines (µm), and a sentence."""
+    amplitude µm, mains or not, z, sentence), the rests read (s), the RMS at rest over every rest with
+    the lines and the noise floor (the median rest stretch without them, µm: two measures, named as
+    such, so that a stretch still ringing after a sweep reads as what it is), and a sentence."""
     if not rests or not rests["lines"]:
         return None
     lines = [{k: v for k, v in line.items() if k != "coefficients"} for line in rests["lines"]]
@@ -361,7 +362,8 @@ def disturbance(rests: dict | None) -> dict | None:
         "removed": True,
         "text": (
             f"{named} {'are' if len(lines) > 1 else 'is'} on the gauge at rest ({rests['seconds']:.3g} s of rests: "
-            f"{fmt_nm(rests['rms_um'])} RMS there, {fmt_nm(rests['noise_um'])} without {'them' if len(lines) > 1 else 'it'})"
+            f"{fmt_nm(rests['rms_um'])} RMS over them all, {fmt_nm(rests['noise_um'])} in the median rest without "
+            f"{'them' if len(lines) > 1 else 'it'}, the noise floor)"
             f": a disturbance, not the model — "
             + (
                 "mains pickup on the gauge or the amplifier"

@@ -1,0 +1,61 @@
+"""Physical claims judged again on the wider base, within the diagnosis that made them (issue 38 §4).
+
+Where the base cannot draw the stage's loop (a PI on a Preisach, Krasnosel'skii–Pokrovskii or
+Jiles–Atherton stack), the capacity that draws it comes first (base_capacity.py), and the physical
+candidates were claimed against a reference that leaves the base's misfit, 10–90× the noise: part of
+that misfit is drawn by any candidate's columns. A clean Preisach stage had rate dependence claimed
+(27 nm² over the model + operators + asymmetry) although the capacity alone reached the noise floor
+(62.9 → 1.01 nm at 1 nm of noise), and 14 of 120 clean-stage diagnoses claimed physics so. The next
+step of the loop judged them again on the wider base; the diagnosis's own table did not.
+
+Here each claimed physical candidate is tested again by the same claim rule (the diagnosis's alpha,
+NOISE_MULTIPLE·σ²) against its reference + that capacity: the claim stands only where it still lowers
+the held-out error there, and its evidence says which way the test went. A disturbance seen at rest
+is not judged on a model and is left as it is.
+"""
+
+from __future__ import annotations
+
+from service.science.data.units import fmt_nm
+from service.science.discovery.candidate_rows import Judged
+from service.science.discovery.decision import claimed, held_out_improvement, less_gain_change
+from service.science.discovery.verdict import test_words
+from service.science.effects import EFFECTS
+
+
+def judge_on_wider_base(candidates: list[dict], judged: Judged, capacity: str, alpha: float) -> list[str]:
+    """Test every claimed physical row of ``candidates`` again against its reference + ``capacity`` (the
+    capacity the loop adds before the physics); a row that no longer passes the claim rule is no longer
+    claimed. Each row's evidence gets the test's figures. Returns the effects no longer claimed."""
+    fits, records, noise = judged.fits, judged.records, judged.noise
+    dropped = []
+    for c in candidates:
+        name = c["effect"]
+        if not c["claimed"] or c["kind"] != "physical" or EFFECTS[name].seen_at_rest:
+            continue
+        eff = EFFECTS[name]
+        wider = tuple(c["reference"]) + (capacity,)
+        theta = fits.get((name,))[0].theta if eff.stage in ("transform", "drive") else None
+        _, res_ref, v_ref = fits.get(wider)
+        _, res_trial, v_trial = fits.get(wider + (name,), theta)
+        if eff.gain_change_test:
+            res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
+        test = held_out_improvement(records, res_ref, res_trial)
+        stands = claimed(test, noise, alpha)
+        against = "the model + " + " + ".join(wider)
+        words = (
+            f" Judged again on the wider base, {against} ({capacity} draws the loop this model cannot; held-out "
+            f"RMS {fmt_nm(v_ref)}): adding {name} gives {fmt_nm(v_trial)} {test_words(test, noise)}: "
+        )
+        if stands:
+            words += "it still lowers the held-out error there, so the claim stands."
+        else:
+            words += (
+                f"it does not pass the claim rule there: what it fitted over the narrower reference was the "
+                f"loop shape {capacity} draws, not claimed."
+            )
+            c.update(claimed=False, high=False, significant=False)
+            dropped.append(name)
+        c["evidence"] = c["evidence"] + words
+        c["wider_base"] = {"capacity": capacity, "p": test["p"], "stands": stands, "reference_rms_um": v_ref}
+    return dropped

@@ -1,0 +1,51 @@
+"""Issue 38 §4: where the base cannot draw a stage's loop and its capacity comes first, a physical
+claim stands only if it still passes the claim rule against its reference + that capacity, judged in
+the same diagnosis (service.science.discovery.wider_base). Stages built without the product's code
+(tests/support/disturbed_stages.py and hysteresis_worlds.py), 5 kHz.
+
+Before, clean stages claimed physics here: a Gaussian Preisach plane `rate_dependence` (27 nm² over
+the model + operators + asymmetry, one CSV per block, 1 and 3 nm of noise), a Krasnosel'skii–
+Pokrovskii stack `rate_dependence` or `sensor_nonlinearity` — 14 of 120 clean diagnoses.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+
+from service.science.discovery.diagnosis import diagnose
+from tests.support import disturbed_stages, hysteresis_worlds
+
+FS = 5000.0  # Hz
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+@pytest.mark.parametrize(
+    ("world", "form", "wrongly"),
+    [
+        ("preisach_gauss", "blocks", "rate_dependence"),
+        ("krasnoselskii_pokrovskii", "long", "sensor_nonlinearity"),
+    ],
+)
+def test_a_clean_stage_the_base_cannot_draw_claims_no_physics(world, form, wrongly):
+    d = diagnose(disturbed_stages.records(world, "clean", form, 0.001, 0, FS))
+    assert [c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"]] == []
+    assert d["verdict"] == "complete" and d["answer"]["kind"] == "capacity"  # grow the base: no physics
+    row = next(c for c in d["candidates"] if c["effect"] == wrongly)
+    assert row["wider_base"]["stands"] is False and "Judged again on the wider base" in row["evidence"]
+    assert row["evidence"].endswith("not claimed.")
+
+
+def test_a_hidden_effect_is_still_claimed_and_named_first_on_such_a_stage():
+    """Creep behind a Preisach plane, one CSV per block, 2 nm: named and claimed at the first diagnosis."""
+    d = diagnose(hysteresis_worlds.records("preisach_gauss", "blocks", 0.002, hidden="creep", fs=FS))
+    physical = [c for c in d["candidates"] if c["kind"] == "physical"]
+    assert physical[0]["effect"] == "creep" and physical[0]["claimed"]
+    assert physical[0].get("wider_base", {"stands": True})["stands"]
