@@ -31,10 +31,10 @@ export function renderLabels(el, kind, record, { signal, onSaved = () => {} } = 
     let updated;
     try {
       updated = await api(`/${kind}/${encodeURIComponent(record.id)}`, { method: 'PATCH', body, signal });
-      status.textContent = 'saved';
     } catch (err) { showError(status, err, 'Not saved: '); return; }
     try {
       await onSaved(updated);  // awaited, so that a refresh cut short by leaving the page is not uncaught
+      status.textContent = 'saved';  // once the page shows the new labels too (a loaded test read the old list)
     } catch (err) { showError(status, err, 'Saved; the page did not refresh: '); }
   });
   return box;

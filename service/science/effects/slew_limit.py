@@ -73,7 +73,9 @@ class SlewLimit(Effect):
         "the error appears only where the drive's rate is highest (the fastest block's steepest parts) and "
         "lags there by more than any delay: the amplifier cannot deliver the current to follow the drive"
     )
-    units = {"slew_kv_per_s": "kV/s"}  # one unit per quantity: the bench page's and the evidence's
+    #: the stored parameter (V/s) and the one the user reads (kV/s, the bench page's and the evidence's unit:
+    #: ``parameters`` reports it alone)
+    units = {"slew_v_per_s": "V/s", "slew_kv_per_s": "kV/s"}
     rule = (
         "a drive whose fastest rate exceeds the limit, beside blocks that stay under it: the error appears above "
         "a rate, not in proportion to the frequency; on a bench whose amplifier rating is known, the fastest rate "
