@@ -111,7 +111,7 @@ def _run(
             if swapped is not None:
                 d, fresh = swapped, True
                 continue
-            stopped, reason = _natural_stop(d), d["answer"]["text"] + loop.not_kept_words()
+            stopped, reason = _natural_stop(d), d["answer"]["text"] + loop.not_kept_words() + _guess_words(needed)
             break
         if loop.model_steps >= max_steps:
             break
@@ -386,6 +386,19 @@ def _stop_without_experiment(d: dict, need: dict, add: str | None, why: str, go_
         f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
         f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
         f"claim) and go on"
+    )
+
+
+def _guess_words(needed: dict | None) -> str:
+    """At a natural stop after the loop went on past an ambiguity (``needed``: its experiment, not run),
+    that a step rests on a guess and what settles it ("" otherwise): a walk read "Nothing is missing"
+    above "The experiment it needs" with nothing joining the two."""
+    if not needed or len(needed["effects"]) != 2:
+        return ""
+    added, other = needed["effects"]
+    return (
+        f" One step rests on a guess: {added} was added where the data could not tell it from {other}; "
+        "the experiment below settles which of the two the stage has."
     )
 
 

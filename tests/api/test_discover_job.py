@@ -295,6 +295,11 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     assert went_on["steps"][0]["ambiguous"] == first["effects"] and "allow_experiments" in first["not_run_because"]
     assert went_on["steps"][1]["added"] in first["effects"] and went_on["experiments"] == []
     assert went_on["final_model_id"] != base_id and went_on["needed_experiment"] is not None
+    if went_on["stopped"] in ("at_noise_floor", "complete"):  # a verdict that rests on the guess says so
+        assert (
+            f"One step rests on a guess: {went_on['needed_experiment']['effects'][0]} was added"
+            in went_on["stop_reason"]
+        )
     assert "POST /api/sweeps" in discovery_text(went_on)
     need = first
     # with no experiment left to run it stops as without allow_experiments, and says why
@@ -463,3 +468,14 @@ def _imported_blocks(http, tmp_path, world: str, seed: int, fs_hz: float = 5000.
         assert answer.status_code == 201, answer.text
         datasets.append(answer.json()["id"])
     return datasets
+
+
+def test_a_natural_stop_after_a_guess_says_which_step_rests_on_it():
+    from service.usecases.discover_run import _guess_words
+
+    need = {"effects": ["asymmetry", "sensor_nonlinearity"], "experiment": {"waveform": "sine"}}
+    assert _guess_words(need) == (
+        " One step rests on a guess: asymmetry was added where the data could not tell it from "
+        "sensor_nonlinearity; the experiment below settles which of the two the stage has."
+    )
+    assert _guess_words(None) == "" and _guess_words({"effects": ["temperature"]}) == ""

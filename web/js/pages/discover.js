@@ -182,7 +182,7 @@ function renderRun(out, r, { signal, imported }) {
     ${rem ? `<h3>What remains</h3><p id="discover-remains" data-ratio="${rem.ratio_to_noise_floor ?? ''}">Held-out RMS <b>${fmtErrorNm(rem.validation_rms_um)}</b>
       against a noise floor of ${fmtErrorNm(rem.noise_floor_um)}: ${ratio(rem.ratio_to_noise_floor)}${rem.at_noise_floor ? ', at the noise floor' : ''}.
       <span class="muted">${esc(rem.verdict_text || '')}</span></p>` : ''}
-    ${suggested.length ? `<h3>${r.needed_experiment ? 'The experiment it needs' : 'Experiments it suggested'}</h3><ul id="discover-experiments">
+    ${suggested.length ? `<h3>${!r.needed_experiment ? 'Experiments it suggested' : r.stopped === 'needs_experiment' ? 'The experiment it needs' : 'The experiment that settles its guess'}</h3><ul id="discover-experiments">
       ${suggested.map((x, i) => `<li data-effects="${esc(x.effects.join(','))}">after step ${x.after_step}: ${pageWords(x.reason || '')}
         ${imported ? `<span class="muted">Run this sweep on the stage that recorded the data, then import the record and refine with it:</span>`
           : `<span class="muted">(not run: ${pageWords(x.not_run_because || '')})</span>`}
