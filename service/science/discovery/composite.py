@@ -40,7 +40,7 @@ from service.science.models.contract import Drive, split_stored
 #: what an identification of a composite holds out (the stored metrics say it in words)
 HELD_OUT_NOTE = (
     "last ceil(20 %) of the full cycles of every block; means are over blocks. "
-    "held_out_frequencies: each frequency left out of the fit in turn"
+    "The held-out-frequency figures: each frequency left out of the fit in turn"
 )
 
 

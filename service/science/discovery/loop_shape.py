@@ -138,6 +138,8 @@ def loop_shape_pair(judged: Judged, alpha: float) -> tuple[list[dict], dict | No
         )
         for name in LOOP_SHAPE
     ]
+    for row in rows:  # the pair's own figures, each fitted with the model: what a separation compares
+        row["head_to_head_rms_um"] = v_a if row["effect"] == "asymmetry" else v_s
     if separated or not lowers:
         return rows, None
     other = next(n for n in LOOP_SHAPE if n != winner)

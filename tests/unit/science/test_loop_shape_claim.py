@@ -49,3 +49,9 @@ def test_a_loop_shape_winner_that_raises_the_held_out_error_is_not_claimed():
     winner = min(pair, key=lambda row: row["gain_mse_um2"] if row["gain_mse_um2"] < 0 else np.inf)
     assert winner["gain_mse_um2"] < 0 and "neither is claimed" in winner["evidence"]
     assert d["verdict"] == "complete" and d["ambiguity"] is None
+    # each row carries its own head-to-head figure, the one its evidence prints and a separation compares
+    # (the loser's "added" figure is the model's own: a walk read 158 nm against 205 nm, not 170 nm)
+    from service.science.data.units import fmt_nm
+
+    for row, says in zip(pair, ("the stack's asymmetry leaves", "the gauge's curvature")):
+        assert f"{says} {fmt_nm(row['head_to_head_rms_um'])}" in row["evidence"], row["evidence"]

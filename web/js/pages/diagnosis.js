@@ -39,7 +39,13 @@ const score = (d, effect) => candidate(d, effect).score;
 /** A candidate's score, labelled where it is 1 because it is capped (its test's drop exceeds the whole). */
 const scoreHtml = (c) => `${fmt(c.score, 3)}${c.score_capped ? ` <span class="capped" title="its test removed more than this
   model's excess above the noise floor, a whole of another fit: the score is capped at 1">(capped)</span>` : ''}`;
-const heldOutNm = (d, effect) => (candidate(d, effect).expected_rms_um ?? NaN) * 1e3;
+/** The held-out RMS (nm) of the model with `effect`: for the loop-shape pair, its head-to-head fit (the
+ *  loser is not fitted into the model, and its "added" figure is the model's own: a walk read "158 nm
+ *  against 205 nm" where the head to head said 158 against 170), else what adding it gives. */
+const heldOutNm = (d, effect) => {
+  const c = candidate(d, effect);
+  return (c.head_to_head_rms_um ?? c.expected_rms_um ?? NaN) * 1e3;
+};
 
 /** Scores of the two effects before and after the experiment, and what the user should conclude. */
 function separationSummary(before, after, experiment, datasetId) {
