@@ -76,6 +76,11 @@ def test_separate_two_look_alike_effects(page, server):
     # the answer on the first screen is the diagnosis with the experiment's data, not the one before it
     # (a walk read "Missing: asymmetry or sensor_nonlinearity … a guess" above a card that told them apart)
     answer = page.inner_text("#model-answer-text")
+    # ... and it says its figure is on the experiment's data too, beside the stored model's own
+    stored_nm = server["api"].get(f"/models/{model_id}").json()["metrics"]["validation_rms_um"] * 1e3
+    assert new_id in page.inner_text("#model-answer-extra") and f"{stored_nm:.4g} nm" in page.inner_text(
+        "#model-answer-extra"
+    )
     assert f"or {b}" not in answer and f"or {a}" not in answer and "a guess" not in answer, answer
     assert page.get_attribute("#model-answer-text", "data-effect") == page.get_attribute(
         "#candidates tr.best", "data-effect"

@@ -112,7 +112,7 @@ function groupRow(candidates, i) {
  */
 export function renderDiagnosis(box, model, d, opts) {
   const { canRefine, onAdd, jobBox, extra = [], before = null, experiment = null, datasetId = null, onDiagnosis = null } = opts;
-  if (onDiagnosis) onDiagnosis(d);   // the page's answer reads the diagnosis shown here, never an older one
+  if (onDiagnosis) onDiagnosis(d, extra);   // the page's answer reads the diagnosis shown here, never an older one
   const verdictClass = d.verdict === 'complete' ? 'ok' : 'warn';
   const candidates = (d.candidates || []).filter((c) => c.testable !== false);
   const named = d.answer ? d.answer.missing : null;       // what the verdict names: the answer's one stored value
