@@ -68,3 +68,16 @@ def test_a_separating_sweep_already_in_the_data_is_not_proposed_again():
     # fewer cycles than it asks for are not that sweep
     short = ambiguity(claimed, [_sweep([1.0, 10.0, 50.0, 100.0, 200.0], 5)], 0.00315)
     assert short["experiment"] is not None
+
+
+def test_a_leading_claim_that_another_claim_would_undercut_added_alone_says_why_it_leads():
+    """A walk read "adding asymmetry, the leading claim, … to about 93.41 nm" beside rate_dependence's
+    90.75 nm added alone, with nothing saying why; the answer now says what the claims rank by."""
+    from service.science.discovery.answer import diagnosis_answer
+
+    lead = {"effect": "asymmetry", "expected_rms_um": 0.09341}
+    lower = {"effect": "rate_dependence", "expected_rms_um": 0.09075}
+    higher = {"effect": "dynamics", "expected_rms_um": 0.120}
+    text = diagnosis_answer([lead, higher, lower], [], 0.1473, 0.00315, False, None)["text"]
+    assert "rate_dependence, added alone, would leave less (90.75 nm)" in text and "asymmetry removes the most" in text
+    assert "added alone" not in diagnosis_answer([lead, higher], [], 0.1473, 0.00315, False, None)["text"]
