@@ -72,12 +72,15 @@ def anchored_whole(test: dict, anchor: str) -> float:
     return float(test["reference_trend_mse_um2" if anchor == "training_mean" else "reference_mse_um2"])
 
 
-def score_sentence(score: float, anchor: str) -> str:
+def score_sentence(score: float, anchor: str, capped: bool = False) -> str:
     """Which figure a row's score is, beside the share its evidence prints of adding it (a share of one
-    anchoring, the score of another: "score 0" stood beside "34 % of the excess" with nothing saying so)."""
+    anchoring, the score of another: "score 0" stood beside "34 % of the excess" with nothing saying so);
+    ``capped``: a 1 that is a cap, said so here too (the Discover card shows this sentence alone)."""
     level = "its training mean" if anchor == "training_mean" else "its last training cycle"
+    cap = " (capped: its test removed more than this model's excess above the noise floor)" if capped else ""
     return (
-        f"the score, {score:.3g}, is its own test's share, a fit of its own with each block's level anchored at {level}"
+        f"the score, {score:.3g}{cap}, is its own test's share, a fit of its own with each block's level anchored at "
+        f"{level}"
     )
 
 
@@ -134,7 +137,7 @@ def candidate_row(
         + f"Its test, a fit of its own: {how}"
         + (
             f". Added to this model: {fmt_nm(v0)} → {fmt_nm(v)} ({share_words(removed)} by adding it, levels not "
-            f"anchored; {score_sentence(score, anchor)})"
+            f"anchored; {score_sentence(score, anchor, score_capped(gain, excess))})"
             if v != v0
             else ". Not claimed, so not fitted into this model"
         )

@@ -61,3 +61,12 @@ def test_a_negative_drop_is_worded_as_a_rise_not_a_removal():
     assert share_words(-0.003) == "0 % of the excess above the noise floor"  # not "-0 %"
     assert share_words(-0.2) == "none of the excess above the noise floor removed: the held-out RMS rises"
     assert part_whole_problems(f"Added to this model: 10 nm → 12 nm ({share_words(-0.2)}).") == []
+
+
+def test_a_capped_score_says_so_in_the_evidence_sentence_too():
+    """The Discover card shows the evidence's score sentence alone: a walk read "the score, 1, is its own
+    test's share" for a score the table marked "(capped)"."""
+    from service.science.discovery.candidate_rows import score_sentence
+
+    assert "1 (capped: its test removed more than this model's excess" in score_sentence(1.0, "training_mean", True)
+    assert "capped" not in score_sentence(0.52, "training_mean")
