@@ -40,7 +40,7 @@ from service.science.discovery.loop import (
     try_step,
 )
 from service.science.discovery.rests import LineFree
-from service.science.effects import ordered
+from service.science.effects import EFFECTS, ordered
 from service.science.interrupt import Interrupted, interruptible
 from service.store import Store
 from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments, recorded_already
@@ -211,7 +211,13 @@ class _Loop:
         self.raise_if_cancelled(ctx)
         self.model_steps += 1
         index = len(self.run["steps"])
-        self._progress(ctx, max_steps, f"step {index}: fitting hysteresis + {' + '.join(self.effects + [effect])}")
+        grids = [
+            c["effect"] for c in d["candidates"] if c.get("claimed") and c["effect"] in EFFECTS[effect].alternative_to
+        ]
+        choice = f" or {' or '.join(grids)} (the refits choose the grid)" if grids else ""
+        self._progress(
+            ctx, max_steps, f"step {index}: fitting hysteresis + {' + '.join(self.effects + [effect])}{choice}"
+        )
         effect, fitted = refitted_choice(self.line_free, self.effects, effect, self.n_operators, self.theta, d)
         effects = self.effects + [effect]
         model, step, rejected = try_step(
