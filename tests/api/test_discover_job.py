@@ -200,17 +200,23 @@ def test_one_call_matches_the_report_on_other_benches(tmp_path, bench, first_add
     assert result["remains"]["ratio_to_noise_floor"] < 3
 
 
+def _cancel_on_progress(http, monkeypatch, when) -> None:
+    """Cancel a job of ``http``'s service from within its own progress report, as soon as
+    ``when(message, partial)`` holds: a cancel that lands at a known point of the job."""
+    jobs, original = http.app.state.jobs, JobContext.progress
+
+    def cancelling(self, fraction, message=None, partial=None):
+        original(self, fraction, message, partial)
+        if when(message, partial):
+            jobs.cancel(self.job_id)
+
+    monkeypatch.setattr(JobContext, "progress", cancelling)
+
+
 def test_a_cancel_between_steps_keeps_the_steps_done(creep, monkeypatch):
     http = creep
     _, base_id = _fresh_model(http, QUICK_SWEEP)
-    jobs, original = http.app.state.jobs, JobContext.progress
-
-    def cancel_after_step_1(self, fraction, message=None, partial=None):
-        original(self, fraction, message, partial)
-        if partial is not None and len(partial["steps"]) == 2:
-            jobs.cancel(self.job_id)
-
-    monkeypatch.setattr(JobContext, "progress", cancel_after_step_1)
+    _cancel_on_progress(http, monkeypatch, lambda message, partial: partial is not None and len(partial["steps"]) == 2)
     job_id = http.post(f"/api/models/{base_id}/discover", json={"max_steps": 5}).json()["job_id"]
     job = wait_job(http, job_id, timeout_s=300)
     assert job["state"] == "cancelled", job
@@ -232,14 +238,7 @@ def test_a_cancel_during_a_fit_stops_it_at_its_next_solve(creep, monkeypatch, fi
     never stored, and the job says which step it was fitting. A walk's cancel waited 267 s for the fits."""
     http = creep
     _, base_id = _fresh_model(http, QUICK_SWEEP)
-    jobs, original = http.app.state.jobs, JobContext.progress
-
-    def cancel_as_the_step_is_fitted(self, fraction, message=None, partial=None):
-        original(self, fraction, message, partial)
-        if message and message.startswith(fitting):
-            jobs.cancel(self.job_id)
-
-    monkeypatch.setattr(JobContext, "progress", cancel_as_the_step_is_fitted)
+    _cancel_on_progress(http, monkeypatch, lambda message, partial: bool(message and message.startswith(fitting)))
     job_id = http.post(f"/api/models/{base_id}/discover", json={"max_steps": 5}).json()["job_id"]
     job = wait_job(http, job_id, timeout_s=300)
     assert job["state"] == "cancelled", job
@@ -253,14 +252,7 @@ def test_a_cancel_during_an_identification_stops_its_fit(creep, monkeypatch):
     """POST /api/models: a cancel read as the fit starts stops it at its first solve, nothing stored."""
     http = creep
     dataset_id, base_id = _fresh_model(http, QUICK_SWEEP)
-    jobs, original = http.app.state.jobs, JobContext.progress
-
-    def cancel_as_the_fit_starts(self, fraction, message=None, partial=None):
-        original(self, fraction, message, partial)
-        if message and message.startswith("fitting "):
-            jobs.cancel(self.job_id)
-
-    monkeypatch.setattr(JobContext, "progress", cancel_as_the_fit_starts)
+    _cancel_on_progress(http, monkeypatch, lambda message, partial: bool(message and message.startswith("fitting ")))
     body = {"axis": "y", "datasets": [dataset_id], "effects": ["hysteresis", "creep", "rate_dependence"]}
     job = wait_job(http, http.post("/api/models", json=body).json()["job_id"], timeout_s=300)
     assert job["state"] == "cancelled" and job["message"] == "cancelled while fitting: nothing stored", job

@@ -10,21 +10,13 @@ Pokrovskii stack `rate_dependence` or `sensor_nonlinearity` — 14 of 120 clean 
 
 from __future__ import annotations
 
-import warnings
-
 import pytest
 
 from service.science.discovery.diagnosis import diagnose
 from tests.support import disturbed_stages, hysteresis_worlds
 
 FS = 5000.0  # Hz
-
-
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
+pytestmark = pytest.mark.filterwarnings("ignore")  # the fits' numerical warnings on these stages
 
 
 @pytest.mark.parametrize(
