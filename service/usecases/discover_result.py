@@ -126,3 +126,37 @@ def fit_label(index: int, stands_in: dict | None, effects: list[str]) -> str:
             f"(the {stands_in['kind']}'s own held-out RMS, on its page: {fmt_nm(stands_in['validation_rms_um'], 4)})"
         )
     return "the start model as stored" if index == 0 else "this step's stored model"
+
+
+def stop_without_experiment(d: dict, need: dict, add: str | None, why: str, go_on: bool) -> tuple[str, str] | None:
+    """(stopped, reason) when the loop stops for an experiment it does not run, or None when it goes
+    on (``go_on``: continue_past_ambiguity, or the bench cannot run it — with the leading claimed
+    effect, the step and the result naming the sweep that would tell the pair apart)."""
+    if add is None:  # done as far as the data goes; the experiment would test more
+        return natural_stop(d), f"{d['answer']['text']} An experiment would test {', '.join(need['effects'])}: {why}"
+    if go_on:
+        return None
+    # ``need`` is the ambiguity (stops_at_ambiguity's answer)
+    return "needs_experiment", (
+        f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
+        f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
+        f"claim) and go on"
+    )
+
+
+def guess_words(needed: dict | None) -> str:
+    """At a natural stop after the loop went on past an ambiguity (``needed``: its experiment, not run),
+    that a step rests on a guess and what settles it ("" otherwise): a walk read "Nothing is missing"
+    above "The experiment it needs" with nothing joining the two."""
+    if not needed or len(needed["effects"]) != 2:
+        return ""
+    added, other = needed["effects"]
+    return (
+        f" One step rests on a guess: {added} was added where the data could not tell it from {other}; "
+        "the experiment below settles which of the two the stage has."
+    )
+
+
+def natural_stop(d: dict) -> str:
+    """Why the loop stops when there is nothing left to add: at the noise floor, or complete."""
+    return "at_noise_floor" if d["at_noise_floor"] else "complete"

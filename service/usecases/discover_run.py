@@ -44,7 +44,15 @@ from service.science.effects import EFFECTS, ordered
 from service.science.interrupt import Interrupted, interruptible
 from service.store import Store
 from service.usecases.discover_experiments import MAX_EXPERIMENTS, ExperimentPolicy, fit_experiments, recorded_already
-from service.usecases.discover_result import discover_result, fit_label, step_summary, step_words
+from service.usecases.discover_result import (
+    discover_result,
+    fit_label,
+    guess_words,
+    natural_stop,
+    step_summary,
+    step_words,
+    stop_without_experiment,
+)
 from service.usecases.identify import load_model, load_record, load_records, store_model
 
 
@@ -98,7 +106,7 @@ def _run(
                 d, fresh = loop.step(ctx, store, max_steps), True
                 continue
             needed = needed if skipped else need
-            stop = _stop_without_experiment(d, need, add, why, continue_past_ambiguity or skipped)
+            stop = stop_without_experiment(d, need, add, why, continue_past_ambiguity or skipped)
             swapped = loop.try_swap(ctx, store, d, max_steps) if stop is not None and add is None else None
             if swapped is not None:
                 d, fresh = swapped, True
@@ -111,7 +119,7 @@ def _run(
             if swapped is not None:
                 d, fresh = swapped, True
                 continue
-            stopped, reason = _natural_stop(d), d["answer"]["text"] + loop.not_kept_words() + _guess_words(needed)
+            stopped, reason = natural_stop(d), d["answer"]["text"] + loop.not_kept_words() + guess_words(needed)
             break
         if loop.model_steps >= max_steps:
             break
@@ -377,40 +385,6 @@ def _experiment(
         loop.asked.append(asked)
     loop.run["suggested"].append({**need, "after_step": after, "not_run_because": why, "skipped": skipped})
     return why, skipped
-
-
-def _stop_without_experiment(d: dict, need: dict, add: str | None, why: str, go_on: bool) -> tuple[str, str] | None:
-    """(stopped, reason) when the loop stops for an experiment it does not run, or None when it goes
-    on (``go_on``: continue_past_ambiguity, or the bench cannot run it — with the leading claimed
-    effect, the step and the result naming the sweep that would tell the pair apart)."""
-    if add is None:  # done as far as the data goes; the experiment would test more
-        return _natural_stop(d), f"{d['answer']['text']} An experiment would test {', '.join(need['effects'])}: {why}"
-    if go_on:
-        return None
-    # ``need`` is the ambiguity (stops_at_ambiguity's answer)
-    return "needs_experiment", (
-        f"{need['reason']}. Adding either would be a guess the data cannot back, so the loop "
-        f"stops here: {why}, or with continue_past_ambiguity to add {add} (the leading "
-        f"claim) and go on"
-    )
-
-
-def _guess_words(needed: dict | None) -> str:
-    """At a natural stop after the loop went on past an ambiguity (``needed``: its experiment, not run),
-    that a step rests on a guess and what settles it ("" otherwise): a walk read "Nothing is missing"
-    above "The experiment it needs" with nothing joining the two."""
-    if not needed or len(needed["effects"]) != 2:
-        return ""
-    added, other = needed["effects"]
-    return (
-        f" One step rests on a guess: {added} was added where the data could not tell it from {other}; "
-        "the experiment below settles which of the two the stage has."
-    )
-
-
-def _natural_stop(d: dict) -> str:
-    """Why the loop stops when there is nothing left to add: at the noise floor, or complete."""
-    return "at_noise_floor" if d["at_noise_floor"] else "complete"
 
 
 def _resolved(effects: list[str], d: dict) -> bool:

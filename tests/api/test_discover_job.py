@@ -463,11 +463,11 @@ def _imported_blocks(http, tmp_path, world: str, seed: int, fs_hz: float = 5000.
 
 
 def test_a_natural_stop_after_a_guess_says_which_step_rests_on_it():
-    from service.usecases.discover_run import _guess_words
+    from service.usecases.discover_result import guess_words
 
     need = {"effects": ["asymmetry", "sensor_nonlinearity"], "experiment": {"waveform": "sine"}}
-    assert _guess_words(need) == (
+    assert guess_words(need) == (
         " One step rests on a guess: asymmetry was added where the data could not tell it from "
         "sensor_nonlinearity; the experiment below settles which of the two the stage has."
     )
-    assert _guess_words(None) == "" and _guess_words({"effects": ["temperature"]}) == ""
+    assert guess_words(None) == "" and guess_words({"effects": ["temperature"]}) == ""
