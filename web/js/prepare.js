@@ -34,7 +34,9 @@ function restoreEllipse(form, job) {
   for (const key of ELLIPSE_FIELDS) {
     if (job.params && job.params[key] !== null && job.params[key] !== undefined) form.elements[key].value = job.params[key];
   }
-  form.dispatchEvent(new Event('input'));  // as if typed: what reads the fields (the preset) follows
+  const restored = new Event('input');
+  restored.restored = true;  // not the user's edit (resumePrepare tells the two apart)
+  form.dispatchEvent(restored);  // as if typed: what reads the fields (the preset) follows
 }
 
 /** Put an ended prepare job's outcome in the form: its ellipse, its models and the controller the
@@ -69,9 +71,16 @@ export async function startPrepare(root, body, signal, selectModel) {
 
 /** On entering the page: the newest prepare job, followed while it runs, its outcome put in the form. */
 export async function resumePrepare(root, signal, selectModel) {
+  // the user's edits made while the newest job is fetched or followed win over that job's ellipse and
+  // models (a user who picked a case before it arrived saw the page put the last job's case back)
+  const form = root.querySelector('#traj-form');
+  let edited = false;
+  const mark = (e) => { if (!e.restored) edited = true; };
+  form.addEventListener('input', mark);
+  form.addEventListener('change', mark);
   const [last] = await api('/jobs?kind=prepare&limit=1', { signal });
   if (!last) return;
-  restoreEllipse(root.querySelector('#traj-form'), last);
+  if (!edited) restoreEllipse(form, last);
   const button = root.querySelector('#traj-span-sweep');
   button.disabled = !isTerminal(last);
   // an ended job's models are selected only while they are stored (listed in the form)
@@ -81,8 +90,11 @@ export async function resumePrepare(root, signal, selectModel) {
   try {
     const job = isTerminal(last) ? last : await follow(root.querySelector('#traj-span'), last.id, signal);
     if (isTerminal(last)) renderSteps(root.querySelector('#traj-span').appendChild(h('<ol class="prep-steps"></ol>')), job);
-    apply(root, job, isTerminal(last) ? listed : selectModel);
+    // an ended job's outcome only where the user has not started on the form; a followed one's always
+    if (!edited || !isTerminal(last)) apply(root, job, isTerminal(last) ? listed : selectModel);
   } finally {
     button.disabled = false;
+    form.removeEventListener('input', mark);
+    form.removeEventListener('change', mark);
   }
 }

@@ -11,7 +11,10 @@ step of the loop judged them again on the wider base; the diagnosis's own table 
 Here each claimed physical candidate is tested again by the same claim rule (the diagnosis's alpha,
 NOISE_MULTIPLE·σ²) against its reference + that capacity: the claim stands only where it still lowers
 the held-out error there, and its evidence says which way the test went. A disturbance seen at rest
-is not judged on a model and is left as it is.
+is not judged on a model and is left as it is; neither is the loop-shape pair (a stack's asymmetry, a
+gauge's bow), whose claim is a model-free symmetry test (no point-symmetric loop has an even part):
+the wider base's Preisach plane draws an even part too, so judged there a real asymmetry is taken
+for the base's shape (the emulator's hidden asymmetry and gauge bow went unnamed on four benches).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 from service.science.data.units import fmt_nm
 from service.science.discovery.candidate_rows import Judged
 from service.science.discovery.decision import claimed, held_out_improvement, less_gain_change
+from service.science.discovery.loop_shape import LOOP_SHAPE
 from service.science.discovery.verdict import test_words
 from service.science.effects import EFFECTS
 
@@ -31,7 +35,7 @@ def judge_on_wider_base(candidates: list[dict], judged: Judged, capacity: str, a
     dropped = []
     for c in candidates:
         name = c["effect"]
-        if not c["claimed"] or c["kind"] != "physical" or EFFECTS[name].seen_at_rest:
+        if not c["claimed"] or c["kind"] != "physical" or EFFECTS[name].seen_at_rest or name in LOOP_SHAPE:
             continue
         eff = EFFECTS[name]
         wider = tuple(c["reference"]) + (capacity,)

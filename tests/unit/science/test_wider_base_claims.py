@@ -21,15 +21,16 @@ pytestmark = pytest.mark.filterwarnings("ignore")  # the fits' numerical warning
 
 @pytest.mark.parametrize(
     ("world", "form", "wrongly"),
-    [
-        ("preisach_gauss", "blocks", "rate_dependence"),
-        ("krasnoselskii_pokrovskii", "long", "sensor_nonlinearity"),
-    ],
+    [("preisach_gauss", "blocks", "rate_dependence"), ("jiles_atherton", "long", "gain_change")],
 )
-def test_a_clean_stage_the_base_cannot_draw_claims_no_physics(world, form, wrongly):
+def test_a_clean_stage_the_base_cannot_draw_claims_no_physics_beyond_its_loop_shape(world, form, wrongly):
+    """Only the loop's own shape may be named (both loops have an even part: a Preisach plane with a
+    correlated density, a saturating Jiles–Atherton stack); it is claimed by a model-free test, not on
+    the wider base."""
     d = diagnose(disturbed_stages.records(world, "clean", form, 0.001, 0, FS))
-    assert [c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"]] == []
-    assert d["verdict"] == "complete" and d["answer"]["kind"] == "capacity"  # grow the base: no physics
+    claimed = {c["effect"] for c in d["candidates"] if c["kind"] == "physical" and c["claimed"]}
+    assert claimed <= {"asymmetry", "sensor_nonlinearity"}, claimed
+    assert d["answer"]["kind"] == "capacity"  # grow the base first
     row = next(c for c in d["candidates"] if c["effect"] == wrongly)
     assert row["wider_base"]["stands"] is False and "Judged again on the wider base" in row["evidence"]
     assert row["evidence"].endswith("not claimed.")
