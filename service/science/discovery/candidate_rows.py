@@ -11,7 +11,8 @@ import numpy as np
 
 from service.science.data.units import fmt_nm
 from service.science.discovery.composite import CompositeModel
-from service.science.discovery.verdict import score_capped, score_words, share_words
+from service.science.discovery.decision import held_out_improvement, less_gain_change
+from service.science.discovery.verdict import score_capped, score_words, share_words, test_words
 from service.science.effects import EFFECTS
 from service.science.fitting.validation import evaluate_records
 
@@ -55,6 +56,44 @@ class DiagnosisFits:
             exclude_frequency_hz=frequency_hz,
         ).fit(self.records)
         return [r.x_um - m.predict(r) for r in self.records]
+
+
+@dataclass(frozen=True)
+class EffectTest:
+    """``name`` tested against ``reference`` (effects beside the model) on a diagnosis's fits: the held-out
+    ``test`` (decision.held_out_improvement), the plain residuals of both fits (µm, per record), their
+    held-out RMS (µm), and ``words``: "against … (held-out RMS …), adding … gives … (figures)"."""
+
+    test: dict
+    raw_ref: list
+    raw_trial: list
+    v_ref: float
+    v_trial: float
+    words: str
+
+
+def effect_test(name: str, reference: tuple, judged: Judged) -> EffectTest:
+    """The model + ``reference`` + ``name`` against the model + ``reference``, by the diagnosis's rule: a
+    transform's (or a drive stage's) parameters are those found on the model with it alone; a time effect
+    (``gain_change_test``) is tested on residuals less a gain that changes with time, and its words say so
+    (a walk read two "at its training mean" pairs, 356 of 392 nm² and 347 of 383 nm², in one paragraph:
+    the test's and the size's, which is of the plain residuals)."""
+    fits, records, eff = judged.fits, judged.records, EFFECTS[name]
+    _, raw_ref, v_ref = fits.get(reference)
+    theta = fits.get((name,))[0].theta if eff.stage in ("transform", "drive") else None
+    _, raw_trial, v_trial = fits.get(reference + (name,), theta)
+    res_ref, res_trial = raw_ref, raw_trial
+    beyond = " "
+    if eff.gain_change_test:
+        res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
+        beyond = " — both residuals less a gain that changes linearly with time, fitted on the training rows — "
+    test = held_out_improvement(records, res_ref, res_trial)
+    against = "the model" if not reference else "the model + " + " + ".join(reference)
+    words = (
+        f"against {against} (held-out RMS {fmt_nm(v_ref)}), adding {name} gives {fmt_nm(v_trial)}{beyond}"
+        f"{test_words(test, judged.noise)}"
+    )
+    return EffectTest(test, raw_ref, raw_trial, v_ref, v_trial, words)
 
 
 def claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:

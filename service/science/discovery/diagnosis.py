@@ -33,6 +33,7 @@ from service.science.discovery.candidate_rows import (
     anchored_whole,
     candidate_row,
     claimed_size,
+    effect_test,
 )
 from service.science.discovery.column_memo import shared_effect_columns
 from service.science.discovery.composite import CompositeModel
@@ -40,8 +41,6 @@ from service.science.discovery.decision import (
     NOISE_MULTIPLE,
     candidate_alpha,
     claimed,
-    held_out_improvement,
-    less_gain_change,
     rule_text,
     unseen_block_improvement,
 )
@@ -55,7 +54,6 @@ from service.science.discovery.verdict import (
     CLEAR_DROP_NOISE,
     helpful_capacity,
     residual_words,
-    test_words,
     verdict_text,
     worst_repeatable_to_noise,
 )
@@ -164,26 +162,8 @@ def _candidate(name, judged: Judged, alpha: float) -> dict:
     fits, records, noise, v0 = judged.fits, judged.records, judged.noise, judged.v0
     eff = EFFECTS[name]
     reference = _reference_for(name)
-    _, raw_ref, v_ref = fits.get(reference)
-    # a transform's (or a drive stage's) parameters are searched once, on the model with it alone, then kept
-    theta = fits.get((name,))[0].theta if eff.stage in ("transform", "drive") else None
-    _, raw_trial, v_trial = fits.get(reference + (name,), theta)
-    res_ref, res_trial = raw_ref, raw_trial
-    if eff.gain_change_test:
-        res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
-    test = held_out_improvement(records, res_ref, res_trial)
-    against = "the model" if not reference else "the model + " + " + ".join(reference)
-    # a time effect is tested beyond a gain change, so its test's figures are not its size's (a walk read
-    # two "at its training mean" pairs, 356 of 392 nm² and 347 of 383 nm², in one paragraph)
-    beyond = (
-        " — both residuals less a gain that changes linearly with time, fitted on the training rows — "
-        if eff.gain_change_test
-        else " "
-    )
-    how = (
-        f"against {against} (held-out RMS {fmt_nm(v_ref)}), adding {name} gives {fmt_nm(v_trial)}{beyond}"
-        f"{test_words(test, noise)}"
-    )
+    tried = effect_test(name, reference, judged)
+    test, how = tried.test, tried.words
     is_claimed = claimed(test, noise, alpha)
     unseen = _unseen_rates(name, fits, records, reference) if is_claimed and eff.unseen_rate_test else None
     if unseen is not None:
@@ -216,7 +196,7 @@ def _candidate(name, judged: Judged, alpha: float) -> dict:
             )
             is_claimed = False
     if is_claimed and eff.kind == "physical":  # one figure for the claim: its size, the rank's (ranking.py)
-        (gain, whole), anchor = claim_size(records, raw_ref, raw_trial), "training_mean"
+        (gain, whole), anchor = claim_size(records, tried.raw_ref, tried.raw_trial), "training_mean"
     else:
         gain, anchor = claimed_size(test, is_claimed)
         whole = anchored_whole(test, anchor)
@@ -227,9 +207,9 @@ def _candidate(name, judged: Judged, alpha: float) -> dict:
         test["p"],
         gain,
         reference,
-        v_ref,
+        tried.v_ref,
         how,
-        v_trial,
+        tried.v_trial,
         anchor=anchor,
         whole_um2=whole,
     )

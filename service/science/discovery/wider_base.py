@@ -19,11 +19,9 @@ for the base's shape (the emulator's hidden asymmetry and gauge bow went unnamed
 
 from __future__ import annotations
 
-from service.science.data.units import fmt_nm
-from service.science.discovery.candidate_rows import Judged
-from service.science.discovery.decision import claimed, held_out_improvement, less_gain_change
+from service.science.discovery.candidate_rows import Judged, effect_test
+from service.science.discovery.decision import claimed
 from service.science.discovery.loop_shape import LOOP_SHAPE
-from service.science.discovery.verdict import test_words
 from service.science.effects import EFFECTS
 
 
@@ -31,26 +29,14 @@ def judge_on_wider_base(candidates: list[dict], judged: Judged, capacity: str, a
     """Test every claimed physical row of ``candidates`` again against its reference + ``capacity`` (the
     capacity the loop adds before the physics); a row that no longer passes the claim rule is no longer
     claimed. Each row's evidence gets the test's figures. Returns the effects no longer claimed."""
-    fits, records, noise = judged.fits, judged.records, judged.noise
     dropped = []
     for c in candidates:
         name = c["effect"]
         if not c["claimed"] or c["kind"] != "physical" or EFFECTS[name].seen_at_rest or name in LOOP_SHAPE:
             continue
-        eff = EFFECTS[name]
-        wider = tuple(c["reference"]) + (capacity,)
-        theta = fits.get((name,))[0].theta if eff.stage in ("transform", "drive") else None
-        _, res_ref, v_ref = fits.get(wider)
-        _, res_trial, v_trial = fits.get(wider + (name,), theta)
-        if eff.gain_change_test:
-            res_ref, res_trial = less_gain_change(records, res_ref), less_gain_change(records, res_trial)
-        test = held_out_improvement(records, res_ref, res_trial)
-        stands = claimed(test, noise, alpha)
-        against = "the model + " + " + ".join(wider)
-        words = (
-            f" Judged again on the wider base, {against} ({capacity} draws the loop this model cannot; held-out "
-            f"RMS {fmt_nm(v_ref)}): adding {name} gives {fmt_nm(v_trial)} {test_words(test, noise)}: "
-        )
+        tried = effect_test(name, tuple(c["reference"]) + (capacity,), judged)
+        stands = claimed(tried.test, judged.noise, alpha)
+        words = f" Judged again on the wider base ({capacity} draws the loop this model cannot): {tried.words}: "
         if stands:
             words += "it still lowers the held-out error there, so the claim stands."
         else:
@@ -61,5 +47,10 @@ def judge_on_wider_base(candidates: list[dict], judged: Judged, capacity: str, a
             c.update(claimed=False, high=False, significant=False)
             dropped.append(name)
         c["evidence"] = c["evidence"] + words
-        c["wider_base"] = {"capacity": capacity, "p": test["p"], "stands": stands, "reference_rms_um": v_ref}
+        c["wider_base"] = {
+            "capacity": capacity,
+            "p": tried.test["p"],
+            "stands": stands,
+            "reference_rms_um": tried.v_ref,
+        }
     return dropped
