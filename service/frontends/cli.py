@@ -61,8 +61,8 @@ GRACEFUL_SHUTDOWN_S = 5.0
 def exit_if_work_is_left(jobs) -> None:
     """After the service's shut-down (the bench closed at 0 V, the store closed, every job ended in
     it): exit now if a job's thread, or a request's worker thread, is still at work — work outside a
-    discover or identify fit sees its cancel only between its steps, and the interpreter would otherwise wait for it at exit, minutes with
-    Ctrl-C seemingly ignored."""
+    discover or identify fit sees its cancel only between its steps, and the interpreter would
+    otherwise wait for it at exit, minutes with Ctrl-C seemingly ignored."""
     job_left = jobs is not None and jobs.job_threads_alive()
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
     if job_left or others:

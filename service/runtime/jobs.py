@@ -292,8 +292,9 @@ class JobManager:
     def shutdown(self, timeout_s: float = SHUTDOWN_WAIT_S) -> list[str]:
         """Stop taking jobs, cancel the queued ones, ask the running ones to stop, and wait for them at
         most ``timeout_s`` (s). A job still running then (a discover or identify fit stops at its next
-        solve, service.science.interrupt; other work sees its cancel only between its steps) is ended in the store as cancelled, SHUTDOWN_LEFT; its thread is left
-        to the process's exit (``serve`` does not wait for it). Returns the ids of the jobs left so."""
+        solve, service.science.interrupt; other work sees its cancel only between its steps) is ended
+        in the store as cancelled, SHUTDOWN_LEFT; its thread is left to the process's exit (``serve``
+        does not wait for it). Returns the ids of the jobs left so."""
         self._closed = True
         deadline = time.monotonic() + timeout_s
         if running := self._unfinished(("running",)):

@@ -287,11 +287,10 @@ def test_an_ambiguity_is_named_and_passed_or_its_experiment_run(delay):
     assert went_on["steps"][0]["ambiguous"] == first["effects"] and "allow_experiments" in first["not_run_because"]
     assert went_on["steps"][1]["added"] in first["effects"] and went_on["experiments"] == []
     assert went_on["final_model_id"] != base_id and went_on["needed_experiment"] is not None
-    if went_on["stopped"] in ("at_noise_floor", "complete"):  # a verdict that rests on the guess says so
-        assert (
-            f"One step rests on a guess: {went_on['needed_experiment']['effects'][0]} was added"
-            in went_on["stop_reason"]
-        )
+    # it ends at the floor, and a verdict that rests on the guess says so
+    assert went_on["stopped"] == "at_noise_floor", went_on["stop_reason"]
+    added = went_on["needed_experiment"]["effects"][0]
+    assert f"One step rests on a guess: {added} was added" in went_on["stop_reason"]
     assert "POST /api/sweeps" in discovery_text(went_on)
     need = first
     # with no experiment left to run it stops as without allow_experiments, and says why

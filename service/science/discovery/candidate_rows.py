@@ -96,19 +96,16 @@ def effect_test(name: str, reference: tuple, judged: Judged) -> EffectTest:
     return EffectTest(test, raw_ref, raw_trial, v_ref, v_trial, words)
 
 
-def claimed_size(test: dict, is_claimed: bool) -> tuple[float, str]:
-    """The held-out mean-square drop (µm²) a row's score and words are of, and its anchoring: a claim
-    rests on the anchoring its p is of (the larger size), so a claim is never printed with the other
-    anchoring's figure (drift was claimed at its training mean with −1.15 nm² and score 0 printed);
-    a candidate not claimed, at the last training cycle, as every row's was."""
+def claimed_size(test: dict, is_claimed: bool) -> tuple[float, str, float | None]:
+    """The held-out mean-square drop (µm²) a row's score and words are of, its anchoring, and the whole
+    it is a part of (the reference's own held-out mean square at that anchoring, µm²; None where the
+    test gives none): a claim rests on the anchoring its p is of (the larger size), so a claim is never
+    printed with the other anchoring's figure (drift was claimed at its training mean with −1.15 nm² and
+    score 0 printed); a candidate not claimed, at the last training cycle, as every row's was."""
     anchor = test["p_anchor"] if is_claimed else "last_cycle"
-    return (test["gain_trend_mse_um2"] if anchor == "training_mean" else test["gain_mse_um2"]), anchor
-
-
-def anchored_whole(test: dict, anchor: str) -> float:
-    """The reference's own held-out mean square (µm²) at ``anchor``: the whole a drop at that anchoring
-    is a part of."""
-    return float(test["reference_trend_mse_um2" if anchor == "training_mean" else "reference_mse_um2"])
+    trend = anchor == "training_mean"
+    drop = test["gain_trend_mse_um2"] if trend else test["gain_mse_um2"]
+    return drop, anchor, test.get("reference_trend_mse_um2" if trend else "reference_mse_um2")
 
 
 def score_sentence(score: float, anchor: str, capped: bool = False) -> str:

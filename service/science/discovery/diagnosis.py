@@ -30,7 +30,6 @@ from service.science.discovery.breakdown import failures, signatures
 from service.science.discovery.candidate_rows import (
     DiagnosisFits,
     Judged,
-    anchored_whole,
     candidate_row,
     claimed_size,
     effect_test,
@@ -198,8 +197,7 @@ def _candidate(name, judged: Judged, alpha: float) -> dict:
     if is_claimed and eff.kind == "physical":  # one figure for the claim: its size, the rank's (ranking.py)
         (gain, whole), anchor = claim_size(records, tried.raw_ref, tried.raw_trial), "training_mean"
     else:
-        gain, anchor = claimed_size(test, is_claimed)
-        whole = anchored_whole(test, anchor)
+        gain, anchor, whole = claimed_size(test, is_claimed)
     return candidate_row(
         name,
         judged,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from service.science.data.units import fmt_nm
 from service.science.discovery.ambiguity import separating
-from service.science.discovery.candidate_rows import Judged, anchored_whole, candidate_row, claimed_size
+from service.science.discovery.candidate_rows import Judged, candidate_row, claimed_size
 from service.science.discovery.decision import NOISE_MULTIPLE, claimed, held_out_improvement
 from service.science.discovery.identifiability import experiment_body
 from service.science.discovery.ranking import claim_size, size_words
@@ -51,8 +51,7 @@ def loop_shape_as_capacity(judged: Judged) -> list[dict]:
             f"shape, offered as capacity and not as physics (p = {test['p']:.2g} against the model itself)"
         )
         is_claimed = claimed(test, 0.0)
-        gain, anchor = claimed_size(test, is_claimed)
-        whole = anchored_whole(test, anchor)
+        gain, anchor, whole = claimed_size(test, is_claimed)
         rows.append(
             candidate_row(
                 name,

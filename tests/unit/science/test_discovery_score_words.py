@@ -34,9 +34,10 @@ def test_a_claim_at_the_training_mean_prints_that_anchorings_figure():
     from service.science.discovery.candidate_rows import claimed_size
 
     test = {"gain_mse_um2": -1.15e-6, "gain_trend_mse_um2": 142e-6, "p": 5.3e-4, "p_anchor": "training_mean"}
-    assert claimed_size(test, True) == (142e-6, "training_mean")
-    assert claimed_size(test, False) == (-1.15e-6, "last_cycle")  # not claimed: as every row's
-    gain, anchor = claimed_size(test, True)
+    test.update(reference_mse_um2=900e-6, reference_trend_mse_um2=1000e-6)
+    assert claimed_size(test, True) == (142e-6, "training_mean", 1000e-6)  # with the whole at its anchoring
+    assert claimed_size(test, False) == (-1.15e-6, "last_cycle", 900e-6)  # not claimed: as every row's
+    gain, anchor, _ = claimed_size(test, True)
     words = score_words(gain, 8280e-6, ("creep",), anchor)
     assert words.startswith("142 nm² of held-out mean square removed by adding it (against the model + creep")
     assert "anchored at its training mean, the anchoring its claim rests on" in words and "−1.15" not in words
